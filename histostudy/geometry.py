@@ -1,0 +1,243 @@
+"""Rigid-body geometry: rotations in every representation the study needs, and 4x4 transforms.
+
+Conventions (DESIGN.md):
+
+- Lengths in millimetres, angles in radians; degrees only in names ending ``_deg``.
+- A rigid transform is a 4x4 float64 array ``T_<to>_<from>``: ``T_carm_transducer @ [p, 1]``
+  maps a point from transducer coordinates into the C-arm (CBCT) frame.
+- Quaternions are scalar-first ``[w, x, y, z]`` with ``w >= 0`` after :func:`quaternion_from_matrix`
+  (the form Daniilidis' hand-eye paper uses). SciPy is scalar-last internally; the conversion
+  happens here and nowhere else.
+- Euler angles carry their convention by name: ``"xyz"`` (lower case) is *extrinsic* (rotations
+  about the fixed axes x, then y, then z), ``"XYZ"`` (upper case) is *intrinsic*; this is SciPy's
+  convention and the one the paper's "Euler angles within [0, 360]" is read with (extrinsic xyz).
+
+SciPy's :class:`~scipy.spatial.transform.Rotation` does the numerical work; this module fixes the
+conventions, validates input with errors that name the argument, and adds the 4x4 layer.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+__all__ = [
+    "RIGID_TOLERANCE",
+    "as_points",
+    "check_rigid",
+    "check_rotation",
+    "compose",
+    "euler_from_matrix",
+    "invert_transform",
+    "make_transform",
+    "matrix_from_euler",
+    "matrix_from_quaternion",
+    "matrix_from_rotvec",
+    "params_from_transform",
+    "quaternion_from_matrix",
+    "random_rotation",
+    "random_transform",
+    "rotation_about_axis",
+    "rotation_angle",
+    "rotvec_from_matrix",
+    "transform_from_params",
+    "transform_points",
+]
+
+#: Largest deviation from orthonormality (and from the bottom row [0, 0, 0, 1]) accepted as rigid.
+RIGID_TOLERANCE = 1e-6
+
+
+def as_points(points_mm, name: str = "points_mm") -> np.ndarray:
+    """Return ``points_mm`` as a float64 ``(n, 3)`` array; a single point ``(3,)`` becomes ``(1, 3)``."""
+    arr = np.asarray(points_mm, dtype=np.float64)
+    if arr.ndim == 1 and arr.shape[0] == 3:
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name} must be an (n, 3) array of points in mm, got shape {arr.shape}")
+    return arr
+
+
+def check_rotation(R, name: str = "R", tol: float = RIGID_TOLERANCE) -> np.ndarray:
+    """Validate a 3x3 rotation matrix (finite, orthonormal, det +1) and return it as float64."""
+    arr = np.asarray(R, dtype=np.float64)
+    if arr.shape != (3, 3):
+        raise ValueError(f"{name} must be a 3x3 rotation matrix, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {arr.tolist()}")
+    err = np.abs(arr @ arr.T - np.eye(3)).max()
+    if err > tol or np.linalg.det(arr) < 0:
+        raise ValueError(
+            f"{name} must be a proper rotation (R @ R.T == I within {tol:g}, det +1); "
+            f"got orthonormality error {err:.3g} and det {np.linalg.det(arr):.6f}"
+        )
+    return arr
+
+
+def check_rigid(T, name: str = "T", tol: float = RIGID_TOLERANCE) -> np.ndarray:
+    """Validate a 4x4 rigid transform and return it as float64.
+
+    Raises ``ValueError`` naming ``name`` when the array is not 4x4, not finite, its rotation
+    block is not a proper rotation, or its bottom row is not ``[0, 0, 0, 1]``.
+    """
+    arr = np.asarray(T, dtype=np.float64)
+    if arr.shape != (4, 4):
+        raise ValueError(f"{name} must be a 4x4 rigid transform, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {arr.tolist()}")
+    if np.abs(arr[3] - [0.0, 0.0, 0.0, 1.0]).max() > tol:
+        raise ValueError(f"{name} must have bottom row [0, 0, 0, 1], got {arr[3].tolist()}")
+    check_rotation(arr[:3, :3], name=f"{name}[:3, :3]", tol=tol)
+    return arr
+
+
+def make_transform(R=None, t_mm=None) -> np.ndarray:
+    """Build a 4x4 rigid transform from a rotation matrix and a translation in mm."""
+    T = np.eye(4)
+    if R is not None:
+        T[:3, :3] = check_rotation(R, "R")
+    if t_mm is not None:
+        t = np.asarray(t_mm, dtype=np.float64).reshape(-1)
+        if t.shape != (3,) or not np.all(np.isfinite(t)):
+            raise ValueError(f"t_mm must be 3 finite numbers, got {t_mm!r}")
+        T[:3, 3] = t
+    return T
+
+
+def invert_transform(T) -> np.ndarray:
+    """Inverse of a rigid transform, exact for rigid input (``R.T, -R.T @ t``)."""
+    T = check_rigid(T, "T")
+    inv = np.eye(4)
+    inv[:3, :3] = T[:3, :3].T
+    inv[:3, 3] = -T[:3, :3].T @ T[:3, 3]
+    return inv
+
+
+def compose(*transforms) -> np.ndarray:
+    """Matrix product of 4x4 transforms, left to right: ``compose(T_a_b, T_b_c) == T_a_c``."""
+    if not transforms:
+        raise ValueError("compose needs at least one transform")
+    out = np.eye(4)
+    for i, T in enumerate(transforms):
+        out = out @ check_rigid(T, f"transforms[{i}]")
+    return out
+
+
+def transform_points(T, points_mm) -> np.ndarray:
+    """Apply a rigid transform to ``(n, 3)`` points in mm; returns ``(n, 3)``."""
+    T = np.asarray(T, dtype=np.float64)
+    if T.shape != (4, 4):
+        raise ValueError(f"T must be a 4x4 transform, got shape {T.shape}")
+    pts = as_points(points_mm)
+    return pts @ T[:3, :3].T + T[:3, 3]
+
+
+def rotation_about_axis(axis, angle_rad: float) -> np.ndarray:
+    """Rotation matrix for a right-handed rotation by ``angle_rad`` about ``axis`` (any length > 0)."""
+    axis = np.asarray(axis, dtype=np.float64).reshape(-1)
+    norm = np.linalg.norm(axis)
+    if axis.shape != (3,) or not np.isfinite(norm) or norm == 0:
+        raise ValueError(f"axis must be a non-zero finite 3-vector, got {axis.tolist()}")
+    return matrix_from_rotvec(axis / norm * float(angle_rad))
+
+
+def matrix_from_rotvec(rotvec) -> np.ndarray:
+    """Rotation matrix from an axis-angle (rotation) vector: direction = axis, norm = angle in rad."""
+    rv = np.asarray(rotvec, dtype=np.float64).reshape(-1)
+    if rv.shape != (3,) or not np.all(np.isfinite(rv)):
+        raise ValueError(f"rotvec must be 3 finite numbers, got {rotvec!r}")
+    return Rotation.from_rotvec(rv).as_matrix()
+
+
+def rotvec_from_matrix(R) -> np.ndarray:
+    """Axis-angle vector (angle in [0, pi]) of a rotation matrix."""
+    return Rotation.from_matrix(check_rotation(R)).as_rotvec()
+
+
+def rotation_angle(R) -> float:
+    """Rotation angle in rad, in [0, pi], of a rotation matrix (e.g. of ``R_est.T @ R_true``)."""
+    R = check_rotation(R)
+    return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def matrix_from_euler(angles_rad, convention: str = "xyz") -> np.ndarray:
+    """Rotation matrix from three Euler angles in rad; ``convention`` as in the module docstring."""
+    _check_euler_convention(convention)
+    ang = np.asarray(angles_rad, dtype=np.float64).reshape(-1)
+    if ang.shape != (3,) or not np.all(np.isfinite(ang)):
+        raise ValueError(f"angles_rad must be 3 finite numbers, got {angles_rad!r}")
+    return Rotation.from_euler(convention, ang).as_matrix()
+
+
+def euler_from_matrix(R, convention: str = "xyz") -> np.ndarray:
+    """Three Euler angles in rad for ``convention`` (SciPy's ranges; gimbal lock warns there)."""
+    _check_euler_convention(convention)
+    return Rotation.from_matrix(check_rotation(R)).as_euler(convention)
+
+
+def _check_euler_convention(convention: str) -> None:
+    ok = (
+        isinstance(convention, str)
+        and len(convention) == 3
+        and (set(convention) <= set("xyz") or set(convention) <= set("XYZ"))
+        and convention[0] != convention[1]
+        and convention[1] != convention[2]
+    )
+    if not ok:
+        raise ValueError(
+            f"convention must be three axis letters, all lower case (extrinsic) or all upper case "
+            f"(intrinsic), no axis twice in a row, e.g. 'xyz' or 'ZYX'; got {convention!r}"
+        )
+
+
+def quaternion_from_matrix(R) -> np.ndarray:
+    """Unit quaternion ``[w, x, y, z]`` with ``w >= 0`` of a rotation matrix."""
+    x, y, z, w = Rotation.from_matrix(check_rotation(R)).as_quat()
+    q = np.array([w, x, y, z])
+    return -q if q[0] < 0 else q
+
+
+def matrix_from_quaternion(q) -> np.ndarray:
+    """Rotation matrix of a quaternion ``[w, x, y, z]`` (normalised here; must be non-zero)."""
+    q = np.asarray(q, dtype=np.float64).reshape(-1)
+    norm = np.linalg.norm(q)
+    if q.shape != (4,) or not np.isfinite(norm) or norm < 1e-12:
+        raise ValueError(f"q must be a non-zero finite quaternion [w, x, y, z], got {q.tolist()}")
+    w, x, y, z = q / norm
+    return Rotation.from_quat([x, y, z, w]).as_matrix()
+
+
+def random_rotation(rng: np.random.Generator) -> np.ndarray:
+    """A rotation drawn uniformly from SO(3) (Haar measure) with the given Generator."""
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+    return Rotation.random(random_state=rng).as_matrix()
+
+
+def random_transform(rng: np.random.Generator, translation_range_mm: float = 100.0) -> np.ndarray:
+    """Uniform random rotation and a translation uniform in ``[-range, range]`` mm per axis."""
+    if not np.isfinite(translation_range_mm) or translation_range_mm < 0:
+        raise ValueError(f"translation_range_mm must be finite and >= 0, got {translation_range_mm!r}")
+    R = random_rotation(rng)
+    t = rng.uniform(-translation_range_mm, translation_range_mm, size=3)
+    return make_transform(R, t)
+
+
+def transform_from_params(params) -> np.ndarray:
+    """4x4 transform from the 6 pose parameters ``[rx, ry, rz, tx, ty, tz]`` (rotvec rad, mm).
+
+    This is the parameterisation the pose refinement (Nelder-Mead, §II-B.3) searches over.
+    """
+    p = np.asarray(params, dtype=np.float64).reshape(-1)
+    if p.shape != (6,) or not np.all(np.isfinite(p)):
+        raise ValueError(f"params must be 6 finite numbers [rotvec (rad), t (mm)], got {params!r}")
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(p[:3]).as_matrix()
+    T[:3, 3] = p[3:]
+    return T
+
+
+def params_from_transform(T) -> np.ndarray:
+    """The 6 pose parameters ``[rotvec (rad), t (mm)]`` of a rigid transform."""
+    T = check_rigid(T, "T")
+    return np.concatenate([Rotation.from_matrix(T[:3, :3]).as_rotvec(), T[:3, 3]])
