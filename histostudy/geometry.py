@@ -28,6 +28,7 @@ __all__ = [
     "check_rotation",
     "compose",
     "euler_from_matrix",
+    "fit_sphere",
     "invert_transform",
     "make_transform",
     "matrix_from_euler",
@@ -241,3 +242,23 @@ def params_from_transform(T) -> np.ndarray:
     """The 6 pose parameters ``[rotvec (rad), t (mm)]`` of a rigid transform."""
     T = check_rigid(T, "T")
     return np.concatenate([Rotation.from_matrix(T[:3, :3]).as_rotvec(), T[:3, 3]])
+
+
+def fit_sphere(points_mm) -> tuple[np.ndarray, float]:
+    """Least-squares sphere through ``(n, 3)`` points: ``(centre_mm, radius_mm)``.
+
+    Solves the linear form ``|p|^2 = 2 c.p + (r^2 - |c|^2)`` (algebraic fit); exact for points on a
+    sphere and a good estimate for noisy ones. Used to measure the transducer cap (§II-B.1) and the
+    treated zone in the post-treatment CBCT (§II-E.3).
+    """
+    pts = as_points(points_mm)
+    if len(pts) < 4:
+        raise ValueError(f"points_mm must hold at least 4 points to fit a sphere, got {len(pts)}")
+    A = np.hstack([2.0 * pts, np.ones((len(pts), 1))])
+    b = np.einsum("ij,ij->i", pts, pts)
+    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    centre = sol[:3]
+    r2 = sol[3] + centre @ centre
+    if not np.isfinite(r2) or r2 <= 0:
+        raise ValueError("points_mm do not determine a sphere (degenerate, e.g. coplanar)")
+    return centre, float(np.sqrt(r2))

@@ -115,3 +115,16 @@ def test_bad_inputs_name_the_argument():
         g.as_points(np.zeros((4, 2)))
     with pytest.raises(ValueError, match="quaternion"):
         g.matrix_from_quaternion([0, 0, 0, 0])
+
+
+def test_fit_sphere_recovers_a_noisy_cap():
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(2000, 3))
+    d[:, 2] = np.abs(d[:, 2]) + 1.0  # a cap, not a whole sphere
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    centre = np.array([3.0, -2.0, 10.0])
+    pts = centre + 138.7 * d + rng.normal(scale=0.05, size=d.shape)
+    c, r = g.fit_sphere(pts)
+    assert np.allclose(c, centre, atol=0.05) and r == pytest.approx(138.7, abs=0.05)
+    with pytest.raises(ValueError, match="at least 4"):
+        g.fit_sphere(pts[:3])
