@@ -1,0 +1,128 @@
+"""Figures the notebooks share: colour-coded label maps (Fig. 5 style) and 3-D scenes (pyvista).
+
+Matplotlib figures are returned, never shown or saved here; the notebook records them through
+:class:`histostudy.report.SectionWriter`. 3-D scenes render off-screen: on a machine without a
+display VTK renders through EGL (``VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow``), set here
+before VTK loads when no ``DISPLAY`` is present.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Sequence
+
+import numpy as np
+
+from .transducer import FEATURE_CLASSES, Feature
+
+__all__ = ["FEATURE_COLOURS", "label_rgb", "model_scene", "plot_frames_with_labels"]
+
+#: RGB colours of the paper's Fig. 5: orange elements, blue outer boundary, purple inner boundary,
+#: green gaps, yellow screws; background black.
+FEATURE_COLOURS = {
+    Feature.BACKGROUND: (0, 0, 0),
+    Feature.TRANSDUCER: (245, 140, 30),
+    Feature.OUTER_BOUNDARY: (40, 110, 240),
+    Feature.INNER_BOUNDARY: (160, 60, 200),
+    Feature.GAPS: (40, 190, 70),
+    Feature.SCREWS: (250, 230, 40),
+}
+
+FEATURE_NAMES = {
+    Feature.BACKGROUND: "background",
+    Feature.TRANSDUCER: "transducer elements",
+    Feature.OUTER_BOUNDARY: "outer boundary",
+    Feature.INNER_BOUNDARY: "inner boundary",
+    Feature.GAPS: "gaps",
+    Feature.SCREWS: "screws",
+}
+
+
+def label_rgb(labels: np.ndarray) -> np.ndarray:
+    """``(rows, cols, 3)`` uint8 colour image of a label map (colours of :data:`FEATURE_COLOURS`)."""
+    labels = np.asarray(labels)
+    lut = np.zeros((256, 3), np.uint8)
+    for k, colour in FEATURE_COLOURS.items():
+        lut[int(k)] = colour
+    return lut[labels.astype(np.uint8)]
+
+
+def _display_range(image: np.ndarray) -> tuple[float, float]:
+    lo, hi = np.percentile(image, [1, 99.5])
+    return float(lo), float(max(hi, lo + 1e-6))
+
+
+def plot_frames_with_labels(frames: Sequence, predictions: Sequence[np.ndarray] | None = None, *,
+                            titles: Sequence[str] | None = None, panel_inches: float = 3.6):
+    """Fig. 5 A-C for each frame (one row per view): the X-ray image (line integrals, dark =
+    attenuating), the reference labels, and the predicted labels (or, without predictions, the
+    reference labels blended over the image)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    n = len(frames)
+    fig, axes = plt.subplots(n, 3, figsize=(3 * panel_inches * 1.3, n * panel_inches), squeeze=False)
+    for i, frame in enumerate(frames):
+        lo, hi = _display_range(frame.image)
+        name = titles[i] if titles else f"plane {frame.view.name}"
+        axes[i, 0].imshow(frame.image, cmap="gray_r", vmin=lo, vmax=hi)
+        axes[i, 0].set_title(f"A) {name}: X-ray (line integrals)")
+        ref = label_rgb(frame.labels) if frame.labels is not None else np.zeros((*frame.shape, 3), np.uint8)
+        axes[i, 1].imshow(ref)
+        axes[i, 1].set_title("B) reference labels")
+        if predictions is not None:
+            axes[i, 2].imshow(label_rgb(predictions[i]))
+            axes[i, 2].set_title("C) segmentation")
+        else:
+            grey = np.clip((frame.image - lo) / (hi - lo), 0, 1)
+            base = np.repeat((255 * (1 - grey))[..., None], 3, axis=2)
+            mask = (frame.labels > 0)[..., None] if frame.labels is not None else False
+            axes[i, 2].imshow(np.where(mask, 0.45 * base + 0.55 * ref, base).astype(np.uint8))
+            axes[i, 2].set_title("C) labels over the image")
+        for ax in axes[i]:
+            ax.set_xticks([])
+            ax.set_yticks([])
+    handles = [Patch(color=np.array(FEATURE_COLOURS[k]) / 255, label=FEATURE_NAMES[k]) for k in FEATURE_CLASSES]
+    fig.legend(handles=handles, loc="lower center", ncol=len(handles), frameon=False)
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    return fig
+
+
+def _prepare_offscreen() -> None:
+    if not os.environ.get("DISPLAY"):
+        os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+
+
+def model_scene(model, *, rng: np.random.Generator, max_points_per_class: int = 60000,
+                window_size: tuple[int, int] = (1000, 760), point_size: float = 2.0,
+                camera_elevation_deg: float = 35.0, camera_azimuth_deg: float = 30.0) -> np.ndarray:
+    """Off-screen pyvista render of a transducer model's points coloured by class; RGB uint8.
+
+    Each class is subsampled (``rng``) to ``max_points_per_class`` so a 0.125 mm model renders in
+    about a second. The focal point is drawn as a red sphere, the axis as a line.
+    """
+    _prepare_offscreen()
+    import pyvista as pv
+
+    plotter = pv.Plotter(off_screen=True, window_size=list(window_size))
+    plotter.set_background("white")
+    for k in FEATURE_CLASSES:
+        pts = model.points[k]
+        if len(pts) == 0:
+            continue
+        if len(pts) > max_points_per_class:
+            pts = pts[rng.choice(len(pts), max_points_per_class, replace=False)]
+        plotter.add_points(pts, color=np.array(FEATURE_COLOURS[k]) / 255, point_size=point_size,
+                           render_points_as_spheres=False, label=FEATURE_NAMES[k])
+    focal = np.asarray(getattr(model, "focal_point_mm", np.zeros(3)), float)
+    plotter.add_mesh(pv.Sphere(radius=3.0, center=focal), color="red", label="focal point")
+    apex = np.array([0.0, 0.0, model.spec.radius_mm])
+    plotter.add_mesh(pv.Line(focal, apex), color="red", line_width=2)
+    plotter.add_legend(bcolor="white", face="circle", size=(0.22, 0.22))
+    plotter.camera_position = "xz"
+    plotter.camera.elevation = camera_elevation_deg
+    plotter.camera.azimuth = camera_azimuth_deg
+    plotter.reset_camera()
+    image = plotter.screenshot(return_img=True)
+    plotter.close()
+    return np.asarray(image, dtype=np.uint8)

@@ -1,0 +1,103 @@
+"""Azimuth/elevation relative to a view, eq. 4 candidates, mirror selection, the oracle."""
+
+import numpy as np
+import pytest
+
+from histostudy.carm import View, default_biplane
+from histostudy.frame import Frame
+from histostudy.geometry import make_transform, random_rotation
+from histostudy.orientation import (
+    OracleOrientation,
+    angles_from_direction,
+    beam_direction_of_pose,
+    direction_candidates,
+    select_direction,
+    wrap_angle,
+)
+
+
+def _random_directions(n, seed=0):
+    d = np.random.default_rng(seed).normal(size=(n, 3))
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+@pytest.mark.parametrize("view", default_biplane() + (View.from_gantry(20, 30),), ids=lambda v: v.name or "oblique")
+def test_angles_round_trip_through_eq4_up_to_the_mirror(view):
+    for d in _random_directions(50):
+        az, el = angles_from_direction(d, view)
+        assert -np.pi <= az <= np.pi and 0 <= el <= np.pi / 2
+        cands = direction_candidates(az, el, view)
+        assert np.allclose(np.linalg.norm(cands, axis=1), 1)
+        # one candidate is d; the other is d mirrored on the detector plane
+        errs = [np.linalg.norm(c - d) for c in cands]
+        assert min(errs) < 1e-9
+        beam = view.principal_direction if view.gantry else view.detector_axes[2]
+        mirrored = d - 2 * (d @ view.detector_axes[2]) * view.detector_axes[2]
+        assert min(np.linalg.norm(c - mirrored) for c in cands) < 1e-9
+        # candidate 0 points away from the detector
+        assert cands[0] @ view.detector_axes[2] <= 1e-12
+
+
+def test_elevation_is_the_angle_to_the_beam():
+    view = View.from_gantry(0, 0)
+    beam = view.detector_axes[2]
+    assert angles_from_direction(-beam, view)[1] == pytest.approx(0.0, abs=1e-7)
+    assert angles_from_direction(beam, view)[1] == pytest.approx(0.0, abs=1e-7)  # mirror
+    az, el = angles_from_direction(view.detector_axes[0], view)
+    assert (az, el) == pytest.approx((0.0, np.pi / 2))
+    az, _ = angles_from_direction(view.detector_axes[1], view)
+    assert az == pytest.approx(np.pi / 2)
+
+
+def test_two_views_resolve_the_mirror_ambiguity():
+    a, b = default_biplane()
+    for d in _random_directions(100, seed=1):
+        cands = [direction_candidates(*angles_from_direction(d, v), v) for v in (a, b)]
+        chosen, idx, spread = select_direction(cands)
+        assert np.allclose(chosen, d, atol=1e-9) and spread < 1e-7
+
+
+def test_one_view_returns_the_canonical_candidate():
+    a = default_biplane()[0]
+    cands = direction_candidates(0.3, 0.4, a)
+    chosen, idx, spread = select_direction([cands])
+    assert idx == (0,) and np.allclose(chosen, cands[0])
+    with pytest.raises(ValueError, match="at least one view"):
+        select_direction([])
+
+
+def test_wrap_angle():
+    assert wrap_angle(3 * np.pi / 2) == pytest.approx(-np.pi / 2)
+    assert wrap_angle(-np.pi) == pytest.approx(np.pi)
+    assert np.allclose(wrap_angle([0.1, 2 * np.pi + 0.1]), [0.1, 0.1])
+
+
+def test_oracle_errors_have_the_papers_mean_absolute_error():
+    view = default_biplane()[0]
+    rng = np.random.default_rng(5)
+    oracle = OracleOrientation()
+    az_err, el_err = [], []
+    for _ in range(600):
+        R = random_rotation(rng)
+        T = make_transform(R, [0, 0, 0])
+        az0, el0 = angles_from_direction(beam_direction_of_pose(T), view)
+        if not (0.2 < el0 < 1.3):  # away from the fold at 0 and the azimuth singularity
+            continue
+        frame = Frame(np.zeros(view.shape, np.float32), view, T_carm_transducer=T)
+        az, el = oracle.estimate(frame, rng)
+        az_err.append(np.rad2deg(abs(wrap_angle(az - az0))))
+        el_err.append(np.rad2deg(abs(el - el0)))
+    assert np.mean(az_err) == pytest.approx(1.06, rel=0.15)
+    assert np.mean(el_err) == pytest.approx(2.34, rel=0.15)
+
+
+def test_oracle_is_deterministic_and_needs_truth():
+    view = default_biplane()[1]
+    T = make_transform(random_rotation(np.random.default_rng(0)), [0, 0, 0])
+    frame = Frame(np.zeros(view.shape, np.float32), view, T_carm_transducer=T)
+    o = OracleOrientation()
+    assert o.estimate(frame, np.random.default_rng(3)) == o.estimate(frame, np.random.default_rng(3))
+    with pytest.raises(ValueError, match="T_carm_transducer"):
+        o.estimate(Frame(np.zeros(view.shape, np.float32), view), np.random.default_rng(0))
+    with pytest.raises(ValueError, match="azimuth_mae_deg"):
+        OracleOrientation(azimuth_mae_deg=-1)
