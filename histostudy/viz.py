@@ -123,6 +123,7 @@ def model_scene(model, *, rng: np.random.Generator, max_points_per_class: int = 
     plotter.camera.elevation = camera_elevation_deg
     plotter.camera.azimuth = camera_azimuth_deg
     plotter.reset_camera()
+    plotter.camera.zoom(1.3)
     image = plotter.screenshot(return_img=True)
     plotter.close()
     return np.asarray(image, dtype=np.uint8)

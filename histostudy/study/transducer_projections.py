@@ -89,6 +89,7 @@ def render_timing(model: TransducerModel, T_carm_transducer, view, *, background
         render_frame(model, T_carm_transducer, view, rng=rng, physical=physical, background=bg, **render_kwargs)
         stages["frame, background precomputed"].append(time.perf_counter() - t0)
     n_points = sum(len(p) for p in image_model.points.values())
-    return pd.DataFrame([{"stage": name, "median_s": float(np.median(t)), "repeats": len(t),
-                          "points": n_points if name != "background projection" else None,
-                          "detector": f"{view.shape[1]}x{view.shape[0]}"} for name, t in stages.items()])
+    table = pd.DataFrame([{"stage": name, "median_s": float(np.median(t)), "repeats": len(t),
+                           "points": n_points if name != "background projection" else pd.NA,
+                           "detector": f"{view.shape[1]}x{view.shape[0]}"} for name, t in stages.items()])
+    return table.astype({"points": "Int64"})

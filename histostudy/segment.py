@@ -1,0 +1,165 @@
+"""Feature segmentation of fluoroscopic frames (paper §II-B.2): the interface and the oracle.
+
+A :class:`Segmenter` turns a :class:`~histostudy.frame.Frame` into a label image: ``uint8
+(rows, cols)`` of :class:`~histostudy.transducer.Feature` values, one class per pixel, overlaps
+resolved by the paper's priority (what the U-Net's arg-max gives). The learned U-Net implements
+the same interface.
+
+:class:`OracleSegmenter` returns the frame's reference labels, optionally degraded the way a
+network errs (:class:`SegmentationDegradation`): each class keeps only a fraction of its pixels
+(recall) in spatially correlated blobs — thin features lose pixels to the element underneath —
+and gains false positives next to its true pixels (precision), so that a pose study can run with
+segmentation errors of the size of the paper's Table I.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol, runtime_checkable
+
+import cv2
+import numpy as np
+
+from .frame import Frame
+from .transducer import FEATURE_CLASSES, Feature
+
+__all__ = ["OracleSegmenter", "SegmentationDegradation", "Segmenter", "masks_from_labels"]
+
+
+@runtime_checkable
+class Segmenter(Protocol):
+    """Turns a frame into a ``uint8`` label image of :class:`Feature` values."""
+
+    def segment(self, frame: Frame, rng: np.random.Generator) -> np.ndarray: ...
+
+
+def masks_from_labels(labels: np.ndarray) -> dict[Feature, np.ndarray]:
+    """Boolean mask per feature class (background excluded) of a label image."""
+    labels = np.asarray(labels)
+    if labels.ndim != 2:
+        raise ValueError(f"labels must be a 2-D label image, got shape {labels.shape}")
+    return {k: labels == k for k in FEATURE_CLASSES}
+
+
+def _table1_fraction(column: int) -> dict[Feature, float]:
+    # Table I of the paper, per class: precision, recall (percent).
+    table = {
+        Feature.TRANSDUCER: (96.2, 89.2),
+        Feature.OUTER_BOUNDARY: (93.0, 48.6),
+        Feature.INNER_BOUNDARY: (97.6, 41.2),
+        Feature.GAPS: (90.4, 59.9),
+        Feature.SCREWS: (82.2, 68.4),
+    }
+    return {k: v[column] / 100.0 for k, v in table.items()}
+
+
+@dataclass(frozen=True)
+class SegmentationDegradation:
+    """How an oracle segmentation errs, per feature class.
+
+    Attributes:
+        recall: fraction of each class's reference pixels that stay in the class (1 = none lost).
+        precision: fraction of the class's predicted pixels that are truly of the class
+            (1 = no false positives); false positives are placed next to true pixels.
+        blob_sigma_px: spatial correlation length (Gaussian sigma, px) of lost and added pixels,
+            so that errors come in blobs as a network's do, not as salt-and-pepper.
+    """
+
+    recall: dict = field(default_factory=lambda: {k: 1.0 for k in FEATURE_CLASSES})
+    precision: dict = field(default_factory=lambda: {k: 1.0 for k in FEATURE_CLASSES})
+    blob_sigma_px: float = 2.0
+
+    def __post_init__(self):
+        for name in ("recall", "precision"):
+            table = getattr(self, name)
+            for k, v in table.items():
+                if Feature(k) not in FEATURE_CLASSES:
+                    raise ValueError(f"{name} has key {k!r}; expected one of {[f.name for f in FEATURE_CLASSES]}")
+                if not (0.0 < float(v) <= 1.0):
+                    raise ValueError(f"{name}[{Feature(k).name}] must be in (0, 1], got {v!r}")
+        if not (np.isfinite(self.blob_sigma_px) and self.blob_sigma_px >= 0):
+            raise ValueError(f"blob_sigma_px must be finite and >= 0, got {self.blob_sigma_px!r}")
+
+    @classmethod
+    def paper_table1(cls, blob_sigma_px: float = 2.0) -> "SegmentationDegradation":
+        """Per-class recall and precision of the paper's Table I."""
+        return cls(recall=_table1_fraction(1), precision=_table1_fraction(0), blob_sigma_px=blob_sigma_px)
+
+
+# Where a lost pixel goes: thin features lie on the elements, the elements on the background.
+_FALLBACK = {
+    Feature.TRANSDUCER: Feature.BACKGROUND,
+    Feature.OUTER_BOUNDARY: Feature.TRANSDUCER,
+    Feature.INNER_BOUNDARY: Feature.TRANSDUCER,
+    Feature.GAPS: Feature.TRANSDUCER,
+    Feature.SCREWS: Feature.TRANSDUCER,
+}
+
+
+@dataclass(frozen=True)
+class OracleSegmenter:
+    """The frame's reference labels, degraded by ``degradation`` (None: perfect segmentation)."""
+
+    degradation: SegmentationDegradation | None = None
+
+    def segment(self, frame: Frame, rng: np.random.Generator | None = None) -> np.ndarray:
+        if frame.labels is None:
+            raise ValueError(f"OracleSegmenter needs a frame with reference labels; the frame of view "
+                             f"{frame.view.name!r} has none (real frames need a learned segmenter)")
+        labels = frame.labels.copy()
+        if self.degradation is None:
+            return labels
+        if not isinstance(rng, np.random.Generator):
+            raise TypeError(f"rng must be a numpy.random.Generator for a degraded oracle, got {type(rng).__name__}")
+        return degrade_labels(labels, self.degradation, rng)
+
+
+def _blob_field(shape, sigma_px: float, rng: np.random.Generator) -> np.ndarray:
+    noise = rng.standard_normal(shape).astype(np.float32)
+    if sigma_px > 0:
+        noise = cv2.GaussianBlur(noise, (0, 0), sigmaX=sigma_px, borderType=cv2.BORDER_REFLECT)
+    return noise
+
+
+def degrade_labels(labels: np.ndarray, degradation: SegmentationDegradation, rng: np.random.Generator) -> np.ndarray:
+    """Apply recall loss and false positives per class (see :class:`SegmentationDegradation`).
+
+    Classes are processed from the lowest to the highest overlap priority so that a thin feature's
+    false positives may cover element pixels but never another thin feature's true pixels.
+    """
+    out = np.asarray(labels, dtype=np.uint8).copy()
+    reference = out.copy()
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3))
+    for k in FEATURE_CLASSES:
+        ref = reference == k
+        n_ref = int(ref.sum())
+        if n_ref == 0:
+            continue
+        recall = float(degradation.recall.get(k, 1.0))
+        precision = float(degradation.precision.get(k, 1.0))
+        keep = ref
+        if recall < 1.0:
+            score = _blob_field(out.shape, degradation.blob_sigma_px, rng)
+            n_drop = int(round(n_ref * (1.0 - recall)))
+            if n_drop:
+                threshold = np.partition(score[ref], n_drop - 1)[n_drop - 1]
+                drop = ref & (score <= threshold)
+                out[drop] = _FALLBACK[k]
+                keep = ref & ~drop
+        if precision < 1.0:
+            n_fp = int(round(keep.sum() * (1.0 / precision - 1.0)))
+            # candidates: pixels next to the class that hold a lower-priority class or background
+            lower = np.isin(reference, [int(c) for c in (Feature.BACKGROUND, *FEATURE_CLASSES[: FEATURE_CLASSES.index(k)])])
+            ring = np.zeros_like(ref)
+            grown = keep.astype(np.uint8)
+            for _ in range(8):  # widen until there is room for every false positive
+                grown = cv2.dilate(grown, kernel)
+                ring = grown.astype(bool) & ~ref & lower
+                if ring.sum() >= n_fp:
+                    break
+            n_fp = min(n_fp, int(ring.sum()))
+            if n_fp:
+                score = _blob_field(out.shape, degradation.blob_sigma_px, rng)
+                threshold = np.partition(-score[ring], n_fp - 1)[n_fp - 1]
+                out[ring & (-score <= threshold)] = k
+    return out
