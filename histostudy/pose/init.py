@@ -1,0 +1,207 @@
+"""Pose initialisation (paper §II-B.4): orientation from the regressor, translation by grid search,
+axial rotation by a linear search.
+
+1. Each view's azimuth/elevation gives two mirror candidates (eq. 4); the pair that agrees best
+   across views is averaged (:func:`histostudy.orientation.select_direction`).
+2. The translation (the focal point, i.e. the translation of ``T_carm_transducer``) is searched
+   on a grid parallel to each detector: 130 points (13 x 10, 3 cm steps, about 40 x 30 cm)
+   around the isocentre for the first view; its best point centres the next view's grid; then a
+   3 x 3 cm grid at 0.5 cm (49 points) per view. Each view's grid is scored by that view's cost
+   alone, as in the paper.
+3. The axial rotation about the transducer axis: 72 equally spaced angles over [0, 180 deg),
+   scored by the cost over all views.
+
+Every stage takes plain cost callables ``T -> float`` so it can be tested and reused with any
+cost (e.g. a point subset for speed).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Sequence
+
+import numpy as np
+
+from ..carm import View
+from ..geometry import make_transform
+from ..transducer import pose_facing
+
+__all__ = ["COARSE_GRID", "FINE_GRID", "PAPER_AXIAL_SEEDS_DEG", "ROBUST_AXIAL_SEEDS_DEG", "GridSpec", "InitResult", "axial_minima", "axial_search", "grid_offsets", "grid_search", "initialise_pose",
+           "rotation_from_direction"]
+
+CostFn = Callable[[np.ndarray], float]
+
+
+def rotation_from_direction(direction, axial_angle_rad: float = 0.0) -> np.ndarray:
+    """Rotation of the transducer whose centre-to-focus direction (its ``-z``) is ``direction``,
+    turned by ``axial_angle_rad`` about its axis (the convention of
+    :func:`histostudy.transducer.pose_facing`)."""
+    return pose_facing(direction, (0.0, 0.0, 0.0), axial_angle_rad)[:3, :3]
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    """A rectangular grid on a detector-parallel plane: ``n_u x n_v`` points ``step_mm`` apart."""
+
+    n_u: int
+    n_v: int
+    step_mm: float
+
+    def __post_init__(self):
+        if self.n_u < 1 or self.n_v < 1 or not (np.isfinite(self.step_mm) and self.step_mm > 0):
+            raise ValueError(f"GridSpec needs n_u, n_v >= 1 and step_mm > 0, got {self}")
+
+
+#: The paper's coarse grid: 130 points, 3 cm apart, about 40 x 30 cm.
+COARSE_GRID = GridSpec(13, 10, 30.0)
+#: The paper's fine grid: 49 points, 0.5 cm apart, 3 x 3 cm.
+FINE_GRID = GridSpec(7, 7, 5.0)
+#: The paper's coarse grid runs at one axial angle.
+PAPER_AXIAL_SEEDS_DEG = (0.0,)
+#: Beyond the paper: coarse grids from four axial angles (the aperture has 180 deg symmetry).
+ROBUST_AXIAL_SEEDS_DEG = (0.0, 45.0, 90.0, 135.0)
+
+
+def grid_offsets(view: View, grid: GridSpec) -> np.ndarray:
+    """``(n_u * n_v, 3)`` world offsets of a grid centred on 0, spanned by the view's detector axes."""
+    axes = view.detector_axes
+    iu = (np.arange(grid.n_u) - (grid.n_u - 1) / 2.0) * grid.step_mm
+    iv = (np.arange(grid.n_v) - (grid.n_v - 1) / 2.0) * grid.step_mm
+    uu, vv = np.meshgrid(iu, iv, indexing="ij")
+    return uu.reshape(-1, 1) * axes[0] + vv.reshape(-1, 1) * axes[1]
+
+
+def grid_search(cost: CostFn, R: np.ndarray, centre_mm, view: View, grid: GridSpec) -> tuple[np.ndarray, float, int]:
+    """Best focal point on ``grid`` around ``centre_mm`` in ``view``'s detector plane.
+
+    Returns ``(best_point_mm, best_cost, n_evaluations)``.
+    """
+    centre = np.asarray(centre_mm, dtype=np.float64).reshape(3)
+    candidates = centre + grid_offsets(view, grid)
+    costs = np.array([cost(make_transform(R, p)) for p in candidates])
+    best = int(np.argmin(costs))
+    return candidates[best], float(costs[best]), len(candidates)
+
+
+def axial_search(cost: CostFn, direction, focal_point_mm, n_angles: int = 72,
+                 range_rad: float = np.pi) -> tuple[np.ndarray, float, float, int]:
+    """Best axial rotation among ``n_angles`` equally spaced angles in ``[0, range_rad)``.
+
+    Returns ``(R, angle_rad, best_cost, n_evaluations)``.
+    """
+    angles, costs = _axial_costs(cost, direction, focal_point_mm, n_angles, range_rad)
+    best = int(np.argmin(costs))
+    return rotation_from_direction(direction, angles[best]), float(angles[best]), float(costs[best]), n_angles
+
+
+def axial_minima(cost: CostFn, direction, focal_point_mm, n_angles: int = 72, range_rad: float = np.pi,
+                 count: int = 3) -> tuple[list[tuple[float, float]], int]:
+    """The ``count`` lowest local minima ``(angle_rad, cost)`` of the axial cost curve (circular).
+
+    Returns the minima, best first, and the number of evaluations.
+    """
+    angles, costs = _axial_costs(cost, direction, focal_point_mm, n_angles, range_rad)
+    c = np.asarray(costs)
+    is_min = (c <= np.roll(c, 1)) & (c <= np.roll(c, -1))
+    order = [i for i in np.argsort(c) if is_min[i]][:max(1, count)]
+    return [(float(angles[i]), float(c[i])) for i in order], n_angles
+
+
+def _axial_costs(cost, direction, focal_point_mm, n_angles, range_rad):
+    if n_angles < 1:
+        raise ValueError(f"n_angles must be >= 1, got {n_angles!r}")
+    angles = np.arange(n_angles) * (range_rad / n_angles)
+    t = np.asarray(focal_point_mm, dtype=np.float64)
+    return angles, [cost(make_transform(rotation_from_direction(direction, a), t)) for a in angles]
+
+
+@dataclass
+class InitResult:
+    """The initial pose and how it was found."""
+
+    T_carm_transducer: np.ndarray
+    direction: np.ndarray
+    axial_angle_rad: float
+    cost: float
+    n_evaluations: int
+    stages: dict = field(default_factory=dict)
+    hypotheses: list = field(default_factory=list)
+
+
+def initialise_pose(direction, views: Sequence[View], view_costs: Sequence[CostFn], joint_cost: CostFn, *,
+                    centre_mm=(0.0, 0.0, 0.0), coarse: GridSpec = COARSE_GRID, fine: GridSpec = FINE_GRID,
+                    n_axial: int = 72, axial_seeds_deg: Sequence[float] = PAPER_AXIAL_SEEDS_DEG,
+                    fine_after_axial: bool = False, n_hypotheses: int = 1,
+                    polish: Callable[[np.ndarray], tuple[np.ndarray, float]] | None = None,
+                    depth_search_mm: float = 150.0) -> InitResult:
+    """Steps 2 and 3 of §II-B.4 for a given direction (step 1's output).
+
+    The paper runs the coarse grids at one (arbitrary) axial angle, then the fine grids, then the
+    axial search: ``axial_seeds_deg=(0,)``, ``fine_after_axial=False``. Two optional extensions,
+    used by :func:`histostudy.pose.estimate_pose` by default (:data:`ROBUST_AXIAL_SEEDS_DEG`):
+    the coarse grids are run from several axial angles and the seed whose grid optimum scores
+    lowest on ``joint_cost`` is kept — an elliptical aperture seen at a wrong axial angle pulls
+    the coarse optimum off by centimetres when much of the transducer is outside the detector —
+    and the fine grids are repeated once the axial angle is known. With ``n_hypotheses > 1`` the
+    lowest local minima of the axial cost curve are each carried on (fine grids, then ``polish``,
+    a local refinement ``T -> (T, cost)``) and the one with the lowest polished cost is returned;
+    the quadrant gaps make the axial curve multi-modal when part of the transducer is hidden.
+
+    With a single view the depth along its beam is not seen by the grid; a line search along the
+    beam (±``depth_search_mm``, 10 mm then 2 mm steps) scored by the magnification follows.
+    """
+    views = list(views)
+    if len(views) != len(view_costs) or not views:
+        raise ValueError(f"views and view_costs must be non-empty and of equal length, got {len(views)} and {len(view_costs)}")
+    seeds = [float(a) for a in axial_seeds_deg]
+    if not seeds:
+        raise ValueError("axial_seeds_deg must hold at least one angle")
+    centre = np.asarray(centre_mm, dtype=np.float64).reshape(3)
+    n_eval, stages = 0, {}
+
+    def grids(R, point, spec, label):
+        nonlocal n_eval
+        for i, (view, cost) in enumerate(zip(views, view_costs)):
+            point, c, n = grid_search(cost, R, point, view, spec)
+            n_eval += n
+            stages[f"{label}_{view.name or i}"] = {"point_mm": point.copy(), "cost": c}
+        return point
+
+    best = None
+    for seed in seeds:
+        R = rotation_from_direction(direction, np.deg2rad(seed))
+        point = grids(R, centre, coarse, f"coarse_grid_seed{seed:g}")
+        score = float(joint_cost(make_transform(R, point)))
+        n_eval += 1
+        if best is None or score < best[0]:
+            best = (score, seed, R, point)
+    _, seed, R, point = best
+    stages["axial_seed_deg"] = seed
+    point = grids(R, point, fine, "fine_grid")
+    if len(views) == 1:
+        beam = views[0].detector_axes[2]
+        for step in (10.0, 2.0):
+            span = depth_search_mm if step == 10.0 else 10.0
+            offsets = np.arange(-span, span + step / 2, step)
+            costs = [view_costs[0](make_transform(R, point + o * beam)) for o in offsets]
+            point = point + offsets[int(np.argmin(costs))] * beam
+            n_eval += len(offsets)
+        stages["depth_search"] = {"point_mm": point.copy()}
+    minima, n = axial_minima(joint_cost, direction, point, n_angles=n_axial, count=n_hypotheses)
+    n_eval += n
+    stages["axial_minima"] = [{"angle_rad": a, "cost": c} for a, c in minima]
+    hypotheses = []
+    for angle, c in minima:
+        R = rotation_from_direction(direction, angle)
+        p = grids(R, point, fine, f"fine_grid_after_axial_{np.rad2deg(angle):.1f}") if fine_after_axial else point
+        T = make_transform(R, p)
+        if fine_after_axial or polish is not None:
+            c = float(joint_cost(T))
+            n_eval += 1
+        if polish is not None:
+            T, c = polish(T)
+        hypotheses.append((T, float(c), angle))
+    T, c, angle = min(hypotheses, key=lambda h: h[1])
+    stages["axial"] = {"angle_rad": angle, "cost": c}
+    return InitResult(T, np.asarray(direction, float), angle, c, n_eval, stages,
+                      hypotheses=[(h[0], h[1]) for h in hypotheses])

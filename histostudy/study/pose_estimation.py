@@ -1,0 +1,332 @@
+"""Notebook 04: the paper's pose-estimation experiment (§II-D, §II-E.3, §III, Table II) on synthetic frames.
+
+Each experiment places the transducer with its focal point near the phantom centre, then moves
+it by ``r`` (10 or 12.5 mm: a 20 or 25 mm treatment sphere) along the robot's axes to the six
+margin points (top/bottom = TB, left/right = LR, front/back = depth). At the centre and each
+margin a biplane pair is rendered (the physical transducer, a phantom scene, Poisson noise) and
+the pose is estimated. Errors are decomposed along the transducer's depth (the direction of
+ultrasound propagation, the transducer's ``-z``), TB (``y``) and LR (``x``) axes, as §II-E.
+
+Reference, until the CBCT stage exists: the true bubble-cloud centre — the physical
+transducer's acoustic focal point in the true pose (plus an optional offset), and the sphere
+of radius ``r`` around it. The report says so.
+
+The robot's axes are taken along the transducer's own LR, TB and depth axes at the centre pose
+(the transducer hanging from the UR5e's flange with its axes along the base axes), so that the
+radius per direction of Table II is the half distance between opposite margin predictions.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field, replace
+from typing import Callable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from ..anatomy import random_background
+from ..carm import View
+from ..geometry import make_transform, matrix_from_euler, rotation_angle
+from ..pose import PoseEstimationError, estimate_pose
+from ..render import render_frame
+from ..segment import OracleSegmenter, SegmentationDegradation
+from ..orientation import OracleOrientation
+from ..transducer import TransducerModel, pose_facing
+
+__all__ = [
+    "DIRECTIONS",
+    "PoseStudyConfig",
+    "degradation_sweep",
+    "margin_positions",
+    "robustness_sweep",
+    "run_pose_study",
+    "table2",
+    "transducer_axes",
+]
+
+#: Error directions of §II-E: name -> column of the direction matrix (see :func:`transducer_axes`).
+DIRECTIONS = ("depth", "tb", "lr")
+
+#: Margin points: name -> (direction, sign). Paper: top, bottom, left, right, front, back.
+MARGINS = {
+    "top": ("tb", +1), "bottom": ("tb", -1),
+    "left": ("lr", +1), "right": ("lr", -1),
+    "front": ("depth", +1), "back": ("depth", -1),
+}
+
+
+@dataclass(frozen=True)
+class PoseStudyConfig:
+    """Parameters of the pose-estimation study (defaults: the standard profile's).
+
+    Attributes:
+        n_experiments: phantom experiments (paper: 10).
+        margin_mm: radii drawn per experiment (paper: 10 or 12.5 mm, spheres of 2.0 or 2.5 cm).
+        background: scene behind the transducer (paper's pose studies: agarose phantoms).
+        photons_per_pixel, n_splats, splat_sigma_mm: rendering (§II-B.2).
+        degradation: ``"table1"`` (oracle errs as the paper's U-Net, Table I) or ``"none"``.
+        modes: refinement modes to run on the same frames (``"paper"``, ``"fast"``).
+        tilt_sd_deg: tilt of the transducer axis from vertical (anterior-posterior), per axis.
+        focal_jitter_mm: focal point uniform within ± this of the phantom centre, per axis.
+        robot_repeatability_mm: SD of the robot's positioning noise (UR5e: ±0.03 mm).
+        bubble_offset_mm: offset of the bubble cloud from the acoustic focal point, transducer frame.
+    """
+
+    n_experiments: int = 10
+    margin_mm: tuple = (10.0, 12.5)
+    background: str = "phantom"
+    photons_per_pixel: float = 5e4
+    n_splats: int = 16
+    splat_sigma_mm: float = 0.5
+    degradation: str = "table1"
+    modes: tuple = ("paper", "fast")
+    tilt_sd_deg: float = 10.0
+    focal_jitter_mm: float = 5.0
+    robot_repeatability_mm: float = 0.01
+    bubble_offset_mm: tuple = (0.0, 0.0, 0.0)
+
+    def __post_init__(self):
+        if self.n_experiments < 1:
+            raise ValueError(f"n_experiments must be >= 1, got {self.n_experiments!r}")
+        if not self.margin_mm or any(not (np.isfinite(r) and r > 0) for r in self.margin_mm):
+            raise ValueError(f"margin_mm must hold positive radii in mm, got {self.margin_mm!r}")
+        if self.degradation not in ("table1", "none"):
+            raise ValueError(f"degradation must be 'table1' or 'none', got {self.degradation!r}")
+        if not self.modes or any(m not in ("paper", "fast") for m in self.modes):
+            raise ValueError(f"modes must be a non-empty subset of ('paper', 'fast'), got {self.modes!r}")
+
+    def segmenter(self) -> OracleSegmenter:
+        return OracleSegmenter(SegmentationDegradation.paper_table1() if self.degradation == "table1" else None)
+
+
+def transducer_axes(T_carm_transducer) -> dict[str, np.ndarray]:
+    """World unit vectors of §II-E's directions for a pose: depth (propagation, ``-z``), TB (``y``), LR (``x``)."""
+    R = np.asarray(T_carm_transducer, dtype=np.float64)[:3, :3]
+    return {"depth": -R[:, 2], "tb": R[:, 1], "lr": R[:, 0]}
+
+
+def margin_positions(T_centre, radius_mm: float) -> dict[str, np.ndarray]:
+    """The centre pose and the six margin poses: the transducer translated by ``radius_mm`` along
+    the robot's axes (here the transducer's own LR/TB/depth axes at the centre pose)."""
+    axes = transducer_axes(T_centre)
+    out = {"centre": np.array(T_centre, dtype=np.float64)}
+    for name, (direction, sign) in MARGINS.items():
+        T = out["centre"].copy()
+        T[:3, 3] += sign * radius_mm * axes[direction]
+        out[name] = T
+    return out
+
+
+def _experiment_pose(rng: np.random.Generator, config: PoseStudyConfig, centre_mm) -> np.ndarray:
+    tilt = np.deg2rad(config.tilt_sd_deg)
+    direction = (np.tan(rng.normal(0, tilt)), 1.0, np.tan(rng.normal(0, tilt)))
+    focal = np.asarray(centre_mm, float) + rng.uniform(-config.focal_jitter_mm, config.focal_jitter_mm, 3)
+    return pose_facing(direction, focal, rng.uniform(0, 2 * np.pi))
+
+
+def _bubble_centre(physical: TransducerModel, T, offset_mm) -> np.ndarray:
+    local = np.asarray(physical.focal_point_mm, float) + np.asarray(offset_mm, float)
+    return T[:3, :3] @ local + T[:3, 3]
+
+
+def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, render_model: TransducerModel,
+                   physical: TransducerModel, views: Sequence[View], seed: int,
+                   progress: Callable[[str], None] | None = None) -> pd.DataFrame:
+    """Run the experiments; one row per (experiment, position, mode).
+
+    Columns: experiment, radius_mm, position, mode, the true and predicted focal points
+    (``true_*``, ``pred_*``, world mm), the error along depth/TB/LR of the experiment's centre
+    pose (``err_depth`` ...), ``err_euclidean``, ``rotation_error_deg``, cost, iterations,
+    seconds per stage, verdict and failure text (a failed estimate keeps NaN predictions).
+    """
+    rows = []
+    seeds = np.random.SeedSequence(seed).spawn(config.n_experiments)
+    segmenter = config.segmenter()
+    for e, seq in enumerate(seeds):
+        rng_pose, rng_scene, rng_render, rng_robot, rng_est = (np.random.default_rng(s) for s in seq.spawn(5))
+        radius = float(rng_pose.choice(config.margin_mm))
+        scene = random_background(rng_scene, config.background)
+        centre = scene.meta.get("phantom_center_mm", np.zeros(3))
+        T_centre = _experiment_pose(rng_pose, config, centre)
+        axes = transducer_axes(T_centre)
+        for position, T_nominal in margin_positions(T_centre, radius).items():
+            T_true = T_nominal.copy()
+            T_true[:3, 3] += rng_robot.normal(0, config.robot_repeatability_mm, 3)
+            frames = [render_frame(render_model, T_true, v, rng=rng_render, physical=physical, background=scene,
+                                   photons_per_pixel=config.photons_per_pixel, n_splats=config.n_splats,
+                                   splat_sigma_mm=config.splat_sigma_mm) for v in views]
+            truth = _bubble_centre(physical, T_true, config.bubble_offset_mm)
+            for mode in config.modes:
+                rng_mode = np.random.default_rng(rng_est.integers(2**63))
+                row = {"experiment": e, "radius_mm": radius, "position": position, "mode": mode,
+                       **{f"true_{a}": v for a, v in zip("xyz", truth)}}
+                try:
+                    res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=OracleOrientation(),
+                                        rng=rng_mode, mode=mode)
+                    pred = res.focal_point_mm + res.T_carm_transducer[:3, :3] @ np.asarray(config.bubble_offset_mm)
+                    err = pred - truth
+                    row.update({f"pred_{a}": v for a, v in zip("xyz", pred)})
+                    row.update({f"err_{d}": float(err @ axes[d]) for d in DIRECTIONS})
+                    row.update(err_euclidean=float(np.linalg.norm(err)),
+                               rotation_error_deg=float(np.rad2deg(rotation_angle(res.T_carm_transducer[:3, :3].T @ T_true[:3, :3]))),
+                               cost=res.cost, iterations=res.iterations, ok=True, failure="",
+                               **{f"s_{k}": v for k, v in res.timings_s.items()})
+                except PoseEstimationError as exc:
+                    row.update({f"pred_{a}": np.nan for a in "xyz"}, **{f"err_{d}": np.nan for d in DIRECTIONS},
+                               err_euclidean=np.nan, ok=False, failure=str(exc))
+                rows.append(row)
+            if progress:
+                progress(f"experiment {e + 1}/{config.n_experiments}: {position}")
+    return pd.DataFrame(rows)
+
+
+def _mean_sd(values) -> tuple[float, float]:
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return float("nan"), float("nan")
+    return float(v.mean()), float(v.std(ddof=1)) if v.size > 1 else 0.0
+
+
+def experiment_metrics(records: pd.DataFrame) -> pd.DataFrame:
+    """Per experiment and mode, the quantities of Table II (mm), from :func:`run_pose_study`'s rows.
+
+    Centre error per direction (signed), margin error per margin (distance of the predicted
+    margin point to the reference sphere's surface), predicted radius per direction (half the
+    distance between opposite margin predictions) and precision (distance between the centroid
+    of the six margin predictions and the centre prediction).
+    """
+    out = []
+    for (e, mode), g in records.groupby(["experiment", "mode"], sort=True):
+        g = g.set_index("position")
+        r = float(g["radius_mm"].iloc[0])
+        pred = {p: g.loc[p, ["pred_x", "pred_y", "pred_z"]].to_numpy(float) for p in g.index}
+        ref_centre = g.loc["centre", ["true_x", "true_y", "true_z"]].to_numpy(float)
+        row = {"experiment": e, "mode": mode, "radius_mm": r}
+        for d in DIRECTIONS:
+            row[f"centre_err_{d}"] = float(g.loc["centre", f"err_{d}"])
+        row["centre_err_euclidean"] = float(g.loc["centre", "err_euclidean"])
+        # Reference sphere: centred on the true centre, radius r (the robot moves exactly r).
+        for name, (d, _) in MARGINS.items():
+            row[f"margin_err_{name}"] = abs(float(np.linalg.norm(pred[name] - ref_centre)) - r)
+        for d in DIRECTIONS:
+            plus, minus = [n for n, (dd, s) in MARGINS.items() if dd == d and s > 0][0], \
+                [n for n, (dd, s) in MARGINS.items() if dd == d and s < 0][0]
+            row[f"radius_{d}"] = 0.5 * float(np.linalg.norm(pred[plus] - pred[minus]))
+            row[f"radius_err_{d}"] = abs(row[f"radius_{d}"] - r)
+            row[f"margin_err_{d}"] = 0.5 * (row[f"margin_err_{plus}"] + row[f"margin_err_{minus}"])
+        margins = np.array([pred[n] for n in MARGINS])
+        row["margin_err_overall"] = float(np.mean([row[f"margin_err_{n}"] for n in MARGINS]))
+        row["radius_err_overall"] = float(np.mean([row[f"radius_err_{d}"] for d in DIRECTIONS]))
+        row["precision"] = float(np.linalg.norm(margins.mean(axis=0) - pred["centre"]))
+        out.append(row)
+    return pd.DataFrame(out)
+
+
+def table2(metrics: pd.DataFrame, mode: str) -> tuple[pd.DataFrame, dict]:
+    """Table II (mean ± SD over experiments, mm) for one mode, and the values keyed as in
+    :mod:`histostudy.paper` (``table2.<row>.<direction>`` -> (mean, sd))."""
+    m = metrics[metrics["mode"] == mode]
+    values = {}
+    for d in DIRECTIONS:
+        values[f"table2.center_bias.{d}"] = _mean_sd(m[f"centre_err_{d}"])
+        values[f"table2.center_mae.{d}"] = _mean_sd(np.abs(m[f"centre_err_{d}"]))
+        values[f"table2.margin_mae.{d}"] = _mean_sd(m[f"margin_err_{d}"])
+        values[f"table2.radius_mae.{d}"] = _mean_sd(m[f"radius_err_{d}"])
+    values["table2.center_mae.overall"] = _mean_sd(m["centre_err_euclidean"])
+    values["table2.margin_mae.overall"] = _mean_sd(m[[f"margin_err_{n}" for n in MARGINS]].to_numpy().ravel())
+    values["table2.radius_mae.overall"] = _mean_sd(m[[f"radius_err_{d}" for d in DIRECTIONS]].to_numpy().ravel())
+    fmt = lambda v: f"{v[0]:.2f} ± {v[1]:.2f}" if np.isfinite(v[0]) else "n/a"
+    rows = []
+    for row, label in (("center_bias", "Center Bias"), ("center_mae", "Center MAE"),
+                       ("margin_mae", "Margin MAE"), ("radius_mae", "Radius MAE")):
+        cells = {"": label}
+        for d, col in zip(("depth", "tb", "lr", "overall"), ("Depth", "TB", "LR", "Overall")):
+            key = f"table2.{row}.{d}"
+            cells[col] = fmt(values[key]) if key in values else "N/A"
+        rows.append(cells)
+    return pd.DataFrame(rows), values
+
+
+def random_pose_in_views(rng: np.random.Generator, views: Sequence[View], *, translation_mm: float = 100.0,
+                         max_tries: int = 1000) -> np.ndarray:
+    """A pose in the paper's training ranges (§II-B.2: Euler angles in [0, 360) deg, translations
+    in ±10 cm per axis) whose focal point projects onto every detector (rejection sampling)."""
+    for _ in range(max_tries):
+        R = matrix_from_euler(rng.uniform(0, 2 * np.pi, 3), "xyz")
+        t = rng.uniform(-translation_mm, translation_mm, 3)
+        if all(v.in_image(v.project(t))[0] and v.project_homogeneous(t)[0, 2] > 0 for v in views):
+            return make_transform(R, t)
+    raise RuntimeError(f"no pose with the focal point in every view after {max_tries} draws")
+
+
+def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model: TransducerModel,
+                     physical: TransducerModel, views: Sequence[View], seed: int, config: PoseStudyConfig,
+                     inits: Sequence[str] = ("robust", "paper"), mode: str = "fast",
+                     success_mm: float = 2.0) -> pd.DataFrame:
+    """Initialisation success over random poses in the paper's training ranges; one row per (pose, init).
+
+    Success: no :class:`PoseEstimationError` and a focal-point error below ``success_mm``.
+    Backgrounds are drawn from the paper's evaluation mix (abdomen and phantom).
+    """
+    rows = []
+    segmenter = config.segmenter()
+    for i, seq in enumerate(np.random.SeedSequence(seed).spawn(n_poses)):
+        rng_pose, rng_scene, rng_render, rng_est = (np.random.default_rng(s) for s in seq.spawn(4))
+        T = random_pose_in_views(rng_pose, views)
+        scene = random_background(rng_scene, "mixed")
+        frames = [render_frame(render_model, T, v, rng=rng_render, physical=physical, background=scene,
+                               photons_per_pixel=config.photons_per_pixel, n_splats=config.n_splats,
+                               splat_sigma_mm=config.splat_sigma_mm) for v in views]
+        truth = _bubble_centre(physical, T, config.bubble_offset_mm)
+        for init in inits:
+            row = {"pose": i, "init": init, "scene": scene.kind}
+            t0 = time.perf_counter()
+            try:
+                res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=OracleOrientation(),
+                                    rng=np.random.default_rng(rng_est.integers(2**63)), mode=mode, init=init)
+                err = float(np.linalg.norm(res.focal_point_mm - truth))
+                row.update(error_mm=err, verdict_ok=True, success=err < success_mm, failure="")
+            except PoseEstimationError as exc:
+                err = float(np.linalg.norm(exc.result.focal_point_mm - truth)) if exc.result is not None else np.nan
+                row.update(error_mm=err, verdict_ok=False, success=False, failure=str(exc)[:120])
+            row["seconds"] = time.perf_counter() - t0
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def degradation_sweep(levels: Sequence[float], *, pose_model: TransducerModel, render_model: TransducerModel,
+                      physical: TransducerModel, views: Sequence[View], seed: int, config: PoseStudyConfig,
+                      n_poses: int = 3, mode: str = "fast") -> pd.DataFrame:
+    """Focal-point error vs segmentation degradation on the same frames.
+
+    Level ``s`` scales Table I's losses: recall ``1 - s (1 - recall_k)``, precision likewise
+    (0 = perfect labels, 1 = Table I). One row per (pose, level).
+    """
+    base = SegmentationDegradation.paper_table1()
+    rows = []
+    for i, seq in enumerate(np.random.SeedSequence(seed).spawn(n_poses)):
+        rng_pose, rng_scene, rng_render, rng_est = (np.random.default_rng(s) for s in seq.spawn(4))
+        scene = random_background(rng_scene, config.background)
+        T = _experiment_pose(rng_pose, config, scene.meta.get("phantom_center_mm", np.zeros(3)))
+        frames = [render_frame(render_model, T, v, rng=rng_render, physical=physical, background=scene,
+                               photons_per_pixel=config.photons_per_pixel, n_splats=config.n_splats,
+                               splat_sigma_mm=config.splat_sigma_mm) for v in views]
+        truth = _bubble_centre(physical, T, config.bubble_offset_mm)
+        for s in levels:
+            if not (0 <= s < 1 / (1 - min(base.recall.values())) ):
+                raise ValueError(f"levels must keep recall above 0; got level {s!r}")
+            deg = None if s == 0 else SegmentationDegradation(
+                recall={k: 1 - s * (1 - v) for k, v in base.recall.items()},
+                precision={k: max(1e-3, 1 - s * (1 - v)) for k, v in base.precision.items()})
+            row = {"pose": i, "level": s}
+            try:
+                res = estimate_pose(frames, pose_model, segmenter=OracleSegmenter(deg),
+                                    orientation=OracleOrientation(), rng=np.random.default_rng(rng_est.integers(2**63)),
+                                    mode=mode)
+                row.update(error_mm=float(np.linalg.norm(res.focal_point_mm - truth)), ok=True)
+            except PoseEstimationError as exc:
+                row.update(error_mm=np.nan, ok=False)
+            rows.append(row)
+    return pd.DataFrame(rows)
