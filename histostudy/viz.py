@@ -15,7 +15,7 @@ import numpy as np
 
 from .transducer import FEATURE_CLASSES, Feature
 
-__all__ = ["FEATURE_COLOURS", "label_rgb", "model_scene", "plot_frames_with_labels"]
+__all__ = ["FEATURE_COLOURS", "label_rgb", "model_scene", "plot_frames_with_labels", "plot_pose_overlay"]
 
 #: RGB colours of the paper's Fig. 5: orange elements, blue outer boundary, purple inner boundary,
 #: green gaps, yellow screws; background black.
@@ -83,6 +83,50 @@ def plot_frames_with_labels(frames: Sequence, predictions: Sequence[np.ndarray] 
             ax.set_xticks([])
             ax.set_yticks([])
     handles = [Patch(color=np.array(FEATURE_COLOURS[k]) / 255, label=FEATURE_NAMES[k]) for k in FEATURE_CLASSES]
+    fig.legend(handles=handles, loc="lower center", ncol=len(handles), frameon=False)
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    return fig
+
+
+def plot_pose_overlay(frames: Sequence, model, T_carm_transducer, *, rng: np.random.Generator,
+                      max_points_per_class: int = 4000, titles: Sequence[str] | None = None,
+                      panel_inches: float = 3.6):
+    """Fig. 6, columns 1-2, for each frame (one row per view): the X-ray image, and the image with
+    the digital model's points projected in the estimated pose ``T_carm_transducer`` (coloured
+    by class, a random subset of at most ``max_points_per_class`` per class drawn from ``rng``)
+    and the projected focal point (red cross)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    T = np.asarray(T_carm_transducer, dtype=np.float64)
+    n = len(frames)
+    fig, axes = plt.subplots(n, 2, figsize=(2 * panel_inches * 1.3, n * panel_inches), squeeze=False)
+    for i, frame in enumerate(frames):
+        lo, hi = _display_range(frame.image)
+        name = titles[i] if titles else f"plane {frame.view.name}"
+        for ax in axes[i]:
+            ax.imshow(frame.image, cmap="gray_r", vmin=lo, vmax=hi)
+            ax.set_xticks([])
+            ax.set_yticks([])
+        axes[i, 0].set_title(f"{name}: X-ray")
+        axes[i, 1].set_title(f"{name}: model in the estimated pose")
+        for k in FEATURE_CLASSES:
+            pts = np.asarray(model.points[k])
+            if len(pts) == 0:
+                continue
+            if len(pts) > max_points_per_class:
+                pts = pts[rng.choice(len(pts), max_points_per_class, replace=False)]
+            px = frame.view.project(pts @ T[:3, :3].T + T[:3, 3])
+            axes[i, 1].scatter(px[:, 0], px[:, 1], s=0.3, color=np.array(FEATURE_COLOURS[k]) / 255, alpha=0.6,
+                               linewidths=0)
+        focal = frame.view.project(T[:3, :3] @ np.asarray(model.focal_point_mm, float) + T[:3, 3])[0]
+        axes[i, 1].plot(*focal, "r+", markersize=12, markeredgewidth=2)
+        rows, cols = frame.shape
+        axes[i, 1].set_xlim(-0.5, cols - 0.5)
+        axes[i, 1].set_ylim(rows - 0.5, -0.5)
+    handles = [Line2D([], [], marker="o", linestyle="", color=np.array(FEATURE_COLOURS[k]) / 255,
+                      label=FEATURE_NAMES[k]) for k in FEATURE_CLASSES]
+    handles.append(Line2D([], [], marker="+", linestyle="", color="r", label="focal point"))
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), frameon=False)
     fig.tight_layout(rect=(0, 0.05, 1, 1))
     return fig

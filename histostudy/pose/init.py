@@ -26,7 +26,7 @@ from ..carm import View
 from ..geometry import make_transform
 from ..transducer import pose_facing
 
-__all__ = ["COARSE_GRID", "FINE_GRID", "PAPER_AXIAL_SEEDS_DEG", "ROBUST_AXIAL_SEEDS_DEG", "GridSpec", "InitResult", "axial_minima", "axial_search", "grid_offsets", "grid_search", "initialise_pose",
+__all__ = ["COARSE_GRID", "FINE_GRID", "MEDIUM_GRID", "PAPER_AXIAL_SEEDS_DEG", "ROBUST_AXIAL_SEEDS_DEG", "GridSpec", "InitResult", "axial_minima", "axial_search", "grid_offsets", "grid_search", "initialise_pose",
            "rotation_from_direction"]
 
 CostFn = Callable[[np.ndarray], float]
@@ -56,6 +56,10 @@ class GridSpec:
 COARSE_GRID = GridSpec(13, 10, 30.0)
 #: The paper's fine grid: 49 points, 0.5 cm apart, 3 x 3 cm.
 FINE_GRID = GridSpec(7, 7, 5.0)
+#: Beyond the paper: a 7 x 7 grid at 1 cm between the coarse and the fine grid. The fine grid
+#: reaches +-1.5 cm, half a coarse step; when the coarse grid's optimum is the neighbour of the
+#: right point (its scores are nearly flat 3 cm off) this one still brings it back.
+MEDIUM_GRID = GridSpec(7, 7, 10.0)
 #: The paper's coarse grid runs at one axial angle.
 PAPER_AXIAL_SEEDS_DEG = (0.0,)
 #: Beyond the paper: coarse grids from four axial angles (the aperture has 180 deg symmetry).
@@ -131,7 +135,8 @@ class InitResult:
 def initialise_pose(direction, views: Sequence[View], view_costs: Sequence[CostFn], joint_cost: CostFn, *,
                     centre_mm=(0.0, 0.0, 0.0), coarse: GridSpec = COARSE_GRID, fine: GridSpec = FINE_GRID,
                     n_axial: int = 72, axial_seeds_deg: Sequence[float] = PAPER_AXIAL_SEEDS_DEG,
-                    fine_after_axial: bool = False, n_hypotheses: int = 1,
+                    fine_after_axial: bool = False, n_hypotheses: int = 1, medium: GridSpec | None = None,
+                    coarse_view_costs: Sequence[CostFn] | None = None, coarse_joint_cost: CostFn | None = None,
                     polish: Callable[[np.ndarray], tuple[np.ndarray, float]] | None = None,
                     depth_search_mm: float = 150.0) -> InitResult:
     """Steps 2 and 3 of §II-B.4 for a given direction (step 1's output).
@@ -139,6 +144,11 @@ def initialise_pose(direction, views: Sequence[View], view_costs: Sequence[CostF
     The paper runs the coarse grids at one (arbitrary) axial angle, then the fine grids, then the
     axial search: ``axial_seeds_deg=(0,)``, ``fine_after_axial=False``. Two optional extensions,
     used by :func:`histostudy.pose.estimate_pose` by default (:data:`ROBUST_AXIAL_SEEDS_DEG`):
+    an optional ``medium`` grid between the coarse and the fine one (:data:`MEDIUM_GRID`);
+    ``coarse_view_costs`` / ``coarse_joint_cost`` score the coarse grids and their axial seeds
+    with a cost of a wider basin than the later stages' (e.g. distances truncated at about a
+    coarse step instead of a few millimetres: 3 cm off, every point is beyond a narrow
+    truncation and the coarse scores are nearly flat);
     the coarse grids are run from several axial angles and the seed whose grid optimum scores
     lowest on ``joint_cost`` is kept — an elliptical aperture seen at a wrong axial angle pulls
     the coarse optimum off by centimetres when much of the transducer is outside the detector —
@@ -159,24 +169,30 @@ def initialise_pose(direction, views: Sequence[View], view_costs: Sequence[CostF
     centre = np.asarray(centre_mm, dtype=np.float64).reshape(3)
     n_eval, stages = 0, {}
 
-    def grids(R, point, spec, label):
+    def grids(R, point, spec, label, costs=view_costs):
         nonlocal n_eval
-        for i, (view, cost) in enumerate(zip(views, view_costs)):
+        for i, (view, cost) in enumerate(zip(views, costs)):
             point, c, n = grid_search(cost, R, point, view, spec)
             n_eval += n
             stages[f"{label}_{view.name or i}"] = {"point_mm": point.copy(), "cost": c}
         return point
 
+    coarse_view_costs = view_costs if coarse_view_costs is None else list(coarse_view_costs)
+    coarse_joint_cost = joint_cost if coarse_joint_cost is None else coarse_joint_cost
+    if len(coarse_view_costs) != len(views):
+        raise ValueError(f"coarse_view_costs must hold one cost per view ({len(views)}), got {len(coarse_view_costs)}")
     best = None
     for seed in seeds:
         R = rotation_from_direction(direction, np.deg2rad(seed))
-        point = grids(R, centre, coarse, f"coarse_grid_seed{seed:g}")
-        score = float(joint_cost(make_transform(R, point)))
+        point = grids(R, centre, coarse, f"coarse_grid_seed{seed:g}", coarse_view_costs)
+        score = float(coarse_joint_cost(make_transform(R, point)))
         n_eval += 1
         if best is None or score < best[0]:
             best = (score, seed, R, point)
     _, seed, R, point = best
     stages["axial_seed_deg"] = seed
+    if medium is not None:
+        point = grids(R, point, medium, "medium_grid")
     point = grids(R, point, fine, "fine_grid")
     if len(views) == 1:
         beam = views[0].detector_axes[2]

@@ -28,11 +28,11 @@ import pandas as pd
 from ..anatomy import random_background
 from ..carm import View
 from ..geometry import make_transform, matrix_from_euler, rotation_angle
-from ..pose import PoseEstimationError, estimate_pose
+from ..pose import MAP_KINDS, PoseEstimationError, estimate_pose
 from ..render import render_frame
-from ..segment import OracleSegmenter, SegmentationDegradation
-from ..orientation import OracleOrientation
-from ..transducer import TransducerModel, pose_facing
+from ..orientation import OracleOrientation, OrientationSource
+from ..segment import OracleSegmenter, SegmentationDegradation, Segmenter
+from ..transducer import Feature, TransducerModel, pose_facing
 
 __all__ = [
     "DIRECTIONS",
@@ -41,8 +41,14 @@ __all__ = [
     "margin_positions",
     "robustness_sweep",
     "run_pose_study",
+    "stage_timing",
     "table2",
+    "tracking_summary",
     "transducer_axes",
+    "variant_summary",
+    "axial_symmetric_rotation_error_deg",
+    "experiment_metrics",
+    "random_pose_in_views",
 ]
 
 #: Error directions of §II-E: name -> column of the direction matrix (see :func:`transducer_axes`).
@@ -67,6 +73,10 @@ class PoseStudyConfig:
         photons_per_pixel, n_splats, splat_sigma_mm: rendering (§II-B.2).
         degradation: ``"table1"`` (oracle errs as the paper's U-Net, Table I) or ``"none"``.
         modes: refinement modes to run on the same frames (``"paper"``, ``"fast"``).
+        distance_maps: map kinds to run on the same frames (``"occlusion_aware"``, ``"per_class"``,
+            see :func:`histostudy.pose.estimate_pose`); every mode runs with every kind.
+        track: also re-estimate each margin pose warm-started from the centre's estimate (fast
+            mode), as live tracking of a 10-12.5 mm move would.
         tilt_sd_deg: tilt of the transducer axis from vertical (anterior-posterior), per axis.
         focal_jitter_mm: focal point uniform within ± this of the phantom centre, per axis.
         robot_repeatability_mm: SD of the robot's positioning noise (UR5e: ±0.03 mm).
@@ -81,6 +91,8 @@ class PoseStudyConfig:
     splat_sigma_mm: float = 0.5
     degradation: str = "table1"
     modes: tuple = ("paper", "fast")
+    distance_maps: tuple = ("occlusion_aware",)
+    track: bool = True
     tilt_sd_deg: float = 10.0
     focal_jitter_mm: float = 5.0
     robot_repeatability_mm: float = 0.01
@@ -95,6 +107,13 @@ class PoseStudyConfig:
             raise ValueError(f"degradation must be 'table1' or 'none', got {self.degradation!r}")
         if not self.modes or any(m not in ("paper", "fast") for m in self.modes):
             raise ValueError(f"modes must be a non-empty subset of ('paper', 'fast'), got {self.modes!r}")
+        if not self.distance_maps or any(m not in MAP_KINDS for m in self.distance_maps):
+            raise ValueError(f"distance_maps must be a non-empty subset of {MAP_KINDS}, got {self.distance_maps!r}")
+
+    @property
+    def variants(self) -> list[tuple[str, str]]:
+        """Every (mode, distance-map kind) pair the study runs on each pair of frames."""
+        return [(mode, maps) for mode in self.modes for maps in self.distance_maps]
 
     def segmenter(self) -> OracleSegmenter:
         return OracleSegmenter(SegmentationDegradation.paper_table1() if self.degradation == "table1" else None)
@@ -132,17 +151,24 @@ def _bubble_centre(physical: TransducerModel, T, offset_mm) -> np.ndarray:
 
 def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, render_model: TransducerModel,
                    physical: TransducerModel, views: Sequence[View], seed: int,
+                   segmenter: Segmenter | None = None, orientation: OrientationSource | None = None,
                    progress: Callable[[str], None] | None = None) -> pd.DataFrame:
-    """Run the experiments; one row per (experiment, position, mode).
+    """Run the experiments; one row per (experiment, position, mode, maps), plus tracking rows.
 
-    Columns: experiment, radius_mm, position, mode, the true and predicted focal points
+    Columns: experiment, radius_mm, position, mode, maps, the true and predicted focal points
     (``true_*``, ``pred_*``, world mm), the error along depth/TB/LR of the experiment's centre
-    pose (``err_depth`` ...), ``err_euclidean``, ``rotation_error_deg``, cost, iterations,
-    seconds per stage, verdict and failure text (a failed estimate keeps NaN predictions).
+    pose (``err_depth`` ...), ``err_euclidean``, ``rotation_error_deg`` (modulo the transducer's
+    half-turn symmetry), cost, iterations, seconds per stage (``s_*``), ``ok`` and the failure
+    text (a failed estimate keeps NaN predictions). With ``config.track``, rows of mode
+    ``"track"`` hold the margin poses re-estimated from the centre's estimate (warm start).
+
+    ``segmenter`` and ``orientation`` default to the config's oracles (Table I degradation and
+    the paper's angle MAE); pass learned ones to run the study on them.
     """
     rows = []
     seeds = np.random.SeedSequence(seed).spawn(config.n_experiments)
-    segmenter = config.segmenter()
+    segmenter = config.segmenter() if segmenter is None else segmenter
+    orientation = OracleOrientation() if orientation is None else orientation
     for e, seq in enumerate(seeds):
         rng_pose, rng_scene, rng_render, rng_robot, rng_est = (np.random.default_rng(s) for s in seq.spawn(5))
         radius = float(rng_pose.choice(config.margin_mm))
@@ -150,6 +176,7 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
         centre = scene.meta.get("phantom_center_mm", np.zeros(3))
         T_centre = _experiment_pose(rng_pose, config, centre)
         axes = transducer_axes(T_centre)
+        centre_estimate = None
         for position, T_nominal in margin_positions(T_centre, radius).items():
             T_true = T_nominal.copy()
             T_true[:3, 3] += rng_robot.normal(0, config.robot_repeatability_mm, 3)
@@ -157,19 +184,29 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
                                    photons_per_pixel=config.photons_per_pixel, n_splats=config.n_splats,
                                    splat_sigma_mm=config.splat_sigma_mm) for v in views]
             truth = _bubble_centre(physical, T_true, config.bubble_offset_mm)
-            for mode in config.modes:
+            variants = list(config.variants)
+            if config.track and position != "centre":
+                variants.append(("track", config.distance_maps[0]))
+            for mode, maps in variants:
                 rng_mode = np.random.default_rng(rng_est.integers(2**63))
-                row = {"experiment": e, "radius_mm": radius, "position": position, "mode": mode,
+                row = {"experiment": e, "radius_mm": radius, "position": position, "mode": mode, "maps": maps,
                        **{f"true_{a}": v for a, v in zip("xyz", truth)}}
+                kwargs = dict(mode=mode, distance_maps=maps)
+                if mode == "track":
+                    if centre_estimate is None:
+                        continue
+                    kwargs.update(mode="fast", initial_pose=centre_estimate)
                 try:
-                    res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=OracleOrientation(),
-                                        rng=rng_mode, mode=mode)
+                    res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=orientation,
+                                        rng=rng_mode, **kwargs)
+                    if position == "centre" and (mode, maps) == config.variants[0]:
+                        centre_estimate = res.T_carm_transducer
                     pred = res.focal_point_mm + res.T_carm_transducer[:3, :3] @ np.asarray(config.bubble_offset_mm)
                     err = pred - truth
                     row.update({f"pred_{a}": v for a, v in zip("xyz", pred)})
                     row.update({f"err_{d}": float(err @ axes[d]) for d in DIRECTIONS})
                     row.update(err_euclidean=float(np.linalg.norm(err)),
-                               rotation_error_deg=float(np.rad2deg(rotation_angle(res.T_carm_transducer[:3, :3].T @ T_true[:3, :3]))),
+                               rotation_error_deg=axial_symmetric_rotation_error_deg(res.T_carm_transducer, T_true),
                                cost=res.cost, iterations=res.iterations, ok=True, failure="",
                                **{f"s_{k}": v for k, v in res.timings_s.items()})
                 except PoseEstimationError as exc:
@@ -179,6 +216,19 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
             if progress:
                 progress(f"experiment {e + 1}/{config.n_experiments}: {position}")
     return pd.DataFrame(rows)
+
+
+def axial_symmetric_rotation_error_deg(T_estimate, T_true) -> float:
+    """Rotation error (deg) between two poses, up to a half turn about the transducer axis.
+
+    The aperture, quadrant gaps and cutout are symmetric under a half turn about the axis, and
+    §II-B.4's axial search covers [0, 180 deg) only: a half-turn flip moves no focal point.
+    """
+    R_est = np.asarray(T_estimate, dtype=np.float64)[:3, :3]
+    R_true = np.asarray(T_true, dtype=np.float64)[:3, :3]
+    flip = np.diag([-1.0, -1.0, 1.0])  # half turn about the transducer's z axis
+    return float(min(np.rad2deg(rotation_angle(R_est.T @ R_true)),
+                     np.rad2deg(rotation_angle((R_est @ flip).T @ R_true))))
 
 
 def _mean_sd(values) -> tuple[float, float]:
@@ -198,12 +248,13 @@ def experiment_metrics(records: pd.DataFrame) -> pd.DataFrame:
     of the six margin predictions and the centre prediction).
     """
     out = []
-    for (e, mode), g in records.groupby(["experiment", "mode"], sort=True):
+    full = records[records["mode"] != "track"]
+    for (e, mode, maps), g in full.groupby(["experiment", "mode", "maps"], sort=True):
         g = g.set_index("position")
         r = float(g["radius_mm"].iloc[0])
         pred = {p: g.loc[p, ["pred_x", "pred_y", "pred_z"]].to_numpy(float) for p in g.index}
         ref_centre = g.loc["centre", ["true_x", "true_y", "true_z"]].to_numpy(float)
-        row = {"experiment": e, "mode": mode, "radius_mm": r}
+        row = {"experiment": e, "mode": mode, "maps": maps, "radius_mm": r}
         for d in DIRECTIONS:
             row[f"centre_err_{d}"] = float(g.loc["centre", f"err_{d}"])
         row["centre_err_euclidean"] = float(g.loc["centre", "err_euclidean"])
@@ -224,10 +275,14 @@ def experiment_metrics(records: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(out)
 
 
-def table2(metrics: pd.DataFrame, mode: str) -> tuple[pd.DataFrame, dict]:
-    """Table II (mean ± SD over experiments, mm) for one mode, and the values keyed as in
-    :mod:`histostudy.paper` (``table2.<row>.<direction>`` -> (mean, sd))."""
-    m = metrics[metrics["mode"] == mode]
+def table2(metrics: pd.DataFrame, mode: str, maps: str = "occlusion_aware") -> tuple[pd.DataFrame, dict]:
+    """Table II (mean ± SD over experiments, mm) for one mode and map kind, and the values keyed
+    as in :mod:`histostudy.paper` (``table2.<row>.<direction>`` -> (mean, sd)), plus
+    ``pose.precision`` (centroid of the six margin predictions vs the centre prediction)."""
+    m = metrics[(metrics["mode"] == mode) & (metrics["maps"] == maps)]
+    if m.empty:
+        raise ValueError(f"no experiment metrics for mode={mode!r}, maps={maps!r}; have "
+                         f"{sorted(set(zip(metrics['mode'], metrics['maps'])))}")
     values = {}
     for d in DIRECTIONS:
         values[f"table2.center_bias.{d}"] = _mean_sd(m[f"centre_err_{d}"])
@@ -237,6 +292,7 @@ def table2(metrics: pd.DataFrame, mode: str) -> tuple[pd.DataFrame, dict]:
     values["table2.center_mae.overall"] = _mean_sd(m["centre_err_euclidean"])
     values["table2.margin_mae.overall"] = _mean_sd(m[[f"margin_err_{n}" for n in MARGINS]].to_numpy().ravel())
     values["table2.radius_mae.overall"] = _mean_sd(m[[f"radius_err_{d}" for d in DIRECTIONS]].to_numpy().ravel())
+    values["pose.precision"] = _mean_sd(m["precision"])
     fmt = lambda v: f"{v[0]:.2f} ± {v[1]:.2f}" if np.isfinite(v[0]) else "n/a"
     rows = []
     for row, label in (("center_bias", "Center Bias"), ("center_mae", "Center MAE"),
@@ -249,16 +305,67 @@ def table2(metrics: pd.DataFrame, mode: str) -> tuple[pd.DataFrame, dict]:
     return pd.DataFrame(rows), values
 
 
+def variant_summary(metrics: pd.DataFrame) -> pd.DataFrame:
+    """Per (mode, maps): centre Euclidean error, centre MAE per direction, radius MAE and precision
+    (mean ± SD over experiments, mm) — the paper's mode beside the fast one, per-class maps beside
+    occlusion-aware ones."""
+    rows = []
+    for (mode, maps), m in metrics.groupby(["mode", "maps"], sort=False):
+        row = {"mode": mode, "maps": maps, "experiments": len(m)}
+        for label, values in (("centre euclidean", m["centre_err_euclidean"]),
+                              *((f"centre |{d}|", np.abs(m[f"centre_err_{d}"])) for d in DIRECTIONS),
+                              ("radius MAE", m[[f"radius_err_{d}" for d in DIRECTIONS]].to_numpy().ravel()),
+                              ("precision", m["precision"])):
+            mean, sd = _mean_sd(values)
+            row[label] = f"{mean:.2f} ± {sd:.2f}" if np.isfinite(mean) else "n/a"
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def stage_timing(records: pd.DataFrame) -> pd.DataFrame:
+    """Median seconds per stage of :func:`histostudy.pose.estimate_pose`, per (mode, maps).
+
+    Mode ``"track"`` is the warm start from the previous estimate (no initialisation).
+    """
+    stages = [c for c in records.columns if c.startswith("s_")]
+    ok = records[records["ok"].astype(bool)]
+    table = ok.groupby(["mode", "maps"], sort=False)[stages].median()
+    table.columns = [c[2:] for c in stages]
+    table.insert(0, "estimates", ok.groupby(["mode", "maps"], sort=False).size())
+    return table.reset_index()
+
+
+def tracking_summary(records: pd.DataFrame) -> dict:
+    """Warm-started margin estimates (mode ``"track"``) beside the same margins estimated from
+    scratch in the fast mode: focal error (mean ± SD, mm) and refinement time (median, s)."""
+    track = records[records["mode"] == "track"]
+    if track.empty:
+        return {}
+    scratch = records[(records["mode"] == "fast") & (records["position"] != "centre")
+                      & (records["maps"] == track["maps"].iloc[0])]
+    out = {"n": int(len(track)), "failed": int((~track["ok"].astype(bool)).sum())}
+    for name, df in (("track", track), ("scratch", scratch)):
+        mean, sd = _mean_sd(df["err_euclidean"])
+        out[f"{name}_error_mm"] = (mean, sd)
+        out[f"{name}_refinement_s"] = float(np.nanmedian(df["s_refinement"])) if len(df) else float("nan")
+        out[f"{name}_total_s"] = float(np.nanmedian(df["s_total"])) if len(df) else float("nan")
+    return out
+
+
 def random_pose_in_views(rng: np.random.Generator, views: Sequence[View], *, translation_mm: float = 100.0,
-                         max_tries: int = 1000) -> np.ndarray:
+                         visible_points_mm=((0.0, 0.0, 0.0),), max_tries: int = 1000) -> np.ndarray:
     """A pose in the paper's training ranges (§II-B.2: Euler angles in [0, 360) deg, translations
-    in ±10 cm per axis) whose focal point projects onto every detector (rejection sampling)."""
+    in ±10 cm per axis) whose ``visible_points_mm`` (transducer frame; default the focal point)
+    all project onto every detector, in front of the source (rejection sampling)."""
+    local = np.asarray(visible_points_mm, dtype=np.float64).reshape(-1, 3)
     for _ in range(max_tries):
         R = matrix_from_euler(rng.uniform(0, 2 * np.pi, 3), "xyz")
         t = rng.uniform(-translation_mm, translation_mm, 3)
-        if all(v.in_image(v.project(t))[0] and v.project_homogeneous(t)[0, 2] > 0 for v in views):
+        world = local @ R.T + t
+        if all(np.all(v.in_image(v.project(world))) and np.all(v.project_homogeneous(world)[:, 2] > 0)
+               for v in views):
             return make_transform(R, t)
-    raise RuntimeError(f"no pose with the focal point in every view after {max_tries} draws")
+    raise RuntimeError(f"no pose with {len(local)} given point(s) in every view after {max_tries} draws")
 
 
 def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model: TransducerModel,
@@ -267,14 +374,18 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
                      success_mm: float = 2.0) -> pd.DataFrame:
     """Initialisation success over random poses in the paper's training ranges; one row per (pose, init).
 
-    Success: no :class:`PoseEstimationError` and a focal-point error below ``success_mm``.
+    The focal point and the transducer's centre (the centroid of the model's element points)
+    project into every view: the transducer is seen, at least half of it, as in every use of
+    the system. Success: no :class:`PoseEstimationError` and a focal-point error below ``success_mm``.
     Backgrounds are drawn from the paper's evaluation mix (abdomen and phantom).
     """
     rows = []
     segmenter = config.segmenter()
+    centre = np.mean(pose_model.points[Feature.TRANSDUCER], axis=0)
+    visible = np.stack([np.asarray(pose_model.focal_point_mm, float), centre])
     for i, seq in enumerate(np.random.SeedSequence(seed).spawn(n_poses)):
         rng_pose, rng_scene, rng_render, rng_est = (np.random.default_rng(s) for s in seq.spawn(4))
-        T = random_pose_in_views(rng_pose, views)
+        T = random_pose_in_views(rng_pose, views, visible_points_mm=visible)
         scene = random_background(rng_scene, "mixed")
         frames = [render_frame(render_model, T, v, rng=rng_render, physical=physical, background=scene,
                                photons_per_pixel=config.photons_per_pixel, n_splats=config.n_splats,
