@@ -126,7 +126,8 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
             scores the grid and axial searches with distances truncated at
             ``search_truncation_px`` (points off the detector count as truncated too), seeds the
             coarse grids at four axial angles (scored with distances truncated at
-            ``coarse_truncation_px``, about a coarse grid step, for a basin as wide as the grid),
+            ``coarse_truncation_px``, about a coarse grid step, for a basin as wide as the grid,
+            off-detector points at that and at half of it, three chains of each carried on),
             adds a 1 cm medium grid before the fine one, repeats the fine grids after the axial search and
             carries the three best axial minima through a short Levenberg-Marquardt polish. With
             the paper's constant a pose with the whole model off the detector costs 0.01 px² per
@@ -148,7 +149,9 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
         raise_on_failure: raise :class:`PoseEstimationError` on a failed verdict (else return it).
         retry_hypotheses: when the refinement from the best initial hypothesis fails the verdict,
             refine the initialisation's other hypotheses too (``init="robust"`` keeps three) and
-            keep the plausible one of lowest cost; ``timings_s["retries"]`` then holds their time.
+            keep the plausible one of lowest cost; in the fast mode, if none is plausible, the
+            best hypothesis is refined by Nelder-Mead as a last resort. ``timings_s["retries"]``
+            then holds their time.
     """
     t_start = time.perf_counter()
     frames = _check_frames(frames)
@@ -192,8 +195,16 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
         polish_cost = PoseCost(coarse.points, [m.truncated(tau) for m in maps], class_weights=class_weights,
                                outside_distance_px=outside_distance_px)
         tau_coarse = float(coarse_truncation_px)
-        coarse_search = PoseCost(coarse.points, [m.truncated(tau_coarse) for m in maps],
-                                 class_weights=class_weights, outside_distance_px=tau_coarse)
+        # Off the detector a point is unknown. Costing it the full truncation, a pose that pulls
+        # more of the model into a view where the transducer is mostly outside can beat the true
+        # region; at half the truncation a pose with most of the model off the detectors can
+        # beat a near miss of the coarse grid (both measured). Each scoring proposes its chains;
+        # the narrower search cost decides after the medium and fine grids.
+        coarse_maps = [m.truncated(tau_coarse) for m in maps]
+        coarse_scorings = []
+        for outside in (tau_coarse, 0.5 * tau_coarse):
+            c = PoseCost(coarse.points, coarse_maps, class_weights=class_weights, outside_distance_px=outside)
+            coarse_scorings.append(([c.select_views(i) for i in range(len(frames))], c))
     else:
         search = polish_cost = coarse
 
@@ -221,8 +232,8 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
                 r = refine_levenberg_marquardt(polish_cost, T, max_iter=30)
                 return r.T, float(search(r.T))
             options = dict(axial_seeds_deg=ROBUST_AXIAL_SEEDS_DEG, fine_after_axial=True, n_hypotheses=3,
-                           polish=polish, medium=MEDIUM_GRID, coarse_joint_cost=coarse_search,
-                           coarse_view_costs=[coarse_search.select_views(i) for i in range(len(frames))])
+                           polish=polish, medium=MEDIUM_GRID, coarse_scorings=coarse_scorings,
+                           coarse_candidates=3)
         else:
             options = dict(axial_seeds_deg=PAPER_AXIAL_SEEDS_DEG, fine_after_axial=False, n_hypotheses=1)
         results = [initialise_pose(d, views, view_costs, search, centre_mm=search_centre_mm, **options)
@@ -234,8 +245,8 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
         T_init = init_result.T_carm_transducer
         timings["initialisation"] = time.perf_counter() - t0
 
-    def refine(T0):
-        if mode == "paper":
+    def refine(T0, method=mode):
+        if method == "paper":
             return refine_nelder_mead(cost, T0)
         # Coarse-to-fine: the truncated point subset first (robust to missed and spurious
         # features, ~20x cheaper per pass), then the full eq. 3. The tolerances (1e-3 mm, 1e-3
@@ -264,6 +275,14 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
             candidate = refine(T_hyp)
             candidate_verdict = judge(candidate.T)
             if candidate_verdict.ok and (not verdict.ok or candidate.cost < refined.cost):
+                refined, verdict = candidate, candidate_verdict
+        if not verdict.ok and mode == "fast":
+            # Last resort: the simplex explores a 2 deg / 2 mm neighbourhood where a
+            # gradient step cannot leave a spurious basin of the segmentation errors.
+            retries += 1
+            candidate = refine(init_result.T_carm_transducer, "paper")
+            candidate_verdict = judge(candidate.T)
+            if candidate_verdict.ok:
                 refined, verdict = candidate, candidate_verdict
         timings["retries"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start

@@ -136,7 +136,8 @@ def initialise_pose(direction, views: Sequence[View], view_costs: Sequence[CostF
                     centre_mm=(0.0, 0.0, 0.0), coarse: GridSpec = COARSE_GRID, fine: GridSpec = FINE_GRID,
                     n_axial: int = 72, axial_seeds_deg: Sequence[float] = PAPER_AXIAL_SEEDS_DEG,
                     fine_after_axial: bool = False, n_hypotheses: int = 1, medium: GridSpec | None = None,
-                    coarse_view_costs: Sequence[CostFn] | None = None, coarse_joint_cost: CostFn | None = None,
+                    coarse_scorings: Sequence[tuple[Sequence[CostFn], CostFn]] | None = None,
+                    coarse_candidates: int = 1,
                     polish: Callable[[np.ndarray], tuple[np.ndarray, float]] | None = None,
                     depth_search_mm: float = 150.0) -> InitResult:
     """Steps 2 and 3 of §II-B.4 for a given direction (step 1's output).
@@ -145,10 +146,16 @@ def initialise_pose(direction, views: Sequence[View], view_costs: Sequence[CostF
     axial search: ``axial_seeds_deg=(0,)``, ``fine_after_axial=False``. Two optional extensions,
     used by :func:`histostudy.pose.estimate_pose` by default (:data:`ROBUST_AXIAL_SEEDS_DEG`):
     an optional ``medium`` grid between the coarse and the fine one (:data:`MEDIUM_GRID`);
-    ``coarse_view_costs`` / ``coarse_joint_cost`` score the coarse grids and their axial seeds
-    with a cost of a wider basin than the later stages' (e.g. distances truncated at about a
-    coarse step instead of a few millimetres: 3 cm off, every point is beyond a narrow
-    truncation and the coarse scores are nearly flat);
+    ``coarse_scorings`` — pairs ``(view_costs, joint_cost)`` — score the coarse grids and their
+    axial seeds instead of ``view_costs`` / ``joint_cost``, each scoring proposing its own best
+    chains (e.g. distances truncated at about a coarse step, with two costs for points off the
+    detector: 3 cm off every point is beyond a narrow truncation and the coarse scores are nearly
+    flat, and which off-detector cost ranks the true region first depends on how much of the
+    transducer the views see); the chains are then compared on ``joint_cost`` after the
+    medium and fine grids;
+    ``coarse_candidates > 1`` follows that many of the first view's best coarse points (and
+    keeps that many joint chains through the medium and fine grids: neighbouring coarse points
+    score alike when the true point lies between them);
     the coarse grids are run from several axial angles and the seed whose grid optimum scores
     lowest on ``joint_cost`` is kept — an elliptical aperture seen at a wrong axial angle pulls
     the coarse optimum off by centimetres when much of the transducer is outside the detector —
@@ -177,23 +184,47 @@ def initialise_pose(direction, views: Sequence[View], view_costs: Sequence[CostF
             stages[f"{label}_{view.name or i}"] = {"point_mm": point.copy(), "cost": c}
         return point
 
-    coarse_view_costs = view_costs if coarse_view_costs is None else list(coarse_view_costs)
-    coarse_joint_cost = joint_cost if coarse_joint_cost is None else coarse_joint_cost
-    if len(coarse_view_costs) != len(views):
-        raise ValueError(f"coarse_view_costs must hold one cost per view ({len(views)}), got {len(coarse_view_costs)}")
+    scorings = [(list(view_costs), joint_cost)] if coarse_scorings is None else [
+        (list(v), j) for v, j in coarse_scorings]
+    for v, _ in scorings:
+        if len(v) != len(views):
+            raise ValueError(f"each coarse scoring must hold one cost per view ({len(views)}), got {len(v)}")
+    # Coarse stage, per scoring and axial seed: the first view's grid keeps its
+    # ``coarse_candidates`` best points, each followed through the other views' grids and scored
+    # jointly; each scoring's best chains go on.
+    chains = []
+    for s_index, (coarse_view_costs, coarse_joint_cost) in enumerate(scorings):
+        scored = []
+        for seed in seeds:
+            R = rotation_from_direction(direction, np.deg2rad(seed))
+            firsts = centre + grid_offsets(views[0], coarse)
+            scores = np.array([coarse_view_costs[0](make_transform(R, p)) for p in firsts])
+            n_eval += len(firsts)
+            order = np.argsort(scores, kind="stable")[:max(1, coarse_candidates)]
+            stages[f"coarse_grid_s{s_index}_seed{seed:g}_{views[0].name or 0}"] = {
+                "point_mm": firsts[order[0]].copy(), "cost": float(scores[order[0]])}
+            for rank, j in enumerate(order):
+                point = firsts[j]
+                for i in range(1, len(views)):
+                    point, c, n = grid_search(coarse_view_costs[i], R, point, views[i], coarse)
+                    n_eval += n
+                scored.append((float(coarse_joint_cost(make_transform(R, point))), seed, f"s{s_index}_r{rank}", R, point))
+                n_eval += 1
+        scored.sort(key=lambda c: c[0])
+        chains.extend(scored[:max(1, coarse_candidates)])
+    # Medium and fine grids for the best chains; the lowest joint cost after them goes on.
     best = None
-    for seed in seeds:
-        R = rotation_from_direction(direction, np.deg2rad(seed))
-        point = grids(R, centre, coarse, f"coarse_grid_seed{seed:g}", coarse_view_costs)
-        score = float(coarse_joint_cost(make_transform(R, point)))
+    for score, seed, rank, R, point in chains:
+        label = f"seed{seed:g}_{rank}"
+        if medium is not None:
+            point = grids(R, point, medium, f"medium_grid_{label}")
+        point = grids(R, point, fine, f"fine_grid_{label}")
+        refined_score = float(joint_cost(make_transform(R, point)))
         n_eval += 1
-        if best is None or score < best[0]:
-            best = (score, seed, R, point)
+        if best is None or refined_score < best[0]:
+            best = (refined_score, seed, R, point)
     _, seed, R, point = best
     stages["axial_seed_deg"] = seed
-    if medium is not None:
-        point = grids(R, point, medium, "medium_grid")
-    point = grids(R, point, fine, "fine_grid")
     if len(views) == 1:
         beam = views[0].detector_axes[2]
         for step in (10.0, 2.0):
