@@ -200,10 +200,12 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
         # region; at half the truncation a pose with most of the model off the detectors can
         # beat a near miss of the coarse grid (both measured). Each scoring proposes its chains;
         # the narrower search cost decides after the medium and fine grids.
+        # A 3 cm grid needs no more than a few hundred points per class to rank its nodes.
         coarse_maps = [m.truncated(tau_coarse) for m in maps]
+        coarse_points = coarse.subset(max(1, init_points_per_class // 5), rng).points
         coarse_scorings = []
         for outside in (tau_coarse, 0.5 * tau_coarse):
-            c = PoseCost(coarse.points, coarse_maps, class_weights=class_weights, outside_distance_px=outside)
+            c = PoseCost(coarse_points, coarse_maps, class_weights=class_weights, outside_distance_px=outside)
             coarse_scorings.append(([c.select_views(i) for i in range(len(frames))], c))
     else:
         search = polish_cost = coarse
