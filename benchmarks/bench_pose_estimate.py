@@ -19,9 +19,11 @@ import numpy as np
 
 from histostudy.anatomy import random_background
 from histostudy.carm import default_biplane
+from histostudy.orientation import OracleOrientation
 from histostudy.pose import estimate_pose
 from histostudy.pose.cost import apply_left_perturbation
 from histostudy.render import render_frame
+from histostudy.segment import OracleSegmenter
 from histostudy.study.pose_estimation import PoseStudyConfig, _experiment_pose
 from histostudy.transducer import TransducerModel
 
@@ -43,7 +45,8 @@ def main() -> None:
     # Compile the numba kernels before timing anything.
     warm = [render_frame(model, _experiment_pose(np.random.default_rng(0), config, np.zeros(3)), v,
                          rng=np.random.default_rng(0), n_splats=1) for v in views]
-    estimate_pose(warm, model, mode="fast", raise_on_failure=False)
+    estimate_pose(warm, model, segmenter=OracleSegmenter(), orientation=OracleOrientation(), mode="fast",
+                  raise_on_failure=False)
 
     times = {name: {s: [] for s in STAGES} for name in ("paper", "fast", "track")}
     errors = {name: [] for name in times}
@@ -57,7 +60,8 @@ def main() -> None:
         for r in range(args.repeat):
             for name, kwargs in (("paper", dict(mode="paper")), ("fast", dict(mode="fast")),
                                  ("track", dict(mode="fast", initial_pose=start))):
-                res = estimate_pose(frames, model, segmenter=segmenter, rng=np.random.default_rng(r),
+                res = estimate_pose(frames, model, segmenter=segmenter, orientation=OracleOrientation(),
+                                    rng=np.random.default_rng(r),
                                     raise_on_failure=False, **kwargs)
                 for s in STAGES:
                     times[name][s].append(res.timings_s.get(s, 0.0))

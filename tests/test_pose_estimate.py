@@ -1,7 +1,8 @@
 """Tests of histostudy.pose.estimate_pose (§II-B.3-4) on synthetic frames with known truth.
 
 Frames carry reference labels rendered from a 0.25 mm digital model (the oracle segmenter reads
-them); the image content does not enter the pose, so it is left blank for speed.
+them); the image content does not enter the pose, so it is left blank for speed. The oracle stages
+are passed explicitly: the defaults are the shipped networks when their weights are present.
 """
 
 import numpy as np
@@ -28,6 +29,9 @@ def models():
     return TransducerModel.build(spacing_mm=0.47), TransducerModel.build(spacing_mm=0.25)
 
 
+ORACLES = dict(segmenter=OracleSegmenter(), orientation=OracleOrientation())
+
+
 def frames_of(fine, T, views=None, labels_pose=None):
     views = default_biplane() if views is None else views
     out = []
@@ -50,7 +54,7 @@ def frames(models):
 @pytest.mark.parametrize("which", [0, 1])
 def test_noise_free_biplane_frames_recover_the_focal_point(models, frames, mode, which):
     T = POSES[which]
-    res = estimate_pose(frames[which], models[0], rng=np.random.default_rng(1), mode=mode)
+    res = estimate_pose(frames[which], models[0], rng=np.random.default_rng(1), mode=mode, **ORACLES)
     assert isinstance(res, PoseResult) and res.mode == mode and res.verdict.ok
     assert focal_error(res, T) < 0.1, focal_error(res, T)
     # The axial angle is recovered up to the transducer's half-turn symmetry (screws aside).
@@ -68,8 +72,8 @@ def test_per_class_maps_of_eq3_are_biased_by_occluded_classes(models, frames):
     fraction of a millimetre; the occlusion-aware maps (default) do not."""
     T = POSES[0]
     per_class = estimate_pose(frames[0], models[0], rng=np.random.default_rng(1), mode="fast",
-                              distance_maps="per_class")
-    aware = estimate_pose(frames[0], models[0], rng=np.random.default_rng(1), mode="fast")
+                              distance_maps="per_class", **ORACLES)
+    aware = estimate_pose(frames[0], models[0], rng=np.random.default_rng(1), mode="fast", **ORACLES)
     assert focal_error(per_class, T) > 0.3 > 0.1 > focal_error(aware, T)
 
 
@@ -84,7 +88,7 @@ def test_same_generator_seed_gives_the_same_pose(models, frames):
 def test_warm_start_skips_the_initialisation(models, frames):
     T = POSES[1]
     start = apply_left_perturbation(T, [0.01, -0.01, 0.005, 1.0, -0.8, 0.5])
-    res = estimate_pose(frames[1], models[0], initial_pose=start, mode="fast")
+    res = estimate_pose(frames[1], models[0], initial_pose=start, mode="fast", **ORACLES)
     assert res.init is None and res.timings_s["initialisation"] == 0.0
     assert focal_error(res, T) < 0.1
 
@@ -93,7 +97,7 @@ def test_a_single_view_is_enough_for_a_pose_facing_it(models):
     T = POSES[1]
     view = default_biplane()[0]
     frame = frames_of(models[1], T, views=[view])
-    res = estimate_pose(frame, models[0], rng=np.random.default_rng(2), mode="fast")
+    res = estimate_pose(frame, models[0], rng=np.random.default_rng(2), mode="fast", **ORACLES)
     assert res.verdict.ok and list(res.verdict.rms_distance_px) == ["A"]
     # Depth along the single beam is seen only through magnification: looser than biplane.
     assert focal_error(res, T) < 0.5, focal_error(res, T)
@@ -104,12 +108,12 @@ def test_empty_or_off_detector_frames_raise_a_clear_error(models):
     empty = [Frame(np.zeros(v.shape, np.float32), v, labels=np.zeros(v.shape, np.uint8),
                    T_carm_transducer=POSES[0]) for v in views]
     with pytest.raises(PoseEstimationError, match="view 'A': no transducer feature"):
-        estimate_pose(empty, models[0])
+        estimate_pose(empty, models[0], **ORACLES)
     far = pose_facing((0.0, 1.0, 0.0), focal_point_mm=(0.0, 0.0, 900.0))
     off = frames_of(models[1], far)
     assert not any(f.labels.any() for f in off)
     with pytest.raises(PoseEstimationError, match="no transducer feature"):
-        estimate_pose(off, models[0])
+        estimate_pose(off, models[0], **ORACLES)
 
 
 def test_inconsistent_views_give_a_failed_verdict_not_a_confident_pose(models):
@@ -119,25 +123,43 @@ def test_inconsistent_views_give_a_failed_verdict_not_a_confident_pose(models):
     shifted[:3, 3] += (60.0, 0.0, -40.0)
     frames = frames_of(models[1], T, labels_pose=[None, shifted])
     with pytest.raises(PoseEstimationError, match="implausible pose") as info:
-        estimate_pose(frames, models[0], rng=np.random.default_rng(0), mode="fast")
+        estimate_pose(frames, models[0], rng=np.random.default_rng(0), mode="fast", **ORACLES)
     assert info.value.verdict is not None and not info.value.verdict.ok
     assert info.value.result is not None
-    res = estimate_pose(frames, models[0], rng=np.random.default_rng(0), mode="fast", raise_on_failure=False)
+    res = estimate_pose(frames, models[0], rng=np.random.default_rng(0), mode="fast", raise_on_failure=False, **ORACLES)
     assert not res.verdict.ok and any("RMS distance" in r for r in res.verdict.reasons)
 
 
 def test_bad_arguments_raise(models, frames):
     with pytest.raises(ValueError, match="at least one Frame"):
-        estimate_pose([], models[0])
+        estimate_pose([], models[0], **ORACLES)
     with pytest.raises(TypeError, match=r"frames\[1\] must be a histostudy.frame.Frame"):
-        estimate_pose([frames[0][0], "B"], models[0])
+        estimate_pose([frames[0][0], "B"], models[0], **ORACLES)
     with pytest.raises(TypeError, match="model must be a TransducerModel"):
-        estimate_pose(frames[0], {"points": 1})
+        estimate_pose(frames[0], {"points": 1}, **ORACLES)
     with pytest.raises(ValueError, match="mode must be one of"):
-        estimate_pose(frames[0], models[0], mode="gpu")
+        estimate_pose(frames[0], models[0], mode="gpu", **ORACLES)
     with pytest.raises(ValueError, match="init must be one of"):
-        estimate_pose(frames[0], models[0], init="random")
+        estimate_pose(frames[0], models[0], init="random", **ORACLES)
     with pytest.raises(ValueError, match="distance_maps must be one of"):
-        estimate_pose(frames[0], models[0], distance_maps="chamfer")
+        estimate_pose(frames[0], models[0], distance_maps="chamfer", **ORACLES)
     with pytest.raises(TypeError, match="rng must be a numpy.random.Generator"):
-        estimate_pose(frames[0], models[0], rng=3)
+        estimate_pose(frames[0], models[0], rng=3, **ORACLES)
+
+
+def test_default_stages_are_the_shipped_networks_else_the_oracles(monkeypatch):
+    import histostudy.pose as pose
+
+    sentinel_seg, sentinel_orient = object(), object()
+    monkeypatch.setattr(pose, "default_segmenter", lambda: sentinel_seg)
+    monkeypatch.setattr(pose, "default_orientation", lambda: sentinel_orient)
+    pose.default_stages.cache_clear()
+    try:
+        assert pose.default_stages() == (sentinel_seg, sentinel_orient)
+        pose.default_stages.cache_clear()
+        monkeypatch.setattr(pose, "default_segmenter", lambda: None)
+        with pytest.warns(UserWarning, match="no usable shipped U-Net"):
+            seg, orient = pose.default_stages()
+        assert isinstance(seg, OracleSegmenter) and orient is sentinel_orient
+    finally:
+        pose.default_stages.cache_clear()

@@ -17,21 +17,25 @@ running the search for both candidates and keeping the lower cost.
 
 from __future__ import annotations
 
+import functools
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
 
 from ..frame import Frame
-from ..orientation import OracleOrientation, OrientationSource, direction_candidates, select_direction
-from ..segment import OracleSegmenter, Segmenter
+from ..orientation import (OracleOrientation, OrientationSource, default_orientation, direction_candidates,
+                           select_direction)
+from ..segment import OracleSegmenter, Segmenter, default_segmenter
 from ..transducer import TransducerModel
 from .cost import DistanceMaps, PoseCost
 from .init import COARSE_GRID, MEDIUM_GRID, PAPER_AXIAL_SEEDS_DEG, ROBUST_AXIAL_SEEDS_DEG, InitResult, initialise_pose
 from .refine import RefineResult, refine_levenberg_marquardt, refine_nelder_mead
 
-__all__ = ["INIT_METHODS", "MAP_KINDS", "MODES", "PoseEstimationError", "PoseResult", "PoseVerdict", "estimate_pose"]
+__all__ = ["INIT_METHODS", "MAP_KINDS", "MODES", "PoseEstimationError", "PoseResult", "PoseVerdict", "default_stages",
+           "estimate_pose"]
 
 MODES = ("paper", "fast")
 INIT_METHODS = ("robust", "paper")
@@ -114,9 +118,11 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
     Args:
         frames: the fluoroscopic frames, each with its view (>= 1; the paper: planes A and B).
         model: the digital model whose points enter eq. 3 (the paper: the 0.47 mm model).
-        segmenter: frame -> label image; default :class:`OracleSegmenter` (the frames' reference
-            labels — a synthetic-study stand-in for the learned U-Net).
-        orientation: frame -> (azimuth, elevation); default :class:`OracleOrientation`.
+        segmenter: frame -> label image; default: the shipped U-Net when its weights are present
+            and pass their check, else :class:`OracleSegmenter` (the frames' reference labels, a
+            synthetic-study stand-in that cannot segment a real frame) — see :func:`default_stages`.
+        orientation: frame -> (azimuth, elevation); default: the shipped VGG19 regressor, else
+            :class:`OracleOrientation` (the true angles with the paper's errors).
         rng: Generator for the segmenter's and orientation's draws and the point subsets; default
             ``numpy.random.default_rng(0)``.
         mode: ``"paper"`` (Nelder-Mead, 1000 iterations, tolerances 0.01) or ``"fast"``
@@ -166,8 +172,8 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
     rng = np.random.default_rng(0) if rng is None else rng
     if not isinstance(rng, np.random.Generator):
         raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
-    segmenter = OracleSegmenter() if segmenter is None else segmenter
-    orientation = OracleOrientation() if orientation is None else orientation
+    segmenter = default_stages()[0] if segmenter is None else segmenter
+    orientation = default_stages()[1] if orientation is None else orientation
     timings = {}
 
     t0 = time.perf_counter()
@@ -297,6 +303,25 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
     if not verdict.ok and raise_on_failure:
         raise PoseEstimationError("implausible pose: " + "; ".join(verdict.reasons), verdict, result)
     return result
+
+
+@functools.lru_cache(maxsize=1)
+def default_stages() -> tuple[Segmenter, OrientationSource]:
+    """The segmenter and orientation source :func:`estimate_pose` uses when none is given.
+
+    The learned stages shipped in ``data/models`` (:func:`histostudy.segment.default_segmenter`,
+    :func:`histostudy.orientation.default_orientation`) where their weights are present and pass
+    their hash and configuration check; otherwise the oracles (synthetic frames only), with a
+    warning. Loaded once per process.
+    """
+    segmenter, orientation = default_segmenter(), default_orientation()
+    if segmenter is None or orientation is None:
+        warnings.warn("estimate_pose: no usable shipped "
+                      + " and ".join(n for n, s in (("U-Net", segmenter), ("VGG19", orientation)) if s is None)
+                      + " in data/models; using the oracle stage(s), which need synthetic frames",
+                      stacklevel=3)
+    return (segmenter if segmenter is not None else OracleSegmenter(),
+            orientation if orientation is not None else OracleOrientation())
 
 
 def _check_frames(frames) -> list[Frame]:
