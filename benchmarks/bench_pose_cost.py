@@ -11,7 +11,8 @@ Prints, for the 0.47 mm digital model on the paper's two 1240x960 views (default
 - the Levenberg-Marquardt Jacobian pass (cost + J'J + J'r fused) and the materialised n x 6 one;
 - Nelder-Mead (paper settings) vs Levenberg-Marquardt from the same perturbed starts: time,
   evaluations and focal-point / rotation error, on the reference label image (overlap priority,
-  0.125 mm model) and on per-class masks (no occlusion).
+  0.125 mm model) with eq. 3's per-class maps and with occlusion-aware maps, and on per-class
+  masks (no occlusion).
 
 Run: ``python benchmarks/bench_pose_cost.py [--repeat 30] [--starts 3]``. Times are the median
 (and best) of ``--repeat`` calls; on a shared machine the best is the steadier figure.
@@ -170,7 +171,10 @@ def main() -> None:
     masks = [DistanceMaps(v, {f: render_labels(class_only(fine, f), T_true, v) == int(f) for f in FEATURE_CLASSES})
              for v in views]
     print("\nrefinement from 3 deg / 5 mm perturbations (focal-point error mm, rotation error deg):")
-    for name, cmaps in (("label image (priority)", maps), ("per-class masks", masks)):
+    aware = [DistanceMaps(v, lab, occlusion_aware=True) for v, lab in zip(views, labels)]
+    for name, cmaps in (("label image (priority), eq. 3's per-class maps", maps),
+                        ("label image (priority), occlusion-aware maps", aware),
+                        ("per-class masks", masks)):
         c = PoseCost(model.points, cmaps)
         coarse = c.subset(2000, np.random.default_rng(args.seed))
         rows = {"nelder-mead": [], "levenberg-marquardt": [], "LM coarse-to-fine": []}
