@@ -150,3 +150,22 @@ def test_one_small_experiment_end_to_end():
     assert summary["n"] == 6 and summary["track_error_mm"][0] < 1.0
     timing = study.stage_timing(records)
     assert set(timing["mode"]) == {"fast", "track"} and (timing["total"] > 0).all()
+
+
+@pytest.mark.slow
+def test_noise_sweep_renders_each_dose_and_the_oracle_ignores_the_image():
+    from histostudy.orientation import OracleOrientation
+    from histostudy.segment import OracleSegmenter
+
+    model = TransducerModel.build(spacing_mm=0.47)
+    physical = TransducerModel.build_physical(spacing_mm=0.47, rng=np.random.default_rng(3))
+    config = study.PoseStudyConfig(n_splats=1)
+    table = study.noise_sweep([2e3, 5e4], pose_model=model, render_model=model, physical=physical,
+                              views=default_biplane(), seed=5, config=config, segmenter=OracleSegmenter(),
+                              orientation=OracleOrientation(), n_poses=1)
+    assert list(table["photons_per_pixel"]) == [2e3, 5e4] and table["ok"].all()
+    # The oracle reads the labels, not the image: the same error at every dose.
+    assert table["error_mm"].nunique() == 1 and table["error_mm"].iloc[0] < 1.0
+    with pytest.raises(ValueError, match="photons_per_pixel"):
+        study.noise_sweep([0.0], pose_model=model, render_model=model, physical=physical, views=default_biplane(),
+                          seed=5, config=config, segmenter=OracleSegmenter())
