@@ -147,19 +147,28 @@ def test_bad_arguments_raise(models, frames):
         estimate_pose(frames[0], models[0], rng=3, **ORACLES)
 
 
-def test_default_stages_are_the_shipped_networks_else_the_oracles(monkeypatch):
+def test_default_stages_are_the_shipped_networks_when_good_enough_else_the_oracles(monkeypatch):
+    import types
+
     import histostudy.pose as pose
 
-    sentinel_seg, sentinel_orient = object(), object()
-    monkeypatch.setattr(pose, "default_segmenter", lambda: sentinel_seg)
-    monkeypatch.setattr(pose, "default_orientation", lambda: sentinel_orient)
+    good_seg = types.SimpleNamespace(manifest={"validation": {"pixel_accuracy": 0.97}})
+    good_orient = types.SimpleNamespace(manifest={"validation": {"azimuth_mae_deg": 1.5, "elevation_mae_deg": 2.5}})
+    poor_orient = types.SimpleNamespace(manifest={"validation": {"azimuth_mae_deg": 84.6, "elevation_mae_deg": 24.9}})
+    monkeypatch.setattr(pose, "default_segmenter", lambda: good_seg)
+    monkeypatch.setattr(pose, "default_orientation", lambda: good_orient)
     pose.default_stages.cache_clear()
     try:
-        assert pose.default_stages() == (sentinel_seg, sentinel_orient)
+        assert pose.default_stages() == (good_seg, good_orient)
+        pose.default_stages.cache_clear()
+        monkeypatch.setattr(pose, "default_orientation", lambda: poor_orient)
+        with pytest.warns(UserWarning, match="VGG19's validation angle MAE 84.6 deg exceeds 10.0"):
+            seg, orient = pose.default_stages()
+        assert isinstance(seg, OracleSegmenter) and isinstance(orient, OracleOrientation)
         pose.default_stages.cache_clear()
         monkeypatch.setattr(pose, "default_segmenter", lambda: None)
         with pytest.warns(UserWarning, match="no usable shipped U-Net"):
-            seg, orient = pose.default_stages()
-        assert isinstance(seg, OracleSegmenter) and orient is sentinel_orient
+            seg, _ = pose.default_stages()
+        assert isinstance(seg, OracleSegmenter)
     finally:
         pose.default_stages.cache_clear()

@@ -34,7 +34,7 @@ from .cost import DistanceMaps, PoseCost
 from .init import COARSE_GRID, MEDIUM_GRID, PAPER_AXIAL_SEEDS_DEG, ROBUST_AXIAL_SEEDS_DEG, InitResult, initialise_pose
 from .refine import RefineResult, refine_levenberg_marquardt, refine_nelder_mead
 
-__all__ = ["INIT_METHODS", "MAP_KINDS", "MODES", "PoseEstimationError", "PoseResult", "PoseVerdict", "default_stages",
+__all__ = ["INIT_METHODS", "LEARNED_STAGE_REQUIREMENTS", "MAP_KINDS", "MODES", "PoseEstimationError", "PoseResult", "PoseVerdict", "default_stages",
            "estimate_pose"]
 
 MODES = ("paper", "fast")
@@ -305,23 +305,56 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
     return result
 
 
+#: What a shipped network's manifest must show on its validation split before :func:`estimate_pose`
+#: uses it by default: a network trained too briefly to be useful (e.g. a VGG19 whose azimuth
+#: error is that of a guess) would otherwise send every default estimate astray.
+LEARNED_STAGE_REQUIREMENTS = {"unet_min_pixel_accuracy": 0.95, "vgg_max_angle_mae_deg": 10.0}
+
+
+def _validation(stage) -> dict:
+    manifest = getattr(stage, "manifest", None) or {}
+    return manifest.get("validation", {}) or {}
+
+
+def _usable(segmenter, orientation) -> list[str]:
+    """Why the shipped stages are not used by default (empty when they are)."""
+    reasons = []
+    if segmenter is None:
+        reasons.append("no usable shipped U-Net")
+    else:
+        accuracy = _validation(segmenter).get("pixel_accuracy", float("nan"))
+        if not accuracy >= LEARNED_STAGE_REQUIREMENTS["unet_min_pixel_accuracy"]:
+            reasons.append(f"the shipped U-Net's validation pixel accuracy {accuracy:.3f} is below "
+                           f"{LEARNED_STAGE_REQUIREMENTS['unet_min_pixel_accuracy']}")
+    if orientation is None:
+        reasons.append("no usable shipped VGG19")
+    else:
+        v = _validation(orientation)
+        worst = max(v.get("azimuth_mae_deg", float("nan")), v.get("elevation_mae_deg", float("nan")))
+        if not worst <= LEARNED_STAGE_REQUIREMENTS["vgg_max_angle_mae_deg"]:
+            reasons.append(f"the shipped VGG19's validation angle MAE {worst:.1f} deg exceeds "
+                           f"{LEARNED_STAGE_REQUIREMENTS['vgg_max_angle_mae_deg']} deg")
+    return reasons
+
+
 @functools.lru_cache(maxsize=1)
 def default_stages() -> tuple[Segmenter, OrientationSource]:
     """The segmenter and orientation source :func:`estimate_pose` uses when none is given.
 
     The learned stages shipped in ``data/models`` (:func:`histostudy.segment.default_segmenter`,
-    :func:`histostudy.orientation.default_orientation`) where their weights are present and pass
-    their hash and configuration check; otherwise the oracles (synthetic frames only), with a
-    warning. Loaded once per process.
+    :func:`histostudy.orientation.default_orientation`) where their weights are present, pass
+    their hash and configuration check, and their manifests' validation figures meet
+    :data:`LEARNED_STAGE_REQUIREMENTS`; otherwise the oracles (synthetic frames only), with a
+    warning that says why. Loaded once per process. Pass ``segmenter=`` / ``orientation=`` to
+    :func:`estimate_pose` to choose explicitly (e.g. a network of your own).
     """
     segmenter, orientation = default_segmenter(), default_orientation()
-    if segmenter is None or orientation is None:
-        warnings.warn("estimate_pose: no usable shipped "
-                      + " and ".join(n for n, s in (("U-Net", segmenter), ("VGG19", orientation)) if s is None)
-                      + " in data/models; using the oracle stage(s), which need synthetic frames",
-                      stacklevel=3)
-    return (segmenter if segmenter is not None else OracleSegmenter(),
-            orientation if orientation is not None else OracleOrientation())
+    reasons = _usable(segmenter, orientation)
+    if reasons:
+        warnings.warn("estimate_pose: " + "; ".join(reasons) + " — using the oracle stages, which need "
+                      "synthetic frames", stacklevel=3)
+        return OracleSegmenter(), OracleOrientation()
+    return segmenter, orientation
 
 
 def _check_frames(frames) -> list[Frame]:
