@@ -1,4 +1,4 @@
-"""The ``histostudy`` command: ``histostudy reproduce --profile smoke`` and friends."""
+"""The ``histostudy`` command: ``histostudy reproduce --profile smoke``, ``histostudy train segmentation`` and friends."""
 
 from __future__ import annotations
 
@@ -30,6 +30,21 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--notebooks", default=None, help="notebook folder (default: the repository's notebooks/)")
     rep.add_argument("--no-progress", action="store_true", help="no per-cell progress bar")
 
+    tr = sub.add_parser("train", help="train a learned stage (U-Net or VGG19) on hybrid images and export its weights")
+    tr.add_argument("task", choices=("segmentation", "orientation"))
+    tr.add_argument("--profile", type=_profile, default="standard",
+                    help=f"one of {', '.join(PROFILE_NAMES)} or a .toml file with [training.<task>] (default: standard)")
+    tr.add_argument("--run-dir", default=None,
+                    help="checkpoint folder (default: <cache>/runs/<task>-<profile>; an interrupted run resumes there)")
+    tr.add_argument("--models-dir", default=None, help="where the best weights are exported (default: data/models)")
+    tr.add_argument("--no-resume", action="store_true", help="start afresh even if the run folder holds a checkpoint")
+    tr.add_argument("--no-export", action="store_true", help="keep the weights in the run folder only")
+    tr.add_argument("--max-minutes", type=float, default=None, help="override the profile's wall-time budget")
+    tr.add_argument("--threads", type=int, default=None, help="torch CPU threads (override)")
+    tr.add_argument("--init-weights", default=None,
+                    help="start from this checkpoint's network (same config) instead of random weights")
+    tr.add_argument("--no-progress", action="store_true", help="no progress bar")
+
     prof = sub.add_parser("profiles", help="list the built-in profiles")
     prof.set_defaults(command="profiles")
     return parser
@@ -42,6 +57,8 @@ def main(argv=None) -> int:
             p = load_profile(name)
             print(f"{p.name:9s} seed {p.seed}  {p.description}")
         return 0
+    if args.command == "train":
+        return _train(args)
     if args.command == "reproduce":
         from .pipeline import NotebookFailed, run_study
 
@@ -57,6 +74,37 @@ def main(argv=None) -> int:
         print(f"report: {run.report_md}\n        {run.report_html}")
         return 0
     return 2
+
+
+def _train(args) -> int:
+    import dataclasses
+
+    from .datasets import default_cache_dir
+    from .training import TrainingConfig, export, train
+
+    profile = args.profile
+    table = profile.training.get(args.task)
+    if table is None:
+        print(f"histostudy train: profile {profile.name!r} has no [training.{args.task}] table", file=sys.stderr)
+        return 2
+    try:
+        cfg = TrainingConfig.from_table(args.task, table)
+        overrides = {k: v for k, v in (("max_minutes", args.max_minutes), ("threads", args.threads),
+                                       ("init_weights", args.init_weights)) if v is not None}
+        cfg = dataclasses.replace(cfg, **overrides)
+    except (ValueError, TypeError) as exc:
+        print(f"histostudy train: {exc}", file=sys.stderr)
+        return 2
+    run_dir = args.run_dir or default_cache_dir() / "runs" / f"{args.task}-{profile.name}"
+    result = train(cfg, run_dir, seed=profile.seed, profile=profile.name, resume=not args.no_resume,
+                   progress=not args.no_progress)
+    print(f"{args.task}: {result.steps} steps, {result.epochs} epochs in the last stage; stopped: {result.stopped}")
+    print(f"best validation: {result.validation}")
+    if not args.no_export:
+        name = f"{cfg.network['arch']}_{profile.name}"
+        manifest = export(result, cfg, name, seed=profile.seed, profile=profile.name, models_dir=args.models_dir)
+        print(f"exported {manifest.with_suffix('.safetensors')} (manifest {manifest})")
+    return 0
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ Orientation sources (the oracle here; the learned VGG19 regressor of the learnin
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol, Sequence, runtime_checkable
 
 import numpy as np
@@ -30,11 +30,17 @@ from .carm import View
 from .frame import Frame
 
 __all__ = [
+    "N_ORIENTATION_CLASSES",
+    "LearnedOrientation",
     "OracleOrientation",
     "OrientationSource",
     "angles_from_direction",
     "beam_direction_of_pose",
+    "default_orientation",
     "direction_candidates",
+    "hemisphere_angles",
+    "hemisphere_directions",
+    "orientation_class",
     "select_direction",
     "wrap_angle",
 ]
@@ -147,3 +153,118 @@ class OracleOrientation:
         if el > np.pi / 2:
             el = np.pi - el
         return float(wrap_angle(az)), float(el)
+
+
+# --- the learned stage: 36 hemisphere classes and the VGG19 regressor (§II-B.4) -------------
+
+#: Number of orientation classes of the paper's classifier (§II-B.4).
+N_ORIENTATION_CLASSES = 36
+
+_GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
+
+
+def hemisphere_angles(n: int = N_ORIENTATION_CLASSES) -> np.ndarray:
+    """``(n, 2)`` azimuth and elevation (rad) of ``n`` near-equidistant directions on the hemisphere
+    pointing away from the detector (§II-B.4: 36 classes sampled equidistantly).
+
+    A Fibonacci lattice: direction ``i`` has ``cos(elevation) = 1 - (i + 1/2) / n`` (equal areas of
+    the hemisphere per point) and azimuth ``i`` times the golden angle, wrapped to ``(-pi, pi]``.
+    """
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
+        raise ValueError(f"n must be an integer >= 2, got {n!r}")
+    i = np.arange(int(n), dtype=np.float64)
+    elevation = np.arccos(1.0 - (i + 0.5) / n)
+    azimuth = wrap_angle(i * _GOLDEN_ANGLE)
+    return np.column_stack([azimuth, elevation])
+
+
+def _detector_direction(azimuth_rad, elevation_rad) -> np.ndarray:
+    az, el = np.asarray(azimuth_rad, dtype=np.float64), np.asarray(elevation_rad, dtype=np.float64)
+    return np.stack([np.cos(az) * np.sin(el), np.sin(az) * np.sin(el), -np.cos(el)], axis=-1)
+
+
+def hemisphere_directions(n: int = N_ORIENTATION_CLASSES) -> np.ndarray:
+    """``(n, 3)`` unit directions in the detector frame ``(e_u, e_v, e_w)`` of :func:`hemisphere_angles`
+    (their ``e_w`` components are negative: pointing away from the detector)."""
+    a = hemisphere_angles(n)
+    return _detector_direction(a[:, 0], a[:, 1])
+
+
+def orientation_class(azimuth_rad: float, elevation_rad: float, n: int = N_ORIENTATION_CLASSES) -> int:
+    """Index of the hemisphere direction (:func:`hemisphere_directions`) nearest to the given angles."""
+    if not (np.isfinite(azimuth_rad) and np.isfinite(elevation_rad)):
+        raise ValueError(f"azimuth_rad and elevation_rad must be finite, got {azimuth_rad!r}, {elevation_rad!r}")
+    return int(np.argmax(hemisphere_directions(n) @ _detector_direction(azimuth_rad, elevation_rad)))
+
+
+@dataclass(frozen=True, eq=False)
+class LearnedOrientation:
+    """The VGG19 regressor of §II-B.4 as an :class:`OrientationSource`.
+
+    The frame is downscaled by ``network.scale`` (0.25: 1240x960 -> 310x240) and standardised
+    (:func:`histostudy.datasets.prepare_image`); the network returns azimuth and elevation in rad
+    relative to the frame's view, in the convention of :func:`angles_from_direction`. The raw
+    azimuth is wrapped to ``(-pi, pi]`` and the elevation folded into ``[0, pi/2]``. ``rng`` is
+    accepted for the protocol and unused (inference is deterministic).
+
+    Build it with :meth:`load` from a checkpoint (:mod:`histostudy.checkpoints`).
+    """
+
+    network: object = field(repr=False)
+    scale: float = 0.25
+    manifest: dict | None = field(default=None, repr=False)
+
+    @classmethod
+    def load(cls, path) -> "LearnedOrientation":
+        """From a VGG19 regressor checkpoint (hash and configuration checked)."""
+        from .checkpoints import load_network
+
+        net, manifest = load_network(path)
+        if net.config.get("arch") != "vgg19" or net.config.get("head") != "regressor":
+            raise ValueError(f"checkpoint {str(path)!r} holds {net.config}, expected a VGG19 regressor")
+        return cls(network=net, scale=float(manifest.get("input_scale", 0.25)), manifest=manifest)
+
+    def estimate(self, frame: Frame, rng: np.random.Generator | None = None) -> tuple[float, float]:
+        return self.estimate_many([frame])[0]
+
+    def estimate_many(self, frames: Sequence[Frame], batch_size: int = 8) -> list[tuple[float, float]]:
+        """Angles of several frames in batches: ``[(azimuth_rad, elevation_rad), ...]``."""
+        import torch
+
+        from .datasets import prepare_image
+
+        out = []
+        self.network.eval()
+        for start in range(0, len(frames), batch_size):
+            batch = []
+            for frame in frames[start:start + batch_size]:
+                if not isinstance(frame, Frame):
+                    raise TypeError(f"frame must be a histostudy.frame.Frame, got {type(frame).__name__}")
+                batch.append(prepare_image(frame.image, self.scale))
+            shapes = {b.shape for b in batch}
+            if len(shapes) != 1:
+                raise ValueError(f"frames in one batch must share a shape, got {sorted(shapes)}")
+            with torch.no_grad():
+                pred = self.network(torch.from_numpy(np.stack(batch))[:, None]).double().numpy()
+            for az, el in pred:
+                el = abs(float(el)) % np.pi
+                out.append((float(wrap_angle(az)), float(np.pi - el if el > np.pi / 2 else el)))
+        return out
+
+
+def default_orientation() -> LearnedOrientation | None:
+    """The shipped VGG19 regressor (``data/models/vgg19_standard``) as a :class:`LearnedOrientation`,
+    or None when the weights are missing or fail their hash or configuration check (callers then
+    fall back to :class:`OracleOrientation` and say so)."""
+    from .checkpoints import shipped_model
+
+    import warnings
+
+    path = shipped_model("vgg19_standard")
+    if path is None:
+        return None
+    try:
+        return LearnedOrientation.load(path)
+    except (ValueError, OSError) as exc:
+        warnings.warn(f"shipped VGG19 {str(path)!r} is not usable ({exc}); no learned orientation", stacklevel=2)
+        return None

@@ -14,6 +14,10 @@ A profile is a TOML file (``histostudy/profiles/<name>.toml`` for the built-in `
     render_spacing_mm = 0.125
     ...
 
+    [training.segmentation]  # `histostudy train segmentation` (see histostudy.training)
+    network = { arch = "unet", base_width = 12, depth = 4 }
+    ...
+
 A notebook receives ``profile``, ``seed``, the ``[common]`` table and its own table, in that
 order of precedence (its own wins). A notebook opened by hand in JupyterLab uses the defaults of
 its ``parameters`` cell, which are the smoke profile's.
@@ -42,6 +46,7 @@ class Profile:
     common: dict = field(default_factory=dict)
     notebooks: dict = field(default_factory=dict)
     source: str = ""
+    training: dict = field(default_factory=dict)
 
     def parameters_for(self, notebook: str) -> dict:
         """The papermill parameters for the notebook with stem ``notebook``."""
@@ -71,6 +76,9 @@ def load_profile(name_or_path: str | os.PathLike) -> Profile:
     notebooks = data.get("notebooks", {})
     if not isinstance(notebooks, dict) or not all(isinstance(v, dict) for v in notebooks.values()):
         raise ValueError(f"profile file {path}: [notebooks.<name>] entries must be tables")
+    training = data.get("training", {})
+    if not isinstance(training, dict) or not all(isinstance(v, dict) for v in training.values()):
+        raise ValueError(f"profile file {path}: [training.<task>] entries must be tables")
     return Profile(
         name=str(data.get("name", path.stem)),
         seed=seed,
@@ -78,4 +86,5 @@ def load_profile(name_or_path: str | os.PathLike) -> Profile:
         common=dict(data.get("common", {})),
         notebooks={k: dict(v) for k, v in notebooks.items()},
         source=str(path),
+        training={k: dict(v) for k, v in training.items()},
     )

@@ -3,7 +3,7 @@
 A :class:`Segmenter` turns a :class:`~histostudy.frame.Frame` into a label image: ``uint8
 (rows, cols)`` of :class:`~histostudy.transducer.Feature` values, one class per pixel, overlaps
 resolved by the paper's priority (what the U-Net's arg-max gives). The learned U-Net implements
-the same interface.
+the same interface (:class:`UNetSegmenter`, with the shipped weights from :func:`default_segmenter`).
 
 :class:`OracleSegmenter` returns the frame's reference labels, optionally degraded the way a
 network errs (:class:`SegmentationDegradation`): each class keeps only a fraction of its pixels
@@ -23,7 +23,8 @@ import numpy as np
 from .frame import Frame
 from .transducer import FEATURE_CLASSES, Feature
 
-__all__ = ["OracleSegmenter", "SegmentationDegradation", "Segmenter", "masks_from_labels"]
+__all__ = ["OracleSegmenter", "SegmentationDegradation", "Segmenter", "UNetSegmenter", "default_segmenter",
+           "masks_from_labels"]
 
 
 @runtime_checkable
@@ -163,3 +164,74 @@ def degrade_labels(labels: np.ndarray, degradation: SegmentationDegradation, rng
                 threshold = np.partition(-score[ring], n_fp - 1)[n_fp - 1]
                 out[ring & (-score <= threshold)] = k
     return out
+
+
+# --- the learned segmenter (§II-B.2) ----------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class UNetSegmenter:
+    """The U-Net of §II-B.2 as a :class:`Segmenter`.
+
+    Inference on a whole frame in one pass at the network's input scale: the line-integral image
+    is area-downscaled by ``scale`` and standardised (:func:`histostudy.datasets.prepare_image`,
+    the transform of training), the U-Net's logits are upsampled bilinearly (pixel centres
+    aligned as in :meth:`~histostudy.carm.View.scaled`) to the frame's full resolution and the
+    arg-max class of each pixel is returned, so labels always have the frame's shape. ``rng`` is
+    accepted for the protocol and unused (inference is deterministic).
+
+    Build it with :meth:`load` from a checkpoint (:mod:`histostudy.checkpoints`), or get the
+    shipped one from :func:`default_segmenter`.
+    """
+
+    network: object = field(repr=False)
+    scale: float = 0.5
+    manifest: dict | None = field(default=None, repr=False)
+
+    @classmethod
+    def load(cls, path) -> "UNetSegmenter":
+        """From a U-Net checkpoint (hash and configuration checked)."""
+        from .checkpoints import load_network
+
+        net, manifest = load_network(path)
+        if net.config.get("arch") != "unet" or net.config.get("n_classes") != len(Feature):
+            raise ValueError(f"checkpoint {str(path)!r} holds {net.config}, expected a U-Net with {len(Feature)} classes")
+        return cls(network=net, scale=float(manifest.get("input_scale", 0.5)), manifest=manifest)
+
+    def segment(self, frame: Frame, rng: np.random.Generator | None = None) -> np.ndarray:
+        import torch
+        from torch.nn import functional as F
+
+        from .datasets import prepare_image
+
+        if not isinstance(frame, Frame):
+            raise TypeError(f"frame must be a histostudy.frame.Frame, got {type(frame).__name__}")
+        try:
+            x = prepare_image(frame.image, self.scale)
+        except ValueError as exc:
+            raise ValueError(f"frame of view {frame.view.name!r} with shape {frame.image.shape} cannot be "
+                             f"segmented at scale {self.scale}: {exc}") from None
+        self.network.eval()
+        with torch.no_grad():
+            logits = self.network(torch.from_numpy(x)[None, None])
+            if logits.shape[-2:] != frame.image.shape:
+                logits = F.interpolate(logits, size=frame.image.shape, mode="bilinear", align_corners=False)
+            return logits[0].argmax(dim=0).to(torch.uint8).numpy()
+
+
+def default_segmenter() -> UNetSegmenter | None:
+    """The shipped U-Net (``data/models/unet_standard``) as a :class:`UNetSegmenter`, or None when
+    the weights are missing or fail their hash or configuration check (callers then fall back to
+    :class:`OracleSegmenter` and say so)."""
+    import warnings
+
+    from .checkpoints import shipped_model
+
+    path = shipped_model("unet_standard")
+    if path is None:
+        return None
+    try:
+        return UNetSegmenter.load(path)
+    except (ValueError, OSError) as exc:
+        warnings.warn(f"shipped U-Net {str(path)!r} is not usable ({exc}); no learned segmenter", stacklevel=2)
+        return None

@@ -2,15 +2,22 @@
 
 import numpy as np
 import pytest
+import torch
 
 from histostudy.carm import View, default_biplane
 from histostudy.frame import Frame
 from histostudy.geometry import make_transform, random_rotation
 from histostudy.orientation import (
+    N_ORIENTATION_CLASSES,
+    LearnedOrientation,
     OracleOrientation,
+    OrientationSource,
     angles_from_direction,
     beam_direction_of_pose,
     direction_candidates,
+    hemisphere_angles,
+    hemisphere_directions,
+    orientation_class,
     select_direction,
     wrap_angle,
 )
@@ -101,3 +108,55 @@ def test_oracle_is_deterministic_and_needs_truth():
         o.estimate(Frame(np.zeros(view.shape, np.float32), view), np.random.default_rng(0))
     with pytest.raises(ValueError, match="azimuth_mae_deg"):
         OracleOrientation(azimuth_mae_deg=-1)
+
+
+# --- the learned stage: hemisphere classes and the regressor ------------------------------------
+
+
+def test_36_hemisphere_directions_point_away_and_are_near_equidistant():
+    d = hemisphere_directions()
+    assert d.shape == (N_ORIENTATION_CLASSES, 3) == (36, 3)
+    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0)
+    assert np.all(d[:, 2] < 0)
+    cos = d @ d.T
+    np.fill_diagonal(cos, -1)
+    nearest = np.degrees(np.arccos(cos.max(axis=1)))
+    # 36 points on 2 pi sr: ~0.175 sr each, a spacing of ~ sqrt(0.175) rad = 24 deg
+    assert nearest.min() > 14 and nearest.max() < 30
+    # equal areas: as many directions above as below 60 deg elevation (half the hemisphere's area)
+    assert np.sum(hemisphere_angles()[:, 1] < np.radians(60)) == 18
+
+
+def test_orientation_class_is_the_nearest_direction():
+    a = hemisphere_angles()
+    for k in range(36):
+        assert orientation_class(*a[k]) == k
+    rng = np.random.default_rng(5)
+    d = hemisphere_directions()
+    for _ in range(20):
+        az, el = rng.uniform(-np.pi, np.pi), rng.uniform(0, np.pi / 2)
+        v = np.array([np.cos(az) * np.sin(el), np.sin(az) * np.sin(el), -np.cos(el)])
+        assert orientation_class(az, el) == int(np.argmin(np.linalg.norm(d - v, axis=1)))
+
+
+class _ConstantNet(torch.nn.Module):
+    def __init__(self, az, el):
+        super().__init__()
+        self.out = torch.tensor([az, el], dtype=torch.float32)
+
+    def forward(self, x):
+        assert x.shape[1:] == (1, 240, 310)  # the paper's 310x240 input
+        return self.out.expand(x.shape[0], 2)
+
+
+def test_learned_orientation_wraps_and_folds_the_network_output():
+    view = default_biplane()[0]
+    frame = Frame(np.zeros(view.shape, np.float32), view)
+    src = LearnedOrientation(_ConstantNet(4.0, -0.3))
+    assert isinstance(src, OrientationSource)
+    az, el = src.estimate(frame, np.random.default_rng(0))
+    assert az == pytest.approx(4.0 - 2 * np.pi, abs=1e-6) and el == pytest.approx(0.3, abs=1e-6)
+    az, el = LearnedOrientation(_ConstantNet(0.5, 2.0)).estimate(frame, None)
+    assert el == pytest.approx(np.pi - 2.0, abs=1e-6)
+    with pytest.raises(TypeError, match="Frame"):
+        src.estimate(np.zeros(view.shape), None)

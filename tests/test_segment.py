@@ -3,10 +3,17 @@
 import numpy as np
 import pytest
 
-from histostudy.carm import default_biplane
+import torch
+
+from histostudy import checkpoints
+from histostudy.carm import View, default_biplane
+from histostudy.checkpoints import save_checkpoint
+from histostudy.datasets import prepare_image
 from histostudy.frame import Frame
+from histostudy.nets import UNet, build_network
 from histostudy.render import render_labels
-from histostudy.segment import OracleSegmenter, SegmentationDegradation, Segmenter, masks_from_labels
+from histostudy.segment import (OracleSegmenter, SegmentationDegradation, Segmenter, UNetSegmenter, default_segmenter,
+                                masks_from_labels)
 from histostudy.transducer import FEATURE_CLASSES, Feature, TransducerModel, pose_facing
 
 
@@ -79,3 +86,64 @@ def test_bad_input(frame):
         OracleSegmenter(SegmentationDegradation.paper_table1()).segment(frame, None)
     masks = masks_from_labels(frame.labels)
     assert set(masks) == set(FEATURE_CLASSES) and masks[Feature.SCREWS].dtype == bool
+
+
+
+# --- the learned segmenter -------------------------------------------------------------------
+
+
+class _ThresholdNet(torch.nn.Module):
+    """Logits that make class 1 wherever the (standardised) input is positive, else background."""
+
+    def forward(self, x):
+        z = torch.zeros(x.shape[0], 6, *x.shape[-2:])
+        z[:, 1] = 10.0 * x[:, 0]
+        return z
+
+
+def _step_frame(shape=(64, 96), edge=40):
+    view = View.from_gantry(0.0, shape=shape)
+    image = np.zeros(shape, np.float32)
+    image[:, :edge] = 3.0
+    return Frame(image, view)
+
+
+def test_unet_segmenter_keeps_geometry_at_full_resolution():
+    frame = _step_frame()
+    seg = UNetSegmenter(_ThresholdNet(), scale=0.5)
+    assert isinstance(seg, Segmenter)
+    out = seg.segment(frame, np.random.default_rng(0))
+    assert out.shape == frame.shape and out.dtype == np.uint8
+    # left of the step: class 1, right of it background; only the pixels at the step may blend
+    assert np.all(out[:, :39] == 1) and np.all(out[:, 41:] == 0)
+
+
+def test_unet_segmenter_rejects_bad_frames():
+    seg = UNetSegmenter(_ThresholdNet(), scale=0.5)
+    with pytest.raises(ValueError, match="scale 0.5"):
+        seg.segment(_step_frame(shape=(63, 96)))
+    with pytest.raises(TypeError, match="Frame"):
+        seg.segment(np.zeros((64, 96), np.float32))
+
+
+def test_unet_segmenter_from_checkpoint_and_default(tmp_path, monkeypatch):
+    torch.manual_seed(0)
+    net = UNet(base_width=2, depth=2).eval()
+    save_checkpoint(tmp_path / "unet_standard", {f"model.{k}": v for k, v in net.state_dict().items()},
+                    net.config, input_scale=0.5)
+    frame = _step_frame()
+    seg = UNetSegmenter.load(tmp_path / "unet_standard.safetensors")
+    with torch.no_grad():
+        small = net(torch.from_numpy(prepare_image(frame.image, 0.5))[None, None])[0].argmax(0).numpy()
+    out = seg.segment(frame)
+    assert out.shape == frame.shape
+    # the full-resolution labels are the upsampled low-resolution arg-max: most agree pixel for pixel
+    assert np.mean(out[::2, ::2] == small) > 0.9
+    monkeypatch.setattr(checkpoints, "MODELS_DIR", tmp_path)
+    assert isinstance(default_segmenter(), UNetSegmenter)
+    monkeypatch.setattr(checkpoints, "MODELS_DIR", tmp_path / "none")
+    assert default_segmenter() is None
+    v = build_network({"arch": "vgg19", "width": 1 / 32, "head": "regressor"})
+    save_checkpoint(tmp_path / "vgg", {f"model.{k}": t for k, t in v.state_dict().items()}, v.config)
+    with pytest.raises(ValueError, match="expected a U-Net"):
+        UNetSegmenter.load(tmp_path / "vgg.safetensors")

@@ -1,0 +1,433 @@
+"""One training loop for both learned stages (paper §II-B.2 and §II-B.4).
+
+SGD with momentum 0.9, learning rate 0.001, mini-batches of 5 (the paper's values, profile
+defaults), an epoch being one pass over the training frames; after each epoch the validation loss
+is computed on a held-out split (its own seeds) and training stops when it has not improved for
+``patience`` (3) epochs, when ``max_epochs`` is reached or when the wall-time budget
+``max_minutes`` is spent. The best network (lowest validation loss) is kept.
+
+- segmentation: the U-Net on random ``crop x crop`` patches of the frames downscaled by ``scale``
+  (paper: 512x512 at full resolution), pixel-wise cross-entropy over the six classes.
+- orientation: two stages (§II-B.4). ``classify``: VGG19 as a 36-class classifier of the nearest
+  hemisphere orientation (cross-entropy); then its best weights become the regressor
+  (:meth:`~histostudy.nets.vgg.VGG19.to_regressor`) and ``regress`` trains azimuth and elevation
+  with the loss ``sin(el)^2 wrap(d_az)^2 + d_el^2`` (rad²): the squared angle between predicted and
+  true direction for small errors. ``wrap`` takes the azimuth difference into ``(-pi, pi]``, so a
+  prediction of ``179°`` for ``-179°`` costs 2° and not 358°; the ``sin(el)`` weight says that the
+  azimuth of a direction along the beam axis means nothing.
+
+Checkpoints (:mod:`histostudy.checkpoints`): after every epoch ``last.safetensors`` (network and
+optimiser momentum, with ``state.json``: stage, epoch, steps, best loss, history) and, on a new
+best, ``best-<stage>.safetensors`` — all written atomically, so an interrupted run resumes from
+its last completed epoch with :func:`train` (``resume=True``). :func:`export` copies the best
+network with its manifest (profile, seed, git commit, steps, validation metrics, sha256) to
+``data/models``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+from torch.nn import functional as F
+from torch.utils.data import DataLoader
+
+from .checkpoints import MODELS_DIR, load_checkpoint, save_checkpoint
+from .datasets import TASKS, HybridFrames, HybridImageDataset, RenderConfig, default_cache_dir
+from .io import atomic_write_json
+from .nets import build_network
+from .orientation import N_ORIENTATION_CLASSES
+
+__all__ = ["TrainingConfig", "TrainingResult", "angle_loss", "export", "train"]
+
+
+@dataclass(frozen=True)
+class TrainingConfig:
+    """Everything a training run depends on (a profile's ``[training.<task>]`` table).
+
+    Attributes:
+        task: ``"segmentation"`` or ``"orientation"``.
+        network: the network config (:func:`histostudy.nets.build_network`), e.g.
+            ``{"arch": "unet", "base_width": 12, "depth": 4}``.
+        scale: input downscale (U-Net here 0.5; VGG 0.25 as in §II-B.4).
+        crop: square training crop in network pixels (segmentation; None: whole images).
+        n_train, n_val: frames in the training and validation splits.
+        batch_size, learning_rate, momentum: SGD (paper: 5, 0.001, 0.9).
+        patience: epochs without a lower validation loss before stopping (paper: 3).
+        max_epochs: cap per stage.
+        classification_epochs: cap of the orientation classifier stage (0: skip it).
+        max_minutes: wall-time budget of the whole run (None: none).
+        threads: torch CPU threads (None: torch's default).
+        device: ``"auto"`` (CUDA when present), ``"cpu"`` or ``"cuda"``.
+        render: the :class:`~histostudy.datasets.RenderConfig` of the hybrid frames.
+        cache: keep rendered frames on disk (under the cache folder) between epochs and runs.
+        class_weights: segmentation only: a weight per class for the cross-entropy (None: all 1,
+            the paper's loss as far as it says); rare thin classes may be weighted up.
+        init_weights: a checkpoint whose network (same config) starts the run instead of a random
+            initialisation (fine-tuning); for an orientation run without classifier stage it may
+            be the trained classifier, converted to the regressor (§II-B.4). Recorded with its
+            SHA-256 in the exported manifest.
+    """
+
+    task: str
+    network: dict
+    scale: float
+    crop: int | None = None
+    n_train: int = 200
+    n_val: int = 30
+    batch_size: int = 5
+    learning_rate: float = 1e-3
+    momentum: float = 0.9
+    patience: int = 3
+    max_epochs: int = 50
+    classification_epochs: int = 0
+    max_minutes: float | None = None
+    threads: int | None = None
+    device: str = "auto"
+    render: RenderConfig = field(default_factory=RenderConfig)
+    cache: bool = True
+    class_weights: tuple | None = None
+    init_weights: str | None = None
+
+    def __post_init__(self):
+        if self.task not in TASKS:
+            raise ValueError(f"task must be one of {TASKS}, got {self.task!r}")
+        build_network(dict(self.network))  # a clear error now rather than after rendering
+        for name in ("n_train", "n_val", "batch_size", "patience", "max_epochs"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        if self.batch_size > self.n_train:
+            raise ValueError(f"batch_size ({self.batch_size}) must not exceed n_train ({self.n_train})")
+        for name in ("learning_rate", "momentum"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        if self.max_minutes is not None and not (self.max_minutes > 0):
+            raise ValueError(f"max_minutes must be > 0 or None, got {self.max_minutes!r}")
+        if self.device not in ("auto", "cpu", "cuda"):
+            raise ValueError(f"device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
+        if not isinstance(self.render, RenderConfig):
+            raise TypeError(f"render must be a RenderConfig, got {type(self.render).__name__}")
+        if self.class_weights is not None:
+            w = tuple(float(v) for v in self.class_weights)
+            if self.task != "segmentation" or len(w) != 6 or not all(math.isfinite(v) and v > 0 for v in w):
+                raise ValueError(f"class_weights must be None or 6 positive numbers for segmentation, got "
+                                 f"{self.class_weights!r} for task {self.task!r}")
+            object.__setattr__(self, "class_weights", w)
+
+    @classmethod
+    def from_table(cls, task: str, table: dict) -> "TrainingConfig":
+        """From a profile's ``[training.<task>]`` table; its ``render`` sub-table is a RenderConfig."""
+        table = dict(table)
+        known = {f.name for f in fields(cls)} - {"task"}
+        unknown = set(table) - known
+        if unknown:
+            raise ValueError(f"[training.{task}] has unknown keys {sorted(unknown)}; known: {sorted(known)}")
+        render = table.pop("render", {})
+        try:
+            render_cfg = RenderConfig(**render)
+        except TypeError as exc:
+            raise ValueError(f"[training.{task}.render]: {exc}") from None
+        return cls(task=task, render=render_cfg, **table)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class TrainingResult:
+    """What a run did: where its checkpoints are, the steps, the best validation metrics and why it stopped."""
+
+    run_dir: Path
+    best: Path
+    steps: int
+    epochs: int
+    validation: dict
+    stopped: str
+    history: list
+
+
+def angle_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean of ``sin(el)^2 wrap(az_p - az)^2 + (el_p - el)^2`` (rad²) over a batch of ``(az, el)`` rows."""
+    d_az = pred[:, 0] - target[:, 0]
+    d_az = torch.atan2(torch.sin(d_az), torch.cos(d_az))
+    return (torch.sin(target[:, 1]) ** 2 * d_az ** 2 + (pred[:, 1] - target[:, 1]) ** 2).mean()
+
+
+def _device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ValueError("device 'cuda' requested but torch sees no CUDA device")
+    return torch.device(name)
+
+
+def _stages(cfg: TrainingConfig) -> list[str]:
+    if cfg.task == "segmentation":
+        return ["segment"]
+    return (["classify"] if cfg.classification_epochs > 0 else []) + ["regress"]
+
+
+def _loss(stage: str, net, batch, device, class_weights=None) -> tuple[torch.Tensor, torch.Tensor]:
+    x = batch["image"].to(device)
+    if stage == "segment":
+        y = batch["labels"].to(device)
+        out = net(x)
+        w = None if class_weights is None else torch.tensor(class_weights, dtype=out.dtype, device=device)
+        return F.cross_entropy(out, y, weight=w), out
+    if stage == "classify":
+        out = net(x)
+        return F.cross_entropy(out, batch["class"].to(device)), out
+    out = net(x)
+    return angle_loss(out, batch["angles"].to(device)), out
+
+
+@torch.no_grad()
+def _validate(stage: str, net, loader, device, class_weights=None) -> dict:
+    net.eval()
+    total, n = 0.0, 0
+    correct, pixels = 0, 0
+    az_err, el_err = [], []
+    for batch in loader:
+        loss, out = _loss(stage, net, batch, device, class_weights)
+        b = batch["image"].shape[0]
+        total += loss.item() * b
+        n += b
+        if stage == "segment":
+            correct += int((out.argmax(1).cpu() == batch["labels"]).sum())
+            pixels += batch["labels"].numel()
+        elif stage == "classify":
+            correct += int((out.argmax(1).cpu() == batch["class"]).sum())
+            pixels += b
+        else:
+            p, t = out.double().cpu(), batch["angles"].double()
+            d = p[:, 0] - t[:, 0]
+            az_err.append(torch.atan2(torch.sin(d), torch.cos(d)).abs())
+            el_err.append((p[:, 1] - t[:, 1]).abs())
+    net.train()
+    metrics = {"loss": total / max(n, 1)}
+    if stage == "segment":
+        metrics["pixel_accuracy"] = correct / max(pixels, 1)
+    elif stage == "classify":
+        metrics["class_accuracy"] = correct / max(pixels, 1)
+    else:
+        metrics["azimuth_mae_deg"] = math.degrees(torch.cat(az_err).mean().item())
+        metrics["elevation_mae_deg"] = math.degrees(torch.cat(el_err).mean().item())
+    return metrics
+
+
+def _optimizer(cfg: TrainingConfig, net) -> torch.optim.Optimizer:
+    return torch.optim.SGD(net.parameters(), lr=cfg.learning_rate, momentum=cfg.momentum)
+
+
+def _optim_tensors(opt: torch.optim.Optimizer) -> dict:
+    out = {}
+    for i, state in opt.state_dict()["state"].items():
+        if state.get("momentum_buffer") is not None:
+            out[f"optim.{i}.momentum_buffer"] = state["momentum_buffer"]
+    return out
+
+
+def _load_optim(opt: torch.optim.Optimizer, tensors: dict) -> None:
+    sd = opt.state_dict()
+    state = {}
+    for key, value in tensors.items():
+        if key.startswith("optim."):
+            _, i, name = key.split(".", 2)
+            state.setdefault(int(i), {})[name] = value
+    sd["state"] = state
+    opt.load_state_dict(sd)
+
+
+def _model_tensors(net) -> dict:
+    return {f"model.{k}": v for k, v in net.state_dict().items()}
+
+
+def _loaders(cfg: TrainingConfig, seed: int, cache_dir):
+    frames_kwargs = dict(config=cfg.render, cache_dir=cache_dir if cfg.cache else None)
+    crop = cfg.crop if cfg.task == "segmentation" else None
+    train_ds = HybridImageDataset(cfg.task, HybridFrames("train", seed, **frames_kwargs), cfg.n_train,
+                                  scale=cfg.scale, crop=crop, augment=cfg.task == "orientation", seed=seed)
+    val_ds = HybridImageDataset(cfg.task, HybridFrames("val", seed, **frames_kwargs), cfg.n_val,
+                                scale=cfg.scale, crop=None, augment=False, seed=seed)
+    val_loader = DataLoader(val_ds, batch_size=1 if cfg.task == "segmentation" else cfg.batch_size, shuffle=False)
+    return train_ds, val_loader
+
+
+#: Settings that control a run but not what it computes: a run may resume with other values.
+_RUN_CONTROLS = ("max_minutes", "threads", "device")
+
+
+def _identity(cfg_dict: dict) -> dict:
+    return {k: v for k, v in cfg_dict.items() if k not in _RUN_CONTROLS}
+
+
+def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume: bool = True,
+          progress: bool = True, log: Callable[[str], None] = print, cache_dir=None) -> TrainingResult:
+    """Train (or resume) the network of ``cfg`` in ``run_dir``; see the module docstring.
+
+    Args:
+        cfg: the :class:`TrainingConfig`.
+        run_dir: the run's folder (checkpoints and ``state.json``).
+        seed: the study seed: frames, initial weights and batch order derive from it.
+        profile: the profile name (recorded).
+        resume: continue from ``run_dir``'s last checkpoint when there is one (its configuration
+            must be the same, except the run controls ``max_minutes``, ``threads`` and
+            ``device``); False starts afresh.
+        progress: show a tqdm progress bar per epoch.
+        cache_dir: folder of the rendered-frame cache (default :func:`default_cache_dir`).
+    """
+    from tqdm.auto import tqdm
+
+    if not isinstance(cfg, TrainingConfig):
+        raise TypeError(f"cfg must be a TrainingConfig, got {type(cfg).__name__}")
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    cache_dir = default_cache_dir() if cache_dir is None else Path(cache_dir)
+    if cfg.threads:
+        torch.set_num_threads(int(cfg.threads))
+    device = _device(cfg.device)
+    t_start = time.monotonic()
+    stages = _stages(cfg)
+    state_path = run_dir / "state.json"
+    cfg_dict = json.loads(json.dumps(cfg.to_dict()))
+
+    torch.manual_seed(seed)
+    net_config = dict(cfg.network)
+    if cfg.task == "orientation":
+        net_config.setdefault("n_classes", N_ORIENTATION_CLASSES)
+        net_config["head"] = "classifier" if stages[0] == "classify" else "regressor"
+    net = build_network(net_config)
+    state = {"stage": stages[0], "epoch": 0, "steps": 0, "best_loss": None, "bad_epochs": 0,
+             "history": [], "finished": False, "stopped": "", "elapsed_s": 0.0, "best": {}}
+    if cfg.init_weights:
+        tensors, init_manifest = load_checkpoint(cfg.init_weights)
+        init_config = init_manifest["config"]
+        model = {k[6:]: v for k, v in tensors.items() if k.startswith("model.")}
+        if init_config == {**net.config, "head": "classifier"} and net.config.get("head") == "regressor":
+            # a trained 36-class classifier starting the regression: the conversion of §II-B.4
+            net = build_network(init_config)
+            net.load_state_dict(model)
+            net.to_regressor()
+        elif init_config == net.config:
+            net.load_state_dict(model)
+        else:
+            raise ValueError(f"init_weights {str(cfg.init_weights)!r} has config {init_config}, expected {net.config} "
+                             f"(or its classifier for a regression run)")
+        state["init_weights"] = {"path": str(cfg.init_weights), "sha256": init_manifest["sha256"],
+                                 "training_steps": init_manifest.get("training_steps"),
+                                 "validation": init_manifest.get("validation")}
+    opt = _optimizer(cfg, net)
+    if resume and state_path.is_file():
+        previous = json.loads(state_path.read_text())
+        if _identity(previous.get("config", {})) != _identity(cfg_dict) or previous.get("seed") != seed:
+            raise ValueError(f"run folder {str(run_dir)!r} holds a run with another configuration or seed; "
+                             f"use another folder or resume=False")
+        state = previous["state"]
+        tensors, manifest = load_checkpoint(run_dir / "last.safetensors")
+        net = build_network(manifest["config"])
+        net.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
+        opt = _optimizer(cfg, net)
+        _load_optim(opt, tensors)
+        log(f"resumed {cfg.task} from {run_dir} at stage {state['stage']}, epoch {state['epoch']}, "
+            f"step {state['steps']}")
+    else:
+        # a fresh run: checkpoints of an earlier run in this folder must not be taken for this one's
+        for stale in [*run_dir.glob("best-*"), *run_dir.glob("last.*"), state_path]:
+            stale.unlink(missing_ok=True)
+    net.to(device).train()
+    train_ds, val_loader = _loaders(cfg, seed, cache_dir)
+    elapsed_before = state["elapsed_s"]
+
+    def save_state():
+        state["elapsed_s"] = elapsed_before + time.monotonic() - t_start
+        atomic_write_json(state_path, {"config": cfg_dict, "seed": seed, "profile": profile, "state": state})
+
+    while not state["finished"]:
+        stage = state["stage"]
+        cap = cfg.classification_epochs if stage == "classify" else cfg.max_epochs
+        stop = ""
+        if state["bad_epochs"] >= cfg.patience:
+            stop = f"no lower validation loss for {cfg.patience} epochs"
+        elif state["epoch"] >= cap:
+            stop = f"reached {cap} epochs"
+        elif cfg.max_minutes is not None and elapsed_before + time.monotonic() - t_start > 60 * cfg.max_minutes:
+            stop = f"spent the {cfg.max_minutes} min budget"
+        if stop:
+            log(f"{cfg.task}/{stage}: stopped after epoch {state['epoch']}: {stop}")
+            state.setdefault("stage_stops", {})[stage] = stop
+            if stage == "classify" and "regress" in stages and "budget" not in stop:
+                tensors, _ = load_checkpoint(run_dir / "best-classify.safetensors")
+                net.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
+                net.cpu().to_regressor()
+                net.to(device).train()
+                opt = _optimizer(cfg, net)
+                state.update(stage="regress", epoch=0, best_loss=None, bad_epochs=0)
+                save_checkpoint(run_dir / "last", {**_model_tensors(net), **_optim_tensors(opt)}, net.config)
+                save_state()
+                continue
+            state.update(finished=True, stopped=stop)
+            save_state()
+            break
+        epoch = state["epoch"]
+        train_ds.set_epoch(epoch + 1000 * stages.index(stage))
+        gen = torch.Generator().manual_seed(int(np.random.SeedSequence([seed, TASKS.index(cfg.task), stages.index(stage), epoch]).generate_state(1)[0]))
+        loader = DataLoader(train_ds, batch_size=cfg.batch_size, shuffle=True, drop_last=True, generator=gen)
+        running = 0.0
+        bar = tqdm(loader, desc=f"{cfg.task}/{stage} epoch {epoch + 1}", disable=not progress, leave=False)
+        for i, batch in enumerate(bar):
+            loss, _ = _loss(stage, net, batch, device, cfg.class_weights)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            state["steps"] += 1
+            running += loss.item()
+            bar.set_postfix(loss=f"{running / (i + 1):.4f}")
+        bar.close()
+        metrics = _validate(stage, net, val_loader, device, cfg.class_weights)
+        metrics.update(train_loss=running / max(len(loader), 1), stage=stage, epoch=epoch + 1, steps=state["steps"])
+        state["history"].append(metrics)
+        state["epoch"] = epoch + 1
+        improved = state["best_loss"] is None or metrics["loss"] < state["best_loss"]
+        if improved:
+            state.update(best_loss=metrics["loss"], bad_epochs=0)
+            state["best"][stage] = metrics
+            save_checkpoint(run_dir / f"best-{stage}", _model_tensors(net), net.config, stage=stage,
+                            training_steps=state["steps"], validation=metrics, seed=seed, profile=profile)
+        else:
+            state["bad_epochs"] += 1
+        save_checkpoint(run_dir / "last", {**_model_tensors(net), **_optim_tensors(opt)}, net.config)
+        save_state()
+        log(f"{cfg.task}/{stage} epoch {epoch + 1}: " + ", ".join(
+            f"{k} {v:.4g}" for k, v in metrics.items() if isinstance(v, float)) + (" *" if improved else ""))
+
+    final_stage = stages[-1] if f"best-{stages[-1]}.safetensors" in {p.name for p in run_dir.iterdir()} else state["stage"]
+    best = run_dir / f"best-{final_stage}.safetensors"
+    return TrainingResult(run_dir=run_dir, best=best, steps=state["steps"], epochs=state["epoch"],
+                          validation=state["best"].get(final_stage, {}), stopped=state["stopped"],
+                          history=state["history"])
+
+
+def export(result: TrainingResult, cfg: TrainingConfig, name: str, *, seed: int, profile: str,
+           models_dir=None) -> Path:
+    """Copy the run's best network to ``<models_dir>/<name>.safetensors`` with the full manifest."""
+    tensors, manifest = load_checkpoint(result.best)
+    model = {k: v for k, v in tensors.items() if k.startswith("model.")}
+    state = json.loads((result.run_dir / "state.json").read_text())["state"]
+    dest = (MODELS_DIR if models_dir is None else Path(models_dir)) / name
+    return save_checkpoint(
+        dest, model, manifest["config"], task=cfg.task, profile=profile, seed=seed,
+        input_scale=cfg.scale, training_steps=manifest.get("training_steps"), total_steps=result.steps,
+        validation=manifest.get("validation"), validation_split=f"{cfg.n_val} frames of split 'val'",
+        stages=state.get("best", {}), stopped=result.stopped, stage_stops=state.get("stage_stops", {}),
+        training_minutes=state.get("elapsed_s", 0.0) / 60.0, device=str(_device(cfg.device)),
+        init_weights=state.get("init_weights"),
+        training_config=json.loads(json.dumps(cfg.to_dict())),
+    )

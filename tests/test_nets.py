@@ -1,0 +1,93 @@
+"""The networks: shapes, the VGG19 configuration against its published size, the regressor head."""
+
+import pytest
+import torch
+from torch import nn
+
+from histostudy.nets import UNet, VGG19, build_network
+
+
+def _unet_params(c_in, n_classes, w, depth):
+    """Parameter count of the U-Net layout, counted independently of the module."""
+    def block(a, b):  # two convs without bias, two batch norms (weight + bias)
+        return a * b * 9 + b * b * 9 + 4 * b
+    widths = [w * 2 ** i for i in range(depth + 1)]
+    total = block(c_in, widths[0]) + sum(block(widths[i - 1], widths[i]) for i in range(1, depth + 1))
+    for i in range(depth, 0, -1):
+        total += widths[i] * widths[i - 1] * 4 + widths[i - 1]  # transposed conv
+        total += block(2 * widths[i - 1], widths[i - 1])
+    return total + widths[0] * n_classes + n_classes
+
+
+@pytest.mark.parametrize("shape", [(64, 64), (50, 70), (33, 17)])
+def test_unet_keeps_any_input_size(shape):
+    torch.manual_seed(0)
+    net = UNet(base_width=4, depth=3).eval()
+    out = net(torch.randn(2, 1, *shape))
+    assert out.shape == (2, 6, *shape)
+    assert torch.isfinite(out).all()
+
+
+def test_unet_layout_and_config():
+    net = UNet(in_channels=1, n_classes=6, base_width=8, depth=4)
+    assert sum(p.numel() for p in net.parameters()) == _unet_params(1, 6, 8, 4)
+    assert build_network(net.config).config == net.config
+    with pytest.raises(ValueError, match="base_width"):
+        UNet(base_width=0)
+    with pytest.raises(ValueError, match=r"x must be \(N, 1, H, W\)"):
+        net(torch.zeros(1, 3, 16, 16))
+
+
+def test_unet_is_local_far_from_a_change():
+    # a pixel change affects the logits only within the receptive field, not across the image
+    torch.manual_seed(1)
+    net = UNet(base_width=2, depth=2).eval()
+    x = torch.randn(1, 1, 96, 96)
+    y = x.clone()
+    y[..., 0, 0] += 10.0
+    d = (net(x) - net(y)).abs().amax(dim=1)[0]
+    assert d[0, 0] > 0 and d[-1, -1] == 0
+
+
+def test_vgg19_is_the_16_conv_configuration():
+    with torch.device("meta"):
+        net = VGG19(width=1.0, n_classes=1000)
+    assert net.n_convolutions == 16
+    convs = [m for m in net.features if isinstance(m, nn.Conv2d)]
+    assert [c.out_channels for c in convs] == [64] * 2 + [128] * 2 + [256] * 4 + [512] * 8
+    # torchvision's vgg19 has 20,024,384 feature and 123,642,856 classifier parameters for 3 input
+    # channels and 1000 classes; one input channel saves 2 * 64 * 9 weights
+    assert sum(p.numel() for p in net.features.parameters()) == 20_024_384 - 2 * 64 * 9
+    assert sum(p.numel() for p in net.classifier.parameters()) == 123_642_856
+
+
+def test_vgg19_regressor_is_sigmoid_then_linear():
+    torch.manual_seed(2)
+    net = VGG19(width=1 / 16, n_classes=36).eval()
+    x = torch.randn(3, 1, 60, 80)
+    logits = net(x)
+    assert logits.shape == (3, 36)
+    net.to_regressor()
+    assert net.config["head"] == "regressor"
+    with torch.no_grad():
+        out = net(x)
+        assert out.shape == (3, 2)
+        torch.testing.assert_close(out, torch.tensor([[0.0, 1.0]] * 3))  # zero weights, bias (0, 1 rad)
+        net.regressor.weight.normal_()
+        expected = torch.sigmoid(logits) @ net.regressor.weight.T + net.regressor.bias
+        torch.testing.assert_close(net(x), expected)
+    with pytest.raises(ValueError, match="already has the regressor"):
+        net.to_regressor()
+    rebuilt = build_network(net.config)
+    rebuilt.load_state_dict(net.state_dict())  # the config rebuilds the same layout
+
+
+def test_build_network_rejects_bad_configs():
+    with pytest.raises(ValueError, match="'arch'"):
+        build_network({"base_width": 4})
+    with pytest.raises(ValueError, match="must be 'unet' or 'vgg19'"):
+        build_network({"arch": "resnet"})
+    with pytest.raises(ValueError, match="does not fit"):
+        build_network({"arch": "unet", "widths": 3})
+    with pytest.raises(ValueError, match="head"):
+        VGG19(head="softmax")

@@ -1,0 +1,59 @@
+"""Notebook 03's study module: per-frame angles against the true pose, the §III statistics, the figure."""
+
+import numpy as np
+import pytest
+
+from histostudy.carm import View
+from histostudy.frame import Frame
+from histostudy.orientation import angles_from_direction, beam_direction_of_pose, wrap_angle
+from histostudy.study import orientation_regression as study
+from histostudy.transducer import pose_facing
+
+
+def _frames(n=12, seed=0):
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        view = View.from_gantry(float(rng.uniform(-60, 60)), shape=(24, 32))
+        T = pose_facing(rng.normal(size=3), rng.uniform(-20, 20, 3), float(rng.uniform(0, 6)))
+        out.append(Frame(np.zeros((24, 32), np.float32), view, T_carm_transducer=T))
+    return out
+
+
+class _Offset:
+    """The true angles plus a fixed error (rad); azimuth wrapped, as a real source returns it."""
+
+    def __init__(self, d_az, d_el):
+        self.d_az, self.d_el = d_az, d_el
+
+    def estimate(self, frame, rng=None):
+        az, el = angles_from_direction(beam_direction_of_pose(frame.T_carm_transducer), frame.view)
+        return float(wrap_angle(az + self.d_az)), el + self.d_el
+
+
+def test_fixed_offsets_give_those_errors_and_a_unit_slope():
+    frames = _frames()
+    res = study.evaluate_orientation(_Offset(np.radians(2.0), np.radians(-1.0)), frames)
+    assert len(res) == 12
+    np.testing.assert_allclose(res["azimuth_error_deg"], 2.0, atol=1e-9)  # wrapped even across +-180
+    np.testing.assert_allclose(res["elevation_error_deg"], -1.0, atol=1e-9)
+    t = study.angle_table(res).set_index("angle")
+    assert t.loc["azimuth", "mae_deg"] == pytest.approx(2.0) and t.loc["azimuth", "sd_deg"] == pytest.approx(0, abs=1e-9)
+    assert t.loc["azimuth", "slope"] == pytest.approx(1.0) and t.loc["azimuth", "intercept_deg"] == pytest.approx(2.0)
+    assert t.loc["elevation", "intercept_deg"] == pytest.approx(-1.0) and t.loc["elevation", "r2"] == pytest.approx(1.0)
+    assert t.loc["elevation", "pearson_percent"] == pytest.approx(100.0)
+
+
+def test_scatter_figure_has_both_angles():
+    res = study.evaluate_orientation(_Offset(0.05, 0.02), _frames(6, seed=1))
+    fig = study.scatter_figure(res)
+    assert [ax.get_xlabel() for ax in fig.axes] == ["reference azimuth (deg)", "reference elevation (deg)"]
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+
+
+def test_frames_without_truth_are_rejected():
+    view = View.from_gantry(0.0, shape=(24, 32))
+    with pytest.raises(ValueError, match="no true pose"):
+        study.evaluate_orientation(_Offset(0, 0), [Frame(np.zeros((24, 32), np.float32), view)])

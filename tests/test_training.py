@@ -1,0 +1,173 @@
+"""The training loop on tiny networks and frames: resume, early stopping, both stages, export."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from histostudy.checkpoints import load_checkpoint, load_network
+from histostudy.datasets import RenderConfig
+from histostudy.orientation import LearnedOrientation
+from histostudy.profiles import PROFILE_NAMES, load_profile
+from histostudy.training import TrainingConfig, angle_loss, export, train
+
+TINY = RenderConfig(render_spacing_mm=0.47, label_spacing_mm=0.47, detector=(240, 320))
+
+
+def _seg(**kw):
+    base = dict(task="segmentation", network={"arch": "unet", "base_width": 2, "depth": 2}, scale=0.5, crop=32,
+                n_train=4, n_val=2, batch_size=2, max_epochs=2, render=TINY)
+    return TrainingConfig(**{**base, **kw})
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("frames")
+
+
+def test_angle_loss_wraps_azimuth_and_weights_it_by_sin_elevation():
+    t = torch.tensor([[np.radians(-179.0), np.pi / 2]])
+    p = torch.tensor([[np.radians(179.0), np.pi / 2]])
+    assert float(angle_loss(p, t)) == pytest.approx(np.radians(2.0) ** 2, rel=1e-5)
+    t0 = torch.tensor([[0.3, 0.0]])
+    assert float(angle_loss(torch.tensor([[2.5, 0.1]]), t0)) == pytest.approx(0.01, rel=1e-5)  # azimuth moot on axis
+
+
+def test_interrupted_run_resumes_to_the_same_weights(tmp_path, cache):
+    cfg = _seg()
+    full = train(cfg, tmp_path / "full", seed=3, progress=False, log=lambda m: None, cache_dir=cache)
+
+    class Stop(Exception):
+        pass
+
+    def stop_after_first_epoch(msg):
+        if "epoch 1:" in msg:
+            raise Stop
+
+    with pytest.raises(Stop):
+        train(cfg, tmp_path / "cut", seed=3, progress=False, log=stop_after_first_epoch, cache_dir=cache)
+    state = json.loads((tmp_path / "cut" / "state.json").read_text())["state"]
+    assert state["epoch"] == 1 and not state["finished"]
+    resumed = train(cfg, tmp_path / "cut", seed=3, progress=False, log=lambda m: None, cache_dir=cache)
+    assert resumed.steps == full.steps == 2 * (4 // 2)
+    a, _ = load_checkpoint(tmp_path / "full" / "last.safetensors")
+    b, _ = load_checkpoint(tmp_path / "cut" / "last.safetensors")
+    assert a.keys() == b.keys() and any(k.startswith("optim.") for k in a)
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=0, atol=0)
+    assert not list(tmp_path.rglob("*.tmp*"))
+    with pytest.raises(ValueError, match="another configuration"):
+        train(_seg(crop=16), tmp_path / "cut", seed=3, progress=False, log=lambda m: None, cache_dir=cache)
+
+
+def test_early_stopping_after_patience_epochs_without_improvement(tmp_path, cache):
+    # learning rate 0 and a network without batch norm: the validation loss stays exactly the same
+    cfg = TrainingConfig(task="orientation", network={"arch": "vgg19", "width": 1 / 32}, scale=0.25, n_train=4,
+                         n_val=2, batch_size=2, learning_rate=0.0, patience=2, max_epochs=10, render=TINY)
+    res = train(cfg, tmp_path / "run", seed=3, progress=False, log=lambda m: None, cache_dir=cache)
+    assert res.epochs == 3 and "2 epochs" in res.stopped
+    losses = [h["loss"] for h in res.history]
+    assert losses[1] == losses[0] == losses[2]
+
+
+def test_orientation_classifier_then_regressor_and_export(tmp_path, cache):
+    cfg = TrainingConfig(task="orientation", network={"arch": "vgg19", "width": 1 / 32}, scale=0.25, n_train=4,
+                         n_val=2, batch_size=2, classification_epochs=1, max_epochs=1, render=TINY)
+    res = train(cfg, tmp_path / "run", seed=4, progress=False, log=lambda m: None, cache_dir=cache)
+    assert [h["stage"] for h in res.history] == ["classify", "regress"]
+    assert "class_accuracy" in res.history[0] and "azimuth_mae_deg" in res.history[1]
+    manifest_path = export(res, cfg, "vgg19_test", seed=4, profile="test", models_dir=tmp_path / "models")
+    manifest = json.loads(manifest_path.read_text())
+    assert manifest["config"]["head"] == "regressor" and manifest["input_scale"] == 0.25
+    assert manifest["training_steps"] == 4 and manifest["task"] == "orientation"
+    assert math.isfinite(manifest["validation"]["azimuth_mae_deg"])
+    source = LearnedOrientation.load(manifest_path.with_suffix(".safetensors"))
+    net, _ = load_network(manifest_path.with_suffix(".safetensors"))
+    assert net.config["head"] == "regressor" and source.scale == 0.25
+    # a regression-only run may start from the trained classifier (converted as in §II-B.4)
+    classifier = tmp_path / "run" / "best-classify.safetensors"
+    frozen = TrainingConfig(task="orientation", network={"arch": "vgg19", "width": 1 / 32}, scale=0.25, n_train=4,
+                            n_val=2, batch_size=2, max_epochs=1, learning_rate=0.0, render=TINY,
+                            init_weights=str(classifier))
+    reg = train(frozen, tmp_path / "reg", seed=5, progress=False, log=lambda m: None, cache_dir=cache)
+    a, _ = load_checkpoint(classifier)
+    b, _ = load_checkpoint(reg.best)
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=0, atol=0)
+    torch.testing.assert_close(b["model.regressor.bias"], torch.tensor([0.0, 1.0]))
+
+
+def test_config_validation_and_profiles():
+    with pytest.raises(ValueError, match="task"):
+        _seg(task="pose")
+    with pytest.raises(ValueError, match="batch_size"):
+        _seg(batch_size=9)
+    with pytest.raises(ValueError, match="unknown keys"):
+        TrainingConfig.from_table("segmentation", {"network": {"arch": "unet"}, "scale": 0.5, "epochs": 3})
+    for name in PROFILE_NAMES:
+        profile = load_profile(name)
+        for task in ("segmentation", "orientation"):
+            cfg = TrainingConfig.from_table(task, profile.training[task])
+            assert cfg.batch_size == 5 or name == "smoke"
+            assert (cfg.learning_rate, cfg.momentum, cfg.patience) == (0.001, 0.9, 3)
+    assert TrainingConfig.from_table("orientation", load_profile("paper").training["orientation"]).network["width"] == 1.0
+
+
+def test_cli_train_exports_weights_with_manifest(tmp_path, capsys, monkeypatch):
+    from histostudy.cli import main
+
+    monkeypatch.setenv("HISTOSTUDY_CACHE", str(tmp_path / "cache"))
+    profile = tmp_path / "tiny.toml"
+    profile.write_text('name = "tiny"\nseed = 11\n\n[training.segmentation]\n'
+                       'network = { arch = "unet", base_width = 2, depth = 2 }\nscale = 0.5\ncrop = 32\n'
+                       'n_train = 2\nn_val = 1\nbatch_size = 2\nmax_epochs = 1\n'
+                       'render = { render_spacing_mm = 0.47, label_spacing_mm = 0.47, detector = [240, 320] }\n')
+    code = main(["train", "segmentation", "--profile", str(profile), "--models-dir", str(tmp_path / "models"),
+                 "--no-progress"])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "exported" in out and (tmp_path / "cache" / "runs" / "segmentation-tiny" / "state.json").is_file()
+    manifest = json.loads((tmp_path / "models" / "unet_tiny.json").read_text())
+    assert manifest["profile"] == "tiny" and manifest["seed"] == 11 and manifest["training_steps"] == 1
+    assert main(["train", "orientation", "--profile", str(profile)]) == 2
+    assert "no [training.orientation]" in capsys.readouterr().err
+
+
+def test_a_run_may_resume_with_another_budget(tmp_path, cache):
+    first = train(_seg(max_epochs=1), tmp_path / "run", seed=3, progress=False, log=lambda m: None, cache_dir=cache)
+    assert first.epochs == 1
+    with pytest.raises(ValueError, match="another configuration"):
+        train(_seg(max_epochs=2), tmp_path / "run", seed=3, progress=False, log=lambda m: None, cache_dir=cache)
+    again = train(_seg(max_epochs=1, max_minutes=0.001, threads=1), tmp_path / "run", seed=3, progress=False,
+                  log=lambda m: None, cache_dir=cache)
+    assert again.steps == first.steps and again.stopped == first.stopped
+    (tmp_path / "run" / "best-regress.safetensors").write_bytes(b"left over from another run")
+    fresh = train(_seg(max_epochs=1, crop=16), tmp_path / "run", seed=3, resume=False, progress=False,
+                  log=lambda m: None, cache_dir=cache)
+    assert fresh.best.name == "best-segment.safetensors" and not (tmp_path / "run" / "best-regress.safetensors").exists()
+
+
+def test_class_weights_and_warm_start(tmp_path, cache):
+    with pytest.raises(ValueError, match="class_weights"):
+        _seg(class_weights=(1, 2, 3))
+    with pytest.raises(ValueError, match="class_weights"):
+        TrainingConfig(task="orientation", network={"arch": "vgg19", "width": 1 / 32}, scale=0.25,
+                       class_weights=(1,) * 6)
+    first = train(_seg(max_epochs=1), tmp_path / "a", seed=3, progress=False, log=lambda m: None, cache_dir=cache)
+    # a zero learning rate keeps the warm start's weights: the network is exactly the first run's
+    cfg = _seg(max_epochs=1, learning_rate=0.0, class_weights=(1, 1.5, 4, 6, 8, 8), init_weights=str(first.best))
+    second = train(cfg, tmp_path / "b", seed=99, progress=False, log=lambda m: None, cache_dir=cache)
+    a, _ = load_checkpoint(first.best)
+    b, _ = load_checkpoint(second.best)
+    for k in a:
+        if "running" not in k and "num_batches" not in k:  # batch-norm statistics still move in train mode
+            torch.testing.assert_close(a[k], b[k], rtol=0, atol=0)
+    # the weighted validation loss differs from the unweighted one on the same network
+    assert second.history[0]["loss"] != pytest.approx(first.history[0]["loss"], rel=1e-3)
+    manifest = json.loads(export(second, cfg, "warm", seed=99, profile="t", models_dir=tmp_path / "m").read_text())
+    assert manifest["init_weights"]["sha256"] == json.loads(first.best.with_suffix(".json").read_text())["sha256"]
+    with pytest.raises(ValueError, match="expected"):
+        train(_seg(network={"arch": "unet", "base_width": 4, "depth": 2}, init_weights=str(first.best)),
+              tmp_path / "c", seed=3, progress=False, log=lambda m: None, cache_dir=cache)
