@@ -28,6 +28,7 @@ import numpy as np
 from scipy import ndimage
 
 from .geometry import as_points, check_rigid, check_rotation, fit_sphere, invert_transform, transform_points
+from .seeding import as_generator
 
 __all__ = [
     "PAPER_ZONE_DIAMETERS_MM",
@@ -374,7 +375,6 @@ def simulate_cbct(
     reconstruction noise, whose real spectrum is not white (an assumption). ``rng``: a Generator
     or int seed.
     """
-    from .robot.sim import as_generator  # one seed/Generator policy for the whole package
 
     truth = _check_volume(truth, "truth")
     gen = as_generator(rng)
@@ -447,7 +447,6 @@ def random_target(rng, spec: PhantomSpec = PhantomSpec(), T_carm_phantom=None, b
     For the study: ``border_mm`` >= the zone radius plus a safety margin keeps the whole
     treatment zone (and the segmentation window) inside the phantom. ``rng``: Generator or seed.
     """
-    from .robot.sim import as_generator
 
     gen = as_generator(rng)
     half = 0.5 * spec.size_mm - border_mm

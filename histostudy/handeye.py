@@ -64,6 +64,7 @@ from .geometry import (
     matrix_from_rotvec,
 )
 from .io import atomic_write_json, to_jsonable
+from .seeding import as_generator
 
 __all__ = [
     "AXXBSolution",
@@ -791,14 +792,6 @@ def flange_pose_for_target(calibration: HandEyeCalibration, target_carm_mm, orie
 # --------------------------------------------------------------------------- sensitivity
 
 
-def _as_rng(rng) -> np.random.Generator:
-    if isinstance(rng, np.random.Generator):
-        return rng
-    if isinstance(rng, (int, np.integer)) and not isinstance(rng, bool):
-        return np.random.default_rng(int(rng))
-    raise TypeError(f"rng must be a numpy.random.Generator or an int seed, got {type(rng).__name__}")
-
-
 #: Nominal set-up of the sensitivity study (mm): transducer focal point 250 mm below the flange
 #: along the tool axis; flange poses around a point 600 mm out from the base and 550 mm up; the
 #: cart placed so that the nominal focal point falls on the isocentre (calibrate where you treat).
@@ -825,7 +818,7 @@ def simulate_poses(
     downward orientation (flange z pointing to base -z). Returns ``(T_base_flange list,
     T_carm_transducer list)``.
     """
-    rng = _as_rng(rng)
+    rng = as_generator(rng)
     if int(n_poses) != n_poses or n_poses < 1:
         raise ValueError(f"n_poses must be a positive integer, got {n_poses!r}")
     for name, v in (("box_mm", box_mm), ("max_tilt_deg", max_tilt_deg)):
@@ -847,7 +840,7 @@ def simulate_poses(
 def perturb_pose(T, translation_sd_mm: float, rotation_sd_deg: float, rng) -> np.ndarray:
     """``T @ dT``: noise in the pose's own frame, about its origin (the focal point for a
     transducer pose): per-axis Gaussian translation (sd in mm) and rotation vector (sd in deg)."""
-    rng = _as_rng(rng)
+    rng = as_generator(rng)
     for name, v in (("translation_sd_mm", translation_sd_mm), ("rotation_sd_deg", rotation_sd_deg)):
         if not np.isfinite(v) or v < 0:
             raise ValueError(f"{name} must be finite and >= 0, got {v!r}")
@@ -887,7 +880,7 @@ def calibration_sensitivity(
     """
     import pandas as pd
 
-    rng = _as_rng(rng)
+    rng = as_generator(rng)
     n_list = [int(n) for n in n_poses_list]
     if not n_list or min(n_list) < 3:
         raise ValueError(f"n_poses_list must hold pose counts >= 3, got {list(n_poses_list)!r}")

@@ -28,6 +28,7 @@ from typing import Callable
 import numpy as np
 
 from histostudy.geometry import check_rigid, invert_transform, rotation_angle
+from histostudy.seeding import as_generator
 
 from .base import (
     ROTATION_ACCELERATION_RAD_S2,
@@ -53,19 +54,10 @@ from .kinematics import (
     linear_path_joints,
 )
 
-__all__ = ["HOME_JOINTS_RAD", "FaultPlan", "LinearPlan", "SimulatedUR5e", "as_generator"]
+__all__ = ["HOME_JOINTS_RAD", "FaultPlan", "LinearPlan", "SimulatedUR5e"]
 
 #: A start configuration with the flange pointing down in front of the base, elbow up.
 HOME_JOINTS_RAD = (0.0, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0)
-
-
-def as_generator(rng) -> np.random.Generator:
-    """A Generator from a seed (int) or a Generator; anything else raises TypeError naming ``rng``."""
-    if isinstance(rng, np.random.Generator):
-        return rng
-    if isinstance(rng, (int, np.integer)) and not isinstance(rng, bool):
-        return np.random.default_rng(int(rng))
-    raise TypeError(f"rng must be a numpy.random.Generator or an int seed, got {type(rng).__name__}: {rng!r}")
 
 
 @dataclass(frozen=True)
