@@ -94,13 +94,6 @@ def jit_times() -> tuple[float, float]:
     return out[0], out[1]
 
 
-def class_only(model, feature):
-    pts = {f: model.points[f] if f == feature else np.zeros((0, 3)) for f in FEATURE_CLASSES}
-    wts = {f: model.weights[f] if f == feature else np.zeros(0) for f in FEATURE_CLASSES}
-    return TransducerModel(spec=model.spec, spacing_mm=model.spacing_mm, points=pts, weights=wts,
-                           grid_step_mm=model.grid_step_mm)
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=30)
@@ -168,7 +161,7 @@ def main() -> None:
     print(f"  LM pass: cost + J'J + J'r fused, serial           {ms(normal1)}  ({normal1[0] / fast1[0]:.1f}x a cost evaluation)")
     print(f"  residuals + n x 6 Jacobian materialised           {ms(materialised)}")
 
-    masks = [DistanceMaps(v, {f: render_labels(class_only(fine, f), T_true, v) == int(f) for f in FEATURE_CLASSES})
+    masks = [DistanceMaps(v, {f: render_labels(fine.only(f), T_true, v) == int(f) for f in FEATURE_CLASSES})
              for v in views]
     print("\nrefinement from 3 deg / 5 mm perturbations (focal-point error mm, rotation error deg):")
     aware = [DistanceMaps(v, lab, occlusion_aware=True) for v, lab in zip(views, labels)]

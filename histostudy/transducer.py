@@ -24,7 +24,7 @@ import enum
 import json
 import math
 import os
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -362,6 +362,18 @@ class TransducerModel:
     def n_points(self) -> dict:
         """``{Feature: number of points}``."""
         return {f: len(self.points[f]) for f in FEATURE_CLASSES}
+
+    def only(self, *features: Feature) -> "TransducerModel":
+        """The same model with the points of ``features`` only (the other classes empty), e.g. to
+        rasterise each class's labels alone, free of the overlap priority of §II-B.2."""
+        keep = set()
+        for f in features:
+            if Feature(f) not in FEATURE_CLASSES:
+                raise ValueError(f"features must be point classes {[k.name for k in FEATURE_CLASSES]}, got {f!r}")
+            keep.add(Feature(f))
+        points = {f: self.points[f] if f in keep else np.zeros((0, 3)) for f in FEATURE_CLASSES}
+        weights = {f: self.weights[f] if f in keep else np.zeros(0) for f in FEATURE_CLASSES}
+        return replace(self, points=points, weights=weights)
 
     def all_points(self) -> tuple[np.ndarray, np.ndarray]:
         """All points ``(N, 3)`` mm and their classes ``(N,)`` uint8, concatenated in enum order."""

@@ -21,17 +21,9 @@ from histostudy.transducer import FEATURE_CLASSES, Feature, TransducerModel, pos
 T_TRUE = pose_facing(focal_point_mm=(5.0, -3.0, 8.0), axial_rotation_rad=0.3)
 
 
-def class_only(model, feature):
-    """The model with every class but ``feature`` emptied (to rasterise one class without occlusion)."""
-    pts = {f: model.points[f] if f == feature else np.zeros((0, 3)) for f in FEATURE_CLASSES}
-    wts = {f: model.weights[f] if f == feature else np.zeros(0) for f in FEATURE_CLASSES}
-    return TransducerModel(spec=model.spec, spacing_mm=model.spacing_mm, points=pts, weights=wts,
-                           grid_step_mm=model.grid_step_mm)
-
-
 def class_masks(model, T, view):
     """Noise-free per-class masks: each class rasterised alone (no overlap priority)."""
-    return {f: render_labels(class_only(model, f), T, view) == int(f) for f in FEATURE_CLASSES}
+    return {f: render_labels(model.only(f), T, view) == int(f) for f in FEATURE_CLASSES}
 
 
 @pytest.fixture(scope="module")

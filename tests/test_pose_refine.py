@@ -14,13 +14,6 @@ from histostudy.transducer import FEATURE_CLASSES, TransducerModel, pose_facing
 T_TRUE = pose_facing(focal_point_mm=(5.0, -3.0, 8.0), axial_rotation_rad=0.3)
 
 
-def class_only(model, feature):
-    pts = {f: model.points[f] if f == feature else np.zeros((0, 3)) for f in FEATURE_CLASSES}
-    wts = {f: model.weights[f] if f == feature else np.zeros(0) for f in FEATURE_CLASSES}
-    return TransducerModel(spec=model.spec, spacing_mm=model.spacing_mm, points=pts, weights=wts,
-                           grid_step_mm=model.grid_step_mm)
-
-
 @pytest.fixture(scope="module")
 def setup():
     views = default_biplane()
@@ -28,7 +21,7 @@ def setup():
     model = TransducerModel.build(spacing_mm=0.47)
     # Noise-free masks, each class rasterised alone (the overlap priority of the label image would
     # hide parts of the lower classes and bias the optimum; see test_priority_labels_...).
-    maps = [DistanceMaps(v, {f: render_labels(class_only(fine, f), T_TRUE, v) == int(f) for f in FEATURE_CLASSES})
+    maps = [DistanceMaps(v, {f: render_labels(fine.only(f), T_TRUE, v) == int(f) for f in FEATURE_CLASSES})
             for v in views]
     return {"views": views, "fine": fine, "model": model, "cost": PoseCost(model.points, maps)}
 

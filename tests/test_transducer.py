@@ -225,3 +225,18 @@ def test_pose_facing_puts_the_transducer_above_the_patient():
     np.testing.assert_allclose(Tv[:3, 2], -view_a.principal_direction, atol=1e-12)
     with pytest.raises(ValueError, match="direction"):
         pose_facing((0, 0, 0))
+
+
+def test_only_keeps_the_chosen_classes_and_everything_else():
+    from histostudy.transducer import FEATURE_CLASSES, Feature, TransducerModel
+
+    model = TransducerModel.build(spacing_mm=2.0)
+    gaps = model.only(Feature.GAPS)
+    for f in FEATURE_CLASSES:
+        expected = model.points[f] if f == Feature.GAPS else np.zeros((0, 3))
+        np.testing.assert_array_equal(gaps.points[f], expected)
+        assert len(gaps.weights[f]) == len(gaps.points[f])
+    assert gaps.spacing_mm == model.spacing_mm and gaps.grid_step_mm == model.grid_step_mm
+    np.testing.assert_array_equal(gaps.focal_point_mm, model.focal_point_mm)
+    with pytest.raises(ValueError, match="point classes"):
+        model.only(Feature.BACKGROUND)
