@@ -34,8 +34,8 @@ from .io import atomic_path, atomic_write_json, to_jsonable
 from .nets import build_network
 from .provenance import REPO_ROOT, git_commit
 
-__all__ = ["MODELS_DIR", "load_checkpoint", "load_network", "manifest_path", "save_checkpoint", "sha256_file",
-           "shipped_model"]
+__all__ = ["MODELS_DIR", "load_checkpoint", "load_network", "load_shipped", "manifest_path", "save_checkpoint",
+           "sha256_file", "shipped_model"]
 
 FORMAT = "histostudy.checkpoint"
 VERSION = 1
@@ -151,3 +151,16 @@ def shipped_model(name: str, models_dir=None) -> Path | None:
         warnings.warn(f"shipped weights {os.fspath(weights)!r} are not usable ({exc}); using none", stacklevel=2)
         return None
     return weights
+
+
+def load_shipped(name: str, loader, what: str):
+    """``loader(path)`` of the shipped weights ``name`` (:func:`shipped_model`), or None when they are
+    missing, fail their hash, or the loader rejects them (with a warning naming ``what``)."""
+    path = shipped_model(name)
+    if path is None:
+        return None
+    try:
+        return loader(path)
+    except (ValueError, OSError) as exc:
+        warnings.warn(f"shipped {what} {os.fspath(path)!r} is not usable ({exc}); using none", stacklevel=3)
+        return None

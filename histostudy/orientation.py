@@ -256,15 +256,6 @@ def default_orientation() -> LearnedOrientation | None:
     """The shipped VGG19 regressor (``data/models/vgg19_standard``) as a :class:`LearnedOrientation`,
     or None when the weights are missing or fail their hash or configuration check (callers then
     fall back to :class:`OracleOrientation` and say so)."""
-    from .checkpoints import shipped_model
+    from .checkpoints import load_shipped
 
-    import warnings
-
-    path = shipped_model("vgg19_standard")
-    if path is None:
-        return None
-    try:
-        return LearnedOrientation.load(path)
-    except (ValueError, OSError) as exc:
-        warnings.warn(f"shipped VGG19 {str(path)!r} is not usable ({exc}); no learned orientation", stacklevel=2)
-        return None
+    return load_shipped("vgg19_standard", LearnedOrientation.load, "VGG19")

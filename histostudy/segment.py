@@ -223,15 +223,6 @@ def default_segmenter() -> UNetSegmenter | None:
     """The shipped U-Net (``data/models/unet_standard``) as a :class:`UNetSegmenter`, or None when
     the weights are missing or fail their hash or configuration check (callers then fall back to
     :class:`OracleSegmenter` and say so)."""
-    import warnings
+    from .checkpoints import load_shipped
 
-    from .checkpoints import shipped_model
-
-    path = shipped_model("unet_standard")
-    if path is None:
-        return None
-    try:
-        return UNetSegmenter.load(path)
-    except (ValueError, OSError) as exc:
-        warnings.warn(f"shipped U-Net {str(path)!r} is not usable ({exc}); no learned segmenter", stacklevel=2)
-        return None
+    return load_shipped("unet_standard", UNetSegmenter.load, "U-Net")
