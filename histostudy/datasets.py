@@ -296,10 +296,12 @@ class HybridImageDataset(Dataset):
         crop: square crop size in network pixels (segmentation training; None: the whole image).
         augment: random image flips with the exactly mirrored angles (orientation training).
         seed: seeds the crops and flips with :meth:`set_epoch`, so each epoch sees new ones.
+        repeats: items per frame: item ``i`` is frame ``i // repeats`` with its own crop and flips,
+            so one epoch takes ``repeats`` different crops of every frame (``len = size * repeats``).
     """
 
     def __init__(self, task: str, frames: HybridFrames, size: int, *, scale: float, crop: int | None = None,
-                 augment: bool = False, seed: int = 0):
+                 augment: bool = False, seed: int = 0, repeats: int = 1):
         if task not in TASKS:
             raise ValueError(f"task must be one of {TASKS}, got {task!r}")
         if not isinstance(frames, HybridFrames):
@@ -310,7 +312,10 @@ class HybridImageDataset(Dataset):
         rows, cols = (s * scale for s in frames.config.detector)
         if crop is not None and (isinstance(crop, bool) or not isinstance(crop, int) or not 1 <= crop <= min(rows, cols)):
             raise ValueError(f"crop must be None or an integer in [1, {int(min(rows, cols))}] px, got {crop!r}")
+        if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
+            raise ValueError(f"repeats must be an integer >= 1, got {repeats!r}")
         self.task, self.frames, self.size, self.scale, self.crop = task, frames, size, float(scale), crop
+        self.repeats = repeats
         self.augment, self.seed, self.epoch = bool(augment), int(seed), 0
 
     def set_epoch(self, epoch: int) -> None:
@@ -318,12 +323,12 @@ class HybridImageDataset(Dataset):
         self.epoch = int(epoch)
 
     def __len__(self) -> int:
-        return self.size
+        return self.size * self.repeats
 
     def __getitem__(self, index: int) -> dict:
-        if not 0 <= index < self.size:
-            raise IndexError(f"index {index} out of range for a dataset of {self.size} frames")
-        frame = self.frames.frame(index)
+        if not 0 <= index < len(self):
+            raise IndexError(f"index {index} out of range for a dataset of {len(self)} items")
+        frame = self.frames.frame(index // self.repeats)
         image = prepare_image(frame.image, self.scale)
         rng = np.random.default_rng([self.seed, SPLIT_CODES[self.frames.split], index, self.epoch])
         if self.task == "segmentation":

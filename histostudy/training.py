@@ -57,8 +57,15 @@ class TrainingConfig:
             ``{"arch": "unet", "base_width": 12, "depth": 4}``.
         scale: input downscale (U-Net here 0.5; VGG 0.25 as in §II-B.4).
         crop: square training crop in network pixels (segmentation; None: whole images).
+        crops_per_frame: segmentation: crops of every training frame per epoch (each its own),
+            so that an epoch of few cached frames is long enough for early stopping to mean
+            something.
         n_train, n_val: frames in the training and validation splits.
         batch_size, learning_rate, momentum: SGD (paper: 5, 0.001, 0.9).
+        optimizer: ``"sgd"`` (the paper's: SGD with ``momentum``) or ``"adam"`` (Adam with
+            ``learning_rate`` and torch's default betas; ``momentum`` unused). The CPU-sized
+            profile may use Adam: with a few thousand steps plain SGD at lr 0.001 leaves the
+            thin classes and the orientation classifier untrained.
         patience: epochs without a lower validation loss before stopping (paper: 3).
         max_epochs: cap per stage.
         classification_epochs: cap of the orientation classifier stage (0: skip it).
@@ -79,11 +86,13 @@ class TrainingConfig:
     network: dict
     scale: float
     crop: int | None = None
+    crops_per_frame: int = 1
     n_train: int = 200
     n_val: int = 30
     batch_size: int = 5
     learning_rate: float = 1e-3
     momentum: float = 0.9
+    optimizer: str = "sgd"
     patience: int = 3
     max_epochs: int = 50
     classification_epochs: int = 0
@@ -99,7 +108,7 @@ class TrainingConfig:
         if self.task not in TASKS:
             raise ValueError(f"task must be one of {TASKS}, got {self.task!r}")
         build_network(dict(self.network))  # a clear error now rather than after rendering
-        for name in ("n_train", "n_val", "batch_size", "patience", "max_epochs"):
+        for name in ("n_train", "n_val", "batch_size", "patience", "max_epochs", "crops_per_frame"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
@@ -109,6 +118,8 @@ class TrainingConfig:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        if self.optimizer not in ("sgd", "adam"):
+            raise ValueError(f"optimizer must be 'sgd' or 'adam', got {self.optimizer!r}")
         if self.max_minutes is not None and not (self.max_minutes > 0):
             raise ValueError(f"max_minutes must be > 0 or None, got {self.max_minutes!r}")
         if self.device not in ("auto", "cpu", "cuda"):
@@ -224,14 +235,18 @@ def _validate(stage: str, net, loader, device, class_weights=None) -> dict:
 
 
 def _optimizer(cfg: TrainingConfig, net) -> torch.optim.Optimizer:
+    if cfg.optimizer == "adam":
+        return torch.optim.Adam(net.parameters(), lr=cfg.learning_rate)
     return torch.optim.SGD(net.parameters(), lr=cfg.learning_rate, momentum=cfg.momentum)
 
 
 def _optim_tensors(opt: torch.optim.Optimizer) -> dict:
+    """The optimiser's per-parameter state as tensors (SGD's momentum; Adam's moments and step)."""
     out = {}
     for i, state in opt.state_dict()["state"].items():
-        if state.get("momentum_buffer") is not None:
-            out[f"optim.{i}.momentum_buffer"] = state["momentum_buffer"]
+        for name, value in state.items():
+            if value is not None:
+                out[f"optim.{i}.{name}"] = torch.as_tensor(value)
     return out
 
 
@@ -254,7 +269,8 @@ def _loaders(cfg: TrainingConfig, seed: int, cache_dir):
     frames_kwargs = dict(config=cfg.render, cache_dir=cache_dir if cfg.cache else None)
     crop = cfg.crop if cfg.task == "segmentation" else None
     train_ds = HybridImageDataset(cfg.task, HybridFrames("train", seed, **frames_kwargs), cfg.n_train,
-                                  scale=cfg.scale, crop=crop, augment=cfg.task == "orientation", seed=seed)
+                                  scale=cfg.scale, crop=crop, augment=cfg.task == "orientation", seed=seed,
+                                  repeats=cfg.crops_per_frame if cfg.task == "segmentation" else 1)
     val_ds = HybridImageDataset(cfg.task, HybridFrames("val", seed, **frames_kwargs), cfg.n_val,
                                 scale=cfg.scale, crop=None, augment=False, seed=seed)
     val_loader = DataLoader(val_ds, batch_size=1 if cfg.task == "segmentation" else cfg.batch_size, shuffle=False)

@@ -91,3 +91,23 @@ def test_build_network_rejects_bad_configs():
         build_network({"arch": "unet", "widths": 3})
     with pytest.raises(ValueError, match="head"):
         VGG19(head="softmax")
+
+
+def test_vgg19_batch_norm_variant_matches_torchvisions_vgg19_bn_layout():
+    with torch.device("meta"):
+        plain = VGG19(width=1.0, n_classes=1000)
+        bn = VGG19(width=1.0, n_classes=1000, batch_norm=True)
+    norms = [m for m in bn.features if isinstance(m, nn.BatchNorm2d)]
+    convs = [m for m in bn.features if isinstance(m, nn.Conv2d)]
+    assert len(norms) == len(convs) == 16 and all(c.bias is None for c in convs)
+    assert [n.num_features for n in norms] == [c.out_channels for c in convs]
+    # a bias-free convolution plus its norm's scale and shift: 16 convolutions' biases become
+    # 16 x (2 x channels - channels) extra parameters
+    extra = sum(c.out_channels for c in convs)
+    assert (sum(p.numel() for p in bn.features.parameters())
+            == sum(p.numel() for p in plain.features.parameters()) + extra)
+    assert bn.config["batch_norm"] is True and "batch_norm" not in plain.config
+    rebuilt = build_network(VGG19(width=1 / 16, batch_norm=True).config)
+    assert any(isinstance(m, nn.BatchNorm2d) for m in rebuilt.features)
+    with pytest.raises(ValueError, match="batch_norm"):
+        VGG19(batch_norm="yes")

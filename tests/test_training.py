@@ -171,3 +171,51 @@ def test_class_weights_and_warm_start(tmp_path, cache):
     with pytest.raises(ValueError, match="expected"):
         train(_seg(network={"arch": "unet", "base_width": 4, "depth": 2}, init_weights=str(first.best)),
               tmp_path / "c", seed=3, progress=False, log=lambda m: None, cache_dir=cache)
+
+
+def test_adam_runs_resume_bit_for_bit_and_keep_their_moments(tmp_path, cache):
+    cfg = _seg(optimizer="adam", max_epochs=2)
+    full = train(cfg, tmp_path / "full", seed=4, progress=False, log=lambda m: None, cache_dir=cache)
+
+    class Stop(Exception):
+        pass
+
+    def stop_after_first_epoch(msg):
+        if "epoch 1:" in msg:
+            raise Stop
+
+    with pytest.raises(Stop):
+        train(cfg, tmp_path / "cut", seed=4, progress=False, log=stop_after_first_epoch, cache_dir=cache)
+    train(cfg, tmp_path / "cut", seed=4, progress=False, log=lambda m: None, cache_dir=cache)
+    a, _ = load_checkpoint(tmp_path / "full" / "last.safetensors")
+    b, _ = load_checkpoint(tmp_path / "cut" / "last.safetensors")
+    names = {k.rsplit(".", 1)[1] for k in a if k.startswith("optim.")}
+    assert {"exp_avg", "exp_avg_sq", "step"} <= names
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=0, atol=0)
+    assert full.steps == 4
+    with pytest.raises(ValueError, match="optimizer"):
+        _seg(optimizer="rmsprop")
+
+
+def test_crops_per_frame_makes_longer_epochs_of_distinct_crops(tmp_path, cache):
+    from histostudy.datasets import HybridFrames, HybridImageDataset
+
+    frames = HybridFrames("train", 5, TINY, cache_dir=cache)
+    ds = HybridImageDataset("segmentation", frames, 2, scale=0.5, crop=32, seed=5, repeats=3)
+    assert len(ds) == 6
+    items = [ds[i]["image"] for i in range(6)]
+    assert not torch.equal(items[0], items[1])  # two crops of frame 0
+    whole = HybridImageDataset("segmentation", frames, 2, scale=0.5, crop=None, seed=5, repeats=3)
+    # items 0-2 are frame 0, items 3-5 frame 1
+    torch.testing.assert_close(whole[1]["image"], whole[2]["image"])
+    assert not torch.equal(whole[2]["image"], whole[3]["image"])
+    with pytest.raises(IndexError):
+        ds[6]
+    with pytest.raises(ValueError, match="repeats"):
+        HybridImageDataset("segmentation", frames, 2, scale=0.5, repeats=0)
+    res = train(_seg(crops_per_frame=2, max_epochs=1), tmp_path / "run", seed=5, progress=False,
+                log=lambda m: None, cache_dir=cache)
+    assert res.steps == 4 * 2 // 2
+    with pytest.raises(ValueError, match="crops_per_frame"):
+        _seg(crops_per_frame=0)
