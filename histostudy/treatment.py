@@ -44,6 +44,7 @@ __all__ = [
     "load_journal",
     "plan_treatment",
     "post_treatment_phantom",
+    "scan_treated_zone",
 ]
 
 #: Full axes (LR, TB, depth) of the bubble cloud the paper's excitation sequence creates (§II-D), mm.
@@ -477,3 +478,25 @@ def post_treatment_phantom(phantom: Volume, treated_mask, roi_mask) -> Volume:
     if region.any():
         data[region] = data[region].mean()
     return phantom.with_data(data)
+
+
+def scan_treated_zone(phantom: Volume, roi_mask, T_carm_transducer_reached, focal_point_mm, bubble_offset_mm, *,
+                      spec, T_carm_phantom, rng: np.random.Generator, blur_sigma_mm: float, noise_sd_hu: float,
+                      voxel_mm: float):
+    """The post-treatment CBCT of a treatment and its segmented zone (§II-D.1, §II-E.3).
+
+    The chain every study runs after a treatment: bubble clouds at the reached poses
+    (:func:`bubble_cloud_mask`; ``T_carm_transducer_reached`` ``(n, 4, 4)``, the physical
+    transducer's ``focal_point_mm`` plus ``bubble_offset_mm`` in its frame), the layers mixed there
+    (:func:`post_treatment_phantom` inside ``roi_mask``), the CBCT simulated
+    (:func:`histostudy.cbct.simulate_cbct` with ``blur_sigma_mm``, ``noise_sd_hu``, ``voxel_mm``)
+    and the zone segmented inside the phantom ``spec`` placed by ``T_carm_phantom``
+    (:func:`histostudy.cbct.segment_treatment_zone`). Returns ``(ZoneSegmentation, post-treatment
+    CBCT Volume)``.
+    """
+    from .cbct import phantom_mask, segment_treatment_zone, simulate_cbct
+
+    treated = bubble_cloud_mask(phantom, T_carm_transducer_reached, focal_point_mm, bubble_offset_mm)
+    post = simulate_cbct(post_treatment_phantom(phantom, treated, roi_mask), rng, blur_sigma_mm=blur_sigma_mm,
+                         noise_sd_hu=noise_sd_hu, voxel_mm=voxel_mm)
+    return segment_treatment_zone(post, phantom_mask(post, spec, T_carm_phantom)), post

@@ -7,9 +7,16 @@ margin a biplane pair is rendered (the physical transducer, a phantom scene, Poi
 the pose is estimated. Errors are decomposed along the transducer's depth (the direction of
 ultrasound propagation, the transducer's ``-z``), TB (``y``) and LR (``x``) axes, as §II-E.
 
-Reference, until the CBCT stage exists: the true bubble-cloud centre — the physical
-transducer's acoustic focal point in the true pose (plus an optional offset), and the sphere
-of radius ``r`` around it. The report says so.
+Two references for the errors (§II-E.3):
+
+- the **ground truth** (:func:`experiment_metrics` without ``reference``): the true bubble-cloud
+  centre — the physical transducer's acoustic focal point in the true pose (plus an optional
+  offset) — and the sphere of radius ``r`` around it;
+- the **post-treatment CBCT**, as the paper (:func:`cbct_reference`, then
+  :func:`experiment_metrics` with ``reference=``): the sphere treated at the true focal point,
+  the layered phantom mixed there, a CBCT simulated and the zone segmented; its centroid, its
+  fitted sphere's surface and its radii along depth/TB/LR are the reference. The difference
+  between the two is the error of the reference itself (treatment geometry, CBCT, segmentation).
 
 The robot's axes are taken along the transducer's own LR, TB and depth axes at the centre pose
 (the transducer hanging from the UR5e's flange with its axes along the base axes), so that the
@@ -19,24 +26,31 @@ radius per direction of Table II is the half distance between opposite margin pr
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
 import pandas as pd
 
-from ..anatomy import random_background
+from ..anatomy import Anatomy, random_background
 from ..carm import View
-from ..geometry import make_transform, matrix_from_euler, rotation_angle
+from ..cbct import PhantomSpec, TreatmentZone, phantom_mask, phantom_volume
+from ..geometry import make_transform, matrix_from_euler, rotation_about_axis, rotation_angle
 from ..pose import MAP_KINDS, PoseEstimationError, estimate_pose
 from ..render import render_frame
 from ..orientation import OracleOrientation, OrientationSource
 from ..segment import OracleSegmenter, SegmentationDegradation, Segmenter
 from ..transducer import Feature, TransducerModel, pose_facing
+from ..treatment import BUBBLE_CLOUD_SIZE_MM, plan_treatment, scan_treated_zone
 
 __all__ = [
     "DIRECTIONS",
+    "PoseExperiment",
     "PoseStudyConfig",
+    "cbct_reference",
+    "experiment_setups",
+    "phantom_placement",
+    "reference_error_summary",
     "degradation_sweep",
     "margin_positions",
     "robustness_sweep",
@@ -150,6 +164,51 @@ def _bubble_centre(physical: TransducerModel, T, offset_mm) -> np.ndarray:
     return T[:3, :3] @ local + T[:3, 3]
 
 
+@dataclass(frozen=True, eq=False)
+class PoseExperiment:
+    """One experiment's set-up as :func:`run_pose_study` draws it (C-arm frame, mm).
+
+    ``radius_mm``: the treatment sphere's radius ``r`` (the robot's move to each margin).
+    ``scene``: the phantom set-up behind the transducer. ``T_centre``: the commanded centre pose
+    (``T_carm_transducer``); ``T_true``: per position (``"centre"``, then the six margins) the
+    reached pose, the robot's repeatability noise included.
+    """
+
+    experiment: int
+    radius_mm: float
+    scene: Anatomy
+    T_centre: np.ndarray
+    T_true: dict
+
+
+def _draw_experiments(config: PoseStudyConfig, seed: int):
+    """Yield ``(PoseExperiment, rng_render, rng_est, rng_cbct)`` per experiment.
+
+    The one place the experiments are drawn: :func:`run_pose_study` renders and estimates from
+    them and :func:`cbct_reference` treats and scans the same set-ups. Streams per experiment:
+    children 0-4 of its seed sequence (pose, scene, render, robot, estimation), as ever; child 5
+    is the CBCT reference's (treatment positioning noise, CBCT noise), so adding it changes no
+    other draw.
+    """
+    for e, seq in enumerate(np.random.SeedSequence(seed).spawn(config.n_experiments)):
+        rng_pose, rng_scene, rng_render, rng_robot, rng_est, rng_cbct = (np.random.default_rng(s) for s in seq.spawn(6))
+        radius = float(rng_pose.choice(config.margin_mm))
+        scene = random_background(rng_scene, config.background)
+        centre = scene.meta.get("phantom_center_mm", np.zeros(3))
+        T_centre = _experiment_pose(rng_pose, config, centre)
+        T_true = {}
+        for position, T_nominal in margin_positions(T_centre, radius).items():
+            T = T_nominal.copy()
+            T[:3, 3] += rng_robot.normal(0, config.robot_repeatability_mm, 3)
+            T_true[position] = T
+        yield PoseExperiment(e, radius, scene, T_centre, T_true), rng_render, rng_est, rng_cbct
+
+
+def experiment_setups(config: PoseStudyConfig, seed: int) -> list[PoseExperiment]:
+    """The experiments :func:`run_pose_study` runs for ``config`` and ``seed`` (no rendering)."""
+    return [exp for exp, *_ in _draw_experiments(config, seed)]
+
+
 def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, render_model: TransducerModel,
                    physical: TransducerModel, views: Sequence[View], seed: int,
                    segmenter: Segmenter | None = None, orientation: OrientationSource | None = None,
@@ -167,20 +226,13 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
     the paper's angle MAE); pass learned ones to run the study on them.
     """
     rows = []
-    seeds = np.random.SeedSequence(seed).spawn(config.n_experiments)
     segmenter = config.segmenter() if segmenter is None else segmenter
     orientation = OracleOrientation() if orientation is None else orientation
-    for e, seq in enumerate(seeds):
-        rng_pose, rng_scene, rng_render, rng_robot, rng_est = (np.random.default_rng(s) for s in seq.spawn(5))
-        radius = float(rng_pose.choice(config.margin_mm))
-        scene = random_background(rng_scene, config.background)
-        centre = scene.meta.get("phantom_center_mm", np.zeros(3))
-        T_centre = _experiment_pose(rng_pose, config, centre)
-        axes = transducer_axes(T_centre)
+    for exp, rng_render, rng_est, _ in _draw_experiments(config, seed):
+        e, radius, scene = exp.experiment, exp.radius_mm, exp.scene
+        axes = transducer_axes(exp.T_centre)
         centre_estimate = None
-        for position, T_nominal in margin_positions(T_centre, radius).items():
-            T_true = T_nominal.copy()
-            T_true[:3, 3] += rng_robot.normal(0, config.robot_repeatability_mm, 3)
+        for position, T_true in exp.T_true.items():
             frames = [render_frame(render_model, T_true, v, rng=rng_render, physical=physical, background=scene,
                                    photons_per_pixel=config.photons_per_pixel, n_splats=config.n_splats,
                                    splat_sigma_mm=config.splat_sigma_mm) for v in views]
@@ -232,6 +284,224 @@ def axial_symmetric_rotation_error_deg(T_estimate, T_true) -> float:
                      np.rad2deg(rotation_angle((R_est @ flip).T @ R_true))))
 
 
+# ---------------------------------------------------------------------------------------------
+# The post-treatment CBCT reference (§II-D, §II-E.3)
+# ---------------------------------------------------------------------------------------------
+
+#: Lattice spacing (LR, TB, depth, mm) and inset of the treatment plan: notebook 05's defaults
+#: (:class:`histostudy.study.targeting.TargetingStudyConfig`), the bubble cloud's half axes as inset.
+TREATMENT_SPACING_MM = (2.0, 2.0, 3.0)
+TREATMENT_INSET_MM = tuple(0.5 * s for s in BUBBLE_CLOUD_SIZE_MM)
+
+#: Columns :func:`experiment_metrics` reads from a reference table (:func:`cbct_reference`).
+REFERENCE_COLUMNS = ("experiment", "centroid_x", "centroid_y", "centroid_z", "sphere_x", "sphere_y", "sphere_z",
+                     "sphere_radius_mm", *(f"ref_radius_{d}" for d in DIRECTIONS),
+                     *(f"axis_{d}_{a}" for d in DIRECTIONS for a in "xyz"))
+
+
+def phantom_placement(scene: Anatomy, centre_mm=(0.0, 0.0, 0.0)) -> tuple[PhantomSpec, np.ndarray]:
+    """The layered phantom of a scene as :mod:`histostudy.cbct` models it (§II-D.1):
+    ``(PhantomSpec, T_carm_phantom)``.
+
+    A phantom scene (:func:`histostudy.anatomy.random_phantom_setup`) records its cube's edge,
+    centre, yaw about the vertical axis and layer thickness; its layers are stacked vertically as
+    poured, so the phantom frame's +z (the stacking axis of :class:`PhantomSpec`) is world ``-y``
+    (up). The layers' phase is :class:`PhantomSpec`'s (from the bottom face), not the scene's: the
+    fluoroscopy never sees it and the CBCT reference does not depend on it. A scene without a
+    phantom (abdomen) gets the default 5 cm phantom at ``centre_mm`` (world mm), layers horizontal.
+    """
+    if not isinstance(scene, Anatomy):
+        raise TypeError(f"scene must be a histostudy.anatomy.Anatomy, got {type(scene).__name__}")
+    meta = scene.meta
+    up = rotation_about_axis([1.0, 0.0, 0.0], np.pi / 2)  # phantom z -> world -y
+    if "phantom_center_mm" not in meta:
+        return PhantomSpec(), make_transform(up, np.asarray(centre_mm, dtype=np.float64))
+    spec = PhantomSpec(size_mm=float(meta.get("phantom_edge_mm", PhantomSpec.size_mm)),
+                       layer_thickness_mm=float(meta.get("layer_mm", PhantomSpec.layer_thickness_mm)))
+    yaw = rotation_about_axis([0.0, 1.0, 0.0], np.deg2rad(float(meta.get("phantom_yaw_deg", 0.0))))
+    return spec, make_transform(yaw @ up, np.asarray(meta["phantom_center_mm"], dtype=np.float64))
+
+
+def _positive(value, name: str, allow_zero: bool = False):
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.size == 0 or not np.all(np.isfinite(arr)) or np.any(arr < 0) or (not allow_zero and np.any(arr == 0)):
+        raise ValueError(f"{name} must be finite and {'>= 0' if allow_zero else '> 0'} (mm or HU), got {value!r}")
+    return value
+
+
+def _treat_and_scan(exp: PoseExperiment, spec: PhantomSpec, T_carm_phantom: np.ndarray, *, physical: TransducerModel,
+                    config: PoseStudyConfig, rng: np.random.Generator, phantom_voxel_mm, cbct_voxel_mm,
+                    cbct_blur_mm: float, cbct_noise_hu: float, treatment_spacing_mm, treatment_inset_mm):
+    """The paper's treatment of one pose experiment and its post-treatment CBCT, segmented.
+
+    The sphere of radius ``r`` is planned about the centre pose's TCP (the geometric focal point)
+    on the centre pose's axes; the robot translates the transducer through the plan without
+    turning it (its repeatability noise added); the bubble clouds sit at the physical
+    transducer's focal point plus ``config.bubble_offset_mm`` for each reached pose.
+    """
+    T_c = exp.T_true["centre"]
+    R = T_c[:3, :3]
+    plan = plan_treatment(TreatmentZone(T_c[:3, 3], 2.0 * exp.radius_mm), treatment_spacing_mm, axes=R,
+                          inset_mm=treatment_inset_mm)
+    reached = np.repeat(T_c[None], len(plan), axis=0)
+    reached[:, :3, 3] = plan.points_mm + rng.normal(0.0, config.robot_repeatability_mm, plan.points_mm.shape)
+    phantom = phantom_volume(spec, T_carm_phantom, spacing_mm=phantom_voxel_mm)
+    roi = phantom_mask(phantom, spec, T_carm_phantom)
+    seg, post = scan_treated_zone(phantom, roi, reached, physical.focal_point_mm, config.bubble_offset_mm, spec=spec,
+                                  T_carm_phantom=T_carm_phantom, rng=rng, blur_sigma_mm=cbct_blur_mm,
+                                  noise_sd_hu=cbct_noise_hu, voxel_mm=cbct_voxel_mm)
+    return seg, post, len(plan)
+
+
+def cbct_reference(config: PoseStudyConfig, *, physical: TransducerModel, seed: int,
+                   records: pd.DataFrame | None = None, phantom_voxel_mm=0.5, cbct_voxel_mm=1.0,
+                   cbct_blur_mm: float = 0.5, cbct_noise_hu: float = 20.0,
+                   treatment_spacing_mm=TREATMENT_SPACING_MM, treatment_inset_mm=TREATMENT_INSET_MM,
+                   keep_volumes: bool = False, progress: Callable[[str], None] | None = None) -> pd.DataFrame:
+    """The paper's reference of Table II (§II-D, §II-E.3): the treated zone in a post-treatment CBCT.
+
+    For each experiment of :func:`run_pose_study` with the same ``config`` and ``seed`` (the
+    set-ups are redrawn by :func:`experiment_setups`; no rendering), as the paper did after the
+    fluoroscopy: a sphere of radius ``r`` treated about the true centre pose (the transducer
+    translated through :func:`histostudy.treatment.plan_treatment`'s focal points on the centre
+    pose's axes; bubble clouds at the physical focal point plus ``config.bubble_offset_mm``), the
+    layered phantom of the experiment's scene (:func:`phantom_placement`) mixed there, a
+    post-treatment CBCT simulated (:func:`histostudy.cbct.simulate_cbct`: ``cbct_blur_mm``,
+    ``cbct_noise_hu``, voxels of ``cbct_voxel_mm``; the true phantom on ``phantom_voxel_mm``) and
+    the zone segmented (:func:`histostudy.cbct.segment_treatment_zone`, the automatic stand-in for
+    the paper's manual annotation). Defaults: notebook 05's (0.5 mm phantom, 1 mm CBCT, 0.5 mm
+    blur, 20 HU noise, plan spacing (2, 2, 3) mm, inset the bubble cloud's half axes).
+
+    ``records``: :func:`run_pose_study`'s rows; when given, only its experiments are treated and
+    each one's true centre is checked against the redrawn set-up (a different config or seed is
+    refused). One row per experiment, C-arm frame, mm:
+
+    - ``experiment``, ``radius_mm`` (``r``), ``true_x/y/z``: the true bubble-cloud centre at the
+      centre pose (the ground-truth reference);
+    - ``centroid_x/y/z``: the segmented zone's centroid (the reference centre, §II-E.3);
+      ``sphere_x/y/z``, ``sphere_radius_mm``: its least-squares sphere (the surface the margin
+      points are measured to);
+    - ``ref_radius_depth/tb/lr``: the zone's radius along the centre pose's depth/TB/LR axes
+      (through the centroid, :meth:`~histostudy.cbct.ZoneSegmentation.radii_along`), and those
+      axes as world unit vectors ``axis_<d>_x/y/z``;
+    - the error of the reference against the ground truth: ``ref_err_<d>`` and
+      ``ref_err_euclidean`` (centroid minus true centre), ``ref_radius_err_<d>`` and
+      ``sphere_radius_err_mm`` (minus ``r``);
+    - ``clearance_mm``: least distance of the nominal sphere to the phantom's faces (the
+      segmentation keeps to half a window, 4 mm, inside them: below that the zone is clipped);
+      ``n_points`` (plan), ``volume_mm3``, ``seconds``; ``ok`` and ``failure``: a segmentation
+      that finds no zone leaves the experiment without a reference (NaN, skipped by Table II's
+      means) instead of stopping the study; with ``keep_volumes``, ``_volumes`` (the
+      post-treatment CBCT and the segmentation).
+
+    Pass the table to :func:`experiment_metrics` (``reference=``) for Table II against it.
+    """
+    if not isinstance(physical, TransducerModel):
+        raise TypeError(f"physical must be a histostudy.transducer.TransducerModel, got {type(physical).__name__}")
+    _positive(phantom_voxel_mm, "phantom_voxel_mm")
+    _positive(cbct_voxel_mm, "cbct_voxel_mm")
+    _positive(cbct_blur_mm, "cbct_blur_mm", allow_zero=True)
+    _positive(cbct_noise_hu, "cbct_noise_hu", allow_zero=True)
+    wanted = None
+    if records is not None:
+        need = {"experiment", "position", "radius_mm", "true_x", "true_y", "true_z"}
+        if not isinstance(records, pd.DataFrame) or not need <= set(records.columns):
+            raise ValueError(f"records must be run_pose_study's rows with columns {sorted(need)}")
+        centres = records[records["position"] == "centre"].groupby("experiment").first()
+        wanted = set(int(e) for e in records["experiment"].unique())
+        beyond = sorted(e for e in wanted if not 0 <= e < config.n_experiments)
+        if beyond:
+            raise ValueError(f"records hold experiments {beyond} beyond config.n_experiments={config.n_experiments}: "
+                             "pass the config and seed the records were made with")
+    rows = []
+    for exp, _, _, rng_cbct in _draw_experiments(config, seed):
+        if wanted is not None and exp.experiment not in wanted:
+            continue
+        truth = _bubble_centre(physical, exp.T_true["centre"], config.bubble_offset_mm)
+        if wanted is not None:
+            got = centres.loc[exp.experiment, ["true_x", "true_y", "true_z"]].to_numpy(float) \
+                if exp.experiment in centres.index else None
+            if got is None or not np.allclose(got, truth, atol=1e-6) \
+                    or float(centres.loc[exp.experiment, "radius_mm"]) != exp.radius_mm:
+                raise ValueError(f"experiment {exp.experiment}: the records' true centre {got} and radius do not "
+                                 f"match the set-up redrawn from this config and seed (true centre "
+                                 f"{truth.round(3).tolist()}, r = {exp.radius_mm} mm): pass the config, seed and "
+                                 "physical transducer the records were made with")
+        t0 = time.perf_counter()
+        spec, T_cp = phantom_placement(exp.scene, exp.scene.meta.get("phantom_center_mm", np.zeros(3)))
+        axes = transducer_axes(exp.T_true["centre"])
+        R = exp.T_true["centre"][:3, :3]
+        local = np.linalg.solve(T_cp[:3, :3], truth - T_cp[:3, 3])
+        clearance = float(0.5 * spec.size_mm - np.abs(local).max() - exp.radius_mm)
+        try:
+            seg, post, n_points = _treat_and_scan(exp, spec, T_cp, physical=physical, config=config, rng=rng_cbct,
+                                                  phantom_voxel_mm=phantom_voxel_mm, cbct_voxel_mm=cbct_voxel_mm,
+                                                  cbct_blur_mm=cbct_blur_mm, cbct_noise_hu=cbct_noise_hu,
+                                                  treatment_spacing_mm=treatment_spacing_mm,
+                                                  treatment_inset_mm=treatment_inset_mm)
+        except ValueError as exc:  # nothing segmented: the experiment has no reference (NaN), as a lost CBCT
+            nan = float("nan")
+            rows.append({"experiment": exp.experiment, "radius_mm": exp.radius_mm,
+                         **{f"true_{a}": v for a, v in zip("xyz", truth)},
+                         **{c: nan for c in REFERENCE_COLUMNS[1:]},
+                         **{f"ref_err_{d}": nan for d in (*DIRECTIONS, "euclidean")},
+                         **{f"ref_radius_err_{d}": nan for d in DIRECTIONS}, "sphere_radius_err_mm": nan,
+                         "clearance_mm": clearance, "n_points": 0, "volume_mm3": nan,
+                         "ok": False, "failure": str(exc), "seconds": time.perf_counter() - t0})
+            continue
+        radii = dict(zip(("lr", "tb", "depth"), seg.radii_along(R)))  # columns of R: LR, TB, -depth
+        err = seg.centroid_mm - truth
+        row = {"experiment": exp.experiment, "radius_mm": exp.radius_mm,
+               **{f"true_{a}": v for a, v in zip("xyz", truth)},
+               **{f"centroid_{a}": v for a, v in zip("xyz", seg.centroid_mm)},
+               **{f"sphere_{a}": v for a, v in zip("xyz", seg.sphere_centre_mm)},
+               "sphere_radius_mm": seg.sphere_radius_mm,
+               **{f"ref_radius_{d}": float(radii[d]) for d in DIRECTIONS},
+               **{f"axis_{d}_{a}": float(v) for d in DIRECTIONS for a, v in zip("xyz", axes[d])},
+               **{f"ref_err_{d}": float(err @ axes[d]) for d in DIRECTIONS},
+               "ref_err_euclidean": float(np.linalg.norm(err)),
+               **{f"ref_radius_err_{d}": float(radii[d] - exp.radius_mm) for d in DIRECTIONS},
+               "sphere_radius_err_mm": float(seg.sphere_radius_mm - exp.radius_mm),
+               "clearance_mm": clearance, "n_points": n_points, "volume_mm3": seg.volume_mm3,
+               "ok": True, "failure": "", "seconds": time.perf_counter() - t0}
+        if keep_volumes:
+            row["_volumes"] = {"post": post, "segmentation": seg, "T_carm_phantom": T_cp}
+        rows.append(row)
+        if progress:
+            progress(f"CBCT reference {exp.experiment + 1}/{config.n_experiments}: centroid "
+                     f"{row['ref_err_euclidean']:.2f} mm from the true centre")
+    return pd.DataFrame(rows)
+
+
+def reference_error_summary(reference: pd.DataFrame) -> pd.DataFrame:
+    """The error of the CBCT reference against the ground truth (mean ± SD over experiments, mm):
+    centroid minus true bubble-cloud centre along depth/TB/LR and Euclidean, zone radius along
+    each direction and fitted sphere radius minus ``r`` (signed: negative = the zone reads small)."""
+    _check_reference(reference)
+    fmt = lambda v: f"{v[0]:+.2f} ± {v[1]:.2f}" if np.isfinite(v[0]) else "n/a"
+    rows = [{"quantity": f"centroid − true centre, {d}", "mm": fmt(_mean_sd(reference[f"ref_err_{d}"]))}
+            for d in DIRECTIONS]
+    rows.append({"quantity": "centroid − true centre, Euclidean",
+                 "mm": fmt(_mean_sd(reference["ref_err_euclidean"]))})
+    rows += [{"quantity": f"zone radius − r, {d}", "mm": fmt(_mean_sd(reference[f"ref_radius_err_{d}"]))}
+             for d in DIRECTIONS]
+    rows.append({"quantity": "fitted sphere radius − r", "mm": fmt(_mean_sd(reference["sphere_radius_err_mm"]))})
+    return pd.DataFrame(rows)
+
+
+def _check_reference(reference) -> dict:
+    """``{experiment: row}`` of a reference table, after checking its columns."""
+    if not isinstance(reference, pd.DataFrame):
+        raise TypeError(f"reference must be cbct_reference()'s DataFrame (or None for the ground truth), "
+                        f"got {type(reference).__name__}")
+    missing = [c for c in REFERENCE_COLUMNS if c not in reference.columns]
+    if missing:
+        raise ValueError(f"reference lacks the columns {missing}: pass the table cbct_reference() returns")
+    if reference["experiment"].duplicated().any():
+        raise ValueError("reference holds an experiment twice: one row per experiment expected")
+    return {int(r["experiment"]): r for _, r in reference.iterrows()}
+
+
 def _mean_sd(values) -> tuple[float, float]:
     v = np.asarray(values, dtype=np.float64)
     v = v[np.isfinite(v)]
@@ -240,33 +510,64 @@ def _mean_sd(values) -> tuple[float, float]:
     return float(v.mean()), float(v.std(ddof=1)) if v.size > 1 else 0.0
 
 
-def experiment_metrics(records: pd.DataFrame) -> pd.DataFrame:
-    """Per experiment and mode, the quantities of Table II (mm), from :func:`run_pose_study`'s rows.
+def experiment_metrics(records: pd.DataFrame, reference: pd.DataFrame | None = None) -> pd.DataFrame:
+    """Per experiment and mode, the quantities of Table II (mm, §II-E.3), from :func:`run_pose_study`'s rows.
 
-    Centre error per direction (signed), margin error per margin (distance of the predicted
-    margin point to the reference sphere's surface), predicted radius per direction (half the
-    distance between opposite margin predictions) and precision (distance between the centroid
-    of the six margin predictions and the centre prediction).
+    Centre error per direction (signed, predicted minus reference, along the centre pose's
+    depth/TB/LR axes) and Euclidean; margin error per margin (distance of the predicted margin
+    point to the reference surface); predicted radius per direction (half the distance between
+    opposite margin predictions) and its absolute error against the reference radius in that
+    direction; precision (distance between the centroid of the six margin predictions and the
+    centre prediction; needs no reference).
+
+    ``reference``:
+
+    - ``None`` (the ground truth): the true bubble-cloud centre of the records, the sphere of
+      radius ``r`` about it, radius ``r`` in every direction;
+    - :func:`cbct_reference`'s table (the paper's reference): the segmented zone's centroid, the
+      surface of its fitted sphere, its radii along depth/TB/LR. Every experiment of the records
+      needs a row.
+
+    Column ``reference`` says which (``"truth"`` or ``"cbct"``).
     """
+    refs = None if reference is None else _check_reference(reference)
     out = []
     full = records[records["mode"] != "track"]
     for (e, mode, maps), g in full.groupby(["experiment", "mode", "maps"], sort=True):
         g = g.set_index("position")
         r = float(g["radius_mm"].iloc[0])
         pred = {p: g.loc[p, ["pred_x", "pred_y", "pred_z"]].to_numpy(float) for p in g.index}
-        ref_centre = g.loc["centre", ["true_x", "true_y", "true_z"]].to_numpy(float)
-        row = {"experiment": e, "mode": mode, "maps": maps, "radius_mm": r}
-        for d in DIRECTIONS:
-            row[f"centre_err_{d}"] = float(g.loc["centre", f"err_{d}"])
-        row["centre_err_euclidean"] = float(g.loc["centre", "err_euclidean"])
-        # Reference sphere: centred on the true centre, radius r (the robot moves exactly r).
-        for name, (d, _) in MARGINS.items():
-            row[f"margin_err_{name}"] = abs(float(np.linalg.norm(pred[name] - ref_centre)) - r)
+        row = {"experiment": e, "mode": mode, "maps": maps, "radius_mm": r,
+               "reference": "truth" if refs is None else "cbct"}
+        if refs is None:
+            for d in DIRECTIONS:
+                row[f"centre_err_{d}"] = float(g.loc["centre", f"err_{d}"])
+            row["centre_err_euclidean"] = float(g.loc["centre", "err_euclidean"])
+            # Reference sphere: centred on the true centre, radius r (the robot moves exactly r).
+            surface_centre = g.loc["centre", ["true_x", "true_y", "true_z"]].to_numpy(float)
+            surface_radius = r
+            ref_radius = {d: r for d in DIRECTIONS}
+        else:
+            if int(e) not in refs:
+                raise ValueError(f"reference has no row for experiment {e}: run cbct_reference with the records' "
+                                 f"config and seed (it has experiments {sorted(refs)})")
+            ref = refs[int(e)]
+            centroid = ref[["centroid_x", "centroid_y", "centroid_z"]].to_numpy(float)
+            err = pred["centre"] - centroid
+            for d in DIRECTIONS:
+                axis = ref[[f"axis_{d}_{a}" for a in "xyz"]].to_numpy(float)
+                row[f"centre_err_{d}"] = float(err @ axis)
+            row["centre_err_euclidean"] = float(np.linalg.norm(err))
+            surface_centre = ref[["sphere_x", "sphere_y", "sphere_z"]].to_numpy(float)
+            surface_radius = float(ref["sphere_radius_mm"])
+            ref_radius = {d: float(ref[f"ref_radius_{d}"]) for d in DIRECTIONS}
+        for name in MARGINS:
+            row[f"margin_err_{name}"] = abs(float(np.linalg.norm(pred[name] - surface_centre)) - surface_radius)
         for d in DIRECTIONS:
             plus, minus = [n for n, (dd, s) in MARGINS.items() if dd == d and s > 0][0], \
                 [n for n, (dd, s) in MARGINS.items() if dd == d and s < 0][0]
             row[f"radius_{d}"] = 0.5 * float(np.linalg.norm(pred[plus] - pred[minus]))
-            row[f"radius_err_{d}"] = abs(row[f"radius_{d}"] - r)
+            row[f"radius_err_{d}"] = abs(row[f"radius_{d}"] - ref_radius[d])
             row[f"margin_err_{d}"] = 0.5 * (row[f"margin_err_{plus}"] + row[f"margin_err_{minus}"])
         margins = np.array([pred[n] for n in MARGINS])
         row["margin_err_overall"] = float(np.mean([row[f"margin_err_{n}"] for n in MARGINS]))
@@ -277,13 +578,20 @@ def experiment_metrics(records: pd.DataFrame) -> pd.DataFrame:
 
 
 def table2(metrics: pd.DataFrame, mode: str, maps: str = "occlusion_aware") -> tuple[pd.DataFrame, dict]:
-    """Table II (mean ± SD over experiments, mm) for one mode and map kind, and the values keyed
-    as in :mod:`histostudy.paper` (``table2.<row>.<direction>`` -> (mean, sd)), plus
-    ``pose.precision`` (centroid of the six margin predictions vs the centre prediction)."""
+    """Table II (§III; mean ± SD over experiments, mm) for one mode and map kind, and the values
+    keyed as in :mod:`histostudy.paper` (``table2.<row>.<direction>`` -> (mean, sd)), plus
+    ``pose.precision`` (centroid of the six margin predictions vs the centre prediction).
+
+    The reference is the one :func:`experiment_metrics` measured against (its ``reference``
+    column: the ground truth, or the post-treatment CBCT of :func:`cbct_reference` as the paper);
+    metrics against both mixed are refused.
+    """
     m = metrics[(metrics["mode"] == mode) & (metrics["maps"] == maps)]
     if m.empty:
         raise ValueError(f"no experiment metrics for mode={mode!r}, maps={maps!r}; have "
                          f"{sorted(set(zip(metrics['mode'], metrics['maps'])))}")
+    if "reference" in m and m["reference"].nunique() > 1:
+        raise ValueError(f"metrics mix references {sorted(m['reference'].unique())}: compute Table II per reference")
     values = {}
     for d in DIRECTIONS:
         values[f"table2.center_bias.{d}"] = _mean_sd(m[f"centre_err_{d}"])
@@ -438,7 +746,7 @@ def degradation_sweep(levels: Sequence[float], *, pose_model: TransducerModel, r
                                     orientation=OracleOrientation(), rng=np.random.default_rng(rng_est.integers(2**63)),
                                     mode=mode)
                 row.update(error_mm=float(np.linalg.norm(res.focal_point_mm - truth)), ok=True)
-            except PoseEstimationError as exc:
+            except PoseEstimationError:
                 row.update(error_mm=np.nan, ok=False)
             rows.append(row)
     return pd.DataFrame(rows)
