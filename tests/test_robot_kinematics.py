@@ -108,6 +108,20 @@ def test_bad_joint_input_names_the_argument():
         k.inverse_kinematics(np.full((4, 4), np.nan))
 
 
+def test_joint_frames_are_the_link_chain_of_the_forward_kinematics():
+    q = _random_q(np.random.default_rng(4), 1)[0]
+    frames = k.joint_frames(q)
+    assert frames.shape == (7, 4, 4)
+    assert np.array_equal(frames[0], np.eye(4))
+    assert np.allclose(frames[-1], k.forward_kinematics(q), atol=1e-9)
+    # Consecutive origins are the DH link lengths apart (sqrt(d^2 + a^2)) in any configuration.
+    gaps = np.linalg.norm(np.diff(frames[:, :3, 3], axis=0), axis=1)
+    assert np.allclose(gaps, np.hypot(k.UR5E.d_mm, k.UR5E.a_mm), atol=1e-9)
+    assert np.allclose(k.joint_frames(np.zeros(6))[1, :3, 3], [0.0, 0.0, 162.5])
+    with pytest.raises(ValueError, match="q_rad"):
+        k.joint_frames([0.0] * 5)
+
+
 def test_linear_path_stays_on_the_line_and_is_continuous():
     q0 = np.array([0.0, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0])
     T_flange_tcp = make_transform(t_mm=[0.0, 0.0, 150.0])

@@ -107,7 +107,7 @@ def test_target_out_of_reach_raises_before_any_move():
     robot = SimulatedUR5e(0, initial_joints_rad=inverse_kinematics_closest(start, HOME_JOINTS_RAD))
     R = T.target_orientation(cal)
     # A reachable target near the isocentre is reached with the focal point on it (exact calibration).
-    T_cmd = T.position_for_target(robot, cal, [0.0, 0.0, 0.0], R)
+    T.position_for_target(robot, cal, [0.0, 0.0, 0.0], R)
     assert robot.state().moves_completed == 1
     true_focal = truth.T_carm_transducer(robot.flange_pose())[:3, 3]
     assert np.linalg.norm(true_focal) < 0.05  # robot repeatability only
@@ -120,6 +120,30 @@ def test_target_out_of_reach_raises_before_any_move():
     assert np.array_equal(robot.joints(), q_before)
     with pytest.raises(ValueError, match="target_mm"):
         T.position_for_target(robot, cal, [np.nan, 0.0, 0.0], R)
+
+
+def test_scene_at_target_puts_the_true_focal_point_on_the_target():
+    from histostudy.robot.kinematics import forward_kinematics
+
+    rng = np.random.default_rng(5)
+    truth, cal = _exact_calibration(rng)
+    target = truth.T_carm_phantom[:3, 3] + [3.0, -2.0, 4.0]
+    R = T.target_orientation(cal)
+    scene = T.scene_at_target(truth, cal, target, R)
+    assert np.array_equal(scene["T_carm_base"], truth.T_carm_base)
+    assert np.array_equal(scene["T_carm_phantom"], truth.T_carm_phantom)
+    # The joints reach the commanded flange pose, and the true chain (exact calibration) puts the
+    # transducer's focal point on the target with the commanded orientation.
+    assert scene["joints_rad"].shape == (6,)
+    assert np.allclose(forward_kinematics(scene["joints_rad"]), scene["T_base_flange"], atol=1e-6)
+    T_true = truth.T_carm_base @ scene["T_base_flange"] @ truth.T_flange_transducer
+    assert np.allclose(scene["T_carm_transducer"], T_true)
+    assert np.linalg.norm(scene["T_carm_transducer"][:3, 3] - target) < 1e-6
+    assert np.allclose(scene["T_carm_transducer"][:3, :3], R, atol=1e-6)
+    with pytest.raises(ValueError, match="target_mm"):
+        T.scene_at_target(truth, cal, [0.0, np.inf, 0.0], R)
+    with pytest.raises(TypeError, match="calibration"):
+        T.scene_at_target(truth, None, target, R)
 
 
 def test_ground_truth_is_plausible_and_seeded():

@@ -31,6 +31,7 @@ __all__ = [
     "forward_kinematics",
     "interpolate_pose",
     "inverse_kinematics",
+    "joint_frames",
     "inverse_kinematics_closest",
     "linear_path_joints",
 ]
@@ -105,6 +106,24 @@ def forward_kinematics(q_rad, dh: DHParameters = UR5E) -> np.ndarray:
     for i in range(6):
         T = T @ _link(q[i], dh.d_mm[i], dh.a_mm[i], dh.alpha_rad[i])
     return T
+
+
+def joint_frames(q_rad, dh: DHParameters = UR5E) -> np.ndarray:
+    """The arm's link chain: ``(7, 4, 4)`` frames in the base frame (mm) for joint angles ``q_rad``
+    (rad, shape (6,)).
+
+    Frame 0 is the base (identity); frame ``i`` (1..6) is the DH frame after joint ``i``, so frame 6
+    is ``T_base_flange`` (:func:`forward_kinematics`). The origins ``frames[:, :3, 3]`` are the
+    points a stick figure of the arm joins (shoulder, elbow, the three wrists, the flange).
+    """
+    q = np.asarray(q_rad, dtype=np.float64).reshape(-1)
+    if q.shape != (6,) or not np.all(np.isfinite(q)):
+        raise ValueError(f"q_rad must be 6 finite joint angles in rad, got {q_rad!r}")
+    frames = np.empty((7, 4, 4))
+    frames[0] = np.eye(4)
+    for i in range(6):
+        frames[i + 1] = frames[i] @ _link(q[i], dh.d_mm[i], dh.a_mm[i], dh.alpha_rad[i])
+    return frames
 
 
 def _wrap(angle: float) -> float:

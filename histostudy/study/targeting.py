@@ -81,7 +81,6 @@ from ..cbct import (
     phantom_mask,
     phantom_volume,
     random_target,
-    segment_treatment_zone,
     simulate_cbct,
 )
 from ..geometry import invert_transform, make_transform, matrix_from_rotvec, rotation_angle, rotation_about_axis
@@ -92,7 +91,7 @@ from ..render import render_frame
 from ..robot import HOME_JOINTS_RAD, Robot, SimulatedUR5e, inverse_kinematics_closest
 from ..segment import OracleSegmenter, SegmentationDegradation
 from ..transducer import TransducerModel
-from ..treatment import BUBBLE_CLOUD_SIZE_MM, bubble_cloud_mask, execute_treatment, plan_treatment, post_treatment_phantom
+from ..treatment import BUBBLE_CLOUD_SIZE_MM, execute_treatment, plan_treatment, scan_treated_zone
 from .pose_estimation import DIRECTIONS, _mean_sd, transducer_axes
 
 __all__ = [
@@ -108,6 +107,7 @@ __all__ = [
     "plot_target_slices",
     "position_for_target",
     "run_targeting_study",
+    "scene_at_target",
     "sim_robot",
     "summary",
     "target_orientation",
@@ -509,6 +509,42 @@ def position_for_target(robot: Robot, calibration: HandEyeCalibration, target_mm
     return T_base_tcp
 
 
+def _start_joints(truth: GroundTruth) -> np.ndarray:
+    """Where the operator jogged the robot: the flange pointing down, the designed focal point at
+    ``truth.start_focal_base_mm`` (the joint solution closest to the home configuration)."""
+    start_flange = make_transform(R_BASE_FLANGE_DOWN, truth.start_focal_base_mm
+                                  - R_BASE_FLANGE_DOWN @ truth.T_flange_transducer_nominal[:3, 3])
+    return inverse_kinematics_closest(start_flange, HOME_JOINTS_RAD)
+
+
+def scene_at_target(truth: GroundTruth, calibration: HandEyeCalibration, target_mm, R_carm_transducer) -> dict:
+    """The physical set-up with the robot at the treatment's start, for a 3-D scene
+    (:func:`histostudy.viz.targeting_scene`).
+
+    The robot is commanded (:func:`tcp_for_target`, calibrated chain) to put the estimated focal
+    point on ``target_mm`` (C-arm mm) with the orientation ``R_carm_transducer``; what it reaches is
+    drawn from the ground truth: its joints (the inverse-kinematics solution closest to the start
+    configuration of :func:`run_targeting_experiment`; the repeatability noise left out), its true
+    base and the true transducer on its flange. Returns a dict of 4x4 transforms (mm) and joints
+    (rad): ``T_carm_base``, ``joints_rad`` (6,), ``T_base_flange``, ``T_carm_transducer`` (the TRUE
+    transducer pose) and ``T_carm_phantom``.
+    """
+    if not isinstance(truth, GroundTruth):
+        raise TypeError(f"truth must be a GroundTruth, got {type(truth).__name__}")
+    if not isinstance(calibration, HandEyeCalibration):
+        raise TypeError(f"calibration must be a HandEyeCalibration, got {type(calibration).__name__}")
+    target = np.asarray(target_mm, dtype=np.float64).reshape(-1)
+    if target.shape != (3,) or not np.all(np.isfinite(target)):
+        raise ValueError(f"target_mm must be 3 finite numbers (C-arm frame, mm), got {target_mm!r}")
+    R = np.asarray(R_carm_transducer, dtype=np.float64)
+    if R.shape != (3, 3):
+        raise ValueError(f"R_carm_transducer must be a 3x3 rotation, got shape {R.shape}")
+    F_cmd = tcp_for_target(calibration, target, R) @ invert_transform(calibration.T_flange_transducer)
+    q = inverse_kinematics_closest(F_cmd, _start_joints(truth))
+    return {"T_carm_base": truth.T_carm_base.copy(), "joints_rad": q, "T_base_flange": F_cmd,
+            "T_carm_transducer": truth.T_carm_transducer(F_cmd), "T_carm_phantom": truth.T_carm_phantom.copy()}
+
+
 def _treat(robot: Robot, truth: GroundTruth, calibration: HandEyeCalibration, config: TargetingStudyConfig,
            zone: TreatmentZone, R_des: np.ndarray, T_flange_tcp: np.ndarray, phantom: Volume, roi: np.ndarray,
            physical: TransducerModel, rng_cbct: np.random.Generator, journal: Path) -> tuple[ZoneSegmentation, Volume, dict]:
@@ -522,10 +558,10 @@ def _treat(robot: Robot, truth: GroundTruth, calibration: HandEyeCalibration, co
                             T_flange_tcp=T_flange_tcp)
     T_base_flange = run.reached_T_base_tcp @ invert_transform(T_flange_tcp)
     T_true = truth.T_carm_base @ T_base_flange @ truth.T_flange_transducer
-    treated = bubble_cloud_mask(phantom, T_true, physical.focal_point_mm, truth.bubble_offset_mm)
-    post = simulate_cbct(post_treatment_phantom(phantom, treated, roi), rng_cbct, blur_sigma_mm=config.cbct_blur_mm,
-                         noise_sd_hu=config.cbct_noise_hu, voxel_mm=config.cbct_voxel_mm)
-    seg = segment_treatment_zone(post, phantom_mask(post, PhantomSpec(), truth.T_carm_phantom))
+    seg, post = scan_treated_zone(phantom, roi, T_true, physical.focal_point_mm, truth.bubble_offset_mm,
+                                  spec=PhantomSpec(), T_carm_phantom=truth.T_carm_phantom, rng=rng_cbct,
+                                  blur_sigma_mm=config.cbct_blur_mm, noise_sd_hu=config.cbct_noise_hu,
+                                  voxel_mm=config.cbct_voxel_mm)
     # The bubble clouds' true centroid (what a perfect segmentation would find).
     centres = T_true[:, :3, :3] @ (physical.focal_point_mm + truth.bubble_offset_mm) + T_true[:, :3, 3]
     info = {"n_points": len(plan), "T_base_tcp_start": T_start, "cloud_centroid_mm": centres.mean(axis=0),
@@ -583,9 +619,7 @@ def run_targeting_experiment(config: TargetingStudyConfig, seq: np.random.SeedSe
     zone = TreatmentZone(target, diameter)
     row = {"experiment": experiment, "diameter_mm": diameter, **{f"target_{a}": v for a, v in zip("xyz", target)}}
     # The operator jogged the flange pointing down over the phantom: the robot starts there.
-    start_flange = make_transform(R_BASE_FLANGE_DOWN, truth.start_focal_base_mm
-                                  - R_BASE_FLANGE_DOWN @ truth.T_flange_transducer_nominal[:3, 3])
-    q_start = inverse_kinematics_closest(start_flange, HOME_JOINTS_RAD)
+    q_start = _start_joints(truth)
     with robot_factory(robot_seed(s_robot), q_start) as robot, tempfile.TemporaryDirectory(prefix="histostudy-target-") as tmp:
         cal, cal_rows = calibrate_robot(robot, truth, config, pose_model=pose_model, render_model=render_model,
                                         physical=physical, views=views, rng_pose=np.random.default_rng(s_pose),
