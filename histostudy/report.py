@@ -12,7 +12,6 @@ from __future__ import annotations
 import contextlib
 import html
 import json
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path

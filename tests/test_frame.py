@@ -42,7 +42,7 @@ def test_load_npy_and_png(tmp_path, view):
 
 
 def test_load_dicom(tmp_path, view):
-    pydicom = pytest.importorskip("pydicom")
+    pytest.importorskip("pydicom")
     from pydicom.dataset import FileDataset, FileMetaDataset
     from pydicom.uid import ExplicitVRLittleEndian, generate_uid
 

@@ -38,7 +38,6 @@ def test_angles_round_trip_through_eq4_up_to_the_mirror(view):
         # one candidate is d; the other is d mirrored on the detector plane
         errs = [np.linalg.norm(c - d) for c in cands]
         assert min(errs) < 1e-9
-        beam = view.principal_direction if view.gantry else view.detector_axes[2]
         mirrored = d - 2 * (d @ view.detector_axes[2]) * view.detector_axes[2]
         assert min(np.linalg.norm(c - mirrored) for c in cands) < 1e-9
         # candidate 0 points away from the detector

@@ -1,6 +1,5 @@
 """SectionWriter and report assembly, without papermill."""
 
-import json
 
 import matplotlib
 
