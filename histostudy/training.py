@@ -277,8 +277,10 @@ def _loaders(cfg: TrainingConfig, seed: int, cache_dir):
     return train_ds, val_loader
 
 
-#: Settings that control a run but not what it computes: a run may resume with other values.
-_RUN_CONTROLS = ("max_minutes", "threads", "device")
+#: Settings that control a run but not what it computes: a run may resume with other values. The
+#: stopping rules are among them: a run stopped by its budget, epoch cap or patience goes on when
+#: resumed with a larger one, along the same trajectory as a run started with it.
+_RUN_CONTROLS = ("max_minutes", "threads", "device", "patience", "max_epochs")
 
 
 def _identity(cfg_dict: dict) -> dict:
@@ -295,8 +297,9 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
         seed: the study seed: frames, initial weights and batch order derive from it.
         profile: the profile name (recorded).
         resume: continue from ``run_dir``'s last checkpoint when there is one (its configuration
-            must be the same, except the run controls ``max_minutes``, ``threads`` and
-            ``device``); False starts afresh.
+            must be the same, except the run controls ``max_minutes``, ``threads``, ``device``,
+            ``patience`` and ``max_epochs``: a finished run goes on when they allow more); False
+            starts afresh.
         progress: show a tqdm progress bar per epoch.
         cache_dir: folder of the rendered-frame cache (default :func:`default_cache_dir`).
     """
@@ -347,6 +350,8 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
             raise ValueError(f"run folder {str(run_dir)!r} holds a run with another configuration or seed; "
                              f"use another folder or resume=False")
         state = previous["state"]
+        # the stopping rules are checked again below, with this call's values
+        state["finished"] = False
         tensors, manifest = load_checkpoint(run_dir / "last.safetensors")
         net = build_network(manifest["config"])
         net.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
