@@ -19,10 +19,10 @@ from pathlib import Path
 import numpy as np
 
 from .io import atomic_path, atomic_write_json, atomic_write_text, to_jsonable
-from .paper import paper_value
+from .paper import PAPER, paper_value
 from .provenance import provenance
 
-__all__ = ["RESULTS_FILE", "SectionWriter", "build_report", "format_measure", "load_section"]
+__all__ = ["RESULTS_FILE", "SectionWriter", "build_report", "format_measure", "load_section", "results_coverage"]
 
 RESULTS_FILE = "results.json"
 RUN_FILE = "run.json"
@@ -109,6 +109,7 @@ class SectionWriter:
         paper = paper_value(pk) if pk else None
         row = {
             "key": key,
+            "paper_key": pk or None,
             "label": label,
             "ours": to_jsonable(ours),
             "ours_sd": to_jsonable(ours_sd),
@@ -264,12 +265,42 @@ def _report_markdown(out: Path, run: dict) -> str:
             lines += [f"## {name}", "", f"*No results: status {nb.get('status', 'not run')}.*", ""]
             continue
         lines += _section_markdown(name, load_section(section_dir), nb)
+    sections = {nb["name"]: load_section(out / nb["name"]) for nb in run.get("notebooks", [])
+                if (out / nb["name"] / RESULTS_FILE).is_file()}
+    coverage = results_coverage(sections)
+    lines += ["## The paper's results and their reproduced twins", "",
+              "Every number of the paper's §III (Tables I and II, the statistics in the text, the targeting "
+              "paragraph) and the abstract, and the section of this report that reproduces it "
+              f"({sum(1 for c in coverage if c['sections'])} of {len(coverage)} in this run).", "",
+              "| Paper value | Where | Reproduced in |", "|---|---|---|"]
+    for c in coverage:
+        where = ", ".join(f"`{name}`" for name in c["sections"]) or "**not in this run**"
+        lines.append(f"| {_md_cell(c['key'])}: {_md_cell(c['paper_text'])} | {_md_cell(c['where'])} | {where} |")
+    lines.append("")
     versions = run.get("provenance", {}).get("versions", {})
     if versions:
         lines += ["## Software", "", "| package | version |", "|---|---|"]
         lines += [f"| {k} | {v} |" for k, v in versions.items()]
         lines.append("")
     return "\n".join(lines)
+
+
+def results_coverage(sections: dict[str, dict]) -> list[dict]:
+    """Which section compares each of the paper's results (§III, Tables I-II, abstract).
+
+    ``sections``: section name -> its loaded results (:func:`load_section`). Returns one row per
+    paper result (``key``, ``paper_text``, ``where``, ``sections``: the names of the sections with a
+    comparison against it), in :data:`histostudy.paper.PAPER` order. The report lists them so
+    that a result the study does not reproduce is seen, not silently missing.
+    """
+    rows = []
+    for key, value in PAPER.items():
+        if not any(tag in value.where for tag in ("§III", "Table", "abstract")):
+            continue
+        found = [name for name, res in sections.items()
+                 if any(c.get("paper_key", c.get("key")) == key for c in res.get("comparisons", []))]
+        rows.append({"key": key, "paper_text": value.format(), "where": value.where, "sections": found})
+    return rows
 
 
 def _section_markdown(name: str, res: dict, nb: dict) -> list[str]:

@@ -1,6 +1,5 @@
 """SectionWriter and report assembly, without papermill."""
 
-
 import matplotlib
 
 matplotlib.use("Agg")
@@ -82,3 +81,28 @@ def test_report_names_a_failure(tmp_path):
            "failure": {"notebook": "01_x", "cell_index": 4, "error": "ValueError: boom", "executed_notebook": "e.ipynb"}}
     md, _ = build_report(tmp_path, run)
     assert "Run failed" in md.read_text() and "ValueError: boom" in md.read_text()
+
+
+def test_report_lists_every_paper_result_and_where_it_is_reproduced(tmp_path):
+    from histostudy.paper import PAPER
+    from histostudy.report import results_coverage
+
+    w = SectionWriter(tmp_path / "04_pose", "04", "Pose", profile="smoke", seed=3)
+    w.compare("table2.center_mae.overall", "Centre MAE", 0.6, unit="mm")
+    w.compare("pose.centre_cbct", "Centre error vs CBCT", 0.64, unit="mm", paper_key="pose.center_euclidean")
+    w.compare("pose.speed", "Speed", 0.7, unit="s", paper_key="")
+    w.save()
+    coverage = results_coverage({"04_pose": load_section(tmp_path / "04_pose")})
+    by_key = {c["key"]: c for c in coverage}
+    assert by_key["table2.center_mae.overall"]["sections"] == ["04_pose"]
+    assert by_key["pose.center_euclidean"]["sections"] == ["04_pose"]  # matched through paper_key
+    assert by_key["targeting.euclidean"]["sections"] == []
+    assert "model.radius_mm" not in by_key  # §II set-up values are not results
+    expected = {k for k, v in PAPER.items() if "§III" in v.where or "Table" in v.where or "abstract" in v.where}
+    assert set(by_key) == expected and "seg.anova_F" in expected
+    run = {"profile": "smoke", "seed": 3, "provenance": {}, "failure": None,
+           "notebooks": [{"name": "04_pose", "status": "ok", "seconds": 1.0, "output_dir": str(tmp_path / "04_pose")}]}
+    md = build_report(tmp_path, run)[0].read_text()
+    assert "## The paper's results and their reproduced twins" in md
+    assert f"(2 of {len(expected)} in this run)" in md
+    assert "| targeting.euclidean: 1.64 ± 0.34 mm | §III, abstract 1.4 ± 0.5 | **not in this run** |" in md
