@@ -22,6 +22,16 @@ def _seg(**kw):
     return TrainingConfig(**{**base, **kw})
 
 
+class _Stop(Exception):
+    pass
+
+
+def _stop_after_first_epoch(msg):
+    """A log callback that interrupts a run once its first epoch is checkpointed."""
+    if "epoch 1:" in msg:
+        raise _Stop
+
+
 @pytest.fixture(scope="module")
 def cache(tmp_path_factory):
     return tmp_path_factory.mktemp("frames")
@@ -39,15 +49,8 @@ def test_interrupted_run_resumes_to_the_same_weights(tmp_path, cache):
     cfg = _seg()
     full = train(cfg, tmp_path / "full", seed=3, progress=False, log=lambda m: None, cache_dir=cache)
 
-    class Stop(Exception):
-        pass
-
-    def stop_after_first_epoch(msg):
-        if "epoch 1:" in msg:
-            raise Stop
-
-    with pytest.raises(Stop):
-        train(cfg, tmp_path / "cut", seed=3, progress=False, log=stop_after_first_epoch, cache_dir=cache)
+    with pytest.raises(_Stop):
+        train(cfg, tmp_path / "cut", seed=3, progress=False, log=_stop_after_first_epoch, cache_dir=cache)
     state = json.loads((tmp_path / "cut" / "state.json").read_text())["state"]
     assert state["epoch"] == 1 and not state["finished"]
     resumed = train(cfg, tmp_path / "cut", seed=3, progress=False, log=lambda m: None, cache_dir=cache)
@@ -191,15 +194,8 @@ def test_adam_runs_resume_bit_for_bit_and_keep_their_moments(tmp_path, cache):
     cfg = _seg(optimizer="adam", max_epochs=2)
     full = train(cfg, tmp_path / "full", seed=4, progress=False, log=lambda m: None, cache_dir=cache)
 
-    class Stop(Exception):
-        pass
-
-    def stop_after_first_epoch(msg):
-        if "epoch 1:" in msg:
-            raise Stop
-
-    with pytest.raises(Stop):
-        train(cfg, tmp_path / "cut", seed=4, progress=False, log=stop_after_first_epoch, cache_dir=cache)
+    with pytest.raises(_Stop):
+        train(cfg, tmp_path / "cut", seed=4, progress=False, log=_stop_after_first_epoch, cache_dir=cache)
     train(cfg, tmp_path / "cut", seed=4, progress=False, log=lambda m: None, cache_dir=cache)
     a, _ = load_checkpoint(tmp_path / "full" / "last.safetensors")
     b, _ = load_checkpoint(tmp_path / "cut" / "last.safetensors")
