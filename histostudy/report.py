@@ -258,15 +258,15 @@ def _report_markdown(out: Path, run: dict) -> str:
     if failure:
         lines += [f"> **Run failed:** notebook `{failure['notebook']}` at cell {failure.get('cell_index')}: "
                   f"{failure.get('error')}. Its executed copy is `{failure.get('executed_notebook')}`.", ""]
+    sections = {}
     for nb in run.get("notebooks", []):
         name = nb["name"]
         section_dir = out / name
         if not (section_dir / RESULTS_FILE).is_file():
             lines += [f"## {name}", "", f"*No results: status {nb.get('status', 'not run')}.*", ""]
             continue
-        lines += _section_markdown(name, load_section(section_dir), nb)
-    sections = {nb["name"]: load_section(out / nb["name"]) for nb in run.get("notebooks", [])
-                if (out / nb["name"] / RESULTS_FILE).is_file()}
+        sections[name] = load_section(section_dir)
+        lines += _section_markdown(name, sections[name], nb)
     coverage = results_coverage(sections)
     lines += ["## The paper's results and their reproduced twins", "",
               "Every number of the paper's §III (Tables I and II, the statistics in the text, the targeting "

@@ -428,7 +428,7 @@ def cbct_reference(config: PoseStudyConfig, *, physical: TransducerModel, seed: 
                                  f"{truth.round(3).tolist()}, r = {exp.radius_mm} mm): pass the config, seed and "
                                  "physical transducer the records were made with")
         t0 = time.perf_counter()
-        spec, T_cp = phantom_placement(exp.scene, exp.scene.meta.get("phantom_center_mm", np.zeros(3)))
+        spec, T_cp = phantom_placement(exp.scene)
         axes = transducer_axes(exp.T_true["centre"])
         R = exp.T_true["centre"][:3, :3]
         local = np.linalg.solve(T_cp[:3, :3], truth - T_cp[:3, 3])
