@@ -296,4 +296,12 @@ def test_end_to_end_treatment_is_found_where_the_clouds_were(tmp_path):
     assert np.linalg.norm(seg.centroid_mm - expected_centre) < 0.5
     assert np.linalg.norm(seg.centroid_mm - zone.centre_mm) > 1.0  # the offset is seen
     assert abs(seg.sphere_radius_mm - zone.radius_mm) < 1.0
-    assert np.all(np.abs(seg.radii_along(R_CT) - zone.radius_mm) < 1.0)
+    # the zone's size is that of what was treated: the union of clouds, whose volume falls short
+    # of the planned sphere's (scalloped surface between the cloud tips)
+    treated = clouds & cbct.phantom_mask(truth, spec)
+    treated_radius = (3.0 * treated.sum() * truth.voxel_volume_mm3 / (4.0 * np.pi)) ** (1.0 / 3.0)
+    assert abs(seg.equivalent_radius_mm - treated_radius) < 0.3
+    # along one line the scallops count in full: at the depth poles the 6 mm clouds on a 2 mm
+    # lattice stand up to 2 mm proud of the valleys between them, which the boundary window
+    # (4 mm) averages, so the radius along depth reads up to ~1.3 mm short of the cloud tips
+    assert np.all(np.abs(seg.radii_along(R_CT) - zone.radius_mm) < 1.5)
