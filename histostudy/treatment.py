@@ -36,6 +36,8 @@ from .io import atomic_write_json, atomic_write_text, to_jsonable
 
 __all__ = [
     "BUBBLE_CLOUD_SIZE_MM",
+    "STUDY_PLAN_INSET_MM",
+    "STUDY_PLAN_SPACING_MM",
     "JOURNAL_FORMAT",
     "TreatmentPlan",
     "TreatmentRun",
@@ -49,6 +51,18 @@ __all__ = [
 
 #: Full axes (LR, TB, depth) of the bubble cloud the paper's excitation sequence creates (§II-D), mm.
 BUBBLE_CLOUD_SIZE_MM = (3.0, 3.0, 6.0)
+
+#: The studies' plan (notebooks 04 and 05): lattice spacing (LR, TB, depth, mm) and the inset of
+#: the ellipsoid the lattice fills (:func:`plan_treatment`). The inset is what makes the union of
+#: 3x3x6 mm clouds on this lattice as large as the prescribed sphere, as a clinical planner is
+#: calibrated to do: insetting by the cloud's half axes (1.5, 1.5, 3) puts the cloud tips on the
+#: sphere, but the scalloped surface between them leaves the segmented zone small (measured with
+#: ``histostudy.study.pose_estimation.cbct_reference``, 6 experiments of 20-25 mm: radius along
+#: depth/TB/LR -1.02/-0.27/-0.45 mm, fitted sphere -0.27 mm); (1, 1, 2) leaves it large
+#: (+0.12/+0.23/+0.26, sphere +0.38); (1.25, 1.25, 2.25) gives -0.13/-0.06/-0.23, sphere +0.13.
+#: Another spacing or cloud size needs its own inset.
+STUDY_PLAN_SPACING_MM = (2.0, 2.0, 3.0)
+STUDY_PLAN_INSET_MM = (1.25, 1.25, 2.25)
 
 JOURNAL_FORMAT = "histostudy.treatment_journal"
 JOURNAL_VERSION = 1

@@ -41,7 +41,7 @@ from ..render import render_frame
 from ..orientation import OracleOrientation, OrientationSource
 from ..segment import OracleSegmenter, SegmentationDegradation, Segmenter
 from ..transducer import Feature, TransducerModel, pose_facing
-from ..treatment import BUBBLE_CLOUD_SIZE_MM, plan_treatment, scan_treated_zone
+from ..treatment import STUDY_PLAN_INSET_MM, STUDY_PLAN_SPACING_MM, plan_treatment, scan_treated_zone
 
 __all__ = [
     "DIRECTIONS",
@@ -288,10 +288,10 @@ def axial_symmetric_rotation_error_deg(T_estimate, T_true) -> float:
 # The post-treatment CBCT reference (§II-D, §II-E.3)
 # ---------------------------------------------------------------------------------------------
 
-#: Lattice spacing (LR, TB, depth, mm) and inset of the treatment plan: notebook 05's defaults
-#: (:class:`histostudy.study.targeting.TargetingStudyConfig`), the bubble cloud's half axes as inset.
-TREATMENT_SPACING_MM = (2.0, 2.0, 3.0)
-TREATMENT_INSET_MM = tuple(0.5 * s for s in BUBBLE_CLOUD_SIZE_MM)
+#: Lattice spacing (LR, TB, depth, mm) and inset of the treatment plan: the studies' plan
+#: (:data:`histostudy.treatment.STUDY_PLAN_INSET_MM`, notebook 05's defaults too).
+TREATMENT_SPACING_MM = STUDY_PLAN_SPACING_MM
+TREATMENT_INSET_MM = STUDY_PLAN_INSET_MM
 
 #: Columns :func:`experiment_metrics` reads from a reference table (:func:`cbct_reference`).
 REFERENCE_COLUMNS = ("experiment", "centroid_x", "centroid_y", "centroid_z", "sphere_x", "sphere_y", "sphere_z",
@@ -370,7 +370,7 @@ def cbct_reference(config: PoseStudyConfig, *, physical: TransducerModel, seed: 
     ``cbct_noise_hu``, voxels of ``cbct_voxel_mm``; the true phantom on ``phantom_voxel_mm``) and
     the zone segmented (:func:`histostudy.cbct.segment_treatment_zone`, the automatic stand-in for
     the paper's manual annotation). Defaults: notebook 05's (0.5 mm phantom, 1 mm CBCT, 0.5 mm
-    blur, 20 HU noise, plan spacing (2, 2, 3) mm, inset the bubble cloud's half axes).
+    blur, 20 HU noise, the studies' plan: spacing (2, 2, 3) mm, inset (1.25, 1.25, 2.25) mm).
 
     ``records``: :func:`run_pose_study`'s rows; when given, only its experiments are treated and
     each one's true centre is checked against the redrawn set-up (a different config or seed is

@@ -91,7 +91,7 @@ from ..render import render_frame
 from ..robot import HOME_JOINTS_RAD, Robot, SimulatedUR5e, inverse_kinematics_closest
 from ..segment import OracleSegmenter, SegmentationDegradation
 from ..transducer import TransducerModel
-from ..treatment import BUBBLE_CLOUD_SIZE_MM, execute_treatment, plan_treatment, scan_treated_zone
+from ..treatment import STUDY_PLAN_INSET_MM, STUDY_PLAN_SPACING_MM, execute_treatment, plan_treatment, scan_treated_zone
 from .pose_estimation import DIRECTIONS, _mean_sd, transducer_axes
 
 __all__ = [
@@ -153,7 +153,7 @@ class TargetingStudyConfig:
         phantom_voxel_mm: grid of the true phantom (partial volumes, bubble clouds).
         cbct_voxel_mm, cbct_blur_mm, cbct_noise_hu: the simulated CBCT (§II-D).
         treatment_spacing_mm: lattice spacing of the plan (LR, TB, depth).
-        treatment_inset_mm: the plan's ellipsoid inset (the bubble cloud's half axes).
+        treatment_inset_mm: the plan's ellipsoid inset (:data:`histostudy.treatment.STUDY_PLAN_INSET_MM`).
         pulses_per_point: per focal location (§II-D).
         robot_repeatability_mm: landing noise radius of the UR5e (±0.03 mm).
         bubble_offset_mm: bubble cloud offset from the physical focal point, transducer frame.
@@ -186,8 +186,8 @@ class TargetingStudyConfig:
     cbct_voxel_mm: float = 1.0
     cbct_blur_mm: float = 0.5
     cbct_noise_hu: float = 20.0
-    treatment_spacing_mm: tuple = (2.0, 2.0, 3.0)
-    treatment_inset_mm: tuple = tuple(0.5 * s for s in BUBBLE_CLOUD_SIZE_MM)
+    treatment_spacing_mm: tuple = STUDY_PLAN_SPACING_MM
+    treatment_inset_mm: tuple = STUDY_PLAN_INSET_MM
     pulses_per_point: int = 50
     robot_repeatability_mm: float = 0.03
     bubble_offset_mm: tuple = (0.0, 0.0, 0.0)
