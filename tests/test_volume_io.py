@@ -254,23 +254,14 @@ def test_dicom_series_geometry_and_hu(tmp_path, orientation, spacing_xyz):
     assert vol.data.min() >= -500 * SLOPE + INTERCEPT and vol.data.max() < 1500 * SLOPE + INTERCEPT
 
 
-def test_dicom_missing_pixel_spacing_is_named(tmp_path):
+@pytest.mark.parametrize("tag, victim_name", [("PixelSpacing", "IM0002.dcm"), ("ImagePositionPatient", "IM0001.dcm")])
+def test_dicom_missing_geometry_tag_is_named(tmp_path, tag, victim_name):
     _write_series(tmp_path / "s", (1, 0, 0, 0, 1, 0))
-    victim = tmp_path / "s" / "IM0002.dcm"
+    victim = tmp_path / "s" / victim_name
     ds = pydicom.dcmread(victim)
-    del ds.PixelSpacing
+    delattr(ds, tag)
     _save(ds, victim)
-    with pytest.raises(ValueError, match=r"(?s)IM0002\.dcm.*without spacing.*PixelSpacing"):
-        load_volume(tmp_path / "s")
-
-
-def test_dicom_missing_position_is_named(tmp_path):
-    _write_series(tmp_path / "s", (1, 0, 0, 0, 1, 0))
-    victim = tmp_path / "s" / "IM0001.dcm"
-    ds = pydicom.dcmread(victim)
-    del ds.ImagePositionPatient
-    _save(ds, victim)
-    with pytest.raises(ValueError, match=r"(?s)IM0001\.dcm.*without spacing.*ImagePositionPatient"):
+    with pytest.raises(ValueError, match=rf"(?s){victim_name.replace('.', chr(92) + '.')}.*without spacing.*{tag}"):
         load_volume(tmp_path / "s")
 
 
