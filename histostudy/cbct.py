@@ -524,9 +524,10 @@ class ZoneSegmentation:
     ``layered_variance`` / ``homogeneous_variance`` / ``threshold_variance``: the local-variance
     levels (HU^2) of untreated phantom, of homogeneous material, and the threshold between them
     (the coarse stage). ``zone_level_hu``: the mixed material's gray value;
-    ``layered_deviation_hu`` / ``homogeneous_deviation_hu``: the local mean absolute deviation
-    from it in untreated phantom and inside the zone; ``treated_fraction_threshold``: the treated
-    fraction of the boundary window at which the boundary was put (the boundary stage).
+    ``layered_deviation`` / ``homogeneous_deviation``: the local mean deviation from it, in units
+    of each layer material's own distance from it (1 on an untreated voxel, 0 on a mixed one), in
+    untreated phantom and inside the zone; ``treated_fraction_threshold``: the treated fraction of
+    the boundary window at which the boundary was put (the boundary stage).
     """
 
     mask: np.ndarray
@@ -541,8 +542,8 @@ class ZoneSegmentation:
     spacing_mm: np.ndarray
     origin_mm: np.ndarray
     zone_level_hu: float = float("nan")
-    layered_deviation_hu: float = float("nan")
-    homogeneous_deviation_hu: float = float("nan")
+    layered_deviation: float = float("nan")
+    homogeneous_deviation: float = float("nan")
     treated_fraction_threshold: float = float("nan")
 
     def radii_along(self, axes) -> np.ndarray:
@@ -643,12 +644,12 @@ def segment_treatment_zone(
     texture, and on a convex zone the half-treated window lies inside the surface.
 
     **Boundary stage: where exactly does it end.** The mixed material's gray value ``mu`` (median
-    inside the coarse zone) is the mean of the two layer materials, so every untreated voxel
-    deviates from it by about half the layer contrast whatever the layer's phase, and a voxel
-    half in the zone (partial volume, scanner blur) by half that: the local mean absolute
-    deviation ``|V - mu|`` over a box of about one layer (``boundary_window_mm``) is linear in
-    the window's untreated fraction, from ``e_h`` (noise, inside the zone) to ``e_l`` (untreated
-    phantom). The boundary is put where the window's treated fraction equals the fraction the box
+    inside the coarse zone) lies between the two layer materials, so every untreated voxel
+    deviates from it by that material's distance from it whatever the layer's phase, and a voxel
+    half in the zone (partial volume, scanner blur) by half that: the deviation ``|V - mu|`` in
+    units of the nearer material's distance (its median level in untreated phantom), averaged
+    over a box of about one layer (``boundary_window_mm``), is linear in the window's untreated
+    fraction, from ``e_h`` (noise, inside the zone) to ``e_l`` (untreated phantom). The boundary is put where the window's treated fraction equals the fraction the box
     filter of the segmented shape itself takes on its surface (a self-consistent threshold,
     ``n_refinements`` passes from 1/2): 1/2 on a flat boundary, less on a curved one, so that the
     window's curvature bias cancels.
@@ -758,7 +759,7 @@ def segment_treatment_zone(
     if not e_l > e_h:
         raise ValueError(
             f"no layer texture around the zone: the phantom's mean deviation from the zone's level "
-            f"({e_l:.3g} HU) does not exceed the zone's own ({e_h:.3g} HU)"
+            f"({e_l:.3g}, in units of each material's distance from it) does not exceed the zone's own ({e_h:.3g})"
         )
     inside_phantom = ~ndimage.maximum_filter(~roi, size=small, mode="constant", cval=True)
     treated_fraction = 0.5
@@ -789,7 +790,7 @@ def segment_treatment_zone(
         spacing_mm=volume.spacing_mm.copy(),
         origin_mm=volume.origin_mm.copy(),
         zone_level_hu=mu,
-        layered_deviation_hu=e_l,
-        homogeneous_deviation_hu=e_h,
+        layered_deviation=e_l,
+        homogeneous_deviation=e_h,
         treated_fraction_threshold=treated_fraction,
     )

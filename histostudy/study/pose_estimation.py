@@ -288,11 +288,6 @@ def axial_symmetric_rotation_error_deg(T_estimate, T_true) -> float:
 # The post-treatment CBCT reference (§II-D, §II-E.3)
 # ---------------------------------------------------------------------------------------------
 
-#: Lattice spacing (LR, TB, depth, mm) and inset of the treatment plan: the studies' plan
-#: (:data:`histostudy.treatment.STUDY_PLAN_INSET_MM`, notebook 05's defaults too).
-TREATMENT_SPACING_MM = STUDY_PLAN_SPACING_MM
-TREATMENT_INSET_MM = STUDY_PLAN_INSET_MM
-
 #: Columns :func:`experiment_metrics` reads from a reference table (:func:`cbct_reference`).
 REFERENCE_COLUMNS = ("experiment", "centroid_x", "centroid_y", "centroid_z", "sphere_x", "sphere_y", "sphere_z",
                      "sphere_radius_mm", *(f"ref_radius_{d}" for d in DIRECTIONS),
@@ -356,7 +351,7 @@ def _treat_and_scan(exp: PoseExperiment, spec: PhantomSpec, T_carm_phantom: np.n
 def cbct_reference(config: PoseStudyConfig, *, physical: TransducerModel, seed: int,
                    records: pd.DataFrame | None = None, phantom_voxel_mm=0.5, cbct_voxel_mm=1.0,
                    cbct_blur_mm: float = 0.5, cbct_noise_hu: float = 20.0,
-                   treatment_spacing_mm=TREATMENT_SPACING_MM, treatment_inset_mm=TREATMENT_INSET_MM,
+                   treatment_spacing_mm=STUDY_PLAN_SPACING_MM, treatment_inset_mm=STUDY_PLAN_INSET_MM,
                    keep_volumes: bool = False, progress: Callable[[str], None] | None = None) -> pd.DataFrame:
     """The paper's reference of Table II (§II-D, §II-E.3): the treated zone in a post-treatment CBCT.
 
