@@ -7,7 +7,7 @@ import pytest
 from scipy.ndimage import distance_transform_edt
 
 from histostudy.carm import View, default_biplane
-from histostudy.geometry import invert_transform, params_from_transform, transform_points
+from histostudy.geometry import invert_transform, make_transform, params_from_transform, transform_points
 from histostudy.pose.cost import (
     OUTSIDE_DISTANCE_PX,
     DistanceMaps,
@@ -202,6 +202,13 @@ def test_classes_missing_from_a_view_are_dropped_there(model, maps, views):
     assert PoseCost(moved, [no_screws])(T_TRUE) == only_a(T_TRUE)
     without = {f: p for f, p in model.points.items() if f != Feature.SCREWS}
     assert only_a(T_TRUE) == pytest.approx(PoseCost(without, [no_screws])(T_TRUE), rel=1e-12)
+    # A one-view cost taken from the two-view one reads its maps from the shared buffer (both
+    # views' stretches, with and without the screws) and gives the same bits as one built alone.
+    T = apply_left_perturbation(T_TRUE, [0.01, -0.02, 0, 2.0, -1.0, 0.5])
+    for i, m in enumerate([no_screws, maps[1]]):
+        shared = cost.select_views(i)
+        assert np.shares_memory(shared._maps, cost._maps)
+        assert shared(T) == PoseCost(model.points, [m])(T)
 
 
 def test_subset_and_select_views(cost):
@@ -213,6 +220,30 @@ def test_subset_and_select_views(cost):
     assert sub(T) == pytest.approx(cost(T), rel=0.2)
     per_view = [cost.select_views(i)(T) for i in range(2)]
     assert sum(per_view) == pytest.approx(cost(T), rel=1e-12)
+
+
+def test_costs_at_translations_equal_one_call_per_pose(cost):
+    sub = cost.subset(400, np.random.default_rng(5))
+    R = apply_left_perturbation(T_TRUE, [0.02, -0.01, 0.03, 0, 0, 0])[:3, :3]
+    translations = T_TRUE[:3, 3] + np.random.default_rng(6).normal(scale=20.0, size=(17, 3))
+    batch = sub.costs_at_translations(R, translations)
+    assert batch.shape == (17,)
+    assert np.array_equal(batch, [sub(make_transform(R, t)) for t in translations])
+    reference = PoseCost(sub.points, sub.maps, backend="numpy")
+    assert np.allclose(reference.costs_at_translations(R, translations), batch, rtol=1e-5)
+    with pytest.raises(ValueError, match="translations_mm"):
+        sub.costs_at_translations(R, [[0.0, np.nan, 0.0]])
+    with pytest.raises(ValueError, match="rotation"):
+        sub.costs_at_translations(2 * R, translations)
+
+
+def test_with_outside_distance_changes_only_the_off_map_constant(cost):
+    T = T_TRUE.copy()
+    T[:3, 3] += 300.0 * cost.views[0].detector_axes[0]  # most of the model off view A
+    other = cost.with_outside_distance(25.0)
+    assert other._maps is cost._maps and other.outside_distance_px == 25.0
+    assert other(T) == PoseCost(cost.points, cost.maps, outside_distance_px=25.0)(T)
+    assert other(T) > cost(T)
 
 
 # --- Jacobian -----------------------------------------------------------------------------

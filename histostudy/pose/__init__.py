@@ -29,9 +29,10 @@ from ..frame import Frame
 from ..orientation import (OracleOrientation, OrientationSource, default_orientation, direction_candidates,
                            select_direction)
 from ..segment import OracleSegmenter, Segmenter, default_segmenter
-from ..transducer import TransducerModel
+from ..transducer import Feature, TransducerModel
 from .cost import DistanceMaps, PoseCost
-from .init import COARSE_GRID, MEDIUM_GRID, PAPER_AXIAL_SEEDS_DEG, ROBUST_AXIAL_SEEDS_DEG, InitResult, initialise_pose
+from .init import (COARSE_GRID, MEDIUM_GRID, PAPER_AXIAL_SEEDS_DEG, ROBUST_AXIAL_SEEDS_DEG, InitResult, initialise_pose,
+                   silhouette_candidates)
 from .refine import RefineResult, refine_levenberg_marquardt, refine_nelder_mead
 
 __all__ = ["INIT_METHODS", "LEARNED_STAGE_REQUIREMENTS", "MAP_KINDS", "MODES", "PoseEstimationError", "PoseResult", "PoseVerdict", "default_stages",
@@ -40,6 +41,9 @@ __all__ = ["INIT_METHODS", "LEARNED_STAGE_REQUIREMENTS", "MAP_KINDS", "MODES", "
 MODES = ("paper", "fast")
 INIT_METHODS = ("robust", "paper")
 MAP_KINDS = ("occlusion_aware", "per_class")
+#: Model points (elements and outer boundary) whose projected occupancy the robust
+#: initialisation's silhouette seed compares with the segmented one.
+SILHOUETTE_POINTS = 4000
 
 
 class PoseEstimationError(RuntimeError):
@@ -198,8 +202,7 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
         # constant for points off the detector. With the truncation as the off-detector cost, a
         # pose that pulls more of the model onto the detector wins over a better-aligned one
         # (measured: a 1-2 mm pull on frames where much of the transducer is outside the view).
-        polish_cost = PoseCost(coarse.points, [m.truncated(tau) for m in maps], class_weights=class_weights,
-                               outside_distance_px=outside_distance_px)
+        polish_cost = search.with_outside_distance(outside_distance_px)
         tau_coarse = float(coarse_truncation_px)
         # Off the detector a point is unknown. Costing it the full truncation, a pose that pulls
         # more of the model into a view where the transducer is mostly outside can beat the true
@@ -210,8 +213,8 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
         coarse_maps = [m.truncated(tau_coarse) for m in maps]
         coarse_points = coarse.subset(max(1, init_points_per_class // 5), rng).points
         coarse_scorings = []
-        for outside in (tau_coarse, 0.5 * tau_coarse):
-            c = PoseCost(coarse_points, coarse_maps, class_weights=class_weights, outside_distance_px=outside)
+        coarse_full = PoseCost(coarse_points, coarse_maps, class_weights=class_weights, outside_distance_px=tau_coarse)
+        for c in (coarse_full, coarse_full.with_outside_distance(0.5 * tau_coarse)):
             coarse_scorings.append(([c.select_views(i) for i in range(len(frames))], c))
     else:
         search = polish_cost = coarse
@@ -242,6 +245,14 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
             options = dict(axial_seeds_deg=ROBUST_AXIAL_SEEDS_DEG, fine_after_axial=True, n_hypotheses=3,
                            polish=polish, medium=MEDIUM_GRID, coarse_scorings=coarse_scorings,
                            coarse_candidates=3)
+            if len(frames) > 1:
+                silhouettes = [lab > 0 for lab in labels]
+                body = np.vstack([model.points[k] for k in (Feature.TRANSDUCER, Feature.OUTER_BOUNDARY)
+                                  if k in model.points])
+                body = body[rng.choice(len(body), size=min(len(body), SILHOUETTE_POINTS), replace=False)]
+                centre_local = body.mean(axis=0)
+                options["seeded"] = lambda d: [(a, t) for a, t, _ in silhouette_candidates(
+                    d, views, silhouettes, body, centre_local_mm=centre_local)]
         else:
             options = dict(axial_seeds_deg=PAPER_AXIAL_SEEDS_DEG, fine_after_axial=False, n_hypotheses=1)
         results = [initialise_pose(d, views, view_costs, search, centre_mm=search_centre_mm, **options)

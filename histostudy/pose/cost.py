@@ -49,7 +49,7 @@ import numba
 import numpy as np
 
 from ..carm import View
-from ..geometry import check_rigid, matrix_from_rotvec, transform_from_params
+from ..geometry import check_rigid, check_rotation, make_transform, matrix_from_rotvec, transform_from_params
 from ..transducer import FEATURE_CLASSES, LABEL_PRIORITY, Feature
 
 __all__ = [
@@ -346,6 +346,20 @@ def _cost_serial(pts, tasks, M, c, maps, rows, cols, wt, outside_sq):
     return out
 
 
+@numba.njit(parallel=True, fastmath=False, cache=True)
+def _costs_batch(pts, tasks, M, c_all, maps, rows, cols, wt, outside_sq):
+    """:func:`_cost_serial` at each of the translations folded into ``c_all`` (n, A, 3), in parallel
+    over them; each is summed in task order, the same bits as one call per pose."""
+    n = c_all.shape[0]
+    out = np.empty(n)
+    for k in numba.prange(n):
+        total = 0.0
+        for ti in range(tasks.shape[0]):
+            total += _task_cost(ti, pts, tasks, M, c_all[k], maps, rows, cols, wt, outside_sq)
+        out[k] = total
+    return out
+
+
 @numba.njit(inline="always")
 def _jacobian_row(R, P3, a, x, y, z, u, v, iw, gu, gv, sw, jrow):
     """``jrow = sw * dd/d[w, v]`` for one point: ``[q x g, g]`` with ``q = R p`` and ``g = dd/dX``.
@@ -635,12 +649,27 @@ class PoseCost:
             return numba.get_num_threads() > 1 and len(self._tasks) * _BLOCK >= PARALLEL_MIN_PROJECTIONS
         return self.parallel
 
-    def _derive(self, points: dict, maps: list) -> "PoseCost":
+    def _derive(self, points: dict, maps: list, view_indices=None) -> "PoseCost":
         # Same maps and classes: share the flattened map buffer instead of copying ~50 MB again.
         shared = (self._maps, self._map_start) if maps is self.maps else None
+        if view_indices is not None and len(view_indices) == 1:
+            # One view's maps are one contiguous stretch of the buffer: a view, not a copy.
+            starts = self._map_start[view_indices[0]]
+            a = view_indices[0]
+            sizes = [self.maps[a].maps[f].size if self.active[a, s] else 0 for s, f in enumerate(self.classes)]
+            first = min(st for st in starts if st >= 0) if (starts >= 0).any() else 0
+            local = np.where(starts >= 0, starts - first, -1)[None, :]
+            shared = (self._maps[first:first + sum(sizes)], local)
         return PoseCost(points, maps, class_weights=self.class_weights,
                         outside_distance_px=self.outside_distance_px, backend=self.backend,
                         parallel=self.parallel, _buffer=shared)
+
+    def with_outside_distance(self, outside_distance_px: float) -> "PoseCost":
+        """The same cost with another constant distance for points off the map (eq. 3's 0.1 px);
+        the distance maps are shared, not copied."""
+        return PoseCost(self.points, self.maps, class_weights=self.class_weights,
+                        outside_distance_px=outside_distance_px, backend=self.backend, parallel=self.parallel,
+                        _buffer=(self._maps, self._map_start))
 
     def subset(self, n_per_class: int, rng: np.random.Generator) -> "PoseCost":
         """A cheaper cost on at most ``n_per_class`` points of each class, drawn without replacement.
@@ -666,7 +695,7 @@ class PoseCost:
         for i in idx:
             if not (isinstance(i, (int, np.integer)) and 0 <= i < len(self.maps)):
                 raise ValueError(f"indices must be view indices in [0, {len(self.maps)}), got {indices!r}")
-        return self._derive(self.points, [self.maps[i] for i in idx])
+        return self._derive(self.points, [self.maps[i] for i in idx], view_indices=idx)
 
     # --- evaluation -------------------------------------------------------------------------
 
@@ -695,6 +724,21 @@ class PoseCost:
         kernel = _cost_parallel if self._use_threads() else _cost_serial
         return float(kernel(self._pts, self._tasks, M, c, self._maps, self._rows, self._cols, self.weights,
                             self.outside_distance_px ** 2))
+
+    def costs_at_translations(self, R, translations_mm) -> np.ndarray:
+        """C (eq. 3) at the poses ``(R, t)`` for each row ``t`` of ``translations_mm`` (n, 3): a grid
+        search's nodes in one call, the rotation checked and folded into the projections once."""
+        R = check_rotation(R, "R")
+        t = np.asarray(translations_mm, dtype=np.float64).reshape(-1, 3)
+        if not np.all(np.isfinite(t)):
+            raise ValueError("translations_mm must be finite (n, 3) mm")
+        if self.backend == "numpy" or len(t) == 0:
+            return np.array([self(make_transform(R, ti)) for ti in t], dtype=np.float64)
+        M = np.ascontiguousarray(self._P3 @ R)
+        # Folded exactly as :meth:`_folded` does, so that each cost is the bits of a single call.
+        c_all = np.ascontiguousarray([self._P3 @ ti + self._P[:, :, 3] for ti in t]).reshape(len(t), -1, 3)
+        return _costs_batch(self._pts, self._tasks, M, c_all, self._maps, self._rows, self._cols, self.weights,
+                            self.outside_distance_px ** 2)
 
     def reference_cost(self, pose) -> float:
         """C (eq. 3) by the plain numpy float64 reference, whatever the backend."""
