@@ -652,14 +652,13 @@ class PoseCost:
     def _derive(self, points: dict, maps: list, view_indices=None) -> "PoseCost":
         # Same maps and classes: share the flattened map buffer instead of copying ~50 MB again.
         shared = (self._maps, self._map_start) if maps is self.maps else None
-        if view_indices is not None and len(view_indices) == 1:
+        if view_indices is not None and len(view_indices) == 1 and self.active[view_indices[0]].any():
             # One view's maps are one contiguous stretch of the buffer: a view, not a copy.
-            starts = self._map_start[view_indices[0]]
             a = view_indices[0]
-            sizes = [self.maps[a].maps[f].size if self.active[a, s] else 0 for s, f in enumerate(self.classes)]
-            first = min(st for st in starts if st >= 0) if (starts >= 0).any() else 0
-            local = np.where(starts >= 0, starts - first, -1)[None, :]
-            shared = (self._maps[first:first + sum(sizes)], local)
+            starts = self._map_start[a]
+            first = starts[self.active[a]].min()
+            end = max(starts[s] + self.maps[a].maps[f].size for s, f in enumerate(self.classes) if self.active[a, s])
+            shared = (self._maps[first:end], np.where(self.active[a], starts - first, -1)[None, :])
         return PoseCost(points, maps, class_weights=self.class_weights,
                         outside_distance_px=self.outside_distance_px, backend=self.backend,
                         parallel=self.parallel, _buffer=shared)
