@@ -27,7 +27,7 @@ from ..carm import View
 from ..geometry import make_transform
 from ..transducer import pose_facing
 
-__all__ = ["translation_costs", "SILHOUETTE_CELL_PX", "silhouette_candidates", "silhouette_seed", "COARSE_GRID", "FINE_GRID", "MEDIUM_GRID", "PAPER_AXIAL_SEEDS_DEG", "ROBUST_AXIAL_SEEDS_DEG", "GridSpec", "InitResult", "axial_minima", "axial_search", "grid_offsets", "grid_search", "initialise_pose",
+__all__ = ["translation_costs", "SILHOUETTE_CELL_PX", "segmented_occupancy", "silhouette_candidates", "silhouette_seed", "COARSE_GRID", "FINE_GRID", "MEDIUM_GRID", "PAPER_AXIAL_SEEDS_DEG", "ROBUST_AXIAL_SEEDS_DEG", "GridSpec", "InitResult", "axial_minima", "axial_search", "grid_offsets", "grid_search", "initialise_pose",
            "rotation_from_direction"]
 
 CostFn = Callable[[np.ndarray], float]
@@ -142,9 +142,24 @@ def _occupancy_centroid(occupied: np.ndarray, cell_px: int) -> np.ndarray | None
     return (np.array([cols.mean(), rows.mean()]) + 0.5) * cell_px - 0.5
 
 
+def segmented_occupancy(views: Sequence[View], masks: Sequence[np.ndarray], cell_px: int = SILHOUETTE_CELL_PX
+                        ) -> list[np.ndarray]:
+    """Per view, the boolean grid of ``cell_px`` cells at least half covered by the mask."""
+    grids = []
+    for view, mask in zip(views, masks):
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != tuple(view.shape):
+            raise ValueError(f"mask shape {mask.shape} does not match its view's detector {tuple(view.shape)}")
+        shape = (-(-mask.shape[0] // cell_px), -(-mask.shape[1] // cell_px))
+        padded = np.zeros((shape[0] * cell_px, shape[1] * cell_px), np.float32)
+        padded[:mask.shape[0], :mask.shape[1]] = mask
+        grids.append(padded.reshape(shape[0], cell_px, shape[1], cell_px).mean(axis=(1, 3)) >= 0.5)
+    return grids
+
+
 def silhouette_seed(R: np.ndarray, views: Sequence[View], masks: Sequence[np.ndarray], points_mm: np.ndarray,
                     *, centre_local_mm, cell_px: int = SILHOUETTE_CELL_PX, max_iter: int = 12,
-                    tol_mm: float = 0.5) -> tuple[np.ndarray, float] | None:
+                    tol_mm: float = 0.5, occupancy: Sequence[np.ndarray] | None = None) -> tuple[np.ndarray, float] | None:
     """A translation of ``T_carm_transducer`` whose projected silhouettes have the segmented
     silhouettes' centroids in every view (beyond the paper; a seed for the grid search).
 
@@ -165,6 +180,8 @@ def silhouette_seed(R: np.ndarray, views: Sequence[View], masks: Sequence[np.nda
         masks: per view, a boolean image of the segmented transducer.
         points_mm: ``(n, 3)`` model points in the transducer frame (a few thousand suffice).
         centre_local_mm: a point of the transducer frame near the middle of its silhouette.
+        occupancy: the masks' occupancy grids from :func:`segmented_occupancy`, when already made
+            (:func:`silhouette_candidates` makes them once for all its axial angles).
 
     Returns:
         ``(translation_mm, iou)``: the translation (C-arm frame) and the lowest over views of the
@@ -178,7 +195,6 @@ def silhouette_seed(R: np.ndarray, views: Sequence[View], masks: Sequence[np.nda
     targets, grids = [], []
     closing = np.ones((3, 3), np.uint8)
     pts = np.asarray(points_mm, dtype=np.float64) @ R.T
-    segmented = []
 
     def model_occupancy(view, shape, t):
         world = pts + t
@@ -201,20 +217,13 @@ def silhouette_seed(R: np.ndarray, views: Sequence[View], masks: Sequence[np.nda
             ious.append(np.count_nonzero(occ & seg) / union if union else 0.0)
         return float(min(ious))
 
-    for view, mask in zip(views, masks):
-        mask = np.asarray(mask, dtype=bool)
-        if mask.shape != tuple(view.shape):
-            raise ValueError(f"mask shape {mask.shape} does not match its view's detector {tuple(view.shape)}")
-        shape = (-(-mask.shape[0] // cell_px), -(-mask.shape[1] // cell_px))
-        padded = np.zeros((shape[0] * cell_px, shape[1] * cell_px), np.float32)
-        padded[:mask.shape[0], :mask.shape[1]] = mask
-        fraction = padded.reshape(shape[0], cell_px, shape[1], cell_px).mean(axis=(1, 3))
-        segmented.append(fraction >= 0.5)
-        centroid = _occupancy_centroid(segmented[-1], cell_px)
+    segmented = segmented_occupancy(views, masks, cell_px) if occupancy is None else list(occupancy)
+    for grid in segmented:
+        centroid = _occupancy_centroid(grid, cell_px)
         if centroid is None:
             return None
         targets.append(centroid)
-        grids.append(shape)
+        grids.append(grid.shape)
     origins = np.array([v.source_mm for v in views])
     rays = np.vstack([v.ray_directions(c) for v, c in zip(views, targets)])
     # Least-squares intersection of the rays: sum_i (I - d_i d_i^T)(x - o_i) = 0.
@@ -263,9 +272,10 @@ def silhouette_candidates(direction, views: Sequence[View], masks: Sequence[np.n
     if not (np.isfinite(axial_step_deg) and 0 < axial_step_deg <= 180):
         raise ValueError(f"axial_step_deg must be in (0, 180], got {axial_step_deg!r}")
     found = []
+    occupancy = segmented_occupancy(views, masks, cell_px)
     for angle in np.arange(0.0, 180.0 - 1e-9, axial_step_deg):
         seeded = silhouette_seed(rotation_from_direction(direction, np.deg2rad(angle)), views, masks, points_mm,
-                                 centre_local_mm=centre_local_mm, cell_px=cell_px)
+                                 centre_local_mm=centre_local_mm, cell_px=cell_px, occupancy=occupancy)
         if seeded is not None:
             found.append((float(angle), seeded[0], seeded[1]))
     found.sort(key=lambda f: -f[2])
