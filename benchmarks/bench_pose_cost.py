@@ -6,7 +6,8 @@ Prints, for the 0.47 mm digital model on the paper's two 1240x960 views (default
 - cost evaluations per second: fused numba kernel (all threads, one thread) vs the numpy float64
   reference, and the ratio to the *gather floor* measured in the same run: the time numpy takes
   for a random gather ``map.ravel()[idx]`` of as many float32 values (one per projected point and
-  view) from one 1240x960 float32 map; a numba prange sum-gather of the same indices, and of
+  view) from one 1240x960 float32 map (which stays in the caches), and the same gather spread
+  over all the maps eq. 3 reads (which does not); a numba prange sum-gather of the same indices, and of
   four neighbours per index (what bilinear interpolation reads) are printed beside it;
 - the Levenberg-Marquardt Jacobian pass (cost + J'J + J'r fused) and the materialised n x 6 one;
 - Nelder-Mead (paper settings) vs Levenberg-Marquardt from the same perturbed starts: time,
@@ -125,6 +126,10 @@ def main() -> None:
     flat = maps[0].maps[FEATURE_CLASSES[0]].ravel()
     idx = rng.integers(0, flat.size - views[0].shape[1] - 2, n_proj)
     floor = timed(lambda: flat[idx], args.repeat)
+    # The same gather over all the maps eq. 3 reads (every class in every view, ~47 MB, beyond the
+    # caches) instead of one 4.7 MB map that stays in them: the floor a real evaluation faces.
+    idx_all = rng.integers(0, cost._maps.size - views[0].shape[1] - 2, n_proj)
+    floor_all = timed(lambda: cost._maps[idx_all], args.repeat)
     gather1 = timed(lambda: _sum_gather(flat, idx), args.repeat)
     gather4 = timed(lambda: _sum_gather4(flat, idx, views[0].shape[1]), args.repeat)
     threads = numba.get_num_threads()
@@ -154,6 +159,8 @@ def main() -> None:
 
     print(f"\ncost evaluation ({n_proj} projections):")
     print(f"  gather floor (numpy random gather, {n_proj} float32) {ms(floor)}")
+    print(f"  gather over all {int(cost.active.sum())} active maps ({cost._maps.nbytes / 2**20:.0f} MB)          {ms(floor_all)}  "
+          f"-> fused cost {fast[0] / floor_all[0]:.2f}x this floor")
     print(f"  numba sum-gather, 1 value/index                   {ms(gather1)}")
     print(f"  numba sum-gather, 4 values/index (bilinear reads) {ms(gather4)}   1 thread {ms(gather4_1)}")
     print(f"  numba fused cost, {threads} threads                       {ms(fast)}  -> {1 / fast[0]:7.0f} eval/s, "
