@@ -43,6 +43,9 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--threads", type=int, default=None, help="torch CPU threads (override)")
     tr.add_argument("--init-weights", default=None,
                     help="start from this checkpoint's network (same config) instead of random weights")
+    tr.add_argument("--render-workers", type=int, default=1,
+                    help="render the profile's uncached training and validation frames in this many processes "
+                         "before training (default 1: the training loop renders them as it first needs them)")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     prof = sub.add_parser("profiles", help="list the built-in profiles")
@@ -95,6 +98,20 @@ def _train(args) -> int:
     except (ValueError, TypeError) as exc:
         print(f"histostudy train: {exc}", file=sys.stderr)
         return 2
+    if args.render_workers < 1:
+        print(f"histostudy train: --render-workers must be >= 1, got {args.render_workers}", file=sys.stderr)
+        return 2
+    if args.render_workers > 1 and cfg.cache:
+        import time
+
+        from .datasets import HybridFrames
+
+        t0 = time.monotonic()
+        rendered = sum(HybridFrames(split, profile.seed, config=cfg.render, cache_dir=default_cache_dir())
+                       .prerender(n, workers=args.render_workers) for split, n in (("val", cfg.n_val),
+                                                                                   ("train", cfg.n_train)))
+        print(f"rendered {rendered} uncached frames in {(time.monotonic() - t0) / 60:.1f} min "
+              f"with {args.render_workers} processes")
     run_dir = args.run_dir or default_cache_dir() / "runs" / f"{args.task}-{profile.name}"
     result = train(cfg, run_dir, seed=profile.seed, profile=profile.name, resume=not args.no_resume,
                    progress=not args.no_progress)

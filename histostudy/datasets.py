@@ -232,12 +232,46 @@ class HybridFrames:
         lo, hi = self.config.primary_range_deg
         return View.from_gantry(float(rng.uniform(lo, hi)), 0.0, shape=self.config.detector, name=f"{self.split}{index}")
 
+    def cached(self, index: int) -> bool:
+        """Whether frame ``index`` is in the on-disk cache."""
+        return self.cache_dir is not None and self._cache_path(index).is_file()
+
+    def _cache_path(self, index: int) -> Path:
+        return self.cache_dir / f"{self.split}-{self.seed}-{int(index):06d}.npz"
+
+    def prerender(self, n: int, workers: int = 1) -> int:
+        """Render frames ``0 .. n-1`` that the cache lacks, in ``workers`` processes; returns how many.
+
+        The frames are the ones :meth:`frame` renders (each from its own seed), so a training
+        run that finds them cached computes exactly what it would have computed rendering them
+        itself; only the wall time differs. Needs a cache folder.
+        """
+        if self.cache_dir is None:
+            raise ValueError("prerender needs a cache_dir: without one the rendered frames would be thrown away")
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+            raise ValueError(f"n must be an integer >= 0, got {n!r}")
+        if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
+            raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+        missing = [i for i in range(int(n)) if not self.cached(i)]
+        if workers == 1 or len(missing) < 2:
+            for i in missing:
+                self.frame(i)
+            return len(missing)
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        # spawned, not forked: a fork of a process whose torch/OpenMP pools are running can hang
+        with ProcessPoolExecutor(max_workers=int(workers), mp_context=multiprocessing.get_context("spawn"),
+                                 initializer=_single_threaded_worker) as pool:
+            list(pool.map(_render_into_cache, [self] * len(missing), missing, chunksize=4))
+        return len(missing)
+
     def frame(self, index: int):
         """The :class:`~histostudy.frame.Frame` of ``index`` (rendered, or read from the cache)."""
         from .frame import Frame
 
         view = self.view(index)
-        path = None if self.cache_dir is None else self.cache_dir / f"{self.split}-{self.seed}-{int(index):06d}.npz"
+        path = None if self.cache_dir is None else self._cache_path(index)
         if path is not None and path.is_file():
             try:
                 with np.load(path, allow_pickle=False) as data:
@@ -261,6 +295,16 @@ class HybridFrames:
                           T_carm_transducer=frame.T_carm_transducer,
                           meta={"split": self.split, "index": int(index), "cached": False})
         return frame
+
+
+def _single_threaded_worker() -> None:
+    """One thread per pre-rendering process: the processes are the parallelism."""
+    cv2.setNumThreads(1)
+    torch.set_num_threads(1)
+
+
+def _render_into_cache(frames: HybridFrames, index: int) -> None:
+    frames.frame(index)
 
 
 def true_angles(frame) -> tuple[float, float]:

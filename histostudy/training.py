@@ -67,6 +67,10 @@ class TrainingConfig:
             profile may use Adam: with a few thousand steps plain SGD at lr 0.001 leaves the
             thin classes and the orientation classifier untrained.
         patience: epochs without a lower validation loss before stopping (paper: 3).
+        lr_decay: factor applied to the learning rate after every epoch without a lower
+            validation loss (1: constant, as the paper says nothing of a schedule). With a
+            factor < 1 a stage that stalls continues at a finer step before patience ends it;
+            each stage starts again at ``learning_rate``.
         max_epochs: cap per stage.
         classification_epochs: cap of the orientation classifier stage (0: skip it).
         max_minutes: wall-time budget of the whole run (None: none).
@@ -94,6 +98,7 @@ class TrainingConfig:
     momentum: float = 0.9
     optimizer: str = "sgd"
     patience: int = 3
+    lr_decay: float = 1.0
     max_epochs: int = 50
     classification_epochs: int = 0
     max_minutes: float | None = None
@@ -118,6 +123,9 @@ class TrainingConfig:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        if not (isinstance(self.lr_decay, (int, float)) and not isinstance(self.lr_decay, bool)
+                and 0 < self.lr_decay <= 1):
+            raise ValueError(f"lr_decay must be a number in (0, 1], got {self.lr_decay!r}")
         if self.optimizer not in ("sgd", "adam"):
             raise ValueError(f"optimizer must be 'sgd' or 'adam', got {self.optimizer!r}")
         if self.max_minutes is not None and not (self.max_minutes > 0):
@@ -240,6 +248,11 @@ def _optimizer(cfg: TrainingConfig, net) -> torch.optim.Optimizer:
     return torch.optim.SGD(net.parameters(), lr=cfg.learning_rate, momentum=cfg.momentum)
 
 
+def _set_learning_rate(opt: torch.optim.Optimizer, lr: float) -> None:
+    for group in opt.param_groups:
+        group["lr"] = lr
+
+
 def _optim_tensors(opt: torch.optim.Optimizer) -> dict:
     """The optimiser's per-parameter state as tensors (SGD's momentum; Adam's moments and step)."""
     out = {}
@@ -325,7 +338,8 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
         net_config["head"] = "classifier" if stages[0] == "classify" else "regressor"
     net = build_network(net_config)
     state = {"stage": stages[0], "epoch": 0, "steps": 0, "best_loss": None, "bad_epochs": 0,
-             "history": [], "finished": False, "stopped": "", "elapsed_s": 0.0, "best": {}}
+             "history": [], "finished": False, "stopped": "", "elapsed_s": 0.0, "best": {},
+             "learning_rate": cfg.learning_rate}
     if cfg.init_weights:
         tensors, init_manifest = load_checkpoint(cfg.init_weights)
         init_config = init_manifest["config"]
@@ -357,6 +371,7 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
         net.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
         opt = _optimizer(cfg, net)
         _load_optim(opt, tensors)
+        _set_learning_rate(opt, state.get("learning_rate", cfg.learning_rate))
         log(f"resumed {cfg.task} from {run_dir} at stage {state['stage']}, epoch {state['epoch']}, "
             f"step {state['steps']}")
     else:
@@ -390,7 +405,8 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
                 net.cpu().to_regressor()
                 net.to(device).train()
                 opt = _optimizer(cfg, net)
-                state.update(stage="regress", epoch=0, best_loss=None, bad_epochs=0)
+                state.update(stage="regress", epoch=0, best_loss=None, bad_epochs=0,
+                             learning_rate=cfg.learning_rate)
                 save_checkpoint(run_dir / "last", {**_model_tensors(net), **_optim_tensors(opt)}, net.config)
                 save_state()
                 continue
@@ -413,7 +429,8 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
             bar.set_postfix(loss=f"{running / (i + 1):.4f}")
         bar.close()
         metrics = _validate(stage, net, val_loader, device, cfg.class_weights)
-        metrics.update(train_loss=running / max(len(loader), 1), stage=stage, epoch=epoch + 1, steps=state["steps"])
+        metrics.update(train_loss=running / max(len(loader), 1), stage=stage, epoch=epoch + 1, steps=state["steps"],
+                       learning_rate=opt.param_groups[0]["lr"])
         state["history"].append(metrics)
         state["epoch"] = epoch + 1
         improved = state["best_loss"] is None or metrics["loss"] < state["best_loss"]
@@ -424,6 +441,9 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
                             training_steps=state["steps"], validation=metrics, seed=seed, profile=profile)
         else:
             state["bad_epochs"] += 1
+            if cfg.lr_decay < 1:
+                state["learning_rate"] = state.get("learning_rate", cfg.learning_rate) * cfg.lr_decay
+                _set_learning_rate(opt, state["learning_rate"])
         save_checkpoint(run_dir / "last", {**_model_tensors(net), **_optim_tensors(opt)}, net.config)
         save_state()
         log(f"{cfg.task}/{stage} epoch {epoch + 1}: " + ", ".join(

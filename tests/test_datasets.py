@@ -134,3 +134,25 @@ def test_cache_reads_back_what_was_rendered(tmp_path):
     assert true_angles(again) == pytest.approx(true_angles(uncached))
     files[0].write_bytes(b"damaged")
     np.testing.assert_array_equal(cached.frame(1).image, first.image)  # rendered again
+
+
+def test_prerender_fills_the_cache_with_the_frames_the_loop_would_render(tmp_path):
+    from histostudy.datasets import HybridFrames
+
+    cfg = RenderConfig(render_spacing_mm=0.47, label_spacing_mm=0.47, detector=(120, 160))
+    frames = HybridFrames("val", 8, cfg, cache_dir=tmp_path)
+    assert frames.prerender(3, workers=2) == 3
+    assert all(frames.cached(i) for i in range(3)) and not frames.cached(3)
+    assert frames.prerender(4, workers=2) == 1  # only what is missing
+    uncached = HybridFrames("val", 8, cfg)
+    for i in (0, 3):
+        cached, fresh = frames.frame(i), uncached.frame(i)
+        assert cached.meta["cached"]
+        np.testing.assert_array_equal(cached.image, fresh.image.astype(np.float16).astype(np.float32))
+        np.testing.assert_array_equal(cached.labels, fresh.labels)
+    with pytest.raises(ValueError, match="cache_dir"):
+        uncached.prerender(2)
+    with pytest.raises(ValueError, match="workers must be an integer >= 1, got 0"):
+        frames.prerender(2, workers=0)
+    with pytest.raises(ValueError, match="n must be"):
+        frames.prerender(-1)

@@ -129,10 +129,13 @@ def test_cli_train_exports_weights_with_manifest(tmp_path, capsys, monkeypatch):
                        'network = { arch = "unet", base_width = 2, depth = 2 }\nscale = 0.5\ncrop = 32\n'
                        'n_train = 2\nn_val = 1\nbatch_size = 2\nmax_epochs = 1\n'
                        'render = { render_spacing_mm = 0.47, label_spacing_mm = 0.47, detector = [240, 320] }\n')
+    assert main(["train", "segmentation", "--profile", str(profile), "--render-workers", "0"]) == 2
+    assert "--render-workers must be >= 1, got 0" in capsys.readouterr().err
     code = main(["train", "segmentation", "--profile", str(profile), "--models-dir", str(tmp_path / "models"),
-                 "--no-progress"])
+                 "--no-progress", "--render-workers", "2"])
     assert code == 0
     out = capsys.readouterr().out
+    assert "rendered 3 uncached frames" in out  # 1 validation + 2 training frames, before the loop
     assert "exported" in out and (tmp_path / "cache" / "runs" / "segmentation-tiny" / "state.json").is_file()
     manifest = json.loads((tmp_path / "models" / "unet_tiny.json").read_text())
     assert manifest["profile"] == "tiny" and manifest["seed"] == 11 and manifest["training_steps"] == 1
@@ -229,3 +232,38 @@ def test_crops_per_frame_makes_longer_epochs_of_distinct_crops(tmp_path, cache):
     assert res.steps == 4 * 2 // 2
     with pytest.raises(ValueError, match="crops_per_frame"):
         _seg(crops_per_frame=0)
+
+
+def test_learning_rate_decays_after_each_epoch_without_improvement_and_resumes(tmp_path, cache, monkeypatch):
+    import histostudy.training as training
+
+    losses = iter([1.0, 0.9, 0.95, 0.97, 0.8] * 2)
+    real_validate = training._validate
+
+    def scripted(*args, **kwargs):
+        metrics = real_validate(*args, **kwargs)
+        metrics["loss"] = next(losses)
+        return metrics
+
+    monkeypatch.setattr(training, "_validate", scripted)
+    cfg = _seg(optimizer="adam", learning_rate=1e-3, lr_decay=0.5, patience=5, max_epochs=5)
+    full = train(cfg, tmp_path / "full", seed=6, progress=False, log=lambda m: None, cache_dir=cache)
+    # the rate an epoch trained with: halved after epochs 3 and 4 (no lower loss), kept after 1, 2
+    assert [h["learning_rate"] for h in full.history] == pytest.approx([1e-3, 1e-3, 1e-3, 5e-4, 2.5e-4])
+    assert full.validation["loss"] == 0.8 and full.validation["learning_rate"] == pytest.approx(2.5e-4)
+
+    def stop_after_fourth_epoch(msg):
+        if "epoch 4:" in msg:
+            raise _Stop
+
+    with pytest.raises(_Stop):
+        train(cfg, tmp_path / "cut", seed=6, progress=False, log=stop_after_fourth_epoch, cache_dir=cache)
+    resumed = train(cfg, tmp_path / "cut", seed=6, progress=False, log=lambda m: None, cache_dir=cache)
+    assert resumed.history[-1]["learning_rate"] == pytest.approx(2.5e-4)  # the decayed rate survives the restart
+    a, _ = load_checkpoint(tmp_path / "full" / "last.safetensors")
+    b, _ = load_checkpoint(tmp_path / "cut" / "last.safetensors")
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=0, atol=0)
+    for bad in (0, 1.5, True, "0.5"):
+        with pytest.raises(ValueError, match="lr_decay"):
+            _seg(lr_decay=bad)
