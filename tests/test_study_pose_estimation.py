@@ -343,3 +343,25 @@ def test_cbct_reference_refuses_bad_arguments(physical_model):
         study.experiment_metrics(records, reference="cbct")
     summary = study.reference_error_summary(ref)
     assert len(summary) == 8 and summary["mm"].str.contains("±").all()
+
+
+def test_study_stages_are_learned_when_they_meet_the_requirements_else_the_oracles():
+    import types
+
+    from histostudy.orientation import OracleOrientation
+    from histostudy.segment import OracleSegmenter
+
+    config = study.PoseStudyConfig(n_experiments=1)
+    good_seg = types.SimpleNamespace(manifest={"validation": {"pixel_accuracy": 0.97}, "weights_file": "u.safetensors"})
+    good_vgg = types.SimpleNamespace(manifest={"validation": {"azimuth_mae_deg": 3.0, "elevation_mae_deg": 2.0},
+                                               "weights_file": "v.safetensors"})
+    poor_vgg = types.SimpleNamespace(manifest={"validation": {"azimuth_mae_deg": 30.3, "elevation_mae_deg": 15.7}})
+    stages = study.study_stages(config, segmenter=good_seg, orientation=good_vgg)
+    assert stages.learned and (stages.segmenter, stages.orientation) == (good_seg, good_vgg)
+    assert "u.safetensors" in stages.why and "v.safetensors" in stages.why
+    stages = study.study_stages(config, segmenter=good_seg, orientation=poor_vgg)
+    assert not stages.learned and "30.3 deg exceeds 10.0" in stages.why
+    assert isinstance(stages.segmenter, OracleSegmenter) and isinstance(stages.orientation, OracleOrientation)
+    assert stages.segmenter.degradation is not None  # the config's Table I oracle, not perfect labels
+    stages = study.study_stages(config, learned=False, segmenter=good_seg, orientation=good_vgg)
+    assert not stages.learned and "disabled" in stages.why

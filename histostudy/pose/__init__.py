@@ -35,7 +35,7 @@ from .init import (COARSE_GRID, MEDIUM_GRID, PAPER_AXIAL_SEEDS_DEG, ROBUST_AXIAL
                    silhouette_candidates)
 from .refine import RefineResult, refine_levenberg_marquardt, refine_nelder_mead
 
-__all__ = ["INIT_METHODS", "LEARNED_STAGE_REQUIREMENTS", "MAP_KINDS", "MODES", "PoseEstimationError", "PoseResult", "PoseVerdict", "default_stages",
+__all__ = ["INIT_METHODS", "LEARNED_STAGE_REQUIREMENTS", "learned_stage_shortfalls", "MAP_KINDS", "MODES", "PoseEstimationError", "PoseResult", "PoseVerdict", "default_stages",
            "estimate_pose"]
 
 MODES = ("paper", "fast")
@@ -333,8 +333,9 @@ def _validation(stage) -> dict:
     return manifest.get("validation", {}) or {}
 
 
-def _usable(segmenter, orientation) -> list[str]:
-    """Why the shipped stages are not used by default (empty when they are)."""
+def learned_stage_shortfalls(segmenter, orientation) -> list[str]:
+    """Why these learned stages fall short of :data:`LEARNED_STAGE_REQUIREMENTS` (empty when they meet
+    them), judged on their manifests' validation figures; None stands for a missing network."""
     reasons = []
     if segmenter is None:
         reasons.append("no usable shipped U-Net")
@@ -366,7 +367,7 @@ def default_stages() -> tuple[Segmenter, OrientationSource]:
     :func:`estimate_pose` to choose explicitly (e.g. a network of your own).
     """
     segmenter, orientation = default_segmenter(), default_orientation()
-    reasons = _usable(segmenter, orientation)
+    reasons = learned_stage_shortfalls(segmenter, orientation)
     if reasons:
         warnings.warn("estimate_pose: " + "; ".join(reasons) + " — using the oracle stages, which need "
                       "synthetic frames", stacklevel=3)

@@ -36,7 +36,7 @@ from ..anatomy import Anatomy, random_background
 from ..carm import View
 from ..cbct import PhantomSpec, TreatmentZone, phantom_mask, phantom_volume
 from ..geometry import make_transform, matrix_from_euler, rotation_about_axis, rotation_angle
-from ..pose import MAP_KINDS, PoseEstimationError, estimate_pose
+from ..pose import MAP_KINDS, PoseEstimationError, estimate_pose, learned_stage_shortfalls
 from ..render import render_frame
 from ..orientation import OracleOrientation, OrientationSource
 from ..segment import OracleSegmenter, SegmentationDegradation, Segmenter
@@ -45,6 +45,8 @@ from ..treatment import STUDY_PLAN_INSET_MM, STUDY_PLAN_SPACING_MM, plan_treatme
 
 __all__ = [
     "DIRECTIONS",
+    "StudyStages",
+    "study_stages",
     "PoseExperiment",
     "PoseStudyConfig",
     "cbct_reference",
@@ -132,6 +134,45 @@ class PoseStudyConfig:
 
     def segmenter(self) -> OracleSegmenter:
         return OracleSegmenter(SegmentationDegradation.paper_table1() if self.degradation == "table1" else None)
+
+
+@dataclass(frozen=True, eq=False)
+class StudyStages:
+    """The segmenter and orientation source a pose study runs on, and why those (:func:`study_stages`)."""
+
+    segmenter: Segmenter
+    orientation: OrientationSource
+    learned: bool
+    why: str
+
+
+def study_stages(config: PoseStudyConfig, learned: bool = True, *, segmenter=None, orientation=None) -> StudyStages:
+    """The stages of the pose study: learned by default, the oracles where the learned ones fall short.
+
+    With ``learned``, the shipped U-Net and VGG19 (:func:`histostudy.segment.default_segmenter`,
+    :func:`histostudy.orientation.default_orientation`, or the ``segmenter`` / ``orientation``
+    given) when their manifests meet :data:`histostudy.pose.LEARNED_STAGE_REQUIREMENTS`;
+    otherwise, or without ``learned``, the config's oracles (Table I degradation, the paper's
+    angle MAE). ``why`` says which and why, for the report.
+    """
+    oracles = (config.segmenter(), OracleOrientation())
+    if not learned:
+        return StudyStages(*oracles, learned=False, why="oracle stages: the learned stages are disabled "
+                           "(learned_stages = False)")
+    if segmenter is None or orientation is None:
+        from ..orientation import default_orientation
+        from ..segment import default_segmenter
+
+        segmenter = default_segmenter() if segmenter is None else segmenter
+        orientation = default_orientation() if orientation is None else orientation
+    shortfalls = learned_stage_shortfalls(segmenter, orientation)
+    if shortfalls:
+        return StudyStages(*oracles, learned=False, why="oracle stages (Table I degradation, the paper's angle "
+                           "MAE), because " + "; ".join(shortfalls))
+    names = [(getattr(stage, "manifest", None) or {}).get("weights_file", type(stage).__name__)
+             for stage in (segmenter, orientation)]
+    return StudyStages(segmenter, orientation, learned=True,
+                       why=f"learned stages: the U-Net {names[0]} and the VGG19 {names[1]}")
 
 
 def transducer_axes(T_carm_transducer) -> dict[str, np.ndarray]:
