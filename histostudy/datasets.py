@@ -342,10 +342,14 @@ class HybridImageDataset(Dataset):
         seed: seeds the crops and flips with :meth:`set_epoch`, so each epoch sees new ones.
         repeats: items per frame: item ``i`` is frame ``i // repeats`` with its own crop and flips,
             so one epoch takes ``repeats`` different crops of every frame (``len = size * repeats``).
+        keep_in_memory: keep each frame's network input (downscaled, standardised) and targets
+            after its first use, so that later epochs skip reading and downscaling the
+            full-resolution frame (a third of a CPU orientation step); the items are the same.
+            3000 orientation inputs at 310x240 take 0.9 GB.
     """
 
     def __init__(self, task: str, frames: HybridFrames, size: int, *, scale: float, crop: int | None = None,
-                 augment: bool = False, seed: int = 0, repeats: int = 1):
+                 augment: bool = False, seed: int = 0, repeats: int = 1, keep_in_memory: bool = False):
         if task not in TASKS:
             raise ValueError(f"task must be one of {TASKS}, got {task!r}")
         if not isinstance(frames, HybridFrames):
@@ -361,6 +365,19 @@ class HybridImageDataset(Dataset):
         self.task, self.frames, self.size, self.scale, self.crop = task, frames, size, float(scale), crop
         self.repeats = repeats
         self.augment, self.seed, self.epoch = bool(augment), int(seed), 0
+        self._kept: dict | None = {} if keep_in_memory else None
+
+    def _prepared(self, frame_index: int):
+        """The frame's network input and target: pooled labels (segmentation) or true angles."""
+        if self._kept is not None and frame_index in self._kept:
+            return self._kept[frame_index]
+        frame = self.frames.frame(frame_index)
+        image = prepare_image(frame.image, self.scale)
+        target = pool_labels(frame.labels, self.scale) if self.task == "segmentation" else true_angles(frame)
+        if self._kept is not None:
+            image.setflags(write=False)  # crops and flips are views: the kept input must not change
+            self._kept[frame_index] = (image, target)
+        return image, target
 
     def set_epoch(self, epoch: int) -> None:
         """Draw new crops and flips for ``epoch``."""
@@ -372,19 +389,18 @@ class HybridImageDataset(Dataset):
     def __getitem__(self, index: int) -> dict:
         if not 0 <= index < len(self):
             raise IndexError(f"index {index} out of range for a dataset of {len(self)} items")
-        frame = self.frames.frame(index // self.repeats)
-        image = prepare_image(frame.image, self.scale)
+        image, target = self._prepared(index // self.repeats)
         rng = np.random.default_rng([self.seed, SPLIT_CODES[self.frames.split], index, self.epoch])
         if self.task == "segmentation":
-            labels = pool_labels(frame.labels, self.scale)
+            labels = target
             if self.crop is not None:
                 r0 = int(rng.integers(0, image.shape[0] - self.crop + 1))
                 c0 = int(rng.integers(0, image.shape[1] - self.crop + 1))
                 image = image[r0:r0 + self.crop, c0:c0 + self.crop]
                 labels = labels[r0:r0 + self.crop, c0:c0 + self.crop]
-            return {"image": torch.from_numpy(np.ascontiguousarray(image))[None],
+            return {"image": torch.from_numpy(image.copy())[None],
                     "labels": torch.from_numpy(labels.astype(np.int64))}
-        az, el = true_angles(frame)
+        az, el = target
         if self.augment:
             flip_cols, flip_rows = bool(rng.integers(2)), bool(rng.integers(2))
             if flip_cols:
@@ -393,7 +409,7 @@ class HybridImageDataset(Dataset):
                 image = image[::-1]
             az = flip_angles(az, flip_cols, flip_rows)
         cls = orientation_class(az, el)
-        return {"image": torch.from_numpy(np.ascontiguousarray(image))[None],
+        return {"image": torch.from_numpy(image.copy())[None],
                 "angles": torch.tensor([az, el], dtype=torch.float32),
                 "class": torch.tensor(cls, dtype=torch.int64)}
 

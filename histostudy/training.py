@@ -283,9 +283,10 @@ def _loaders(cfg: TrainingConfig, seed: int, cache_dir):
     crop = cfg.crop if cfg.task == "segmentation" else None
     train_ds = HybridImageDataset(cfg.task, HybridFrames("train", seed, **frames_kwargs), cfg.n_train,
                                   scale=cfg.scale, crop=crop, augment=cfg.task == "orientation", seed=seed,
-                                  repeats=cfg.crops_per_frame if cfg.task == "segmentation" else 1)
+                                  repeats=cfg.crops_per_frame if cfg.task == "segmentation" else 1,
+                                  keep_in_memory=True)
     val_ds = HybridImageDataset(cfg.task, HybridFrames("val", seed, **frames_kwargs), cfg.n_val,
-                                scale=cfg.scale, crop=None, augment=False, seed=seed)
+                                scale=cfg.scale, crop=None, augment=False, seed=seed, keep_in_memory=True)
     val_loader = DataLoader(val_ds, batch_size=1 if cfg.task == "segmentation" else cfg.batch_size, shuffle=False)
     return train_ds, val_loader
 

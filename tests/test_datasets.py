@@ -156,3 +156,29 @@ def test_prerender_fills_the_cache_with_the_frames_the_loop_would_render(tmp_pat
         frames.prerender(2, workers=0)
     with pytest.raises(ValueError, match="n must be"):
         frames.prerender(-1)
+
+
+def test_kept_inputs_give_the_same_items_without_reading_the_frame_again(tmp_path, monkeypatch):
+    cfg = RenderConfig(render_spacing_mm=0.47, label_spacing_mm=0.47, detector=(120, 160))
+    frames = HybridFrames("train", 9, cfg, cache_dir=tmp_path)
+    for task, kw in (("orientation", dict(scale=0.25, augment=True)), ("segmentation", dict(scale=0.5, crop=16))):
+        plain = HybridImageDataset(task, frames, 2, seed=9, **kw)
+        kept = HybridImageDataset(task, frames, 2, seed=9, keep_in_memory=True, **kw)
+        first = [kept[i] for i in range(2)]
+        calls = []
+        real_frame = HybridFrames.frame
+        monkeypatch.setattr(HybridFrames, "frame", lambda self, i: calls.append(i) or real_frame(self, i))
+        for epoch in (0, 1, 2):
+            plain.set_epoch(epoch)
+            kept.set_epoch(epoch)
+            for i in range(2):
+                a, b = plain[i], kept[i]
+                assert a.keys() == b.keys()
+                for key in a:
+                    torch.testing.assert_close(a[key], b[key], rtol=0, atol=0)
+        assert calls == [0, 1] * 3  # only the plain dataset read the frames again
+        monkeypatch.undo()
+        kept.set_epoch(0)
+        b = kept[0]["image"]
+        b += 1.0  # an item is the caller's to change: the kept input stays as it was
+        torch.testing.assert_close(kept[0]["image"], first[0]["image"], rtol=0, atol=0)
