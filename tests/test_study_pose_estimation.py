@@ -362,6 +362,8 @@ def test_study_stages_are_learned_when_they_meet_the_requirements_else_the_oracl
     stages = study.study_stages(config, segmenter=good_seg, orientation=poor_vgg)
     assert not stages.learned and "30.3 deg exceeds 10.0" in stages.why
     assert isinstance(stages.segmenter, OracleSegmenter) and isinstance(stages.orientation, OracleOrientation)
+    assert (stages.shipped_segmenter, stages.shipped_orientation) == (good_seg, poor_vgg)  # for the comparison
     assert stages.segmenter.degradation is not None  # the config's Table I oracle, not perfect labels
     stages = study.study_stages(config, learned=False, segmenter=good_seg, orientation=good_vgg)
     assert not stages.learned and "disabled" in stages.why
+    assert stages.shipped_segmenter is None and stages.shipped_orientation is None

@@ -138,12 +138,18 @@ class PoseStudyConfig:
 
 @dataclass(frozen=True, eq=False)
 class StudyStages:
-    """The segmenter and orientation source a pose study runs on, and why those (:func:`study_stages`)."""
+    """The segmenter and orientation source a pose study runs on, and why those (:func:`study_stages`).
+
+    ``shipped_segmenter`` / ``shipped_orientation`` are the learned networks that were considered
+    (None when missing or not asked for), whether or not the study runs on them.
+    """
 
     segmenter: Segmenter
     orientation: OrientationSource
     learned: bool
     why: str
+    shipped_segmenter: Segmenter | None = None
+    shipped_orientation: OrientationSource | None = None
 
 
 def study_stages(config: PoseStudyConfig, learned: bool = True, *, segmenter=None, orientation=None) -> StudyStages:
@@ -165,14 +171,15 @@ def study_stages(config: PoseStudyConfig, learned: bool = True, *, segmenter=Non
 
         segmenter = default_segmenter() if segmenter is None else segmenter
         orientation = default_orientation() if orientation is None else orientation
+    shipped = dict(shipped_segmenter=segmenter, shipped_orientation=orientation)
     shortfalls = learned_stage_shortfalls(segmenter, orientation)
     if shortfalls:
         return StudyStages(*oracles, learned=False, why="oracle stages (Table I degradation, the paper's angle "
-                           "MAE), because " + "; ".join(shortfalls))
+                           "MAE), because " + "; ".join(shortfalls), **shipped)
     names = [(getattr(stage, "manifest", None) or {}).get("weights_file", type(stage).__name__)
              for stage in (segmenter, orientation)]
     return StudyStages(segmenter, orientation, learned=True,
-                       why=f"learned stages: the U-Net {names[0]} and the VGG19 {names[1]}")
+                       why=f"learned stages: the U-Net {names[0]} and the VGG19 {names[1]}", **shipped)
 
 
 def transducer_axes(T_carm_transducer) -> dict[str, np.ndarray]:
