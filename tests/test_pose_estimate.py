@@ -11,7 +11,7 @@ import pytest
 from histostudy.carm import default_biplane
 from histostudy.frame import Frame
 from histostudy.geometry import rotation_angle, transform_from_params
-from histostudy.orientation import OracleOrientation
+from histostudy.orientation import OracleOrientation, angles_from_direction, beam_direction_of_pose
 from histostudy.pose import PoseEstimationError, PoseResult, estimate_pose
 from histostudy.pose.cost import apply_left_perturbation
 from histostudy.render import render_labels
@@ -181,9 +181,37 @@ def test_views_that_disagree_on_the_orientation_start_from_each_views_own_direct
         # Without the extra starts, the averaged direction (about 50 deg off) sends this one astray.
         off = estimate_pose(frames[which], models[0], segmenter=OracleSegmenter(), orientation=misread,
                             rng=np.random.default_rng(1), mode="fast", direction_spread_limit_deg=180.0,
-                            raise_on_failure=False)
+                            raise_on_failure=False, retry_hypotheses=False)
         assert off.init.stages["direction_starts"] == 1
         assert not off.verdict.ok and focal_error(off, T) > 10.0
+
+
+class _MirrorInView:
+    """The true angles in view ``mirror_of``; every other view reads the direction that is its
+    mirror image on that view's detector plane: the views agree, on the wrong mirror."""
+
+    def __init__(self, mirror_of: str):
+        self.mirror_of = mirror_of
+
+    def estimate(self, frame, rng):
+        if frame.view.name == self.mirror_of:
+            return angles_from_direction(beam_direction_of_pose(frame.T_carm_transducer), frame.view)
+        view = next(v for v in default_biplane() if v.name == self.mirror_of)
+        R = view.detector_axes
+        mirrored = R.T @ np.diag([1.0, 1.0, -1.0]) @ R @ beam_direction_of_pose(frame.T_carm_transducer)
+        return angles_from_direction(mirrored, frame.view)
+
+
+def test_views_that_agree_on_a_wrong_direction_are_retried_from_each_views_own_direction(models, frames):
+    T = POSES[0]
+    mirrored = _MirrorInView("A")
+    kwargs = dict(segmenter=OracleSegmenter(), orientation=mirrored, rng=np.random.default_rng(1), mode="fast")
+    no_retry = estimate_pose(frames[0], models[0], retry_hypotheses=False, raise_on_failure=False, **kwargs)
+    assert no_retry.init.stages["direction_spread_deg"] < 1.0 and no_retry.init.stages["direction_starts"] == 1
+    assert not no_retry.verdict.ok
+    res = estimate_pose(frames[0], models[0], **kwargs)
+    assert res.init.stages["direction_starts"] == 5 and res.retries >= 1
+    assert res.verdict.ok and focal_error(res, T) < 0.1, focal_error(res, T)
 
 
 def test_bad_arguments_raise(models, frames):

@@ -175,8 +175,10 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
             their mean is off too: the initialisation then also starts from each view's own two
             direction candidates and keeps the lowest-cost start. Estimates with the paper's
             regression errors (1-2 deg) stay well below 15 deg, and their estimates are unchanged;
-            a VGG19 that misreads one view by 90 deg no longer sends the pose astray.
-            ``init.stages["direction_starts"]`` records how many directions were started from.
+            a VGG19 that misreads one view by 90 deg no longer sends the pose astray. When the
+            views agree but the pose fails the verdict (both misread alike) and ``retry_hypotheses``
+            is set, the per-view starts are tried then. ``init.stages["direction_starts"]``
+            records how many directions were started from.
     """
     t_start = time.perf_counter()
     frames = _check_frames(frames)
@@ -238,6 +240,7 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
 
     init_result = None
     n_init_eval = 0
+    deferred_directions = []
     if initial_pose is not None:
         T_init = np.asarray(initial_pose, dtype=np.float64)
         timings["orientation"] = timings["initialisation"] = 0.0
@@ -253,8 +256,12 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
         else:
             direction, _, spread = select_direction(candidates)
             tries = [direction]
-            if init == "robust" and np.rad2deg(spread) > direction_spread_limit_deg:
-                tries += [c for view_candidates in candidates for c in view_candidates]
+            if init == "robust":
+                per_view = [c for view_candidates in candidates for c in view_candidates]
+                if np.rad2deg(spread) > direction_spread_limit_deg:
+                    tries += per_view
+                else:
+                    deferred_directions = per_view
         if init == "robust":
             def polish(T):
                 # Truncated distances: points on missed or hidden features do not pull. Scored by
@@ -274,10 +281,12 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
                     d, views, silhouettes, body, centre_local_mm=centre_local)]
         else:
             options = dict(axial_seeds_deg=PAPER_AXIAL_SEEDS_DEG, fine_after_axial=False, n_hypotheses=1)
-        results = [initialise_pose(d, views, view_costs, search, centre_mm=search_centre_mm, **options)
-                   for d in tries]
-        init_result = min(results, key=lambda r: r.cost)
-        n_init_eval = sum(r.n_evaluations for r in results)
+        def start(directions):
+            results = [initialise_pose(d, views, view_costs, search, centre_mm=search_centre_mm, **options)
+                       for d in directions]
+            return min(results, key=lambda r: r.cost), sum(r.n_evaluations for r in results)
+
+        init_result, n_init_eval = start(tries)
         init_result.stages["direction_starts"] = len(tries)
         if len(frames) > 1:
             init_result.stages["direction_spread_deg"] = float(np.rad2deg(spread))
@@ -314,6 +323,17 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
             candidate = refine(T_hyp)
             candidate_verdict = judge(candidate.T)
             if candidate_verdict.ok and (not verdict.ok or candidate.cost < refined.cost):
+                refined, verdict = candidate, candidate_verdict
+        if not verdict.ok and deferred_directions:
+            # The views agreed on a direction, but it led nowhere plausible: both estimates may be
+            # off alike. Start again from each view's own two direction candidates.
+            retries += 1
+            restart, n_eval = start(deferred_directions)
+            n_init_eval += n_eval
+            init_result.stages["direction_starts"] += len(deferred_directions)
+            candidate = refine(restart.T_carm_transducer)
+            candidate_verdict = judge(candidate.T)
+            if candidate_verdict.ok:
                 refined, verdict = candidate, candidate_verdict
         if not verdict.ok and mode == "fast":
             # Last resort: the simplex explores a 2 deg / 2 mm neighbourhood where a
