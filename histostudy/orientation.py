@@ -40,6 +40,7 @@ __all__ = [
     "direction_candidates",
     "hemisphere_angles",
     "hemisphere_directions",
+    "orientation_angle_error",
     "orientation_class",
     "select_direction",
     "wrap_angle",
@@ -188,6 +189,16 @@ def hemisphere_directions(n: int = N_ORIENTATION_CLASSES) -> np.ndarray:
     (their ``e_w`` components are negative: pointing away from the detector)."""
     a = hemisphere_angles(n)
     return _detector_direction(a[:, 0], a[:, 1])
+
+
+def orientation_angle_error(azimuth_rad, elevation_rad, reference_azimuth_rad, reference_elevation_rad):
+    """Angle (rad) between the directions two ``(azimuth, elevation)`` pairs of one view stand for.
+
+    The error that matters to the pose initialisation: unlike the azimuth error alone it is small
+    near elevation 0, where the azimuth is ill-defined. Accepts arrays (broadcast)."""
+    a = _detector_direction(azimuth_rad, elevation_rad)
+    b = _detector_direction(reference_azimuth_rad, reference_elevation_rad)
+    return np.arccos(np.clip(np.sum(a * b, axis=-1), -1.0, 1.0))
 
 
 def orientation_class(azimuth_rad: float, elevation_rad: float, n: int = N_ORIENTATION_CLASSES) -> int:

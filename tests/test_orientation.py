@@ -17,6 +17,7 @@ from histostudy.orientation import (
     direction_candidates,
     hemisphere_angles,
     hemisphere_directions,
+    orientation_angle_error,
     orientation_class,
     select_direction,
     wrap_angle,
@@ -136,6 +137,20 @@ def test_orientation_class_is_the_nearest_direction():
         az, el = rng.uniform(-np.pi, np.pi), rng.uniform(0, np.pi / 2)
         v = np.array([np.cos(az) * np.sin(el), np.sin(az) * np.sin(el), -np.cos(el)])
         assert orientation_class(az, el) == int(np.argmin(np.linalg.norm(d - v, axis=1)))
+
+
+def test_orientation_angle_error_is_the_angle_between_the_eq4_directions():
+    view = View.from_gantry(20, 30)
+    rng = np.random.default_rng(8)
+    for _ in range(20):
+        a, b = rng.uniform(-np.pi, np.pi, 2), rng.uniform(0, np.pi / 2, 2)
+        da, db = direction_candidates(a[0], b[0], view)[0], direction_candidates(a[1], b[1], view)[0]
+        assert orientation_angle_error(a[0], b[0], a[1], b[1]) == pytest.approx(np.arccos(np.clip(da @ db, -1, 1)), abs=1e-9)
+    # Elevation alone: its difference. Near elevation 0 a large azimuth error is a small direction error.
+    assert orientation_angle_error(0.3, 0.5, 0.3, 0.2) == pytest.approx(0.3)
+    assert np.rad2deg(orientation_angle_error(0.0, np.deg2rad(2), np.pi, np.deg2rad(2))) == pytest.approx(4.0)
+    np.testing.assert_allclose(orientation_angle_error(np.zeros(3), np.full(3, 0.4), np.zeros(3), np.full(3, 0.4)), 0,
+                               atol=1e-7)
 
 
 class _ConstantNet(torch.nn.Module):

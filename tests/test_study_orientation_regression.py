@@ -44,6 +44,27 @@ def test_fixed_offsets_give_those_errors_and_a_unit_slope():
     assert t.loc["elevation", "pearson_percent"] == pytest.approx(100.0)
 
 
+def test_direction_error_and_the_misread_fraction():
+    frames = _frames()
+    res = study.evaluate_orientation(_Offset(0.0, np.radians(-1.0)), frames)
+    np.testing.assert_allclose(res["direction_error_deg"], 1.0, atol=1e-6)
+    # Every other frame misread: azimuth half a turn off at elevation >= 30 deg is >= 60 deg off.
+    flips = [None] * len(frames)
+
+    class _HalfMisread:
+        def estimate(self, frame, rng=None):
+            az, el = angles_from_direction(beam_direction_of_pose(frame.T_carm_transducer), frame.view)
+            i = frames.index(frame)
+            flips[i] = i % 2 == 1
+            return (float(wrap_angle(az + np.pi)), max(el, np.radians(30))) if flips[i] else (az, el)
+
+    s = study.direction_error_summary(study.evaluate_orientation(_HalfMisread(), frames), misread_deg=30.0)
+    assert s["n"] == 12 and s["misread_fraction"] == pytest.approx(0.5)
+    assert s["median_deg"] >= 0 and s["p90_deg"] >= 59.9
+    with pytest.raises(ValueError, match="misread_deg must be finite and > 0"):
+        study.direction_error_summary(res, misread_deg=0)
+
+
 def test_scatter_figure_has_both_angles():
     res = study.evaluate_orientation(_Offset(0.05, 0.02), _frames(6, seed=1))
     fig = study.scatter_figure(res)

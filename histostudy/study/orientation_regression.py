@@ -14,15 +14,17 @@ from typing import Iterable
 import numpy as np
 import pandas as pd
 
-from ..orientation import angles_from_direction, beam_direction_of_pose, wrap_angle
+from ..orientation import angles_from_direction, beam_direction_of_pose, orientation_angle_error, wrap_angle
 from ..stats import angle_statistics
 
-__all__ = ["angle_table", "evaluate_orientation", "scatter_figure"]
+__all__ = ["angle_table", "direction_error_summary", "evaluate_orientation", "scatter_figure"]
 
 
 def evaluate_orientation(source, frames: Iterable, rng: np.random.Generator | None = None) -> pd.DataFrame:
     """One row per frame: reference and predicted azimuth and elevation (deg), the wrapped azimuth
-    error and the elevation error (deg), and the ``seconds`` the source took."""
+    error, the elevation error and the angle between the predicted and the reference direction
+    (deg; :func:`~histostudy.orientation.orientation_angle_error`), and the ``seconds`` the source
+    took."""
     rows = []
     for i, frame in enumerate(frames):
         if frame.T_carm_transducer is None:
@@ -35,7 +37,9 @@ def evaluate_orientation(source, frames: Iterable, rng: np.random.Generator | No
                      "azimuth_ref_deg": np.degrees(ref_az), "azimuth_pred_deg": np.degrees(az),
                      "elevation_ref_deg": np.degrees(ref_el), "elevation_pred_deg": np.degrees(el),
                      "azimuth_error_deg": float(np.degrees(wrap_angle(az - ref_az))),
-                     "elevation_error_deg": float(np.degrees(el - ref_el)), "seconds": seconds})
+                     "elevation_error_deg": float(np.degrees(el - ref_el)),
+                     "direction_error_deg": float(np.degrees(orientation_angle_error(az, el, ref_az, ref_el))),
+                     "seconds": seconds})
     if not rows:
         raise ValueError("frames must hold at least one frame")
     return pd.DataFrame(rows)
@@ -50,6 +54,21 @@ def angle_table(results: pd.DataFrame) -> pd.DataFrame:
                      "pearson_percent": 100.0 * s["pearson_r"], "pearson_p": s["pearson_p"],
                      "intercept_deg": s["intercept_deg"], "slope": s["slope"], "r2": s["r2"], "n": s["n"]})
     return pd.DataFrame(rows)
+
+
+def direction_error_summary(results: pd.DataFrame, misread_deg: float = 30.0) -> dict:
+    """The direction error of :func:`evaluate_orientation`'s rows (beyond the paper, which reports
+    the two angles only): mean ± SD, median and 90th percentile (deg), and the fraction of frames
+    misread by more than ``misread_deg``: the frames whose initialisation must lean on the other
+    view (:func:`histostudy.pose.estimate_pose`'s per-view direction starts)."""
+    if not (np.isfinite(misread_deg) and misread_deg > 0):
+        raise ValueError(f"misread_deg must be finite and > 0, got {misread_deg!r}")
+    e = np.asarray(results["direction_error_deg"], dtype=np.float64)
+    if e.size == 0:
+        raise ValueError("results must hold at least one row")
+    return {"mean_deg": float(e.mean()), "sd_deg": float(e.std(ddof=1)) if e.size > 1 else float("nan"),
+            "median_deg": float(np.median(e)), "p90_deg": float(np.percentile(e, 90)),
+            "misread_fraction": float(np.mean(e > misread_deg)), "misread_deg": float(misread_deg), "n": int(e.size)}
 
 
 def scatter_figure(results: pd.DataFrame, table: pd.DataFrame | None = None):
