@@ -72,12 +72,15 @@ def save_checkpoint(path, tensors: dict, config: dict, **manifest) -> Path:
     weights = _weights_path(path)
     if not isinstance(config, dict) or "arch" not in config:
         raise ValueError(f"config must be a network config dict with an 'arch' key, got {config!r}")
+    # Before writing: weights exported into the repository (data/models) would otherwise make
+    # the tree they were trained from look modified.
+    commit = manifest.pop("git_commit", None) or git_commit()
     flat = {k: v.detach().to("cpu").contiguous() for k, v in tensors.items()}
     with atomic_path(weights) as tmp:
         save_file(flat, str(tmp), metadata={"format": FORMAT, "config": json.dumps(to_jsonable(config), sort_keys=True)})
     record = {"format": FORMAT, "version": VERSION, "config": config, "weights_file": weights.name,
               "sha256": sha256_file(weights), "size_bytes": weights.stat().st_size}
-    record["git_commit"] = manifest.pop("git_commit", None) or git_commit()
+    record["git_commit"] = commit
     record.update(manifest)
     return atomic_write_json(manifest_path(weights), record)
 

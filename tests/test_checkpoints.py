@@ -19,6 +19,31 @@ def _save(path, net=None, **extra):
     return net, save_checkpoint(path, tensors, net.config, profile="smoke", seed=7, training_steps=3, **extra)
 
 
+def test_weights_exported_into_the_repository_record_its_clean_commit(tmp_path, monkeypatch):
+    """Overwriting tracked weights must not make the manifest call the tree it came from modified."""
+    import shutil
+    import subprocess
+
+    from histostudy import provenance
+
+    if shutil.which("git") is None:
+        pytest.skip("git is not installed")
+    repo = tmp_path / "repo"
+    (repo / "models").mkdir(parents=True)
+    torch.manual_seed(0)
+    _save(repo / "models" / "unet")
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-C", str(repo)]
+    subprocess.run(["git", "init", "-q", str(repo)], check=True)
+    subprocess.run(git + ["add", "."], check=True)
+    subprocess.run(git + ["commit", "-qm", "weights"], check=True)
+    head = subprocess.run(git + ["rev-parse", "HEAD"], check=True, capture_output=True, text=True).stdout.strip()
+    monkeypatch.setattr(checkpoints, "git_commit", lambda: provenance.git_commit(repo))
+    torch.manual_seed(1)
+    _, mpath = _save(repo / "models" / "unet")  # new weights over the tracked ones
+    assert json.loads(mpath.read_text())["git_commit"] == head
+    assert provenance.git_commit(repo) == head + "-dirty"  # the tree is modified now, by the export
+
+
 def test_roundtrip_manifest_and_hash(tmp_path):
     torch.manual_seed(0)
     net, mpath = _save(tmp_path / "unet", validation={"loss": 0.5})
