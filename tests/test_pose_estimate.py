@@ -16,7 +16,7 @@ from histostudy.pose import PoseEstimationError, PoseResult, estimate_pose
 from histostudy.pose.cost import apply_left_perturbation
 from histostudy.render import render_labels
 from histostudy.segment import OracleSegmenter
-from histostudy.transducer import TransducerModel, pose_facing
+from histostudy.transducer import Feature, TransducerModel, pose_facing
 
 POSES = [
     pose_facing((0.15, 1.0, 0.25), focal_point_mm=(4.0, -6.0, 8.0), axial_rotation_rad=0.35),
@@ -71,9 +71,11 @@ def test_per_class_maps_of_eq3_are_biased_by_occluded_classes(models, frames):
     """With priority-resolved labels, eq. 3's per-class maps pull the optimum off by a large
     fraction of a millimetre; the occlusion-aware maps (default) do not."""
     T = POSES[0]
+    # eq. 3 as written (the capped refinement hides much of the per-class bias too)
     per_class = estimate_pose(frames[0], models[0], rng=np.random.default_rng(1), mode="fast",
-                              distance_maps="per_class", **ORACLES)
-    aware = estimate_pose(frames[0], models[0], rng=np.random.default_rng(1), mode="fast", **ORACLES)
+                              distance_maps="per_class", refine_truncation_px=None, **ORACLES)
+    aware = estimate_pose(frames[0], models[0], rng=np.random.default_rng(1), mode="fast",
+                          refine_truncation_px=None, **ORACLES)
     assert focal_error(per_class, T) > 0.3 > 0.1 > focal_error(aware, T)
 
 
@@ -83,6 +85,33 @@ HALF_HIDDEN_POSES = [
     transform_from_params([0.4978, -1.8061, 0.1668, -54.8204, 58.0428, 25.5321]),
     transform_from_params([-1.4025, 2.2697, 1.1127, -63.5939, -2.8917, 5.71]),
 ]
+
+
+def _missing_stretch(frames, feature, view_index=0):
+    """The frames with ``feature``'s pixels in the left half of the view's feature erased (to the
+    transducer class): a segmentation that missed a stretch of that class, as a U-Net does."""
+    out = []
+    for i, f in enumerate(frames):
+        labels = f.labels.copy()
+        if i == view_index:
+            rows, cols = np.nonzero(labels == feature)
+            cut = np.median(cols)
+            labels[rows[cols < cut], cols[cols < cut]] = Feature.TRANSDUCER
+        out.append(Frame(f.image, f.view, labels=labels, T_carm_transducer=f.T_carm_transducer))
+    return out
+
+
+@pytest.mark.parametrize("feature", [Feature.GAPS, Feature.OUTER_BOUNDARY])
+def test_the_capped_refinement_is_not_pulled_by_a_missed_stretch_of_a_class(models, frames, feature):
+    T = POSES[0]
+    missed = _missing_stretch(frames[0], feature)
+    kwargs = dict(rng=np.random.default_rng(1), mode="fast", raise_on_failure=False, **ORACLES)
+    as_written = estimate_pose(missed, models[0], refine_truncation_px=None, verdict_truncation_px=None, **kwargs)
+    capped = estimate_pose(missed, models[0], **kwargs)
+    # Eq. 3 as written: pulled (gaps 0.7 mm, outer boundary 0.14 mm) and judged implausible (RMS 62 / 17 px).
+    assert not as_written.verdict.ok and focal_error(as_written, T) > 0.1
+    assert capped.verdict.ok and focal_error(capped, T) < 0.1
+    assert focal_error(capped, T) < 0.5 * focal_error(as_written, T)
 
 
 @pytest.mark.parametrize("which", [0, 1])
@@ -95,9 +124,21 @@ def test_the_silhouette_seed_finds_a_mostly_hidden_transducer(models, which, mon
     result = estimate_pose(frames, models[0], mode="fast", rng=np.random.default_rng(0), **ORACLES)
     assert focal_error(result, T) < 0.2, inside
     # Without the seed the coarse grid's optimum lies in the wrong region, even on exact labels.
+    # For pose 0 the refinement ends 1.5 mm off in a plausible-looking minimum; for pose 1 the
+    # capped refinement finds its way back (eq. 3 as written does not: 65 mm off, implausible).
     monkeypatch.setattr(pose_module, "silhouette_candidates", lambda *args, **kwargs: [])
-    with pytest.raises(PoseEstimationError, match="implausible"):
-        estimate_pose(frames, models[0], mode="fast", rng=np.random.default_rng(0), **ORACLES)
+    try:
+        seedless = focal_error(estimate_pose(frames, models[0], mode="fast", rng=np.random.default_rng(0),
+                                             **ORACLES), T)
+    except PoseEstimationError:
+        seedless = np.inf
+    if which == 0:
+        assert seedless > 1.0, seedless
+    else:
+        assert seedless < 0.2, seedless
+        with pytest.raises(PoseEstimationError, match="implausible"):
+            estimate_pose(frames, models[0], mode="fast", rng=np.random.default_rng(0), refine_truncation_px=None,
+                          **ORACLES)
 
 
 def test_same_generator_seed_gives_the_same_pose(models, frames):
