@@ -289,7 +289,7 @@ def test_default_stages_are_the_shipped_networks_when_good_enough_else_the_oracl
         assert pose.default_stages() == (good_seg, good_orient)
         pose.default_stages.cache_clear()
         monkeypatch.setattr(pose, "default_orientation", lambda: poor_orient)
-        with pytest.warns(UserWarning, match="VGG19's validation angle MAE 84.6 deg exceeds 10.0"):
+        with pytest.warns(UserWarning, match="VGG19.s validation angle MAE 84.6 deg exceeds 30.0"):
             seg, orient = pose.default_stages()
         assert isinstance(seg, OracleSegmenter) and isinstance(orient, OracleOrientation)
         pose.default_stages.cache_clear()

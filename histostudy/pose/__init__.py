@@ -380,8 +380,12 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
 
 #: What a shipped network's manifest must show on its validation split before :func:`estimate_pose`
 #: uses it by default: a network trained too briefly to be useful (e.g. a VGG19 whose azimuth
-#: error is that of a guess) would otherwise send every default estimate astray.
-LEARNED_STAGE_REQUIREMENTS = {"unet_min_pixel_accuracy": 0.95, "vgg_max_angle_mae_deg": 10.0}
+#: error is that of a guess, about 90 deg) would otherwise send every default estimate astray.
+#: The VGG19 only starts the initialisation's searches, which tolerate large errors: with its
+#: per-view direction starts, the shipped VGG19 (validation MAE 25.6 deg azimuth, 11.4 deg
+#: elevation) gave the oracle orientation's pose on 16 of 16 poses of notebook 04's setting
+#: (focal error 0.19 mm either way, oracle labels), hence 30 deg.
+LEARNED_STAGE_REQUIREMENTS = {"unet_min_pixel_accuracy": 0.95, "vgg_max_angle_mae_deg": 30.0}
 
 
 def _validation(stage) -> dict:
