@@ -123,22 +123,20 @@ def test_the_silhouette_seed_finds_a_mostly_hidden_transducer(models, which, mon
     inside = [float(np.mean(f.labels > 0)) for f in frames]
     result = estimate_pose(frames, models[0], mode="fast", rng=np.random.default_rng(0), **ORACLES)
     assert focal_error(result, T) < 0.2, inside
-    # Without the seed the coarse grid's optimum lies in the wrong region, even on exact labels.
-    # For pose 0 the refinement ends 1.5 mm off in a plausible-looking minimum; for pose 1 the
-    # capped refinement finds its way back (eq. 3 as written does not: 65 mm off, implausible).
+    focal_local = np.append(models[0].focal_point_mm, 1.0)
+
+    def init_error(r):
+        return float(np.linalg.norm((r.init.T_carm_transducer @ focal_local)[:3] - T[:3, 3]))
+
+    assert init_error(result) < 0.2
+    # Without the seed the initialisation's optimum lies in the wrong region (33 and 56 mm off),
+    # even on exact labels. Whether the refinement of its other hypotheses finds the way back
+    # from there depends on the cap (measured: pose 0 ends 1.5 mm off at 3 px, pose 1 56 mm off
+    # at 1 px), so the seed is judged by the initialisation.
     monkeypatch.setattr(pose_module, "silhouette_candidates", lambda *args, **kwargs: [])
-    try:
-        seedless = focal_error(estimate_pose(frames, models[0], mode="fast", rng=np.random.default_rng(0),
-                                             **ORACLES), T)
-    except PoseEstimationError:
-        seedless = np.inf
-    if which == 0:
-        assert seedless > 1.0, seedless
-    else:
-        assert seedless < 0.2, seedless
-        with pytest.raises(PoseEstimationError, match="implausible"):
-            estimate_pose(frames, models[0], mode="fast", rng=np.random.default_rng(0), refine_truncation_px=None,
-                          **ORACLES)
+    seedless = estimate_pose(frames, models[0], mode="fast", rng=np.random.default_rng(0), raise_on_failure=False,
+                             **ORACLES)
+    assert init_error(seedless) > 10.0, init_error(seedless)
 
 
 def test_same_generator_seed_gives_the_same_pose(models, frames):
