@@ -322,7 +322,8 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
         if method == "paper":
             return refine_nelder_mead(refine_cost, T0)
         # Coarse-to-fine: the truncated point subset first (robust to missed and spurious
-        # features, ~20x cheaper per pass), then the full eq. 3. The tolerances (1e-3 mm, 1e-3
+        # features, ~20x cheaper per pass), then eq. 3 on every model point (capped at
+        # refine_truncation_px unless None). The tolerances (1e-3 mm, 1e-3
         # relative) sit two orders below the accuracy the data allow.
         return refine_levenberg_marquardt(refine_cost, T0, coarse=polish_cost, ftol=1e-3, xtol_mm=1e-3, xtol_rad=1e-5)
 
