@@ -246,6 +246,37 @@ def test_with_outside_distance_changes_only_the_off_map_constant(cost):
     assert other(T) > cost(T)
 
 
+def test_capped_cost_equals_the_cost_on_truncated_maps_bit_for_bit(cost):
+    """The kernels' cap is DistanceMaps.truncated without the copy: same cost, normal equations,
+    residuals, Jacobian and grid costs, in both back-ends; a 2.5 px cap (not a float32 number)
+    checks that the cap is rounded as the float32 maps are."""
+    T = apply_left_perturbation(T_TRUE, [0.03, -0.02, 0.01, 4.0, -3.0, 2.0])
+    for cap_px, outside in ((2.5, None), (30.0, 30.0)):
+        capped = cost.capped(cap_px, outside_distance_px=outside)
+        assert capped._maps is cost._maps and capped.max_distance_px == cap_px
+        copied = PoseCost(cost.points, [m.truncated(cap_px) for m in cost.maps],
+                          outside_distance_px=capped.outside_distance_px)
+        assert capped(T) == copied(T)
+        # Some points lie farther than the cap from their class.
+        assert capped(T) < cost.with_outside_distance(capped.outside_distance_px)(T)
+        a, b = capped.normal_equations(T), copied.normal_equations(T)
+        assert a.cost == b.cost and np.array_equal(a.JtJ, b.JtJ) and np.array_equal(a.Jtr, b.Jtr)
+        for x, y in zip(capped.residuals_and_jacobian(T), copied.residuals_and_jacobian(T)):
+            assert np.array_equal(x, y)
+        sub = capped.subset(300, np.random.default_rng(2))
+        assert sub.max_distance_px == cap_px and sub.select_views(1).max_distance_px == cap_px
+        ref = PoseCost(sub.points, [m.truncated(cap_px) for m in cost.maps], outside_distance_px=sub.outside_distance_px)
+        translations = T[:3, 3] + np.random.default_rng(3).normal(scale=10.0, size=(5, 3))
+        assert np.array_equal(sub.costs_at_translations(T[:3, :3], translations),
+                              ref.costs_at_translations(T[:3, :3], translations))
+        numpy_capped = PoseCost(cost.points, cost.maps, max_distance_px=cap_px, backend="numpy",
+                                outside_distance_px=capped.outside_distance_px)
+        assert numpy_capped(T) == pytest.approx(copied.reference_cost(T), rel=1e-12)
+        assert numpy_capped(T) == pytest.approx(capped(T), rel=1e-9)
+    assert cost.capped(None)(T) == cost(T)
+    assert cost.capped(5.0).capped(None)(T) == cost(T)
+
+
 # --- Jacobian -----------------------------------------------------------------------------
 
 
@@ -301,6 +332,9 @@ def test_bad_inputs_raise_clear_errors(model, maps):
         PoseCost({Feature.SCREWS: np.zeros((4, 2))}, maps)
     with pytest.raises(ValueError, match="outside_distance_px"):
         PoseCost(model.points, maps, outside_distance_px=-0.1)
+    for bad in (0.0, -1.0, np.inf, True, "3"):
+        with pytest.raises(ValueError, match="max_distance_px must be None or a finite number > 0"):
+            PoseCost(model.points, maps, max_distance_px=bad)
     with pytest.raises(ValueError, match="backend"):
         PoseCost(model.points, maps, backend="cuda")
     with pytest.raises(ValueError, match="parallel must be"):

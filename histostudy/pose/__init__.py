@@ -230,18 +230,14 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
         if not m.present:
             raise PoseEstimationError(f"view {f.view.name!r}: no transducer feature was segmented; the "
                                       f"transducer is not in this view or the segmentation failed")
-    def capped_cost(points, cap_px, outside_px=outside_distance_px):
-        # Eq. 3 on these points with every distance capped at cap_px (each cap copies the maps).
-        return PoseCost(points, [m.truncated(cap_px) for m in maps], class_weights=class_weights,
-                        outside_distance_px=outside_px)
-
+    # One flattened copy of the maps; every capped or subset cost below shares it.
     cost = PoseCost(model.points, maps, class_weights=class_weights, outside_distance_px=outside_distance_px)
-    refine_cost = cost if refine_truncation_px is None else capped_cost(model.points, refine_truncation_px)
+    refine_cost = cost.capped(refine_truncation_px)
     coarse = cost.subset(init_points_per_class, rng)
-    verdict_cost = coarse if verdict_truncation_px is None else capped_cost(coarse.points, verdict_truncation_px)
+    verdict_cost = coarse.capped(verdict_truncation_px)
     if init == "robust":
         tau = float(search_truncation_px)
-        search = capped_cost(coarse.points, tau, outside_px=tau)
+        search = coarse.capped(tau, outside_distance_px=tau)
         # The local refinements' robust cost: the same truncated distances, but eq. 3's own
         # constant for points off the detector. With the truncation as the off-detector cost, a
         # pose that pulls more of the model onto the detector wins over a better-aligned one
@@ -254,9 +250,9 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
         # beat a near miss of the coarse grid (both measured). Each scoring proposes its chains;
         # the narrower search cost decides after the medium and fine grids.
         # A 3 cm grid needs no more than a few hundred points per class to rank its nodes.
-        coarse_points = coarse.subset(max(1, init_points_per_class // 5), rng).points
         coarse_scorings = []
-        coarse_full = capped_cost(coarse_points, tau_coarse, outside_px=tau_coarse)
+        coarse_subset = coarse.subset(max(1, init_points_per_class // 5), rng)
+        coarse_full = coarse_subset.capped(tau_coarse, outside_distance_px=tau_coarse)
         for c in (coarse_full, coarse_full.with_outside_distance(0.5 * tau_coarse)):
             coarse_scorings.append(([c.select_views(i) for i in range(len(frames))], c))
     else:

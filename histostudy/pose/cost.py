@@ -221,7 +221,9 @@ class DistanceMaps:
         far from its class, or off the detector, costs a bounded constant: the initialisation's
         searches score poses by how much of the model lands on its features rather than by how
         far the rest is, and a pose with the model off the detector is no longer the cheapest
-        (with the paper's 0.1 px it is).
+        (with the paper's 0.1 px it is). For a cost, ``PoseCost(..., max_distance_px=...)`` (or
+        :meth:`PoseCost.capped`) gives the same numbers without copying the maps; this copy is for
+        looking at the capped maps themselves.
         """
         limit = float(max_distance_px)
         if not np.isfinite(limit) or limit <= 0:
@@ -246,7 +248,7 @@ class DistanceMaps:
 #   M (A, 3, 3), c (A, 3) f8: per view, P[:, :3] @ R and P[:, :3] @ t + P[:, 3], so that
 #       [u w, v w, w] = M p + c (the pose folded into the projection: 9 mul-adds per point and view).
 #   maps (total,) f4: the active distance maps, flattened; rows, cols (A,) i8.
-#   wt (A, K) f8 = lambda_k / n_k; outside_sq = 0.1².
+#   wt (A, K) f8 = lambda_k / n_k; outside_sq = 0.1²; cap f8: distances are capped at it (inf: none).
 #
 # Each block runs in two loops: a branch-free one that projects the points and computes the
 # bilinear cell index and fractions (LLVM vectorises it, divisions included), then the look-ups.
@@ -290,23 +292,25 @@ def _locate_block(pts, i0, m, M, c, a, base, rows_a, cols_a, cell, fxb, fyb, inb
 
 
 @numba.njit(inline="always")
-def _interpolate(maps, cell, stride, fx, fy):
-    """Bilinear distance and its exact gradient inside the cell, (d, dd/dfx, dd/dfy)."""
+def _interpolate(maps, cell, stride, fx, fy, cap):
+    """Bilinear distance and its exact gradient inside the cell, (d, dd/dfx, dd/dfy), of the map
+    capped at ``cap`` pixels (each corner is capped before interpolating, as in
+    :meth:`DistanceMaps.truncated`; ``inf`` for no cap)."""
     # Unsigned indices spare numba's negative-index wrap-around test on each load.
     i00 = np.uint64(cell)
     one = np.uint64(1)
     su = np.uint64(stride)
-    d00 = np.float64(maps[i00])
-    d10 = np.float64(maps[i00 + one])
-    d01 = np.float64(maps[i00 + su])
-    d11 = np.float64(maps[i00 + su + one])
+    d00 = min(np.float64(maps[i00]), cap)
+    d10 = min(np.float64(maps[i00 + one]), cap)
+    d01 = min(np.float64(maps[i00 + su]), cap)
+    d11 = min(np.float64(maps[i00 + su + one]), cap)
     top = d00 + fx * (d10 - d00)
     bottom = d01 + fx * (d11 - d01)
     return top + fy * (bottom - top), (1.0 - fy) * (d10 - d00) + fy * (d11 - d01), bottom - top
 
 
 @numba.njit(fastmath=False, cache=True)
-def _task_cost(ti, pts, tasks, M, c, maps, rows, cols, wt, outside_sq):
+def _task_cost(ti, pts, tasks, M, c, maps, rows, cols, wt, outside_sq, cap):
     """Eq. 3's contribution of one task (one block of one class in one view)."""
     a, s, base, i0, i1 = tasks[ti, 0], tasks[ti, 1], tasks[ti, 2], tasks[ti, 3], tasks[ti, 4]
     m = i1 - i0
@@ -321,17 +325,17 @@ def _task_cost(ti, pts, tasks, M, c, maps, rows, cols, wt, outside_sq):
     total = 0.0
     n_out = 0.0
     for j in range(m):
-        d, gu, gv = _interpolate(maps, cell[j], cols[a], fxb[j], fyb[j])
+        d, gu, gv = _interpolate(maps, cell[j], cols[a], fxb[j], fyb[j], cap)
         total += inb[j] * (d * d)
         n_out += 1.0 - inb[j]
     return wt[a, s] * (total + n_out * outside_sq)
 
 
 @numba.njit(parallel=True, fastmath=False, cache=True)
-def _cost_parallel(pts, tasks, M, c, maps, rows, cols, wt, outside_sq):
+def _cost_parallel(pts, tasks, M, c, maps, rows, cols, wt, outside_sq, cap):
     partial = np.zeros(tasks.shape[0])
     for ti in numba.prange(tasks.shape[0]):
-        partial[ti] = _task_cost(ti, pts, tasks, M, c, maps, rows, cols, wt, outside_sq)
+        partial[ti] = _task_cost(ti, pts, tasks, M, c, maps, rows, cols, wt, outside_sq, cap)
     out = 0.0
     for ti in range(tasks.shape[0]):
         out += partial[ti]
@@ -339,15 +343,15 @@ def _cost_parallel(pts, tasks, M, c, maps, rows, cols, wt, outside_sq):
 
 
 @numba.njit(fastmath=False, cache=True)
-def _cost_serial(pts, tasks, M, c, maps, rows, cols, wt, outside_sq):
+def _cost_serial(pts, tasks, M, c, maps, rows, cols, wt, outside_sq, cap):
     out = 0.0
     for ti in range(tasks.shape[0]):
-        out += _task_cost(ti, pts, tasks, M, c, maps, rows, cols, wt, outside_sq)
+        out += _task_cost(ti, pts, tasks, M, c, maps, rows, cols, wt, outside_sq, cap)
     return out
 
 
 @numba.njit(parallel=True, fastmath=False, cache=True)
-def _costs_batch(pts, tasks, M, c_all, maps, rows, cols, wt, outside_sq):
+def _costs_batch(pts, tasks, M, c_all, maps, rows, cols, wt, outside_sq, cap):
     """:func:`_cost_serial` at each of the translations folded into ``c_all`` (n, A, 3), in parallel
     over them; each is summed in task order, the same bits as one call per pose."""
     n = c_all.shape[0]
@@ -355,7 +359,7 @@ def _costs_batch(pts, tasks, M, c_all, maps, rows, cols, wt, outside_sq):
     for k in numba.prange(n):
         total = 0.0
         for ti in range(tasks.shape[0]):
-            total += _task_cost(ti, pts, tasks, M, c_all[k], maps, rows, cols, wt, outside_sq)
+            total += _task_cost(ti, pts, tasks, M, c_all[k], maps, rows, cols, wt, outside_sq, cap)
         out[k] = total
     return out
 
@@ -383,9 +387,9 @@ def _jacobian_row(R, P3, a, x, y, z, u, v, iw, gu, gv, sw, jrow):
 
 
 @numba.njit(inline="always")
-def _map_gradient(maps, cell, cols_a, rows_a, fx, fy, u, v):
+def _map_gradient(maps, cell, cols_a, rows_a, fx, fy, u, v, cap):
     """Distance and its gradient in pixels (d, dd/du, dd/dv); 0 across a clamped (rim) direction."""
-    d, gu, gv = _interpolate(maps, cell, cols_a, fx, fy)
+    d, gu, gv = _interpolate(maps, cell, cols_a, fx, fy, cap)
     if not (u >= 0.0 and u <= cols_a - 1.0):
         gu = 0.0
     if not (v >= 0.0 and v <= rows_a - 1.0):
@@ -394,7 +398,7 @@ def _map_gradient(maps, cell, cols_a, rows_a, fx, fy, u, v):
 
 
 @numba.njit(fastmath=False, cache=True)
-def _task_normal(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq, out):
+def _task_normal(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq, cap, out):
     """Cost, J^T J (upper triangle, 21) and J^T r (6) of one task into ``out`` (28,)."""
     a, s, base, i0, i1 = tasks[ti, 0], tasks[ti, 1], tasks[ti, 2], tasks[ti, 3], tasks[ti, 4]
     m = i1 - i0
@@ -415,7 +419,7 @@ def _task_normal(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq, 
             n_out += 1.0
             continue
         u, v = ub[j], vb[j]
-        d, gu, gv = _map_gradient(maps, cell[j], cols[a], rows[a], fxb[j], fyb[j], u, v)
+        d, gu, gv = _map_gradient(maps, cell[j], cols[a], rows[a], fxb[j], fyb[j], u, v, cap)
         r = sw * d
         acc[0] += r * r
         i = i0 + j
@@ -434,11 +438,11 @@ def _task_normal(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq, 
 
 
 @numba.njit(parallel=True, fastmath=False, cache=True)
-def _normal_parallel(pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq):
+def _normal_parallel(pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq, cap):
     """Cost, J^T J and J^T r in one pass; J (n x 6) is never built. Returns the 28 sums."""
     partial = np.zeros((tasks.shape[0], 28))
     for ti in numba.prange(tasks.shape[0]):
-        _task_normal(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq, partial[ti])
+        _task_normal(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq, cap, partial[ti])
     total = np.zeros(28)
     for ti in range(tasks.shape[0]):
         for idx in range(28):
@@ -447,18 +451,18 @@ def _normal_parallel(pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq):
 
 
 @numba.njit(fastmath=False, cache=True)
-def _normal_serial(pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq):
+def _normal_serial(pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq, cap):
     part = np.zeros(28)
     total = np.zeros(28)
     for ti in range(tasks.shape[0]):
-        _task_normal(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq, part)
+        _task_normal(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq, cap, part)
         for idx in range(28):
             total[idx] += part[idx]
     return total
 
 
 @numba.njit(fastmath=False, cache=True)
-def _task_residual(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, r_out, j_out):
+def _task_residual(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, cap, r_out, j_out):
     """Residuals and Jacobian rows of one task into ``r_out (A, N)`` and ``j_out (A, N, 6)``."""
     a, s, base, i0, i1 = tasks[ti, 0], tasks[ti, 1], tasks[ti, 2], tasks[ti, 3], tasks[ti, 4]
     m = i1 - i0
@@ -478,7 +482,7 @@ def _task_residual(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, r
             r_out[a, i] = sw * outside
             continue
         u, v = ub[j], vb[j]
-        d, gu, gv = _map_gradient(maps, cell[j], cols[a], rows[a], fxb[j], fyb[j], u, v)
+        d, gu, gv = _map_gradient(maps, cell[j], cols[a], rows[a], fxb[j], fyb[j], u, v, cap)
         r_out[a, i] = sw * d
         _jacobian_row(R, P3, a, pts[i, 0], pts[i, 1], pts[i, 2], u, v, iwb[j], gu, gv, sw, jrow)
         for p in range(6):
@@ -486,17 +490,17 @@ def _task_residual(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, r
 
 
 @numba.njit(parallel=True, fastmath=False, cache=True)
-def _residual_parallel(pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, r_out, j_out):
+def _residual_parallel(pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, cap, r_out, j_out):
     """Residuals and Jacobian rows of the active (view, class) pairs; the caller zeroes both
     outputs beforehand (inactive pairs stay 0)."""
     for ti in numba.prange(tasks.shape[0]):
-        _task_residual(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, r_out, j_out)
+        _task_residual(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, cap, r_out, j_out)
 
 
 @numba.njit(fastmath=False, cache=True)
-def _residual_serial(pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, r_out, j_out):
+def _residual_serial(pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, cap, r_out, j_out):
     for ti in range(tasks.shape[0]):
-        _task_residual(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, r_out, j_out)
+        _task_residual(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, cap, r_out, j_out)
 
 
 # --- the cost -------------------------------------------------------------------------------
@@ -543,6 +547,10 @@ class PoseCost:
             give its values). Classes left out of the dict weigh 1.
         outside_distance_px: the constant distance for points outside the map or behind the
             source (paper: 0.1 px).
+        max_distance_px: beyond the paper: cap every map distance at this many pixels (None: eq. 3
+            as written). The same numbers, bit for bit, as the cost on
+            :meth:`DistanceMaps.truncated` maps, but applied as the kernels read the maps, so the
+            ~50 MB of maps of a biplane pair are not copied for each cap (see :meth:`capped`).
         backend: ``"numba"`` (fused kernels, the default) or ``"numpy"`` (the float64 reference).
         parallel: run the numba kernels on numba's threads (True), on the calling thread (False),
             or decide by size (None: threads from :data:`PARALLEL_MIN_PROJECTIONS` projections on).
@@ -562,7 +570,8 @@ class PoseCost:
 
     def __init__(self, points: Mapping, maps: Sequence[DistanceMaps], *,
                  class_weights: Mapping | None = None, outside_distance_px: float = OUTSIDE_DISTANCE_PX,
-                 backend: str = "numba", parallel: bool | None = None, _buffer=None):
+                 max_distance_px: float | None = None, backend: str = "numba", parallel: bool | None = None,
+                 _buffer=None):
         if not isinstance(points, Mapping):
             raise TypeError(f"points must be a dict {{Feature: (n, 3) array}}, got {type(points).__name__}")
         pts = {}
@@ -592,6 +601,13 @@ class PoseCost:
         outside = float(outside_distance_px)
         if not np.isfinite(outside) or outside < 0:
             raise ValueError(f"outside_distance_px must be finite and >= 0, got {outside_distance_px!r}")
+        if max_distance_px is not None:
+            number = isinstance(max_distance_px, (int, float, np.integer, np.floating))
+            if isinstance(max_distance_px, bool) or not number or not np.isfinite(max_distance_px) \
+                    or max_distance_px <= 0:
+                raise ValueError(f"max_distance_px must be None or a finite number > 0 (pixels), "
+                                 f"got {max_distance_px!r}")
+            max_distance_px = float(max_distance_px)
         if backend not in ("numba", "numpy"):
             raise ValueError(f"backend must be 'numba' or 'numpy', got {backend!r}")
         if parallel not in (None, True, False):
@@ -604,6 +620,10 @@ class PoseCost:
         self.views = [m.view for m in maps]
         self.class_weights = {f: lam[f] for f in self.classes}
         self.outside_distance_px = outside
+        self.max_distance_px = max_distance_px
+        # The maps are float32: capping them at the float32 value of the cap is what
+        # DistanceMaps.truncated does, so the kernels compare against the same number.
+        self._cap = np.inf if max_distance_px is None else float(np.float32(max_distance_px))
         self.backend = backend
         self.parallel = parallel
 
@@ -660,14 +680,24 @@ class PoseCost:
             end = max(starts[s] + self.maps[a].maps[f].size for s, f in enumerate(self.classes) if self.active[a, s])
             shared = (self._maps[first:end], np.where(self.active[a], starts - first, -1)[None, :])
         return PoseCost(points, maps, class_weights=self.class_weights,
-                        outside_distance_px=self.outside_distance_px, backend=self.backend,
-                        parallel=self.parallel, _buffer=shared)
+                        outside_distance_px=self.outside_distance_px, max_distance_px=self.max_distance_px,
+                        backend=self.backend, parallel=self.parallel, _buffer=shared)
 
     def with_outside_distance(self, outside_distance_px: float) -> "PoseCost":
         """The same cost with another constant distance for points off the map (eq. 3's 0.1 px);
         the distance maps are shared, not copied."""
-        return PoseCost(self.points, self.maps, class_weights=self.class_weights,
-                        outside_distance_px=outside_distance_px, backend=self.backend, parallel=self.parallel,
+        return self.capped(self.max_distance_px, outside_distance_px)
+
+    def capped(self, max_distance_px: float | None, outside_distance_px: float | None = None) -> "PoseCost":
+        """The same points and maps with the distances capped at ``max_distance_px`` (None: no cap)
+        and, if given, another constant for points off the map; the maps are shared, not copied.
+
+        A cap bounds what a model point on a missed or spurious feature can add, so a few of them
+        cannot pull the pose (beyond the paper; :func:`histostudy.pose.estimate_pose` caps its
+        searches, refinement and verdict)."""
+        outside = self.outside_distance_px if outside_distance_px is None else outside_distance_px
+        return PoseCost(self.points, self.maps, class_weights=self.class_weights, outside_distance_px=outside,
+                        max_distance_px=max_distance_px, backend=self.backend, parallel=self.parallel,
                         _buffer=(self._maps, self._map_start))
 
     def subset(self, n_per_class: int, rng: np.random.Generator) -> "PoseCost":
@@ -722,7 +752,7 @@ class PoseCost:
         M, c = self._folded(T)
         kernel = _cost_parallel if self._use_threads() else _cost_serial
         return float(kernel(self._pts, self._tasks, M, c, self._maps, self._rows, self._cols, self.weights,
-                            self.outside_distance_px ** 2))
+                            self.outside_distance_px ** 2, self._cap))
 
     def costs_at_translations(self, R, translations_mm) -> np.ndarray:
         """C (eq. 3) at the poses ``(R, t)`` for each row ``t`` of ``translations_mm`` (n, 3): a grid
@@ -737,7 +767,7 @@ class PoseCost:
         # Folded exactly as :meth:`_folded` does, so that each cost is the bits of a single call.
         c_all = np.ascontiguousarray([self._P3 @ ti + self._P[:, :, 3] for ti in t]).reshape(len(t), -1, 3)
         return _costs_batch(self._pts, self._tasks, M, c_all, self._maps, self._rows, self._cols, self.weights,
-                            self.outside_distance_px ** 2)
+                            self.outside_distance_px ** 2, self._cap)
 
     def reference_cost(self, pose) -> float:
         """C (eq. 3) by the plain numpy float64 reference, whatever the backend."""
@@ -767,10 +797,10 @@ class PoseCost:
         y0 = np.minimum(vc.astype(np.int64), rows - 2)
         fx, fy = uc - x0, vc - y0
         dmap = self.maps[a].maps[self.classes[s]]
-        d00 = dmap[y0, x0].astype(np.float64)
-        d10 = dmap[y0, x0 + 1].astype(np.float64)
-        d01 = dmap[y0 + 1, x0].astype(np.float64)
-        d11 = dmap[y0 + 1, x0 + 1].astype(np.float64)
+        d00 = np.minimum(dmap[y0, x0].astype(np.float64), self._cap)
+        d10 = np.minimum(dmap[y0, x0 + 1].astype(np.float64), self._cap)
+        d01 = np.minimum(dmap[y0 + 1, x0].astype(np.float64), self._cap)
+        d11 = np.minimum(dmap[y0 + 1, x0 + 1].astype(np.float64), self._cap)
         top = d00 + fx * (d10 - d00)
         bottom = d01 + fx * (d11 - d01)
         d[inside] = top + fy * (bottom - top)
@@ -841,7 +871,7 @@ class PoseCost:
         J = np.zeros((n_views, n, 6))
         kernel = _residual_parallel if self._use_threads() else _residual_serial
         kernel(self._pts, self._tasks, np.ascontiguousarray(T[:3, :3]), M, c, self._P3, self._maps,
-               self._rows, self._cols, self.weights, self.outside_distance_px, r, J)
+               self._rows, self._cols, self.weights, self.outside_distance_px, self._cap, r, J)
         return r.reshape(-1), J.reshape(-1, 6)
 
     def normal_equations(self, pose) -> NormalEquations:
@@ -856,7 +886,7 @@ class PoseCost:
         M, c = self._folded(T)
         kernel = _normal_parallel if self._use_threads() else _normal_serial
         acc = kernel(self._pts, self._tasks, np.ascontiguousarray(T[:3, :3]), M, c, self._P3, self._maps,
-                     self._rows, self._cols, self.weights, self.outside_distance_px ** 2)
+                     self._rows, self._cols, self.weights, self.outside_distance_px ** 2, self._cap)
         JtJ = np.zeros((6, 6))
         JtJ[np.triu_indices(6)] = acc[1:22]
         JtJ = JtJ + np.triu(JtJ, 1).T
@@ -869,4 +899,5 @@ class PoseCost:
 
     def __repr__(self) -> str:
         counts = ", ".join(f"{f.name}={n}" for f, n in self.n_points.items())
-        return f"PoseCost({len(self.maps)} views, {counts}, backend={self.backend!r})"
+        cap = "" if self.max_distance_px is None else f", max_distance_px={self.max_distance_px:g}"
+        return f"PoseCost({len(self.maps)} views, {counts}{cap}, backend={self.backend!r})"
