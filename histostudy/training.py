@@ -42,7 +42,7 @@ from .checkpoints import MODELS_DIR, load_checkpoint, save_checkpoint
 from .datasets import TASKS, HybridFrames, HybridImageDataset, RenderConfig, default_cache_dir
 from .io import atomic_write_json
 from .nets import build_network
-from .orientation import N_ORIENTATION_CLASSES
+from .orientation import N_ORIENTATION_CLASSES, hemisphere_angles
 
 __all__ = ["TrainingConfig", "TrainingResult", "angle_loss", "export", "train"]
 
@@ -345,11 +345,16 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
         tensors, init_manifest = load_checkpoint(cfg.init_weights)
         init_config = init_manifest["config"]
         model = {k[6:]: v for k, v in tensors.items() if k.startswith("model.")}
-        if init_config == {**net.config, "head": "classifier"} and net.config.get("head") == "regressor":
+        # a classifier's angle encoding is only what its regressor will be: any classifier will do
+        def without_encoding(config):
+            return {k: v for k, v in config.items() if k != "angle_encoding"}
+
+        if without_encoding(init_config) == without_encoding({**net.config, "head": "classifier"}) \
+                and net.config.get("head") == "regressor":
             # a trained 36-class classifier starting the regression: the conversion of §II-B.4
-            net = build_network(init_config)
+            net = build_network({**net.config, "head": "classifier"})
             net.load_state_dict(model)
-            net.to_regressor()
+            net.to_regressor(hemisphere_angles(net.config["n_classes"]))
         elif init_config == net.config:
             net.load_state_dict(model)
         else:
@@ -403,7 +408,7 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
             if stage == "classify" and "regress" in stages and "budget" not in stop:
                 tensors, _ = load_checkpoint(run_dir / "best-classify.safetensors")
                 net.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
-                net.cpu().to_regressor()
+                net.cpu().to_regressor(hemisphere_angles(net.config["n_classes"]))
                 net.to(device).train()
                 opt = _optimizer(cfg, net)
                 state.update(stage="regress", epoch=0, best_loss=None, bad_epochs=0,

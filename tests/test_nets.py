@@ -1,5 +1,6 @@
 """The networks: shapes, the VGG19 configuration against its published size, the regressor head."""
 
+import numpy as np
 import pytest
 import torch
 from torch import nn
@@ -80,6 +81,44 @@ def test_vgg19_regressor_is_sigmoid_then_linear():
         net.to_regressor()
     rebuilt = build_network(net.config)
     rebuilt.load_state_dict(net.state_dict())  # the config rebuilds the same layout
+
+
+def test_vgg19_cos_sin_regressor_starts_as_the_classes_vote_and_wraps_smoothly():
+    """With angle_encoding="cos_sin" the regressor's (c, s) rows start as the classes' (cos, sin):
+    a network sure of one class returns that class's azimuth; the azimuth is atan2(s, c), so
+    outputs on either side of +-pi are neighbours, not 2 pi apart."""
+    from histostudy.orientation import hemisphere_angles, wrap_angle
+
+    torch.manual_seed(3)
+    angles = hemisphere_angles(36)
+    net = VGG19(width=1 / 16, n_classes=36, angle_encoding="cos_sin").eval()
+    assert net.config["angle_encoding"] == "cos_sin" and "angle_encoding" not in VGG19(width=1 / 16).config
+    x = torch.randn(2, 1, 60, 80)
+    net.to_regressor(angles)
+    with torch.no_grad():
+        for k in (0, 7, 20):
+            sure = torch.full((1, 36), -30.0)
+            sure[0, k] = 30.0  # sigmoid 1 for class k, ~1e-13 for the others
+            y = net.regressor(torch.sigmoid(sure))
+            az = torch.atan2(y[:, 1], y[:, 0])
+            assert abs(float(wrap_angle(az.item() - angles[k, 0]))) < 1e-5
+        out = net(x)
+        assert out.shape == (2, 2) and torch.all(out[:, 0].abs() <= np.pi)
+        # the decoding itself: c = -1 and s = -+1e-3 lie 2e-3 rad apart across the cut at pi
+        net.regressor.weight.zero_()
+        net.regressor.bias.copy_(torch.tensor([-1.0, 1e-3, 0.7]))
+        a = net(x)[0]
+        net.regressor.bias.copy_(torch.tensor([-1.0, -1e-3, 0.7]))
+        b = net(x)[0]
+        assert abs(float(wrap_angle(float(a[0] - b[0])))) < 3e-3 and float(a[1]) == pytest.approx(0.7)
+    rebuilt = build_network(net.config)
+    rebuilt.load_state_dict(net.state_dict())
+    plain = VGG19(width=1 / 16, n_classes=36, angle_encoding="cos_sin").to_regressor()
+    torch.testing.assert_close(plain.eval()(x), torch.tensor([[0.0, 1.0]] * 2))  # bias (1, 0, 1): azimuth 0
+    with pytest.raises(ValueError, match="class_angles_rad"):
+        VGG19(width=1 / 16, n_classes=36, angle_encoding="cos_sin").to_regressor(angles[:5])
+    with pytest.raises(ValueError, match="angle_encoding"):
+        VGG19(angle_encoding="quaternion")
 
 
 def test_build_network_rejects_bad_configs():

@@ -10,6 +10,11 @@ Two heads (§II-B.4): first a classifier of the 36 hemisphere orientations
 (:func:`histostudy.orientation.hemisphere_directions`), trained with a softmax cross-entropy;
 then :meth:`VGG19.to_regressor` replaces the softmax by a sigmoid followed by a fully connected
 layer with two outputs, azimuth and elevation in rad (``head="regressor"``).
+
+Beyond the paper, ``angle_encoding="cos_sin"`` gives that layer three outputs, ``(c, s, elevation)``,
+and the network returns ``(atan2(s, c), elevation)``: a linear layer that outputs the azimuth itself
+must cut the circle somewhere (neighbouring classes across the cut get outputs 2 pi apart), one
+that outputs a point of the plane need not. Both return ``(azimuth, elevation)`` in rad.
 """
 
 from __future__ import annotations
@@ -17,7 +22,10 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-__all__ = ["VGG19", "VGG19_STAGES"]
+__all__ = ["ANGLE_ENCODINGS", "VGG19", "VGG19_STAGES"]
+
+#: How the regressor outputs the azimuth: the paper's angle, or a point (cos, sin) of the plane.
+ANGLE_ENCODINGS = ("angles", "cos_sin")
 
 #: Convolutions per stage and their channels at width 1 (configuration "E": 16 convolutions).
 VGG19_STAGES: tuple[tuple[int, int], ...] = ((2, 64), (2, 128), (4, 256), (4, 512), (4, 512))
@@ -36,10 +44,13 @@ class VGG19(nn.Module):
         batch_norm: batch normalisation after every convolution (torchvision's ``vgg19_bn``
             variant of the same configuration). The paper does not say; without it a narrow
             19-layer stack barely starts learning in the few thousand steps a CPU affords.
+        angle_encoding: the regressor's azimuth output: ``"angles"`` (the paper's two outputs) or
+            ``"cos_sin"`` (module docstring).
     """
 
     def __init__(self, width: float = 1.0, n_classes: int = 36, in_channels: int = 1,
-                 head: str = "classifier", dropout: float = 0.5, batch_norm: bool = False):
+                 head: str = "classifier", dropout: float = 0.5, batch_norm: bool = False,
+                 angle_encoding: str = "angles"):
         super().__init__()
         if not (isinstance(width, (int, float)) and 0 < float(width) <= 4):
             raise ValueError(f"width must be a number in (0, 4], got {width!r}")
@@ -47,6 +58,8 @@ class VGG19(nn.Module):
             raise ValueError(f"n_classes must be an integer >= 2, got {n_classes!r}")
         if head not in ("classifier", "regressor"):
             raise ValueError(f"head must be 'classifier' or 'regressor', got {head!r}")
+        if angle_encoding not in ANGLE_ENCODINGS:
+            raise ValueError(f"angle_encoding must be one of {ANGLE_ENCODINGS}, got {angle_encoding!r}")
         if not isinstance(batch_norm, bool):
             raise ValueError(f"batch_norm must be True or False, got {batch_norm!r}")
         if not (0.0 <= float(dropout) < 1.0):
@@ -56,6 +69,9 @@ class VGG19(nn.Module):
         if batch_norm:
             # recorded only when set, so that manifests written before the option still match
             self.config["batch_norm"] = True
+        if angle_encoding != "angles":
+            # likewise: the paper's encoding is the default and goes unrecorded
+            self.config["angle_encoding"] = angle_encoding
         layers: list[nn.Module] = []
         c_in = in_channels
         for n_conv, channels in VGG19_STAGES:
@@ -76,7 +92,7 @@ class VGG19(nn.Module):
             nn.Linear(hidden, hidden), nn.ReLU(inplace=True), nn.Dropout(dropout),
             nn.Linear(hidden, n_classes),
         )
-        self.regressor = nn.Linear(n_classes, 2) if head == "regressor" else None
+        self.regressor = nn.Linear(n_classes, self._regressor_outputs) if head == "regressor" else None
         # The initialisation of torchvision's VGG (He-normal convolutions, N(0, 0.01) linear
         # layers, zero biases): without batch norm, PyTorch's default initialisation leaves the
         # 19-layer stack's gradients too small for plain SGD at lr 0.001 to start.
@@ -88,6 +104,10 @@ class VGG19(nn.Module):
             elif isinstance(m, nn.Linear):
                 nn.init.normal_(m.weight, 0.0, 0.01)
                 nn.init.zeros_(m.bias)
+
+    @property
+    def _regressor_outputs(self) -> int:
+        return 3 if self.config.get("angle_encoding") == "cos_sin" else 2
 
     @property
     def n_convolutions(self) -> int:
@@ -103,21 +123,43 @@ class VGG19(nn.Module):
         z = self.logits(x)
         if self.regressor is None:
             return z
-        return self.regressor(torch.sigmoid(z))
+        y = self.regressor(torch.sigmoid(z))
+        if self._regressor_outputs == 3:
+            return torch.stack([torch.atan2(y[:, 1], y[:, 0]), y[:, 2]], dim=1)
+        return y
 
-    def to_regressor(self) -> "VGG19":
+    def to_regressor(self, class_angles_rad=None) -> "VGG19":
         """Turn the classifier into the regressor in place (§II-B.4) and return it.
 
         The new linear layer maps the ``n_classes`` sigmoid outputs to ``(azimuth, elevation)`` rad.
         It starts with zero weights and the bias ``(0, 1)``: azimuth 0 and elevation 1 rad, the
         mean elevation of directions uniform on the hemisphere, so the first regression steps do
         not push large random errors back into the trained features.
+
+        With ``angle_encoding="cos_sin"`` and ``class_angles_rad`` (``(n_classes, 2)`` azimuth and
+        elevation of the classes, :func:`histostudy.orientation.hemisphere_angles`), the ``(c, s)``
+        rows start as each class's ``(cos, sin)`` of its azimuth: the first azimuth is the sigmoid-
+        weighted vote of the classes, what the classifier already knows. Without them they start
+        at zero with the bias ``(1, 0)`` (azimuth 0; ``atan2`` has no gradient at ``(0, 0)``).
         """
         if self.regressor is not None:
             raise ValueError("the network already has the regressor head")
-        self.regressor = nn.Linear(self.config["n_classes"], 2)
+        n = self.config["n_classes"]
+        outputs = self._regressor_outputs
+        self.regressor = nn.Linear(n, outputs)
         with torch.no_grad():
             self.regressor.weight.zero_()
-            self.regressor.bias.copy_(torch.tensor([0.0, 1.0]))
+            if outputs == 2:
+                self.regressor.bias.copy_(torch.tensor([0.0, 1.0]))
+            elif class_angles_rad is None:
+                self.regressor.bias.copy_(torch.tensor([1.0, 0.0, 1.0]))
+            else:
+                angles = torch.as_tensor(class_angles_rad, dtype=torch.float32)
+                if tuple(angles.shape) != (n, 2) or not torch.isfinite(angles).all():
+                    raise ValueError(f"class_angles_rad must be finite ({n}, 2) azimuth and elevation in rad, "
+                                     f"got shape {tuple(angles.shape)}")
+                self.regressor.weight[0] = torch.cos(angles[:, 0])
+                self.regressor.weight[1] = torch.sin(angles[:, 0])
+                self.regressor.bias.copy_(torch.tensor([0.0, 0.0, 1.0]))
         self.config = {**self.config, "head": "regressor"}
         return self
