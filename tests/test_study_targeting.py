@@ -11,6 +11,7 @@ import pytest
 from histostudy.carm import default_biplane
 from histostudy.geometry import make_transform
 from histostudy.handeye import calibrate
+from histostudy.orientation import OracleOrientation
 from histostudy.robot import HOME_JOINTS_RAD, RobotError, SimulatedUR5e, inverse_kinematics_closest
 from histostudy.study import targeting as T
 from histostudy.transducer import TransducerModel, TransducerSpec
@@ -213,6 +214,45 @@ def test_the_same_seed_sequence_gives_the_same_set_up_twice(models):
                                        views=views, robot_factory=factory)
     assert seq.n_children_spawned == before
     assert calls[0][0] == calls[1][0] and np.array_equal(calls[0][1], calls[1][1])
+
+
+def test_the_calibration_runs_on_the_stages_it_is_given(models):
+    """Notebook 05 passes the learned stages: every calibration frame goes through the segmenter
+    and the orientation given (not the config's oracles), and a segmenter that finds nothing stops
+    the study with a clear error before anything is calibrated."""
+    model, physical, views = models
+    config = small_config(degradation="none")
+    truth = T.draw_ground_truth(np.random.default_rng(5), config)
+    oracle_segmenter, oracle_orientation = config.segmenter(), OracleOrientation()
+    calls = {"segment": 0, "orientation": 0}
+
+    class SpySegmenter:
+        def segment(self, frame, rng=None):
+            calls["segment"] += 1
+            return oracle_segmenter.segment(frame, rng)
+
+    class SpyOrientation:
+        def estimate(self, frame, rng=None):
+            calls["orientation"] += 1
+            return oracle_orientation.estimate(frame, rng)
+
+    class BlindSegmenter:
+        def segment(self, frame, rng=None):
+            return np.zeros(frame.image.shape, np.uint8)
+
+    def calibrate_with(segmenter, orientation):
+        names = ("rng_pose", "rng_scene", "rng_render", "rng_est")
+        rngs = {name: np.random.default_rng(k) for k, name in enumerate(names)}
+        with T.sim_robot(config)(7, T._start_joints(truth)) as robot:
+            return T.calibrate_robot(robot, truth, config, pose_model=model, render_model=model, physical=physical,
+                                     views=views, segmenter=segmenter, orientation=orientation, **rngs)
+
+    cal, rows = calibrate_with(SpySegmenter(), SpyOrientation())
+    n_frames = config.n_calibration_poses * len(views)
+    assert calls == {"segment": n_frames, "orientation": n_frames}
+    assert rows["pose_error_mm"].max() < 1.0
+    with pytest.raises(T.TargetingError, match="calibration pose 0"):
+        calibrate_with(BlindSegmenter(), SpyOrientation())
 
 
 def test_fig7_marks_the_target_and_outlines_the_zone():

@@ -12,8 +12,9 @@ One experiment, as in the lab, in four stages:
    different horizontal axes and turned about its own axis so that the motions determine
    AX = XB); at each the robot's measured ``T_base_flange`` is read and a biplane pair is rendered
    from the TRUE transducer pose (``T_carm_base_true @ T_base_flange_reached @
-   T_flange_transducer_true``); the pose is estimated (fast mode, the Table I-degraded oracle
-   segmenter, the oracle orientation) and :func:`histostudy.handeye.calibrate` run on the pairs.
+   T_flange_transducer_true``); the pose is estimated (fast mode; the stages given, in notebook 05
+   the shipped U-Net and VGG19, otherwise the Table I-degraded oracle segmenter and the oracle
+   orientation) and :func:`histostudy.handeye.calibrate` run on the pairs.
    Its residuals are checked against a stated bound (:meth:`HandEyeCalibration.check`): targeting
    refuses to run on a calibration that fails it.
 3. **Pre-treatment CBCT** of the layered phantom; a target picked inside it with the whole zone
@@ -423,9 +424,14 @@ def _resolve_half_turns(F: list[np.ndarray], C: list[np.ndarray], nominal_X: np.
 def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConfig, *, pose_model: TransducerModel,
                     render_model: TransducerModel, physical: TransducerModel, views: Sequence[View],
                     rng_pose: np.random.Generator, rng_scene: np.random.Generator, rng_render: np.random.Generator,
-                    rng_est: np.random.Generator) -> tuple[HandEyeCalibration, pd.DataFrame]:
+                    rng_est: np.random.Generator, segmenter=None,
+                    orientation=None) -> tuple[HandEyeCalibration, pd.DataFrame]:
     """§II-C on ``robot``: move to the preprogrammed poses, estimate the transducer pose from a
     biplane pair rendered from the true pose at each, calibrate, check the residuals.
+
+    ``segmenter`` / ``orientation``: the pose estimate's stages (e.g. the shipped U-Net and VGG19
+    from :func:`histostudy.study.pose_estimation.study_stages`); None: the config's oracle
+    segmenter and the oracle orientation.
 
     Returns the checked calibration and one row per pose (the true and estimated focal points,
     the pose-estimation error). Raises :class:`TargetingError` when a pose estimate fails its
@@ -433,7 +439,8 @@ def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConf
     """
     robot.set_tcp(np.eye(4))  # calibration poses are flange poses
     scene = None if config.background == "none" else random_background(rng_scene, config.background)
-    segmenter = config.segmenter()
+    segmenter = config.segmenter() if segmenter is None else segmenter
+    orientation = OracleOrientation() if orientation is None else orientation
     F, C, rows = [], [], []
     for k, T_cmd in enumerate(calibration_poses(rng_pose, config, truth)):
         robot.move_linear(T_cmd)
@@ -443,7 +450,7 @@ def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConf
                                photons_per_pixel=config.photons_per_pixel, n_splats=config.n_splats,
                                splat_sigma_mm=config.splat_sigma_mm) for v in views]
         try:
-            res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=OracleOrientation(),
+            res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=orientation,
                                 rng=np.random.default_rng(rng_est.integers(2**63)), mode=config.pose_mode)
         except PoseEstimationError as exc:
             raise TargetingError(f"calibration pose {k}: the pose estimate failed its verdict ({exc}); "
@@ -588,8 +595,11 @@ def _errors(prefix: str, seg: ZoneSegmentation, target: np.ndarray, R_des: np.nd
 def run_targeting_experiment(config: TargetingStudyConfig, seq: np.random.SeedSequence, *,
                              pose_model: TransducerModel, render_model: TransducerModel, physical: TransducerModel,
                              views: Sequence[View], robot_factory=None, keep_volumes: bool = False,
-                             experiment: int = 0) -> dict:
+                             experiment: int = 0, segmenter=None, orientation=None) -> dict:
     """One experiment (module docstring) from the seed sequence ``seq``; returns one flat row.
+
+    ``segmenter`` / ``orientation``: the calibration's pose-estimation stages (see
+    :func:`calibrate_robot`; None: the oracles).
 
     ``robot_factory(seed, initial_joints_rad) -> context manager yielding a Robot`` (default
     :func:`sim_robot`); the robot starts where the operator jogged it, the flange pointing down
@@ -624,7 +634,8 @@ def run_targeting_experiment(config: TargetingStudyConfig, seq: np.random.SeedSe
         cal, cal_rows = calibrate_robot(robot, truth, config, pose_model=pose_model, render_model=render_model,
                                         physical=physical, views=views, rng_pose=np.random.default_rng(s_pose),
                                         rng_scene=np.random.default_rng(s_scene),
-                                        rng_render=np.random.default_rng(s_render), rng_est=np.random.default_rng(s_est))
+                                        rng_render=np.random.default_rng(s_render), rng_est=np.random.default_rng(s_est),
+                                        segmenter=segmenter, orientation=orientation)
         R_des = target_orientation(cal)
         X = cal.T_flange_transducer
         # Calibration errors against the ground truth.
@@ -672,8 +683,12 @@ def run_targeting_experiment(config: TargetingStudyConfig, seq: np.random.SeedSe
 
 def run_targeting_study(config: TargetingStudyConfig, *, pose_model: TransducerModel, render_model: TransducerModel,
                         physical: TransducerModel, views: Sequence[View], seed: int, robot: str = "sim",
-                        keep_volumes: bool = False, progress: Callable[[str], None] | None = None) -> pd.DataFrame:
+                        keep_volumes: bool = False, progress: Callable[[str], None] | None = None,
+                        segmenter=None, orientation=None) -> pd.DataFrame:
     """Run ``config.n_experiments`` experiments; one row per (experiment, robot).
+
+    ``segmenter`` / ``orientation``: the calibration's pose-estimation stages, e.g. the learned
+    ones of :func:`histostudy.study.pose_estimation.study_stages` (None: the config's oracles).
 
     ``robot``: ``"sim"`` (:class:`SimulatedUR5e`), ``"rtde"`` (the simulated controller through
     ur_rtde) or ``"both"`` (each experiment on both, from the same seeds). Columns: experiment,
@@ -691,7 +706,8 @@ def run_targeting_study(config: TargetingStudyConfig, *, pose_model: TransducerM
         for name in robots:
             row = run_targeting_experiment(config, seq, pose_model=pose_model, render_model=render_model,
                                            physical=physical, views=views, robot_factory=factories[name],
-                                           keep_volumes=keep_volumes, experiment=e)
+                                           keep_volumes=keep_volumes, experiment=e, segmenter=segmenter,
+                                           orientation=orientation)
             rows.append({"robot": name, **row})
             if progress:
                 progress(f"experiment {e + 1}/{config.n_experiments} ({name}): {row['err_euclidean']:.2f} mm")
