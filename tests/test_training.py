@@ -9,7 +9,7 @@ import torch
 
 from histostudy.checkpoints import load_checkpoint, load_network
 from histostudy.datasets import RenderConfig
-from histostudy.orientation import LearnedOrientation
+from histostudy.orientation import LearnedOrientation, hemisphere_angles
 from histostudy.profiles import PROFILE_NAMES, load_profile
 from histostudy.training import TrainingConfig, angle_loss, export, train
 
@@ -100,6 +100,16 @@ def test_orientation_classifier_then_regressor_and_export(tmp_path, cache):
     for k in a:
         torch.testing.assert_close(a[k], b[k], rtol=0, atol=0)
     torch.testing.assert_close(b["model.regressor.bias"], torch.tensor([0.0, 1.0]))
+    # ... and becomes a (cos, sin) regressor whose azimuth rows start as the classes' (cos, sin)
+    cos_sin = TrainingConfig(task="orientation", scale=0.25, n_train=4, n_val=2, batch_size=2, max_epochs=1,
+                             network={"arch": "vgg19", "width": 1 / 32, "angle_encoding": "cos_sin"},
+                             learning_rate=0.0, render=TINY, init_weights=str(classifier))
+    reg = train(cos_sin, tmp_path / "reg_cs", seed=5, progress=False, log=lambda m: None, cache_dir=cache)
+    c, manifest = load_checkpoint(reg.best)
+    assert manifest["config"]["angle_encoding"] == "cos_sin" and manifest["config"]["head"] == "regressor"
+    azimuths = torch.as_tensor(hemisphere_angles(36)[:, 0], dtype=torch.float32)
+    torch.testing.assert_close(c["model.regressor.weight"][:2], torch.stack([azimuths.cos(), azimuths.sin()]))
+    torch.testing.assert_close(c["model.regressor.bias"], torch.tensor([0.0, 0.0, 1.0]))
 
 
 def test_config_validation_and_profiles():
