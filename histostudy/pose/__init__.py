@@ -381,9 +381,9 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
 #: uses it by default: a network trained too briefly to be useful (e.g. a VGG19 whose azimuth
 #: error is that of a guess, about 90 deg) would otherwise send every default estimate astray.
 #: The VGG19 only starts the initialisation's searches, which tolerate large errors: with its
-#: per-view direction starts, the shipped VGG19 (validation MAE 25.6 deg azimuth, 11.4 deg
-#: elevation) gave the oracle orientation's pose on 16 of 16 poses of notebook 04's setting
-#: (focal error 0.19 mm either way, oracle labels), hence 30 deg.
+#: per-view direction starts, a VGG19 with validation MAE 25.6 deg azimuth and 11.4 deg elevation
+#: (the one shipped before the (cos, sin) regressor) gave the oracle orientation's pose on 16 of 16
+#: poses of notebook 04's setting (focal error 0.19 mm either way, oracle labels), hence 30 deg.
 LEARNED_STAGE_REQUIREMENTS = {"unet_min_pixel_accuracy": 0.95, "vgg_max_angle_mae_deg": 30.0}
 
 
