@@ -273,7 +273,7 @@ def test_capped_cost_equals_the_cost_on_truncated_maps_bit_for_bit(cost):
                                 outside_distance_px=capped.outside_distance_px)
         assert numpy_capped(T) == pytest.approx(copied.reference_cost(T), rel=1e-12)
         assert numpy_capped(T) == pytest.approx(capped(T), rel=1e-9)
-    assert cost.capped(None)(T) == cost(T)
+    assert cost.capped(None) is cost and cost.capped(None)(T) == cost(T)
     assert cost.capped(5.0).capped(None)(T) == cost(T)
 
 

@@ -694,8 +694,10 @@ class PoseCost:
 
         A cap bounds what a model point on a missed or spurious feature can add, so a few of them
         cannot pull the pose (beyond the paper; :func:`histostudy.pose.estimate_pose` caps its
-        searches, refinement and verdict)."""
+        searches, refinement and verdict). Asked for what it already is, the cost returns itself."""
         outside = self.outside_distance_px if outside_distance_px is None else outside_distance_px
+        if max_distance_px == self.max_distance_px and outside == self.outside_distance_px:
+            return self
         return PoseCost(self.points, self.maps, class_weights=self.class_weights, outside_distance_px=outside,
                         max_distance_px=max_distance_px, backend=self.backend, parallel=self.parallel,
                         _buffer=(self._maps, self._map_start))
