@@ -97,11 +97,22 @@ _FALLBACK = {
 }
 
 
+#: Names of the oracle degradations a study config may ask for (:meth:`OracleSegmenter.named`).
+ORACLE_DEGRADATIONS = ("table1", "none")
+
+
 @dataclass(frozen=True)
 class OracleSegmenter:
     """The frame's reference labels, degraded by ``degradation`` (None: perfect segmentation)."""
 
     degradation: SegmentationDegradation | None = None
+
+    @classmethod
+    def named(cls, degradation: str) -> "OracleSegmenter":
+        """The oracle of a study config: ``"table1"`` errs as the paper's U-Net (Table I), ``"none"`` not at all."""
+        if degradation not in ORACLE_DEGRADATIONS:
+            raise ValueError(f"degradation must be one of {ORACLE_DEGRADATIONS}, got {degradation!r}")
+        return cls(SegmentationDegradation.paper_table1() if degradation == "table1" else None)
 
     def segment(self, frame: Frame, rng: np.random.Generator | None = None) -> np.ndarray:
         if frame.labels is None:

@@ -33,6 +33,15 @@ def test_perfect_oracle_returns_the_reference(frame):
     assert np.array_equal(out, frame.labels) and out is not frame.labels
 
 
+def test_named_oracles_of_the_study_configs(frame):
+    assert OracleSegmenter.named("none").degradation is None
+    table1 = OracleSegmenter.named("table1").degradation
+    assert table1 == SegmentationDegradation.paper_table1()
+    assert table1.recall[Feature.SCREWS] < 1.0 and table1.precision[Feature.GAPS] < 1.0
+    with pytest.raises(ValueError, match=r"degradation must be one of \('table1', 'none'\), got 'tabel1'"):
+        OracleSegmenter.named("tabel1")
+
+
 def _recall_precision(pred, ref, k):
     tp = np.sum((pred == k) & (ref == k))
     return tp / np.sum(ref == k), tp / max(np.sum(pred == k), 1)

@@ -131,6 +131,8 @@ def test_config_rejects_bad_values():
         study.PoseStudyConfig(modes=("gradient",))
     with pytest.raises(ValueError, match="distance_maps"):
         study.PoseStudyConfig(distance_maps=("chamfer",))
+    with pytest.raises(ValueError, match="degradation must be one of"):
+        study.PoseStudyConfig(degradation="unet")
     assert study.PoseStudyConfig(modes=("paper", "fast"), distance_maps=("occlusion_aware", "per_class")).variants == [
         ("paper", "occlusion_aware"), ("paper", "per_class"), ("fast", "occlusion_aware"), ("fast", "per_class")]
 

@@ -171,6 +171,7 @@ def test_ground_truth_is_plausible_and_seeded():
     (dict(background="room"), "background"),
     (dict(bubble_offset_mm=(1.0, 2.0)), "bubble_offset_mm"),
     (dict(n_experiments=0), "n_experiments"),
+    (dict(degradation="unet"), "degradation must be one of"),
 ])
 def test_config_rejects_bad_input(kw, match):
     with pytest.raises(ValueError, match=match):

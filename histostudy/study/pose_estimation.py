@@ -120,8 +120,7 @@ class PoseStudyConfig:
             raise ValueError(f"n_experiments must be >= 1, got {self.n_experiments!r}")
         if not self.margin_mm or any(not (np.isfinite(r) and r > 0) for r in self.margin_mm):
             raise ValueError(f"margin_mm must hold positive radii in mm, got {self.margin_mm!r}")
-        if self.degradation not in ("table1", "none"):
-            raise ValueError(f"degradation must be 'table1' or 'none', got {self.degradation!r}")
+        OracleSegmenter.named(self.degradation)  # a clear error now for an unknown name
         if not self.modes or any(m not in ("paper", "fast") for m in self.modes):
             raise ValueError(f"modes must be a non-empty subset of ('paper', 'fast'), got {self.modes!r}")
         if not self.distance_maps or any(m not in MAP_KINDS for m in self.distance_maps):
@@ -133,7 +132,8 @@ class PoseStudyConfig:
         return [(mode, maps) for mode in self.modes for maps in self.distance_maps]
 
     def segmenter(self) -> OracleSegmenter:
-        return OracleSegmenter(SegmentationDegradation.paper_table1() if self.degradation == "table1" else None)
+        """The oracle segmenter of ``degradation``."""
+        return OracleSegmenter.named(self.degradation)
 
 
 @dataclass(frozen=True, eq=False)

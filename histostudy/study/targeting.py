@@ -90,7 +90,7 @@ from ..orientation import OracleOrientation
 from ..pose import PoseEstimationError, estimate_pose
 from ..render import render_frame
 from ..robot import HOME_JOINTS_RAD, Robot, SimulatedUR5e, inverse_kinematics_closest
-from ..segment import OracleSegmenter, SegmentationDegradation
+from ..segment import OracleSegmenter
 from ..transducer import TransducerModel
 from ..treatment import STUDY_PLAN_INSET_MM, STUDY_PLAN_SPACING_MM, execute_treatment, plan_treatment, scan_treated_zone
 from .pose_estimation import DIRECTIONS, _mean_sd, transducer_axes
@@ -206,8 +206,7 @@ class TargetingStudyConfig:
                              f"got {self.zone_diameters_mm!r}")
         if not (np.isfinite(self.bias_test_diameter_mm) and 0 < self.bias_test_diameter_mm <= 30):
             raise ValueError(f"bias_test_diameter_mm must be in (0, 30] mm, got {self.bias_test_diameter_mm!r}")
-        if self.degradation not in ("table1", "none"):
-            raise ValueError(f"degradation must be 'table1' or 'none', got {self.degradation!r}")
+        OracleSegmenter.named(self.degradation)  # a clear error now for an unknown name
         if self.background not in ("phantom", "abdomen", "mixed", "none"):
             raise ValueError(f"background must be 'phantom', 'abdomen', 'mixed' or 'none', got {self.background!r}")
         if self.pose_mode not in ("paper", "fast"):
@@ -230,7 +229,8 @@ class TargetingStudyConfig:
             raise ValueError(f"bubble_offset_mm must be 3 numbers (transducer frame, mm), got {self.bubble_offset_mm!r}")
 
     def segmenter(self) -> OracleSegmenter:
-        return OracleSegmenter(SegmentationDegradation.paper_table1() if self.degradation == "table1" else None)
+        """The oracle segmenter of ``degradation``."""
+        return OracleSegmenter.named(self.degradation)
 
 
 # ---------------------------------------------------------------------------------------------
