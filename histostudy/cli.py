@@ -44,8 +44,9 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--init-weights", default=None,
                     help="start from this checkpoint's network (same config) instead of random weights")
     tr.add_argument("--render-workers", type=int, default=1,
-                    help="render the profile's uncached training and validation frames in this many processes "
-                         "before training (default 1: the training loop renders them as it first needs them)")
+                    help="render the profile's uncached training and validation frames (the fine-tune's too) in "
+                         "this many processes before training (default 1: the training loop renders them as it "
+                         "first needs them)")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     prof = sub.add_parser("profiles", help="list the built-in profiles")
@@ -105,11 +106,15 @@ def _train(args) -> int:
         import time
 
         from .datasets import HybridFrames
+        from .training import stage_frames
 
         t0 = time.monotonic()
-        rendered = sum(HybridFrames(split, profile.seed, config=cfg.render, cache_dir=default_cache_dir())
-                       .prerender(n, workers=args.render_workers) for split, n in (("val", cfg.n_val),
-                                                                                   ("train", cfg.n_train)))
+        frame_sets = [(cfg.render, cfg.n_train, cfg.n_val)]
+        if cfg.fine_tune is not None:
+            frame_sets.append(stage_frames(cfg, "finetune"))
+        rendered = sum(HybridFrames(split, profile.seed, config=render, cache_dir=default_cache_dir())
+                       .prerender(n, workers=args.render_workers)
+                       for render, n_train, n_val in frame_sets for split, n in (("val", n_val), ("train", n_train)))
         print(f"rendered {rendered} uncached frames in {(time.monotonic() - t0) / 60:.1f} min "
               f"with {args.render_workers} processes")
     run_dir = args.run_dir or default_cache_dir() / "runs" / f"{args.task}-{profile.name}"

@@ -16,6 +16,11 @@ is computed on a held-out split (its own seeds) and training stops when it has n
   prediction of ``179°`` for ``-179°`` costs 2° and not 358°; the ``sin(el)`` weight says that the
   azimuth of a direction along the beam axis means nothing.
 
+An optional last stage, ``finetune`` (:class:`FineTuneConfig`), goes on training the best network
+of the stage before it, with that stage's loss, on frames of another rendering (e.g. the 0.125 mm
+model of the held-out frames, after a long run on cheaper 0.47 mm frames), with its own training
+and validation frames, learning rate and budget.
+
 Checkpoints (:mod:`histostudy.checkpoints`): after every epoch ``last.safetensors`` (network and
 optimiser momentum, with ``state.json``: stage, epoch, steps, best loss, history) and, on a new
 best, ``best-<stage>.safetensors`` — all written atomically, so an interrupted run resumes from
@@ -44,7 +49,66 @@ from .io import atomic_write_json
 from .nets import build_network
 from .orientation import N_ORIENTATION_CLASSES, hemisphere_angles
 
-__all__ = ["TrainingConfig", "TrainingResult", "angle_loss", "export", "train"]
+__all__ = ["FineTuneConfig", "TrainingConfig", "TrainingResult", "angle_loss", "export", "train"]
+
+
+@dataclass(frozen=True)
+class FineTuneConfig:
+    """The ``finetune`` stage: the run's best network trained on frames of another rendering.
+
+    A profile's ``[training.<task>.fine_tune]`` table. The stage starts from the best network of
+    the stage before it (orientation: ``regress``; segmentation: ``segment``) and keeps its loss,
+    batch size, optimiser kind, patience and learning-rate decay; the optimiser's state starts
+    afresh at ``learning_rate``.
+
+    Attributes:
+        render: the :class:`~histostudy.datasets.RenderConfig` of its training and validation frames.
+        n_train: training frames (split ``train`` of ``render``: the same poses as the run's first
+            ``n_train`` frames, rendered this other way).
+        n_val: validation frames (split ``val`` of ``render``).
+        learning_rate: its starting learning rate (a fine-tune wants a smaller step than a fresh run).
+        max_epochs: cap of the stage.
+        max_minutes: wall-time budget of the stage alone, counted from its start (None: none);
+            the run's ``max_minutes`` covers the stages before it.
+    """
+
+    render: RenderConfig
+    n_train: int
+    n_val: int
+    learning_rate: float
+    max_epochs: int = 50
+    max_minutes: float | None = None
+
+    def __post_init__(self):
+        if not isinstance(self.render, RenderConfig):
+            raise TypeError(f"fine_tune.render must be a RenderConfig, got {type(self.render).__name__}")
+        for name in ("n_train", "n_val", "max_epochs"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"fine_tune.{name} must be an integer >= 1, got {value!r}")
+        if not (isinstance(self.learning_rate, (int, float)) and not isinstance(self.learning_rate, bool)
+                and math.isfinite(self.learning_rate) and self.learning_rate > 0):
+            raise ValueError(f"fine_tune.learning_rate must be a finite number > 0, got {self.learning_rate!r}")
+        if self.max_minutes is not None and not (self.max_minutes > 0):
+            raise ValueError(f"fine_tune.max_minutes must be > 0 or None, got {self.max_minutes!r}")
+
+    @classmethod
+    def from_table(cls, table: dict, *, n_val: int) -> "FineTuneConfig":
+        """From a ``fine_tune`` table; its ``render`` sub-table is a RenderConfig, ``n_val`` defaults to the run's."""
+        table = dict(table)
+        known = {f.name for f in fields(cls)}
+        unknown = set(table) - known
+        if unknown:
+            raise ValueError(f"fine_tune has unknown keys {sorted(unknown)}; known: {sorted(known)}")
+        missing = {"n_train", "learning_rate", "render"} - set(table)
+        if missing:
+            raise ValueError(f"fine_tune needs {sorted(missing)}")
+        try:
+            render = table.pop("render")
+            render = render if isinstance(render, RenderConfig) else RenderConfig(**render)
+        except TypeError as exc:
+            raise ValueError(f"fine_tune.render: {exc}") from None
+        return cls(render=render, **{"n_val": n_val, **table})
 
 
 @dataclass(frozen=True)
@@ -84,6 +148,8 @@ class TrainingConfig:
             initialisation (fine-tuning); for an orientation run without classifier stage it may
             be the trained classifier, converted to the regressor (§II-B.4). Recorded with its
             SHA-256 in the exported manifest.
+        fine_tune: a last ``finetune`` stage on frames of another rendering (:class:`FineTuneConfig`
+            or its table), or None.
     """
 
     task: str
@@ -108,6 +174,7 @@ class TrainingConfig:
     cache: bool = True
     class_weights: tuple | None = None
     init_weights: str | None = None
+    fine_tune: FineTuneConfig | None = None
 
     def __post_init__(self):
         if self.task not in TASKS:
@@ -140,6 +207,13 @@ class TrainingConfig:
                 raise ValueError(f"class_weights must be None or 6 positive numbers for segmentation, got "
                                  f"{self.class_weights!r} for task {self.task!r}")
             object.__setattr__(self, "class_weights", w)
+        if isinstance(self.fine_tune, dict):
+            object.__setattr__(self, "fine_tune", FineTuneConfig.from_table(self.fine_tune, n_val=self.n_val))
+        elif self.fine_tune is not None and not isinstance(self.fine_tune, FineTuneConfig):
+            raise TypeError(f"fine_tune must be a FineTuneConfig, a table or None, got {type(self.fine_tune).__name__}")
+        if self.fine_tune is not None and self.batch_size > self.fine_tune.n_train:
+            raise ValueError(f"batch_size ({self.batch_size}) must not exceed fine_tune.n_train "
+                             f"({self.fine_tune.n_train})")
 
     @classmethod
     def from_table(cls, task: str, table: dict) -> "TrainingConfig":
@@ -190,8 +264,17 @@ def _device(name: str) -> torch.device:
 
 def _stages(cfg: TrainingConfig) -> list[str]:
     if cfg.task == "segmentation":
-        return ["segment"]
-    return (["classify"] if cfg.classification_epochs > 0 else []) + ["regress"]
+        stages = ["segment"]
+    else:
+        stages = (["classify"] if cfg.classification_epochs > 0 else []) + ["regress"]
+    return stages + (["finetune"] if cfg.fine_tune is not None else [])
+
+
+def _objective(cfg: TrainingConfig, stage: str) -> str:
+    """The loss a stage trains: the fine-tune keeps the one of the stage before it."""
+    if stage != "finetune":
+        return stage
+    return "segment" if cfg.task == "segmentation" else "regress"
 
 
 def _loss(stage: str, net, batch, device, class_weights=None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -278,14 +361,22 @@ def _model_tensors(net) -> dict:
     return {f"model.{k}": v for k, v in net.state_dict().items()}
 
 
-def _loaders(cfg: TrainingConfig, seed: int, cache_dir):
-    frames_kwargs = dict(config=cfg.render, cache_dir=cache_dir if cfg.cache else None)
+def stage_frames(cfg: TrainingConfig, stage: str) -> tuple[RenderConfig, int, int]:
+    """The rendering and the numbers of training and validation frames of ``stage``."""
+    if stage == "finetune":
+        return cfg.fine_tune.render, cfg.fine_tune.n_train, cfg.fine_tune.n_val
+    return cfg.render, cfg.n_train, cfg.n_val
+
+
+def _loaders(cfg: TrainingConfig, seed: int, cache_dir, stage: str):
+    render, n_train, n_val = stage_frames(cfg, stage)
+    frames_kwargs = dict(config=render, cache_dir=cache_dir if cfg.cache else None)
     crop = cfg.crop if cfg.task == "segmentation" else None
-    train_ds = HybridImageDataset(cfg.task, HybridFrames("train", seed, **frames_kwargs), cfg.n_train,
+    train_ds = HybridImageDataset(cfg.task, HybridFrames("train", seed, **frames_kwargs), n_train,
                                   scale=cfg.scale, crop=crop, augment=cfg.task == "orientation", seed=seed,
                                   repeats=cfg.crops_per_frame if cfg.task == "segmentation" else 1,
                                   keep_in_memory=True)
-    val_ds = HybridImageDataset(cfg.task, HybridFrames("val", seed, **frames_kwargs), cfg.n_val,
+    val_ds = HybridImageDataset(cfg.task, HybridFrames("val", seed, **frames_kwargs), n_val,
                                 scale=cfg.scale, crop=None, augment=False, seed=seed, keep_in_memory=True)
     val_loader = DataLoader(val_ds, batch_size=1 if cfg.task == "segmentation" else cfg.batch_size, shuffle=False)
     return train_ds, val_loader
@@ -298,7 +389,10 @@ _RUN_CONTROLS = ("max_minutes", "threads", "device", "patience", "max_epochs")
 
 
 def _identity(cfg_dict: dict) -> dict:
-    return {k: v for k, v in cfg_dict.items() if k not in _RUN_CONTROLS}
+    identity = {k: v for k, v in cfg_dict.items() if k not in _RUN_CONTROLS}
+    if identity.get("fine_tune"):
+        identity["fine_tune"] = {k: v for k, v in identity["fine_tune"].items() if k not in _RUN_CONTROLS}
+    return identity
 
 
 def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume: bool = True,
@@ -385,34 +479,50 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
         for stale in [*run_dir.glob("best-*"), *run_dir.glob("last.*"), state_path]:
             stale.unlink(missing_ok=True)
     net.to(device).train()
-    train_ds, val_loader = _loaders(cfg, seed, cache_dir)
+    train_ds, val_loader = _loaders(cfg, seed, cache_dir, state["stage"])
     elapsed_before = state["elapsed_s"]
 
+    def elapsed_s() -> float:
+        return elapsed_before + time.monotonic() - t_start
+
     def save_state():
-        state["elapsed_s"] = elapsed_before + time.monotonic() - t_start
+        state["elapsed_s"] = elapsed_s()
         atomic_write_json(state_path, {"config": cfg_dict, "seed": seed, "profile": profile, "state": state})
 
     while not state["finished"]:
         stage = state["stage"]
-        cap = cfg.classification_epochs if stage == "classify" else cfg.max_epochs
+        if stage == "finetune":
+            cap, budget = cfg.fine_tune.max_epochs, cfg.fine_tune.max_minutes
+            spent_s = elapsed_s() - state.get("stage_start_s", 0.0)
+        else:
+            cap = cfg.classification_epochs if stage == "classify" else cfg.max_epochs
+            budget, spent_s = cfg.max_minutes, elapsed_s()
         stop = ""
         if state["bad_epochs"] >= cfg.patience:
             stop = f"no lower validation loss for {cfg.patience} epochs"
         elif state["epoch"] >= cap:
             stop = f"reached {cap} epochs"
-        elif cfg.max_minutes is not None and elapsed_before + time.monotonic() - t_start > 60 * cfg.max_minutes:
-            stop = f"spent the {cfg.max_minutes} min budget"
+        elif budget is not None and spent_s > 60 * budget:
+            stop = f"spent the {budget} min budget"
         if stop:
             log(f"{cfg.task}/{stage}: stopped after epoch {state['epoch']}: {stop}")
             state.setdefault("stage_stops", {})[stage] = stop
-            if stage == "classify" and "regress" in stages and "budget" not in stop:
-                tensors, _ = load_checkpoint(run_dir / "best-classify.safetensors")
+            following = stages[stages.index(stage) + 1] if stage != stages[-1] else None
+            best_path = run_dir / f"best-{stage}.safetensors"
+            # the run's budget ends the stages it covers; the fine-tune has a budget of its own
+            if following is not None and best_path.is_file() and ("budget" not in stop or following == "finetune"):
+                tensors, _ = load_checkpoint(best_path)
                 net.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
-                net.cpu().to_regressor(hemisphere_angles(net.config["n_classes"]))
+                if stage == "classify":
+                    net.cpu().to_regressor(hemisphere_angles(net.config["n_classes"]))
                 net.to(device).train()
+                lr = cfg.fine_tune.learning_rate if following == "finetune" else cfg.learning_rate
                 opt = _optimizer(cfg, net)
-                state.update(stage="regress", epoch=0, best_loss=None, bad_epochs=0,
-                             learning_rate=cfg.learning_rate)
+                _set_learning_rate(opt, lr)
+                state.update(stage=following, epoch=0, best_loss=None, bad_epochs=0, learning_rate=lr,
+                             stage_start_s=elapsed_s())
+                if following == "finetune":
+                    train_ds, val_loader = _loaders(cfg, seed, cache_dir, following)
                 save_checkpoint(run_dir / "last", {**_model_tensors(net), **_optim_tensors(opt)}, net.config)
                 save_state()
                 continue
@@ -421,12 +531,17 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
             break
         epoch = state["epoch"]
         train_ds.set_epoch(epoch + 1000 * stages.index(stage))
-        gen = torch.Generator().manual_seed(int(np.random.SeedSequence([seed, TASKS.index(cfg.task), stages.index(stage), epoch]).generate_state(1)[0]))
+        order_seed, dropout_seed = np.random.SeedSequence(
+            [seed, TASKS.index(cfg.task), stages.index(stage), epoch]).generate_state(2)
+        gen = torch.Generator().manual_seed(int(order_seed))
+        # dropout draws from torch's global generator: seeded per epoch, a resumed run draws what an
+        # uninterrupted one would have
+        torch.manual_seed(int(dropout_seed))
         loader = DataLoader(train_ds, batch_size=cfg.batch_size, shuffle=True, drop_last=True, generator=gen)
         running = 0.0
         bar = tqdm(loader, desc=f"{cfg.task}/{stage} epoch {epoch + 1}", disable=not progress, leave=False)
         for i, batch in enumerate(bar):
-            loss, _ = _loss(stage, net, batch, device, cfg.class_weights)
+            loss, _ = _loss(_objective(cfg, stage), net, batch, device, cfg.class_weights)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -434,7 +549,7 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
             running += loss.item()
             bar.set_postfix(loss=f"{running / (i + 1):.4f}")
         bar.close()
-        metrics = _validate(stage, net, val_loader, device, cfg.class_weights)
+        metrics = _validate(_objective(cfg, stage), net, val_loader, device, cfg.class_weights)
         metrics.update(train_loss=running / max(len(loader), 1), stage=stage, epoch=epoch + 1, steps=state["steps"],
                        learning_rate=opt.param_groups[0]["lr"])
         state["history"].append(metrics)
@@ -455,11 +570,18 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
         log(f"{cfg.task}/{stage} epoch {epoch + 1}: " + ", ".join(
             f"{k} {v:.4g}" for k, v in metrics.items() if isinstance(v, float)) + (" *" if improved else ""))
 
-    final_stage = stages[-1] if f"best-{stages[-1]}.safetensors" in {p.name for p in run_dir.iterdir()} else state["stage"]
+    # the last stage that kept a network (a stage stopped by a budget before its first epoch has none)
+    final_stage = next((st for st in reversed(stages) if (run_dir / f"best-{st}.safetensors").is_file()), stages[0])
     best = run_dir / f"best-{final_stage}.safetensors"
     return TrainingResult(run_dir=run_dir, best=best, steps=state["steps"], epochs=state["epoch"],
                           validation=state["best"].get(final_stage, {}), stopped=state["stopped"],
                           history=state["history"])
+
+
+def _validation_split(cfg: TrainingConfig, stage: str | None) -> str:
+    render, _, n_val = stage_frames(cfg, stage or "")
+    return (f"{n_val} frames of split 'val' rendered from the {render.render_spacing_mm:g} mm model, "
+            f"background {render.background!r}")
 
 
 def export(result: TrainingResult, cfg: TrainingConfig, name: str, *, seed: int, profile: str,
@@ -472,7 +594,7 @@ def export(result: TrainingResult, cfg: TrainingConfig, name: str, *, seed: int,
     return save_checkpoint(
         dest, model, manifest["config"], task=cfg.task, profile=profile, seed=seed,
         input_scale=cfg.scale, training_steps=manifest.get("training_steps"), total_steps=result.steps,
-        validation=manifest.get("validation"), validation_split=f"{cfg.n_val} frames of split 'val'",
+        validation=manifest.get("validation"), validation_split=_validation_split(cfg, manifest.get("stage")),
         stages=state.get("best", {}), stopped=result.stopped, stage_stops=state.get("stage_stops", {}),
         training_minutes=state.get("elapsed_s", 0.0) / 60.0, device=str(_device(cfg.device)),
         init_weights=state.get("init_weights"),

@@ -277,3 +277,116 @@ def test_learning_rate_decays_after_each_epoch_without_improvement_and_resumes(t
     for bad in (0, 1.5, True, "0.5"):
         with pytest.raises(ValueError, match="lr_decay"):
             _seg(lr_decay=bad)
+
+
+# The fine-tune's frames: the same poses, rendered another way (another splat jitter: another cache key).
+TINY_FINE = RenderConfig(render_spacing_mm=0.47, label_spacing_mm=0.47, detector=(240, 320), splat_sigma_mm=0.25)
+
+
+def _orient_fine_tune(**fine):
+    fine_tune = {**dict(render=TINY_FINE, n_train=2, n_val=2, learning_rate=5e-4, max_epochs=2), **fine}
+    return TrainingConfig(task="orientation", network={"arch": "vgg19", "width": 1 / 32}, scale=0.25, n_train=4,
+                          n_val=2, batch_size=2, max_epochs=1, optimizer="adam", threads=1, render=TINY,
+                          fine_tune=fine_tune)
+
+
+def _stop_in_fine_tune(msg):
+    if "finetune epoch 1:" in msg:
+        raise _Stop
+
+
+def test_fine_tune_stage_trains_the_best_network_on_frames_of_another_rendering(tmp_path, cache):
+    from histostudy.datasets import HybridFrames
+
+    cfg = _orient_fine_tune()
+    assert cfg.fine_tune.render == TINY_FINE and cfg.fine_tune.n_val == 2
+    full = train(cfg, tmp_path / "full", seed=7, progress=False, log=lambda m: None, cache_dir=cache)
+    assert [h["stage"] for h in full.history] == ["regress", "finetune", "finetune"]
+    assert full.best.name == "best-finetune.safetensors" and full.steps == 2 + 2 * 1
+    assert full.history[1]["learning_rate"] == 5e-4 and "azimuth_mae_deg" in full.history[1]
+    fine_frames = HybridFrames("train", 7, TINY_FINE, cache_dir=cache)
+    assert fine_frames.cached(0) and fine_frames.cached(1) and not fine_frames.cached(2)
+    assert HybridFrames("val", 7, TINY_FINE, cache_dir=cache).cached(1)
+
+    # the fine-tune starts from the best regressor: its first validation, with the learning rate at 0,
+    # would be that network's loss on the fine-tune's validation frames; here it is computed directly
+    import histostudy.training as training
+
+    regressor, _ = load_network(tmp_path / "full" / "best-regress.safetensors")
+    _, val_loader = training._loaders(cfg, 7, cache, "finetune")
+    frozen = train(_orient_fine_tune(max_epochs=1, learning_rate=1e-30), tmp_path / "frozen", seed=7,
+                   progress=False, log=lambda m: None, cache_dir=cache)
+    expected = training._validate("regress", regressor, val_loader, torch.device("cpu"))
+    assert frozen.history[1]["loss"] == pytest.approx(expected["loss"], rel=1e-4)
+    # ... the same poses as the regression's validation frames, rendered the other way
+    _, regress_loader = training._loaders(cfg, 7, cache, "regress")
+    fine_batch, regress_batch = next(iter(val_loader)), next(iter(regress_loader))
+    torch.testing.assert_close(fine_batch["angles"], regress_batch["angles"], rtol=0, atol=0)
+    assert not torch.allclose(fine_batch["image"], regress_batch["image"], atol=1e-2)
+
+    # interrupted inside the fine-tune, the run resumes there, to the same weights
+    with pytest.raises(_Stop):
+        train(cfg, tmp_path / "cut", seed=7, progress=False, log=_stop_in_fine_tune, cache_dir=cache)
+    state = json.loads((tmp_path / "cut" / "state.json").read_text())["state"]
+    assert (state["stage"], state["epoch"]) == ("finetune", 1)
+    resumed = train(cfg, tmp_path / "cut", seed=7, progress=False, log=lambda m: None, cache_dir=cache)
+    assert resumed.steps == full.steps
+    a, _ = load_checkpoint(tmp_path / "full" / "last.safetensors")
+    b, _ = load_checkpoint(tmp_path / "cut" / "last.safetensors")
+    for k in a:
+        torch.testing.assert_close(a[k], b[k], rtol=0, atol=0)
+    # its budget is a run control; its frames are not
+    train(_orient_fine_tune(max_minutes=30.0), tmp_path / "cut", seed=7, progress=False, log=lambda m: None,
+          cache_dir=cache)
+    with pytest.raises(ValueError, match="another configuration"):
+        train(_orient_fine_tune(n_train=4), tmp_path / "cut", seed=7, progress=False, log=lambda m: None,
+              cache_dir=cache)
+
+    manifest = json.loads(export(full, cfg, "vgg_ft", seed=7, profile="t", models_dir=tmp_path / "m").read_text())
+    assert manifest["validation"]["stage"] == "finetune" and set(manifest["stages"]) == {"regress", "finetune"}
+    assert manifest["validation_split"].startswith("2 frames of split 'val' rendered from the 0.47 mm model")
+    assert manifest["training_config"]["fine_tune"]["render"]["splat_sigma_mm"] == 0.25
+
+
+def test_fine_tune_budget_of_its_own_and_bad_tables(tmp_path, cache):
+    # a fine-tune whose budget is spent before its first epoch leaves the regressor as the run's best
+    res = train(_orient_fine_tune(max_minutes=1e-9), tmp_path / "run", seed=7, progress=False,
+                log=lambda m: None, cache_dir=cache)
+    assert [h["stage"] for h in res.history] == ["regress"] and res.best.name == "best-regress.safetensors"
+    state = json.loads((tmp_path / "run" / "state.json").read_text())["state"]
+    assert state["stage_stops"]["finetune"].startswith("spent the 1e-09 min budget")
+
+    table = {"network": {"arch": "vgg19", "width": 1 / 32}, "scale": 0.25, "n_val": 3,
+             "fine_tune": {"n_train": 5, "learning_rate": 1e-4, "render": {"render_spacing_mm": 0.125}}}
+    cfg = TrainingConfig.from_table("orientation", table)
+    assert cfg.fine_tune.render.render_spacing_mm == 0.125 and cfg.fine_tune.n_val == 3
+    for fine, match in [({"n_train": 5, "render": {}}, r"fine_tune needs \['learning_rate'\]"),
+                        ({**table["fine_tune"], "epochs": 2}, r"fine_tune has unknown keys \['epochs'\]"),
+                        ({**table["fine_tune"], "n_train": 0}, "fine_tune.n_train must be an integer >= 1, got 0"),
+                        ({**table["fine_tune"], "learning_rate": 0.0}, "fine_tune.learning_rate must be"),
+                        ({**table["fine_tune"], "render": {"spacing": 1}}, "fine_tune.render:"),
+                        ({**table["fine_tune"], "n_train": 4}, r"batch_size \(5\) must not exceed fine_tune.n_train")]:
+        with pytest.raises(ValueError, match=match):
+            TrainingConfig.from_table("orientation", {**table, "fine_tune": fine})
+    with pytest.raises(TypeError, match="fine_tune must be a FineTuneConfig"):
+        TrainingConfig(task="orientation", network={"arch": "vgg19", "width": 1 / 32}, scale=0.25, fine_tune=3)
+
+
+def test_cli_prerenders_the_fine_tune_frames_too(tmp_path, capsys, monkeypatch):
+    from histostudy.cli import main
+
+    monkeypatch.setenv("HISTOSTUDY_CACHE", str(tmp_path / "cache"))
+    profile = tmp_path / "tiny.toml"
+    render = "{ render_spacing_mm = 0.47, label_spacing_mm = 0.47, detector = [240, 320]%s }"
+    profile.write_text('name = "tiny"\nseed = 11\n\n[training.orientation]\n'
+                       'network = { arch = "vgg19", width = 0.03125 }\nscale = 0.25\n'
+                       'n_train = 2\nn_val = 1\nbatch_size = 2\nmax_epochs = 1\n'
+                       f'render = {render % ""}\n'
+                       'fine_tune = { n_train = 2, n_val = 1, learning_rate = 0.0005, max_epochs = 1, '
+                       f'render = {render % ", splat_sigma_mm = 0.25"} }}\n')
+    code = main(["train", "orientation", "--profile", str(profile), "--models-dir", str(tmp_path / "models"),
+                 "--no-progress", "--render-workers", "2"])
+    assert code == 0
+    assert "rendered 6 uncached frames" in capsys.readouterr().out  # 1 + 2 frames of each rendering
+    manifest = json.loads((tmp_path / "models" / "vgg19_tiny.json").read_text())
+    assert manifest["validation"]["stage"] == "finetune" and manifest["training_steps"] == 2
