@@ -35,7 +35,7 @@ from .nets import build_network
 from .provenance import REPO_ROOT, git_commit
 
 __all__ = ["MODELS_DIR", "load_checkpoint", "load_network", "load_shipped", "manifest_path", "save_checkpoint",
-           "sha256_file", "shipped_model"]
+           "sha256_file", "shipped_model", "training_summary"]
 
 FORMAT = "histostudy.checkpoint"
 VERSION = 1
@@ -167,3 +167,32 @@ def load_shipped(name: str, loader, what: str):
     except (ValueError, OSError) as exc:
         warnings.warn(f"shipped {what} {os.fspath(path)!r} is not usable ({exc}); using none", stacklevel=3)
         return None
+
+
+def training_summary(manifest: dict) -> str:
+    """One line for a report: how a checkpoint was trained, from its manifest's training record.
+
+    Steps and optimiser, the frames (how many, rendered from which model spacing) of the run and of
+    its fine-tune stage, and the checkpoint the run started from, as far as the manifest records
+    them (older manifests lack some; they are left out rather than guessed).
+    """
+    if not isinstance(manifest, dict):
+        raise TypeError(f"manifest must be a checkpoint manifest dict, got {type(manifest).__name__}")
+    cfg = manifest.get("training_config") or {}
+    parts = [f"{manifest.get('training_steps', '?')} training steps"]
+    if cfg.get("optimizer"):
+        parts[0] += f" ({cfg['optimizer']})"
+
+    def frames(n, render):
+        return f"{n} frames rendered from the {render.get('render_spacing_mm', '?'):g} mm model" if render else f"{n} frames"
+
+    if "n_train" in cfg:
+        parts.append("on " + frames(cfg["n_train"], cfg.get("render")))
+    fine = cfg.get("fine_tune")
+    if fine:
+        parts.append("fine-tuned on " + frames(fine.get("n_train"), fine.get("render")))
+    init = manifest.get("init_weights")
+    if init:
+        parts.append(f"started from a checkpoint of sha256 {str(init.get('sha256', '?'))[:12]}"
+                     + (f" ({init['training_steps']} steps)" if init.get("training_steps") else ""))
+    return ", ".join(parts)

@@ -139,3 +139,17 @@ def test_shipped_model_lookup(tmp_path):
     (tmp_path / "unet.safetensors").write_bytes(bytes(data))
     with pytest.warns(UserWarning, match="not usable"):
         assert shipped_model("unet", models_dir=tmp_path) is None
+
+
+def test_training_summary_reads_the_manifests_training_record():
+    from histostudy.checkpoints import training_summary
+
+    manifest = {"training_steps": 1200, "init_weights": {"sha256": "ab" * 32, "training_steps": 600},
+                "training_config": {"optimizer": "adam", "n_train": 3000, "render": {"render_spacing_mm": 0.47},
+                                    "fine_tune": {"n_train": 1500, "render": {"render_spacing_mm": 0.125}}}}
+    assert training_summary(manifest) == (
+        "1200 training steps (adam), on 3000 frames rendered from the 0.47 mm model, fine-tuned on 1500 frames "
+        "rendered from the 0.125 mm model, started from a checkpoint of sha256 abababababab (600 steps)")
+    assert training_summary({"training_steps": 40}) == "40 training steps"  # an older manifest: nothing guessed
+    with pytest.raises(TypeError, match="manifest must be a checkpoint manifest dict"):
+        training_summary("vgg19_standard.json")
