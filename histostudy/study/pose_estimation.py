@@ -55,6 +55,7 @@ __all__ = [
     "reference_error_summary",
     "degradation_sweep",
     "margin_positions",
+    "robustness_summary",
     "robustness_sweep",
     "run_pose_study",
     "stage_timing",
@@ -725,16 +726,20 @@ def random_pose_in_views(rng: np.random.Generator, views: Sequence[View], *, tra
 def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model: TransducerModel,
                      physical: TransducerModel, views: Sequence[View], seed: int, config: PoseStudyConfig,
                      inits: Sequence[str] = ("robust", "paper"), mode: str = "fast",
-                     success_mm: float = 2.0) -> pd.DataFrame:
+                     success_mm: float = 2.0, segmenter: Segmenter | None = None,
+                     orientation: OrientationSource | None = None) -> pd.DataFrame:
     """Initialisation success over random poses in the paper's training ranges; one row per (pose, init).
 
     The focal point and the transducer's centre (the centroid of the model's element points)
     project into every view: the transducer is seen, at least half of it, as in every use of
     the system. Success: no :class:`PoseEstimationError` and a focal-point error below ``success_mm``.
-    Backgrounds are drawn from the paper's evaluation mix (abdomen and phantom).
+    Backgrounds are drawn from the paper's evaluation mix (abdomen and phantom). ``segmenter``
+    and ``orientation`` default to the config's oracles (Table I degradation, the paper's angle
+    MAE); pass the learned ones to measure the whole pipeline.
     """
     rows = []
-    segmenter = config.segmenter()
+    segmenter = config.segmenter() if segmenter is None else segmenter
+    orientation = OracleOrientation() if orientation is None else orientation
     centre = np.mean(pose_model.points[Feature.TRANSDUCER], axis=0)
     visible = np.stack([np.asarray(pose_model.focal_point_mm, float), centre])
     for i, seq in enumerate(np.random.SeedSequence(seed).spawn(n_poses)):
@@ -749,7 +754,7 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
             row = {"pose": i, "init": init, "scene": scene.kind}
             t0 = time.perf_counter()
             try:
-                res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=OracleOrientation(),
+                res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=orientation,
                                     rng=np.random.default_rng(rng_est.integers(2**63)), mode=mode, init=init)
                 err = float(np.linalg.norm(res.focal_point_mm - truth))
                 row.update(error_mm=err, verdict_ok=True, success=err < success_mm, failure="")
@@ -759,6 +764,22 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
             row["seconds"] = time.perf_counter() - t0
             rows.append(row)
     return pd.DataFrame(rows)
+
+
+def robustness_summary(robust: pd.DataFrame, by: Sequence[str] = ("init",)) -> pd.DataFrame:
+    """Per group of :func:`robustness_sweep` rows: poses, success rate, how many the verdict refused,
+    how many it accepted although the focal point is off by ``success_mm`` or more (the dangerous
+    outcome: a robot would be sent there), median error (mm) and median time (s)."""
+    missing = {"pose", "success", "verdict_ok", "error_mm", "seconds", *by} - set(robust.columns)
+    if missing:
+        raise ValueError(f"robust must hold robustness_sweep rows; missing columns {sorted(missing)}")
+    flags = robust.assign(refused=~robust["verdict_ok"].astype(bool),
+                          wrong_accepted=robust["verdict_ok"].astype(bool) & ~robust["success"].astype(bool))
+    return (flags.groupby(list(by), sort=False)
+            .agg(poses=("pose", "size"), success_rate=("success", "mean"), refused=("refused", "sum"),
+                 wrong_accepted=("wrong_accepted", "sum"), median_error_mm=("error_mm", "median"),
+                 median_seconds=("seconds", "median"))
+            .reset_index())
 
 
 def degradation_sweep(levels: Sequence[float], *, pose_model: TransducerModel, render_model: TransducerModel,
