@@ -8,6 +8,7 @@ Each test is bounded in time by SIGALRM (no pytest plugin), with a faulthandler 
 import faulthandler
 import importlib.metadata
 import os
+import re
 import signal
 import threading
 import time
@@ -213,6 +214,36 @@ def test_protective_stop_blocks_moves_until_cleared(shared_controller):
     robot.stop()  # allowed, and harmless, under a protective stop
     robot.clear_protective_stop()
     assert not robot.state().protective_stop
+    assert np.abs(robot.move_linear(target) - target).max() < 1e-6
+    robot.close()
+
+
+def test_a_move_answered_false_for_a_protective_stop_says_where_the_arm_stopped(shared_controller):
+    # The stop may reach the client before moveL's answer (then moveL returns False) or after it:
+    # either way the error says where the arm is. Here the first case, made certain.
+    robot = RTDERobot(shared_controller.host)
+    here = robot.tcp_pose()
+    target = here.copy()
+    target[:3, 3] += [20.0, 0.0, 0.0]
+
+    class StoppedOnMove:
+        def __init__(self, control):
+            self._inner = control
+
+        def __getattr__(self, name):
+            return getattr(self._inner, name)
+
+        def moveL(self, *args):
+            robot.trigger_protective_stop()
+            return False
+
+    robot._control = StoppedOnMove(robot._control)
+    where = np.round(here[:3, 3], 3).tolist()
+    with pytest.raises(ProtectiveStopError, match=re.escape(f"moveL failed: the arm at {shared_controller.host} is "
+                                                            f"in a protective stop; it stopped at {where} mm")):
+        robot.move_linear(target)
+    robot._control = robot._control._inner
+    robot.clear_protective_stop()
     assert np.abs(robot.move_linear(target) - target).max() < 1e-6
     robot.close()
 

@@ -377,7 +377,10 @@ class RTDERobot:
         self._require_connected(what)
         self._wait_fresh_data(what)  # the reason (a protective stop) may not have arrived yet
         if self._receive.isProtectiveStopped():
-            raise ProtectiveStopError(f"{what} failed: the arm at {self.host} is in a protective stop")
+            # Where it stopped, whichever of the command's answer or the stop reached us first.
+            where = np.round(self.tcp_pose()[:3, 3], 3).tolist()
+            raise ProtectiveStopError(f"{what} failed: the arm at {self.host} is in a protective stop; it stopped at "
+                                      f"{where} mm and stays stopped until cleared")
         raise RobotError(f"{what} returned False: the controller at {self.host} did not execute it")
 
     def check_pose(self, T_base_tcp) -> np.ndarray:
