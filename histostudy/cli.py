@@ -106,15 +106,13 @@ def _train(args) -> int:
         import time
 
         from .datasets import HybridFrames
-        from .training import stage_frames
+        from .training import run_frame_sets
 
         t0 = time.monotonic()
-        frame_sets = [(cfg.render, cfg.n_train, cfg.n_val)]
-        if cfg.fine_tune is not None:
-            frame_sets.append(stage_frames(cfg, "finetune"))
         rendered = sum(HybridFrames(split, profile.seed, config=render, cache_dir=default_cache_dir())
                        .prerender(n, workers=args.render_workers)
-                       for render, n_train, n_val in frame_sets for split, n in (("val", n_val), ("train", n_train)))
+                       for render, n_train, n_val in run_frame_sets(cfg)
+                       for split, n in (("val", n_val), ("train", n_train)))
         print(f"rendered {rendered} uncached frames in {(time.monotonic() - t0) / 60:.1f} min "
               f"with {args.render_workers} processes")
     run_dir = args.run_dir or default_cache_dir() / "runs" / f"{args.task}-{profile.name}"

@@ -368,6 +368,16 @@ def stage_frames(cfg: TrainingConfig, stage: str) -> tuple[RenderConfig, int, in
     return cfg.render, cfg.n_train, cfg.n_val
 
 
+def run_frame_sets(cfg: TrainingConfig) -> list[tuple[RenderConfig, int, int]]:
+    """Every ``(render, n_train, n_val)`` the run's stages train and validate on, each once, in stage order."""
+    sets = []
+    for stage in _stages(cfg):
+        frames = stage_frames(cfg, stage)
+        if frames not in sets:
+            sets.append(frames)
+    return sets
+
+
 def _loaders(cfg: TrainingConfig, seed: int, cache_dir, stage: str):
     render, n_train, n_val = stage_frames(cfg, stage)
     frames_kwargs = dict(config=render, cache_dir=cache_dir if cfg.cache else None)

@@ -360,6 +360,10 @@ def test_fine_tune_budget_of_its_own_and_bad_tables(tmp_path, cache):
              "fine_tune": {"n_train": 5, "learning_rate": 1e-4, "render": {"render_spacing_mm": 0.125}}}
     cfg = TrainingConfig.from_table("orientation", table)
     assert cfg.fine_tune.render.render_spacing_mm == 0.125 and cfg.fine_tune.n_val == 3
+    from histostudy.training import run_frame_sets
+
+    assert run_frame_sets(cfg) == [(cfg.render, 200, 3), (cfg.fine_tune.render, 5, 3)]
+    assert run_frame_sets(TrainingConfig.from_table("orientation", {**table, "fine_tune": None})) == [(cfg.render, 200, 3)]
     for fine, match in [({"n_train": 5, "render": {}}, r"fine_tune needs \['learning_rate'\]"),
                         ({**table["fine_tune"], "epochs": 2}, r"fine_tune has unknown keys \['epochs'\]"),
                         ({**table["fine_tune"], "n_train": 0}, "fine_tune.n_train must be an integer >= 1, got 0"),
