@@ -129,7 +129,10 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
             and pass their check, else :class:`OracleSegmenter` (the frames' reference labels, a
             synthetic-study stand-in that cannot segment a real frame) — see :func:`default_stages`.
         orientation: frame -> (azimuth, elevation); default: the shipped VGG19 regressor, else
-            :class:`OracleOrientation` (the true angles with the paper's errors).
+            :class:`OracleOrientation` (the true angles with the paper's errors). A source with a
+            ``direction_candidates_from_labels(frame, labels, rng)`` method (the geometric
+            :class:`~histostudy.conic_orientation.ConicOrientation`) is given the segmentation
+            made here and returns each view's two candidate directions itself.
         rng: Generator for the segmenter's and orientation's draws and the point subsets; default
             ``numpy.random.default_rng(0)``.
         mode: ``"paper"`` (Nelder-Mead, 1000 iterations, tolerances 0.01) or ``"fast"``
@@ -266,7 +269,7 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
         timings["orientation"] = timings["initialisation"] = 0.0
     else:
         t0 = time.perf_counter()
-        candidates = [direction_candidates(*orientation.estimate(f, rng), f.view) for f in frames]
+        candidates = [_view_direction_candidates(orientation, f, lab, rng) for f, lab in zip(frames, labels)]
         timings["orientation"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         view_costs = [search.select_views(i) for i in range(len(frames))]
@@ -432,6 +435,21 @@ def default_stages() -> tuple[Segmenter, OrientationSource]:
                       "synthetic frames", stacklevel=3)
         return OracleSegmenter(), OracleOrientation()
     return segmenter, orientation
+
+
+def _view_direction_candidates(orientation, frame: Frame, labels: np.ndarray, rng) -> np.ndarray:
+    """``(2, 3)`` world focal-direction candidates of one view: the source's own pair when it reads
+    them from the labels already made (``direction_candidates_from_labels``, e.g.
+    :class:`~histostudy.conic_orientation.ConicOrientation`: no second segmentation), else eq. 4's
+    mirror pair of its ``(azimuth, elevation)``."""
+    from_labels = getattr(orientation, "direction_candidates_from_labels", None)
+    if from_labels is not None:
+        pair = np.asarray(from_labels(frame, labels, rng), dtype=np.float64)
+        if pair.shape != (2, 3) or not np.all(np.isfinite(pair)):
+            raise ValueError(f"{type(orientation).__name__}.direction_candidates_from_labels returned shape "
+                             f"{pair.shape}; expected two finite world directions (2, 3)")
+        return pair / np.linalg.norm(pair, axis=1, keepdims=True)
+    return direction_candidates(*orientation.estimate(frame, rng), frame.view)
 
 
 def _check_frames(frames) -> list[Frame]:
