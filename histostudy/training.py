@@ -49,7 +49,11 @@ from .io import atomic_write_json
 from .nets import build_network
 from .orientation import N_ORIENTATION_CLASSES, hemisphere_angles
 
-__all__ = ["FineTuneConfig", "TrainingConfig", "TrainingResult", "angle_loss", "export", "train"]
+__all__ = ["FineTuneConfig", "SEGMENTATION_LOSSES", "TrainingConfig", "TrainingResult", "angle_loss", "dice_loss", "export",
+           "train"]
+
+#: The segmentation losses a profile may choose (:attr:`TrainingConfig.loss`).
+SEGMENTATION_LOSSES = ("cross_entropy", "cross_entropy+dice")
 
 
 @dataclass(frozen=True)
@@ -144,6 +148,11 @@ class TrainingConfig:
         cache: keep rendered frames on disk (under the cache folder) between epochs and runs.
         class_weights: segmentation only: a weight per class for the cross-entropy (None: all 1,
             the paper's loss as far as it says); rare thin classes may be weighted up.
+        loss: segmentation only: ``"cross_entropy"`` (the paper's, with ``class_weights``) or
+            ``"cross_entropy+dice"``: that plus the soft Dice loss of the five feature classes,
+            averaged over classes (Milletari et al. 2016; the batch's pixels pooled per class, as
+            Sudre et al. 2017's generalised Dice), so that a thin or rare class (gaps, screws, the
+            inner boundary) weighs as much as the elements whatever its share of the pixels.
         init_weights: a checkpoint whose network (same config) starts the run instead of a random
             initialisation (fine-tuning); for an orientation run without classifier stage it may
             be the trained classifier, converted to the regressor (§II-B.4). Recorded with its
@@ -173,6 +182,7 @@ class TrainingConfig:
     render: RenderConfig = field(default_factory=RenderConfig)
     cache: bool = True
     class_weights: tuple | None = None
+    loss: str = "cross_entropy"
     init_weights: str | None = None
     fine_tune: FineTuneConfig | None = None
 
@@ -207,6 +217,9 @@ class TrainingConfig:
                 raise ValueError(f"class_weights must be None or 6 positive numbers for segmentation, got "
                                  f"{self.class_weights!r} for task {self.task!r}")
             object.__setattr__(self, "class_weights", w)
+        if self.loss not in SEGMENTATION_LOSSES or (self.loss != "cross_entropy" and self.task != "segmentation"):
+            raise ValueError(f"loss must be one of {SEGMENTATION_LOSSES} (a segmentation run), got {self.loss!r} "
+                             f"for task {self.task!r}")
         if isinstance(self.fine_tune, dict):
             object.__setattr__(self, "fine_tune", FineTuneConfig.from_table(self.fine_tune, n_val=self.n_val))
         elif self.fine_tune is not None and not isinstance(self.fine_tune, FineTuneConfig):
@@ -277,13 +290,29 @@ def _objective(cfg: TrainingConfig, stage: str) -> str:
     return "segment" if cfg.task == "segmentation" else "regress"
 
 
-def _loss(stage: str, net, batch, device, class_weights=None) -> tuple[torch.Tensor, torch.Tensor]:
+def dice_loss(logits: torch.Tensor, labels: torch.Tensor, classes=range(1, 6), eps: float = 1.0) -> torch.Tensor:
+    """``1 - mean_k Dice_k`` of the softmax of ``logits`` (B, C, H, W) against integer ``labels``
+    (B, H, W), over ``classes``, each class's pixels pooled over the batch; ``eps`` keeps a class
+    absent from the batch finite (its Dice then rewards predicting none of it)."""
+    prob = torch.softmax(logits, dim=1)
+    dices = []
+    for k in classes:
+        p, t = prob[:, k], (labels == k).to(prob.dtype)
+        dices.append((2 * (p * t).sum() + eps) / (p.sum() + t.sum() + eps))
+    return 1 - torch.stack(dices).mean()
+
+
+def _loss(stage: str, net, batch, device, class_weights=None, kind: str = "cross_entropy"
+          ) -> tuple[torch.Tensor, torch.Tensor]:
     x = batch["image"].to(device)
     if stage == "segment":
         y = batch["labels"].to(device)
         out = net(x)
         w = None if class_weights is None else torch.tensor(class_weights, dtype=out.dtype, device=device)
-        return F.cross_entropy(out, y, weight=w), out
+        loss = F.cross_entropy(out, y, weight=w)
+        if kind == "cross_entropy+dice":
+            loss = loss + dice_loss(out, y)
+        return loss, out
     if stage == "classify":
         out = net(x)
         return F.cross_entropy(out, batch["class"].to(device)), out
@@ -292,19 +321,25 @@ def _loss(stage: str, net, batch, device, class_weights=None) -> tuple[torch.Ten
 
 
 @torch.no_grad()
-def _validate(stage: str, net, loader, device, class_weights=None) -> dict:
+def _validate(stage: str, net, loader, device, class_weights=None, kind: str = "cross_entropy") -> dict:
     net.eval()
     total, n = 0.0, 0
     correct, pixels = 0, 0
+    intersection, union = np.zeros(6), np.zeros(6)
     az_err, el_err = [], []
     for batch in loader:
-        loss, out = _loss(stage, net, batch, device, class_weights)
+        loss, out = _loss(stage, net, batch, device, class_weights, kind)
         b = batch["image"].shape[0]
         total += loss.item() * b
         n += b
         if stage == "segment":
-            correct += int((out.argmax(1).cpu() == batch["labels"]).sum())
-            pixels += batch["labels"].numel()
+            pred, ref = out.argmax(1).cpu(), batch["labels"]
+            correct += int((pred == ref).sum())
+            pixels += ref.numel()
+            for k in range(6):
+                p, r = pred == k, ref == k
+                intersection[k] += int((p & r).sum())
+                union[k] += int((p | r).sum())
         elif stage == "classify":
             correct += int((out.argmax(1).cpu() == batch["class"]).sum())
             pixels += b
@@ -317,6 +352,9 @@ def _validate(stage: str, net, loader, device, class_weights=None) -> dict:
     metrics = {"loss": total / max(n, 1)}
     if stage == "segment":
         metrics["pixel_accuracy"] = correct / max(pixels, 1)
+        # per-class IoU of the validation pixels (NaN for a class absent from prediction and reference)
+        for k, name in enumerate(("background", "transducer", "outer_boundary", "inner_boundary", "gaps", "screws")):
+            metrics[f"iou_{name}"] = float(intersection[k] / union[k]) if union[k] else float("nan")
     elif stage == "classify":
         metrics["class_accuracy"] = correct / max(pixels, 1)
     else:
@@ -551,7 +589,7 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
         running = 0.0
         bar = tqdm(loader, desc=f"{cfg.task}/{stage} epoch {epoch + 1}", disable=not progress, leave=False)
         for i, batch in enumerate(bar):
-            loss, _ = _loss(_objective(cfg, stage), net, batch, device, cfg.class_weights)
+            loss, _ = _loss(_objective(cfg, stage), net, batch, device, cfg.class_weights, cfg.loss)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -559,7 +597,7 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
             running += loss.item()
             bar.set_postfix(loss=f"{running / (i + 1):.4f}")
         bar.close()
-        metrics = _validate(_objective(cfg, stage), net, val_loader, device, cfg.class_weights)
+        metrics = _validate(_objective(cfg, stage), net, val_loader, device, cfg.class_weights, cfg.loss)
         metrics.update(train_loss=running / max(len(loader), 1), stage=stage, epoch=epoch + 1, steps=state["steps"],
                        learning_rate=opt.param_groups[0]["lr"])
         state["history"].append(metrics)

@@ -11,7 +11,7 @@ from histostudy.checkpoints import load_checkpoint, load_network
 from histostudy.datasets import RenderConfig
 from histostudy.orientation import LearnedOrientation, hemisphere_angles
 from histostudy.profiles import PROFILE_NAMES, load_profile
-from histostudy.training import TrainingConfig, angle_loss, export, train
+from histostudy.training import TrainingConfig, angle_loss, dice_loss, export, train
 
 TINY = RenderConfig(render_spacing_mm=0.47, label_spacing_mm=0.47, detector=(240, 320))
 
@@ -43,6 +43,32 @@ def test_angle_loss_wraps_azimuth_and_weights_it_by_sin_elevation():
     assert float(angle_loss(p, t)) == pytest.approx(np.radians(2.0) ** 2, rel=1e-5)
     t0 = torch.tensor([[0.3, 0.0]])
     assert float(angle_loss(torch.tensor([[2.5, 0.1]]), t0)) == pytest.approx(0.01, rel=1e-5)  # azimuth moot on axis
+
+
+def test_dice_loss_against_a_hand_computed_dice():
+    labels = torch.tensor([[[0, 1, 1], [3, 3, 0]]])
+    perfect = torch.nn.functional.one_hot(labels, 6).permute(0, 3, 1, 2).to(torch.float64) * 60.0
+    # a perfect prediction: Dice 1 for the present classes and eps / (0 + eps) = 1 for the absent
+    assert float(dice_loss(perfect, labels)) == pytest.approx(0.0, abs=1e-12)
+    # uniform logits: p = 1/6 everywhere; class k with n_k pixels of 6: (2 n/6 + 1) / (6/6 + n + 1)
+    uniform = torch.zeros(1, 6, 2, 3, dtype=torch.float64)
+    expected = [(2 * n / 6 + 1) / (1 + n + 1) for n in (2, 0, 2, 0, 0)]
+    assert float(dice_loss(uniform, labels)) == pytest.approx(1 - np.mean(expected), rel=1e-12)
+
+
+def test_the_loss_is_a_segmentation_choice_and_changes_the_validation_loss(tmp_path, cache):
+    with pytest.raises(ValueError, match="loss"):
+        _seg(loss="focal")
+    with pytest.raises(ValueError, match="loss"):
+        TrainingConfig(task="orientation", network={"arch": "vgg19", "width": 1 / 32}, scale=0.25,
+                       loss="cross_entropy+dice")
+    plain = train(_seg(max_epochs=1, learning_rate=0.0), tmp_path / "ce", seed=3, progress=False,
+                  log=lambda m: None, cache_dir=cache)
+    dice = train(_seg(max_epochs=1, learning_rate=0.0, loss="cross_entropy+dice"), tmp_path / "dice", seed=3,
+                 progress=False, log=lambda m: None, cache_dir=cache)
+    # the same untrained network: the Dice term adds a loss in (0, 1]
+    assert 0 < dice.history[0]["loss"] - plain.history[0]["loss"] <= 1
+    assert 0 <= plain.history[0]["iou_background"] <= 1 and "iou_screws" in plain.history[0]
 
 
 def test_interrupted_run_resumes_to_the_same_weights(tmp_path, cache):
