@@ -200,23 +200,30 @@ class ConicOrientation:
         """``(2, 3)`` world focal-direction candidates of one view, from its labels (the conic's two
         solutions), or the fallback's eq. 4 pair where the view shows no usable ellipse or the
         fit fails. Raises ``ValueError`` when neither can answer."""
+        return self._candidates(frame, labels, rng)[0]
+
+    def candidates(self, frame: Frame, rng: np.random.Generator | None = None) -> tuple[np.ndarray, bool]:
+        """``((2, 3) world focal-direction candidates, fell_back)`` of one frame, segmenting it with
+        :attr:`segmenter`; ``fell_back`` says the fallback source answered (no usable ellipse)."""
+        if not isinstance(frame, Frame):
+            raise TypeError(f"frame must be a histostudy.frame.Frame, got {type(frame).__name__}")
+        rng = np.random.default_rng(0) if rng is None else rng
+        return self._candidates(frame, self._segment(frame, rng), rng)
+
+    def _candidates(self, frame: Frame, labels, rng: np.random.Generator) -> tuple[np.ndarray, bool]:
         fit = self.fit(labels, frame.view, rng)
         if fit is not None:
-            return fit.directions
+            return fit.directions, False
         if self.fallback is None:
             raise ValueError(f"view {frame.view.name!r}: no usable inner-boundary ellipse and no fallback "
                              f"orientation source")
-        return direction_candidates(*self.fallback.estimate(frame, rng), frame.view)
+        return direction_candidates(*self.fallback.estimate(frame, rng), frame.view), True
 
     def estimate(self, frame: Frame, rng: np.random.Generator | None = None) -> tuple[float, float]:
         """``(azimuth_rad, elevation_rad)`` of the frame's view (the protocol of
         :class:`~histostudy.orientation.OrientationSource`): the mean of the two candidates, each
         taken on the hemisphere away from the detector."""
-        if not isinstance(frame, Frame):
-            raise TypeError(f"frame must be a histostudy.frame.Frame, got {type(frame).__name__}")
-        rng = np.random.default_rng(0) if rng is None else rng
-        labels = self._segment(frame, rng)
-        candidates = self.direction_candidates_from_labels(frame, labels, rng)
+        candidates, _ = self.candidates(frame, rng)
         R = frame.view.detector_axes
         canonical = []
         for d in candidates:

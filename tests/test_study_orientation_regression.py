@@ -78,3 +78,37 @@ def test_frames_without_truth_are_rejected():
     view = View.from_gantry(0.0, shape=(24, 32))
     with pytest.raises(ValueError, match="no true pose"):
         study.evaluate_orientation(_Offset(0, 0), [Frame(np.zeros((24, 32), np.float32), view)])
+
+
+class _Pair:
+    """A source with its own two candidates: the truth turned by a known angle, and a decoy."""
+
+    def __init__(self, angle_deg, fell_back=False):
+        self.angle, self.fell_back = np.radians(angle_deg), fell_back
+
+    def candidates(self, frame, rng=None):
+        d = beam_direction_of_pose(frame.T_carm_transducer)
+        axis = np.cross(d, [0.0, 0.0, 1.0] if abs(d[2]) < 0.9 else [1.0, 0.0, 0.0])
+        axis /= np.linalg.norm(axis)
+        turned = d * np.cos(self.angle) + np.cross(axis, d) * np.sin(self.angle)  # Rodrigues, axis ⟂ d
+        return np.stack([-d, turned]), self.fell_back
+
+
+def test_candidate_errors_take_the_nearer_candidate_and_agree_with_the_direction_error():
+    frames = _frames()
+    offset = _Offset(0.0, np.radians(-1.0))
+    per_frame = study.candidate_errors({"pair": _Pair(2.5), "offset": offset}, frames)
+    assert len(per_frame) == 2 * len(frames)
+    pair = per_frame[per_frame.source == "pair"]
+    np.testing.assert_allclose(pair["candidate_error_deg"], 2.5, atol=1e-9)
+    # an (azimuth, elevation) source: eq. 4's pair, whose nearer candidate is the direction error
+    direction = study.evaluate_orientation(offset, frames)["direction_error_deg"].to_numpy()
+    np.testing.assert_allclose(per_frame[per_frame.source == "offset"]["candidate_error_deg"], direction, atol=1e-6)
+    summary = study.candidate_error_summary(per_frame).set_index("source")
+    assert summary.loc["pair", "median_deg"] == pytest.approx(2.5) and summary.loc["pair", "fallback_fraction"] == 0
+    assert summary.loc["offset", "elevation_mae_deg"] == pytest.approx(1.0, abs=1e-6)
+    fell = study.candidate_errors({"f": _Pair(40.0, fell_back=True)}, frames[:3])
+    s = study.candidate_error_summary(fell).iloc[0]
+    assert s["fallback_fraction"] == 1.0 and s["misread_fraction"] == 1.0
+    with pytest.raises(ValueError, match="sources"):
+        study.candidate_errors({}, frames)

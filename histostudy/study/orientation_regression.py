@@ -14,10 +14,12 @@ from typing import Iterable
 import numpy as np
 import pandas as pd
 
-from ..orientation import angles_from_direction, beam_direction_of_pose, orientation_angle_error, wrap_angle
+from ..orientation import (angles_from_direction, beam_direction_of_pose, direction_candidates, orientation_angle_error,
+                           wrap_angle)
 from ..stats import angle_statistics
 
-__all__ = ["angle_table", "direction_error_summary", "evaluate_orientation", "scatter_figure"]
+__all__ = ["angle_table", "candidate_error_summary", "candidate_errors", "direction_error_summary", "evaluate_orientation",
+           "scatter_figure"]
 
 
 def evaluate_orientation(source, frames: Iterable, rng: np.random.Generator | None = None) -> pd.DataFrame:
@@ -69,6 +71,73 @@ def direction_error_summary(results: pd.DataFrame, misread_deg: float = 30.0) ->
     return {"mean_deg": float(e.mean()), "sd_deg": float(e.std(ddof=1)) if e.size > 1 else float("nan"),
             "median_deg": float(np.median(e)), "p90_deg": float(np.percentile(e, 90)),
             "misread_fraction": float(np.mean(e > misread_deg)), "misread_deg": float(misread_deg), "n": int(e.size)}
+
+
+def _source_candidates(source, frame, rng) -> tuple[np.ndarray, bool]:
+    own = getattr(source, "candidates", None)
+    if own is not None:
+        pair, fell_back = own(frame, rng)
+        return np.asarray(pair, dtype=np.float64), bool(fell_back)
+    return direction_candidates(*source.estimate(frame, rng), frame.view), False
+
+
+def candidate_errors(sources: dict, frames: Iterable, rng: np.random.Generator | None = None) -> pd.DataFrame:
+    """What the pose initialisation starts from, per frame and orientation source (beyond the paper).
+
+    Every source gives each view two candidate world directions of the transducer axis: eq. 4's
+    mirror pair of its ``(azimuth, elevation)``, or, for a source with a ``candidates(frame, rng)``
+    method (:class:`~histostudy.conic_orientation.ConicOrientation`), its own pair; the pose
+    initialisation resolves the pair across views (§II-B.4). One row per frame and source: the
+    angle (deg) between the true focal direction and the nearer candidate, that candidate's
+    azimuth and elevation errors in the view (the §III angles: the canonical mirror folded, azimuth
+    wrapped), whether the source fell back to another (``fell_back``) and its ``seconds``. For an
+    ``(azimuth, elevation)`` source the nearer candidate's angle is its direction error of
+    :func:`evaluate_orientation`.
+    """
+    if not isinstance(sources, dict) or not sources:
+        raise ValueError(f"sources must be a non-empty dict {{name: orientation source}}, got {sources!r}")
+    rng = np.random.default_rng(0) if rng is None else rng
+    rows = []
+    for i, frame in enumerate(frames):
+        if frame.T_carm_transducer is None:
+            raise ValueError(f"frame {i} (view {frame.view.name!r}) has no true pose to evaluate against")
+        truth = beam_direction_of_pose(frame.T_carm_transducer)
+        ref_az, ref_el = angles_from_direction(truth, frame.view)
+        for name, source in sources.items():
+            t0 = time.perf_counter()
+            pair, fell_back = _source_candidates(source, frame, rng)
+            seconds = time.perf_counter() - t0
+            pair = pair / np.linalg.norm(pair, axis=1, keepdims=True)
+            nearest = pair[int(np.argmax(pair @ truth))]
+            az, el = angles_from_direction(nearest, frame.view)
+            rows.append({"image": i, "view": frame.view.name, "source": name,
+                         "candidate_error_deg": float(np.degrees(np.arccos(np.clip(nearest @ truth, -1.0, 1.0)))),
+                         "azimuth_error_deg": float(np.degrees(wrap_angle(az - ref_az))),
+                         "elevation_error_deg": float(np.degrees(el - ref_el)),
+                         "elevation_ref_deg": float(np.degrees(ref_el)),
+                         "fell_back": fell_back, "seconds": seconds})
+    if not rows:
+        raise ValueError("frames must hold at least one frame")
+    return pd.DataFrame(rows)
+
+
+def candidate_error_summary(per_frame: pd.DataFrame, misread_deg: float = 30.0) -> pd.DataFrame:
+    """Per source of :func:`candidate_errors`: median, 90th percentile and mean of the nearer
+    candidate's angle (deg), the fraction of frames off by more than ``misread_deg``, the azimuth
+    and elevation MAE of the nearer candidate (deg), the fraction of frames the source fell back on,
+    the median seconds and n."""
+    if not (np.isfinite(misread_deg) and misread_deg > 0):
+        raise ValueError(f"misread_deg must be finite and > 0, got {misread_deg!r}")
+    rows = []
+    for name, g in per_frame.groupby("source", sort=False):
+        e = g["candidate_error_deg"].to_numpy()
+        rows.append({"source": name, "median_deg": float(np.median(e)), "p90_deg": float(np.percentile(e, 90)),
+                     "mean_deg": float(e.mean()), "misread_fraction": float(np.mean(e > misread_deg)),
+                     "azimuth_mae_deg": float(g["azimuth_error_deg"].abs().mean()),
+                     "elevation_mae_deg": float(g["elevation_error_deg"].abs().mean()),
+                     "fallback_fraction": float(g["fell_back"].mean()), "seconds_median": float(g["seconds"].median()),
+                     "n": int(len(g))})
+    return pd.DataFrame(rows)
 
 
 def scatter_figure(results: pd.DataFrame, table: pd.DataFrame | None = None):
