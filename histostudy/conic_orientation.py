@@ -164,9 +164,10 @@ class ConicOrientation:
 
     # --- the estimate ---------------------------------------------------------------------------
 
-    def fit(self, labels, view: View, rng: np.random.Generator) -> ConicFit | None:
+    def fit(self, labels, view: View, rng: np.random.Generator, maps=None) -> ConicFit | None:
         """The ellipse of the inner boundary in ``labels`` and the focal directions it gives, or
-        None when the view shows no usable ellipse (see the class's thresholds)."""
+        None when the view shows no usable ellipse (see the class's thresholds). ``maps``: the
+        labels' :class:`~histostudy.pose.cost.DistanceMaps` when already made (else made here)."""
         labels = np.asarray(labels)
         if labels.shape != tuple(view.shape):
             raise ValueError(f"labels have shape {labels.shape}, expected the view's {view.shape}")
@@ -185,7 +186,10 @@ class ConicOrientation:
             return None
         from .pose.cost import DistanceMaps
 
-        maps = DistanceMaps(view, labels, occlusion_aware=True)
+        if maps is None:
+            maps = DistanceMaps(view, labels, occlusion_aware=True)
+        elif not isinstance(maps, DistanceMaps) or maps.view is not view:
+            raise ValueError("maps must be the DistanceMaps of these labels in this view")
         tolerance = self._tolerance_px(view)
         directions, scores = [], []
         for circle in circles:
@@ -196,11 +200,12 @@ class ConicOrientation:
         return ConicFit(ellipse=ellipse, circles=tuple(circles), directions=np.array(directions),
                         sign_scores=tuple(scores))
 
-    def direction_candidates_from_labels(self, frame: Frame, labels, rng: np.random.Generator) -> np.ndarray:
+    def direction_candidates_from_labels(self, frame: Frame, labels, rng: np.random.Generator,
+                                         maps=None) -> np.ndarray:
         """``(2, 3)`` world focal-direction candidates of one view, from its labels (the conic's two
         solutions), or the fallback's eq. 4 pair where the view shows no usable ellipse or the
-        fit fails. Raises ``ValueError`` when neither can answer."""
-        return self._candidates(frame, labels, rng)[0]
+        fit fails. Raises ``ValueError`` when neither can answer. ``maps`` as in :meth:`fit`."""
+        return self._candidates(frame, labels, rng, maps)[0]
 
     def candidates(self, frame: Frame, rng: np.random.Generator | None = None) -> tuple[np.ndarray, bool]:
         """``((2, 3) world focal-direction candidates, fell_back)`` of one frame, segmenting it with
@@ -210,8 +215,8 @@ class ConicOrientation:
         rng = np.random.default_rng(0) if rng is None else rng
         return self._candidates(frame, self._segment(frame, rng), rng)
 
-    def _candidates(self, frame: Frame, labels, rng: np.random.Generator) -> tuple[np.ndarray, bool]:
-        fit = self.fit(labels, frame.view, rng)
+    def _candidates(self, frame: Frame, labels, rng: np.random.Generator, maps=None) -> tuple[np.ndarray, bool]:
+        fit = self.fit(labels, frame.view, rng, maps)
         if fit is not None:
             return fit.directions, False
         if self.fallback is None:

@@ -130,7 +130,7 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
             synthetic-study stand-in that cannot segment a real frame) — see :func:`default_stages`.
         orientation: frame -> (azimuth, elevation); default: the shipped VGG19 regressor, else
             :class:`OracleOrientation` (the true angles with the paper's errors). A source with a
-            ``direction_candidates_from_labels(frame, labels, rng)`` method (the geometric
+            ``direction_candidates_from_labels(frame, labels, rng, maps=)`` method (the geometric
             :class:`~histostudy.conic_orientation.ConicOrientation`) is given the segmentation
             made here and returns each view's two candidate directions itself.
         rng: Generator for the segmenter's and orientation's draws and the point subsets; default
@@ -269,7 +269,7 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
         timings["orientation"] = timings["initialisation"] = 0.0
     else:
         t0 = time.perf_counter()
-        candidates = [_view_direction_candidates(orientation, f, lab, rng) for f, lab in zip(frames, labels)]
+        candidates = [_view_direction_candidates(orientation, f, lab, m, rng) for f, lab, m in zip(frames, labels, maps)]
         timings["orientation"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         view_costs = [search.select_views(i) for i in range(len(frames))]
@@ -437,14 +437,14 @@ def default_stages() -> tuple[Segmenter, OrientationSource]:
     return segmenter, orientation
 
 
-def _view_direction_candidates(orientation, frame: Frame, labels: np.ndarray, rng) -> np.ndarray:
+def _view_direction_candidates(orientation, frame: Frame, labels: np.ndarray, maps: DistanceMaps, rng) -> np.ndarray:
     """``(2, 3)`` world focal-direction candidates of one view: the source's own pair when it reads
-    them from the labels already made (``direction_candidates_from_labels``, e.g.
-    :class:`~histostudy.conic_orientation.ConicOrientation`: no second segmentation), else eq. 4's
-    mirror pair of its ``(azimuth, elevation)``."""
+    them from the labels and distance maps already made (``direction_candidates_from_labels(frame,
+    labels, rng, maps=)``, e.g. :class:`~histostudy.conic_orientation.ConicOrientation`: no second
+    segmentation), else eq. 4's mirror pair of its ``(azimuth, elevation)``."""
     from_labels = getattr(orientation, "direction_candidates_from_labels", None)
     if from_labels is not None:
-        pair = np.asarray(from_labels(frame, labels, rng), dtype=np.float64)
+        pair = np.asarray(from_labels(frame, labels, rng, maps=maps), dtype=np.float64)
         if pair.shape != (2, 3) or not np.all(np.isfinite(pair)):
             raise ValueError(f"{type(orientation).__name__}.direction_candidates_from_labels returned shape "
                              f"{pair.shape}; expected two finite world directions (2, 3)")
