@@ -32,11 +32,12 @@ from .transducer import Feature, TransducerModel, TransducerSpec, pose_facing
 
 __all__ = ["ConicFit", "ConicOrientation"]
 
-# Points of the digital model that the sign test projects (elements and outer band).
-_SIGN_TEST_POINTS = 3000
-_SIGN_TEST_AXIAL_DEG = tuple(range(0, 180, 15))
-# Distance cap (px) of the body's score: as the pose initialisation's search cost.
-_BODY_CAP_PX = 30.0
+# Model points per class of the per-view fits (1 mm grid, subsampled).
+_POINTS_PER_CLASS = 1500
+# Axial angles of the per-view fit: the aperture is symmetric under a half turn.
+_AXIAL_DEG = tuple(range(0, 180, 15))
+# Distance cap (px) of the axial search: as the pose initialisation's search cost.
+_SEARCH_CAP_PX = 30.0
 
 
 @dataclass(frozen=True)
@@ -71,20 +72,25 @@ class ConicOrientation:
             raises ``ValueError`` in :meth:`estimate`).
         spec: the transducer's geometry (cutout radius, inner band width, cap radius).
         min_pixels: fewest inner-boundary pixels worth fitting.
-        min_inlier_fraction: fewest of them the ellipse must explain (RANSAC inliers).
+        min_inlier_fraction: fewest of them the ellipse must explain (RANSAC inliers); the shipped
+            U-Net's inner boundary is a band wider than the reference's, so fewer of its pixels
+            lie within the tolerance of any ellipse.
         tolerance_px: RANSAC inlier distance (px, at the frame's resolution); None: from the inner
             band's width as the view images it at the isocentre (the band's pixels lie up to half
             its width from the ellipse through its middle), plus 2 px.
-        min_minor_axis_px: a thinner ellipse is an edge-on view, whose axis the conic cannot tell.
+        min_minor_axis_px: a thinner ellipse is a nearly edge-on view, whose axis the conic cannot
+            tell; None: three times the inlier tolerance (about 28 px, an elevation near 75 deg
+            for the inner boundary at the paper's geometry). On the shipped U-Net's labels of
+            notebook 03's frames, 4 of 10 fits thinner than that were off by > 90 deg.
     """
 
     segmenter: object | None = field(default=None, repr=False)
     fallback: OrientationSource | None = field(default=None, repr=False)
     spec: TransducerSpec = field(default_factory=TransducerSpec)
     min_pixels: int = 150
-    min_inlier_fraction: float = 0.4
+    min_inlier_fraction: float = 0.35
     tolerance_px: float | None = None
-    min_minor_axis_px: float = 8.0
+    min_minor_axis_px: float | None = None
     ransac_iterations: int = 200
 
     def __post_init__(self):
@@ -98,7 +104,7 @@ class ConicOrientation:
                 raise ValueError(f"{name} must be a number in [0, 1), got {value!r}")
         for name in ("tolerance_px", "min_minor_axis_px"):
             value = getattr(self, name)
-            if name == "tolerance_px" and value is None:
+            if value is None:
                 continue
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
@@ -127,40 +133,47 @@ class ConicOrientation:
         return 0.5 * self.spec.inner_band_mm * px_per_mm + 2.0
 
     def _model_points(self) -> dict:
+        """A subset of the digital model's points per class (1 mm grid, <= 1500 per class)."""
         cached = getattr(self, "_points_cache", None)
         if cached is None:
             model = TransducerModel.build(self.spec, spacing_mm=1.0)
-            body = np.vstack([model.points[Feature.TRANSDUCER], model.points[Feature.OUTER_BOUNDARY]])
-            step = max(1, len(body) // _SIGN_TEST_POINTS)
-            cached = {"inner": model.points[Feature.INNER_BOUNDARY], "body": body[::step]}
+            cached = {}
+            for k, pts in model.points.items():
+                if len(pts):
+                    cached[k] = pts[::max(1, len(pts) // _POINTS_PER_CLASS)]
             object.__setattr__(self, "_points_cache", cached)
         return cached
 
     def _fit_circle_pose(self, circle: CirclePose, sign: float, maps, tolerance_px: float):
-        """The pose with this circle and focal direction ``sign * normal``, its axis refined by fitting
-        the model's inner boundary (band and wall) to the class's distance map, and its score: the
-        inner fit's mean squared capped distance plus the body's at its best axial angle (px²)."""
+        """The pose with this circle and focal direction ``sign * normal``, and its score (px²).
+
+        The axis is first refined by fitting the model's inner boundary (band and wall) to its
+        class's distance map, then the axial angle is searched (the whole model, distances capped
+        at 30 px as the pose initialisation's search) and the whole model refined from the best
+        angle; the score is its mean squared distance capped at ``tolerance_px``. The wrong sign
+        puts the elements on the far side of the cutout: seen obliquely they miss the segmented
+        ones, seen along the axis their rim lands at the wrong magnification.
+        """
         from .pose.cost import PoseCost
         from .pose.refine import refine_levenberg_marquardt
 
         direction = sign * circle.normal
-        T0 = pose_facing(direction, circle.centre_mm + self.circle_height_mm * direction)
+        T = pose_facing(direction, circle.centre_mm + self.circle_height_mm * direction)
         points = self._model_points()
-        inner = PoseCost({Feature.INNER_BOUNDARY: points["inner"]}, [maps], outside_distance_px=tolerance_px,
-                         max_distance_px=tolerance_px)
-        T = refine_levenberg_marquardt(inner, T0, max_iter=30, ftol=1e-4, xtol_mm=1e-2, xtol_rad=1e-4).T
-        body_classes = [k for k in (Feature.TRANSDUCER, Feature.OUTER_BOUNDARY) if k in maps.present]
-        score = float(inner(T))
-        if body_classes:
-            body = PoseCost({k: points["body"] for k in body_classes[:1]}, [maps], outside_distance_px=_BODY_CAP_PX,
-                            max_distance_px=_BODY_CAP_PX)
-            best = np.inf
-            for axial in _SIGN_TEST_AXIAL_DEG:
-                Ta = T.copy()
-                Ta[:3, :3] = T[:3, :3] @ pose_facing((0.0, 0.0, -1.0), (0.0, 0.0, 0.0), np.deg2rad(axial))[:3, :3]
-                best = min(best, float(body(Ta)))
-            score += best
-        return T, score
+        inner = PoseCost({Feature.INNER_BOUNDARY: points[Feature.INNER_BOUNDARY]}, [maps],
+                         outside_distance_px=tolerance_px, max_distance_px=tolerance_px)
+        T = refine_levenberg_marquardt(inner, T, max_iter=30, ftol=1e-4, xtol_mm=1e-2, xtol_rad=1e-4).T
+        whole = PoseCost(points, [maps], outside_distance_px=_SEARCH_CAP_PX, max_distance_px=_SEARCH_CAP_PX)
+        best_cost, best_T = np.inf, T
+        for axial in _AXIAL_DEG:
+            Ta = T.copy()
+            Ta[:3, :3] = T[:3, :3] @ pose_facing((0.0, 0.0, -1.0), (0.0, 0.0, 0.0), np.deg2rad(axial))[:3, :3]
+            c = float(whole(Ta))
+            if c < best_cost:
+                best_cost, best_T = c, Ta
+        fine = whole.capped(tolerance_px, outside_distance_px=tolerance_px)
+        T = refine_levenberg_marquardt(fine, best_T, max_iter=30, ftol=1e-4, xtol_mm=1e-2, xtol_rad=1e-4).T
+        return T, float(fine(T))
 
     # --- the estimate ---------------------------------------------------------------------------
 
@@ -174,11 +187,13 @@ class ConicOrientation:
         rows, cols = np.nonzero(labels == Feature.INNER_BOUNDARY)
         if len(rows) < self.min_pixels:
             return None
-        ellipse = fit_ellipse_ransac(np.column_stack([cols, rows]), rng, tolerance_px=self._tolerance_px(view),
+        tolerance = self._tolerance_px(view)
+        ellipse = fit_ellipse_ransac(np.column_stack([cols, rows]), rng, tolerance_px=tolerance,
                                      iterations=self.ransac_iterations)
         if ellipse is None or ellipse.inlier_fraction < self.min_inlier_fraction:
             return None
-        if ellipse.semi_axes_px[1] < self.min_minor_axis_px:
+        min_minor = 3.0 * tolerance if self.min_minor_axis_px is None else self.min_minor_axis_px
+        if ellipse.semi_axes_px[1] < min_minor:
             return None
         try:
             circles = circle_poses_from_conic(ellipse.conic, view, self.circle_radius_mm)
@@ -190,7 +205,6 @@ class ConicOrientation:
             maps = DistanceMaps(view, labels, occlusion_aware=True)
         elif not isinstance(maps, DistanceMaps) or maps.view is not view:
             raise ValueError("maps must be the DistanceMaps of these labels in this view")
-        tolerance = self._tolerance_px(view)
         directions, scores = [], []
         for circle in circles:
             fits = [self._fit_circle_pose(circle, sign, maps, tolerance) for sign in (1.0, -1.0)]
