@@ -113,6 +113,12 @@ class ConicOrientation:
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 6:
                 raise ValueError(f"{name} must be an integer >= 6, got {value!r}")
 
+    @property
+    def manifest(self) -> dict | None:
+        """The manifest of the fallback's network (the learned part of this stage, e.g. the VGG19),
+        so that :data:`histostudy.pose.LEARNED_STAGE_REQUIREMENTS` judge it; None without one."""
+        return getattr(self.fallback, "manifest", None)
+
     # --- geometry of the transducer ----------------------------------------------------------
 
     @property

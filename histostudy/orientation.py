@@ -37,6 +37,7 @@ __all__ = [
     "angles_from_direction",
     "beam_direction_of_pose",
     "default_orientation",
+    "default_vgg19",
     "direction_candidates",
     "hemisphere_angles",
     "hemisphere_directions",
@@ -263,10 +264,29 @@ class LearnedOrientation:
         return out
 
 
-def default_orientation() -> LearnedOrientation | None:
+def default_vgg19() -> LearnedOrientation | None:
     """The shipped VGG19 regressor (``data/models/vgg19_standard``) as a :class:`LearnedOrientation`,
-    or None when the weights are missing or fail their hash or configuration check (callers then
-    fall back to :class:`OracleOrientation` and say so)."""
+    or None when the weights are missing or fail their hash or configuration check."""
     from .checkpoints import load_shipped
 
     return load_shipped("vgg19_standard", LearnedOrientation.load, "VGG19")
+
+
+def default_orientation() -> OrientationSource | None:
+    """The pipeline's orientation stage, learned parts shipped in ``data/models``.
+
+    The geometric initialiser (:class:`~histostudy.conic_orientation.ConicOrientation`: the axis
+    from the inner boundary's ellipse in the shipped U-Net's labels) with the shipped VGG19
+    regressor (:func:`default_vgg19`, the paper's §II-B.4 network) answering for views without a
+    usable ellipse; the VGG19 alone when no U-Net is shipped; None when the VGG19 is missing or
+    fails its check (callers then fall back to :class:`OracleOrientation` and say so). Measured
+    against the VGG19 alone in notebooks 03 and 04.
+    """
+    from .conic_orientation import ConicOrientation
+    from .segment import default_segmenter
+
+    vgg = default_vgg19()
+    if vgg is None:
+        return None
+    unet = default_segmenter()
+    return vgg if unet is None else ConicOrientation(segmenter=unet, fallback=vgg)

@@ -109,3 +109,19 @@ def test_estimate_pose_reads_the_candidates_from_its_own_labels(frames):
     assert CountingSegmenter.calls == 2
     assert res.verdict.ok and np.linalg.norm(res.focal_point_mm - POSES[0][:3, 3]) < 0.1
     assert res.init.stages["direction_spread_deg"] < 3.0
+
+
+def test_the_default_orientation_is_the_conic_with_the_shipped_vgg19_as_fallback():
+    from histostudy.orientation import LearnedOrientation, default_orientation, default_vgg19
+    from histostudy.pose import learned_stage_shortfalls
+    from histostudy.segment import UNetSegmenter, default_segmenter
+
+    vgg = default_vgg19()
+    if vgg is None or default_segmenter() is None:
+        pytest.skip("the shipped networks are not in data/models")
+    source = default_orientation()
+    assert isinstance(source, ConicOrientation) and isinstance(source.fallback, LearnedOrientation)
+    assert isinstance(source.segmenter, UNetSegmenter)
+    # the learned-stage requirements judge the VGG19 behind it
+    assert source.manifest["sha256"] == vgg.manifest["sha256"]
+    assert learned_stage_shortfalls(default_segmenter(), source) == []

@@ -181,8 +181,12 @@ def study_stages(config, learned: bool = True, *, segmenter=None, orientation=No
                            "MAE), because " + "; ".join(shortfalls), **shipped)
     names = [(getattr(stage, "manifest", None) or {}).get("weights_file", type(stage).__name__)
              for stage in (segmenter, orientation)]
+    if getattr(orientation, "fallback", None) is not None:  # the geometric initialiser
+        orientation_text = f"the inner-boundary conic initialiser (VGG19 {names[1]} where it finds no ellipse)"
+    else:
+        orientation_text = f"the VGG19 {names[1]}"
     return StudyStages(segmenter, orientation, learned=True,
-                       why=f"learned stages: the U-Net {names[0]} and the VGG19 {names[1]}", **shipped)
+                       why=f"learned stages: the U-Net {names[0]} and {orientation_text}", **shipped)
 
 
 def transducer_axes(T_carm_transducer) -> dict[str, np.ndarray]:
