@@ -30,7 +30,8 @@ from .frame import Frame
 from .geometry import check_rigid
 from .transducer import FEATURE_CLASSES, LABEL_PRIORITY, TransducerModel
 
-__all__ = ["add_poisson_noise", "render_frame", "render_labels", "render_line_integrals"]
+__all__ = ["add_poisson_noise", "background_line_integrals", "render_frame", "render_labels",
+           "render_line_integrals"]
 
 #: Splat copies handled at once: bounds the working memory (~250 MB) whatever the model size.
 _COPIES_PER_CHUNK = 1 << 22
@@ -274,7 +275,7 @@ def render_frame(model: TransducerModel, T_carm_transducer, view: View, *, rng: 
     _check_view(view)
     _check_rng(rng)
     imaging = model if physical is None else physical
-    back = _background(background, view)
+    back = background_line_integrals(background, view)
 
     image = back + render_line_integrals(imaging, T, view, rng=rng, n_splats=n_splats,
                                          splat_sigma_mm=splat_sigma_mm).astype(np.float64)
@@ -296,7 +297,10 @@ def render_frame(model: TransducerModel, T_carm_transducer, view: View, *, rng: 
     return Frame(image=image.astype(np.float32), view=view, labels=labels, T_carm_transducer=T, meta=meta)
 
 
-def _background(background, view: View) -> np.ndarray:
+def background_line_integrals(background, view: View) -> np.ndarray:
+    """The ``view.shape`` float64 line integrals of a frame's background: zeros for None, an array
+    as it is, or ``background.line_integrals(view)`` (an :mod:`~histostudy.anatomy` scene); checked
+    for shape and finiteness."""
     if background is None:
         return np.zeros(view.shape)
     source = background

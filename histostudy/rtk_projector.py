@@ -6,7 +6,7 @@ the posed point model is voxelised into a world grid of linear attenuation (nump
 is ray cast by ``JosephForwardProjectionImageFilter`` of RTK (``itk-rtk``) in a cone-beam geometry
 rebuilt from each :class:`~histostudy.carm.View`'s ``P``. It shares no code with
 :mod:`histostudy.render`'s projection; a frame takes only its reference labels
-(:func:`~histostudy.render.render_labels`) and quantum noise (:func:`~histostudy.render.add_poisson_noise`)
+(:func:`~histostudy.render.render_labels`), its background and quantum noise (:func:`~histostudy.render.add_poisson_noise`)
 from there, so it differs from :func:`~histostudy.render.render_frame`'s in the projector alone.
 itk-rtk is optional (``pip install 'histostudy[rtk]'``, ~1.8 GB) and imported lazily (~30 s of CPU).
 
@@ -38,7 +38,7 @@ import scipy.ndimage
 from .carm import View
 from .frame import Frame
 from .geometry import check_rigid
-from .render import add_poisson_noise, render_labels
+from .render import add_poisson_noise, background_line_integrals, render_labels
 from .transducer import FEATURE_CLASSES, TransducerModel
 
 __all__ = ["forward_project", "render_frame_rtk", "rtk_available", "rtk_geometry", "voxelise_model"]
@@ -247,7 +247,7 @@ def render_frame_rtk(digital: TransducerModel, physical: TransducerModel, T_carm
     if photons_per_pixel is not None and (isinstance(photons_per_pixel, bool) or not isinstance(
             photons_per_pixel, (int, float, np.integer, np.floating)) or not 0 < photons_per_pixel < math.inf):
         raise ValueError(f"photons_per_pixel must be None or a finite number > 0, got {photons_per_pixel!r}")
-    back = _background(background, view)
+    back = background_line_integrals(background, view)
     volume = voxelise_model(physical, T, voxel_mm=voxel)
     image = back + forward_project(volume, [view], n_threads=n_threads)[0].astype(np.float64)
     if photons_per_pixel is not None:
@@ -255,24 +255,6 @@ def render_frame_rtk(digital: TransducerModel, physical: TransducerModel, T_carm
     labels = render_labels(digital, T, view)
     return Frame(image=np.asarray(image, dtype=np.float32), view=view, labels=labels, T_carm_transducer=T,
                  meta={"projector": "rtk-joseph", "voxel_mm": voxel})
-
-
-def _background(background, view: View) -> np.ndarray:
-    if background is None:
-        return np.zeros(view.shape)
-    source = background
-    if not isinstance(background, np.ndarray) and callable(getattr(background, "line_integrals", None)):
-        source = background.line_integrals(view)
-    try:
-        arr = np.asarray(source, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise TypeError(f"background must be None, a {view.shape} array of line integrals, or an object "
-                        f"with line_integrals(view); got {type(background).__name__}") from None
-    if arr.shape != view.shape:
-        raise ValueError(f"background must have the view's shape {view.shape}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError("background must be finite line integrals; found NaN or inf")
-    return arr
 
 
 def _check_model(model, name: str) -> TransducerModel:
