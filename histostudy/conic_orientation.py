@@ -27,6 +27,7 @@ import numpy as np
 from .carm import View
 from .conic import CirclePose, EllipseFit, circle_poses_from_conic, fit_ellipse_ransac
 from .frame import Frame
+from .geometry import rotation_about_axis
 from .orientation import OrientationSource, angles_from_direction, direction_candidates
 from .transducer import Feature, TransducerModel, TransducerSpec, pose_facing
 
@@ -173,7 +174,7 @@ class ConicOrientation:
         best_cost, best_T = np.inf, T
         for axial in _AXIAL_DEG:
             Ta = T.copy()
-            Ta[:3, :3] = T[:3, :3] @ pose_facing((0.0, 0.0, -1.0), (0.0, 0.0, 0.0), np.deg2rad(axial))[:3, :3]
+            Ta[:3, :3] = T[:3, :3] @ rotation_about_axis([0.0, 0.0, 1.0], np.deg2rad(axial))
             c = float(whole(Ta))
             if c < best_cost:
                 best_cost, best_T = c, Ta

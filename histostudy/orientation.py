@@ -272,7 +272,7 @@ def default_vgg19() -> LearnedOrientation | None:
     return load_shipped("vgg19_standard", LearnedOrientation.load, "VGG19")
 
 
-def default_orientation() -> OrientationSource | None:
+def default_orientation(segmenter=None) -> OrientationSource | None:
     """The pipeline's orientation stage, learned parts shipped in ``data/models``.
 
     The geometric initialiser (:class:`~histostudy.conic_orientation.ConicOrientation`: the axis
@@ -280,7 +280,8 @@ def default_orientation() -> OrientationSource | None:
     regressor (:func:`default_vgg19`, the paper's §II-B.4 network) answering for views without a
     usable ellipse; the VGG19 alone when no U-Net is shipped; None when the VGG19 is missing or
     fails its check (callers then fall back to :class:`OracleOrientation` and say so). Measured
-    against the VGG19 alone in notebooks 03 and 04.
+    against the VGG19 alone in notebooks 03 and 04. ``segmenter``: the U-Net already loaded
+    (None: :func:`histostudy.segment.default_segmenter`).
     """
     from .conic_orientation import ConicOrientation
     from .segment import default_segmenter
@@ -288,5 +289,5 @@ def default_orientation() -> OrientationSource | None:
     vgg = default_vgg19()
     if vgg is None:
         return None
-    unet = default_segmenter()
+    unet = default_segmenter() if segmenter is None else segmenter
     return vgg if unet is None else ConicOrientation(segmenter=unet, fallback=vgg)

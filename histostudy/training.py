@@ -48,6 +48,7 @@ from .datasets import TASKS, HybridFrames, HybridImageDataset, RenderConfig, def
 from .io import atomic_write_json
 from .nets import build_network
 from .orientation import N_ORIENTATION_CLASSES, hemisphere_angles
+from .transducer import FEATURE_CLASSES, Feature
 
 __all__ = ["FineTuneConfig", "SEGMENTATION_LOSSES", "TrainingConfig", "TrainingResult", "angle_loss", "dice_loss", "export",
            "train"]
@@ -290,7 +291,8 @@ def _objective(cfg: TrainingConfig, stage: str) -> str:
     return "segment" if cfg.task == "segmentation" else "regress"
 
 
-def dice_loss(logits: torch.Tensor, labels: torch.Tensor, classes=range(1, 6), eps: float = 1.0) -> torch.Tensor:
+def dice_loss(logits: torch.Tensor, labels: torch.Tensor, classes=tuple(int(k) for k in FEATURE_CLASSES),
+              eps: float = 1.0) -> torch.Tensor:
     """``1 - mean_k Dice_k`` of the softmax of ``logits`` (B, C, H, W) against integer ``labels``
     (B, H, W), over ``classes``, each class's pixels pooled over the batch; ``eps`` keeps a class
     absent from the batch finite (its Dice then rewards predicting none of it)."""
@@ -325,7 +327,7 @@ def _validate(stage: str, net, loader, device, class_weights=None, kind: str = "
     net.eval()
     total, n = 0.0, 0
     correct, pixels = 0, 0
-    intersection, union = np.zeros(6), np.zeros(6)
+    intersection, union = np.zeros(len(Feature)), np.zeros(len(Feature))
     az_err, el_err = [], []
     for batch in loader:
         loss, out = _loss(stage, net, batch, device, class_weights, kind)
@@ -336,7 +338,7 @@ def _validate(stage: str, net, loader, device, class_weights=None, kind: str = "
             pred, ref = out.argmax(1).cpu(), batch["labels"]
             correct += int((pred == ref).sum())
             pixels += ref.numel()
-            for k in range(6):
+            for k in range(len(Feature)):
                 p, r = pred == k, ref == k
                 intersection[k] += int((p & r).sum())
                 union[k] += int((p | r).sum())
@@ -353,8 +355,8 @@ def _validate(stage: str, net, loader, device, class_weights=None, kind: str = "
     if stage == "segment":
         metrics["pixel_accuracy"] = correct / max(pixels, 1)
         # per-class IoU of the validation pixels (NaN for a class absent from prediction and reference)
-        for k, name in enumerate(("background", "transducer", "outer_boundary", "inner_boundary", "gaps", "screws")):
-            metrics[f"iou_{name}"] = float(intersection[k] / union[k]) if union[k] else float("nan")
+        for k in Feature:
+            metrics[f"iou_{k.name.lower()}"] = float(intersection[k] / union[k]) if union[k] else float("nan")
     elif stage == "classify":
         metrics["class_accuracy"] = correct / max(pixels, 1)
     else:

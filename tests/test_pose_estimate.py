@@ -281,12 +281,12 @@ def test_default_stages_are_the_shipped_networks_when_good_enough_else_the_oracl
     good_orient = types.SimpleNamespace(manifest={"validation": {"azimuth_mae_deg": 1.5, "elevation_mae_deg": 2.5}})
     poor_orient = types.SimpleNamespace(manifest={"validation": {"azimuth_mae_deg": 84.6, "elevation_mae_deg": 24.9}})
     monkeypatch.setattr(pose, "default_segmenter", lambda: good_seg)
-    monkeypatch.setattr(pose, "default_orientation", lambda: good_orient)
+    monkeypatch.setattr(pose, "default_orientation", lambda segmenter=None: good_orient)
     pose.default_stages.cache_clear()
     try:
         assert pose.default_stages() == (good_seg, good_orient)
         pose.default_stages.cache_clear()
-        monkeypatch.setattr(pose, "default_orientation", lambda: poor_orient)
+        monkeypatch.setattr(pose, "default_orientation", lambda segmenter=None: poor_orient)
         with pytest.warns(UserWarning, match="VGG19.s validation angle MAE 84.6 deg exceeds 30.0"):
             seg, orient = pose.default_stages()
         assert isinstance(seg, OracleSegmenter) and isinstance(orient, OracleOrientation)

@@ -128,7 +128,9 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
         segmenter: frame -> label image; default: the shipped U-Net when its weights are present
             and pass their check, else :class:`OracleSegmenter` (the frames' reference labels, a
             synthetic-study stand-in that cannot segment a real frame) — see :func:`default_stages`.
-        orientation: frame -> (azimuth, elevation); default: the shipped VGG19 regressor, else
+        orientation: frame -> (azimuth, elevation); default: the shipped stage of
+            :func:`histostudy.orientation.default_orientation` (the inner-boundary conic
+            initialiser, the VGG19 regressor where a view shows no ellipse), else
             :class:`OracleOrientation` (the true angles with the paper's errors). A source with a
             ``direction_candidates_from_labels(frame, labels, rng, maps=)`` method (the geometric
             :class:`~histostudy.conic_orientation.ConicOrientation`) is given the segmentation
@@ -428,7 +430,8 @@ def default_stages() -> tuple[Segmenter, OrientationSource]:
     warning that says why. Loaded once per process. Pass ``segmenter=`` / ``orientation=`` to
     :func:`estimate_pose` to choose explicitly (e.g. a network of your own).
     """
-    segmenter, orientation = default_segmenter(), default_orientation()
+    segmenter = default_segmenter()
+    orientation = default_orientation(segmenter)  # its conic initialiser reads this U-Net's labels
     reasons = learned_stage_shortfalls(segmenter, orientation)
     if reasons:
         warnings.warn("estimate_pose: " + "; ".join(reasons) + " — using the oracle stages, which need "

@@ -47,6 +47,7 @@ __all__ = [
     "DIRECTIONS",
     "StudyStages",
     "study_stages",
+    "sweep_visible_points",
     "PoseExperiment",
     "PoseStudyConfig",
     "cbct_reference",
@@ -727,6 +728,13 @@ def random_pose_in_views(rng: np.random.Generator, views: Sequence[View], *, tra
     raise RuntimeError(f"no pose with {len(local)} given point(s) in every view after {max_tries} draws")
 
 
+def sweep_visible_points(pose_model: TransducerModel) -> np.ndarray:
+    """``(2, 3)`` transducer-frame points a random pose of the sweeps must show in every view: the
+    focal point and the transducer's centre (the centroid of the model's element points)."""
+    centre = np.mean(pose_model.points[Feature.TRANSDUCER], axis=0)
+    return np.stack([np.asarray(pose_model.focal_point_mm, float), centre])
+
+
 def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model: TransducerModel,
                      physical: TransducerModel, views: Sequence[View], seed: int, config: PoseStudyConfig,
                      inits: Sequence[str] = ("robust", "paper"), mode: str = "fast",
@@ -744,8 +752,7 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
     rows = []
     segmenter = config.segmenter() if segmenter is None else segmenter
     orientation = OracleOrientation() if orientation is None else orientation
-    centre = np.mean(pose_model.points[Feature.TRANSDUCER], axis=0)
-    visible = np.stack([np.asarray(pose_model.focal_point_mm, float), centre])
+    visible = sweep_visible_points(pose_model)
     for i, seq in enumerate(np.random.SeedSequence(seed).spawn(n_poses)):
         rng_pose, rng_scene, rng_render, rng_est = (np.random.default_rng(s) for s in seq.spawn(4))
         T = random_pose_in_views(rng_pose, views, visible_points_mm=visible)

@@ -11,6 +11,7 @@ the pose is estimated from each; the focal errors of the two are set side by sid
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from typing import Sequence
 
 import numpy as np
@@ -20,8 +21,9 @@ from ..anatomy import random_background
 from ..carm import View
 from ..pose import PoseEstimationError, estimate_pose
 from ..render import render_frame
-from ..transducer import Feature, TransducerModel
-from .pose_estimation import PoseStudyConfig, _bubble_centre, experiment_setups, random_pose_in_views
+from ..transducer import TransducerModel
+from .pose_estimation import (PoseStudyConfig, _bubble_centre, experiment_setups, random_pose_in_views,
+                              sweep_visible_points)
 
 __all__ = ["PROJECTORS", "comparison_poses", "projector_comparison", "projector_summary"]
 
@@ -41,22 +43,15 @@ def comparison_poses(config: PoseStudyConfig, seed: int, *, n_study: int, n_rand
             raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
     poses = []
     if n_study:
-        setups = experiment_setups(_with_experiments(config, max(n_study, 1)), seed)
+        setups = experiment_setups(replace(config, n_experiments=n_study), seed)
         for exp in setups[:n_study]:
             poses.append({"kind": "study", "index": exp.experiment, "T": exp.T_true["centre"], "scene": exp.scene})
-    centre = np.mean(pose_model.points[Feature.TRANSDUCER], axis=0)
-    visible = np.stack([np.asarray(pose_model.focal_point_mm, float), centre])
+    visible = sweep_visible_points(pose_model)
     for i, seq in enumerate(np.random.SeedSequence([seed, 7]).spawn(n_random)):
         rng_pose, rng_scene = (np.random.default_rng(s) for s in seq.spawn(2))
         T = random_pose_in_views(rng_pose, views, visible_points_mm=visible)
         poses.append({"kind": "random", "index": i, "T": T, "scene": random_background(rng_scene, "mixed")})
     return poses
-
-
-def _with_experiments(config: PoseStudyConfig, n: int) -> PoseStudyConfig:
-    from dataclasses import replace
-
-    return replace(config, n_experiments=n)
 
 
 def projector_comparison(poses: Sequence[dict], *, pose_model: TransducerModel, render_model: TransducerModel,
