@@ -192,6 +192,54 @@ def test_inconsistent_views_give_a_failed_verdict_not_a_confident_pose(models):
     assert not res.verdict.ok and any("RMS distance" in r for r in res.verdict.reasons)
 
 
+def _shifted_across_both_rays(T, shift_mm):
+    """The pose moved by ``shift_mm`` along the common normal of both views' rays through its
+    focal point: each view sees the move, so labels of plane B from it contradict plane A's."""
+    a, b = default_biplane()
+    f = T[:3, 3]
+    ray_a, ray_b = (v.ray_directions(v.project(f[None]))[0] for v in (a, b))
+    normal = np.cross(ray_a, ray_b)
+    shifted = T.copy()
+    shifted[:3, 3] += shift_mm * normal / np.linalg.norm(normal)
+    return shifted
+
+
+def test_views_that_disagree_by_millimetres_are_refused_although_each_fits_well(models, frames):
+    """Plane B's labels are of the pose moved 3.5 mm across both rays: the compromise between the
+    views lies about 2.4 mm off with an RMS of only 2-3 px per view, which the RMS check accepts.
+    Each view alone pulls the focal point back towards its own reading: refused."""
+    T = POSES[0]
+    contradicting = frames_of(models[1], T, labels_pose=[None, _shifted_across_both_rays(T, 3.5)])
+    kwargs = dict(rng=np.random.default_rng(0), mode="fast", raise_on_failure=False, **ORACLES)
+    unchecked = estimate_pose(contradicting, models[0], max_view_disagreement_mm=None, **kwargs)
+    assert unchecked.verdict.ok and focal_error(unchecked, T) > 2.0, focal_error(unchecked, T)
+    assert max(unchecked.verdict.rms_distance_px.values()) < 4.0 and unchecked.verdict.view_disagreement_mm == {}
+    checked = estimate_pose(contradicting, models[0], **kwargs)
+    assert not checked.verdict.ok
+    assert max(checked.verdict.view_disagreement_mm.values()) > 1.5
+    assert any("the views disagree" in r for r in checked.verdict.reasons), checked.verdict.reasons
+    # Where the views agree, neither pulls: a few tenths of a millimetre at most.
+    agree = estimate_pose(frames[0], models[0], **kwargs)
+    assert agree.verdict.ok and max(agree.verdict.view_disagreement_mm.values()) < 0.5, agree.verdict.view_disagreement_mm
+
+
+def test_view_disagreement_is_zero_at_the_exact_pose_of_exact_labels(models, frames):
+    from histostudy.pose import view_disagreement_mm
+    from histostudy.pose.cost import DistanceMaps, PoseCost
+
+    T = POSES[1]
+    maps = [DistanceMaps(f.view, f.labels, occlusion_aware=True) for f in frames[1]]
+    cost = PoseCost(models[1].points, maps).capped(1.0)
+    moves = view_disagreement_mm(cost, frames[1], T, models[1].focal_point_mm)
+    assert set(moves) == {"A", "B"} and max(moves.values()) < 0.05, moves
+    # One view alone leaves the depth along its ray free: a pose moved along plane A's ray is
+    # still at A's optimum, and the move is not counted.
+    a = frames[1][0].view
+    along = T.copy()
+    along[:3, 3] += 3.0 * a.ray_directions(a.project(T[:3, 3][None]))[0]
+    assert view_disagreement_mm(cost.select_views(0), frames[1][:1], along, models[1].focal_point_mm)["A"] < 0.3
+
+
 class _OneViewMisread:
     """The true angles in every view but ``misread``, whose azimuth is off by ``error_deg``: a
     VGG19 that misreads one view (measured on the shipped network: about 1 pose in 8)."""
@@ -258,6 +306,8 @@ def test_bad_arguments_raise(models, frames):
         estimate_pose([], models[0], **ORACLES)
     with pytest.raises(TypeError, match=r"frames\[1\] must be a histostudy.frame.Frame"):
         estimate_pose([frames[0][0], "B"], models[0], **ORACLES)
+    with pytest.raises(ValueError, match="max_view_disagreement_mm must be None or a finite number > 0, got -1"):
+        estimate_pose(frames[0], models[0], max_view_disagreement_mm=-1, **ORACLES)
     with pytest.raises(TypeError, match="model must be a TransducerModel"):
         estimate_pose(frames[0], {"points": 1}, **ORACLES)
     with pytest.raises(ValueError, match="mode must be one of"):
