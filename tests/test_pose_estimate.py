@@ -257,6 +257,38 @@ def test_the_fast_refinement_runs_to_the_minimum_of_its_capped_cost(models, fram
     assert focal_error(res, POSES[0]) < 0.2, focal_error(res, POSES[0])
 
 
+def test_unexplained_fraction_counts_the_segmented_pixels_far_from_the_posed_model(models, frames):
+    from histostudy.pose import unexplained_fraction
+
+    T = POSES[0]
+    f = frames[0][0]
+    assert unexplained_fraction(f.view, f.labels, models[0], T, 10.0) < 0.005
+    spurious = f.labels.copy()
+    spurious[:100, :100] = Feature.TRANSDUCER  # a corner block far from the transducer
+    n_seg = np.count_nonzero(spurious)
+    expected = np.count_nonzero(spurious[:100, :100] > 0) / n_seg
+    assert abs(unexplained_fraction(f.view, spurious, models[0], T, 10.0) - expected) < 0.005
+    assert np.isnan(unexplained_fraction(f.view, np.zeros_like(f.labels), models[0], T, 10.0))
+
+
+def test_a_pose_that_leaves_much_of_the_segmentation_unexplained_is_refused(models, frames):
+    """A segmentation that also marks a large patch of background: no pose of the model explains
+    it, so however well the model fits its own part, the pose is refused."""
+    T = POSES[0]
+    patched = []
+    for i, f in enumerate(frames[0]):
+        labels = f.labels.copy()
+        if i == 1:
+            labels[:250, :250] = Feature.TRANSDUCER
+        patched.append(Frame(f.image, f.view, labels=labels, T_carm_transducer=T))
+    kwargs = dict(rng=np.random.default_rng(0), mode="fast", raise_on_failure=False, **ORACLES)
+    res = estimate_pose(patched, models[0], **kwargs)
+    assert not res.verdict.ok and res.verdict.unexplained_fraction["B"] > 0.1
+    assert any("of the segmented transducer lies over" in r for r in res.verdict.reasons), res.verdict.reasons
+    unchecked = estimate_pose(patched, models[0], max_unexplained_fraction=None, **kwargs)
+    assert unchecked.verdict.unexplained_fraction == {}
+
+
 def test_the_verdict_reports_each_class_fit_and_judges_the_element_body(models, frames):
     kwargs = dict(rng=np.random.default_rng(1), mode="fast", raise_on_failure=False, **ORACLES)
     res = estimate_pose(frames[0], models[0], **kwargs)
