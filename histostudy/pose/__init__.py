@@ -23,7 +23,6 @@ import warnings
 from dataclasses import dataclass, field
 from typing import Sequence
 
-import cv2
 import numpy as np
 
 from ..frame import Frame
@@ -32,9 +31,11 @@ from ..orientation import (OracleOrientation, OrientationSource, default_orienta
 from ..segment import OracleSegmenter, Segmenter, default_segmenter
 from ..transducer import Feature, TransducerModel
 from .cost import DistanceMaps, PoseCost
-from .init import (COARSE_GRID, MEDIUM_GRID, PAPER_AXIAL_SEEDS_DEG, ROBUST_AXIAL_SEEDS_DEG, InitResult, initialise_pose,
+from .init import (MEDIUM_GRID, PAPER_AXIAL_SEEDS_DEG, ROBUST_AXIAL_SEEDS_DEG, InitResult, initialise_pose,
                    silhouette_candidates)
 from .refine import RefineResult, refine_levenberg_marquardt, refine_nelder_mead
+from .verdict import (PoseVerdict, check_unexplained, check_view_agreement, judge_fit, unexplained_fraction,
+                      view_disagreement_mm)
 
 __all__ = ["INIT_METHODS", "LEARNED_STAGE_REQUIREMENTS", "learned_stage_shortfalls", "MAP_KINDS", "MODES", "PoseEstimationError", "PoseResult", "PoseVerdict", "default_stages",
            "estimate_pose", "unexplained_fraction", "view_disagreement_mm"]
@@ -54,41 +55,6 @@ class PoseEstimationError(RuntimeError):
         super().__init__(message)
         self.verdict = verdict
         self.result = result
-
-
-@dataclass
-class PoseVerdict:
-    """Whether a pose is plausible, and the figures it was judged on.
-
-    Attributes:
-        ok: all checks passed.
-        reasons: what failed, in words (empty when ok).
-        rms_distance_px: per view, the root of the mean over active classes of the mean squared
-            distance of the projected model points to their class (outside points count with the
-            constant of eq. 3; each distance capped at :func:`estimate_pose`'s
-            ``verdict_truncation_px``).
-        inside_fraction: per view, the fraction of model points projecting onto the detector.
-            Both are measured on the point subset of the initialisation (``init_points_per_class``).
-        focal_offset_mm: distance of the focal point from the search centre.
-        unexplained_fraction: per view, the fraction of the segmented pixels (any feature class)
-            farther than ``verdict_truncation_px`` (10 px if None) from every projected model
-            point: segmented transducer that the pose leaves unexplained.
-        class_rms_distance_px: per view, per feature class name (``"transducer"``, ...), the RMS
-            distance of that class's model points (capped as ``rms_distance_px``; NaN where the
-            view shows none of the class).
-        view_disagreement_mm: per view, how far that view's evidence alone would move the focal
-            point across its own ray (see :func:`estimate_pose`'s ``max_view_disagreement_mm``);
-            empty with one view, or when the pose failed the other checks first.
-    """
-
-    ok: bool
-    reasons: list
-    rms_distance_px: dict
-    inside_fraction: dict
-    focal_offset_mm: float
-    view_disagreement_mm: dict = field(default_factory=dict)
-    class_rms_distance_px: dict = field(default_factory=dict)
-    unexplained_fraction: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -380,13 +346,13 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
     def judge(T):
         # The verdict's thresholds are coarse (pixels, percent): the point subset judges as well
         # as the whole model at a fraction of the time.
-        verdict = _judge(verdict_cost, frames, T, search_centre_mm, max_rms_px, min_inside_fraction,
+        verdict = judge_fit(verdict_cost, frames, T, search_centre_mm, max_rms_px, min_inside_fraction,
                          max_body_rms_px if occlusion_aware else None)
         if max_unexplained_fraction is not None:
-            _judge_unexplained(verdict, frames, labels, model, T, max_unexplained_fraction,
+            check_unexplained(verdict, frames, labels, model, T, max_unexplained_fraction,
                                10.0 if verdict_truncation_px is None else verdict_truncation_px)
         if verdict.ok and len(frames) > 1 and max_view_disagreement_mm is not None:
-            _judge_view_agreement(verdict, consistency_cost, frames, T, model.focal_point_mm,
+            check_view_agreement(verdict, consistency_cost, frames, T, model.focal_point_mm,
                                   max_view_disagreement_mm)
         return verdict
 
@@ -513,70 +479,6 @@ def _view_direction_candidates(orientation, frame: Frame, labels: np.ndarray, ma
     return direction_candidates(*orientation.estimate(frame, rng), frame.view)
 
 
-def view_disagreement_mm(cost: PoseCost, frames: Sequence[Frame], T_carm_transducer, focal_point_mm,
-                         *, max_iter: int = 30) -> dict:
-    """Per view, how far that view's evidence alone moves the focal point across its ray (mm).
-
-    From ``T_carm_transducer``, ``cost.select_views(a)`` is minimised by Levenberg-Marquardt
-    (at most ``max_iter`` iterations); the focal point's displacement, less its component along
-    view ``a``'s ray through the focal point (one view does not fix the depth), is the figure.
-    ``focal_point_mm`` is in the transducer frame. :func:`estimate_pose`'s verdict refuses a pose
-    where a view's figure exceeds ``max_view_disagreement_mm``.
-    """
-    T = np.asarray(T_carm_transducer, dtype=np.float64)
-    focal_local = np.asarray(focal_point_mm, dtype=np.float64)
-    focal = T[:3, :3] @ focal_local + T[:3, 3]
-    out = {}
-    for a, f in enumerate(frames):
-        relaxed = refine_levenberg_marquardt(cost.select_views(a), T, max_iter=max_iter).T
-        move = relaxed[:3, :3] @ focal_local + relaxed[:3, 3] - focal
-        ray = f.view.ray_directions(f.view.project(focal[None]))[0]
-        out[f.view.name or str(a)] = float(np.linalg.norm(move - (move @ ray) * ray))
-    return out
-
-
-def unexplained_fraction(view, labels: np.ndarray, model: TransducerModel, T_carm_transducer,
-                         tolerance_px: float) -> float:
-    """The fraction of ``labels``' segmented pixels (any class > 0) farther than ``tolerance_px``
-    from every point of ``model`` projected at ``T_carm_transducer`` into ``view`` (NaN when none
-    is segmented); the image-to-model counterpart of eq. 3's model-to-image distances."""
-    labels = np.asarray(labels)
-    segmented = labels > 0
-    if not segmented.any():
-        return float("nan")
-    T = np.asarray(T_carm_transducer, dtype=np.float64)
-    points = np.vstack([p for p in model.points.values() if len(p)])
-    uvw = view.project_homogeneous(points @ T[:3, :3].T + T[:3, 3])
-    front = uvw[:, 2] > 0
-    px = np.round(uvw[front, :2] / uvw[front, 2:3]).astype(np.int64)
-    h, w = labels.shape
-    on = (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
-    not_model = np.full((h, w), 255, np.uint8)
-    not_model[px[on, 1], px[on, 0]] = 0
-    distance = cv2.distanceTransform(not_model, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    return float(np.mean(distance[segmented] > tolerance_px))
-
-
-def _judge_unexplained(verdict: PoseVerdict, frames, labels, model, T, limit: float, tolerance_px: float) -> None:
-    for a, (f, lab) in enumerate(zip(frames, labels)):
-        name = f.view.name or str(a)
-        fraction = unexplained_fraction(f.view, lab, model, T, tolerance_px)
-        verdict.unexplained_fraction[name] = fraction
-        if np.isfinite(fraction) and fraction > limit:
-            verdict.reasons.append(f"view {name!r}: {100 * fraction:.0f}% of the segmented transducer lies over "
-                                   f"{tolerance_px:g} px from the posed model (> {100 * limit:g}%)")
-    verdict.ok = not verdict.reasons
-
-
-def _judge_view_agreement(verdict: PoseVerdict, cost: PoseCost, frames, T, focal_point_mm, limit_mm) -> None:
-    verdict.view_disagreement_mm = view_disagreement_mm(cost, frames, T, focal_point_mm)
-    for name, move in verdict.view_disagreement_mm.items():
-        if not move <= limit_mm:
-            verdict.reasons.append(f"view {name!r} alone moves the focal point {move:.2f} mm across its ray "
-                                   f"(> {limit_mm} mm): the views disagree on the pose")
-    verdict.ok = not verdict.reasons
-
-
 def _check_frames(frames) -> list[Frame]:
     if isinstance(frames, Frame):
         frames = [frames]
@@ -587,37 +489,3 @@ def _check_frames(frames) -> list[Frame]:
         if not isinstance(f, Frame):
             raise TypeError(f"frames[{i}] must be a histostudy.frame.Frame, got {type(f).__name__}")
     return frames
-
-
-def _judge(cost: PoseCost, frames, T, centre, max_rms_px, min_inside, max_body_rms_px=None) -> PoseVerdict:
-    reasons = []
-    terms = cost.terms(T)
-    lam = np.array([cost.class_weights[k] for k in cost.classes])
-    rms, inside, class_rms = {}, {}, {}
-    all_points = np.vstack([cost.points[k] for k in cost.classes])
-    world = all_points @ T[:3, :3].T + T[:3, 3]
-    for a, f in enumerate(frames):
-        name = f.view.name or str(a)
-        active = cost.active[a] & (lam > 0)
-        per_class = terms[a, active] / lam[active]
-        rms[name] = float(np.sqrt(per_class.mean())) if per_class.size else float("inf")
-        with np.errstate(divide="ignore", invalid="ignore"):
-            class_rms[name] = {Feature(k).name.lower(): (float(np.sqrt(terms[a, s] / lam[s])) if cost.active[a][s] and lam[s] > 0
-                                                         else float("nan")) for s, k in enumerate(cost.classes)}
-        body = class_rms[name].get(Feature.TRANSDUCER.name.lower(), float("nan"))
-        if max_body_rms_px is not None and np.isfinite(body) and body > max_body_rms_px:
-            reasons.append(f"view {name!r}: the element body's RMS distance {body:.2f} px > {max_body_rms_px} px")
-        uvw = f.view.project_homogeneous(world)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            px = uvw[:, :2] / uvw[:, 2:3]
-        inside[name] = float(np.mean((uvw[:, 2] > 0) & f.view.in_image(px)))
-        if not np.isfinite(rms[name]) or rms[name] > max_rms_px:
-            reasons.append(f"view {name!r}: RMS distance {rms[name]:.2f} px > {max_rms_px} px")
-        if inside[name] < min_inside:
-            reasons.append(f"view {name!r}: only {100 * inside[name]:.1f}% of the model projects onto the detector")
-    offset = float(np.linalg.norm(T[:3, 3] - np.asarray(centre, dtype=np.float64)))
-    reach = 0.5 * np.hypot(COARSE_GRID.n_u, COARSE_GRID.n_v) * COARSE_GRID.step_mm + 50.0
-    if offset > reach:
-        reasons.append(f"focal point {offset:.0f} mm from the search centre, beyond the search region ({reach:.0f} mm)")
-    return PoseVerdict(ok=not reasons, reasons=reasons, rms_distance_px=rms, inside_fraction=inside,
-                       focal_offset_mm=offset, class_rms_distance_px=class_rms)
