@@ -406,3 +406,20 @@ def test_study_stages_are_learned_when_they_meet_the_requirements_else_the_oracl
     stages = study.study_stages(config, learned=False, segmenter=good_seg, orientation=good_vgg)
     assert not stages.learned and "disabled" in stages.why
     assert stages.shipped_segmenter is None and stages.shipped_orientation is None
+
+
+@pytest.mark.slow
+def test_robustness_sweep_gives_the_same_rows_on_one_worker_or_two():
+    from histostudy.orientation import OracleOrientation
+
+    model = TransducerModel.build(spacing_mm=0.47)
+    physical = TransducerModel.build_physical(spacing_mm=0.47, rng=np.random.default_rng(3))
+    kwargs = dict(pose_model=model, render_model=model, physical=physical, views=default_biplane(), seed=11,
+                  config=study.PoseStudyConfig(n_splats=1), inits=("robust",), orientation=OracleOrientation())
+    one = study.robustness_sweep(2, **kwargs)
+    two = study.robustness_sweep(2, workers=2, **kwargs)
+    pd.testing.assert_frame_equal(one.drop(columns="seconds"), two.drop(columns="seconds"))
+    assert {"rms_A", "body_rms_B", "unexplained_A", "disagreement_mm_B"} <= set(one.columns)
+    assert one["verdict_ok"].all() and (one["error_mm"] < 2.0).all()
+    with pytest.raises(ValueError, match="workers must be an integer >= 1, got 0"):
+        study.robustness_sweep(2, workers=0, **kwargs)

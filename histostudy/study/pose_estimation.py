@@ -739,7 +739,7 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
                      physical: TransducerModel, views: Sequence[View], seed: int, config: PoseStudyConfig,
                      inits: Sequence[str] = ("robust", "paper"), mode: str = "fast",
                      success_mm: float = 2.0, segmenter: Segmenter | None = None,
-                     orientation: OrientationSource | None = None) -> pd.DataFrame:
+                     orientation: OrientationSource | None = None, workers: int = 1) -> pd.DataFrame:
     """Initialisation success over random poses in the paper's training ranges; one row per (pose, init).
 
     The focal point and the transducer's centre (the centroid of the model's element points)
@@ -748,33 +748,83 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
     Backgrounds are drawn from the paper's evaluation mix (abdomen and phantom). ``segmenter``
     and ``orientation`` default to the config's oracles (Table I degradation, the paper's angle
     MAE); pass the learned ones to measure the whole pipeline.
+
+    ``workers`` > 1 spreads the poses over that many spawned processes (one torch thread each).
+    Every pose draws from its own child of ``SeedSequence(seed)``, so the rows are the same as
+    with one worker. Each row also records the verdict's reasons (``failure``) and, per view, its
+    statistics (``rms_<view>``, ``body_rms_<view>``, ``unexplained_<view>``,
+    ``disagreement_mm_<view>``; NaN where not reached).
     """
-    rows = []
+    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
+        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     segmenter = config.segmenter() if segmenter is None else segmenter
     orientation = OracleOrientation() if orientation is None else orientation
-    visible = sweep_visible_points(pose_model)
-    for i, seq in enumerate(np.random.SeedSequence(seed).spawn(n_poses)):
-        rng_pose, rng_scene, rng_render, rng_est = (np.random.default_rng(s) for s in seq.spawn(4))
-        T = random_pose_in_views(rng_pose, views, visible_points_mm=visible)
-        scene = random_background(rng_scene, "mixed")
-        frames = [render_frame(render_model, T, v, rng=rng_render, physical=physical, background=scene,
-                               photons_per_pixel=config.photons_per_pixel, n_splats=config.n_splats,
-                               splat_sigma_mm=config.splat_sigma_mm) for v in views]
-        truth = _bubble_centre(physical, T, config.bubble_offset_mm)
-        for init in inits:
-            row = {"pose": i, "init": init, "scene": scene.kind}
-            t0 = time.perf_counter()
-            try:
-                res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=orientation,
-                                    rng=np.random.default_rng(rng_est.integers(2**63)), mode=mode, init=init)
-                err = float(np.linalg.norm(res.focal_point_mm - truth))
-                row.update(error_mm=err, verdict_ok=True, success=err < success_mm, failure="")
-            except PoseEstimationError as exc:
-                err = float(np.linalg.norm(exc.result.focal_point_mm - truth)) if exc.result is not None else np.nan
-                row.update(error_mm=err, verdict_ok=False, success=False, failure=str(exc)[:120])
-            row["seconds"] = time.perf_counter() - t0
-            rows.append(row)
-    return pd.DataFrame(rows)
+    shared = dict(pose_model=pose_model, render_model=render_model, physical=physical, views=list(views),
+                  config=config, inits=tuple(inits), mode=mode, success_mm=success_mm, segmenter=segmenter,
+                  orientation=orientation)
+    poses = list(enumerate(np.random.SeedSequence(seed).spawn(n_poses)))
+    if workers == 1 or n_poses < 2:
+        per_pose = [_sweep_pose(i, seq, **shared) for i, seq in poses]
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        # spawned, not forked: a fork of a process whose torch/OpenMP pools are running can hang
+        with ProcessPoolExecutor(max_workers=int(workers), mp_context=multiprocessing.get_context("spawn"),
+                                 initializer=_init_sweep_worker, initargs=(shared,)) as pool:
+            per_pose = list(pool.map(_sweep_pose_in_worker, poses))
+    return pd.DataFrame([row for rows in per_pose for row in rows])
+
+
+_SWEEP_SHARED: dict = {}
+
+
+def _init_sweep_worker(shared: dict) -> None:
+    try:
+        import torch
+        torch.set_num_threads(1)
+    except ImportError:
+        pass
+    _SWEEP_SHARED.update(shared)
+
+
+def _sweep_pose_in_worker(pose) -> list[dict]:
+    return _sweep_pose(*pose, **_SWEEP_SHARED)
+
+
+def _sweep_pose(i: int, seq: np.random.SeedSequence, *, pose_model, render_model, physical, views, config, inits,
+                mode, success_mm, segmenter, orientation) -> list[dict]:
+    rng_pose, rng_scene, rng_render, rng_est = (np.random.default_rng(s) for s in seq.spawn(4))
+    T = random_pose_in_views(rng_pose, views, visible_points_mm=sweep_visible_points(pose_model))
+    scene = random_background(rng_scene, "mixed")
+    frames = [render_frame(render_model, T, v, rng=rng_render, physical=physical, background=scene,
+                           photons_per_pixel=config.photons_per_pixel, n_splats=config.n_splats,
+                           splat_sigma_mm=config.splat_sigma_mm) for v in views]
+    truth = _bubble_centre(physical, T, config.bubble_offset_mm)
+    rows = []
+    for init in inits:
+        row = {"pose": i, "init": init, "scene": scene.kind}
+        t0 = time.perf_counter()
+        try:
+            res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=orientation,
+                                rng=np.random.default_rng(rng_est.integers(2**63)), mode=mode, init=init,
+                                raise_on_failure=False)
+        except PoseEstimationError as exc:  # nothing segmented in a view: no pose at all
+            row.update(error_mm=np.nan, verdict_ok=False, success=False, failure=str(exc)[:120])
+        else:
+            err = float(np.linalg.norm(res.focal_point_mm - truth))
+            v = res.verdict
+            row.update(error_mm=err, verdict_ok=v.ok, success=v.ok and err < success_mm,
+                       failure="" if v.ok else ("implausible pose: " + "; ".join(v.reasons))[:200])
+            for view in views:
+                name = view.name
+                row[f"rms_{name}"] = v.rms_distance_px.get(name, np.nan)
+                row[f"body_rms_{name}"] = v.class_rms_distance_px.get(name, {}).get(Feature.TRANSDUCER.name.lower(), np.nan)
+                row[f"unexplained_{name}"] = v.unexplained_fraction.get(name, np.nan)
+                row[f"disagreement_mm_{name}"] = v.view_disagreement_mm.get(name, np.nan)
+        row["seconds"] = time.perf_counter() - t0
+        rows.append(row)
+    return rows
 
 
 def robustness_summary(robust: pd.DataFrame, by: Sequence[str] = ("init",)) -> pd.DataFrame:
