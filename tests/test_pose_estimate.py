@@ -250,12 +250,24 @@ def test_a_pose_that_leaves_much_of_the_segmentation_unexplained_is_refused(mode
         if i == 1:
             labels[:250, :250] = Feature.TRANSDUCER
         patched.append(Frame(f.image, f.view, labels=labels, T_carm_transducer=T))
-    kwargs = dict(rng=np.random.default_rng(0), mode="fast", raise_on_failure=False, **ORACLES)
+    kwargs = dict(rng=np.random.default_rng(0), mode="fast", raise_on_failure=False, largest_component=False,
+                  **ORACLES)
     res = estimate_pose(patched, models[0], **kwargs)
     assert not res.verdict.ok and res.verdict.unexplained_fraction["B"] > 0.1
     assert any("of the segmented transducer lies over" in r for r in res.verdict.reasons), res.verdict.reasons
     unchecked = estimate_pose(patched, models[0], max_unexplained_fraction=None, **kwargs)
     assert unchecked.verdict.unexplained_fraction == {}
+
+
+def test_a_separate_false_positive_patch_is_dropped_before_the_pose_is_sought(models, frames):
+    """The transducer projects as one body: a patch of the segmentation apart from it is a false
+    positive, dropped with ``largest_component`` (default), so it neither pulls nor fails the pose."""
+    T = POSES[0]
+    patched = [Frame(f.image, f.view, labels=f.labels.copy(), T_carm_transducer=T) for f in frames[0]]
+    patched[1].labels[:120, :120] = Feature.TRANSDUCER
+    res = estimate_pose(patched, models[0], rng=np.random.default_rng(0), mode="fast", **ORACLES)
+    assert res.verdict.ok and focal_error(res, T) < 0.1
+    assert not res.labels[1][:120, :120].any() and res.verdict.unexplained_fraction["B"] < 0.01
 
 
 def test_the_verdict_reports_each_class_fit_and_judges_the_element_body(models, frames):

@@ -156,3 +156,24 @@ def test_unet_segmenter_from_checkpoint_and_default(tmp_path, monkeypatch):
     save_checkpoint(tmp_path / "vgg", {f"model.{k}": t for k, t in v.state_dict().items()}, v.config)
     with pytest.raises(ValueError, match="expected a U-Net"):
         UNetSegmenter.load(tmp_path / "vgg.safetensors")
+
+
+def test_keep_largest_component_drops_the_smaller_separate_patches():
+    from histostudy.segment import keep_largest_component
+
+    labels = np.zeros((60, 80), np.uint8)
+    labels[10:40, 10:40] = Feature.TRANSDUCER
+    labels[20:25, 10:40] = Feature.GAPS  # inside the body: same component
+    labels[50:55, 60:70] = Feature.SCREWS  # apart: dropped
+    labels[5, 70] = Feature.TRANSDUCER
+    kept = keep_largest_component(labels)
+    assert kept.dtype == labels.dtype and kept.shape == labels.shape
+    np.testing.assert_array_equal(kept[:45, :45], labels[:45, :45])
+    assert not kept[45:, 50:].any() and kept[5, 70] == 0
+    # diagonal neighbours belong to the component (8-connectivity)
+    labels[40, 40] = Feature.SCREWS
+    assert keep_largest_component(labels)[40, 40] == Feature.SCREWS
+    single = np.zeros((5, 5), np.uint8)
+    np.testing.assert_array_equal(keep_largest_component(single), single)
+    with pytest.raises(ValueError, match=r"labels must be a 2-D label image, got shape \(5,\)"):
+        keep_largest_component(np.zeros(5, np.uint8))

@@ -28,7 +28,7 @@ import numpy as np
 from ..frame import Frame
 from ..orientation import (OracleOrientation, OrientationSource, default_orientation, direction_candidates,
                            select_direction)
-from ..segment import OracleSegmenter, Segmenter, default_segmenter
+from ..segment import OracleSegmenter, Segmenter, default_segmenter, keep_largest_component
 from ..transducer import Feature, TransducerModel
 from .cost import DistanceMaps, PoseCost
 from .init import (MEDIUM_GRID, PAPER_AXIAL_SEEDS_DEG, ROBUST_AXIAL_SEEDS_DEG, InitResult, initialise_pose,
@@ -100,7 +100,8 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
                   direction_spread_limit_deg: float = 15.0, refine_truncation_px: float | None = 1.0,
                   verdict_truncation_px: float | None = 10.0,
                   max_view_disagreement_mm: float | None = 1.5,
-                  max_body_rms_px: float | None = 1.0, max_unexplained_fraction: float | None = 0.1) -> PoseResult:
+                  max_body_rms_px: float | None = 1.0, max_unexplained_fraction: float | None = 0.1,
+                  largest_component: bool = True) -> PoseResult:
     """Estimate ``T_carm_transducer`` from one or more frames (§II-B.3-4).
 
     Args:
@@ -163,6 +164,11 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
             more had 1.0-5.4 px. Judged with the occlusion-aware maps only: with per-class maps a
             body point under a thin feature is off its class by the feature's width. None skips
             the check.
+        largest_component: beyond the paper; keep only the largest connected component of each
+            view's segmented foreground (:func:`~histostudy.segment.keep_largest_component`): the
+            transducer projects as one body, so other components are a segmentation's false
+            positives, which would otherwise pull the search and fail the unexplained-segmentation
+            check. ``PoseResult.labels`` are the labels after this step.
         max_unexplained_fraction: beyond the paper; the largest fraction of a view's segmented
             pixels that may lie farther than ``verdict_truncation_px`` from every projected model
             point (:attr:`PoseVerdict.unexplained_fraction`). Eq. 3 and the RMS look from the model
@@ -237,6 +243,8 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
 
     t0 = time.perf_counter()
     labels = [np.asarray(segmenter.segment(f, rng), dtype=np.uint8) for f in frames]
+    if largest_component:
+        labels = [keep_largest_component(lab) for lab in labels]
     timings["segmentation"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
