@@ -13,11 +13,11 @@ A :class:`Volume` is axis-aligned with the world frame: ``data`` is indexed ``[i
 ``(x, y, z)`` order. ``origin_mm`` is the world position of the centre of voxel ``(0, 0, 0)``.
 Gray values are in Hounsfield units (HU): water 0 HU.
 
-Where the synthetic study stands in for the lab (DESIGN.md): the physical phantom is the analytic
-:class:`PhantomSpec` rasterised by :func:`phantom_volume`; the scanner is :func:`simulate_cbct`
-(Gaussian blur, resampling, Gaussian noise); the manual annotation of the treated zone is the
-automatic :func:`segment_treatment_zone` (local variance, then local deviation from the mixed
-level; see there).
+Where the synthetic study stands in for the lab (docs/architecture.md, Synthetic stand-ins for
+the lab): the physical phantom is the analytic :class:`PhantomSpec` rasterised by
+:func:`phantom_volume`; the scanner is :func:`simulate_cbct` (Gaussian blur, resampling, Gaussian
+noise); the manual annotation of the treated zone is the automatic :func:`segment_treatment_zone`
+(local variance, then local deviation from the mixed level; see there).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Rigid-body geometry: rotations in every representation the study needs, and 4x4 transforms.
 
-Conventions (DESIGN.md):
+Conventions (docs/architecture.md, Frames and units):
 
 - Lengths in millimetres, angles in radians; degrees only in names ending ``_deg``.
 - A rigid transform is a 4x4 float64 array ``T_<to>_<from>``: ``T_carm_transducer @ [p, 1]``

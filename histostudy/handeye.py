@@ -1,6 +1,6 @@
 """Hand-eye calibration of the robot to the C-arm (§II-C, eq. 5–8): Daniilidis' dual quaternions.
 
-The chain (DESIGN.md frames; the paper's names in brackets)::
+The chain (frames as in docs/architecture.md, Frames and units; the paper's names in brackets)::
 
     T_carm_transducer_i  =  T_carm_base  @  T_base_flange_i  @  T_flange_transducer
         [hTc, eq. 5]          [rTc]          [rTe, encoders]     [eTh]
@@ -530,7 +530,8 @@ class HandEyeCalibration:
     ``rotation_residuals_deg[i]`` = angle of ``R(P_i)^T R(C_i)``; ``translation_residuals_mm[i]`` =
     distance between the transducer origins; ``focal_residuals_mm[i]`` = distance between the focal
     points ``P_i @ f`` and ``C_i @ f`` with ``f = focal_point_transducer_mm`` (the origin by the
-    DESIGN convention, where the two residuals coincide). ``motion_*`` are the AX = XB residuals.
+    transducer-frame convention of docs/architecture.md, Frames and units, where the two
+    residuals coincide). ``motion_*`` are the AX = XB residuals.
     """
 
     T_flange_transducer: np.ndarray

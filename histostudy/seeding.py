@@ -1,4 +1,7 @@
-"""Random-number plumbing: every random draw in the package takes a seed or a Generator (DESIGN.md)."""
+"""Random-number plumbing: every random draw in the package takes a seed or a Generator.
+
+See docs/architecture.md, Seeding and determinism.
+"""
 
 from __future__ import annotations
 

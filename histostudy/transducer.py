@@ -1,8 +1,9 @@
 """The histotripsy transducer: its specification and point-cloud models (paper §II-B.1).
 
-Transducer frame (DESIGN.md): origin at the geometric focal point, i.e. the centre of the spherical
-cap; +z from the focal point towards the transducer centre, so the cap apex is at ``(0, 0, R)``.
-The paper's "depth" is -z, TB is y and LR is x. Lengths in mm, angles in rad (``*_deg`` at edges).
+Transducer frame (docs/architecture.md, Frames and units): origin at the geometric focal point,
+i.e. the centre of the spherical cap; +z from the focal point towards the transducer centre, so
+the cap apex is at ``(0, 0, R)``. The paper's "depth" is -z, TB is y and LR is x. Lengths in mm,
+angles in rad (``*_deg`` at edges).
 
 A :class:`TransducerModel` is a point cloud, one array per :class:`Feature` class, on a regular grid
 (paper: 0.47 mm for pose estimation, 0.125 mm for rendering). Each point carries an
