@@ -14,14 +14,10 @@ from histostudy.geometry import rotation_angle, transform_from_params
 from histostudy.orientation import OracleOrientation, angles_from_direction, beam_direction_of_pose
 from histostudy.pose import PoseEstimationError, PoseResult, estimate_pose
 from histostudy.pose.cost import apply_left_perturbation
-from histostudy.render import render_labels
 from histostudy.segment import OracleSegmenter
 from histostudy.transducer import Feature, TransducerModel, pose_facing
 
-POSES = [
-    pose_facing((0.15, 1.0, 0.25), focal_point_mm=(4.0, -6.0, 8.0), axial_rotation_rad=0.35),
-    pose_facing((-0.3, 1.0, -0.1), focal_point_mm=(-10.0, 5.0, -3.0), axial_rotation_rad=2.0),
-]
+from pose_frames import POSES, focal_error, frames_of
 
 
 @pytest.fixture(scope="module")
@@ -30,19 +26,6 @@ def models():
 
 
 ORACLES = dict(segmenter=OracleSegmenter(), orientation=OracleOrientation())
-
-
-def frames_of(fine, T, views=None, labels_pose=None):
-    views = default_biplane() if views is None else views
-    out = []
-    for i, v in enumerate(views):
-        T_labels = T if labels_pose is None or labels_pose[i] is None else labels_pose[i]
-        out.append(Frame(np.zeros(v.shape, np.float32), v, labels=render_labels(fine, T_labels, v), T_carm_transducer=T))
-    return out
-
-
-def focal_error(result, T):
-    return float(np.linalg.norm(result.focal_point_mm - T[:3, 3]))
 
 
 @pytest.fixture(scope="module")

@@ -4,17 +4,11 @@ of exact labels (the verdict's decisions inside estimate_pose: tests/test_pose_e
 import numpy as np
 import pytest
 
-from histostudy.carm import default_biplane
-from histostudy.frame import Frame
 from histostudy.pose.cost import DistanceMaps, PoseCost
 from histostudy.pose.verdict import unexplained_fraction, view_disagreement_mm
-from histostudy.render import render_labels
-from histostudy.transducer import Feature, TransducerModel, pose_facing
+from histostudy.transducer import Feature, TransducerModel
 
-POSES = [
-    pose_facing((0.15, 1.0, 0.25), focal_point_mm=(4.0, -6.0, 8.0), axial_rotation_rad=0.35),
-    pose_facing((-0.3, 1.0, -0.1), focal_point_mm=(-10.0, 5.0, -3.0), axial_rotation_rad=2.0),
-]
+from pose_frames import POSES, frames_of
 
 
 @pytest.fixture(scope="module")
@@ -24,9 +18,7 @@ def models():
 
 @pytest.fixture(scope="module")
 def frames(models):
-    views = default_biplane()
-    return [[Frame(np.zeros(v.shape, np.float32), v, labels=render_labels(models[1], T, v), T_carm_transducer=T)
-             for v in views] for T in POSES]
+    return [frames_of(models[1], T) for T in POSES]
 
 
 def test_unexplained_fraction_counts_the_segmented_pixels_far_from_the_posed_model(models, frames):
