@@ -22,13 +22,13 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 
-from histostudy import cbct
-from histostudy import treatment as tr
+from histostudy.core import atomic_write_json
 from histostudy.geometry import make_transform, rotation_about_axis
-from histostudy.io import atomic_write_json
+from histostudy.imaging import cbct
+from histostudy.treatment import TreatmentZone, segment_treatment_zone
 from histostudy.robot import SimulatedUR5e
+from histostudy.treatment import plan as tr
 
 
 def best_of(fn, repeat: int = 3) -> float:
@@ -54,18 +54,18 @@ def main(argv=None) -> None:
     print(f"phantom_volume {vol.data.shape} at 1 mm: {t_ours * 1e3:7.1f} ms; pointwise baseline "
           f"{t_base * 1e3:7.1f} ms; ratio {t_base / t_ours:5.1f}x")
 
-    zone = cbct.TreatmentZone([1.3, -0.7, 2.2], 20.0)
+    zone = TreatmentZone([1.3, -0.7, 2.2], 20.0)
     roi = cbct.phantom_mask(vol, spec, T)
     post = tr.post_treatment_phantom(vol, zone.mask(vol), roi)
     t_sim = best_of(lambda: cbct.simulate_cbct(post, 0, blur_sigma_mm=0.5, noise_sd_hu=20.0))
     ct = cbct.simulate_cbct(post, 0, blur_sigma_mm=0.5, noise_sd_hu=20.0)
-    t_seg = best_of(lambda: cbct.segment_treatment_zone(ct, roi))
+    t_seg = best_of(lambda: segment_treatment_zone(ct, roi))
     print(f"segment_treatment_zone {ct.data.shape}: {t_seg * 1e3:7.1f} ms; simulate_cbct baseline "
           f"{t_sim * 1e3:7.1f} ms; ratio seg/sim {t_seg / t_sim:5.2f}")
 
     robot = SimulatedUR5e(0)
     T_home = robot.tcp_pose()
-    zone = cbct.TreatmentZone([0.0, 0.0, 0.0], 20.0)
+    zone = TreatmentZone([0.0, 0.0, 0.0], 20.0)
     plan = tr.plan_treatment(zone, args.spacing_mm)
     T_base_carm = make_transform(None, T_home[:3, 3])
     with tempfile.TemporaryDirectory() as tmp:

@@ -1,10 +1,10 @@
 """Speed of the learned stages (§II-B.2, §II-B.4), each against a baseline measured in the same run.
 
 Prints:
-- U-Net inference per full 1240x960 frame with :class:`histostudy.segment.UNetSegmenter` (the
+- U-Net inference per full 1240x960 frame with :class:`histostudy.learning.segment.UNetSegmenter` (the
   shipped standard network, input downscaled by 0.5, logits upsampled to full size) against the
   same network run on the full-resolution frame (baseline), and the 0.5 s target;
-- VGG19 inference per view (one 310x240 input, :class:`histostudy.orientation.LearnedOrientation`)
+- VGG19 inference per view (one 310x240 input, :class:`histostudy.learning.orientation.LearnedOrientation`)
   for the shipped width-1/8 network against the full-width VGG19 (baseline);
 - training steps per second at batch 5: the standard U-Net on 256x256 crops against the
   16...256-channel U-Net on the same crops (the configuration timed in the issue, baseline), and
@@ -25,13 +25,9 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
-from histostudy.carm import default_biplane
-from histostudy.checkpoints import shipped_model
-from histostudy.frame import Frame
-from histostudy.nets import UNet, VGG19, build_network
-from histostudy.orientation import LearnedOrientation
-from histostudy.profiles import load_profile
-from histostudy.segment import UNetSegmenter
+from histostudy.imaging import Frame, default_biplane
+from histostudy.learning import LearnedOrientation, UNet, UNetSegmenter, VGG19, build_network, shipped_model
+from histostudy.reporting import load_profile
 
 
 def _median_time(fn, repeat: int) -> float:

@@ -32,11 +32,10 @@ import time
 import numba
 import numpy as np
 
-from histostudy.carm import default_biplane
 from histostudy.geometry import rotation_angle
+from histostudy.imaging import default_biplane, render_labels
 from histostudy.pose.cost import DistanceMaps, PoseCost, apply_left_perturbation
 from histostudy.pose.refine import refine_levenberg_marquardt, refine_nelder_mead
-from histostudy.render import render_labels
 from histostudy.transducer import FEATURE_CLASSES, TransducerModel, pose_facing
 
 
@@ -76,7 +75,7 @@ def jit_times() -> tuple[float, float]:
     """(compile, cache load) seconds of the three cost kernels, in fresh subprocesses."""
     code = textwrap.dedent("""
         import time, numpy as np
-        from histostudy.carm import default_biplane
+        from histostudy.imaging.carm import default_biplane
         from histostudy.pose.cost import DistanceMaps, PoseCost
         from histostudy.transducer import Feature
         view = default_biplane()[0]

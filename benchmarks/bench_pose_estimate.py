@@ -17,13 +17,10 @@ import time
 
 import numpy as np
 
-from histostudy.anatomy import random_background
-from histostudy.carm import default_biplane
-from histostudy.orientation import OracleOrientation
+from histostudy.imaging import default_biplane, random_background, render_frame
+from histostudy.learning import OracleOrientation, OracleSegmenter
 from histostudy.pose import estimate_pose
 from histostudy.pose.cost import apply_left_perturbation
-from histostudy.render import render_frame
-from histostudy.segment import OracleSegmenter
 from histostudy.study.pose_estimation import PoseStudyConfig, _experiment_pose
 from histostudy.transducer import TransducerModel
 

@@ -21,8 +21,8 @@ import tracemalloc
 
 import numpy as np
 
-from histostudy.carm import default_biplane
-from histostudy.render import _splat_chunks, render_labels, render_line_integrals
+from histostudy.imaging import default_biplane, render_labels, render_line_integrals
+from histostudy.imaging.render import _splat_chunks
 from histostudy.transducer import FEATURE_CLASSES, TransducerModel, pose_facing
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .profiles import PROFILE_NAMES, load_profile
+from .reporting import PROFILE_NAMES, load_profile
 
 __all__ = ["main"]
 
@@ -64,7 +64,7 @@ def main(argv=None) -> int:
     if args.command == "train":
         return _train(args)
     if args.command == "reproduce":
-        from .pipeline import NotebookFailed, run_study
+        from .reporting import NotebookFailed, run_study
 
         try:
             run = run_study(args.profile, args.output, only=args.only, notebooks_dir=args.notebooks,
@@ -83,8 +83,8 @@ def main(argv=None) -> int:
 def _train(args) -> int:
     import dataclasses
 
-    from .datasets import default_cache_dir
-    from .training import TrainingConfig, export, train
+    from .learning import default_cache_dir
+    from .learning import TrainingConfig, export, train
 
     profile = args.profile
     table = profile.training.get(args.task)
@@ -105,8 +105,8 @@ def _train(args) -> int:
     if args.render_workers > 1 and cfg.cache:
         import time
 
-        from .datasets import HybridFrames
-        from .training import run_frame_sets
+        from .learning import HybridFrames
+        from histostudy.learning.training import run_frame_sets
 
         t0 = time.monotonic()
         rendered = sum(HybridFrames(split, profile.seed, config=render, cache_dir=default_cache_dir())

@@ -18,7 +18,7 @@
 
 Conventions: the pose is ``T_carm_transducer`` (4x4) or the 6 parameters ``[rotvec (rad), t (mm)]``
 of :func:`histostudy.geometry.transform_from_params`. "Inside the map" is
-:meth:`histostudy.carm.View.in_image`: ``-0.5 <= u < cols - 0.5`` and ``-0.5 <= v < rows - 0.5``
+:meth:`histostudy.imaging.carm.View.in_image`: ``-0.5 <= u < cols - 0.5`` and ``-0.5 <= v < rows - 0.5``
 (pixel centres at integer coordinates); in the half-pixel rim outside the outermost pixel centres
 the interpolation clamps to the edge (the rim belongs to the edge pixels).
 
@@ -48,9 +48,9 @@ import cv2
 import numba
 import numpy as np
 
-from ..carm import View
-from ..geometry import check_rigid, check_rotation, make_transform, matrix_from_rotvec, transform_from_params
-from ..transducer import FEATURE_CLASSES, LABEL_PRIORITY, Feature
+from histostudy.geometry import check_rigid, check_rotation, make_transform, matrix_from_rotvec, transform_from_params
+from histostudy.imaging import View
+from histostudy.transducer import FEATURE_CLASSES, Feature, LABEL_PRIORITY
 
 __all__ = [
     "OUTSIDE_DISTANCE_PX",
@@ -100,7 +100,7 @@ def _feature(key, name: str) -> Feature:
 
 def _check_view(view, name: str = "view") -> View:
     if not isinstance(view, View):
-        raise TypeError(f"{name} must be a histostudy.carm.View, got {type(view).__name__}")
+        raise TypeError(f"{name} must be a histostudy.imaging.carm.View, got {type(view).__name__}")
     rows, cols = view.shape
     if rows < 2 or cols < 2:
         raise ValueError(f"{name} must be at least 2x2 pixels for bilinear interpolation, got shape {view.shape}")
@@ -130,11 +130,11 @@ class DistanceMaps:
     """Distance maps of one view, one per feature class (§II-B.3).
 
     Args:
-        view: the :class:`~histostudy.carm.View` the segmentation belongs to; its ``shape`` must
+        view: the :class:`~histostudy.imaging.carm.View` the segmentation belongs to; its ``shape`` must
             equal the segmentation's.
         segmentation: either a ``(rows, cols)`` integer label image whose values are
             :class:`~histostudy.transducer.Feature` (0 = background; e.g. a U-net's argmax or
-            :func:`histostudy.render.render_labels`), or a dict ``{Feature: (rows, cols) bool}``
+            :func:`histostudy.imaging.render.render_labels`), or a dict ``{Feature: (rows, cols) bool}``
             of per-class masks (masks may overlap; a class missing from the dict is absent).
         occlusion_aware: beyond the paper. False (eq. 3 as written): class ``k``'s map is the
             distance to the nearest pixel labelled ``k``. True: the distance to the nearest pixel

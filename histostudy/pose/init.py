@@ -2,7 +2,7 @@
 axial rotation by a linear search.
 
 1. Each view's azimuth/elevation gives two mirror candidates (eq. 4); the pair that agrees best
-   across views is averaged (:func:`histostudy.orientation.select_direction`).
+   across views is averaged (:func:`histostudy.learning.orientation.select_direction`).
 2. The translation (the focal point, i.e. the translation of ``T_carm_transducer``) is searched
    on a grid parallel to each detector: 130 points (13 x 10, 3 cm steps, about 40 x 30 cm)
    around the isocentre for the first view; its best point centres the next view's grid; then a
@@ -23,9 +23,9 @@ from typing import Callable, Sequence
 import cv2
 import numpy as np
 
-from ..carm import View
-from ..geometry import make_transform
-from ..transducer import pose_facing
+from histostudy.geometry import make_transform
+from histostudy.imaging import View
+from histostudy.transducer import pose_facing
 
 __all__ = ["translation_costs", "SILHOUETTE_CELL_PX", "segmented_occupancy", "silhouette_candidates", "silhouette_seed", "COARSE_GRID", "FINE_GRID", "MEDIUM_GRID", "PAPER_AXIAL_SEEDS_DEG", "ROBUST_AXIAL_SEEDS_DEG", "GridSpec", "InitResult", "axial_minima", "axial_search", "grid_offsets", "grid_search", "initialise_pose",
            "rotation_from_direction"]

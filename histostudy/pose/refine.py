@@ -22,7 +22,7 @@ from typing import Callable
 import numpy as np
 import scipy.optimize
 
-from ..geometry import check_rigid
+from histostudy.geometry import check_rigid
 from .cost import PoseCost, apply_left_perturbation
 
 __all__ = ["RefineResult", "refine_levenberg_marquardt", "refine_nelder_mead"]

@@ -20,8 +20,8 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from ..frame import Frame
-from ..transducer import Feature, TransducerModel
+from histostudy.imaging import Frame
+from histostudy.transducer import Feature, TransducerModel
 from .cost import PoseCost
 from .init import COARSE_GRID
 from .refine import refine_levenberg_marquardt

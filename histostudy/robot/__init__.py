@@ -32,20 +32,11 @@ forward and analytic inverse kinematics), ``sim`` (:class:`SimulatedUR5e`, :clas
 controller process).
 """
 
-from .base import (
-    ProtectiveStopError,
-    Robot,
-    RobotConnectionError,
-    RobotError,
-    RobotState,
-    RobotTimeout,
-    UnreachablePoseError,
-    Workspace,
-    WorkspaceViolation,
-)
+from .base import (ProtectiveStopError, Robot, RobotConnectionError, RobotError, RobotState, RobotTimeout,
+                   UnreachablePoseError, Workspace, WorkspaceViolation)
 from .kinematics import UR5E, forward_kinematics, inverse_kinematics, inverse_kinematics_closest
 from .rtde import RTDERobot, pose_from_transform, transform_from_pose
-from .sim import HOME_JOINTS_RAD, FaultPlan, SimulatedUR5e
+from .sim import FaultPlan, HOME_JOINTS_RAD, SimulatedUR5e
 
 __all__ = [
     "HOME_JOINTS_RAD",

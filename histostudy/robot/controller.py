@@ -59,7 +59,7 @@ import numpy as np
 from .base import RobotError, Workspace
 from .kinematics import check_joints, forward_kinematics
 from .rtde import pose_from_transform, transform_from_pose
-from .sim import HOME_JOINTS_RAD, FaultPlan, SimulatedUR5e
+from .sim import FaultPlan, HOME_JOINTS_RAD, SimulatedUR5e
 
 __all__ = ["Command", "ControllerProcess", "SimulatedController", "main", "DASHBOARD_PORT", "RTDE_PORT", "SCRIPT_PORT"]
 

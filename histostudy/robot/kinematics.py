@@ -19,7 +19,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from histostudy.geometry import check_rigid, invert_transform, matrix_from_rotvec, rotvec_from_matrix
-
 from .base import REACH_MM, UnreachablePoseError
 
 __all__ = [

@@ -33,20 +33,9 @@ import time
 import numpy as np
 
 from histostudy.geometry import check_rigid, invert_transform, matrix_from_rotvec, rotation_angle, rotvec_from_matrix
-
-from .base import (
-    ProtectiveStopError,
-    RobotConnectionError,
-    RobotError,
-    RobotState,
-    RobotTimeout,
-    UnreachablePoseError,
-    Workspace,
-    WorkspaceViolation,
-    check_motion_parameters,
-    linear_motion_time_s,
-)
-from .kinematics import UR5E, DHParameters, forward_kinematics, inverse_kinematics_closest, linear_path_joints
+from .base import (ProtectiveStopError, RobotConnectionError, RobotError, RobotState, RobotTimeout,
+                   UnreachablePoseError, Workspace, WorkspaceViolation, check_motion_parameters, linear_motion_time_s)
+from .kinematics import DHParameters, UR5E, forward_kinematics, inverse_kinematics_closest, linear_path_joints
 
 __all__ = ["RTDERobot", "UR_RTDE_VERSION", "pose_from_transform", "transform_from_pose"]
 

@@ -1,9 +1,9 @@
 """Notebook 03: the VGG19 azimuth/elevation regression evaluated as in §II-E.2 and §III.
 
 For each evaluation frame the orientation source's angles are compared with the true pose's
-(:func:`histostudy.orientation.angles_from_direction`): mean absolute error ± SD (azimuth
+(:func:`histostudy.learning.orientation.angles_from_direction`): mean absolute error ± SD (azimuth
 differences wrapped), Pearson correlation, and the Moore-Penrose linear fit of prediction on
-reference with its R² (:func:`histostudy.stats.angle_statistics`).
+reference with its R² (:func:`histostudy.study.stats.angle_statistics`).
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from typing import Iterable
 import numpy as np
 import pandas as pd
 
-from ..orientation import (angles_from_direction, beam_direction_of_pose, direction_candidates, orientation_angle_error,
-                           wrap_angle)
-from ..stats import angle_statistics
+from histostudy.learning import (angles_from_direction, beam_direction_of_pose, direction_candidates,
+                                 orientation_angle_error, wrap_angle)
+from .stats import angle_statistics
 
 __all__ = ["angle_table", "candidate_error_summary", "candidate_errors", "direction_error_summary", "evaluate_orientation",
            "scatter_figure"]
@@ -25,7 +25,7 @@ __all__ = ["angle_table", "candidate_error_summary", "candidate_errors", "direct
 def evaluate_orientation(source, frames: Iterable, rng: np.random.Generator | None = None) -> pd.DataFrame:
     """One row per frame: reference and predicted azimuth and elevation (deg), the wrapped azimuth
     error, the elevation error and the angle between the predicted and the reference direction
-    (deg; :func:`~histostudy.orientation.orientation_angle_error`), and the ``seconds`` the source
+    (deg; :func:`~histostudy.learning.orientation.orientation_angle_error`), and the ``seconds`` the source
     took."""
     rows = []
     for i, frame in enumerate(frames):
@@ -86,7 +86,7 @@ def candidate_errors(sources: dict, frames: Iterable, rng: np.random.Generator |
 
     Every source gives each view two candidate world directions of the transducer axis: eq. 4's
     mirror pair of its ``(azimuth, elevation)``, or, for a source with a ``candidates(frame, rng)``
-    method (:class:`~histostudy.conic_orientation.ConicOrientation`), its own pair; the pose
+    method (:class:`~histostudy.pose.conic_orientation.ConicOrientation`), its own pair; the pose
     initialisation resolves the pair across views (§II-B.4). One row per frame and source: the
     angle (deg) between the true focal direction and the nearer candidate, that candidate's
     azimuth and elevation errors in the view (the §III angles: the canonical mirror folded, azimuth

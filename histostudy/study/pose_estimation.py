@@ -32,16 +32,14 @@ from typing import Callable, Sequence
 import numpy as np
 import pandas as pd
 
-from ..anatomy import Anatomy, random_background
-from ..carm import View
-from ..cbct import PhantomSpec, TreatmentZone, phantom_mask, phantom_volume
-from ..geometry import make_transform, matrix_from_euler, rotation_about_axis, rotation_angle
-from ..pose import MAP_KINDS, PoseEstimationError, estimate_pose, learned_stage_shortfalls
-from ..render import render_frame
-from ..orientation import OracleOrientation, OrientationSource
-from ..segment import OracleSegmenter, SegmentationDegradation, Segmenter
-from ..transducer import Feature, TransducerModel, pose_facing
-from ..treatment import STUDY_PLAN_INSET_MM, STUDY_PLAN_SPACING_MM, plan_treatment, scan_treated_zone
+from histostudy.geometry import make_transform, matrix_from_euler, rotation_about_axis, rotation_angle
+from histostudy.imaging import Anatomy, PhantomSpec, View, phantom_mask, phantom_volume, random_background, render_frame
+from histostudy.learning import (OracleOrientation, OracleSegmenter, OrientationSource, SegmentationDegradation,
+                                 Segmenter)
+from histostudy.pose import MAP_KINDS, PoseEstimationError, estimate_pose, learned_stage_shortfalls
+from histostudy.transducer import Feature, TransducerModel, pose_facing
+from histostudy.treatment import (STUDY_PLAN_INSET_MM, STUDY_PLAN_SPACING_MM, TreatmentZone, plan_treatment,
+                                  scan_treated_zone)
 
 __all__ = [
     "DIRECTIONS",
@@ -159,8 +157,8 @@ def study_stages(config, learned: bool = True, *, segmenter=None, orientation=No
     fall short. ``config``: a :class:`PoseStudyConfig` or any study config with a ``segmenter()``
     giving its oracle (notebook 05's :class:`~histostudy.study.targeting.TargetingStudyConfig`).
 
-    With ``learned``, the shipped U-Net and VGG19 (:func:`histostudy.segment.default_segmenter`,
-    :func:`histostudy.orientation.default_orientation`, or the ``segmenter`` / ``orientation``
+    With ``learned``, the shipped U-Net and VGG19 (:func:`histostudy.learning.segment.default_segmenter`,
+    :func:`histostudy.pose.conic_orientation.default_orientation`, or the ``segmenter`` / ``orientation``
     given) when their manifests meet :data:`histostudy.pose.LEARNED_STAGE_REQUIREMENTS`;
     otherwise, or without ``learned``, the config's oracles (Table I degradation, the paper's
     angle MAE). ``why`` says which and why, for the report.
@@ -170,8 +168,8 @@ def study_stages(config, learned: bool = True, *, segmenter=None, orientation=No
         return StudyStages(*oracles, learned=False, why="oracle stages: the learned stages are disabled "
                            "(learned_stages = False)")
     if segmenter is None or orientation is None:
-        from ..orientation import default_orientation
-        from ..segment import default_segmenter
+        from histostudy.pose import default_orientation
+        from histostudy.learning import default_segmenter
 
         segmenter = default_segmenter() if segmenter is None else segmenter
         orientation = default_orientation() if orientation is None else orientation
@@ -351,10 +349,10 @@ REFERENCE_COLUMNS = ("experiment", "centroid_x", "centroid_y", "centroid_z", "sp
 
 
 def phantom_placement(scene: Anatomy, centre_mm=(0.0, 0.0, 0.0)) -> tuple[PhantomSpec, np.ndarray]:
-    """The layered phantom of a scene as :mod:`histostudy.cbct` models it (§II-D.1):
+    """The layered phantom of a scene as :mod:`histostudy.imaging.cbct` models it (§II-D.1):
     ``(PhantomSpec, T_carm_phantom)``.
 
-    A phantom scene (:func:`histostudy.anatomy.random_phantom_setup`) records its cube's edge,
+    A phantom scene (:func:`histostudy.imaging.anatomy.random_phantom_setup`) records its cube's edge,
     centre, yaw about the vertical axis and layer thickness; its layers are stacked vertically as
     poured, so the phantom frame's +z (the stacking axis of :class:`PhantomSpec`) is world ``-y``
     (up). The layers' phase is :class:`PhantomSpec`'s (from the bottom face), not the scene's: the
@@ -362,7 +360,7 @@ def phantom_placement(scene: Anatomy, centre_mm=(0.0, 0.0, 0.0)) -> tuple[Phanto
     phantom (abdomen) gets the default 5 cm phantom at ``centre_mm`` (world mm), layers horizontal.
     """
     if not isinstance(scene, Anatomy):
-        raise TypeError(f"scene must be a histostudy.anatomy.Anatomy, got {type(scene).__name__}")
+        raise TypeError(f"scene must be a histostudy.imaging.anatomy.Anatomy, got {type(scene).__name__}")
     meta = scene.meta
     up = rotation_about_axis([1.0, 0.0, 0.0], np.pi / 2)  # phantom z -> world -y
     if "phantom_center_mm" not in meta:
@@ -417,9 +415,9 @@ def cbct_reference(config: PoseStudyConfig, *, physical: TransducerModel, seed: 
     translated through :func:`histostudy.treatment.plan_treatment`'s focal points on the centre
     pose's axes; bubble clouds at the physical focal point plus ``config.bubble_offset_mm``), the
     layered phantom of the experiment's scene (:func:`phantom_placement`) mixed there, a
-    post-treatment CBCT simulated (:func:`histostudy.cbct.simulate_cbct`: ``cbct_blur_mm``,
+    post-treatment CBCT simulated (:func:`histostudy.imaging.cbct.simulate_cbct`: ``cbct_blur_mm``,
     ``cbct_noise_hu``, voxels of ``cbct_voxel_mm``; the true phantom on ``phantom_voxel_mm``) and
-    the zone segmented (:func:`histostudy.cbct.segment_treatment_zone`, the automatic stand-in for
+    the zone segmented (:func:`histostudy.treatment.zone.segment_treatment_zone`, the automatic stand-in for
     the paper's manual annotation). Defaults: notebook 05's (0.5 mm phantom, 1 mm CBCT, 0.5 mm
     blur, 20 HU noise, the studies' plan: spacing (2, 2, 3) mm, inset (1.25, 1.25, 2.25) mm).
 
@@ -433,7 +431,7 @@ def cbct_reference(config: PoseStudyConfig, *, physical: TransducerModel, seed: 
       ``sphere_x/y/z``, ``sphere_radius_mm``: its least-squares sphere (the surface the margin
       points are measured to);
     - ``ref_radius_depth/tb/lr``: the zone's radius along the centre pose's depth/TB/LR axes
-      (through the centroid, :meth:`~histostudy.cbct.ZoneSegmentation.radii_along`), and those
+      (through the centroid, :meth:`~histostudy.treatment.zone.ZoneSegmentation.radii_along`), and those
       axes as world unit vectors ``axis_<d>_x/y/z``;
     - the error of the reference against the ground truth: ``ref_err_<d>`` and
       ``ref_err_euclidean`` (centroid minus true centre), ``ref_radius_err_<d>`` and
@@ -630,7 +628,7 @@ def experiment_metrics(records: pd.DataFrame, reference: pd.DataFrame | None = N
 
 def table2(metrics: pd.DataFrame, mode: str, maps: str = "occlusion_aware") -> tuple[pd.DataFrame, dict]:
     """Table II (§III; mean ± SD over experiments, mm) for one mode and map kind, and the values
-    keyed as in :mod:`histostudy.paper` (``table2.<row>.<direction>`` -> (mean, sd)), plus
+    keyed as in :mod:`histostudy.reporting.paper` (``table2.<row>.<direction>`` -> (mean, sd)), plus
     ``pose.precision`` (centroid of the six margin predictions vs the centre prediction).
 
     The reference is the one :func:`experiment_metrics` measured against (its ``reference``

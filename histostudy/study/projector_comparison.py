@@ -1,10 +1,10 @@
 """The pose pipeline on frames of an independent projector (beyond the paper; notebook 04).
 
-The study's frames come from the project's own splatting renderer (:mod:`histostudy.render`,
+The study's frames come from the project's own splatting renderer (:mod:`histostudy.imaging.render`,
 §II-B.2). A pipeline trained and tuned on those frames could exploit something of that renderer
 that a real C-arm does not share. Here the same poses, scenes and noise are made a second way —
 RTK's Joseph ray caster on the voxelised physical transducer
-(:func:`histostudy.rtk_projector.render_frame_rtk`, optional dependency ``histostudy[rtk]``) — and
+(:func:`histostudy.imaging.rtk_projector.render_frame_rtk`, optional dependency ``histostudy[rtk]``) — and
 the pose is estimated from each; the focal errors of the two are set side by side.
 """
 
@@ -17,11 +17,9 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from ..anatomy import random_background
-from ..carm import View
-from ..pose import PoseEstimationError, estimate_pose
-from ..render import render_frame
-from ..transducer import TransducerModel
+from histostudy.imaging import View, random_background, render_frame
+from histostudy.pose import PoseEstimationError, estimate_pose
+from histostudy.transducer import TransducerModel
 from .pose_estimation import (PoseStudyConfig, _bubble_centre, experiment_setups, random_pose_in_views,
                               sweep_visible_points)
 
@@ -66,7 +64,7 @@ def projector_comparison(poses: Sequence[dict], *, pose_model: TransducerModel, 
     renderer projects ``physical`` as the study does, RTK its voxelisation at ``voxel_mm``. The
     estimation's random stream is the same for both.
     """
-    from ..rtk_projector import render_frame_rtk
+    from histostudy.imaging import render_frame_rtk
 
     rows = []
     for p, seq in zip(poses, np.random.SeedSequence([seed, 11]).spawn(len(poses))):

@@ -1,7 +1,7 @@
 """Notebook 02: the U-Net segmentation evaluated as in §II-E.1 and §III (Table I, ANOVA, Tukey HSD).
 
 Every evaluation frame is segmented at full resolution and compared with its reference labels
-pixel by pixel (:func:`histostudy.stats.segmentation_metrics`); Table I is the mean ± SD over
+pixel by pixel (:func:`histostudy.study.stats.segmentation_metrics`); Table I is the mean ± SD over
 images of each class's precision, recall, IoU and pixel accuracy (percent). The precision of the
 six classes is compared by one-way ANOVA and Tukey's HSD, as the paper does.
 """
@@ -14,8 +14,8 @@ from typing import Iterable
 import numpy as np
 import pandas as pd
 
-from ..stats import anova_oneway, segmentation_metrics, tukey_hsd
-from ..transducer import Feature
+from histostudy.transducer import Feature
+from .stats import anova_oneway, segmentation_metrics, tukey_hsd
 
 __all__ = ["CLASS_KEYS", "anova_text", "evaluate_segmentation", "precision_tests", "summary", "table1"]
 

@@ -14,7 +14,7 @@ One experiment, as in the lab, in four stages:
    from the TRUE transducer pose (``T_carm_base_true @ T_base_flange_reached @
    T_flange_transducer_true``); the pose is estimated (fast mode; the stages given, in notebook 05
    the shipped U-Net and VGG19, otherwise the Table I-degraded oracle segmenter and the oracle
-   orientation) and :func:`histostudy.handeye.calibrate` run on the pairs.
+   orientation) and :func:`histostudy.calibration.handeye.calibrate` run on the pairs.
    Its residuals are checked against a stated bound (:meth:`HandEyeCalibration.check`): targeting
    refuses to run on a calibration that fails it.
 3. **Pre-treatment CBCT** of the layered phantom; a target picked inside it with the whole zone
@@ -26,7 +26,7 @@ One experiment, as in the lab, in four stages:
    :func:`~histostudy.treatment.execute_treatment`, journal in a temporary folder), the bubble
    clouds placed at the TRUE focal points of the physical transducer for the reached robot
    poses (plus the offset), the layers mixed, a post-treatment CBCT simulated and the zone
-   segmented (:func:`histostudy.cbct.segment_treatment_zone`, the stand-in for the manual
+   segmented (:func:`histostudy.treatment.zone.segment_treatment_zone`, the stand-in for the manual
    annotation).
 
 Errors (§II-E.4): Euclidean distance between the intended target and the segmented zone's
@@ -71,28 +71,17 @@ from typing import Callable, Sequence
 import numpy as np
 import pandas as pd
 
-from ..anatomy import random_background
-from ..carm import View
-from ..cbct import (
-    PhantomSpec,
-    TreatmentZone,
-    Volume,
-    ZoneSegmentation,
-    check_target,
-    phantom_mask,
-    phantom_volume,
-    random_target,
-    simulate_cbct,
-)
-from ..geometry import invert_transform, make_transform, matrix_from_rotvec, rotation_angle, rotation_about_axis
-from ..handeye import R_BASE_FLANGE_DOWN, HandEyeCalibration, calibrate
-from ..orientation import OracleOrientation
-from ..pose import PoseEstimationError, estimate_pose
-from ..render import render_frame
-from ..robot import HOME_JOINTS_RAD, Robot, SimulatedUR5e, inverse_kinematics_closest
-from ..segment import OracleSegmenter
-from ..transducer import TransducerModel
-from ..treatment import STUDY_PLAN_INSET_MM, STUDY_PLAN_SPACING_MM, execute_treatment, plan_treatment, scan_treated_zone
+from histostudy.calibration import R_BASE_FLANGE_DOWN, HandEyeCalibration, calibrate
+from histostudy.geometry import (invert_transform, make_transform, matrix_from_rotvec, rotation_about_axis,
+                                 rotation_angle)
+from histostudy.imaging import (PhantomSpec, View, Volume, check_target, phantom_mask, phantom_volume,
+                                random_background, random_target, render_frame, simulate_cbct)
+from histostudy.learning import OracleOrientation, OracleSegmenter
+from histostudy.pose import PoseEstimationError, estimate_pose
+from histostudy.robot import HOME_JOINTS_RAD, Robot, SimulatedUR5e, inverse_kinematics_closest
+from histostudy.transducer import TransducerModel
+from histostudy.treatment import (STUDY_PLAN_INSET_MM, STUDY_PLAN_SPACING_MM, TreatmentZone, ZoneSegmentation,
+                                  execute_treatment, plan_treatment, scan_treated_zone)
 from .pose_estimation import DIRECTIONS, _mean_sd, transducer_axes
 
 __all__ = [
@@ -370,8 +359,8 @@ def rtde_robot(config: TargetingStudyConfig, *, command_timeout_s: float = 10.0)
     The controller's ``--seed`` is the experiment's robot seed, so its repeatability noise is
     drawn exactly as :func:`sim_robot`'s. The controller is stopped when the block ends.
     """
-    from ..robot import RTDERobot
-    from ..robot.controller import ControllerProcess
+    from histostudy.robot import RTDERobot
+    from histostudy.robot.controller import ControllerProcess
 
     @contextlib.contextmanager
     def factory(seed: int, initial_joints_rad=HOME_JOINTS_RAD):
@@ -435,7 +424,7 @@ def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConf
 
     Returns the checked calibration and one row per pose (the true and estimated focal points,
     the pose-estimation error). Raises :class:`TargetingError` when a pose estimate fails its
-    verdict and :class:`~histostudy.handeye.CalibrationError` beyond the residual bound.
+    verdict and :class:`~histostudy.calibration.handeye.CalibrationError` beyond the residual bound.
     """
     robot.set_tcp(np.eye(4))  # calibration poses are flange poses
     scene = None if config.background == "none" else random_background(rng_scene, config.background)
@@ -526,7 +515,7 @@ def _start_joints(truth: GroundTruth) -> np.ndarray:
 
 def scene_at_target(truth: GroundTruth, calibration: HandEyeCalibration, target_mm, R_carm_transducer) -> dict:
     """The physical set-up with the robot at the treatment's start, for a 3-D scene
-    (:func:`histostudy.viz.targeting_scene`).
+    (:func:`histostudy.reporting.viz.targeting_scene`).
 
     The robot is commanded (:func:`tcp_for_target`, calibrated chain) to put the estimated focal
     point on ``target_mm`` (C-arm mm) with the orientation ``R_carm_transducer``; what it reaches is
@@ -720,7 +709,7 @@ def run_targeting_study(config: TargetingStudyConfig, *, pose_model: TransducerM
 
 
 def targeting_values(records: pd.DataFrame, prefix: str = "") -> dict:
-    """The paper's targeting figures (mean, SD) keyed as :mod:`histostudy.paper`:
+    """The paper's targeting figures (mean, SD) keyed as :mod:`histostudy.reporting.paper`:
     ``targeting.euclidean``, ``targeting.mae.<d>``, ``targeting.bias.<d>``, ``targeting.radius_mae``;
     ``prefix="corr_"`` for the bias-corrected treatments."""
     if records.empty:

@@ -13,9 +13,9 @@ from typing import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from ..geometry import fit_sphere
-from ..render import render_frame, render_line_integrals
-from ..transducer import FEATURE_CLASSES, Feature, TransducerModel
+from histostudy.geometry import fit_sphere
+from histostudy.imaging import render_frame, render_line_integrals
+from histostudy.transducer import FEATURE_CLASSES, Feature, TransducerModel
 
 __all__ = ["label_fraction_table", "model_geometry", "point_count_table", "render_timing"]
 

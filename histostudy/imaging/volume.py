@@ -1,0 +1,171 @@
+"""CBCT volumes: an axis-aligned voxel grid in the world frame and its validation (§II-A).
+
+A CBCT is a voxel grid ``V`` whose value at a point between voxel centres is the trilinear
+interpolation (§II-A). Frames and units: millimetres; the CBCT/C-arm frame is the world frame
+(origin at the isocentre). A :class:`Volume` is axis-aligned with the world frame: ``data`` is
+indexed ``[iz, iy, ix]`` (z slowest), while ``spacing_mm``, ``origin_mm`` and every point or voxel
+coordinate are given in ``(x, y, z)`` order. ``origin_mm`` is the world position of the centre of
+voxel ``(0, 0, 0)``. Gray values are in Hounsfield units (HU): water 0 HU.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+
+from histostudy.geometry import as_points
+
+__all__ = ["Volume"]
+
+
+def _vec3(value, name: str, positive: bool = False) -> np.ndarray:
+    """``value`` as a finite float64 (3,) vector (a scalar is broadcast); errors name ``name``."""
+    if value is None:
+        raise ValueError(f"{name} is required (3 numbers in mm, x, y, z order), got None")
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim == 0:
+        arr = np.full(3, float(arr))
+    arr = arr.reshape(-1)
+    if arr.shape != (3,) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be 3 finite numbers in mm (x, y, z order), got {value!r}")
+    if positive and np.any(arr <= 0):
+        raise ValueError(f"{name} must be > 0 on every axis, got {arr.tolist()}")
+    return arr
+
+
+# ---------------------------------------------------------------------------------------------
+# Volume
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(eq=False)
+class Volume:
+    """A CBCT (or phantom) volume on an axis-aligned grid in the C-arm (world) frame (§II-A).
+
+    ``data``: float32 array indexed ``[iz, iy, ix]``. ``spacing_mm``: voxel size ``(dx, dy, dz)``
+    in mm, required and > 0 (a volume without spacing has no geometry and is refused).
+    ``origin_mm``: world position ``(x, y, z)`` of the centre of voxel ``[0, 0, 0]``.
+    Voxel coordinates ``(i, j, k)`` are continuous indices in ``(x, y, z)`` order:
+    ``world = origin_mm + (i, j, k) * spacing_mm``.
+    """
+
+    data: np.ndarray
+    spacing_mm: np.ndarray | None
+    origin_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    def __post_init__(self):
+        data = np.asarray(self.data)
+        if data.ndim != 3 or min(data.shape) < 1:
+            raise ValueError(f"data must be a non-empty 3-D array indexed [z, y, x], got shape {data.shape}")
+        if not np.issubdtype(data.dtype, np.number) or np.issubdtype(data.dtype, np.complexfloating):
+            raise ValueError(f"data must hold real numbers, got dtype {data.dtype}")
+        self.data = np.ascontiguousarray(data, dtype=np.float32)
+        if self.spacing_mm is None:
+            raise ValueError(
+                "a CBCT volume without spacing has no geometry: spacing_mm must be the voxel size "
+                "(dx, dy, dz) in mm, got None"
+            )
+        self.spacing_mm = _vec3(self.spacing_mm, "spacing_mm", positive=True)
+        self.origin_mm = _vec3(self.origin_mm, "origin_mm")
+
+    @classmethod
+    def from_bounds(cls, lower_mm, upper_mm, spacing_mm, fill: float = 0.0) -> "Volume":
+        """A volume filled with ``fill`` whose voxel centres span ``[lower_mm, upper_mm]`` (world, mm).
+
+        The grid starts at ``lower_mm`` and holds as many whole voxels as fit up to ``upper_mm``
+        (at least one per axis).
+        """
+        lo = _vec3(lower_mm, "lower_mm")
+        hi = _vec3(upper_mm, "upper_mm")
+        sp = _vec3(spacing_mm, "spacing_mm", positive=True)
+        if np.any(hi < lo):
+            raise ValueError(f"upper_mm must be >= lower_mm on every axis, got lower_mm={lo.tolist()}, upper_mm={hi.tolist()}")
+        n = np.floor((hi - lo) / sp + 1e-9).astype(int) + 1
+        return cls(np.full((n[2], n[1], n[0]), fill, dtype=np.float32), sp, lo)
+
+    @property
+    def shape_xyz(self) -> tuple[int, int, int]:
+        """Number of voxels along ``(x, y, z)``."""
+        nz, ny, nx = self.data.shape
+        return (nx, ny, nz)
+
+    @property
+    def voxel_volume_mm3(self) -> float:
+        return float(np.prod(self.spacing_mm))
+
+    @property
+    def lower_mm(self) -> np.ndarray:
+        """World position of the first voxel centre (= ``origin_mm``)."""
+        return self.origin_mm.copy()
+
+    @property
+    def upper_mm(self) -> np.ndarray:
+        """World position of the last voxel centre."""
+        return self.origin_mm + (np.asarray(self.shape_xyz) - 1) * self.spacing_mm
+
+    def world_to_voxel(self, points_mm) -> np.ndarray:
+        """Continuous voxel coordinates ``(i, j, k)`` (x, y, z order) of world points, ``(n, 3)``."""
+        return (as_points(points_mm) - self.origin_mm) / self.spacing_mm
+
+    def voxel_to_world(self, ijk) -> np.ndarray:
+        """World points (mm) of continuous voxel coordinates ``(i, j, k)`` (x, y, z order), ``(n, 3)``."""
+        return self.origin_mm + as_points(ijk, "ijk") * self.spacing_mm
+
+    def axes_mm(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """World coordinates of the voxel centres along x, y and z (three 1-D arrays)."""
+        return tuple(self.origin_mm[a] + np.arange(self.shape_xyz[a]) * self.spacing_mm[a] for a in range(3))
+
+    def world_points(self) -> np.ndarray:
+        """World coordinates of every voxel centre, ``(nz, ny, nx, 3)`` in (x, y, z) order."""
+        x, y, z = self.axes_mm()
+        Z, Y, X = np.meshgrid(z, y, x, indexing="ij")
+        return np.stack([X, Y, Z], axis=-1)
+
+    def sample(self, points_mm, outside: float = np.nan) -> np.ndarray:
+        """``V(x)``: trilinear interpolation at world points (§II-A); ``outside`` beyond the voxel centres.
+
+        Returns float64 ``(n,)``. A point counts as inside when it lies within the box spanned
+        by the voxel centres (interpolation needs a neighbour on each side).
+        """
+        ijk = self.world_to_voxel(points_mm)
+        coords = ijk[:, ::-1].T  # map_coordinates wants array order (z, y, x)
+        values = ndimage.map_coordinates(self.data, coords, order=1, mode="nearest", output=np.float64)
+        n = np.asarray(self.shape_xyz)
+        eps = 1e-9
+        inside = np.all((ijk >= -eps) & (ijk <= n - 1 + eps), axis=1)
+        return np.where(inside, values, outside)
+
+    def contains(self, points_mm) -> np.ndarray:
+        """Whether world points lie within the box spanned by the voxel centres, ``(n,)`` bool."""
+        ijk = self.world_to_voxel(points_mm)
+        n = np.asarray(self.shape_xyz)
+        return np.all((ijk >= -1e-9) & (ijk <= n - 1 + 1e-9), axis=1)
+
+    def with_data(self, data) -> "Volume":
+        """A volume on the same grid holding ``data`` (same shape required)."""
+        data = np.asarray(data)
+        if data.shape != self.data.shape:
+            raise ValueError(f"data must have the volume's shape {self.data.shape}, got {data.shape}")
+        return Volume(data, self.spacing_mm.copy(), self.origin_mm.copy())
+
+
+def _check_volume(volume, name: str = "volume") -> Volume:
+    if not isinstance(volume, Volume):
+        raise TypeError(f"{name} must be a histostudy.imaging.volume.Volume, got {type(volume).__name__}")
+    return volume
+
+
+def _check_mask(mask, volume: Volume, name: str) -> np.ndarray:
+    arr = np.asarray(mask)
+    if arr.shape != volume.data.shape:
+        raise ValueError(f"{name} must be a boolean array of the volume's shape {volume.data.shape} ([z, y, x]), got {arr.shape}")
+    if arr.dtype != bool:
+        raise ValueError(f"{name} must be a boolean array, got dtype {arr.dtype}")
+    return arr
+
+
+# ---------------------------------------------------------------------------------------------
+# Phantom (§II-D.1)
+# ---------------------------------------------------------------------------------------------

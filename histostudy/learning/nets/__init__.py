@@ -1,0 +1,30 @@
+"""The networks of the learned stages as plain torch modules (no training logic here).
+
+- :class:`~histostudy.learning.nets.unet.UNet`: feature segmentation (§II-B.2).
+- :class:`~histostudy.learning.nets.vgg.VGG19`: orientation classification, then regression (§II-B.4).
+
+:func:`build_network` makes either from its ``config`` dict (the one each module records in
+``.config`` and a checkpoint manifest stores), so a checkpoint can be rebuilt without pickle.
+"""
+
+from __future__ import annotations
+
+from .unet import UNet
+from .vgg import VGG19
+
+__all__ = ["UNet", "VGG19", "build_network"]
+
+
+def build_network(config: dict):
+    """A fresh network from its ``config`` (``{"arch": "unet" | "vgg19", ...}``)."""
+    if not isinstance(config, dict) or "arch" not in config:
+        raise ValueError(f"config must be a dict with an 'arch' key, got {config!r}")
+    kwargs = {k: v for k, v in config.items() if k != "arch"}
+    try:
+        if config["arch"] == "unet":
+            return UNet(**kwargs)
+        if config["arch"] == "vgg19":
+            return VGG19(**kwargs)
+    except TypeError as exc:
+        raise ValueError(f"config {config!r} does not fit arch {config['arch']!r}: {exc}") from None
+    raise ValueError(f"config['arch'] must be 'unet' or 'vgg19', got {config['arch']!r}")

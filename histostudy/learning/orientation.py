@@ -1,0 +1,270 @@
+"""Transducer orientation relative to a view: azimuth and elevation (paper §II-B.4, eq. 4).
+
+The orientation the paper's VGG19 regressor estimates is the direction ``d`` from the transducer
+centre to the geometric focal point — in the transducer frame that is ``-z`` — expressed in the
+detector frame of the view, ``(e_u, e_v, e_w)`` (:attr:`histostudy.imaging.carm.View.detector_axes`,
+``e_w`` along the beam from source to detector)::
+
+    d_det = (cos(az) sin(el), sin(az) sin(el), ±cos(el))
+
+A projection cannot tell ``d`` from its mirror image on the detector plane (the sign of the
+``e_w`` component), so angles are reported for the mirror that points *away from the detector*
+(``e_w`` component <= 0, towards the source), as the paper's network was trained: elevation in
+``[0, pi/2]`` is the angle between ``d`` and the beam axis, azimuth in ``(-pi, pi]`` the in-plane
+angle from the detector's column axis. Eq. 4 turns a pair of angles back into the two mirror
+candidates in world coordinates; combining two views resolves the ambiguity.
+
+Orientation sources (the oracle here; the learned VGG19 regressor of the learning stage) implement
+:class:`OrientationSource`: ``estimate(frame, rng) -> (azimuth_rad, elevation_rad)``.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from typing import Protocol, Sequence, runtime_checkable
+
+import numpy as np
+
+from histostudy.imaging import Frame, View
+
+__all__ = [
+    "N_ORIENTATION_CLASSES",
+    "LearnedOrientation",
+    "OracleOrientation",
+    "OrientationSource",
+    "angles_from_direction",
+    "beam_direction_of_pose",
+    "default_vgg19",
+    "direction_candidates",
+    "hemisphere_angles",
+    "hemisphere_directions",
+    "orientation_angle_error",
+    "orientation_class",
+    "select_direction",
+    "wrap_angle",
+]
+
+
+def beam_direction_of_pose(T_carm_transducer) -> np.ndarray:
+    """World unit vector from the transducer centre to its focal point (the transducer's ``-z``)."""
+    T = np.asarray(T_carm_transducer, dtype=np.float64)
+    d = -T[:3, 2]
+    return d / np.linalg.norm(d)
+
+
+def wrap_angle(angle_rad):
+    """Angle(s) wrapped to ``(-pi, pi]``; use for azimuth differences (azimuth wraps around)."""
+    wrapped = np.mod(np.asarray(angle_rad, dtype=np.float64) + np.pi, 2 * np.pi) - np.pi
+    return np.where(wrapped == -np.pi, np.pi, wrapped)
+
+
+def angles_from_direction(direction, view: View) -> tuple[float, float]:
+    """``(azimuth_rad, elevation_rad)`` of a world direction relative to ``view`` (module docstring)."""
+    d = np.asarray(direction, dtype=np.float64).reshape(3)
+    norm = np.linalg.norm(d)
+    if not np.isfinite(norm) or norm == 0:
+        raise ValueError(f"direction must be a non-zero finite 3-vector, got {d.tolist()}")
+    d_det = view.detector_axes @ (d / norm)
+    if d_det[2] > 0:  # the mirror that points away from the detector
+        d_det[2] = -d_det[2]
+    azimuth = float(np.arctan2(d_det[1], d_det[0]))
+    elevation = float(np.arccos(np.clip(-d_det[2], -1.0, 1.0)))
+    return azimuth, elevation
+
+
+def direction_candidates(azimuth_rad: float, elevation_rad: float, view: View) -> np.ndarray:
+    """Eq. 4: the two world unit directions (rows) that ``(azimuth, elevation)`` allows in ``view``.
+
+    Row 0 points away from the detector (the canonical mirror), row 1 is its mirror image.
+    """
+    if not (np.isfinite(azimuth_rad) and np.isfinite(elevation_rad)):
+        raise ValueError(f"azimuth_rad and elevation_rad must be finite, got {azimuth_rad!r}, {elevation_rad!r}")
+    s = np.sin(elevation_rad)
+    base = np.array([np.cos(azimuth_rad) * s, np.sin(azimuth_rad) * s, 0.0])
+    c = np.cos(elevation_rad)
+    R = view.detector_axes  # rows: detector axes in world; R.T maps detector -> world
+    return np.stack([R.T @ (base + [0, 0, -c]), R.T @ (base + [0, 0, c])])
+
+
+def select_direction(candidates: Sequence[np.ndarray]) -> tuple[np.ndarray, tuple[int, ...], float]:
+    """Resolve the mirror ambiguity across views (§II-B.4).
+
+    ``candidates[i]`` is the ``(2, 3)`` array of view ``i``. Picks one candidate per view so that
+    the chosen directions agree best (smallest sum of pairwise angles) and returns their
+    normalised mean, the chosen indices and the mean pairwise angle in rad. With one view the
+    ambiguity cannot be resolved: the canonical candidate is returned and the caller should try
+    both (the pose search does).
+    """
+    cands = [np.asarray(c, dtype=np.float64).reshape(2, 3) for c in candidates]
+    if not cands:
+        raise ValueError("candidates must hold the direction candidates of at least one view")
+    if len(cands) == 1:
+        return cands[0][0] / np.linalg.norm(cands[0][0]), (0,), 0.0
+    best = None
+    for choice in itertools.product((0, 1), repeat=len(cands)):
+        dirs = [c[i] / np.linalg.norm(c[i]) for c, i in zip(cands, choice)]
+        angles = [np.arccos(np.clip(a @ b, -1, 1)) for a, b in itertools.combinations(dirs, 2)]
+        score = float(np.mean(angles))
+        if best is None or score < best[0]:
+            best = (score, choice, dirs)
+    score, choice, dirs = best
+    mean = np.sum(dirs, axis=0)
+    return mean / np.linalg.norm(mean), tuple(choice), score
+
+
+@runtime_checkable
+class OrientationSource(Protocol):
+    """Gives the transducer's azimuth and elevation (rad) relative to a frame's view."""
+
+    def estimate(self, frame: Frame, rng: np.random.Generator) -> tuple[float, float]: ...
+
+
+# Gaussian errors whose mean absolute value is the paper's MAE: MAE = sd * sqrt(2 / pi).
+_MAE_TO_SD = np.sqrt(np.pi / 2.0)
+
+
+@dataclass(frozen=True)
+class OracleOrientation:
+    """Azimuth and elevation from a synthetic frame's true pose, plus Gaussian errors.
+
+    By default the errors' mean absolute values are the paper's regression MAE (§III: 1.06 deg
+    azimuth, 2.34 deg elevation), so the initialisation sees what the learned network gave. The
+    noisy elevation is folded back into ``[0, pi/2]``. Needs ``frame.T_carm_transducer``.
+    """
+
+    azimuth_mae_deg: float = 1.06
+    elevation_mae_deg: float = 2.34
+
+    def __post_init__(self):
+        for name in ("azimuth_mae_deg", "elevation_mae_deg"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value < 0:
+                raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+
+    def estimate(self, frame: Frame, rng: np.random.Generator) -> tuple[float, float]:
+        if frame.T_carm_transducer is None:
+            raise ValueError(f"OracleOrientation needs a synthetic frame with T_carm_transducer; view "
+                             f"{frame.view.name!r} has none (use a learned orientation source for real frames)")
+        az, el = angles_from_direction(beam_direction_of_pose(frame.T_carm_transducer), frame.view)
+        az += np.deg2rad(rng.normal(0.0, self.azimuth_mae_deg * _MAE_TO_SD))
+        el += np.deg2rad(rng.normal(0.0, self.elevation_mae_deg * _MAE_TO_SD))
+        el = abs(el)
+        if el > np.pi / 2:
+            el = np.pi - el
+        return float(wrap_angle(az)), float(el)
+
+
+# --- the learned stage: 36 hemisphere classes and the VGG19 regressor (§II-B.4) -------------
+
+#: Number of orientation classes of the paper's classifier (§II-B.4).
+N_ORIENTATION_CLASSES = 36
+
+_GOLDEN_ANGLE = np.pi * (3.0 - np.sqrt(5.0))
+
+
+def hemisphere_angles(n: int = N_ORIENTATION_CLASSES) -> np.ndarray:
+    """``(n, 2)`` azimuth and elevation (rad) of ``n`` near-equidistant directions on the hemisphere
+    pointing away from the detector (§II-B.4: 36 classes sampled equidistantly).
+
+    A Fibonacci lattice: direction ``i`` has ``cos(elevation) = 1 - (i + 1/2) / n`` (equal areas of
+    the hemisphere per point) and azimuth ``i`` times the golden angle, wrapped to ``(-pi, pi]``.
+    """
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
+        raise ValueError(f"n must be an integer >= 2, got {n!r}")
+    i = np.arange(int(n), dtype=np.float64)
+    elevation = np.arccos(1.0 - (i + 0.5) / n)
+    azimuth = wrap_angle(i * _GOLDEN_ANGLE)
+    return np.column_stack([azimuth, elevation])
+
+
+def _detector_direction(azimuth_rad, elevation_rad) -> np.ndarray:
+    az, el = np.asarray(azimuth_rad, dtype=np.float64), np.asarray(elevation_rad, dtype=np.float64)
+    return np.stack([np.cos(az) * np.sin(el), np.sin(az) * np.sin(el), -np.cos(el)], axis=-1)
+
+
+def hemisphere_directions(n: int = N_ORIENTATION_CLASSES) -> np.ndarray:
+    """``(n, 3)`` unit directions in the detector frame ``(e_u, e_v, e_w)`` of :func:`hemisphere_angles`
+    (their ``e_w`` components are negative: pointing away from the detector)."""
+    a = hemisphere_angles(n)
+    return _detector_direction(a[:, 0], a[:, 1])
+
+
+def orientation_angle_error(azimuth_rad, elevation_rad, reference_azimuth_rad, reference_elevation_rad):
+    """Angle (rad) between the directions two ``(azimuth, elevation)`` pairs of one view stand for.
+
+    The error that matters to the pose initialisation: unlike the azimuth error alone it is small
+    near elevation 0, where the azimuth is ill-defined. Accepts arrays (broadcast)."""
+    a = _detector_direction(azimuth_rad, elevation_rad)
+    b = _detector_direction(reference_azimuth_rad, reference_elevation_rad)
+    return np.arccos(np.clip(np.sum(a * b, axis=-1), -1.0, 1.0))
+
+
+def orientation_class(azimuth_rad: float, elevation_rad: float, n: int = N_ORIENTATION_CLASSES) -> int:
+    """Index of the hemisphere direction (:func:`hemisphere_directions`) nearest to the given angles."""
+    if not (np.isfinite(azimuth_rad) and np.isfinite(elevation_rad)):
+        raise ValueError(f"azimuth_rad and elevation_rad must be finite, got {azimuth_rad!r}, {elevation_rad!r}")
+    return int(np.argmax(hemisphere_directions(n) @ _detector_direction(azimuth_rad, elevation_rad)))
+
+
+@dataclass(frozen=True, eq=False)
+class LearnedOrientation:
+    """The VGG19 regressor of §II-B.4 as an :class:`OrientationSource`.
+
+    The frame is downscaled by ``network.scale`` (0.25: 1240x960 -> 310x240) and standardised
+    (:func:`histostudy.learning.preprocess.prepare_image`); the network returns azimuth and elevation in rad
+    relative to the frame's view, in the convention of :func:`angles_from_direction`. The raw
+    azimuth is wrapped to ``(-pi, pi]`` and the elevation folded into ``[0, pi/2]``. ``rng`` is
+    accepted for the protocol and unused (inference is deterministic).
+
+    Build it with :meth:`load` from a checkpoint (:mod:`histostudy.learning.checkpoints`).
+    """
+
+    network: object = field(repr=False)
+    scale: float = 0.25
+    manifest: dict | None = field(default=None, repr=False)
+
+    @classmethod
+    def load(cls, path) -> "LearnedOrientation":
+        """From a VGG19 regressor checkpoint (hash and configuration checked)."""
+        from .checkpoints import load_network
+
+        net, manifest = load_network(path)
+        if net.config.get("arch") != "vgg19" or net.config.get("head") != "regressor":
+            raise ValueError(f"checkpoint {str(path)!r} holds {net.config}, expected a VGG19 regressor")
+        return cls(network=net, scale=float(manifest.get("input_scale", 0.25)), manifest=manifest)
+
+    def estimate(self, frame: Frame, rng: np.random.Generator | None = None) -> tuple[float, float]:
+        return self.estimate_many([frame])[0]
+
+    def estimate_many(self, frames: Sequence[Frame], batch_size: int = 8) -> list[tuple[float, float]]:
+        """Angles of several frames in batches: ``[(azimuth_rad, elevation_rad), ...]``."""
+        import torch
+
+        from .preprocess import prepare_image
+
+        out = []
+        self.network.eval()
+        for start in range(0, len(frames), batch_size):
+            batch = []
+            for frame in frames[start:start + batch_size]:
+                if not isinstance(frame, Frame):
+                    raise TypeError(f"frame must be a histostudy.imaging.frame.Frame, got {type(frame).__name__}")
+                batch.append(prepare_image(frame.image, self.scale))
+            shapes = {b.shape for b in batch}
+            if len(shapes) != 1:
+                raise ValueError(f"frames in one batch must share a shape, got {sorted(shapes)}")
+            with torch.no_grad():
+                pred = self.network(torch.from_numpy(np.stack(batch))[:, None]).double().numpy()
+            for az, el in pred:
+                el = abs(float(el)) % np.pi
+                out.append((float(wrap_angle(az)), float(np.pi - el if el > np.pi / 2 else el)))
+        return out
+
+
+def default_vgg19() -> LearnedOrientation | None:
+    """The shipped VGG19 regressor (``data/models/vgg19_standard``) as a :class:`LearnedOrientation`,
+    or None when the weights are missing or fail their hash or configuration check."""
+    from .checkpoints import load_shipped
+
+    return load_shipped("vgg19_standard", LearnedOrientation.load, "VGG19")

@@ -1,0 +1,72 @@
+"""The networks' input transforms, one for training and inference (paper §II-B.2).
+
+:func:`prepare_image` (area downscaling, then per-image standardisation) is the one transform
+applied to a fluoroscopic image before either network, in training and at inference;
+:func:`pool_labels` downscales a label image by taking, in each block, the class of highest overlap
+priority present (the rule of §II-B.2 for pixels covered by several classes). Scales are 1, 1/2,
+1/4, ... (an integer reduction), images ``[row, col]``.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from histostudy.transducer import LABEL_PRIORITY, Feature
+
+__all__ = ["pool_labels", "prepare_image"]
+
+
+def _check_scale(scale) -> int:
+    """The integer reduction ``1 / scale`` (scale must be 1, 1/2, 1/4, ...)."""
+    try:
+        scale = float(scale)
+    except (TypeError, ValueError):
+        raise ValueError(f"scale must be 1/k for an integer k >= 1 (e.g. 0.5, 0.25), got {scale!r}") from None
+    k = int(round(1.0 / scale)) if scale > 0 else 0
+    if k < 1 or abs(k * scale - 1.0) > 1e-9:
+        raise ValueError(f"scale must be 1/k for an integer k >= 1 (e.g. 0.5, 0.25), got {scale!r}")
+    return k
+
+
+def prepare_image(image, scale: float) -> np.ndarray:
+    """The network input of a frame's line-integral image: float32 ``(rows*scale, cols*scale)``.
+
+    Area-averaged downscaling by ``scale`` (1, 1/2, 1/4, ...; 0.25 turns 1240x960 into the
+    paper's 310x240, §II-B.4), then per-image standardisation (zero mean, unit SD), which makes the
+    input independent of dose and patient thickness offsets.
+    """
+    img = np.asarray(image)
+    if img.ndim != 2 or not np.issubdtype(img.dtype, np.number):
+        raise ValueError(f"image must be a 2-D numeric array, got shape {img.shape} dtype {img.dtype}")
+    k = _check_scale(scale)
+    img = img.astype(np.float32)
+    if k > 1:
+        rows, cols = img.shape
+        if rows % k or cols % k:
+            raise ValueError(f"image shape {img.shape} is not divisible by 1/scale = {k}")
+        img = cv2.resize(img, (cols // k, rows // k), interpolation=cv2.INTER_AREA)
+    sd = float(img.std())
+    return ((img - float(img.mean())) / (sd if sd > 0 else 1.0)).astype(np.float32)
+
+
+_RANK = np.zeros(256, np.uint8)
+for _rank, _feature in enumerate(reversed(LABEL_PRIORITY), start=1):
+    _RANK[int(_feature)] = _rank
+_LABEL_OF_RANK = np.zeros(len(LABEL_PRIORITY) + 1, np.uint8)
+_LABEL_OF_RANK[_RANK[[int(f) for f in Feature]]] = [int(f) for f in Feature]
+
+
+def pool_labels(labels, scale: float) -> np.ndarray:
+    """Label image downscaled by ``scale``: each block takes its highest-priority class (§II-B.2)."""
+    lab = np.asarray(labels)
+    if lab.ndim != 2:
+        raise ValueError(f"labels must be a 2-D label image, got shape {lab.shape}")
+    k = _check_scale(scale)
+    if k == 1:
+        return lab.astype(np.uint8)
+    rows, cols = lab.shape
+    if rows % k or cols % k:
+        raise ValueError(f"labels shape {lab.shape} is not divisible by 1/scale = {k}")
+    ranks = _RANK[lab.astype(np.uint8)].reshape(rows // k, k, cols // k, k).max(axis=(1, 3))
+    return _LABEL_OF_RANK[ranks]

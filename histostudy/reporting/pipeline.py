@@ -1,0 +1,183 @@
+"""The batch study: run the notebooks in order through papermill, then assemble the report.
+
+``histostudy reproduce`` calls :func:`run_study`. Each notebook ``notebooks/NN_name.ipynb`` runs
+with the profile's parameters plus ``output_dir = <output>/NN_name``, where it records its
+results (:class:`histostudy.reporting.report.SectionWriter`); the executed notebook lands in
+``<output>/notebooks/``. The kernel is the running interpreter (a kernelspec written to a
+temporary Jupyter path), so the notebooks see exactly the installed package the CLI runs from.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+from histostudy.core import atomic_path, provenance
+from histostudy.core.provenance import REPO_ROOT
+from .profiles import Profile, load_profile
+from .report import build_report, write_run_record
+
+__all__ = ["NotebookFailed", "discover_notebooks", "run_study", "select_notebooks"]
+
+NOTEBOOK_PATTERN = re.compile(r"^\d\d_[A-Za-z0-9_]+\.ipynb$")
+DEFAULT_NOTEBOOK_DIR = REPO_ROOT / "notebooks"
+_KERNEL_NAME = "histostudy-running-python"
+
+
+class NotebookFailed(RuntimeError):
+    """A notebook raised during the batch run; names the notebook, the cell and the error."""
+
+    def __init__(self, notebook: str, cell_index, error: str, executed_notebook: Path):
+        self.notebook = notebook
+        self.cell_index = cell_index
+        self.error = error
+        self.executed_notebook = executed_notebook
+        super().__init__(f"notebook {notebook} failed at cell {cell_index}: {error} "
+                         f"(executed copy kept at {executed_notebook})")
+
+
+def discover_notebooks(notebooks_dir: str | os.PathLike = DEFAULT_NOTEBOOK_DIR) -> list[Path]:
+    """The study notebooks ``NN_name.ipynb`` of a folder, in order."""
+    folder = Path(notebooks_dir)
+    if not folder.is_dir():
+        raise ValueError(f"notebooks_dir {str(folder)!r} is not a folder (expected the repository's notebooks/)")
+    found = sorted(p for p in folder.iterdir() if NOTEBOOK_PATTERN.match(p.name))
+    if not found:
+        raise ValueError(f"notebooks_dir {str(folder)!r} holds no notebook named NN_name.ipynb")
+    return found
+
+
+def select_notebooks(notebooks: Sequence[Path], only: Sequence[str] | None) -> list[Path]:
+    """The notebooks named by ``only`` (full stem, its number ``"01"``, or its name part), in run order."""
+    if not only:
+        return list(notebooks)
+    chosen = []
+    for name in only:
+        matches = [p for p in notebooks if name in (p.stem, p.stem[:2], p.stem[3:])]
+        if not matches:
+            raise ValueError(f"--only {name!r} names no notebook; available: {', '.join(p.stem for p in notebooks)}")
+        chosen.extend(m for m in matches if m not in chosen)
+    return [p for p in notebooks if p in chosen]
+
+
+@dataclass
+class StudyRun:
+    output_dir: Path
+    report_md: Path
+    report_html: Path
+    record: dict
+
+
+def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLike = "reports", *,
+              only: Sequence[str] | None = None, notebooks_dir: str | os.PathLike | None = None,
+              progress: bool = True, log: Callable[[str], None] | None = None) -> StudyRun:
+    """Run the study notebooks of ``profile`` into ``output_dir`` and assemble the report.
+
+    Raises :class:`NotebookFailed` (after writing the report of what ran, with the failure named)
+    when a notebook raises; the executed copy of the failed notebook is kept.
+    """
+    prof = profile if isinstance(profile, Profile) else load_profile(profile)
+    notebooks = select_notebooks(discover_notebooks(notebooks_dir or DEFAULT_NOTEBOOK_DIR), only)
+    out = Path(output_dir).resolve()
+    (out / "notebooks").mkdir(parents=True, exist_ok=True)
+    log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
+    record = {
+        "profile": prof.name,
+        "profile_source": prof.source,
+        "seed": prof.seed,
+        "provenance": provenance(),
+        "notebooks": [{"name": p.stem, "status": "pending"} for p in notebooks],
+        "failure": None,
+    }
+    failure: NotebookFailed | None = None
+    with _running_kernel() as kernel_name:
+        for i, (nb_path, entry) in enumerate(zip(notebooks, record["notebooks"]), start=1):
+            section_dir = out / nb_path.stem
+            params = prof.parameters_for(nb_path.stem) | {"output_dir": str(section_dir)}
+            entry["output_dir"] = str(section_dir)
+            entry["parameters"] = params
+            log(f"[{i}/{len(notebooks)}] {nb_path.stem} (profile {prof.name})")
+            t0 = time.perf_counter()
+            try:
+                _execute(nb_path, out / "notebooks" / nb_path.name, params, kernel_name, progress)
+            except NotebookFailed as exc:
+                entry.update(status="failed", seconds=time.perf_counter() - t0)
+                record["failure"] = {"notebook": exc.notebook, "cell_index": exc.cell_index, "error": exc.error,
+                                     "executed_notebook": str(exc.executed_notebook)}
+                failure = exc
+                break
+            entry.update(status="ok", seconds=time.perf_counter() - t0)
+            log(f"      done in {entry['seconds']:.1f} s")
+    write_run_record(out, record)
+    md, html_path = build_report(out, record)
+    if failure is not None:
+        raise failure
+    return StudyRun(out, md, html_path, record)
+
+
+def _execute(nb_path: Path, executed_path: Path, params: dict, kernel_name: str, progress: bool) -> None:
+    import papermill
+    from papermill.exceptions import PapermillExecutionError
+
+    with atomic_path(executed_path) as tmp:
+        try:
+            papermill.execute_notebook(str(nb_path), str(tmp), parameters=params, kernel_name=kernel_name,
+                                       progress_bar=progress, cwd=str(nb_path.parent), log_output=False)
+        except PapermillExecutionError as exc:
+            # Keep the executed copy with the traceback: rename it into place before reporting.
+            os.replace(tmp, executed_path)
+            cell = _failed_cell(executed_path)
+            where = f"{cell[0]} ({cell[1]!r})" if cell else exc.cell_index
+            raise NotebookFailed(nb_path.stem, where, f"{exc.ename}: {exc.evalue}", executed_path) from None
+
+
+def _failed_cell(executed_path: Path) -> tuple[int, str] | None:
+    """``(index, first source line)`` of the cell that raised, indexed as in the source notebook.
+
+    Papermill's own index counts the cells it inserts (injected parameters, error banners); users
+    look for the cell in the notebook they opened, so those are skipped.
+    """
+    try:
+        nb = json.loads(executed_path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    index = 0
+    for cell in nb.get("cells", []):
+        tags = cell.get("metadata", {}).get("tags", [])
+        if "papermill-error-cell-tag" in tags or "injected-parameters" in tags:
+            continue
+        if any(o.get("output_type") == "error" for o in cell.get("outputs", [])):
+            source = "".join(cell.get("source", ""))
+            return index, (source.strip().splitlines() or [""])[0][:80]
+        index += 1
+    return None
+
+
+class _running_kernel:
+    """Context manager: a kernelspec for ``sys.executable`` on a temporary ``JUPYTER_PATH``."""
+
+    def __enter__(self) -> str:
+        self._tmp = tempfile.TemporaryDirectory(prefix="histostudy-kernel-")
+        spec_dir = Path(self._tmp.name) / "kernels" / _KERNEL_NAME
+        spec_dir.mkdir(parents=True)
+        spec = {"argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"],
+                "display_name": "histostudy (running interpreter)", "language": "python"}
+        (spec_dir / "kernel.json").write_text(json.dumps(spec), encoding="utf-8")
+        self._old = os.environ.get("JUPYTER_PATH")
+        os.environ["JUPYTER_PATH"] = os.pathsep.join(filter(None, [self._tmp.name, self._old]))
+        return _KERNEL_NAME
+
+    def __exit__(self, *exc):
+        if self._old is None:
+            os.environ.pop("JUPYTER_PATH", None)
+        else:
+            os.environ["JUPYTER_PATH"] = self._old
+        self._tmp.cleanup()
+        return False

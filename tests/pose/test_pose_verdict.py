@@ -1,0 +1,47 @@
+"""Tests of histostudy.pose.verdict: the statistics the pose verdict is judged on, at known poses
+of exact labels (the verdict's decisions inside estimate_pose: tests/test_pose_estimate.py)."""
+
+import numpy as np
+import pytest
+
+from histostudy.pose import unexplained_fraction, view_disagreement_mm
+from histostudy.pose.cost import DistanceMaps, PoseCost
+from histostudy.transducer import Feature, TransducerModel
+
+from pose_frames import POSES, frames_of
+
+
+@pytest.fixture(scope="module")
+def models():
+    return TransducerModel.build(spacing_mm=0.47), TransducerModel.build(spacing_mm=0.25)
+
+
+@pytest.fixture(scope="module")
+def frames(models):
+    return [frames_of(models[1], T) for T in POSES]
+
+
+def test_unexplained_fraction_counts_the_segmented_pixels_far_from_the_posed_model(models, frames):
+    T = POSES[0]
+    f = frames[0][0]
+    assert unexplained_fraction(f.view, f.labels, models[0], T, 10.0) < 0.005
+    spurious = f.labels.copy()
+    spurious[:100, :100] = Feature.TRANSDUCER  # a corner block far from the transducer
+    n_seg = np.count_nonzero(spurious)
+    expected = np.count_nonzero(spurious[:100, :100] > 0) / n_seg
+    assert abs(unexplained_fraction(f.view, spurious, models[0], T, 10.0) - expected) < 0.005
+    assert np.isnan(unexplained_fraction(f.view, np.zeros_like(f.labels), models[0], T, 10.0))
+
+
+def test_view_disagreement_is_zero_at_the_exact_pose_of_exact_labels(models, frames):
+    T = POSES[1]
+    maps = [DistanceMaps(f.view, f.labels, occlusion_aware=True) for f in frames[1]]
+    cost = PoseCost(models[1].points, maps).capped(1.0)
+    moves = view_disagreement_mm(cost, frames[1], T, models[1].focal_point_mm)
+    assert set(moves) == {"A", "B"} and max(moves.values()) < 0.05, moves
+    # One view alone leaves the depth along its ray free: a pose moved along plane A's ray is
+    # still at A's optimum, and the move is not counted.
+    a = frames[1][0].view
+    along = T.copy()
+    along[:3, 3] += 3.0 * a.ray_directions(a.project(T[:3, 3][None]))[0]
+    assert view_disagreement_mm(cost.select_views(0), frames[1][:1], along, models[1].focal_point_mm)["A"] < 0.3

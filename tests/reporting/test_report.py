@@ -1,0 +1,108 @@
+"""SectionWriter and report assembly, without papermill."""
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+import pytest
+
+from histostudy.reporting import SectionWriter, build_report, format_measure, load_section
+
+
+def test_format_measure():
+    assert format_measure(1.3812, 0.5391, "mm") == "1.38 ± 0.54 mm"
+    assert format_measure(16, unit="") == "16"
+    assert format_measure(float("nan")) == "n/a"
+    assert format_measure("310 x 240", unit="px") == "310 x 240 px"
+
+
+def _section(tmp_path):
+    w = SectionWriter(tmp_path / "01_demo", "01_demo", "Demo section", profile="smoke", seed=3,
+                      parameters={"a": 1})
+    with w.timer("work"):
+        w.value("n_points", np.int64(12))
+    w.compare("model.radius_mm", "Cap radius", 138.70001, unit="mm")
+    w.compare("pose.center_euclidean", "Centre error", (0.41, 0.2), unit="mm")
+    w.compare("custom.thing", "Not in paper", 2.0, paper_key="")
+    w.table("counts", pd.DataFrame({"class": ["a", "b"], "n": [1, 2]}), "Point counts")
+    fig, ax = plt.subplots()
+    ax.plot([0, 1])
+    w.figure("line", fig, "A line")
+    plt.close(fig)
+    w.image("shot", np.zeros((8, 8, 3), np.uint8), "A screenshot")
+    w.text("Some *markdown*.")
+    w.stand_in("porcine projections", "procedural abdomen")
+    w.save()
+    return w
+
+
+def test_section_writer_records_everything(tmp_path):
+    _section(tmp_path)
+    res = load_section(tmp_path / "01_demo")
+    assert res["values"]["n_points"] == 12 and res["parameters"] == {"a": 1}
+    rows = {c["key"]: c for c in res["comparisons"]}
+    assert rows["model.radius_mm"]["paper_text"] == "138.7 mm"
+    assert rows["pose.center_euclidean"]["ours_text"] == "0.41 ± 0.20 mm"
+    assert rows["pose.center_euclidean"]["paper_text"] == "1.38 ± 0.54 mm"
+    assert rows["custom.thing"]["paper_text"] == "not reported"
+    assert (tmp_path / "01_demo/tables/counts.csv").read_text().startswith("class,n")
+    assert (tmp_path / "01_demo/figures/line.png").read_bytes()[:4] == b"\x89PNG"
+    assert res["timings_s"]["work"] >= 0 and "git_commit" in res["provenance"]
+    assert not list((tmp_path / "01_demo").rglob("*.tmp*"))
+
+
+def test_unknown_paper_key_is_an_error(tmp_path):
+    w = SectionWriter(tmp_path, "x", "x", profile="smoke", seed=0)
+    with pytest.raises(KeyError, match="no paper value"):
+        w.compare("table1.screws.precisoin", "typo", 1.0)
+
+
+def test_report_is_assembled_from_results_files(tmp_path):
+    _section(tmp_path)
+    run = {"profile": "smoke", "seed": 3, "provenance": {"git_commit": "abc", "versions": {"numpy": "2"}},
+           "notebooks": [{"name": "01_demo", "status": "ok", "seconds": 1.0, "output_dir": str(tmp_path / "01_demo")},
+                         {"name": "02_missing", "status": "pending"}],
+           "failure": None}
+    md_path, html_path = build_report(tmp_path, run)
+    md = md_path.read_text()
+    assert "## Demo section" in md and "| Cap radius | 138.70 mm | 138.7 mm |" in md
+    assert "![A line](01_demo/figures/line.png)" in md
+    assert "porcine projections → procedural abdomen" in md
+    assert "| class   |   n |" in md or "| class" in md
+    assert "02_missing" in md and "No results" in md
+    html = html_path.read_text()
+    assert "<table>" in html and "01_demo/figures/line.png" in html
+
+
+def test_report_names_a_failure(tmp_path):
+    run = {"profile": "smoke", "seed": 1, "notebooks": [{"name": "01_x", "status": "failed"}],
+           "failure": {"notebook": "01_x", "cell_index": 4, "error": "ValueError: boom", "executed_notebook": "e.ipynb"}}
+    md, _ = build_report(tmp_path, run)
+    assert "Run failed" in md.read_text() and "ValueError: boom" in md.read_text()
+
+
+def test_report_lists_every_paper_result_and_where_it_is_reproduced(tmp_path):
+    from histostudy.reporting import PAPER
+    from histostudy.reporting import results_coverage
+
+    w = SectionWriter(tmp_path / "04_pose", "04", "Pose", profile="smoke", seed=3)
+    w.compare("table2.center_mae.overall", "Centre MAE", 0.6, unit="mm")
+    w.compare("pose.centre_cbct", "Centre error vs CBCT", 0.64, unit="mm", paper_key="pose.center_euclidean")
+    w.compare("pose.speed", "Speed", 0.7, unit="s", paper_key="")
+    w.save()
+    coverage = results_coverage({"04_pose": load_section(tmp_path / "04_pose")})
+    by_key = {c["key"]: c for c in coverage}
+    assert by_key["table2.center_mae.overall"]["sections"] == ["04_pose"]
+    assert by_key["pose.center_euclidean"]["sections"] == ["04_pose"]  # matched through paper_key
+    assert by_key["targeting.euclidean"]["sections"] == []
+    assert "model.radius_mm" not in by_key  # §II set-up values are not results
+    expected = {k for k, v in PAPER.items() if "§III" in v.where or "Table" in v.where or "abstract" in v.where}
+    assert set(by_key) == expected and "seg.anova_F" in expected
+    run = {"profile": "smoke", "seed": 3, "provenance": {}, "failure": None,
+           "notebooks": [{"name": "04_pose", "status": "ok", "seconds": 1.0, "output_dir": str(tmp_path / "04_pose")}]}
+    md = build_report(tmp_path, run)[0].read_text()
+    assert "## The paper's results and their reproduced twins" in md
+    assert f"(2 of {len(expected)} in this run)" in md
+    assert "| targeting.euclidean: 1.64 ± 0.34 mm | §III, abstract 1.4 ± 0.5 | **not in this run** |" in md

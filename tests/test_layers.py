@@ -1,0 +1,171 @@
+"""The package's layering (docs/architecture.md, "Layers"): imports go one way, there are no import
+cycles, and nothing in the project itself goes through the deprecated module paths."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import json
+import warnings
+from pathlib import Path
+
+import pytest
+
+import histostudy
+
+PACKAGE = Path(histostudy.__file__).parent
+REPO = PACKAGE.parent
+
+#: Rank of each subpackage: a module imports only from a lower rank or from its own subpackage.
+LAYERS = {
+    "core": 0,
+    "geometry": 1,
+    "transducer": 2,
+    "imaging": 3,
+    "learning": 4,
+    "pose": 5,
+    "calibration": 6,
+    "robot": 6,
+    "treatment": 7,
+    "study": 8,
+    "reporting": 9,
+    "cli": 10,
+}
+
+#: The old flat module paths kept importable for users' scripts, with where each moved.
+MOVED = {
+    "histostudy.carm": "histostudy.imaging",
+    "histostudy.frame": "histostudy.imaging",
+    "histostudy.render": "histostudy.imaging",
+    "histostudy.anatomy": "histostudy.imaging",
+    "histostudy.volume_io": "histostudy.imaging",
+    "histostudy.segment": "histostudy.learning",
+    "histostudy.orientation": "histostudy.learning",
+    "histostudy.handeye": "histostudy.calibration",
+    "histostudy.stats": "histostudy.study.stats",
+}
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for path in PACKAGE.rglob("*.py"):
+        parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        name = ".".join(parts)
+        if name not in MOVED:
+            out[name] = path
+    return out
+
+
+def _imports(name: str, path: Path) -> set[str]:
+    """Every histostudy module that ``name`` imports, at module level or inside a function."""
+    tree = ast.parse(path.read_text())
+    package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    found = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if target.startswith("histostudy"):
+                found.add(target)
+                found.update(f"{target}.{a.name}" for a in node.names)
+        elif isinstance(node, ast.Import):
+            found.update(a.name for a in node.names if a.name.startswith("histostudy"))
+    return found
+
+
+MODULES = _modules()
+GRAPH = {name: {m for m in _imports(name, path) if m in MODULES and m != name} for name, path in MODULES.items()}
+
+
+def _layer(module: str) -> str | None:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 and parts[1] in LAYERS else None
+
+
+def test_every_module_sits_in_a_layer():
+    loose = sorted(m for m in MODULES if m != "histostudy" and _layer(m) is None)
+    assert loose == [], f"modules outside the layers {sorted(LAYERS)}: {loose}"
+
+
+def test_imports_go_one_way():
+    wrong = []
+    for module, targets in GRAPH.items():
+        layer = _layer(module)
+        if layer is None:
+            continue
+        for target in targets:
+            other = _layer(target)
+            if other is not None and other != layer and LAYERS[other] >= LAYERS[layer]:
+                wrong.append(f"{module} -> {target}")
+    assert wrong == [], "imports against the layering:\n" + "\n".join(sorted(wrong))
+
+
+def test_no_import_cycles():
+    # a subpackage's __init__ re-exports its modules; an edge into it stands for the modules it names
+    def edges(module):
+        return {t for t in GRAPH[module] if not (module.startswith(t + ".") and MODULES[t].name == "__init__.py")}
+
+    state, stack, cycles = {}, [], []
+
+    def visit(module):
+        state[module] = "open"
+        stack.append(module)
+        for target in sorted(edges(module)):
+            if state.get(target) == "open":
+                cycles.append(stack[stack.index(target):] + [target])
+            elif target not in state:
+                visit(target)
+        stack.pop()
+        state[module] = "done"
+
+    for module in sorted(GRAPH):
+        if module not in state:
+            visit(module)
+    assert cycles == [], "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
+
+
+def _project_sources():
+    for path in list(PACKAGE.rglob("*.py")) + list((REPO / "benchmarks").glob("*.py")) + list((REPO / "tests").rglob("*.py")):
+        if path.name != Path(__file__).name:
+            yield path, path.read_text()
+    for path in (REPO / "notebooks").glob("*.ipynb"):
+        cells = json.loads(path.read_text())["cells"]
+        yield path, "\n".join("".join(c["source"]) for c in cells if c["cell_type"] == "code")
+
+
+def test_the_project_itself_uses_no_deprecated_module_path():
+    users = []
+    for path, source in _project_sources():
+        name = ".".join(path.relative_to(REPO).with_suffix("").parts)
+        if name in MOVED:
+            continue
+        tree = ast.parse(source)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                targets = {node.module} | {f"{node.module}.{a.name}" for a in node.names}
+            elif isinstance(node, ast.Import):
+                targets = {a.name for a in node.names}
+            else:
+                continue
+            users += [f"{path.relative_to(REPO)}: {t}" for t in targets & set(MOVED)]
+    assert users == []
+
+
+@pytest.mark.parametrize("old, new", sorted(MOVED.items()))
+def test_old_module_paths_still_import_the_same_objects_with_a_deprecation_warning(old, new):
+    import sys
+
+    sys.modules.pop(old, None)
+    with pytest.warns(DeprecationWarning, match=new.replace(".", r"\.")):
+        shim = importlib.import_module(old)
+    assert shim.__all__, f"{old} re-exports nothing"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        for name in shim.__all__:
+            home = importlib.import_module(new if hasattr(importlib.import_module(new), name) else "histostudy.pose")
+            assert getattr(shim, name) is getattr(home, name), f"{old}.{name}"
