@@ -1,25 +1,36 @@
 """The imaging chain (§II-A, §II-B.2, §II-D): C-arm views and their projection, eq. 1-2 (``carm``);
-images with their geometry (``frame``); synthetic fluoroscopy of the transducer (``render``) over
-anatomy backgrounds and phantom scenes (``anatomy``); RTK's Joseph projector as an independent
-check (``rtk_projector``); CBCT volumes (``volume``), the layered phantom and its simulated
-CBCT (``cbct``); and volume files, DICOM and NIfTI (``volume_io``).
+images with their geometry (``frame``); synthetic fluoroscopy of the transducer (``render``; its
+dose, splatting and scene, shared by every configuration that renders, in ``render_settings``) over
+random abdomen and phantom scenes (``anatomy``, their ranges in ``anatomy_params``); a scene and its
+line-integral image (``anatomy_scene``), built of analytic solids (``anatomy_shapes``), their
+composites (``anatomy_csg``) and the ray algebra they share (``anatomy_rays``); RTK's Joseph
+projector as an independent check (``rtk_projector``); CBCT volumes (``volume``), the layered
+phantom and its simulated CBCT (``cbct``); and volume files (``volume_io``, which hands NIfTI to
+``nifti_io`` and DICOM to ``dicom_io``, both laid onto the Volume grid by ``volume_io_grid``).
 """
 
-from .anatomy import (AbdomenParams, Anatomy, Background, Box, Difference, Ellipsoid, EllipticCylinder, Intersection,
-                      MIXED_ABDOMEN_PROBABILITY, PhantomParams, Primitive, StaticBackground, random_abdomen,
-                      random_background, random_phantom_setup)
+from .anatomy import MIXED_ABDOMEN_PROBABILITY, random_abdomen, random_background, random_phantom_setup
+from .anatomy_csg import Difference, Intersection
+from .anatomy_params import AbdomenParams, PhantomParams
+from .anatomy_scene import Anatomy, Background, StaticBackground
+from .anatomy_shapes import Box, Ellipsoid, EllipticCylinder, Primitive
 from .carm import View, default_biplane, load_views, save_views
 from .cbct import PhantomSpec, check_target, phantom_mask, phantom_values, phantom_volume, random_target, simulate_cbct
+from .dicom_io import SLICE_POSITION_RTOL
 from .frame import Frame, load_frame
+from .nifti_io import save_volume_nifti
 from .render import add_poisson_noise, background_line_integrals, render_frame, render_labels, render_line_integrals
+from .render_settings import BACKGROUNDS, RenderSettings
 from .rtk_projector import forward_project, render_frame_rtk, rtk_available, rtk_geometry, voxelise_model
 from .volume import Volume
-from .volume_io import AXIS_TOLERANCE, SLICE_POSITION_RTOL, SUPPORTED_FORMATS, load_volume, save_volume_nifti
+from .volume_io import SUPPORTED_FORMATS, load_volume
+from .volume_io_grid import AXIS_TOLERANCE
 
 __all__ = [
     "AXIS_TOLERANCE",
     "AbdomenParams",
     "Anatomy",
+    "BACKGROUNDS",
     "Background",
     "Box",
     "Difference",
@@ -31,6 +42,7 @@ __all__ = [
     "PhantomParams",
     "PhantomSpec",
     "Primitive",
+    "RenderSettings",
     "SLICE_POSITION_RTOL",
     "SUPPORTED_FORMATS",
     "StaticBackground",

@@ -36,7 +36,7 @@ from torch.utils.data import Dataset
 
 from histostudy.core import atomic_path
 from histostudy.geometry import make_transform, matrix_from_euler
-from histostudy.imaging import View, random_background, render_frame
+from histostudy.imaging import RenderSettings, View, random_background, render_frame
 from histostudy.transducer import TransducerModel
 from .orientation import angles_from_direction, beam_direction_of_pose, orientation_class, wrap_angle
 from .preprocess import _check_scale, pool_labels, prepare_image
@@ -62,37 +62,39 @@ TASKS = ("segmentation", "orientation")
 
 
 @dataclass(frozen=True)
-class RenderConfig:
+class RenderConfig(RenderSettings):
     """How hybrid frames are made (defaults: the paper's rendering, §II-B.2).
+
+    The dose, splatting and scene are the shared :class:`~histostudy.imaging.RenderSettings`
+    (its checks included), here with the paper's ``"mixed"`` training backgrounds (156 abdomen :
+    56 phantom images); ``"none"`` is not a training background.
 
     Attributes:
         render_spacing_mm: grid spacing of the physical model that makes the image (0.125 mm).
         label_spacing_mm: grid spacing of the digital model that makes the reference labels.
         physical_seed: seed of the one physical transducer (manufacturing deviation) of the study.
-        photons_per_pixel, n_splats, splat_sigma_mm: noise and splatting (5e4, 16, 0.5 mm).
-        background: ``"abdomen"``, ``"phantom"`` or ``"mixed"`` (the paper's 156:56 ratio).
         translation_range_mm: focal-point translation range per axis (100 mm = 10 cm).
         primary_range_deg: range of the views' primary (LAO/RAO) angle, uniform.
         detector: ``(rows, cols)`` of the full-resolution detector.
     """
 
+    background: str = "mixed"
     render_spacing_mm: float = 0.125
     label_spacing_mm: float = 0.125
     physical_seed: int = 0
-    photons_per_pixel: float = 5e4
-    n_splats: int = 16
-    splat_sigma_mm: float = 0.5
-    background: str = "mixed"
     translation_range_mm: float = 100.0
     primary_range_deg: tuple = (-90.0, 90.0)
     detector: tuple = (960, 1240)
 
     def __post_init__(self):
-        for name in ("render_spacing_mm", "label_spacing_mm", "photons_per_pixel", "translation_range_mm"):
+        super().__post_init__()
+        if self.photons_per_pixel is None:
+            raise ValueError("photons_per_pixel must be a finite number > 0 for hybrid frames, got None")
+        for name in ("render_spacing_mm", "label_spacing_mm", "translation_range_mm"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-        if self.background not in ("abdomen", "phantom", "mixed"):
+        if self.background == "none":
             raise ValueError(f"background must be 'abdomen', 'phantom' or 'mixed', got {self.background!r}")
         lo, hi = (float(v) for v in self.primary_range_deg)
         if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
@@ -222,8 +224,7 @@ class HybridFrames:
         anatomy = random_background(rng, cfg.background)
         digital, physical = _models(cfg.render_spacing_mm, cfg.label_spacing_mm, cfg.physical_seed)
         frame = render_frame(digital, T, view, rng=rng, physical=physical, background=anatomy,
-                             photons_per_pixel=cfg.photons_per_pixel, n_splats=cfg.n_splats,
-                             splat_sigma_mm=cfg.splat_sigma_mm)
+                             **cfg.frame_kwargs())
         if path is not None:
             with atomic_path(path) as tmp:
                 np.savez(tmp, image=frame.image.astype(np.float16), labels=frame.labels, T=frame.T_carm_transducer)

@@ -23,7 +23,7 @@ def test_weights_exported_into_the_repository_record_its_clean_commit(tmp_path, 
     import shutil
     import subprocess
 
-    from histostudy.core import provenance
+    from histostudy.core.provenance import git_commit
 
     if shutil.which("git") is None:
         pytest.skip("git is not installed")
@@ -36,11 +36,11 @@ def test_weights_exported_into_the_repository_record_its_clean_commit(tmp_path, 
     subprocess.run(git + ["add", "."], check=True)
     subprocess.run(git + ["commit", "-qm", "weights"], check=True)
     head = subprocess.run(git + ["rev-parse", "HEAD"], check=True, capture_output=True, text=True).stdout.strip()
-    monkeypatch.setattr(checkpoints, "git_commit", lambda: provenance.git_commit(repo))
+    monkeypatch.setattr(checkpoints, "git_commit", lambda: git_commit(repo))
     torch.manual_seed(1)
     _, mpath = _save(repo / "models" / "unet")  # new weights over the tracked ones
     assert json.loads(mpath.read_text())["git_commit"] == head
-    assert provenance.git_commit(repo) == head + "-dirty"  # the tree is modified now, by the export
+    assert git_commit(repo) == head + "-dirty"  # the tree is modified now, by the export
 
 
 def test_roundtrip_manifest_and_hash(tmp_path):

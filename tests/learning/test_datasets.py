@@ -182,3 +182,17 @@ def test_kept_inputs_give_the_same_items_without_reading_the_frame_again(tmp_pat
         b = kept[0]["image"]
         b += 1.0  # an item is the caller's to change: the kept input stays as it was
         torch.testing.assert_close(kept[0]["image"], first[0]["image"], rtol=0, atol=0)
+
+
+def test_render_config_shares_the_render_settings_and_keeps_its_cache_key():
+    from histostudy.imaging import RenderSettings
+
+    cfg = RenderConfig(render_spacing_mm=0.47, label_spacing_mm=0.47, detector=(240, 320))
+    assert isinstance(cfg, RenderSettings) and cfg.background == "mixed"  # the paper's training mix
+    assert cfg.frame_kwargs() == RenderSettings().frame_kwargs()
+    # the cache folder's name (frames-<key>) predates RenderSettings: existing caches stay valid
+    assert RenderConfig().key() == "0bdcc2e82d45" and cfg.key() == "cce851b71071"
+    with pytest.raises(ValueError, match="n_splats"):
+        RenderConfig(n_splats=0)
+    with pytest.raises(ValueError, match="background"):
+        RenderConfig(background="none")

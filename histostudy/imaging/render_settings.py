@@ -1,0 +1,55 @@
+"""How a synthetic fluoroscopic frame is rendered: dose, splatting and the scene behind (§II-B.2).
+
+One :class:`RenderSettings` is shared by every configuration that renders frames (the pose
+study's, the targeting study's and the hybrid training images'), so the settings, their defaults
+and their checks are declared once. Defaults are the paper's rendering: 5e4 unattenuated photons
+per pixel (Poisson noise at a fluoroscopic dose), 16 splats per point with a 0.5 mm Gaussian
+jitter, and the agarose phantom behind the transducer (the paper's pose studies).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import dataclass
+
+__all__ = ["BACKGROUNDS", "RenderSettings"]
+
+#: Scenes behind the transducer: the phantom set-up, a procedural abdomen, the paper's mix of the
+#: two (156:56, :func:`~histostudy.imaging.anatomy.random_background`), or nothing.
+BACKGROUNDS = ("phantom", "abdomen", "mixed", "none")
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """Rendering of a synthetic frame (§II-B.2); see :func:`~histostudy.imaging.render.render_frame`.
+
+    Attributes:
+        photons_per_pixel: unattenuated photons per pixel for the Poisson noise; None for none.
+        n_splats: splats per model point (paper: 16).
+        splat_sigma_mm: standard deviation of the splat jitter, mm (paper: 0.5 mm).
+        background: the scene behind the transducer, one of :data:`BACKGROUNDS`.
+    """
+
+    photons_per_pixel: float | None = 5e4
+    n_splats: int = 16
+    splat_sigma_mm: float = 0.5
+    background: str = "phantom"
+
+    def __post_init__(self):
+        photons = self.photons_per_pixel
+        if photons is not None and (isinstance(photons, bool) or not isinstance(photons, numbers.Real)
+                                    or not math.isfinite(photons) or photons <= 0):
+            raise ValueError(f"photons_per_pixel must be a finite number > 0 or None, got {photons!r}")
+        if isinstance(self.n_splats, bool) or not isinstance(self.n_splats, numbers.Integral) or self.n_splats < 1:
+            raise ValueError(f"n_splats must be an integer >= 1, got {self.n_splats!r}")
+        sigma = self.splat_sigma_mm
+        if isinstance(sigma, bool) or not isinstance(sigma, numbers.Real) or not math.isfinite(sigma) or sigma < 0:
+            raise ValueError(f"splat_sigma_mm must be a finite number >= 0 (mm), got {sigma!r}")
+        if self.background not in BACKGROUNDS:
+            raise ValueError(f"background must be one of {BACKGROUNDS}, got {self.background!r}")
+
+    def frame_kwargs(self) -> dict:
+        """The keyword arguments of :func:`~histostudy.imaging.render.render_frame` these settings fix."""
+        return {"photons_per_pixel": self.photons_per_pixel, "n_splats": self.n_splats,
+                "splat_sigma_mm": self.splat_sigma_mm}
