@@ -2,7 +2,7 @@
 
 Measures, on this machine, for 4 (the paper's count), 12 and 30 poses with 0.5 mm / 0.2° pose noise:
 
-- ``histostudy.calibration.handeye.calibrate``: validation of every pose, all n(n-1)/2 motions, the eq. 8
+- ``histostudy.calibration.calibrate``: validation of every pose, all n(n-1)/2 motions, the eq. 8
   null space, T_carm_base, and the per-pose and per-motion residuals;
 - the baseline, measured in the same run: ``cv2.calibrateHandEye(..., method=
   cv2.CALIB_HAND_EYE_DANIILIDIS)`` on the same poses (C++; X only, no T_carm_base, no residuals,
@@ -21,7 +21,7 @@ import time
 import cv2
 import numpy as np
 
-from histostudy.calibration import handeye as he
+from histostudy import calibration as he
 from histostudy.geometry import transforms as g
 
 

@@ -1,18 +1,16 @@
 """`RTDERobot`: a real UR5e (or the simulated controller) through ur_rtde, behind the `Robot` protocol.
 
-This module is the unit boundary: the library speaks millimetres and 4x4 transforms, ur_rtde
-speaks metres and axis-angle poses ``[x, y, z, rx, ry, rz]``; :func:`pose_from_transform` and
-:func:`transform_from_pose` convert, here and nowhere else (the simulated controller uses them too).
+The library speaks millimetres and 4x4 transforms ``T_base_tcp`` in the robot base frame, ur_rtde
+metres and axis-angle poses ``[x, y, z, rx, ry, rz]``; :mod:`histostudy.robot.rtde_units`
+converts at the boundary.
 
 What it guards against (observed with ur-rtde 1.6.5 and written into the code below):
 
-- an unreachable host raises ``RuntimeError`` at once in the constructor -> RobotConnectionError;
-  the ports are probed first with a bounded socket connect, because the constructors hold the GIL;
+- the connection itself (unreachable hosts, calls that block on a dead controller, interfaces
+  that keep reconnecting): :class:`~histostudy.robot.rtde_connection.RTDEConnection`, which
+  :class:`RTDERobot` extends;
 - after the connection drops, ``getActualTCPPose()`` keeps returning the last pose while
   ``isConnected()`` turns False: every reading checks the connection before and after;
-- a call on a dead controller can block for more than 55 s: every control call runs under a
-  watchdog thread (the client releases the GIL while it waits) and the connection is declared lost
-  when the watchdog fires or the receive connection drops meanwhile;
 - a separate receive interface can lag after a blocking move: after each move we wait until the
   received pose is steady and within tolerance of the target before reading it;
 - under a protective stop moves return False (and ``stopScript()`` does nothing): moves are
@@ -26,45 +24,21 @@ What it guards against (observed with ur-rtde 1.6.5 and written into the code be
 from __future__ import annotations
 
 import math
-import socket
-import threading
 import time
 
 import numpy as np
 
-from histostudy.geometry import check_rigid, invert_transform, matrix_from_rotvec, rotation_angle, rotvec_from_matrix
-from .base import (ProtectiveStopError, RobotConnectionError, RobotError, RobotState, RobotTimeout,
-                   UnreachablePoseError, Workspace, WorkspaceViolation, check_motion_parameters, linear_motion_time_s)
+from histostudy.geometry import check_rigid, invert_transform, rotation_angle
+from .base import (ProtectiveStopError, RobotError, RobotState, RobotTimeout, UnreachablePoseError, Workspace,
+                   WorkspaceViolation, check_motion_parameters, linear_motion_time_s)
 from .kinematics import DHParameters, UR5E, forward_kinematics, inverse_kinematics_closest, linear_path_joints
+from .rtde_connection import DASHBOARD_PORT, RTDEConnection, probe_port
+from .rtde_units import pose_from_transform, transform_from_pose
 
-__all__ = ["RTDERobot", "UR_RTDE_VERSION", "pose_from_transform", "transform_from_pose"]
+__all__ = ["RTDERobot", "UR_RTDE_VERSION"]
 
 #: The ur_rtde version whose register protocol the simulated controller implements.
 UR_RTDE_VERSION = "1.6.5"
-RTDE_PORT = 30004
-DASHBOARD_PORT = 29999
-
-# Client objects whose call was abandoned by the watchdog: kept alive so that no destructor runs
-# while a blocked call still uses them.
-_ABANDONED: list = []
-
-
-def pose_from_transform(T) -> list[float]:
-    """ur_rtde pose ``[x, y, z, rx, ry, rz]`` (m, axis-angle rad) of a 4x4 transform in mm."""
-    T = check_rigid(T, "T")
-    return [float(v) for v in np.concatenate([T[:3, 3] / 1000.0, rotvec_from_matrix(T[:3, :3])])]
-
-
-def transform_from_pose(pose, name: str = "pose") -> np.ndarray:
-    """4x4 transform in mm of a ur_rtde pose ``[x, y, z, rx, ry, rz]`` (m, axis-angle rad)."""
-    p = np.asarray(pose, dtype=np.float64).reshape(-1)
-    if p.shape != (6,) or not np.all(np.isfinite(p)):
-        raise ValueError(f"{name} must be 6 finite numbers [x, y, z (m), rx, ry, rz (rad)], got {pose!r}")
-    T = np.eye(4)
-    T[:3, :3] = matrix_from_rotvec(p[3:])
-    T[:3, 3] = p[:3] * 1000.0
-    return T
-
 
 #: Below these TCP speeds (m/s, rad/s: ur_rtde's units) the arm counts as at rest; a real
 #: controller's readings jitter well below them.
@@ -77,25 +51,7 @@ def _at_rest(speed) -> bool:
     return bool(np.linalg.norm(speed[:3]) < REST_SPEED_M_S and np.linalg.norm(speed[3:]) < REST_SPEED_RAD_S)
 
 
-def _quiet_disconnect(iface) -> None:
-    try:
-        iface.disconnect()
-    except RuntimeError:
-        pass
-
-
-def _probe(host: str, port: int, timeout_s: float) -> None:
-    try:
-        with socket.create_connection((host, port), timeout=timeout_s):
-            pass
-    except OSError as exc:
-        raise RobotConnectionError(
-            f"cannot reach a UR controller at {host}:{port} within {timeout_s} s ({exc}); "
-            f"check the robot's IP, that it is powered on and in remote control"
-        ) from None
-
-
-class RTDERobot:
+class RTDERobot(RTDEConnection):
     """A UR5e driven through ``ur_rtde`` (§II-C), implementing :class:`~histostudy.robot.base.Robot`.
 
     Parameters: ``host`` (the controller's IP, or a loopback address of the simulated
@@ -136,153 +92,25 @@ class RTDERobot:
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
         if workspace is not None and not isinstance(workspace, Workspace):
             raise TypeError(f"workspace must be a Workspace or None, got {type(workspace).__name__}")
-        self.host = host
+        super().__init__(host, command_timeout_s=command_timeout_s, connect_timeout_s=connect_timeout_s,
+                         settle_timeout_s=settle_timeout_s, frequency_hz=frequency_hz)
         self.workspace = workspace if workspace is not None else Workspace()
-        self.command_timeout_s = float(command_timeout_s)
         self.move_timeout_margin_s = float(move_timeout_margin_s)
-        self.connect_timeout_s = float(connect_timeout_s)
-        self.settle_timeout_s = float(settle_timeout_s)
         self.settle_tolerance_mm = float(settle_tolerance_mm)
         self.settle_tolerance_rad = float(settle_tolerance_rad)
-        self.frequency_hz = float(frequency_hz)
         self.dh = dh
-        self._control = None
-        self._receive = None
         self._T_flange_tcp = np.eye(4)
         self._moves_completed = 0
-        self._lost_reason: str | None = "not connected yet"
-        self._inflight: threading.Thread | None = None
         if connect:
             self.connect()
 
-    # -- connection ---------------------------------------------------------------------------
     def connect(self) -> None:
         """Open the receive and control interfaces (the control script is uploaded by ur_rtde)."""
-        import rtde_control
-        import rtde_receive
-
         if self._control is not None:
             return
-        _probe(self.host, RTDE_PORT, self.connect_timeout_s)
-        _probe(self.host, DASHBOARD_PORT, self.connect_timeout_s)
-        try:
-            receive = rtde_receive.RTDEReceiveInterface(self.host, self.frequency_hz)
-        except RuntimeError as exc:
-            raise RobotConnectionError(f"ur_rtde could not connect to {self.host}: {exc}") from None
-        try:
-            control = rtde_control.RTDEControlInterface(self.host, self.frequency_hz)
-        except RuntimeError as exc:
-            _quiet_disconnect(receive)
-            _ABANDONED.append((None, receive))
-            raise RobotConnectionError(f"ur_rtde could not start its control script on {self.host}: {exc}") from None
-        self._receive, self._control = receive, control
-        self._lost_reason = None
+        super().connect()
         # The controller keeps its TCP across client sessions; ours is the one we last set.
         self.set_tcp(self._T_flange_tcp)
-
-    def reconnect(self) -> None:
-        """Drop the current interfaces (if any) and connect afresh (after a drop, timeout or stop)."""
-        self._abandon("reconnecting")
-        self._lost_reason = "reconnecting"
-        self.connect()
-
-    def close(self) -> None:
-        """Stop the control script and disconnect (idempotent; never raises for a lost link)."""
-        if self._control is None:
-            return
-        if self._is_connected():
-            try:
-                self._call("stopScript", self._control.stopScript, timeout_s=self.command_timeout_s)
-            except RobotError:
-                pass
-        self._abandon("closed by the caller")
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
-    def _abandon(self, reason: str) -> None:
-        """Give up the current interfaces: disconnect them (or, if a call still blocks in one, keep it)."""
-        control, receive = self._control, self._receive
-        self._control = self._receive = None
-        self._lost_reason = reason
-        if control is None and receive is None:
-            return
-        _ABANDONED.append((control, receive))
-        inflight = self._inflight
-        if inflight is not None and inflight.is_alive():
-            inflight.join(timeout=1.0)
-        if inflight is not None and inflight.is_alive():
-            return  # disconnecting under a blocked call is unsafe; the objects stay referenced
-        # A dropped interface keeps reconnecting in the background (it would attach to the next
-        # controller on this address): disconnect it. This releases the GIL and takes ~0.5 s, so
-        # both interfaces are disconnected in parallel.
-        workers = [
-            threading.Thread(target=_quiet_disconnect, args=(iface,), daemon=True)
-            for iface in (control, receive)
-            if iface is not None
-        ]
-        for w in workers:
-            w.start()
-        for w in workers:
-            w.join(timeout=2.0)
-
-    def _is_connected(self) -> bool:
-        if self._control is None or self._receive is None:
-            return False
-        return bool(self._receive.isConnected()) and bool(self._control.isConnected())
-
-    def _require_connected(self, what: str) -> None:
-        if self._control is None:
-            raise RobotConnectionError(
-                f"{what}: not connected to the UR controller at {self.host} ({self._lost_reason}); call reconnect()"
-            )
-        if not self._is_connected():
-            self._abandon("the connection dropped")
-            raise RobotConnectionError(
-                f"{what}: the connection to the UR controller at {self.host} dropped; no pose is read "
-                f"(ur_rtde would return the last one); call reconnect()"
-            )
-
-    def _call(self, name: str, fn, *args, timeout_s: float):
-        """Run a blocking ur_rtde call under a watchdog; the connection is lost if it expires or drops."""
-        box: dict = {}
-        receive = self._receive
-
-        def target():
-            try:
-                box["value"] = fn(*args)
-            except BaseException as exc:  # re-raised in the caller's thread
-                box["error"] = exc
-
-        worker = threading.Thread(target=target, name=f"ur_rtde {name}", daemon=True)
-        t0 = time.monotonic()
-        self._inflight = worker
-        worker.start()
-        while True:
-            worker.join(timeout=0.01)
-            if not worker.is_alive():
-                break
-            if receive is not None and not receive.isConnected():
-                self._abandon(f"the connection dropped during {name}")
-                raise RobotConnectionError(
-                    f"{name}: the connection to the UR controller at {self.host} dropped during the call; "
-                    f"the arm's pose is unknown until reconnect()"
-                )
-            if time.monotonic() - t0 > timeout_s:
-                self._abandon(f"{name} timed out")
-                raise RobotTimeout(
-                    f"{name}: no answer from the UR controller at {self.host} within {timeout_s:.3g} s; "
-                    f"the connection is considered lost and the arm's state unknown until reconnect()"
-                )
-        if "error" in box:
-            exc = box["error"]
-            if isinstance(exc, RuntimeError):
-                raise RobotConnectionError(f"{name}: ur_rtde failed: {exc}") from None
-            raise exc
-        return box.get("value")
 
     # -- tool ---------------------------------------------------------------------------------
     def set_tcp(self, T_flange_tcp) -> None:
@@ -296,24 +124,6 @@ class RTDERobot:
         self._T_flange_tcp = T.copy()
         # The receive interface can still hold packets computed with the old TCP.
         self._wait_fresh_data("set_tcp")
-
-    def _wait_fresh_data(self, what: str, packets: int = 2) -> None:
-        """Wait (bounded) until the receive interface got ``packets`` newer packets than it has now.
-
-        A packet in flight when a command completed may predate it; the second newer one cannot.
-        """
-        t0 = time.monotonic()
-        seen = self._receive.getTimestamp()
-        advances = 0
-        while advances < packets:
-            now = self._receive.getTimestamp()
-            if now > seen:
-                seen, advances = now, advances + 1
-                continue
-            self._require_connected(what)
-            if time.monotonic() - t0 > self.settle_timeout_s:
-                raise RobotTimeout(f"{what}: no fresh data from the UR controller at {self.host} in {self.settle_timeout_s} s")
-            time.sleep(0.001)
 
     def tcp_offset(self) -> np.ndarray:
         """The ``T_flange_tcp`` last set (mm)."""
@@ -489,7 +299,7 @@ class RTDERobot:
         import dashboard_client
 
         self._require_connected("clear_protective_stop")
-        _probe(self.host, DASHBOARD_PORT, self.connect_timeout_s)
+        probe_port(self.host, DASHBOARD_PORT, self.connect_timeout_s)
         dash = dashboard_client.DashboardClient(self.host)
         try:
             self._call("dashboard connect", dash.connect, timeout_s=self.command_timeout_s)

@@ -88,7 +88,7 @@ def test_ur_rtde_is_the_pinned_version():
     assert version == "1.6.5", (
         f"ur_rtde {version} is installed, but the simulated controller implements the register protocol "
         f"of ur_rtde 1.6.5 (command numbers, recipes, handshake). Pin ur-rtde==1.6.5 or re-derive the "
-        f"protocol in histostudy/robot/controller.py for the new version."
+        f"protocol in histostudy/robot/controller_protocol.py and controller_program.py for the new version."
     )
 
 
