@@ -1,25 +1,73 @@
-"""Notebook 03: the VGG19 azimuth/elevation regression evaluated as in §II-E.2 and §III.
+"""Notebook 03: the VGG19 azimuth/elevation regression evaluated as in §II-B.4, §II-E.2 and §III.
 
-For each evaluation frame the orientation source's angles are compared with the true pose's
-(:func:`histostudy.learning.orientation.angles_from_direction`): mean absolute error ± SD (azimuth
-differences wrapped), Pearson correlation, and the Moore-Penrose linear fit of prediction on
+For each held-out hybrid frame (:func:`histostudy.study.segmentation.held_out_frames`) the
+orientation source's angles are compared with the true pose's
+(:func:`histostudy.learning.angles_from_direction`; azimuth and elevation in the view's detector
+frame, tables in degrees): mean absolute error ± SD (azimuth differences wrapped to
+``(-180°, 180°]``), Pearson correlation, and the Moore-Penrose linear fit of prediction on
 reference with its R² (:func:`histostudy.study.stats.angle_statistics`).
+
+Beyond the paper: the direction error (angle between the predicted and the true axis) and the
+candidate directions (eq. 4's mirror pair, or a source's own pair) that the pose initialisation
+starts from, for the VGG19 and for the inner-boundary conic initialiser
+(:class:`~histostudy.pose.ConicOrientation`).
+
+The ``record_*`` functions write a section through ``writer``, a
+:class:`histostudy.reporting.SectionWriter` (this layer sits below ``reporting`` and does not
+import it), and return what the notebook shows.
 """
 
 from __future__ import annotations
 
+import os
 import time
+from pathlib import Path
 from typing import Iterable
 
 import numpy as np
 import pandas as pd
 
-from histostudy.learning import (angles_from_direction, beam_direction_of_pose, direction_candidates,
-                                 orientation_angle_error, wrap_angle)
+from histostudy.core import as_generator
+from histostudy.learning import (LearnedOrientation, OracleSegmenter, angles_from_direction, beam_direction_of_pose,
+                                 direction_candidates, orientation_angle_error, training_summary, wrap_angle)
+from histostudy.pose import ConicOrientation
+from .segmentation import resolve_weights
 from .stats import angle_statistics
 
-__all__ = ["angle_table", "candidate_error_summary", "candidate_errors", "direction_error_summary", "evaluate_orientation",
-           "scatter_figure"]
+__all__ = [
+    "INITIALISER_RNG_SEED",
+    "SECTION",
+    "TITLE",
+    "angle_table",
+    "candidate_error_summary",
+    "candidate_errors",
+    "direction_error_summary",
+    "evaluate_orientation",
+    "initialiser_key",
+    "load_vgg19",
+    "orientation_initialisers",
+    "record_angle_statistics",
+    "record_direction_error",
+    "record_evaluation",
+    "record_initialiser_comparison",
+    "record_stand_ins",
+    "scatter_figure",
+]
+
+SECTION = "03_orientation"
+TITLE = "03 · Orientation regression with VGG19: azimuth and elevation (§II-B.4, §II-E.2, §III)"
+
+#: Seed of the initialiser comparison's one random stream (the conic fit's RANSAC, shared by all
+#: sources and frames in order). Fixed rather than spawned from the study seed: the comparison
+#: has always drawn from ``default_rng(0)``, and its reported numbers rest on that stream.
+INITIALISER_RNG_SEED = 0
+
+
+def load_vgg19(weights: str | os.PathLike = "") -> tuple[LearnedOrientation, Path]:
+    """The VGG19 regressor of ``weights`` (default: the shipped ``vgg19_standard``) and its
+    checkpoint path."""
+    path = resolve_weights(weights, "vgg19_standard", "VGG19", "orientation")
+    return LearnedOrientation.load(path), path
 
 
 def evaluate_orientation(source, frames: Iterable, rng: np.random.Generator | None = None) -> pd.DataFrame:
@@ -81,7 +129,7 @@ def _source_candidates(source, frame, rng) -> tuple[np.ndarray, bool]:
     return direction_candidates(*source.estimate(frame, rng), frame.view), False
 
 
-def candidate_errors(sources: dict, frames: Iterable, rng: np.random.Generator | None = None) -> pd.DataFrame:
+def candidate_errors(sources: dict, frames: Iterable, rng) -> pd.DataFrame:
     """What the pose initialisation starts from, per frame and orientation source (beyond the paper).
 
     Every source gives each view two candidate world directions of the transducer axis: eq. 4's
@@ -92,11 +140,12 @@ def candidate_errors(sources: dict, frames: Iterable, rng: np.random.Generator |
     azimuth and elevation errors in the view (the §III angles: the canonical mirror folded, azimuth
     wrapped), whether the source fell back to another (``fell_back``) and its ``seconds``. For an
     ``(azimuth, elevation)`` source the nearer candidate's angle is its direction error of
-    :func:`evaluate_orientation`.
+    :func:`evaluate_orientation`. ``rng`` (a seed or a Generator) is the one stream every source
+    draws from, frame by frame in order.
     """
     if not isinstance(sources, dict) or not sources:
         raise ValueError(f"sources must be a non-empty dict {{name: orientation source}}, got {sources!r}")
-    rng = np.random.default_rng(0) if rng is None else rng
+    rng = as_generator(rng)
     rows = []
     for i, frame in enumerate(frames):
         if frame.T_carm_transducer is None:
@@ -167,3 +216,99 @@ def scatter_figure(results: pd.DataFrame, table: pd.DataFrame | None = None):
         ax.set_aspect("equal", adjustable="datalim")
     fig.tight_layout()
     return fig
+
+
+def record_evaluation(writer, source, frames, n_images: int) -> pd.DataFrame:
+    """Regress the angles of frames ``0 .. n_images-1`` of ``frames`` (anything with ``frame(i)``,
+    e.g. :class:`~histostudy.learning.HybridFrames`; :func:`evaluate_orientation`, timed), record
+    the per-frame table and the median regression time (s); returns the per-frame table."""
+    with writer.timer(f"render and regress {n_images} frames"):
+        results = evaluate_orientation(source, (frames.frame(i) for i in range(n_images)))
+    writer.table("angles_per_frame", results, "Reference and predicted angles per held-out frame (deg)", digits=2)
+    writer.value("regression_seconds_median", float(results["seconds"].median()))
+    return results
+
+
+def record_angle_statistics(writer, results: pd.DataFrame) -> pd.DataFrame:
+    """Record :func:`angle_table` of ``results`` and each statistic beside the paper's (§III);
+    returns the table."""
+    table = angle_table(results)
+    writer.table("angle_statistics", table, f"Angle regression statistics over {len(results)} held-out frames",
+                 digits=3)
+    for row in table.itertuples():
+        a = row.angle
+        writer.compare(f"angles.{a}.mae", f"{a}: mean absolute error", (row.mae_deg, row.sd_deg), unit="deg",
+                       digits=2)
+        writer.compare(f"angles.{a}.pearson", f"{a}: Pearson correlation", row.pearson_percent, unit="%", digits=1,
+                       note=f"p = {row.pearson_p:.2g}")
+        writer.compare(f"angles.{a}.slope", f"{a}: slope (Moore–Penrose)", row.slope, digits=3)
+        writer.compare(f"angles.{a}.intercept", f"{a}: intercept", row.intercept_deg, unit="deg", digits=3)
+        writer.compare(f"angles.{a}.r2", f"{a}: R²", row.r2, digits=3)
+    return table
+
+
+def record_direction_error(writer, results: pd.DataFrame) -> dict:
+    """Record :func:`direction_error_summary` of ``results`` (beyond the paper); returns it."""
+    direction = direction_error_summary(results)
+    writer.value("direction_error", direction)
+    writer.compare("angles.direction.mae", "direction: mean angle between predicted and reference axis",
+                   (direction["mean_deg"], direction["sd_deg"]), unit="deg", digits=2, paper_key="",
+                   note=f"median {direction['median_deg']:.1f}°, 90th percentile {direction['p90_deg']:.1f}°; "
+                        f"{100 * direction['misread_fraction']:.0f} % of frames off by > "
+                        f"{direction['misread_deg']:.0f}°")
+    return direction
+
+
+def orientation_initialisers(vgg19, unet=None) -> dict:
+    """The orientation initialisers compared in notebook 03, by report name: the VGG19 (§II-B.4),
+    the conic initialiser on ``unet``'s labels (left out when ``unet`` is None) and on the
+    reference labels (the bound a perfect segmentation gives); both conics fall back to the VGG19
+    in views without a usable ellipse."""
+    initialisers = {"VGG19 (§II-B.4)": vgg19}
+    if unet is not None:
+        initialisers["conic, U-Net labels"] = ConicOrientation(segmenter=unet, fallback=vgg19)
+    initialisers["conic, reference labels"] = ConicOrientation(segmenter=OracleSegmenter(), fallback=vgg19)
+    return initialisers
+
+
+def initialiser_key(name: str) -> str:
+    """The results key of an initialiser's report name: ``"vgg19"``, ``"conic_U-Net"``,
+    ``"conic_reference"``."""
+    return "vgg19" if name.startswith("VGG19") else name.replace("conic, ", "conic_").split()[0]
+
+
+def record_initialiser_comparison(writer, initialisers: dict, frames: list, *, rng) -> pd.DataFrame:
+    """Record :func:`candidate_errors` of ``initialisers`` on ``frames`` (timed), its
+    :func:`candidate_error_summary` and each initialiser's median nearer-candidate angle (beyond
+    the paper); returns the summary. ``rng``: a seed or a Generator (:data:`INITIALISER_RNG_SEED`
+    in the notebook)."""
+    with writer.timer(f"candidate directions of {len(initialisers)} initialisers on {len(frames)} frames"):
+        per_frame = candidate_errors(initialisers, frames, rng)
+    writer.table("initialiser_candidates", per_frame, "Nearer candidate direction per frame and initialiser (deg)",
+                 digits=2)
+    summary = candidate_error_summary(per_frame)
+    writer.table("initialiser_summary", summary, "Initialisers on the held-out frames: nearer candidate's angle to "
+                 "the true axis (deg), its azimuth and elevation MAE (deg), fallbacks to the VGG19, seconds", digits=3)
+    for row in summary.itertuples():
+        writer.compare(f"initialiser.{initialiser_key(row.source)}.direction",
+                       f"{row.source}: nearer candidate's angle to the axis", row.median_deg, unit="deg", digits=2,
+                       paper_key="", note=f"median; 90th percentile {row.p90_deg:.1f}°; azimuth / elevation MAE "
+                                          f"{row.azimuth_mae_deg:.2f}° / {row.elevation_mae_deg:.2f}°; "
+                                          f"{100 * row.fallback_fraction:.0f} % fell back to the VGG19")
+    return summary
+
+
+def record_stand_ins(writer, vgg19, weights_path: Path, n_images: int) -> None:
+    """Record what stands in for the annotated frames and the GPU-trained VGG19, and the note on
+    how the azimuth statistics treat wrapping and elevations near 0."""
+    manifest = vgg19.manifest
+    writer.stand_in("manually annotated porcine and phantom fluoroscopy frames",
+                    f"{n_images} held-out synthetic hybrid frames with the true pose as the reference")
+    writer.stand_in("VGG19 trained on GPU for 400,000 iterations",
+                    f"the shipped CPU-trained VGG19 {manifest['config']}: {training_summary(manifest)} "
+                    f"(manifest {weights_path.with_suffix('.json').name})")
+    writer.text("Azimuth errors are wrapped to (−180°, 180°] and the azimuth statistics use each prediction on the "
+                "branch nearest its reference. Near elevation 0 (transducer axis along the beam) the azimuth is "
+                "ill-defined, so large azimuth errors there cost little in direction: the direction error "
+                "(the angle between the predicted and the reference axis, beyond the paper) is what the pose "
+                "initialisation sees.")

@@ -12,7 +12,7 @@ both through statsmodels, as the paper compares the precision of the six classes
 
 Angles (§II-E.2): mean absolute error ± SD (azimuth differences wrapped to ``(-pi, pi]``), Pearson
 correlation with its p value, and the linear fit ``y = intercept + slope x`` by the Moore-Penrose
-pseudo-inverse with its R².
+pseudo-inverse with its R². :func:`angle_statistics` takes radians and reports degrees.
 """
 
 from __future__ import annotations

@@ -1,10 +1,14 @@
-"""Notebook 03's study module: per-frame angles against the true pose, the §III statistics, the figure."""
+"""Notebook 03's study module: per-frame angles against the true pose, the §III statistics, the figure,
+the initialiser comparison, and what each ``record_*`` function writes into a section."""
 
 import numpy as np
 import pytest
 
 from histostudy.imaging import Frame, View
-from histostudy.learning import angles_from_direction, beam_direction_of_pose, wrap_angle
+from histostudy.learning import (LearnedOrientation, OracleSegmenter, angles_from_direction, beam_direction_of_pose,
+                                 wrap_angle)
+from histostudy.pose import ConicOrientation
+from histostudy.reporting import SectionWriter
 from histostudy.study import orientation_regression as study
 from histostudy.transducer import pose_facing
 
@@ -96,7 +100,7 @@ class _Pair:
 def test_candidate_errors_take_the_nearer_candidate_and_agree_with_the_direction_error():
     frames = _frames()
     offset = _Offset(0.0, np.radians(-1.0))
-    per_frame = study.candidate_errors({"pair": _Pair(2.5), "offset": offset}, frames)
+    per_frame = study.candidate_errors({"pair": _Pair(2.5), "offset": offset}, frames, 0)
     assert len(per_frame) == 2 * len(frames)
     pair = per_frame[per_frame.source == "pair"]
     np.testing.assert_allclose(pair["candidate_error_deg"], 2.5, atol=1e-9)
@@ -106,8 +110,101 @@ def test_candidate_errors_take_the_nearer_candidate_and_agree_with_the_direction
     summary = study.candidate_error_summary(per_frame).set_index("source")
     assert summary.loc["pair", "median_deg"] == pytest.approx(2.5) and summary.loc["pair", "fallback_fraction"] == 0
     assert summary.loc["offset", "elevation_mae_deg"] == pytest.approx(1.0, abs=1e-6)
-    fell = study.candidate_errors({"f": _Pair(40.0, fell_back=True)}, frames[:3])
+    fell = study.candidate_errors({"f": _Pair(40.0, fell_back=True)}, frames[:3], 0)
     s = study.candidate_error_summary(fell).iloc[0]
     assert s["fallback_fraction"] == 1.0 and s["misread_fraction"] == 1.0
     with pytest.raises(ValueError, match="sources"):
-        study.candidate_errors({}, frames)
+        study.candidate_errors({}, frames, 0)
+    with pytest.raises(TypeError, match="rng"):
+        study.candidate_errors({"pair": _Pair(2.5)}, frames, None)
+
+
+class _Frames:
+    """The ``frame(i)`` interface of HybridFrames over a list."""
+
+    def __init__(self, frames):
+        self.frames = frames
+
+    def frame(self, i):
+        return self.frames[i]
+
+
+class _Noisy:
+    """The true angles plus Gaussian noise drawn from the rng it is given."""
+
+    def estimate(self, frame, rng):
+        az, el = angles_from_direction(beam_direction_of_pose(frame.T_carm_transducer), frame.view)
+        return float(wrap_angle(az + rng.normal(0, 0.1))), el + rng.normal(0, 0.1)
+
+
+def _writer(tmp_path):
+    return SectionWriter(tmp_path, study.SECTION, study.TITLE, profile="test", seed=0)
+
+
+def test_candidate_errors_draw_from_the_given_seed_or_generator():
+    frames = _frames(4)
+    by_seed = study.candidate_errors({"noisy": _Noisy()}, frames, 3)
+    by_generator = study.candidate_errors({"noisy": _Noisy()}, frames, np.random.default_rng(3))
+    np.testing.assert_array_equal(by_seed["candidate_error_deg"], by_generator["candidate_error_deg"])
+    other = study.candidate_errors({"noisy": _Noisy()}, frames, 4)
+    assert not np.allclose(other["candidate_error_deg"], by_seed["candidate_error_deg"])
+
+
+def test_load_vgg19_finds_the_shipped_weights(monkeypatch):
+    source, path = study.load_vgg19()
+    assert isinstance(source, LearnedOrientation) and path.name == "vgg19_standard.safetensors"
+    monkeypatch.setattr("histostudy.study.segmentation.shipped_model", lambda name: None)
+    with pytest.raises(FileNotFoundError, match=r"VGG19 .*\(vgg19_standard\.safetensors .*histostudy train orientation"):
+        study.load_vgg19()
+
+
+def test_record_evaluation_statistics_and_direction_error(tmp_path):
+    writer = _writer(tmp_path)
+    results = study.record_evaluation(writer, _Offset(np.radians(2.0), np.radians(-1.0)), _Frames(_frames()), 10)
+    assert len(results) == 10 and "render and regress 10 frames" in writer.timings_s
+    assert writer.values["regression_seconds_median"] == pytest.approx(results["seconds"].median())
+    table = study.record_angle_statistics(writer, results)
+    assert list(table["angle"]) == ["azimuth", "elevation"]
+    ours = {row["key"]: row for row in writer.comparisons}
+    assert len(ours) == 10
+    assert (ours["angles.azimuth.mae"]["ours"], ours["angles.azimuth.mae"]["ours_sd"]) == pytest.approx((2.0, 0.0))
+    assert ours["angles.elevation.intercept"]["ours"] == pytest.approx(-1.0)
+    direction = study.record_direction_error(writer, results)
+    assert writer.values["direction_error"] is direction and direction["n"] == 10
+    row = writer.comparisons[-1]
+    assert row["key"] == "angles.direction.mae" and row["paper_key"] is None
+    assert row["note"].endswith("0 % of frames off by > 30°")
+
+
+def test_orientation_initialisers_and_their_keys():
+    vgg = _Offset(0.0, 0.0)
+    both = study.orientation_initialisers(vgg, unet=OracleSegmenter())
+    assert list(both) == ["VGG19 (§II-B.4)", "conic, U-Net labels", "conic, reference labels"]
+    assert both["VGG19 (§II-B.4)"] is vgg
+    assert all(isinstance(c, ConicOrientation) and c.fallback is vgg for c in list(both.values())[1:])
+    assert list(study.orientation_initialisers(vgg)) == ["VGG19 (§II-B.4)", "conic, reference labels"]
+    assert [study.initialiser_key(name) for name in both] == ["vgg19", "conic_U-Net", "conic_reference"]
+
+
+def test_record_initialiser_comparison(tmp_path):
+    writer = _writer(tmp_path)
+    frames = _frames(4)
+    summary = study.record_initialiser_comparison(writer, {"pair": _Pair(2.5), "VGG19 (stand-in)": _Pair(40.0, True)},
+                                                  frames, rng=study.INITIALISER_RNG_SEED)
+    assert list(summary["source"]) == ["pair", "VGG19 (stand-in)"]
+    assert "candidate directions of 2 initialisers on 4 frames" in writer.timings_s
+    assert [t.name for t in writer.tables] == ["initialiser_candidates", "initialiser_summary"]
+    first, second = writer.comparisons
+    assert first["key"] == "initialiser.pair.direction" and first["ours"] == pytest.approx(2.5)
+    assert second["key"] == "initialiser.vgg19.direction" and second["note"].endswith("100 % fell back to the VGG19")
+
+
+def test_record_stand_ins_names_the_manifest(tmp_path):
+    class Net:
+        manifest = {"config": {"arch": "vgg19"}, "training_steps": 80}
+
+    writer = _writer(tmp_path)
+    study.record_stand_ins(writer, Net(), tmp_path / "vgg19.safetensors", 7)
+    assert writer.stand_ins[0]["synthetic"] == "7 held-out synthetic hybrid frames with the true pose as the reference"
+    assert writer.stand_ins[1]["synthetic"].endswith("80 training steps (manifest vgg19.json)")
+    assert writer.paragraphs[0].startswith("Azimuth errors are wrapped")

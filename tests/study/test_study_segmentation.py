@@ -1,4 +1,7 @@
-"""Notebook 02's study module: per-image metrics, Table I, the precision tests and their paragraph."""
+"""Notebook 02's study module: per-image metrics, Table I, the precision tests and their paragraph,
+the shipped weights and held-out frames, and what each ``record_*`` function writes into a section."""
+
+import contextlib
 
 import numpy as np
 import pandas as pd
@@ -7,6 +10,7 @@ from scipy import stats as sps
 
 from histostudy.imaging import Frame, View
 from histostudy.learning import OracleSegmenter, SegmentationDegradation
+from histostudy.reporting import SectionWriter
 from histostudy.study import segmentation as study
 from histostudy.transducer import FEATURE_CLASSES
 
@@ -80,3 +84,107 @@ def test_a_single_predicted_class_gives_no_tests():
     assert anova is None and tukey is None and set(dropped) == set(study.CLASS_KEYS) - {"background"}
     with pytest.raises(ValueError, match="no reference labels"):
         study.evaluate_segmentation(Background(), [Frame(np.zeros((48, 64), np.float32), _frames(1)[0].view)])
+
+
+class _Frames:
+    """The ``frame(i)`` interface of HybridFrames over a list."""
+
+    def __init__(self, frames):
+        self.frames = frames
+
+    def frame(self, i):
+        return self.frames[i]
+
+
+def _writer(tmp_path):
+    return SectionWriter(tmp_path, study.SECTION, study.TITLE, profile="test", seed=0)
+
+
+def test_resolve_weights_names_the_training_command(tmp_path):
+    given = tmp_path / "net.safetensors"
+    assert study.resolve_weights(str(given), "unet_standard", "U-Net", "segmentation") == given
+    with pytest.raises(FileNotFoundError, match="no usable shipped VGG19 .*histostudy train orientation"):
+        study.resolve_weights("", "no_such_network", "VGG19", "orientation")
+
+
+def test_record_weights_and_its_summary_line(tmp_path):
+    writer = _writer(tmp_path)
+    manifest = {"sha256": "ab" * 32, "config": {"arch": "unet"}, "profile": "standard", "training_steps": 1200}
+    line = study.record_weights(writer, "U-Net", tmp_path / "unet.safetensors", manifest, 0.25)
+    assert line == "U-Net {'arch': 'unet'} from unet.safetensors: 1200 steps (profile standard), input scale 0.25"
+    record = writer.values["weights"]
+    assert record["manifest"] == str(tmp_path / "unet.json") and record["sha256"] == "ab" * 32
+    assert record["validation"] is None
+
+
+def test_held_out_frames_are_the_eval_split(tmp_path, monkeypatch):
+    frames = study.held_out_frames(7, 2, render_spacing_mm=0.47, photons_per_pixel=1e4, n_splats=2,
+                                   splat_sigma_mm=0.3, background="phantom", cache_frames=False)
+    assert frames.split == "eval" and frames.cache_dir is None
+    assert (frames.config.render_spacing_mm, frames.config.label_spacing_mm, frames.config.n_splats) == (0.47, 0.47, 2)
+    monkeypatch.setenv("HISTOSTUDY_CACHE", str(tmp_path))
+    timed = []
+    cached = study.held_out_frames(7, 0, render_spacing_mm=0.47, photons_per_pixel=1e4, n_splats=2,
+                                   splat_sigma_mm=0.3, background="phantom", render_workers=2,
+                                   timer=lambda name: timed.append(name) or contextlib.nullcontext())
+    assert cached.cache_dir is not None and timed == ["pre-render the uncached evaluation frames (2 processes)"]
+
+
+def test_record_evaluation_and_table1_of_a_perfect_segmenter(tmp_path):
+    writer = _writer(tmp_path)
+    per_class, per_image, predictions = study.record_evaluation(writer, OracleSegmenter(), _Frames(_frames()), 4,
+                                                                keep=1)
+    assert len(per_image) == 4 and len(predictions) == 1 and "render and segment 4 frames" in writer.timings_s
+    assert writer.values["segmentation_seconds_median"] == pytest.approx(per_image["seconds"].median())
+    assert (tmp_path / "tables" / "per_image.csv").is_file()
+    table = study.record_table1(writer, per_class, per_image)
+    assert list(table["class"]) == list(study.CLASS_KEYS)
+    by_key = {row["key"]: row for row in writer.comparisons}
+    assert len(by_key) == 6 * 4 + 4 + 1
+    assert by_key["table1.screws.recall"]["ours"] == pytest.approx(100.0)
+    assert by_key["seg.global_accuracy"]["ours"] == pytest.approx(100.0) and by_key["seg.n_images"]["ours"] == 4
+
+
+def test_background_minus_screws_ci_takes_the_papers_orientation():
+    tukey = pd.DataFrame({"group1": ["background", "gaps"], "group2": ["screws", "screws"],
+                          "lower": [-10.1, -3.0], "upper": [-7.7, 1.0]})
+    assert study.background_minus_screws_ci(tukey) == (7.7, 10.1)
+    swapped = pd.DataFrame({"group1": ["screws"], "group2": ["background"], "lower": [7.7], "upper": [10.1]})
+    assert study.background_minus_screws_ci(swapped) == (7.7, 10.1)
+    assert study.background_minus_screws_ci(tukey.iloc[1:]) is None
+
+
+def test_record_precision_tests_with_and_without_a_test(tmp_path):
+    deg = SegmentationDegradation(recall={k: 0.7 for k in FEATURE_CLASSES},
+                                  precision={k: 0.8 for k in FEATURE_CLASSES})
+    per_class, _, _ = study.evaluate_segmentation(OracleSegmenter(deg), _frames(8, seed=1), np.random.default_rng(2))
+    writer = _writer(tmp_path)
+    paragraph, tukey = study.record_precision_tests(writer, per_class)
+    assert len(tukey) == 15 and writer.paragraphs == [paragraph] and paragraph.startswith("A one-way ANOVA")
+    keys = [row["key"] for row in writer.comparisons]
+    assert keys[:4] == ["seg.anova_F", "seg.anova_df_between", "seg.anova_df_within", "seg.anova_p"]
+    assert keys[-1] == "seg.tukey_screws_vs_background_ci"
+
+    class Background:
+        def segment(self, frame, rng=None):
+            return np.zeros(frame.shape, np.uint8)
+
+    per_class, _, _ = study.evaluate_segmentation(Background(), _frames(3))
+    writer = _writer(tmp_path)
+    paragraph, tukey = study.record_precision_tests(writer, per_class)
+    assert tukey is None and paragraph.startswith("No ANOVA") and "screws" in paragraph
+    assert writer.comparisons[0]["ours"] == "not computed" and writer.comparisons[0]["note"] == paragraph
+
+
+def test_record_stand_ins_reports_the_detector_and_time(tmp_path):
+    class Net:
+        manifest = {"config": {"arch": "unet"}, "training_steps": 50}
+        scale = 0.5
+
+    writer = _writer(tmp_path)
+    per_image = pd.DataFrame({"image": [0, 1, 2], "seconds": [0.1, 0.3, 0.2]})
+    study.record_stand_ins(writer, Net(), tmp_path / "unet.safetensors", per_image, detector_shape=(960, 1240))
+    assert writer.stand_ins[0]["synthetic"].startswith("3 held-out synthetic hybrid frames")
+    assert "50 training steps" in writer.stand_ins[1]["synthetic"] and "(manifest unet.json)" in writer.stand_ins[1]["synthetic"]
+    assert writer.paragraphs == ["Segmentation takes a median 0.20 s per full 1240x960 frame on this machine "
+                                 "(downscaled by 0.5, logits upsampled to full size)."]
