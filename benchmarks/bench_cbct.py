@@ -28,7 +28,7 @@ from histostudy.geometry import make_transform, rotation_about_axis
 from histostudy.imaging import cbct
 from histostudy.treatment import TreatmentZone, segment_treatment_zone
 from histostudy.robot import SimulatedUR5e
-from histostudy.treatment import plan as tr
+from histostudy import treatment as tr
 
 
 def best_of(fn, repeat: int = 3) -> float:

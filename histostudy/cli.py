@@ -105,8 +105,7 @@ def _train(args) -> int:
     if args.render_workers > 1 and cfg.cache:
         import time
 
-        from .learning import HybridFrames
-        from histostudy.learning.training import run_frame_sets
+        from .learning import HybridFrames, run_frame_sets
 
         t0 = time.monotonic()
         rendered = sum(HybridFrames(split, profile.seed, config=render, cache_dir=default_cache_dir())

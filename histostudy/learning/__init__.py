@@ -1,8 +1,10 @@
-"""The learned stages (§II-B.2 U-Net segmentation, §II-B.4 VGG19 orientation): the networks
-(``nets``), their input transforms (``preprocess``), the hybrid synthetic training images
-(``datasets``), training (``training``), checkpoints with their provenance (``checkpoints``), the
-segmenters (``segment``) and the orientation angles and sources (``orientation``). Lower layers never import this one; the pose
-estimation above it takes a segmenter and an orientation source.
+"""The learned stages (§II-B.2 U-Net segmentation, §II-B.4 VGG19 orientation): the networks (``nets``),
+their input transforms (``preprocess``), the hybrid synthetic training images (``datasets``);
+training: its configuration and stages (``training_config``), losses and validation metrics
+(``training_losses``), the loop (``training``) and the export (``training_export``); checkpoints
+with their provenance (``checkpoints``), the segmenters (``segment``) and the orientation angles and
+sources (``orientation``). The pose estimation above this layer takes a segmenter and an orientation
+source.
 """
 
 from .nets import UNet, VGG19, build_network
@@ -17,8 +19,10 @@ from .orientation import (LearnedOrientation, N_ORIENTATION_CLASSES, OracleOrien
 from .preprocess import pool_labels, prepare_image
 from .segment import (OracleSegmenter, SegmentationDegradation, Segmenter, UNetSegmenter, default_segmenter,
                       keep_largest_component, masks_from_labels)
-from .training import (FineTuneConfig, SEGMENTATION_LOSSES, TrainingConfig, TrainingResult, angle_loss, dice_loss,
-                       export, train)
+from .training import train
+from .training_config import FineTuneConfig, SEGMENTATION_LOSSES, TrainingConfig, TrainingResult, run_frame_sets
+from .training_export import export
+from .training_losses import angle_loss, dice_loss
 
 __all__ = [
     "FineTuneConfig",
@@ -64,6 +68,7 @@ __all__ = [
     "pool_labels",
     "prepare_image",
     "random_training_pose",
+    "run_frame_sets",
     "save_checkpoint",
     "select_direction",
     "sha256_file",

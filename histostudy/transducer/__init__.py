@@ -1,10 +1,14 @@
-"""The histotripsy transducer (§II-B.1, §IV): its spec, feature classes and the digital model
-(point clouds per feature class) with the physical model the synthetic frames are rendered from
-(``model``).
+"""The histotripsy transducer (§II-B.1, §IV): its spec, feature classes, label priority and quadrants
+(``spec``); the weighted point sampling of its cap, walls and screws (``sampling``); the digital
+model, point clouds per feature class (``digital``); the physical model the synthetic frames are
+rendered from, with the manufacturing mismatch of §IV (``physical``); and the paper's set-up pose
+(``placement``).
 """
 
-from .model import (FEATURE_CLASSES, Feature, LABEL_PRIORITY, ManufacturingDeviation, TransducerModel, TransducerSpec,
-                    pose_facing, quadrant_index)
+from .digital import TransducerModel
+from .physical import ManufacturingDeviation
+from .placement import pose_facing
+from .spec import FEATURE_CLASSES, Feature, LABEL_PRIORITY, TransducerSpec, quadrant_index
 
 __all__ = [
     "FEATURE_CLASSES",

@@ -1,11 +1,12 @@
-"""Targeting and treatment (§II-D, §II-E.4): the treatment plan over the zone, its execution with a
-journal that resumes where it stopped, the bubble clouds and the post-treatment scan (``plan``);
-the prescribed zone and its segmentation in the post-treatment CBCT, §II-E.3-4 (``zone``).
+"""Targeting and treatment (§II-D, §II-E.3-4): the treatment plan over the zone (``plan``), its
+execution on the robot with a journal that resumes where it stopped (``execution``), the bubble
+clouds, the mixed phantom and the post-treatment scan (``bubble_cloud``); the prescribed zone and
+its segmentation in the post-treatment CBCT (``zone``).
 """
 
-from .plan import (BUBBLE_CLOUD_SIZE_MM, JOURNAL_FORMAT, STUDY_PLAN_INSET_MM, STUDY_PLAN_SPACING_MM, TreatmentPlan,
-                   TreatmentRun, bubble_cloud_mask, execute_treatment, load_journal, plan_treatment,
-                   post_treatment_phantom, scan_treated_zone)
+from .bubble_cloud import BUBBLE_CLOUD_SIZE_MM, bubble_cloud_mask, post_treatment_phantom, scan_treated_zone
+from .execution import JOURNAL_FORMAT, TreatmentRun, execute_treatment, load_journal
+from .plan import STUDY_PLAN_INSET_MM, STUDY_PLAN_SPACING_MM, TreatmentPlan, plan_treatment
 from .zone import PAPER_ZONE_DIAMETERS_MM, TreatmentZone, ZoneSegmentation, segment_treatment_zone
 
 __all__ = [

@@ -1,58 +1,36 @@
-"""Histotripsy treatment: the plan of discrete focal points, its execution on the robot, the bubble
-clouds and the post-treatment phantom (paper §II-D, §II-D.1, §IV).
+"""The treatment plan (paper §II-D): discrete focal points filling the treatment zone, in the order
+they are treated.
 
 §II-D: "the robotic arm was motioned through the planned treatment volume comprised of a plurality
 of discrete focal locations and delivered a predetermined fixed number of histotripsy pulses per
-focal location"; the excitation makes a 3x3x6 mm bubble cloud. §II-D.1: treatment mixes the
-phantom's layers into a medium attenuation. §IV: the bubble cloud sits off the geometric focal
-point (manufacturing, aberration).
+focal location". :func:`plan_treatment` lays a rectangular lattice over the zone
+(:class:`~histostudy.treatment.zone.TreatmentZone`), clips it to the zone and orders it deepest
+layer first, serpentine within a layer.
 
-Frames and units: millimetres; the plan lives in the C-arm (world) frame; the robot is commanded in
-its base frame with the TCP at the transducer's focal point, so ``T_base_tcp`` positions the focal
-point. The transducer frame has its origin at the geometric focal point and +z towards the
-transducer: ultrasound propagates along -z ("depth"); TB = y, LR = x.
-
-Execution keeps a journal (JSON, rewritten atomically after every treated point with
-:func:`histostudy.core.io.atomic_write_json`): a treatment interrupted by a robot fault resumes from
-the journal — on a fresh connection or a fresh robot — without treating a point twice or skipping
-one. A point counts as treated once its journal entry is on disk.
+Frames and units: millimetres, the C-arm (world) frame. With the transducer's axes as the
+lattice's (``axes = T_carm_transducer[:3, :3]``) the lattice's x, y, z are LR, TB and -depth:
+ultrasound propagates along -z.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import math
-import os
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
-from histostudy.core import atomic_write_json, atomic_write_text, to_jsonable
-from histostudy.geometry import check_rigid, check_rotation, make_transform, transform_points
-from histostudy.imaging import Volume
-from histostudy.imaging.volume import _check_mask, _check_volume, _vec3
+from histostudy.core import to_jsonable
+from histostudy.geometry import check_rotation
+from histostudy.imaging.volume import _vec3
 from .zone import TreatmentZone
 
 __all__ = [
-    "BUBBLE_CLOUD_SIZE_MM",
     "STUDY_PLAN_INSET_MM",
     "STUDY_PLAN_SPACING_MM",
-    "JOURNAL_FORMAT",
     "TreatmentPlan",
-    "TreatmentRun",
-    "bubble_cloud_mask",
-    "execute_treatment",
-    "load_journal",
     "plan_treatment",
-    "post_treatment_phantom",
-    "scan_treated_zone",
 ]
-
-#: Full axes (LR, TB, depth) of the bubble cloud the paper's excitation sequence creates (§II-D), mm.
-BUBBLE_CLOUD_SIZE_MM = (3.0, 3.0, 6.0)
 
 #: The studies' plan (notebooks 04 and 05): lattice spacing (LR, TB, depth, mm) and the inset of
 #: the ellipsoid the lattice fills (:func:`plan_treatment`). The inset is what makes the union of
@@ -65,14 +43,6 @@ BUBBLE_CLOUD_SIZE_MM = (3.0, 3.0, 6.0)
 #: Another spacing or cloud size needs its own inset.
 STUDY_PLAN_SPACING_MM = (2.0, 2.0, 3.0)
 STUDY_PLAN_INSET_MM = (1.25, 1.25, 2.25)
-
-JOURNAL_FORMAT = "histostudy.treatment_journal"
-JOURNAL_VERSION = 1
-
-
-# ---------------------------------------------------------------------------------------------
-# Plan
-# ---------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True, eq=False)
@@ -243,277 +213,3 @@ def plan_treatment(
         lattice_index=ijk[order],
         on_rim=rim[order],
     )
-
-
-# ---------------------------------------------------------------------------------------------
-# Execution with a journal
-# ---------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, eq=False)
-class TreatmentRun:
-    """What the journal holds about a treatment: per treated point (in plan order) the commanded
-    and reached ``T_base_tcp`` (n, 4, 4) mm, the pulses delivered, and whether the plan is done.
-    ``resumed_at``: the first point treated by the run that returned this (0 for a fresh start)."""
-
-    journal_path: Path
-    n_planned: int
-    commanded_T_base_tcp: np.ndarray
-    reached_T_base_tcp: np.ndarray
-    pulses: np.ndarray
-    indices: np.ndarray
-    completed: bool
-    resumed_at: int
-
-    @property
-    def n_treated(self) -> int:
-        return len(self.indices)
-
-    @classmethod
-    def load(cls, journal_path: str | os.PathLike) -> "TreatmentRun":
-        """The run recorded in a journal (``resumed_at`` = the number of points it holds)."""
-        path = Path(journal_path)
-        journal = load_journal(path)
-        return _run_from_journal(path, journal, len(journal["points"]))
-
-
-def _journal_header(plan: TreatmentPlan, T_base_carm: np.ndarray, R_base_tcp: np.ndarray, T_flange_tcp) -> dict:
-    return {
-        "format": JOURNAL_FORMAT,
-        "version": JOURNAL_VERSION,
-        "plan_fingerprint": plan.fingerprint(),
-        "plan": plan.to_dict(),
-        "T_base_carm": T_base_carm,
-        "R_base_tcp": R_base_tcp,
-        "T_flange_tcp": T_flange_tcp,
-        "completed": False,
-        "points": [],
-    }
-
-
-def load_journal(path: str | os.PathLike) -> dict:
-    """Read and check a treatment journal (format, version, entries in plan order); returns the dict."""
-    path = Path(path)
-    try:
-        journal = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"journal {path} is not valid JSON ({exc}); it was not written by execute_treatment") from exc
-    if not isinstance(journal, dict) or journal.get("format") != JOURNAL_FORMAT:
-        raise ValueError(f"journal {path} is not a treatment journal (format must be {JOURNAL_FORMAT!r})")
-    if journal.get("version") != JOURNAL_VERSION:
-        raise ValueError(f"journal {path} has version {journal.get('version')!r}; this code reads version {JOURNAL_VERSION}")
-    indices = [p["index"] for p in journal["points"]]
-    if indices != list(range(len(indices))):
-        raise ValueError(f"journal {path} holds points {indices[:10]}..., not the plan's first points in order")
-    return journal
-
-
-def _run_from_journal(path: Path, journal: dict, resumed_at: int) -> TreatmentRun:
-    pts = journal["points"]
-    return TreatmentRun(
-        journal_path=path,
-        n_planned=len(journal["plan"]["points_mm"]),
-        commanded_T_base_tcp=np.array([p["commanded_T_base_tcp"] for p in pts], dtype=np.float64).reshape(-1, 4, 4),
-        reached_T_base_tcp=np.array([p["reached_T_base_tcp"] for p in pts], dtype=np.float64).reshape(-1, 4, 4),
-        pulses=np.array([p["pulses"] for p in pts], dtype=int),
-        indices=np.array([p["index"] for p in pts], dtype=int),
-        completed=bool(journal["completed"]),
-        resumed_at=resumed_at,
-    )
-
-
-def execute_treatment(
-    robot,
-    plan: TreatmentPlan,
-    T_base_carm,
-    R_base_tcp,
-    journal_path: str | os.PathLike,
-    *,
-    T_flange_tcp=None,
-    speed_mm_s: float = 20.0,
-    acceleration_mm_s2: float = 200.0,
-    deliver: Callable[[int, int], None] | None = None,
-) -> TreatmentRun:
-    """Move the focal point through ``plan`` on ``robot`` and treat each point; journal every point.
-
-    ``T_base_carm``: the calibration (C-arm frame into the robot base frame). ``R_base_tcp``: the
-    transducer orientation the targeting chose (3x3, base frame), kept for every point: point ``p``
-    (world mm) is commanded as ``T_base_tcp = [R_base_tcp | T_base_carm @ p]``, a linear move at
-    ``speed_mm_s`` / ``acceleration_mm_s2``. ``T_flange_tcp``: if given, set on the robot first
-    (the focal point in the flange frame) and recorded; a resume must use the same.
-    ``deliver(index, pulses)``: fires the plan's pulses at the reached point (the therapy
-    sub-system; the simulation has nothing to fire, so the default does nothing).
-
-    Journal (``journal_path``, JSON, rewritten atomically after each point): the plan and its
-    fingerprint, the calibration, and per treated point its index, the world point, the commanded
-    and the reached ``T_base_tcp`` and the pulses. If the journal exists, its plan and calibration
-    must match and execution resumes after its last point (a completed journal returns at once).
-    A :class:`~histostudy.robot.RobotError` propagates unchanged, with a note saying how far the
-    journal got; running again with the same journal resumes. A point counts as treated once its
-    entry is on disk: a fault inside ``deliver``, or a crash between its last pulse and the write,
-    leaves the point out of the journal and a resume fires it again (the only way a point is
-    treated twice). A resumed run moves straight from wherever the arm is to the next point; the
-    robot's workspace checks apply, an approach path is the caller's.
-    """
-    if not isinstance(plan, TreatmentPlan):
-        raise TypeError(f"plan must be a TreatmentPlan, got {type(plan).__name__}")
-    T_bc = check_rigid(T_base_carm, "T_base_carm")
-    R = check_rotation(R_base_tcp, "R_base_tcp")
-    T_ft = None if T_flange_tcp is None else check_rigid(T_flange_tcp, "T_flange_tcp")
-    if deliver is not None and not callable(deliver):
-        raise TypeError(f"deliver must be callable(index, pulses) or None, got {type(deliver).__name__}")
-    if not (math.isfinite(speed_mm_s) and speed_mm_s > 0):
-        raise ValueError(f"speed_mm_s must be finite and > 0, got {speed_mm_s!r}")
-    if not (math.isfinite(acceleration_mm_s2) and acceleration_mm_s2 > 0):
-        raise ValueError(f"acceleration_mm_s2 must be finite and > 0, got {acceleration_mm_s2!r}")
-    path = Path(journal_path)
-    header = to_jsonable(_journal_header(plan, T_bc, R, T_ft))
-    if path.exists():
-        journal = load_journal(path)
-        if journal["plan_fingerprint"] != header["plan_fingerprint"]:
-            raise ValueError(f"journal {path} belongs to another plan (fingerprint differs); refusing to resume it with this plan")
-        for key in ("T_base_carm", "R_base_tcp", "T_flange_tcp"):
-            a, b = journal[key], header[key]
-            if (a is None) != (b is None) or (a is not None and not np.allclose(a, b, rtol=0, atol=1e-9)):
-                raise ValueError(f"journal {path} was written with another {key} ({a!r}); got {b!r}: refusing to resume")
-    else:
-        journal = header
-        atomic_write_json(path, journal)
-    start = len(journal["points"])
-    if journal["completed"]:
-        return _run_from_journal(path, journal, start)
-
-    # The journal is rewritten whole after every point; its entries are serialised once and the
-    # file assembled from the cached texts, so a write costs O(file size), not O(entries) of
-    # Python-object conversion (a 1000-point plan would otherwise spend minutes in json.dumps).
-    head = {k: v for k, v in journal.items() if k not in ("completed", "points")}
-    head_text = json.dumps(head, separators=(",", ":"))[:-1]
-    entries = [json.dumps(e, separators=(",", ":")) for e in journal["points"]]
-
-    def write(completed: bool) -> None:
-        text = f'{head_text},"completed":{"true" if completed else "false"},"points":[\n' + ",\n".join(entries) + "\n]}\n"
-        atomic_write_text(path, text)
-
-    if T_ft is not None:
-        robot.set_tcp(T_ft)
-    targets = transform_points(T_bc, plan.points_mm)
-    for i in range(start, len(plan)):
-        commanded = make_transform(R, targets[i])
-        try:
-            reached = np.asarray(robot.move_linear(commanded, speed_mm_s, acceleration_mm_s2), dtype=np.float64)
-            if deliver is not None:
-                deliver(i, plan.pulses_per_point)
-        except Exception as exc:
-            exc.add_note(
-                f"treatment interrupted at point {i} of {len(plan)}: the journal {path} holds points 0..{i - 1}; "
-                "run execute_treatment again with the same journal to resume"
-            )
-            raise
-        entries.append(
-            json.dumps(
-                {
-                    "index": i,
-                    "point_carm_mm": plan.points_mm[i].tolist(),
-                    "commanded_T_base_tcp": commanded.tolist(),
-                    "reached_T_base_tcp": reached.tolist(),
-                    "pulses": plan.pulses_per_point,
-                },
-                separators=(",", ":"),
-            )
-        )
-        write(i == len(plan) - 1)
-    if len(plan) == start:  # nothing left (an empty remainder): mark done
-        write(True)
-    return _run_from_journal(path, load_journal(path), start)
-
-
-# ---------------------------------------------------------------------------------------------
-# Bubble clouds and the post-treatment phantom
-# ---------------------------------------------------------------------------------------------
-
-
-def bubble_cloud_mask(
-    volume: Volume,
-    T_carm_transducer,
-    focal_point_mm=(0.0, 0.0, 0.0),
-    offset_mm=(0.0, 0.0, 0.0),
-    size_mm=BUBBLE_CLOUD_SIZE_MM,
-) -> np.ndarray:
-    """Union of the bubble clouds at the given transducer poses, as a bool ``[z, y, x]`` mask.
-
-    ``T_carm_transducer``: (4, 4) or (n, 4, 4) poses of the transducer frame in the C-arm frame
-    (the reached poses, converted by the caller with the calibration's ground truth).
-    ``focal_point_mm``: the physical transducer's true focal point in the transducer frame;
-    ``offset_mm``: the bubble cloud's further offset from it (aberration, manufacturing, §IV),
-    transducer frame. Each cloud is an ellipsoid of full axes ``size_mm`` (LR, TB, depth; paper:
-    3x3x6 mm, §II-D) along the transducer's x, y, z, centred at ``focal_point_mm + offset_mm``.
-    A voxel belongs to a cloud when its centre does.
-    """
-    volume = _check_volume(volume)
-    T = np.asarray(T_carm_transducer, dtype=np.float64)
-    if T.ndim == 2:
-        T = T[None]
-    if T.ndim != 3 or T.shape[1:] != (4, 4):
-        raise ValueError(f"T_carm_transducer must be (4, 4) or (n, 4, 4), got shape {T.shape}")
-    for k in range(len(T)):
-        check_rigid(T[k], f"T_carm_transducer[{k}]")
-    centre_tf = _vec3(focal_point_mm, "focal_point_mm") + _vec3(offset_mm, "offset_mm")
-    semi = 0.5 * _vec3(size_mm, "size_mm", positive=True)
-    mask = np.zeros(volume.data.shape, dtype=bool)
-    reach = float(semi.max())
-    n_xyz = np.asarray(volume.shape_xyz)
-    x_ax, y_ax, z_ax = volume.axes_mm()
-    for k in range(len(T)):
-        c = T[k, :3, :3] @ centre_tf + T[k, :3, 3]
-        lo = np.maximum(np.ceil((c - reach - volume.origin_mm) / volume.spacing_mm - 1e-9).astype(int), 0)
-        hi = np.minimum(np.floor((c + reach - volume.origin_mm) / volume.spacing_mm + 1e-9).astype(int), n_xyz - 1)
-        if np.any(hi < lo):
-            continue  # this cloud lies outside the volume
-        Z, Y, X = np.meshgrid(z_ax[lo[2] : hi[2] + 1], y_ax[lo[1] : hi[1] + 1], x_ax[lo[0] : hi[0] + 1], indexing="ij")
-        d = np.stack([X - c[0], Y - c[1], Z - c[2]], axis=-1) @ T[k, :3, :3]  # transducer-frame offsets
-        inside = np.sum((d / semi) ** 2, axis=-1) <= 1.0
-        mask[lo[2] : hi[2] + 1, lo[1] : hi[1] + 1, lo[0] : hi[0] + 1] |= inside
-    return mask
-
-
-def post_treatment_phantom(phantom: Volume, treated_mask, roi_mask) -> Volume:
-    """The phantom after treatment (§II-D.1): inside the treated part of the phantom the layers are
-    mixed, so every voxel there takes the mean attenuation of that part of the untreated phantom.
-
-    ``phantom``: the true (noise-free) pre-treatment attenuation, e.g.
-    :func:`histostudy.imaging.cbct.phantom_volume`; ``treated_mask``: bool ``[z, y, x]``, e.g. the union
-    of bubble clouds (:func:`bubble_cloud_mask`); ``roi_mask``: bool ``[z, y, x]``, the phantom
-    (water around it is not mixed in). The mixture's mean weights both materials by their volume
-    in the treated region. Pass the result to :func:`histostudy.imaging.cbct.simulate_cbct`.
-    """
-    phantom = _check_volume(phantom, "phantom")
-    treated = _check_mask(treated_mask, phantom, "treated_mask")
-    roi = _check_mask(roi_mask, phantom, "roi_mask")
-    region = treated & roi
-    data = phantom.data.astype(np.float64).copy()
-    if region.any():
-        data[region] = data[region].mean()
-    return phantom.with_data(data)
-
-
-def scan_treated_zone(phantom: Volume, roi_mask, T_carm_transducer_reached, focal_point_mm, bubble_offset_mm, *,
-                      spec, T_carm_phantom, rng: np.random.Generator, blur_sigma_mm: float, noise_sd_hu: float,
-                      voxel_mm: float):
-    """The post-treatment CBCT of a treatment and its segmented zone (§II-D.1, §II-E.3).
-
-    The chain every study runs after a treatment: bubble clouds at the reached poses
-    (:func:`bubble_cloud_mask`; ``T_carm_transducer_reached`` ``(n, 4, 4)``, the physical
-    transducer's ``focal_point_mm`` plus ``bubble_offset_mm`` in its frame), the layers mixed there
-    (:func:`post_treatment_phantom` inside ``roi_mask``), the CBCT simulated
-    (:func:`histostudy.imaging.cbct.simulate_cbct` with ``blur_sigma_mm``, ``noise_sd_hu``, ``voxel_mm``)
-    and the zone segmented inside the phantom ``spec`` placed by ``T_carm_phantom``
-    (:func:`histostudy.treatment.zone.segment_treatment_zone`). Returns ``(ZoneSegmentation, post-treatment
-    CBCT Volume)``.
-    """
-    from histostudy.imaging import phantom_mask, simulate_cbct
-    from .zone import segment_treatment_zone
-
-    treated = bubble_cloud_mask(phantom, T_carm_transducer_reached, focal_point_mm, bubble_offset_mm)
-    post = simulate_cbct(post_treatment_phantom(phantom, treated, roi_mask), rng, blur_sigma_mm=blur_sigma_mm,
-                         noise_sd_hu=noise_sd_hu, voxel_mm=voxel_mm)
-    return segment_treatment_zone(post, phantom_mask(post, spec, T_carm_phantom)), post

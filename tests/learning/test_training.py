@@ -1,15 +1,14 @@
-"""The training loop on tiny networks and frames: resume, early stopping, both stages, export."""
+"""Tests of histostudy.learning.training (and its export) on tiny networks and frames: resume, early stopping,
+both stages, fine-tuning, export, the CLI."""
 
 import json
 import math
 
-import numpy as np
 import pytest
 import torch
 
-from histostudy.learning import (LearnedOrientation, RenderConfig, TrainingConfig, angle_loss, dice_loss, export,
-                                 hemisphere_angles, load_checkpoint, load_network, train)
-from histostudy.reporting import PROFILE_NAMES, load_profile
+from histostudy.learning import (LearnedOrientation, RenderConfig, TrainingConfig, export, hemisphere_angles,
+                                 load_checkpoint, load_network, train)
 
 TINY = RenderConfig(render_spacing_mm=0.47, label_spacing_mm=0.47, detector=(240, 320))
 
@@ -33,25 +32,6 @@ def _stop_after_first_epoch(msg):
 @pytest.fixture(scope="module")
 def cache(tmp_path_factory):
     return tmp_path_factory.mktemp("frames")
-
-
-def test_angle_loss_wraps_azimuth_and_weights_it_by_sin_elevation():
-    t = torch.tensor([[np.radians(-179.0), np.pi / 2]])
-    p = torch.tensor([[np.radians(179.0), np.pi / 2]])
-    assert float(angle_loss(p, t)) == pytest.approx(np.radians(2.0) ** 2, rel=1e-5)
-    t0 = torch.tensor([[0.3, 0.0]])
-    assert float(angle_loss(torch.tensor([[2.5, 0.1]]), t0)) == pytest.approx(0.01, rel=1e-5)  # azimuth moot on axis
-
-
-def test_dice_loss_against_a_hand_computed_dice():
-    labels = torch.tensor([[[0, 1, 1], [3, 3, 0]]])
-    perfect = torch.nn.functional.one_hot(labels, 6).permute(0, 3, 1, 2).to(torch.float64) * 60.0
-    # a perfect prediction: Dice 1 for the present classes and eps / (0 + eps) = 1 for the absent
-    assert float(dice_loss(perfect, labels)) == pytest.approx(0.0, abs=1e-12)
-    # uniform logits: p = 1/6 everywhere; class k with n_k pixels of 6: (2 n/6 + 1) / (6/6 + n + 1)
-    uniform = torch.zeros(1, 6, 2, 3, dtype=torch.float64)
-    expected = [(2 * n / 6 + 1) / (1 + n + 1) for n in (2, 0, 2, 0, 0)]
-    assert float(dice_loss(uniform, labels)) == pytest.approx(1 - np.mean(expected), rel=1e-12)
 
 
 def test_the_loss_is_a_segmentation_choice_and_changes_the_validation_loss(tmp_path, cache):
@@ -135,23 +115,6 @@ def test_orientation_classifier_then_regressor_and_export(tmp_path, cache):
     torch.testing.assert_close(c["model.regressor.weight"][:2], torch.stack([azimuths.cos(), azimuths.sin()]))
     torch.testing.assert_close(c["model.regressor.bias"], torch.tensor([0.0, 0.0, 1.0]))
 
-
-def test_config_validation_and_profiles():
-    with pytest.raises(ValueError, match="task"):
-        _seg(task="pose")
-    with pytest.raises(ValueError, match="batch_size"):
-        _seg(batch_size=9)
-    with pytest.raises(ValueError, match="unknown keys"):
-        TrainingConfig.from_table("segmentation", {"network": {"arch": "unet"}, "scale": 0.5, "epochs": 3})
-    for name in PROFILE_NAMES:
-        profile = load_profile(name)
-        for task in ("segmentation", "orientation"):
-            cfg = TrainingConfig.from_table(task, profile.training[task])
-            assert cfg.batch_size == 5 or name == "smoke"
-            assert cfg.learning_rate == 0.001
-            if name == "paper":  # the paper's hyper-parameters; the others are CPU-sized (profile comments)
-                assert (cfg.optimizer, cfg.momentum, cfg.patience) == ("sgd", 0.9, 3)
-    assert TrainingConfig.from_table("orientation", load_profile("paper").training["orientation"]).network["width"] == 1.0
 
 
 def test_cli_train_exports_weights_with_manifest(tmp_path, capsys, monkeypatch):
@@ -272,14 +235,14 @@ def test_learning_rate_decays_after_each_epoch_without_improvement_and_resumes(t
     import histostudy.learning.training as training
 
     losses = iter([1.0, 0.9, 0.95, 0.97, 0.8] * 2)
-    real_validate = training._validate
+    real_validate = training.validation_metrics
 
     def scripted(*args, **kwargs):
         metrics = real_validate(*args, **kwargs)
         metrics["loss"] = next(losses)
         return metrics
 
-    monkeypatch.setattr(training, "_validate", scripted)
+    monkeypatch.setattr(training, "validation_metrics", scripted)
     cfg = _seg(optimizer="adam", learning_rate=1e-3, lr_decay=0.5, patience=5, max_epochs=5)
     full = train(cfg, tmp_path / "full", seed=6, progress=False, log=lambda m: None, cache_dir=cache)
     # the rate an epoch trained with: halved after epochs 3 and 4 (no lower loss), kept after 1, 2
@@ -340,7 +303,7 @@ def test_fine_tune_stage_trains_the_best_network_on_frames_of_another_rendering(
     _, val_loader = training._loaders(cfg, 7, cache, "finetune")
     frozen = train(_orient_fine_tune(max_epochs=1, learning_rate=1e-30), tmp_path / "frozen", seed=7,
                    progress=False, log=lambda m: None, cache_dir=cache)
-    expected = training._validate("regress", regressor, val_loader, torch.device("cpu"))
+    expected = training.validation_metrics("regress", regressor, val_loader, torch.device("cpu"))
     assert frozen.history[1]["loss"] == pytest.approx(expected["loss"], rel=1e-4)
     # ... the same poses as the regression's validation frames, rendered the other way
     _, regress_loader = training._loaders(cfg, 7, cache, "regress")
@@ -384,7 +347,7 @@ def test_fine_tune_budget_of_its_own_and_bad_tables(tmp_path, cache):
              "fine_tune": {"n_train": 5, "learning_rate": 1e-4, "render": {"render_spacing_mm": 0.125}}}
     cfg = TrainingConfig.from_table("orientation", table)
     assert cfg.fine_tune.render.render_spacing_mm == 0.125 and cfg.fine_tune.n_val == 3
-    from histostudy.learning.training import run_frame_sets
+    from histostudy.learning import run_frame_sets
 
     assert run_frame_sets(cfg) == [(cfg.render, 200, 3), (cfg.fine_tune.render, 5, 3)]
     assert run_frame_sets(TrainingConfig.from_table("orientation", {**table, "fine_tune": None})) == [(cfg.render, 200, 3)]

@@ -1,0 +1,198 @@
+"""The transducer's specification (paper §II-B.1): its geometry and attenuation, the feature classes
+of its points and pixels, the label priority where classes overlap (§II-B.2), and its quadrants.
+
+Transducer frame (docs/architecture.md, Frames and units): origin at the geometric focal point,
+i.e. the centre of the spherical cap; +z from the focal point towards the transducer centre, so
+the cap apex is at ``(0, 0, R)``. The paper's "depth" is -z, TB is y and LR is x. Lengths in mm,
+attenuation coefficients in 1/mm. The four quadrants, fabricated separately, are split along the
+x = 0 and y = 0 planes (:func:`quadrant_index`).
+"""
+
+from __future__ import annotations
+
+import enum
+import json
+import math
+import os
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+from histostudy.core import atomic_write_json
+
+__all__ = [
+    "FEATURE_CLASSES",
+    "LABEL_PRIORITY",
+    "Feature",
+    "TransducerSpec",
+    "quadrant_index",
+]
+
+SPEC_FORMAT = "histostudy.transducer_spec"
+SPEC_FORMAT_VERSION = 1
+
+
+class Feature(enum.IntEnum):
+    """Point / pixel classes of §II-B.1-2; the values are the label-image values."""
+
+    BACKGROUND = 0
+    TRANSDUCER = 1  # main transducer elements
+    OUTER_BOUNDARY = 2
+    INNER_BOUNDARY = 3
+    GAPS = 4
+    SCREWS = 5
+
+
+#: The five point classes of the model, in enum order.
+FEATURE_CLASSES: tuple[Feature, ...] = (
+    Feature.TRANSDUCER, Feature.OUTER_BOUNDARY, Feature.INNER_BOUNDARY, Feature.GAPS, Feature.SCREWS,
+)
+
+#: Overlap order of §II-B.2, highest first: a pixel covered by several classes gets the first one.
+LABEL_PRIORITY: tuple[Feature, ...] = (
+    Feature.SCREWS, Feature.GAPS, Feature.INNER_BOUNDARY, Feature.OUTER_BOUNDARY, Feature.TRANSDUCER,
+)
+
+
+@dataclass(frozen=True)
+class TransducerSpec:
+    """Geometry and x-ray attenuation of the transducer; defaults are the paper's transducer.
+
+    From the paper (§II-B.1, §II-D):
+        radius_mm: radius of the spherical cap, 138.7 mm; its centre is the geometric focal point.
+        aperture_x_mm, aperture_y_mm: full widths of the elliptical active aperture along x (LR)
+            and y (TB), "approximately 24 x 17 cm"; measured in the x-y plane (plan view).
+        cutout_diameter_mm: central circular cutout for the imaging probe, 6.4 cm.
+        The four quadrants, fabricated separately, are split along the x = 0 and y = 0 planes.
+
+    Assumptions (not in the paper; each a field so a user can replace it):
+        gap_width_mm = 1.5: width of the gap between quadrants (the GAPS stripes |x|, |y| < w/2).
+        outer_band_mm = 3.0, inner_band_mm = 3.0: width, in plan view, of the boundary bands at the
+            elliptical edge and at the cutout edge. (The outer band's inner edge is the ellipse of
+            half-axes a - w, b - w, which is within 0.1 mm of a true offset curve here.)
+        element_thickness_mm = 2.0, element_mu_per_mm = 1.4: the elements as one PZT shell of
+            effective attenuation at ~70 keV (lead-based ceramic: about 1.2-1.7 /mm).
+        rim_thickness_mm = 2.0, rim_mu_per_mm = 0.2: the housing rim at both edges — a flange
+            under the boundary band (the band carries element + flange) and a cylindrical wall
+            rising in +z from the cap edge, so the boundaries show as lines when seen edge-on.
+            0.2 /mm is an effective value between aluminium (~0.06) and brass (~1) at ~70 keV.
+        outer_wall_height_mm = 8.0, inner_wall_height_mm = 8.0: height of those walls along +z.
+        screw_count = 8, screw_diameter_mm = 3.0, screw_length_mm = 8.0, screw_mu_per_mm = 0.4:
+            steel screws (effective mu 0.3-0.5 /mm) in the middle of the outer band, axis along
+            +z from the cap surface into the rim, at ellipse parameter angles (k + 1/2) 360/n deg
+            (so none falls in a gap).
+    """
+
+    radius_mm: float = 138.7
+    aperture_x_mm: float = 240.0
+    aperture_y_mm: float = 170.0
+    cutout_diameter_mm: float = 64.0
+    gap_width_mm: float = 1.5
+    outer_band_mm: float = 3.0
+    inner_band_mm: float = 3.0
+    element_thickness_mm: float = 2.0
+    element_mu_per_mm: float = 1.4
+    rim_thickness_mm: float = 2.0
+    rim_mu_per_mm: float = 0.2
+    outer_wall_height_mm: float = 8.0
+    inner_wall_height_mm: float = 8.0
+    screw_count: int = 8
+    screw_diameter_mm: float = 3.0
+    screw_length_mm: float = 8.0
+    screw_mu_per_mm: float = 0.4
+
+    def __post_init__(self):
+        positive = ("radius_mm", "aperture_x_mm", "aperture_y_mm", "cutout_diameter_mm", "outer_band_mm",
+                    "inner_band_mm", "element_thickness_mm", "rim_thickness_mm", "screw_diameter_mm",
+                    "screw_length_mm")
+        non_negative = ("gap_width_mm", "element_mu_per_mm", "rim_mu_per_mm", "outer_wall_height_mm",
+                        "inner_wall_height_mm", "screw_mu_per_mm")
+        for name in positive + non_negative:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+                raise TypeError(f"{name} must be a number in the unit its name gives, got {value!r}")
+            value = float(value)
+            object.__setattr__(self, name, value)
+            if not math.isfinite(value) or value < 0 or (name in positive and value == 0):
+                expected = "> 0" if name in positive else ">= 0"
+                raise ValueError(f"{name} must be finite and {expected}, got {value!r}")
+        count = self.screw_count
+        if isinstance(count, bool) or not isinstance(count, (int, np.integer)) or count < 0:
+            raise ValueError(f"screw_count must be an integer >= 0, got {count!r}")
+        object.__setattr__(self, "screw_count", int(count))
+        self._check_proportions()
+
+    def _check_proportions(self) -> None:
+        a, b, R = self.aperture_x_mm / 2, self.aperture_y_mm / 2, self.radius_mm
+        if max(a, b) >= R:
+            raise ValueError(
+                f"aperture half-widths ({a:g}, {b:g}) mm must be smaller than radius_mm {R:g}: "
+                f"the aperture must lie on the spherical cap"
+            )
+        if self.cutout_diameter_mm >= min(self.aperture_x_mm, self.aperture_y_mm):
+            raise ValueError(
+                f"cutout_diameter_mm {self.cutout_diameter_mm:g} must be smaller than the aperture's "
+                f"narrowest width min({self.aperture_x_mm:g}, {self.aperture_y_mm:g}) mm"
+            )
+        inner_edge = self.cutout_diameter_mm / 2 + self.inner_band_mm
+        outer_edge = min(a, b) - self.outer_band_mm
+        if inner_edge >= outer_edge:
+            raise ValueError(
+                f"inner_band_mm {self.inner_band_mm:g} and outer_band_mm {self.outer_band_mm:g} leave no "
+                f"element between the cutout (radius {self.cutout_diameter_mm / 2:g} mm) and the "
+                f"aperture edge (half-width {min(a, b):g} mm)"
+            )
+        if self.gap_width_mm >= self.cutout_diameter_mm:
+            raise ValueError(
+                f"gap_width_mm {self.gap_width_mm:g} must be smaller than cutout_diameter_mm "
+                f"{self.cutout_diameter_mm:g}"
+            )
+        if self.screw_diameter_mm > self.outer_band_mm + self.rim_thickness_mm:
+            raise ValueError(
+                f"screw_diameter_mm {self.screw_diameter_mm:g} must fit the rim: at most outer_band_mm + "
+                f"rim_thickness_mm = {self.outer_band_mm + self.rim_thickness_mm:g} mm"
+            )
+
+    # --- serialisation ------------------------------------------------------------------------
+
+    def to_dict(self) -> dict:
+        """Plain-JSON form: ``{field: value}``."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "TransducerSpec":
+        """A spec from :meth:`to_dict`'s form; missing fields take the paper defaults."""
+        if not isinstance(data, dict):
+            raise TypeError(f"data must be a dict of TransducerSpec fields, got {type(data).__name__}")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"data has unknown TransducerSpec fields {unknown}; expected a subset of {sorted(known)}")
+        return cls(**data)
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the spec as JSON (atomically): ``{"format", "version", "spec": {...}}``."""
+        return atomic_write_json(path, {"format": SPEC_FORMAT, "version": SPEC_FORMAT_VERSION, "spec": self.to_dict()})
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "TransducerSpec":
+        """Read a spec written by :meth:`save`, or a bare JSON object of fields."""
+        with open(path, encoding="utf-8") as fh:
+            data = json.load(fh)
+        if isinstance(data, dict) and "format" in data:
+            if data["format"] != SPEC_FORMAT:
+                raise ValueError(f"{path}: expected format {SPEC_FORMAT!r}, got {data['format']!r}")
+            data = data.get("spec")
+        return cls.from_dict(data)
+
+
+
+def quadrant_index(points_mm) -> np.ndarray:
+    """Quadrant of each point (transducer frame): 0 (+x,+y), 1 (-x,+y), 2 (-x,-y), 3 (+x,-y).
+
+    Points on a split plane (x = 0 or y = 0, inside the gaps) go to the + side.
+    """
+    p = np.asarray(points_mm, dtype=np.float64).reshape(-1, 3)
+    right, top = p[:, 0] >= 0, p[:, 1] >= 0
+    return np.where(top, np.where(right, 0, 1), np.where(right, 3, 2)).astype(np.intp)
