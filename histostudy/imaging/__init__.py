@@ -22,7 +22,7 @@ from .nifti_io import save_volume_nifti
 from .render import add_poisson_noise, background_line_integrals, render_frame, render_labels, render_line_integrals
 from .render_settings import BACKGROUNDS, RenderSettings
 from .rtk_projector import forward_project, render_frame_rtk, rtk_available, rtk_geometry, voxelise_model
-from .volume import Volume
+from .volume import Volume, check_mask, check_volume, vector3_mm
 from .volume_io import SUPPORTED_FORMATS, load_volume
 from .volume_io_grid import AXIS_TOLERANCE
 
@@ -50,7 +50,9 @@ __all__ = [
     "Volume",
     "add_poisson_noise",
     "background_line_integrals",
+    "check_mask",
     "check_target",
+    "check_volume",
     "default_biplane",
     "forward_project",
     "load_frame",
@@ -72,5 +74,6 @@ __all__ = [
     "save_views",
     "save_volume_nifti",
     "simulate_cbct",
+    "vector3_mm",
     "voxelise_model",
 ]

@@ -21,7 +21,7 @@ from scipy import ndimage
 
 from histostudy.core import as_generator
 from histostudy.geometry import as_points, check_rigid, invert_transform, transform_points
-from .volume import Volume, _check_volume, _vec3
+from .volume import Volume, check_volume, vector3_mm
 
 __all__ = [
     "PhantomSpec",
@@ -143,7 +143,7 @@ def phantom_volume(
         raise ValueError(f"margin_mm must be finite and >= 0, got {margin_mm!r}")
     if isinstance(supersample, bool) or not isinstance(supersample, (int, np.integer)) or supersample < 1:
         raise ValueError(f"supersample must be an integer >= 1, got {supersample!r}")
-    sp = _vec3(spacing_mm, "spacing_mm", positive=True)
+    sp = vector3_mm(spacing_mm, "spacing_mm", positive=True)
     h = 0.5 * spec.size_mm
     corners = np.array([[sx, sy, sz] for sx in (-h, h) for sy in (-h, h) for sz in (-h, h)])
     world = transform_points(T, corners)
@@ -180,7 +180,7 @@ def _grid_in_frame(volume: Volume, T_world_frame: np.ndarray, offset_mm=(0.0, 0.
 
 def phantom_mask(volume: Volume, spec: PhantomSpec = PhantomSpec(), T_carm_phantom=None, margin_mm: float = 0.0) -> np.ndarray:
     """Boolean ``[z, y, x]`` mask of the voxels whose centre lies in the phantom cube shrunk by ``margin_mm``."""
-    volume = _check_volume(volume)
+    volume = check_volume(volume)
     T = _check_T(T_carm_phantom)
     h = 0.5 * spec.size_mm - margin_mm
     lx, ly, lz = _grid_in_frame(volume, T)
@@ -210,7 +210,7 @@ def simulate_cbct(
     or int seed.
     """
 
-    truth = _check_volume(truth, "truth")
+    truth = check_volume(truth, "truth")
     gen = as_generator(rng)
     if not (math.isfinite(blur_sigma_mm) and blur_sigma_mm >= 0):
         raise ValueError(f"blur_sigma_mm must be finite and >= 0, got {blur_sigma_mm!r}")
@@ -224,7 +224,7 @@ def simulate_cbct(
     if voxel_mm is None:
         out = blurred
     else:
-        sp = _vec3(voxel_mm, "voxel_mm", positive=True)
+        sp = vector3_mm(voxel_mm, "voxel_mm", positive=True)
         grid = Volume.from_bounds(truth.lower_mm, truth.upper_mm, sp)
         values = blurred.sample(grid.world_points().reshape(-1, 3), outside=0.0)
         out = grid.with_data(values.reshape(grid.data.shape))
@@ -259,7 +259,7 @@ def check_target(
         raise ValueError(f"margin_mm must be finite and >= 0, got {margin_mm!r}")
     T = _check_T(T_carm_phantom)
     if volume is not None:
-        volume = _check_volume(volume)
+        volume = check_volume(volume)
         if not volume.contains(t)[0]:
             raise ValueError(
                 f"target_mm={t.round(3).tolist()} lies outside the CBCT volume "

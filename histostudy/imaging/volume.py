@@ -17,10 +17,10 @@ from scipy import ndimage
 
 from histostudy.geometry import as_points
 
-__all__ = ["Volume"]
+__all__ = ["Volume", "check_mask", "check_volume", "vector3_mm"]
 
 
-def _vec3(value, name: str, positive: bool = False) -> np.ndarray:
+def vector3_mm(value, name: str, positive: bool = False) -> np.ndarray:
     """``value`` as a finite float64 (3,) vector (a scalar is broadcast); errors name ``name``."""
     if value is None:
         raise ValueError(f"{name} is required (3 numbers in mm, x, y, z order), got None")
@@ -67,8 +67,8 @@ class Volume:
                 "a CBCT volume without spacing has no geometry: spacing_mm must be the voxel size "
                 "(dx, dy, dz) in mm, got None"
             )
-        self.spacing_mm = _vec3(self.spacing_mm, "spacing_mm", positive=True)
-        self.origin_mm = _vec3(self.origin_mm, "origin_mm")
+        self.spacing_mm = vector3_mm(self.spacing_mm, "spacing_mm", positive=True)
+        self.origin_mm = vector3_mm(self.origin_mm, "origin_mm")
 
     @classmethod
     def from_bounds(cls, lower_mm, upper_mm, spacing_mm, fill: float = 0.0) -> "Volume":
@@ -77,9 +77,9 @@ class Volume:
         The grid starts at ``lower_mm`` and holds as many whole voxels as fit up to ``upper_mm``
         (at least one per axis).
         """
-        lo = _vec3(lower_mm, "lower_mm")
-        hi = _vec3(upper_mm, "upper_mm")
-        sp = _vec3(spacing_mm, "spacing_mm", positive=True)
+        lo = vector3_mm(lower_mm, "lower_mm")
+        hi = vector3_mm(upper_mm, "upper_mm")
+        sp = vector3_mm(spacing_mm, "spacing_mm", positive=True)
         if np.any(hi < lo):
             raise ValueError(f"upper_mm must be >= lower_mm on every axis, got lower_mm={lo.tolist()}, upper_mm={hi.tolist()}")
         n = np.floor((hi - lo) / sp + 1e-9).astype(int) + 1
@@ -151,13 +151,15 @@ class Volume:
         return Volume(data, self.spacing_mm.copy(), self.origin_mm.copy())
 
 
-def _check_volume(volume, name: str = "volume") -> Volume:
+def check_volume(volume, name: str = "volume") -> Volume:
+    """``volume`` itself if it is a :class:`Volume`; TypeError naming ``name`` otherwise."""
     if not isinstance(volume, Volume):
         raise TypeError(f"{name} must be a histostudy.imaging.volume.Volume, got {type(volume).__name__}")
     return volume
 
 
-def _check_mask(mask, volume: Volume, name: str) -> np.ndarray:
+def check_mask(mask, volume: Volume, name: str) -> np.ndarray:
+    """``mask`` as a bool ``[z, y, x]`` array of ``volume``'s shape; ValueError naming ``name`` otherwise."""
     arr = np.asarray(mask)
     if arr.shape != volume.data.shape:
         raise ValueError(f"{name} must be a boolean array of the volume's shape {volume.data.shape} ([z, y, x]), got {arr.shape}")

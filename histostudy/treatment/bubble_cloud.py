@@ -15,8 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from histostudy.geometry import check_rigid
-from histostudy.imaging import Volume, phantom_mask, simulate_cbct
-from histostudy.imaging.volume import _check_mask, _check_volume, _vec3
+from histostudy.imaging import Volume, check_mask, check_volume, phantom_mask, simulate_cbct, vector3_mm
 from .zone import segment_treatment_zone
 
 __all__ = [
@@ -47,7 +46,7 @@ def bubble_cloud_mask(
     3x3x6 mm, §II-D) along the transducer's x, y, z, centred at ``focal_point_mm + offset_mm``.
     A voxel belongs to a cloud when its centre does.
     """
-    volume = _check_volume(volume)
+    volume = check_volume(volume)
     T = np.asarray(T_carm_transducer, dtype=np.float64)
     if T.ndim == 2:
         T = T[None]
@@ -55,8 +54,8 @@ def bubble_cloud_mask(
         raise ValueError(f"T_carm_transducer must be (4, 4) or (n, 4, 4), got shape {T.shape}")
     for k in range(len(T)):
         check_rigid(T[k], f"T_carm_transducer[{k}]")
-    centre_tf = _vec3(focal_point_mm, "focal_point_mm") + _vec3(offset_mm, "offset_mm")
-    semi = 0.5 * _vec3(size_mm, "size_mm", positive=True)
+    centre_tf = vector3_mm(focal_point_mm, "focal_point_mm") + vector3_mm(offset_mm, "offset_mm")
+    semi = 0.5 * vector3_mm(size_mm, "size_mm", positive=True)
     mask = np.zeros(volume.data.shape, dtype=bool)
     reach = float(semi.max())
     n_xyz = np.asarray(volume.shape_xyz)
@@ -84,9 +83,9 @@ def post_treatment_phantom(phantom: Volume, treated_mask, roi_mask) -> Volume:
     (water around it is not mixed in). The mixture's mean weights both materials by their volume
     in the treated region. Pass the result to :func:`histostudy.imaging.cbct.simulate_cbct`.
     """
-    phantom = _check_volume(phantom, "phantom")
-    treated = _check_mask(treated_mask, phantom, "treated_mask")
-    roi = _check_mask(roi_mask, phantom, "roi_mask")
+    phantom = check_volume(phantom, "phantom")
+    treated = check_mask(treated_mask, phantom, "treated_mask")
+    roi = check_mask(roi_mask, phantom, "roi_mask")
     region = treated & roi
     data = phantom.data.astype(np.float64).copy()
     if region.any():

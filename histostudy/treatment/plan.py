@@ -22,7 +22,7 @@ import numpy as np
 
 from histostudy.core import to_jsonable
 from histostudy.geometry import check_rotation
-from histostudy.imaging.volume import _vec3
+from histostudy.imaging import vector3_mm
 from .zone import TreatmentZone
 
 __all__ = [
@@ -168,11 +168,11 @@ def plan_treatment(
     """
     if not isinstance(zone, TreatmentZone):
         raise TypeError(f"zone must be a histostudy.treatment.zone.TreatmentZone, got {type(zone).__name__}")
-    sp = _vec3(spacing_mm, "spacing_mm", positive=True)
+    sp = vector3_mm(spacing_mm, "spacing_mm", positive=True)
     if isinstance(pulses_per_point, bool) or not isinstance(pulses_per_point, (int, np.integer)) or pulses_per_point < 1:
         raise ValueError(f"pulses_per_point must be an integer >= 1, got {pulses_per_point!r}")
     R = np.eye(3) if axes is None else check_rotation(axes, "axes")
-    inset = _vec3(inset_mm, "inset_mm")
+    inset = vector3_mm(inset_mm, "inset_mm")
     if np.any(inset < 0):
         raise ValueError(f"inset_mm must be >= 0 on every axis, got {inset.tolist()}")
     semi = zone.radius_mm - inset

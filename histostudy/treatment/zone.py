@@ -20,8 +20,7 @@ import numpy as np
 from scipy import ndimage
 
 from histostudy.geometry import as_points, check_rotation, fit_sphere
-from histostudy.imaging import Volume
-from histostudy.imaging.volume import _check_mask, _check_volume
+from histostudy.imaging import Volume, check_mask, check_volume
 
 __all__ = ["PAPER_ZONE_DIAMETERS_MM", "TreatmentZone", "ZoneSegmentation", "segment_treatment_zone"]
 
@@ -60,7 +59,7 @@ class TreatmentZone:
 
     def mask(self, volume: Volume) -> np.ndarray:
         """Boolean ``[z, y, x]`` mask of the voxels whose centre lies in the zone."""
-        volume = _check_volume(volume)
+        volume = check_volume(volume)
         x, y, z = (a - c for a, c in zip(volume.axes_mm(), self.centre_mm))
         return x[None, None, :] ** 2 + y[None, :, None] ** 2 + z[:, None, None] ** 2 <= self.radius_mm**2
 
@@ -241,8 +240,8 @@ def segment_treatment_zone(
     ``roi_mask``: bool ``[z, y, x]``, the phantom (e.g. :func:`~histostudy.imaging.cbct.phantom_mask`). Raises ValueError
     when nothing is found or the levels cannot be estimated.
     """
-    volume = _check_volume(volume)
-    roi = _check_mask(roi_mask, volume, "roi_mask")
+    volume = check_volume(volume)
+    roi = check_mask(roi_mask, volume, "roi_mask")
     for name, value in (("window_mm", window_mm), ("boundary_window_mm", boundary_window_mm)):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be finite and > 0 (about one layer period / one layer), got {value!r}")
