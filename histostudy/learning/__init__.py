@@ -1,10 +1,10 @@
-"""The learned stages (§II-B.2 U-Net segmentation, §II-B.4 VGG19 orientation): the networks (``nets``),
-their input transforms (``preprocess``), the hybrid synthetic training images (``datasets``);
-training: its configuration and stages (``training_config``), losses and validation metrics
-(``training_losses``), the loop (``training``) and the export (``training_export``); checkpoints
-with their provenance (``checkpoints``), the segmenters (``segment``) and the orientation angles and
-sources (``orientation``). The pose estimation above this layer takes a segmenter and an orientation
-source.
+"""The learned stages (§II-B.2 U-Net segmentation, §II-B.4 VGG19 orientation): the networks
+(``nets``), their input transforms (``preprocess``), the hybrid synthetic training images
+(``datasets``); training: its configuration and stages (``training_config``), losses and validation
+metrics (``training_losses``), the loop (``training``) and the export (``training_export``);
+checkpoints with their provenance (``checkpoints``), the segmenters (``segment``) and the
+orientation angles and sources (``orientation``). The pose estimation above this layer takes a
+segmenter and an orientation source.
 """
 
 from .nets import UNet, VGG19, build_network

@@ -1,8 +1,8 @@
-"""The histotripsy transducer (§II-B.1, §IV): its spec, feature classes, label priority and quadrants
-(``spec``); the weighted point sampling of its cap, walls and screws (``sampling``); the digital
-model, point clouds per feature class (``digital``); the physical model the synthetic frames are
-rendered from, with the manufacturing mismatch of §IV (``physical``); and the paper's set-up pose
-(``placement``).
+"""The histotripsy transducer (§II-B.1, §IV): its spec, feature classes, label priority and
+quadrants (``spec``); the weighted point sampling of its cap, walls and screws (``sampling``); the
+digital model, point clouds per feature class (``digital``); the physical model the synthetic frames
+are rendered from, with the manufacturing mismatch of §IV (``physical``); and the paper's set-up
+pose (``placement``).
 """
 
 from .digital import TransducerModel
