@@ -244,7 +244,7 @@ def test_the_calibration_runs_on_the_stages_it_is_given(models):
     def calibrate_with(segmenter, orientation):
         names = ("rng_pose", "rng_scene", "rng_render", "rng_est")
         rngs = {name: np.random.default_rng(k) for k, name in enumerate(names)}
-        with T.sim_robot(config)(7, T._start_joints(truth)) as robot:
+        with T.sim_robot(config)(7, T.start_joints(truth)) as robot:
             return T.calibrate_robot(robot, truth, config, pose_model=model, render_model=model, physical=physical,
                                      views=views, segmenter=segmenter, orientation=orientation, **rngs)
 
@@ -255,28 +255,3 @@ def test_the_calibration_runs_on_the_stages_it_is_given(models):
     with pytest.raises(T.TargetingError, match="calibration pose 0"):
         calibrate_with(BlindSegmenter(), SpyOrientation())
 
-
-def test_fig7_marks_the_target_and_outlines_the_zone():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from histostudy.treatment import TreatmentZone, segment_treatment_zone
-    from histostudy.imaging import phantom_mask, phantom_volume, simulate_cbct
-    from histostudy.treatment import post_treatment_phantom
-
-    truth = phantom_volume(spacing_mm=1.0)
-    roi = phantom_mask(truth)
-    target = np.array([2.0, -3.0, 1.0])
-    post = simulate_cbct(post_treatment_phantom(truth, TreatmentZone(target, 20.0).mask(truth), roi), 0)
-    seg = segment_treatment_zone(post, roi)
-    fig = T.plot_target_slices(post, seg, target)
-    axes = fig.axes
-    assert len(axes) == 3
-    dots = [(line.get_xdata()[0], line.get_ydata()[0]) for ax in axes for line in ax.lines]
-    assert np.allclose(dots, [(2.0, -3.0), (2.0, 1.0), (-3.0, 1.0)])  # (x, y), (x, z), (y, z)
-    assert all(ax.collections for ax in axes)  # the zone's outline in every cut
-    plt.close(fig)
-    with pytest.raises(ValueError, match="outside the volume"):
-        T.plot_target_slices(post, seg, [500.0, 0.0, 0.0])

@@ -1,0 +1,131 @@
+"""The targeting study's hand-eye calibration phase (§II-C, eq. 3-5 for the pose estimates).
+
+The robot moves the flange to ``n_calibration_poses`` preprogrammed poses about the start pose
+above the phantom; at each the encoders' ``T_base_flange`` is read and a biplane pair is
+rendered from the TRUE transducer pose (``T_carm_base_true @ T_base_flange_reached @
+T_flange_transducer_true``); the pose is estimated and
+:func:`histostudy.calibration.calibrate` (AX = XB, Daniilidis) run on the pairs. Its residuals
+are checked against a stated bound: targeting refuses to run on a calibration that fails it.
+Transforms are 4x4 ``T_<to>_<from>`` in mm (base frame: the robot's; C-arm frame: LPS).
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from histostudy.calibration import R_BASE_FLANGE_DOWN, HandEyeCalibration, calibrate
+from histostudy.geometry import make_transform, matrix_from_rotvec, rotation_about_axis, rotation_angle
+from histostudy.imaging import View, random_background, render_frame
+from histostudy.learning import OracleOrientation
+from histostudy.pose import PoseEstimationError, estimate_pose
+from histostudy.robot import Robot
+from histostudy.transducer import TransducerModel
+from .targeting_setup import GroundTruth, TargetingError, TargetingStudyConfig
+
+__all__ = ["HALF_TURN", "calibrate_robot", "calibration_poses", "config_focal_flange"]
+
+#: A half turn about the transducer's z axis: the aperture, gaps and cutout look the same after it.
+HALF_TURN = np.diag([-1.0, -1.0, 1.0, 1.0])
+
+
+def calibration_poses(rng: np.random.Generator, config: TargetingStudyConfig, truth: GroundTruth) -> list[np.ndarray]:
+    """The preprogrammed flange poses ``T_base_flange`` (base frame) of the calibration (§II-C).
+
+    Pose k tilts the tool axis by ``calibration_tilt_deg`` about the horizontal axis at azimuth
+    ``2 pi k / n`` (plus up to ±0.3 rad), turns the transducer about its axis by up to
+    ``calibration_axial_deg`` (alternating sign), and puts the designed focal point within
+    ``calibration_offset_mm`` of the start point: the rotation axes of the motions differ, which
+    AX = XB needs.
+    """
+    n = int(config.n_calibration_poses)
+    tilt = np.radians(config.calibration_tilt_deg)
+    fmax = np.radians(config.calibration_axial_deg)
+    focal_local = config_focal_flange(truth.T_flange_transducer_nominal)
+    out = []
+    for k in range(n):
+        phi = 2 * np.pi * k / n + rng.uniform(-0.3, 0.3)
+        axis = np.array([np.cos(phi), np.sin(phi), 0.0])
+        spin = (1 if k % 2 == 0 else -1) * rng.uniform(0.3, 1.0) * fmax
+        R = R_BASE_FLANGE_DOWN @ matrix_from_rotvec(tilt * axis) @ rotation_about_axis([0, 0, 1], spin)
+        focal = truth.start_focal_base_mm + rng.uniform(-config.calibration_offset_mm, config.calibration_offset_mm, 3)
+        out.append(make_transform(R, focal - R @ focal_local))
+    return out
+
+
+def config_focal_flange(T_flange_transducer) -> np.ndarray:
+    """The focal point (transducer origin) in the flange frame."""
+    return np.asarray(T_flange_transducer, float)[:3, 3].copy()
+
+def _resolve_half_turns(F: list[np.ndarray], C: list[np.ndarray], nominal_X: np.ndarray) -> tuple[list[np.ndarray], HandEyeCalibration]:
+    """Choose per pose between an estimate and its half turn about the axis (the transducer looks
+    the same; the pose estimate may return either), the combination with the smallest calibration
+    residuals, then the global half turn that keeps ``T_flange_transducer`` closest to the design."""
+    best = None
+    for flips in itertools.product((False, True), repeat=len(C) - 1):
+        Cs = [C[0]] + [c @ HALF_TURN if f else c for c, f in zip(C[1:], flips)]
+        try:
+            cal = calibrate(F, Cs)
+        except ValueError:
+            continue
+        score = cal.max_rotation_residual_deg
+        if best is None or score < best[0]:
+            best = (score, Cs, cal)
+    if best is None:
+        raise TargetingError("the calibration poses do not determine the hand-eye calibration")
+    _, Cs, cal = best
+    flipped = [c @ HALF_TURN for c in Cs]
+    cal2 = calibrate(F, flipped)
+    angle = lambda c: rotation_angle(c.T_flange_transducer[:3, :3].T @ nominal_X[:3, :3])
+    if angle(cal2) < angle(cal):
+        return flipped, cal2
+    return Cs, cal
+
+
+def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConfig, *, pose_model: TransducerModel,
+                    render_model: TransducerModel, physical: TransducerModel, views: Sequence[View],
+                    rng_pose: np.random.Generator, rng_scene: np.random.Generator, rng_render: np.random.Generator,
+                    rng_est: np.random.Generator, segmenter=None,
+                    orientation=None) -> tuple[HandEyeCalibration, pd.DataFrame]:
+    """§II-C on ``robot``: move to the preprogrammed poses, estimate the transducer pose from a
+    biplane pair rendered from the true pose at each, calibrate, check the residuals.
+
+    ``segmenter`` / ``orientation``: the pose estimate's stages (e.g. the shipped U-Net and VGG19
+    from :func:`histostudy.study.pose_estimation.study_stages`); None: the config's oracle
+    segmenter and the oracle orientation.
+
+    Returns the checked calibration and one row per pose (the true and estimated focal points,
+    the pose-estimation error). Raises :class:`TargetingError` when a pose estimate fails its
+    verdict and :class:`~histostudy.calibration.handeye.CalibrationError` beyond the residual bound.
+    """
+    robot.set_tcp(np.eye(4))  # calibration poses are flange poses
+    scene = None if config.background == "none" else random_background(rng_scene, config.background)
+    segmenter = config.segmenter() if segmenter is None else segmenter
+    orientation = OracleOrientation() if orientation is None else orientation
+    F, C, rows = [], [], []
+    for k, T_cmd in enumerate(calibration_poses(rng_pose, config, truth)):
+        robot.move_linear(T_cmd)
+        F_k = robot.flange_pose()  # what the encoders say
+        T_true = truth.T_carm_transducer(F_k)
+        frames = [render_frame(render_model, T_true, v, rng=rng_render, physical=physical, background=scene,
+                               photons_per_pixel=config.photons_per_pixel, n_splats=config.n_splats,
+                               splat_sigma_mm=config.splat_sigma_mm) for v in views]
+        try:
+            res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=orientation,
+                                rng=np.random.default_rng(rng_est.integers(2**63)), mode=config.pose_mode)
+        except PoseEstimationError as exc:
+            raise TargetingError(f"calibration pose {k}: the pose estimate failed its verdict ({exc}); "
+                                 "re-acquire the frames") from exc
+        F.append(F_k)
+        C.append(res.T_carm_transducer)
+        true_focal = T_true[:3, 3]
+        rows.append({"pose": k, **{f"true_{a}": v for a, v in zip("xyz", true_focal)},
+                     **{f"pred_{a}": v for a, v in zip("xyz", res.focal_point_mm)},
+                     "pose_error_mm": float(np.linalg.norm(res.focal_point_mm - true_focal)),
+                     "seconds": res.timings_s.get("total", np.nan)})
+    _, cal = _resolve_half_turns(F, C, truth.T_flange_transducer_nominal)
+    cal.check(config.max_focal_residual_mm, config.max_rotation_residual_deg)
+    return cal, pd.DataFrame(rows)
