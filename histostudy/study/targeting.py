@@ -14,7 +14,7 @@ One experiment, as in the lab, in four stages:
    from the TRUE transducer pose (``T_carm_base_true @ T_base_flange_reached @
    T_flange_transducer_true``); the pose is estimated (fast mode; the stages given, in notebook 05
    the shipped U-Net and VGG19, otherwise the Table I-degraded oracle segmenter and the oracle
-   orientation) and :func:`histostudy.calibration.handeye.calibrate` run on the pairs.
+   orientation) and :func:`histostudy.calibration.calibrate` run on the pairs.
    Its residuals are checked against a stated bound (:meth:`HandEyeCalibration.check`): targeting
    refuses to run on a calibration that fails it.
 3. **Pre-treatment CBCT** of the layered phantom; a target picked inside it with the whole zone

@@ -99,7 +99,7 @@ def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConf
 
     Returns the checked calibration and one row per pose (the true and estimated focal points,
     the pose-estimation error). Raises :class:`TargetingError` when a pose estimate fails its
-    verdict and :class:`~histostudy.calibration.handeye.CalibrationError` beyond the residual bound.
+    verdict and :class:`~histostudy.calibration.CalibrationError` beyond the residual bound.
     """
     robot.set_tcp(np.eye(4))  # calibration poses are flange poses
     scene = None if config.background == "none" else random_background(rng_scene, config.background)
