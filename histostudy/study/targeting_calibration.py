@@ -111,8 +111,7 @@ def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConf
         F_k = robot.flange_pose()  # what the encoders say
         T_true = truth.T_carm_transducer(F_k)
         frames = [render_frame(render_model, T_true, v, rng=rng_render, physical=physical, background=scene,
-                               photons_per_pixel=config.photons_per_pixel, n_splats=config.n_splats,
-                               splat_sigma_mm=config.splat_sigma_mm) for v in views]
+                               **config.frame_kwargs()) for v in views]
         try:
             res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=orientation,
                                 rng=np.random.default_rng(rng_est.integers(2**63)), mode=config.pose_mode)

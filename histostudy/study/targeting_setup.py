@@ -15,6 +15,7 @@ import numpy as np
 
 from histostudy.calibration import R_BASE_FLANGE_DOWN
 from histostudy.geometry import invert_transform, make_transform, matrix_from_rotvec, rotation_about_axis
+from histostudy.imaging import RenderSettings
 from histostudy.learning import OracleSegmenter
 from histostudy.robot import HOME_JOINTS_RAD, inverse_kinematics_closest
 from histostudy.treatment import STUDY_PLAN_INSET_MM, STUDY_PLAN_SPACING_MM
@@ -27,8 +28,13 @@ class TargetingError(RuntimeError):
 
 
 @dataclass(frozen=True)
-class TargetingStudyConfig:
+class TargetingStudyConfig(RenderSettings):
     """Parameters of the targeting study (defaults: the standard profile's, the paper's set-up).
+
+    The fluoroscopy rendering (``photons_per_pixel``, ``n_splats``, ``splat_sigma_mm``,
+    ``background``, §II-B.2) is the shared :class:`~histostudy.imaging.RenderSettings`, checks
+    included; ``background`` is the scene behind the transducer at calibration (``"phantom"``: the
+    water bath and phantom; ``"none"``: no scene, for fast tests).
 
     Attributes:
         n_experiments: phantom experiments (paper: 6).
@@ -38,9 +44,6 @@ class TargetingStudyConfig:
             about a different horizontal axis).
         calibration_axial_deg: the transducer is also turned about its axis by up to this.
         calibration_offset_mm: focal points of the calibration poses within ± this of the start.
-        background: scene behind the transducer at calibration (``"phantom"``: the water bath and
-            phantom; ``"none"``: no scene, for fast tests).
-        photons_per_pixel, n_splats, splat_sigma_mm: fluoroscopy rendering (§II-B.2).
         degradation: ``"table1"`` (oracle segmenter errs as the paper's U-Net) or ``"none"``.
         pose_mode: refinement mode of :func:`histostudy.pose.estimate_pose`.
         max_focal_residual_mm, max_rotation_residual_deg: the calibration's bound; targeting
@@ -68,10 +71,6 @@ class TargetingStudyConfig:
     calibration_tilt_deg: float = 15.0
     calibration_axial_deg: float = 30.0
     calibration_offset_mm: float = 15.0
-    background: str = "phantom"
-    photons_per_pixel: float = 5e4
-    n_splats: int = 16
-    splat_sigma_mm: float = 0.5
     degradation: str = "table1"
     pose_mode: str = "fast"
     max_focal_residual_mm: float = 2.0
@@ -96,6 +95,7 @@ class TargetingStudyConfig:
     bias_test_diameter_mm: float = 20.0
 
     def __post_init__(self):
+        super().__post_init__()
         if isinstance(self.n_experiments, bool) or int(self.n_experiments) != self.n_experiments or self.n_experiments < 1:
             raise ValueError(f"n_experiments must be an integer >= 1, got {self.n_experiments!r}")
         if int(self.n_calibration_poses) != self.n_calibration_poses or self.n_calibration_poses < 3:
@@ -107,8 +107,6 @@ class TargetingStudyConfig:
         if not (np.isfinite(self.bias_test_diameter_mm) and 0 < self.bias_test_diameter_mm <= 30):
             raise ValueError(f"bias_test_diameter_mm must be in (0, 30] mm, got {self.bias_test_diameter_mm!r}")
         OracleSegmenter.named(self.degradation)  # a clear error now for an unknown name
-        if self.background not in ("phantom", "abdomen", "mixed", "none"):
-            raise ValueError(f"background must be 'phantom', 'abdomen', 'mixed' or 'none', got {self.background!r}")
         if self.pose_mode not in ("paper", "fast"):
             raise ValueError(f"pose_mode must be 'paper' or 'fast', got {self.pose_mode!r}")
         for name in ("base_distance_mm", "flange_to_focal_mm"):
