@@ -20,8 +20,9 @@ import pandas as pd
 from histostudy.imaging import View, random_background, render_frame
 from histostudy.pose import PoseEstimationError, estimate_pose
 from histostudy.transducer import TransducerModel
-from .pose_estimation import (PoseStudyConfig, _bubble_centre, experiment_setups, random_pose_in_views,
-                              sweep_visible_points)
+from .pose_config import PoseStudyConfig
+from .pose_experiments import experiment_setups
+from .pose_geometry import bubble_cloud_centre_mm, random_pose_in_views, sweep_visible_points
 
 __all__ = ["PROJECTORS", "comparison_poses", "projector_comparison", "projector_summary"]
 
@@ -32,7 +33,7 @@ PROJECTORS = ("splatting", "rtk-joseph")
 def comparison_poses(config: PoseStudyConfig, seed: int, *, n_study: int, n_random: int, views: Sequence[View],
                      pose_model: TransducerModel) -> list[dict]:
     """The poses of the comparison: the centre poses of the first ``n_study`` experiments of the
-    pose study (:func:`~histostudy.study.pose_estimation.experiment_setups`, their phantom scenes),
+    pose study (:func:`~histostudy.study.pose_experiments.experiment_setups`, their phantom scenes),
     then ``n_random`` random poses in the paper's training ranges with the transducer centre and
     focal point in every view (mixed backgrounds), as the robustness sweep draws them. Each item:
     ``{"kind", "index", "T", "scene"}``."""
@@ -69,7 +70,7 @@ def projector_comparison(poses: Sequence[dict], *, pose_model: TransducerModel, 
     rows = []
     for p, seq in zip(poses, np.random.SeedSequence([seed, 11]).spawn(len(poses))):
         noise_seed, est_seed = seq.generate_state(2)
-        truth = _bubble_centre(physical, p["T"], config.bubble_offset_mm)
+        truth = bubble_cloud_centre_mm(physical, p["T"], config.bubble_offset_mm)
         for projector in PROJECTORS:
             rng = np.random.default_rng(noise_seed)
             t0 = time.perf_counter()
