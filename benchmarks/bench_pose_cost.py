@@ -34,8 +34,8 @@ import numpy as np
 
 from histostudy.geometry import rotation_angle
 from histostudy.imaging import default_biplane, render_labels
-from histostudy.pose.cost import DistanceMaps, PoseCost, apply_left_perturbation
-from histostudy.pose.refine import refine_levenberg_marquardt, refine_nelder_mead
+from histostudy.pose import (DistanceMaps, PoseCost, apply_left_perturbation, refine_levenberg_marquardt,
+                             refine_nelder_mead)
 from histostudy.transducer import FEATURE_CLASSES, TransducerModel, pose_facing
 
 
@@ -76,7 +76,7 @@ def jit_times() -> tuple[float, float]:
     code = textwrap.dedent("""
         import time, numpy as np
         from histostudy.imaging.carm import default_biplane
-        from histostudy.pose.cost import DistanceMaps, PoseCost
+        from histostudy.pose import DistanceMaps, PoseCost
         from histostudy.transducer import Feature
         view = default_biplane()[0]
         labels = np.zeros(view.shape, np.uint8); labels[400:500, 500:600] = 1

@@ -19,9 +19,8 @@ import numpy as np
 
 from histostudy.imaging import default_biplane, random_background, render_frame
 from histostudy.learning import OracleOrientation, OracleSegmenter
-from histostudy.pose import estimate_pose
-from histostudy.pose.cost import apply_left_perturbation
-from histostudy.study.pose_estimation import PoseStudyConfig, _experiment_pose
+from histostudy.pose import apply_left_perturbation, estimate_pose
+from histostudy.study.pose_estimation import PoseStudyConfig, experiment_pose
 from histostudy.transducer import TransducerModel
 
 STAGES = ("segmentation", "distance_maps", "orientation", "initialisation", "refinement", "verdict", "total")
@@ -40,7 +39,7 @@ def main() -> None:
     config = PoseStudyConfig()
     segmenter = config.segmenter()
     # Compile the numba kernels before timing anything.
-    warm = [render_frame(model, _experiment_pose(np.random.default_rng(0), config, np.zeros(3)), v,
+    warm = [render_frame(model, experiment_pose(np.random.default_rng(0), config, np.zeros(3)), v,
                          rng=np.random.default_rng(0), n_splats=1) for v in views]
     estimate_pose(warm, model, segmenter=OracleSegmenter(), orientation=OracleOrientation(), mode="fast",
                   raise_on_failure=False)
@@ -50,7 +49,7 @@ def main() -> None:
     for p in range(args.poses):
         rng = np.random.default_rng(100 + p)
         scene = random_background(rng, "phantom")
-        T = _experiment_pose(rng, config, scene.meta.get("phantom_center_mm", np.zeros(3)))
+        T = experiment_pose(rng, config, scene.meta.get("phantom_center_mm", np.zeros(3)))
         frames = [render_frame(render_model, T, v, rng=rng, physical=physical, background=scene) for v in views]
         truth = T[:3, :3] @ physical.focal_point_mm + T[:3, 3]
         start = apply_left_perturbation(T, np.r_[np.deg2rad([0.2, -0.2, 0.1]), [0.6, -0.6, 0.5]])

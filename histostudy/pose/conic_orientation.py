@@ -187,7 +187,7 @@ class ConicOrientation:
     def fit(self, labels, view: View, rng: np.random.Generator, maps=None) -> ConicFit | None:
         """The ellipse of the inner boundary in ``labels`` and the focal directions it gives, or
         None when the view shows no usable ellipse (see the class's thresholds). ``maps``: the
-        labels' :class:`~histostudy.pose.cost.DistanceMaps` when already made (else made here)."""
+        labels' :class:`~histostudy.pose.distance_maps.DistanceMaps` when already made (else made here)."""
         labels = np.asarray(labels)
         if labels.shape != tuple(view.shape):
             raise ValueError(f"labels have shape {labels.shape}, expected the view's {view.shape}")
@@ -206,7 +206,7 @@ class ConicOrientation:
             circles = circle_poses_from_conic(ellipse.conic, view, self.circle_radius_mm)
         except ValueError:
             return None
-        from .cost import DistanceMaps
+        from .distance_maps import DistanceMaps
 
         if maps is None:
             maps = DistanceMaps(view, labels, occlusion_aware=True)

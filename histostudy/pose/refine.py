@@ -8,8 +8,8 @@
   to eq. 3, with the analytic Jacobian of :meth:`~histostudy.pose.cost.PoseCost.normal_equations`.
 
 Both search over a perturbation of the current pose: ``R' = exp([w]x) R``, ``t' = t + v``
-(:func:`~histostudy.pose.cost.apply_left_perturbation`) — a rotation about the transducer origin,
-i.e. the focal point, in world axes, then a translation. Rotation and translation then do not
+(:func:`~histostudy.pose.perturbation.apply_left_perturbation`) — a rotation about the transducer
+origin, i.e. the focal point, in world axes, then a translation. Rotation and translation then do not
 mix: a step in ``v`` moves the focal point by exactly ``v``.
 """
 
@@ -23,7 +23,8 @@ import numpy as np
 import scipy.optimize
 
 from histostudy.geometry import check_rigid
-from .cost import PoseCost, apply_left_perturbation
+from .cost import PoseCost
+from .perturbation import apply_left_perturbation
 
 __all__ = ["RefineResult", "refine_levenberg_marquardt", "refine_nelder_mead"]
 

@@ -30,6 +30,11 @@ __all__ = ["PoseVerdict", "check_unexplained", "check_view_agreement", "judge_fi
            "view_disagreement_mm"]
 
 
+def _view_label(frame: Frame, index: int) -> str:
+    """The key of a view in the verdict's per-view figures: its name, else its index."""
+    return frame.view.name or str(index)
+
+
 @dataclass
 class PoseVerdict:
     """Whether a pose is plausible, and the figures it was judged on.
@@ -83,21 +88,24 @@ def view_disagreement_mm(cost: PoseCost, frames: Sequence[Frame], T_carm_transdu
         relaxed = refine_levenberg_marquardt(cost.select_views(a), T, max_iter=max_iter).T
         move = relaxed[:3, :3] @ focal_local + relaxed[:3, 3] - focal
         ray = f.view.ray_directions(f.view.project(focal[None]))[0]
-        out[f.view.name or str(a)] = float(np.linalg.norm(move - (move @ ray) * ray))
+        out[_view_label(f, a)] = float(np.linalg.norm(move - (move @ ray) * ray))
     return out
 
 
 def unexplained_fraction(view, labels: np.ndarray, model: TransducerModel, T_carm_transducer,
-                         tolerance_px: float) -> float:
+                         tolerance_px: float, *, points_mm: np.ndarray | None = None) -> float:
     """The fraction of ``labels``' segmented pixels (any class > 0) farther than ``tolerance_px``
     from every point of ``model`` projected at ``T_carm_transducer`` into ``view`` (NaN when none
-    is segmented); the image-to-model counterpart of eq. 3's model-to-image distances."""
+    is segmented); the image-to-model counterpart of eq. 3's model-to-image distances.
+
+    ``points_mm``: the model's points of every class stacked in its class order (transducer
+    frame), when the caller judges many poses of one model and stacks them once."""
     labels = np.asarray(labels)
     segmented = labels > 0
     if not segmented.any():
         return float("nan")
     T = np.asarray(T_carm_transducer, dtype=np.float64)
-    points = np.vstack([p for p in model.points.values() if len(p)])
+    points = np.vstack([p for p in model.points.values() if len(p)]) if points_mm is None else points_mm
     uvw = view.project_homogeneous(points @ T[:3, :3].T + T[:3, 3])
     front = uvw[:, 2] > 0
     px = np.round(uvw[front, :2] / uvw[front, 2:3]).astype(np.int64)
@@ -109,11 +117,12 @@ def unexplained_fraction(view, labels: np.ndarray, model: TransducerModel, T_car
     return float(np.mean(distance[segmented] > tolerance_px))
 
 
-def check_unexplained(verdict: PoseVerdict, frames, labels, model, T, limit: float, tolerance_px: float) -> None:
+def check_unexplained(verdict: PoseVerdict, frames, labels, model, T, limit: float, tolerance_px: float, *,
+                      points_mm: np.ndarray | None = None) -> None:
     """Adds each view's :func:`unexplained_fraction` to ``verdict``; fails it where one exceeds ``limit``."""
     for a, (f, lab) in enumerate(zip(frames, labels)):
-        name = f.view.name or str(a)
-        fraction = unexplained_fraction(f.view, lab, model, T, tolerance_px)
+        name = _view_label(f, a)
+        fraction = unexplained_fraction(f.view, lab, model, T, tolerance_px, points_mm=points_mm)
         verdict.unexplained_fraction[name] = fraction
         if np.isfinite(fraction) and fraction > limit:
             verdict.reasons.append(f"view {name!r}: {100 * fraction:.0f}% of the segmented transducer lies over "
@@ -144,13 +153,14 @@ def judge_fit(cost: PoseCost, frames: Sequence[Frame], T, centre, max_rms_px: fl
     all_points = np.vstack([cost.points[k] for k in cost.classes])
     world = all_points @ T[:3, :3].T + T[:3, 3]
     for a, f in enumerate(frames):
-        name = f.view.name or str(a)
+        name = _view_label(f, a)
         active = cost.active[a] & (lam > 0)
         per_class = terms[a, active] / lam[active]
         rms[name] = float(np.sqrt(per_class.mean())) if per_class.size else float("inf")
         with np.errstate(divide="ignore", invalid="ignore"):
-            class_rms[name] = {Feature(k).name.lower(): (float(np.sqrt(terms[a, s] / lam[s])) if cost.active[a][s] and lam[s] > 0
-                                                         else float("nan")) for s, k in enumerate(cost.classes)}
+            class_rms[name] = {Feature(k).name.lower(): (float(np.sqrt(terms[a, s] / lam[s]))
+                                                         if cost.active[a][s] and lam[s] > 0 else float("nan"))
+                               for s, k in enumerate(cost.classes)}
         body = class_rms[name].get(Feature.TRANSDUCER.name.lower(), float("nan"))
         if max_body_rms_px is not None and np.isfinite(body) and body > max_body_rms_px:
             reasons.append(f"view {name!r}: the element body's RMS distance {body:.2f} px > {max_body_rms_px} px")

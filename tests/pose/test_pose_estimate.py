@@ -11,8 +11,7 @@ import pytest
 from histostudy.geometry import rotation_angle, transform_from_params
 from histostudy.imaging import Frame, default_biplane
 from histostudy.learning import OracleOrientation, OracleSegmenter, angles_from_direction, beam_direction_of_pose
-from histostudy.pose import PoseEstimationError, PoseResult, estimate_pose
-from histostudy.pose.cost import apply_left_perturbation
+from histostudy.pose import PoseEstimationError, PoseResult, apply_left_perturbation, estimate_pose
 from histostudy.transducer import Feature, TransducerModel, pose_facing
 
 from pose_frames import POSES, focal_error, frames_of
@@ -208,8 +207,7 @@ def test_the_fast_refinement_runs_to_the_minimum_of_its_capped_cost(models, fram
     """Labels with Table I's errors make the capped cost's valley long and flat: a refinement that
     stopped at a 1e-3 relative decrease left pose 0's focal point 0.40 mm short of the minimum
     (error 0.33 mm, 0.11 mm at the minimum). Run on, it ends within a few hundredths."""
-    from histostudy.pose.cost import DistanceMaps, PoseCost
-    from histostudy.pose.refine import refine_levenberg_marquardt
+    from histostudy.pose import DistanceMaps, PoseCost, refine_levenberg_marquardt
 
     res = estimate_pose(frames[0], models[0], segmenter=OracleSegmenter.named("table1"), orientation=OracleOrientation(),
                         rng=np.random.default_rng(3), mode="fast")
@@ -349,7 +347,7 @@ def test_bad_arguments_raise(models, frames):
 def test_default_stages_are_the_shipped_networks_when_good_enough_else_the_oracles(monkeypatch):
     import types
 
-    import histostudy.pose.estimate as pose
+    import histostudy.pose.learned_stages as pose
 
     good_seg = types.SimpleNamespace(manifest={"validation": {"pixel_accuracy": 0.97}})
     good_orient = types.SimpleNamespace(manifest={"validation": {"azimuth_mae_deg": 1.5, "elevation_mae_deg": 2.5}})

@@ -1,0 +1,58 @@
+"""What :func:`~.estimate.estimate_pose` returns (§II-B.3-4): the pose with its cost, timings and
+verdict (:class:`PoseResult`), or the error that says the frames support no pose
+(:class:`PoseEstimationError`). Poses are 4x4 ``T_carm_transducer`` (mm, C-arm/CBCT frame).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .init import InitResult
+from .refine import RefineResult
+from .verdict import PoseVerdict
+
+__all__ = ["PoseEstimationError", "PoseResult"]
+
+
+class PoseEstimationError(RuntimeError):
+    """The frames do not support a pose: no features, or an implausible result (see ``verdict``)."""
+
+    def __init__(self, message: str, verdict: "PoseVerdict | None" = None, result: "PoseResult | None" = None):
+        super().__init__(message)
+        self.verdict = verdict
+        self.result = result
+
+
+@dataclass
+class PoseResult:
+    """What :func:`~.estimate.estimate_pose` found.
+
+    Attributes:
+        T_carm_transducer: 4x4 pose, transducer -> C-arm (CBCT) frame.
+        focal_point_mm: the model's geometric focal point in CBCT mm (eq. 5, ``f_c = hTc f_h``).
+        cost: eq. 3 at the pose (px², summed over views).
+        iterations, evaluations: of the refinement (evaluations also count the initialisation's).
+        timings_s: seconds per stage: segmentation, distance_maps, orientation, initialisation,
+            refinement, verdict, total.
+        verdict: the plausibility checks.
+        mode: ``"paper"`` or ``"fast"``.
+        init: the initialisation's record (None for a warm start).
+        refine: the refinement's record.
+        labels: the segmentation of each frame the cost was built on.
+        retries: initial hypotheses refined after the first failed the verdict.
+    """
+
+    T_carm_transducer: np.ndarray
+    focal_point_mm: np.ndarray
+    cost: float
+    iterations: int
+    evaluations: int
+    timings_s: dict
+    verdict: PoseVerdict
+    mode: str
+    init: InitResult | None
+    refine: RefineResult
+    labels: list = field(repr=False, default_factory=list)
+    retries: int = 0
