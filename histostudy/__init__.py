@@ -1,10 +1,14 @@
 """histostudy: the X-ray C-arm guided automatic targeting system for histotripsy of Wagner et al.
 (IEEE TBME 2023), rebuilt in Python and reproduced on synthetic data.
 
-Modules (see docs/architecture.md, Data flow): ``geometry`` (rotations, transforms), ``carm``
-(views, eq. 1-2), ``transducer`` (digital and physical model, §II-B.1), ``render`` and ``anatomy``
-(synthetic fluoroscopy, §II-B.2), ``frame`` (images with their geometry), ``profiles``,
-``pipeline`` and ``report`` (the papermill study and its report), ``paper`` (the paper's values).
+One subpackage per concern, lowest layer first (docs/architecture.md, "Layers"; each imports only
+from the layers below it): ``core`` (file writes, seeding, provenance), ``geometry`` (rigid
+transforms), ``transducer`` (§II-B.1), ``imaging`` (views eq. 1-2, frames, rendering, scenes,
+CBCT, §II-A, §II-B.2), ``learning`` (U-Net and VGG19, §II-B.2, §II-B.4), ``pose`` (eq. 3-5,
+§II-B.3-4), ``calibration`` and ``robot`` (§II-C), ``treatment`` (§II-D, §II-E.3-4), ``study``
+(one front module per notebook) and ``reporting`` (profiles, the papermill pipeline, the report
+beside the paper's values). The modules at this level other than ``cli`` are deprecated shims of
+the old flat paths (README, "Where modules moved").
 """
 
 __version__ = "0.1.0"

@@ -64,7 +64,7 @@ class PoseOptions:
             pixel of a higher-priority class count for the classes it hides (see
             :class:`~.cost.DistanceMaps`): with priority-resolved labels, per-class maps bias the
             optimum by up to about 1 mm on noise-free frames, occlusion-aware maps by a few
-            hundredths (tests/test_pose_estimate.py; notebook 04 compares both).
+            hundredths (tests/pose/test_pose_estimate.py; notebook 04 compares both).
         class_weights: eq. 3's ``lambda_k`` (default 1 each).
         outside_distance_px: eq. 3's constant distance for points off the map (paper 0.1 px).
         init_points_per_class: points per class of the cheaper cost the grid and axial searches use.

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from histostudy.imaging import RenderSettings
 from histostudy.learning import OracleOrientation, OracleSegmenter, OrientationSource, Segmenter
 from histostudy.pose import MAP_KINDS, learned_stage_shortfalls
 
@@ -22,14 +23,16 @@ __all__ = ["PoseSectionParameters", "PoseStudyConfig", "StudyStages", "study_sta
 
 
 @dataclass(frozen=True)
-class PoseStudyConfig:
+class PoseStudyConfig(RenderSettings):
     """Parameters of the pose-estimation study (defaults: the standard profile's).
+
+    The rendering (``photons_per_pixel``, ``n_splats``, ``splat_sigma_mm``, §II-B.2, and the
+    ``background`` behind the transducer, the paper's pose studies: agarose phantoms) is the
+    shared :class:`~histostudy.imaging.RenderSettings`, checks included.
 
     Attributes:
         n_experiments: phantom experiments (paper: 10).
         margin_mm: radii drawn per experiment (paper: 10 or 12.5 mm, spheres of 2.0 or 2.5 cm).
-        background: scene behind the transducer (paper's pose studies: agarose phantoms).
-        photons_per_pixel, n_splats, splat_sigma_mm: rendering (§II-B.2).
         degradation: ``"table1"`` (oracle errs as the paper's U-Net, Table I) or ``"none"``.
         modes: refinement modes to run on the same frames (``"paper"``, ``"fast"``).
         distance_maps: map kinds to run on the same frames (``"occlusion_aware"``, ``"per_class"``,
@@ -44,10 +47,6 @@ class PoseStudyConfig:
 
     n_experiments: int = 10
     margin_mm: tuple = (10.0, 12.5)
-    background: str = "phantom"
-    photons_per_pixel: float = 5e4
-    n_splats: int = 16
-    splat_sigma_mm: float = 0.5
     degradation: str = "table1"
     modes: tuple = ("paper", "fast")
     distance_maps: tuple = ("occlusion_aware",)
@@ -58,6 +57,7 @@ class PoseStudyConfig:
     bubble_offset_mm: tuple = (0.0, 0.0, 0.0)
 
     def __post_init__(self):
+        super().__post_init__()
         if self.n_experiments < 1:
             raise ValueError(f"n_experiments must be >= 1, got {self.n_experiments!r}")
         if not self.margin_mm or any(not (np.isfinite(r) and r > 0) for r in self.margin_mm):

@@ -102,8 +102,7 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
         centre_estimate = None
         for position, T_true in exp.T_true.items():
             frames = [render_frame(render_model, T_true, v, rng=rng_render, physical=physical, background=scene,
-                                   photons_per_pixel=config.photons_per_pixel, n_splats=config.n_splats,
-                                   splat_sigma_mm=config.splat_sigma_mm) for v in views]
+                                   **config.frame_kwargs()) for v in views]
             truth = bubble_cloud_centre_mm(physical, T_true, config.bubble_offset_mm)
             variants = list(config.variants)
             if config.track and position != "centre":

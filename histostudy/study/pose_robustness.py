@@ -88,8 +88,7 @@ def _sweep_pose(i: int, seq: np.random.SeedSequence, *, pose_model, render_model
     T = random_pose_in_views(rng_pose, views, visible_points_mm=sweep_visible_points(pose_model))
     scene = random_background(rng_scene, "mixed")
     frames = [render_frame(render_model, T, v, rng=rng_render, physical=physical, background=scene,
-                           photons_per_pixel=config.photons_per_pixel, n_splats=config.n_splats,
-                           splat_sigma_mm=config.splat_sigma_mm) for v in views]
+                           **config.frame_kwargs()) for v in views]
     truth = bubble_cloud_centre_mm(physical, T, config.bubble_offset_mm)
     rows = []
     for init in inits:

@@ -223,8 +223,7 @@ class PoseSection:
         scene = random_background(rng_fig, p.background)
         T_true = experiment_pose(rng_fig, self.config, scene.meta.get("phantom_center_mm", np.zeros(3)))
         frames = [render_frame(self.render_model, T_true, v, rng=rng_fig, physical=self.physical, background=scene,
-                               photons_per_pixel=p.photons_per_pixel, n_splats=p.n_splats,
-                               splat_sigma_mm=p.splat_sigma_mm) for v in self.views]
+                               **self.config.frame_kwargs()) for v in self.views]
         result = estimate_pose(frames, self.pose_model, segmenter=self.stages.segmenter,
                                orientation=self.stages.orientation, rng=rng_fig, mode=self.table_mode,
                                distance_maps=self.main_maps, raise_on_failure=False)

@@ -38,8 +38,7 @@ def degradation_sweep(levels: Sequence[float], *, pose_model: TransducerModel, r
         scene = random_background(rng_scene, config.background)
         T = experiment_pose(rng_pose, config, scene.meta.get("phantom_center_mm", np.zeros(3)))
         frames = [render_frame(render_model, T, v, rng=rng_render, physical=physical, background=scene,
-                               photons_per_pixel=config.photons_per_pixel, n_splats=config.n_splats,
-                               splat_sigma_mm=config.splat_sigma_mm) for v in views]
+                               **config.frame_kwargs()) for v in views]
         truth = bubble_cloud_centre_mm(physical, T, config.bubble_offset_mm)
         for s in levels:
             if not (0 <= s < 1 / (1 - min(base.recall.values())) ):

@@ -76,8 +76,7 @@ def projector_comparison(poses: Sequence[dict], *, pose_model: TransducerModel, 
             t0 = time.perf_counter()
             if projector == "splatting":
                 frames = [render_frame(render_model, p["T"], v, rng=rng, physical=physical, background=p["scene"],
-                                       photons_per_pixel=config.photons_per_pixel, n_splats=config.n_splats,
-                                       splat_sigma_mm=config.splat_sigma_mm) for v in views]
+                                       **config.frame_kwargs()) for v in views]
             else:
                 frames = [render_frame_rtk(render_model, physical, p["T"], v, rng=rng, background=p["scene"],
                                            photons_per_pixel=config.photons_per_pixel, voxel_mm=voxel_mm)

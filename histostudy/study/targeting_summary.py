@@ -12,7 +12,8 @@ import numpy as np
 import pandas as pd
 
 from histostudy.calibration import calibration_sensitivity
-from .pose_estimation import DIRECTIONS, _mean_sd
+from .pose_geometry import DIRECTIONS
+from .pose_metrics import mean_sd
 
 __all__ = ["CALIBRATION_TABLE_CAPTION", "ERROR_TABLE_CAPTION", "SUMMARY_TABLE_CAPTION", "calibration_table",
            "error_table", "first_robot_rows", "robot_max_difference", "sensitivity_caption",
@@ -39,11 +40,11 @@ def targeting_values(records: pd.DataFrame, prefix: str = "") -> dict:
         raise ValueError("records is empty: no experiment to summarise")
     if f"{prefix}err_euclidean" not in records:
         raise ValueError(f"records has no {prefix}err_euclidean column (bias correction off?)")
-    values = {"targeting.euclidean": _mean_sd(records[f"{prefix}err_euclidean"])}
+    values = {"targeting.euclidean": mean_sd(records[f"{prefix}err_euclidean"])}
     for d in DIRECTIONS:
-        values[f"targeting.mae.{d}"] = _mean_sd(np.abs(records[f"{prefix}err_{d}"]))
-        values[f"targeting.bias.{d}"] = _mean_sd(records[f"{prefix}err_{d}"])
-    values["targeting.radius_mae"] = _mean_sd(np.abs(records[f"{prefix}radius_err_mm"]))
+        values[f"targeting.mae.{d}"] = mean_sd(np.abs(records[f"{prefix}err_{d}"]))
+        values[f"targeting.bias.{d}"] = mean_sd(records[f"{prefix}err_{d}"])
+    values["targeting.radius_mae"] = mean_sd(np.abs(records[f"{prefix}radius_err_mm"]))
     return values
 
 
@@ -114,10 +115,10 @@ def targeting_comparisons(records: pd.DataFrame) -> list[dict]:
     main = first_robot_rows(records)
     out = [dict(key="targeting.calibration_error_at_target",
                 label="Calibration error at the target (true focal point of the commanded pose)",
-                ours=_mean_sd(main["cal_error_at_target_mm"]), unit="mm", paper_key="",
+                ours=mean_sd(main["cal_error_at_target_mm"]), unit="mm", paper_key="",
                 note="the simulation's ground truth; the lab cannot measure it"),
            dict(key="targeting.calibration_rotation", label="Calibration X (transducer on flange) rotation error",
-                ours=_mean_sd(main["cal_X_rotation_deg"]), unit="°", paper_key="")]
+                ours=mean_sd(main["cal_X_rotation_deg"]), unit="°", paper_key="")]
     values = targeting_values(main)
     out.append(dict(key="targeting.euclidean", label="Targeting error, Euclidean", ours=values["targeting.euclidean"],
                     unit="mm"))

@@ -224,7 +224,7 @@ def segment_treatment_zone(
     window's curvature bias cancels.
 
     Measured on 1 mm CBCTs of the rotated layered phantom treated in 20 and 25 mm spheres (6 per
-    level, default parameters; ``tests/test_cbct.py`` checks the 0.5 mm / 20 HU level): fitted
+    level, default parameters; ``tests/treatment/test_zone.py`` checks the 0.5 mm / 20 HU level): fitted
     sphere radius bias -0.02, +0.07, +0.11 and +0.44 mm at blur/noise 0/0, 0.5 mm/20 HU,
     1 mm/40 HU and 1.5 mm/80 HU (the coarse stage alone: -0.46, -0.31, -0.18, -0.10); largest
     radius error along an oblique axis 0.27, 0.30, 0.66, 1.00 mm (coarse stage: 0.93, 0.55, 0.53,
