@@ -5,26 +5,11 @@ gate, and the flange pose that puts the focal point on a target (``procedure``);
 paper, simulated poses, pose noise and the Monte-Carlo of the calibration error (``sensitivity``).
 """
 
+from . import axxb as _axxb, dual_quaternion as _dual_quaternion, procedure as _procedure, sensitivity as _sensitivity
 from .axxb import AXXBSolution, DegenerateMotionError, daniilidis_matrix, solve_axxb, solve_axxb_dual_quaternions
 from .dual_quaternion import dual_quaternion_from_transform, transform_from_dual_quaternion
 from .procedure import CalibrationError, HandEyeCalibration, calibrate, flange_pose_for_target, motion_pairs
 from .sensitivity import R_BASE_FLANGE_DOWN, calibration_sensitivity, perturb_pose, simulate_poses
 
-__all__ = [
-    "AXXBSolution",
-    "CalibrationError",
-    "DegenerateMotionError",
-    "HandEyeCalibration",
-    "R_BASE_FLANGE_DOWN",
-    "calibrate",
-    "calibration_sensitivity",
-    "daniilidis_matrix",
-    "dual_quaternion_from_transform",
-    "flange_pose_for_target",
-    "motion_pairs",
-    "perturb_pose",
-    "simulate_poses",
-    "solve_axxb",
-    "solve_axxb_dual_quaternions",
-    "transform_from_dual_quaternion",
-]
+# every public name of the modules above, as each module's __all__ declares it
+__all__ = list(dict.fromkeys([*_axxb.__all__, *_dual_quaternion.__all__, *_procedure.__all__, *_sensitivity.__all__]))

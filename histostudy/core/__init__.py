@@ -4,18 +4,10 @@ honour the umask (``io``), the one seeding policy (``seeding``: every random dra
 (``provenance``). See docs/architecture.md, "Seeding and determinism".
 """
 
+from . import io as _io, provenance as _provenance, seeding as _seeding
 from .io import atomic_path, atomic_write_bytes, atomic_write_json, atomic_write_text, to_jsonable
 from .provenance import git_commit, package_versions, provenance
 from .seeding import as_generator
 
-__all__ = [
-    "as_generator",
-    "atomic_path",
-    "atomic_write_bytes",
-    "atomic_write_json",
-    "atomic_write_text",
-    "git_commit",
-    "package_versions",
-    "provenance",
-    "to_jsonable",
-]
+# every public name of the modules above, as each module's __all__ declares it
+__all__ = list(dict.fromkeys([*_io.__all__, *_provenance.__all__, *_seeding.__all__]))

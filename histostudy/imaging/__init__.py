@@ -9,6 +9,11 @@ phantom and its simulated CBCT (``cbct``); and volume files (``volume_io``, whic
 ``nifti_io`` and DICOM to ``dicom_io``, both laid onto the Volume grid by ``volume_io_grid``).
 """
 
+from . import (anatomy as _anatomy, anatomy_csg as _anatomy_csg, anatomy_params as _anatomy_params,
+               anatomy_scene as _anatomy_scene, anatomy_shapes as _anatomy_shapes, carm as _carm, cbct as _cbct,
+               dicom_io as _dicom_io, frame as _frame, nifti_io as _nifti_io, render as _render,
+               render_settings as _render_settings, rtk_projector as _rtk_projector, volume as _volume,
+               volume_io as _volume_io, volume_io_grid as _volume_io_grid)
 from .anatomy import MIXED_ABDOMEN_PROBABILITY, random_abdomen, random_background, random_phantom_setup
 from .anatomy_csg import Difference, Intersection
 from .anatomy_params import AbdomenParams, PhantomParams
@@ -26,54 +31,9 @@ from .volume import Volume, check_mask, check_volume, vector3_mm
 from .volume_io import SUPPORTED_FORMATS, load_volume
 from .volume_io_grid import AXIS_TOLERANCE
 
-__all__ = [
-    "AXIS_TOLERANCE",
-    "AbdomenParams",
-    "Anatomy",
-    "BACKGROUNDS",
-    "Background",
-    "Box",
-    "Difference",
-    "Ellipsoid",
-    "EllipticCylinder",
-    "Frame",
-    "Intersection",
-    "MIXED_ABDOMEN_PROBABILITY",
-    "PhantomParams",
-    "PhantomSpec",
-    "Primitive",
-    "RenderSettings",
-    "SLICE_POSITION_RTOL",
-    "SUPPORTED_FORMATS",
-    "StaticBackground",
-    "View",
-    "Volume",
-    "add_poisson_noise",
-    "background_line_integrals",
-    "check_mask",
-    "check_target",
-    "check_volume",
-    "default_biplane",
-    "forward_project",
-    "load_frame",
-    "load_views",
-    "load_volume",
-    "phantom_mask",
-    "phantom_values",
-    "phantom_volume",
-    "random_abdomen",
-    "random_background",
-    "random_phantom_setup",
-    "random_target",
-    "render_frame",
-    "render_frame_rtk",
-    "render_labels",
-    "render_line_integrals",
-    "rtk_available",
-    "rtk_geometry",
-    "save_views",
-    "save_volume_nifti",
-    "simulate_cbct",
-    "vector3_mm",
-    "voxelise_model",
-]
+# every public name of the modules above, as each module's __all__ declares it
+__all__ = list(dict.fromkeys([*_anatomy.__all__, *_anatomy_csg.__all__, *_anatomy_params.__all__,
+                              *_anatomy_scene.__all__, *_anatomy_shapes.__all__, *_carm.__all__, *_cbct.__all__,
+                              *_dicom_io.__all__, *_frame.__all__, *_nifti_io.__all__, *_render.__all__,
+                              *_render_settings.__all__, *_rtk_projector.__all__, *_volume.__all__, *_volume_io.__all__,
+                              *_volume_io_grid.__all__]))

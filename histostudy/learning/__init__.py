@@ -7,6 +7,10 @@ orientation angles and sources (``orientation``). The pose estimation above this
 segmenter and an orientation source.
 """
 
+from . import (nets as _nets, checkpoints as _checkpoints, datasets as _datasets, orientation as _orientation,
+               preprocess as _preprocess, segment as _segment, training as _training,
+               training_config as _training_config, training_export as _training_export,
+               training_losses as _training_losses)
 from .nets import UNet, VGG19, build_network
 from .checkpoints import (MODELS_DIR, load_checkpoint, load_network, load_shipped, manifest_path, save_checkpoint,
                           sha256_file, shipped_model, training_summary)
@@ -24,57 +28,7 @@ from .training_config import FineTuneConfig, SEGMENTATION_LOSSES, TrainingConfig
 from .training_export import export
 from .training_losses import angle_loss, dice_loss
 
-__all__ = [
-    "FineTuneConfig",
-    "HybridFrames",
-    "HybridImageDataset",
-    "LearnedOrientation",
-    "MODELS_DIR",
-    "N_ORIENTATION_CLASSES",
-    "OracleOrientation",
-    "OracleSegmenter",
-    "OrientationSource",
-    "RenderConfig",
-    "SEGMENTATION_LOSSES",
-    "SPLIT_CODES",
-    "SegmentationDegradation",
-    "Segmenter",
-    "TrainingConfig",
-    "TrainingResult",
-    "UNet",
-    "UNetSegmenter",
-    "VGG19",
-    "angle_loss",
-    "angles_from_direction",
-    "beam_direction_of_pose",
-    "build_network",
-    "default_cache_dir",
-    "default_segmenter",
-    "default_vgg19",
-    "dice_loss",
-    "direction_candidates",
-    "export",
-    "flip_angles",
-    "hemisphere_angles",
-    "hemisphere_directions",
-    "keep_largest_component",
-    "load_checkpoint",
-    "load_network",
-    "load_shipped",
-    "manifest_path",
-    "masks_from_labels",
-    "orientation_angle_error",
-    "orientation_class",
-    "pool_labels",
-    "prepare_image",
-    "random_training_pose",
-    "run_frame_sets",
-    "save_checkpoint",
-    "select_direction",
-    "sha256_file",
-    "shipped_model",
-    "train",
-    "training_summary",
-    "true_angles",
-    "wrap_angle",
-]
+# every public name of the modules above, as each module's __all__ declares it
+__all__ = list(dict.fromkeys([*_nets.__all__, *_checkpoints.__all__, *_datasets.__all__, *_orientation.__all__,
+                              *_preprocess.__all__, *_segment.__all__, *_training.__all__, *_training_config.__all__,
+                              *_training_export.__all__, *_training_losses.__all__]))

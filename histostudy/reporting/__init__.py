@@ -4,33 +4,13 @@ papermill pipeline (``pipeline``), the report that sets each measured value besi
 (``viz``). The top layer: nothing below imports it.
 """
 
+from . import paper as _paper, pipeline as _pipeline, profiles as _profiles, report as _report, viz as _viz
 from .paper import PAPER, PaperValue, paper_value
 from .pipeline import NotebookFailed, discover_notebooks, run_study, select_notebooks
 from .profiles import PROFILE_NAMES, Profile, load_profile
 from .report import RESULTS_FILE, SectionWriter, build_report, format_measure, load_section, results_coverage
 from .viz import FEATURE_COLOURS, label_rgb, model_scene, plot_frames_with_labels, plot_pose_overlay, targeting_scene
 
-__all__ = [
-    "FEATURE_COLOURS",
-    "NotebookFailed",
-    "PAPER",
-    "PROFILE_NAMES",
-    "PaperValue",
-    "Profile",
-    "RESULTS_FILE",
-    "SectionWriter",
-    "build_report",
-    "discover_notebooks",
-    "format_measure",
-    "label_rgb",
-    "load_profile",
-    "load_section",
-    "model_scene",
-    "paper_value",
-    "plot_frames_with_labels",
-    "plot_pose_overlay",
-    "results_coverage",
-    "run_study",
-    "select_notebooks",
-    "targeting_scene",
-]
+# every public name of the modules above, as each module's __all__ declares it
+__all__ = list(dict.fromkeys([*_paper.__all__, *_pipeline.__all__, *_profiles.__all__, *_report.__all__,
+                              *_viz.__all__]))

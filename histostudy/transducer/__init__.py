@@ -5,18 +5,11 @@ are rendered from, with the manufacturing mismatch of §IV (``physical``); and t
 pose (``placement``).
 """
 
+from . import digital as _digital, physical as _physical, placement as _placement, spec as _spec
 from .digital import TransducerModel
 from .physical import ManufacturingDeviation
 from .placement import pose_facing
 from .spec import FEATURE_CLASSES, Feature, LABEL_PRIORITY, TransducerSpec, quadrant_index
 
-__all__ = [
-    "FEATURE_CLASSES",
-    "Feature",
-    "LABEL_PRIORITY",
-    "ManufacturingDeviation",
-    "TransducerModel",
-    "TransducerSpec",
-    "pose_facing",
-    "quadrant_index",
-]
+# every public name of the modules above, as each module's __all__ declares it
+__all__ = list(dict.fromkeys([*_digital.__all__, *_physical.__all__, *_placement.__all__, *_spec.__all__]))

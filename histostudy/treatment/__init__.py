@@ -4,26 +4,11 @@ clouds, the mixed phantom and the post-treatment scan (``bubble_cloud``); the pr
 its segmentation in the post-treatment CBCT (``zone``).
 """
 
+from . import bubble_cloud as _bubble_cloud, execution as _execution, plan as _plan, zone as _zone
 from .bubble_cloud import BUBBLE_CLOUD_SIZE_MM, bubble_cloud_mask, post_treatment_phantom, scan_treated_zone
 from .execution import JOURNAL_FORMAT, TreatmentRun, execute_treatment, load_journal
 from .plan import STUDY_PLAN_INSET_MM, STUDY_PLAN_SPACING_MM, TreatmentPlan, plan_treatment
 from .zone import PAPER_ZONE_DIAMETERS_MM, TreatmentZone, ZoneSegmentation, segment_treatment_zone
 
-__all__ = [
-    "BUBBLE_CLOUD_SIZE_MM",
-    "JOURNAL_FORMAT",
-    "PAPER_ZONE_DIAMETERS_MM",
-    "STUDY_PLAN_INSET_MM",
-    "STUDY_PLAN_SPACING_MM",
-    "TreatmentPlan",
-    "TreatmentRun",
-    "TreatmentZone",
-    "ZoneSegmentation",
-    "bubble_cloud_mask",
-    "execute_treatment",
-    "load_journal",
-    "plan_treatment",
-    "post_treatment_phantom",
-    "scan_treated_zone",
-    "segment_treatment_zone",
-]
+# every public name of the modules above, as each module's __all__ declares it
+__all__ = list(dict.fromkeys([*_bubble_cloud.__all__, *_execution.__all__, *_plan.__all__, *_zone.__all__]))
