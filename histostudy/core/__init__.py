@@ -5,7 +5,7 @@ honour the umask (``io``), the one seeding policy (``seeding``: every random dra
 """
 
 from . import io as _io, provenance as _provenance, seeding as _seeding
-from .io import atomic_path, atomic_write_bytes, atomic_write_json, atomic_write_text, to_jsonable
+from .io import atomic_path, atomic_write_bytes, atomic_write_json, atomic_write_text, process_umask, to_jsonable
 from .provenance import git_commit, package_versions, provenance
 from .seeding import as_generator
 

@@ -17,7 +17,21 @@ from typing import Iterator
 
 import numpy as np
 
-__all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_json", "atomic_write_text", "to_jsonable"]
+__all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_json", "atomic_write_text", "process_umask", "to_jsonable"]
+
+
+def process_umask() -> int:
+    """The process's file-mode creation mask (e.g. 0o022), read without changing it where the OS
+    says it (Linux ``/proc/self/status``); elsewhere set and restored at once."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 @contextlib.contextmanager
@@ -25,7 +39,9 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     """Yield a temporary path beside ``path``; rename it onto ``path`` if the block succeeds.
 
     ``suffix`` is kept on the temporary name (default: that of ``path``) for writers that pick a
-    format from the file extension (matplotlib, safetensors).
+    format from the file extension (matplotlib, safetensors). The file gets the mode a plain
+    ``open(path, "w")`` would give (0o666 less the umask: 0644 under umask 022), not the private
+    0600 of the temporary file, so colleagues and web servers can read reports and results.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -37,6 +53,7 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         yield tmp
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
+        os.chmod(tmp, 0o666 & ~process_umask())
         os.replace(tmp, path)
     finally:
         if tmp.exists():

@@ -38,3 +38,22 @@ def test_json_conversion_of_numpy_and_nan(tmp_path):
     assert to_jsonable(obj) == {"a": 1.5, "b": [0, 1, 2], "c": None, "d": [2, True]}
     path = atomic_write_json(tmp_path / "r.json", obj)
     assert json.loads(path.read_text())["c"] is None
+
+
+@pytest.mark.parametrize("umask, mode", [(0o022, 0o644), (0o077, 0o600), (0o002, 0o664)])
+def test_written_files_honour_the_umask_like_a_plain_open(tmp_path, umask, mode):
+    import os
+    import stat
+
+    from histostudy.core import process_umask
+
+    old = os.umask(umask)
+    try:
+        assert process_umask() == umask
+        written = atomic_write_text(tmp_path / f"r{umask:o}.md", "report")
+        with open(tmp_path / f"plain{umask:o}.md", "w") as fh:  # the reference: what open() gives
+            fh.write("x")
+        assert stat.S_IMODE(written.stat().st_mode) == mode
+        assert stat.S_IMODE((tmp_path / f"plain{umask:o}.md").stat().st_mode) == mode
+    finally:
+        os.umask(old)
