@@ -1,4 +1,4 @@
-"""Executing a treatment plan on the robot with a journal that resumes where it stopped (paper §II-D).
+"""Executing a treatment plan on the robot with a journal that never fires a point twice (§II-D).
 
 The robot is commanded in its base frame with the TCP at the transducer's focal point, so
 ``T_base_tcp`` (4x4, mm) positions the focal point; each plan point (C-arm frame, mm) is mapped into
@@ -6,15 +6,16 @@ the base frame by the calibration ``T_base_carm`` (§II-C) and reached by a line
 transducer's orientation ``R_base_tcp`` kept throughout; then the point's fixed number of pulses is
 fired.
 
-Execution keeps a journal (JSON, rewritten atomically after every treated point with
-:func:`histostudy.core.io.atomic_write_text`): a treatment interrupted by a robot fault resumes from
-the journal — on a fresh connection or a fresh robot — without treating a point twice or skipping
-one. A point counts as treated once its journal entry is on disk.
+Every point goes through the transactional journal (:mod:`.journal`): the arm moves, an *intent*
+is committed, the pulses are fired, a *done* is committed. A run interrupted anywhere — a robot
+fault, a therapy fault, a killed process — resumes from the journal on a fresh connection or a
+fresh robot: finished points are never fired again, and a point with an intent and no done (its
+pulses may have been fired) is settled only by the caller's explicit policy (``on_uncertain``),
+which the journal records. One process at a time holds a journal.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from dataclasses import dataclass
@@ -23,26 +24,41 @@ from typing import Callable
 
 import numpy as np
 
-from histostudy.core import atomic_write_json, atomic_write_text, to_jsonable
 from histostudy.geometry import check_rigid, check_rotation, make_transform, transform_points
+from .journal import TreatmentJournal
 from .plan import TreatmentPlan
 
 __all__ = [
-    "JOURNAL_FORMAT",
+    "UNCERTAIN_POLICIES",
     "TreatmentRun",
+    "UncertainPointError",
     "execute_treatment",
     "load_journal",
 ]
 
-JOURNAL_FORMAT = "histostudy.treatment_journal"
-JOURNAL_VERSION = 1
+#: How :func:`execute_treatment` settles a point whose pulses may have been fired (an intent and no
+#: done): ``"refuse"`` (raise before the robot moves: the default, which never fires a point twice),
+#: ``"refire"`` (fire it again, recorded as possibly fired twice), ``"skip"`` (count it finished
+#: without firing it again, recorded as skipped with 0 pulses from the resumed run). Which is right
+#: depends on what the therapy system's own log says about the point.
+UNCERTAIN_POLICIES = ("refuse", "refire", "skip")
+
+
+class UncertainPointError(RuntimeError):
+    """A resumed treatment found a point whose pulses may or may not have been fired; ``index``."""
+
+    def __init__(self, message: str, index: int):
+        super().__init__(message)
+        self.index = index
 
 
 @dataclass(frozen=True, eq=False)
 class TreatmentRun:
-    """What the journal holds about a treatment: per treated point (in plan order) the commanded
+    """What the journal holds about a treatment: per finished point (in plan order) the commanded
     and reached ``T_base_tcp`` (n, 4, 4) mm, the pulses delivered, and whether the plan is done.
-    ``resumed_at``: the first point treated by the run that returned this (0 for a fresh start)."""
+    ``resumed_at``: the first point treated by the run that returned this (0 for a fresh start).
+    ``refired`` / ``skipped``: the uncertain points settled by re-firing (possibly fired twice) or
+    by skipping (possibly never fired); ``uncertain``: a point still unsettled, or None."""
 
     journal_path: Path
     n_planned: int
@@ -52,6 +68,9 @@ class TreatmentRun:
     indices: np.ndarray
     completed: bool
     resumed_at: int
+    refired: tuple = ()
+    skipped: tuple = ()
+    uncertain: int | None = None
 
     @property
     def n_treated(self) -> int:
@@ -60,53 +79,45 @@ class TreatmentRun:
     @classmethod
     def load(cls, journal_path: str | os.PathLike) -> "TreatmentRun":
         """The run recorded in a journal (``resumed_at`` = the number of points it holds)."""
-        path = Path(journal_path)
-        journal = load_journal(path)
-        return _run_from_journal(path, journal, len(journal["points"]))
-
-
-def _journal_header(plan: TreatmentPlan, T_base_carm: np.ndarray, R_base_tcp: np.ndarray, T_flange_tcp) -> dict:
-    return {
-        "format": JOURNAL_FORMAT,
-        "version": JOURNAL_VERSION,
-        "plan_fingerprint": plan.fingerprint(),
-        "plan": plan.to_dict(),
-        "T_base_carm": T_base_carm,
-        "R_base_tcp": R_base_tcp,
-        "T_flange_tcp": T_flange_tcp,
-        "completed": False,
-        "points": [],
-    }
+        with TreatmentJournal.open_for_reading(journal_path) as journal:
+            return _run_from_journal(journal, len(journal.finished))
 
 
 def load_journal(path: str | os.PathLike) -> dict:
-    """Read and check a treatment journal (format, version, entries in plan order); returns the dict."""
-    path = Path(path)
-    try:
-        journal = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"journal {path} is not valid JSON ({exc}); it was not written by execute_treatment") from exc
-    if not isinstance(journal, dict) or journal.get("format") != JOURNAL_FORMAT:
-        raise ValueError(f"journal {path} is not a treatment journal (format must be {JOURNAL_FORMAT!r})")
-    if journal.get("version") != JOURNAL_VERSION:
-        raise ValueError(f"journal {path} has version {journal.get('version')!r}; this code reads version {JOURNAL_VERSION}")
-    indices = [p["index"] for p in journal["points"]]
-    if indices != list(range(len(indices))):
-        raise ValueError(f"journal {path} holds points {indices[:10]}..., not the plan's first points in order")
-    return journal
+    """Read and check a treatment journal (SQLite, or a version-1 JSON one); returns a dict with
+    ``format``, ``version``, ``plan_fingerprint``, ``plan``, the calibration (``T_base_carm``,
+    ``R_base_tcp``, ``T_flange_tcp``), ``completed``, ``points`` (the finished ones in order, each
+    with ``index``, ``point_carm_mm``, ``commanded_T_base_tcp``, ``reached_T_base_tcp``, ``pulses``,
+    ``resolution``) and ``uncertain`` (an unsettled point's index, or None). Raises
+    :class:`~.journal.JournalError` for a journal that fails its checks."""
+    import json
+
+    with TreatmentJournal.open_for_reading(path) as journal:
+        meta = journal.meta
+        out = {"format": meta["format"], "version": int(meta["version"]), "plan_fingerprint": meta["plan_fingerprint"],
+               "plan": json.loads(meta["plan"])}
+        out.update({k: json.loads(meta[k]) for k in ("T_base_carm", "R_base_tcp", "T_flange_tcp")})
+        out["completed"] = journal.completed
+        out["points"] = [{"index": i, "point_carm_mm": p, "commanded_T_base_tcp": c, "reached_T_base_tcp": r,
+                          "pulses": n, "resolution": res} for i, p, c, r, n, res in journal.rows()]
+        out["uncertain"] = journal.uncertain
+        return out
 
 
-def _run_from_journal(path: Path, journal: dict, resumed_at: int) -> TreatmentRun:
-    pts = journal["points"]
+def _run_from_journal(journal: TreatmentJournal, resumed_at: int) -> TreatmentRun:
+    rows = journal.rows()
     return TreatmentRun(
-        journal_path=path,
-        n_planned=len(journal["plan"]["points_mm"]),
-        commanded_T_base_tcp=np.array([p["commanded_T_base_tcp"] for p in pts], dtype=np.float64).reshape(-1, 4, 4),
-        reached_T_base_tcp=np.array([p["reached_T_base_tcp"] for p in pts], dtype=np.float64).reshape(-1, 4, 4),
-        pulses=np.array([p["pulses"] for p in pts], dtype=int),
-        indices=np.array([p["index"] for p in pts], dtype=int),
-        completed=bool(journal["completed"]),
+        journal_path=journal.path,
+        n_planned=journal.n_planned,
+        commanded_T_base_tcp=np.array([r[2] for r in rows], dtype=np.float64).reshape(-1, 4, 4),
+        reached_T_base_tcp=np.array([r[3] for r in rows], dtype=np.float64).reshape(-1, 4, 4),
+        pulses=np.array([r[4] for r in rows], dtype=int),
+        indices=np.array([r[0] for r in rows], dtype=int),
+        completed=journal.completed,
         resumed_at=resumed_at,
+        refired=tuple(r[0] for r in rows if r[5] == "refired"),
+        skipped=tuple(r[0] for r in rows if r[5] == "skipped"),
+        uncertain=journal.uncertain,
     )
 
 
@@ -121,6 +132,7 @@ def execute_treatment(
     speed_mm_s: float = 20.0,
     acceleration_mm_s2: float = 200.0,
     deliver: Callable[[int, int], None] | None = None,
+    on_uncertain: str | Callable[[int], str] = "refuse",
 ) -> TreatmentRun:
     """Move the focal point through ``plan`` on ``robot`` and treat each point; journal every point.
 
@@ -132,16 +144,18 @@ def execute_treatment(
     ``deliver(index, pulses)``: fires the plan's pulses at the reached point (the therapy
     sub-system; the simulation has nothing to fire, so the default does nothing).
 
-    Journal (``journal_path``, JSON, rewritten atomically after each point): the plan and its
-    fingerprint, the calibration, and per treated point its index, the world point, the commanded
-    and the reached ``T_base_tcp`` and the pulses. If the journal exists, its plan and calibration
-    must match and execution resumes after its last point (a completed journal returns at once).
-    A :class:`~histostudy.robot.RobotError` propagates unchanged, with a note saying how far the
-    journal got; running again with the same journal resumes. A point counts as treated once its
-    entry is on disk: a fault inside ``deliver``, or a crash between its last pulse and the write,
-    leaves the point out of the journal and a resume fires it again (the only way a point is
-    treated twice). A resumed run moves straight from wherever the arm is to the next point; the
-    robot's workspace checks apply, an approach path is the caller's.
+    Journal (``journal_path``, :mod:`.journal`): created for this plan and calibration, or resumed
+    (its plan and calibration must match; a completed journal returns at once; a version-1 JSON
+    journal is migrated). Another process holding it raises
+    :class:`~.journal.JournalLockedError` before the robot moves. Per point: move, commit the
+    intent, fire, commit the done. ``on_uncertain`` settles a point left with an intent and no done
+    (:data:`UNCERTAIN_POLICIES`, or a callable ``index -> policy`` that asks someone); the default
+    ``"refuse"`` raises :class:`UncertainPointError` before the robot moves, so no point is fired
+    twice unless the caller says so, and the returned run lists the points re-fired or skipped. A
+    :class:`~histostudy.robot.RobotError` propagates unchanged, with a note saying how far the
+    journal got; running again with the same journal resumes. A resumed run moves straight from
+    wherever the arm is to the next point; the robot's workspace checks apply, an approach path is
+    the caller's.
     """
     if not isinstance(plan, TreatmentPlan):
         raise TypeError(f"plan must be a TreatmentPlan, got {type(plan).__name__}")
@@ -154,62 +168,53 @@ def execute_treatment(
         raise ValueError(f"speed_mm_s must be finite and > 0, got {speed_mm_s!r}")
     if not (math.isfinite(acceleration_mm_s2) and acceleration_mm_s2 > 0):
         raise ValueError(f"acceleration_mm_s2 must be finite and > 0, got {acceleration_mm_s2!r}")
+    if not callable(on_uncertain) and on_uncertain not in UNCERTAIN_POLICIES:
+        raise ValueError(f"on_uncertain must be one of {UNCERTAIN_POLICIES} or a callable(index) -> policy, "
+                         f"got {on_uncertain!r}")
     path = Path(journal_path)
-    header = to_jsonable(_journal_header(plan, T_bc, R, T_ft))
-    if path.exists():
-        journal = load_journal(path)
-        if journal["plan_fingerprint"] != header["plan_fingerprint"]:
-            raise ValueError(f"journal {path} belongs to another plan (fingerprint differs); refusing to resume it with this plan")
-        for key in ("T_base_carm", "R_base_tcp", "T_flange_tcp"):
-            a, b = journal[key], header[key]
-            if (a is None) != (b is None) or (a is not None and not np.allclose(a, b, rtol=0, atol=1e-9)):
-                raise ValueError(f"journal {path} was written with another {key} ({a!r}); got {b!r}: refusing to resume")
-    else:
-        journal = header
-        atomic_write_json(path, journal)
-    start = len(journal["points"])
-    if journal["completed"]:
-        return _run_from_journal(path, journal, start)
-
-    # The journal is rewritten whole after every point; its entries are serialised once and the
-    # file assembled from the cached texts, so a write costs O(file size), not O(entries) of
-    # Python-object conversion (a 1000-point plan would otherwise spend minutes in json.dumps).
-    head = {k: v for k, v in journal.items() if k not in ("completed", "points")}
-    head_text = json.dumps(head, separators=(",", ":"))[:-1]
-    entries = [json.dumps(e, separators=(",", ":")) for e in journal["points"]]
-
-    def write(completed: bool) -> None:
-        text = f'{head_text},"completed":{"true" if completed else "false"},"points":[\n' + ",\n".join(entries) + "\n]}\n"
-        atomic_write_text(path, text)
-
-    if T_ft is not None:
-        robot.set_tcp(T_ft)
+    calibration = {"T_base_carm": T_bc, "R_base_tcp": R, "T_flange_tcp": T_ft}
     targets = transform_points(T_bc, plan.points_mm)
-    for i in range(start, len(plan)):
-        commanded = make_transform(R, targets[i])
-        try:
-            reached = np.asarray(robot.move_linear(commanded, speed_mm_s, acceleration_mm_s2), dtype=np.float64)
-            if deliver is not None:
-                deliver(i, plan.pulses_per_point)
-        except Exception as exc:
-            exc.add_note(
-                f"treatment interrupted at point {i} of {len(plan)}: the journal {path} holds points 0..{i - 1}; "
-                "run execute_treatment again with the same journal to resume"
-            )
-            raise
-        entries.append(
-            json.dumps(
-                {
-                    "index": i,
-                    "point_carm_mm": plan.points_mm[i].tolist(),
-                    "commanded_T_base_tcp": commanded.tolist(),
-                    "reached_T_base_tcp": reached.tolist(),
-                    "pulses": plan.pulses_per_point,
-                },
-                separators=(",", ":"),
-            )
-        )
-        write(i == len(plan) - 1)
-    if len(plan) == start:  # nothing left (an empty remainder): mark done
-        write(True)
-    return _run_from_journal(path, load_journal(path), start)
+    with TreatmentJournal.open_for_run(path, plan, calibration) as journal:
+        start = len(journal.finished)
+        refire = None
+        if journal.uncertain is not None:
+            refire = _settle(journal, on_uncertain, plan)
+        if journal.completed:
+            return _run_from_journal(journal, start)
+        if T_ft is not None:
+            robot.set_tcp(T_ft)
+        for i in range(len(journal.finished), len(plan)):
+            commanded = make_transform(R, targets[i])
+            try:
+                reached = np.asarray(robot.move_linear(commanded, speed_mm_s, acceleration_mm_s2), dtype=np.float64)
+                journal.record_intent(i, plan.points_mm[i], commanded, reached)
+                if deliver is not None:
+                    deliver(i, plan.pulses_per_point)
+            except Exception as exc:
+                uncertain = journal.uncertain == i
+                exc.add_note(
+                    f"treatment interrupted at point {i} of {len(plan)}: the journal {path} holds points 0..{i - 1}"
+                    + (f"; point {i}'s pulses may have been fired (its intent is recorded): a resume asks how to "
+                       "settle it (on_uncertain)" if uncertain else "")
+                    + "; run execute_treatment again with the same journal to resume")
+                raise
+            journal.record_done(i, plan.pulses_per_point, "refired" if i == refire else None)
+        return _run_from_journal(journal, start)
+
+
+def _settle(journal: TreatmentJournal, on_uncertain, plan: TreatmentPlan) -> int | None:
+    """Apply the policy to the journal's uncertain point; returns its index if it is to be re-fired."""
+    index = journal.uncertain
+    policy = on_uncertain(index) if callable(on_uncertain) else on_uncertain
+    if policy not in UNCERTAIN_POLICIES:
+        raise ValueError(f"on_uncertain({index}) must return one of {UNCERTAIN_POLICIES}, got {policy!r}")
+    if policy == "refuse":
+        raise UncertainPointError(
+            f"journal {journal.path}: point {index} of {len(plan)} was reached and its firing began, but its end "
+            "was never recorded, so its pulses may or may not have been delivered. Check the therapy system's "
+            "log, then resume with on_uncertain='refire' (fire it again) or on_uncertain='skip' (count it done "
+            "with 0 pulses); the journal records the choice. Nothing was moved or fired.", index)
+    if policy == "skip":
+        journal.record_done(index, 0, "skipped")
+        return None
+    return index

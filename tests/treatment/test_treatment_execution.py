@@ -1,14 +1,13 @@
 """Tests of histostudy.treatment.execution: the plan executed on the simulated UR5e with a journal
 that resumes where a fault stopped it (§II-D)."""
 
-import json
-
 import numpy as np
 import pytest
 
 from histostudy.geometry import transform_points
 from histostudy.robot import FaultPlan, RobotConnectionError, SimulatedUR5e
-from histostudy.treatment import TreatmentRun, execute_treatment, plan_treatment
+from histostudy.treatment import (JournalError, TreatmentRun, UncertainPointError, execute_treatment, load_journal,
+                                  plan_treatment)
 from treatment_setup import R_CT, robot_zone_and_calibration
 
 
@@ -16,7 +15,7 @@ def test_execution_commands_every_point_and_journals_reached_poses(tmp_path):
     robot, zone, T_base_carm, R_base_tcp = robot_zone_and_calibration()
     plan = plan_treatment(zone, 4.0, pulses_per_point=7, axes=R_CT)
     fired = []
-    run = execute_treatment(robot, plan, T_base_carm, R_base_tcp, tmp_path / "j.json", deliver=lambda i, n: fired.append((i, n)))
+    run = execute_treatment(robot, plan, T_base_carm, R_base_tcp, tmp_path / "j.sqlite", deliver=lambda i, n: fired.append((i, n)))
     assert run.completed and run.n_treated == len(plan) and run.resumed_at == 0
     assert fired == [(i, 7) for i in range(len(plan))]
     assert robot.state().moves_completed == len(plan)
@@ -26,13 +25,13 @@ def test_execution_commands_every_point_and_journals_reached_poses(tmp_path):
     # reached: within the UR5e repeatability of the commanded position
     err = np.linalg.norm(run.reached_T_base_tcp[:, :3, 3] - run.commanded_T_base_tcp[:, :3, 3], axis=1)
     assert err.max() <= 0.03 + 1e-9 and err.max() > 0
-    journal = json.loads((tmp_path / "j.json").read_text())
-    assert journal["completed"] and len(journal["points"]) == len(plan)
+    journal = load_journal(tmp_path / "j.sqlite")
+    assert journal["completed"] and len(journal["points"]) == len(plan) and journal["uncertain"] is None
     assert np.allclose(journal["points"][3]["reached_T_base_tcp"], run.reached_T_base_tcp[3])
     assert journal["plan_fingerprint"] == plan.fingerprint()
     # a completed journal makes a rerun do nothing
     robot2 = SimulatedUR5e(2)
-    again = execute_treatment(robot2, plan, T_base_carm, R_base_tcp, tmp_path / "j.json")
+    again = execute_treatment(robot2, plan, T_base_carm, R_base_tcp, tmp_path / "j.sqlite")
     assert again.completed and robot2.moves_planned == 0
     assert np.array_equal(again.reached_T_base_tcp, run.reached_T_base_tcp)
 
@@ -45,18 +44,20 @@ def test_interrupted_treatment_resumes_without_repeating_or_skipping(tmp_path, f
     robot, zone, T_base_carm, R_base_tcp = robot_zone_and_calibration()
     plan = plan_treatment(zone, 4.0, pulses_per_point=3, axes=R_CT)
     k = 17
-    path = tmp_path / "journal.json"
+    path = tmp_path / "journal.sqlite"
     fired = []
     deliver = lambda i, n: fired.append(i)
     faulty = SimulatedUR5e(1, faults=faults(k))
     with pytest.raises(RobotConnectionError) as info:
         execute_treatment(faulty, plan, T_base_carm, R_base_tcp, path, deliver=deliver)
     assert any("resume" in note for note in getattr(info.value, "__notes__", []))
-    # the journal on disk is whole, valid JSON holding exactly the treated points; no temp files left
-    journal = json.loads(path.read_text())
+    # the journal holds exactly the treated points, none uncertain (the fault came before any firing)
+    journal = load_journal(path)
     assert [p["index"] for p in journal["points"]] == list(range(n_journaled(k)))
-    assert not journal["completed"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["journal.json"]
+    assert not journal["completed"] and journal["uncertain"] is None
+    # the database, its lock and SQLite's WAL files; no temporary file left
+    assert {p.name for p in tmp_path.iterdir()} <= {"journal.sqlite", "journal.sqlite.lock", "journal.sqlite-wal",
+                                                    "journal.sqlite-shm"}
     before = [p["reached_T_base_tcp"] for p in journal["points"]]
     partial = TreatmentRun.load(path)
     assert partial.n_treated == n_journaled(k) and not partial.completed and partial.n_planned == len(plan)
@@ -72,38 +73,56 @@ def test_interrupted_treatment_resumes_without_repeating_or_skipping(tmp_path, f
     assert err.max() <= 0.03 + 1e-9
 
 
-def test_a_failed_journal_write_leaves_the_previous_journal_whole(tmp_path, monkeypatch):
-    import histostudy.core.io as hio
-
+def test_a_fault_while_firing_leaves_the_point_uncertain_and_a_resume_refuses_until_told(tmp_path):
     robot, zone, T_base_carm, R_base_tcp = robot_zone_and_calibration()
     plan = plan_treatment(zone, 5.0, axes=R_CT)
-    path = tmp_path / "j.json"
-    real_replace, calls = hio.os.replace, []
-
-    def failing_replace(src, dst):  # the 6th write (header + 5 points) dies before the rename
-        calls.append(dst)
-        if len(calls) == 6:
-            raise OSError("disk full")
-        real_replace(src, dst)
-
-    monkeypatch.setattr(hio.os, "replace", failing_replace)
+    path = tmp_path / "j.sqlite"
     fired = []
-    with pytest.raises(OSError, match="disk full"):
-        execute_treatment(robot, plan, T_base_carm, R_base_tcp, path, deliver=lambda i, n: fired.append(i))
-    monkeypatch.setattr(hio.os, "replace", real_replace)
-    journal = json.loads(path.read_text())  # the previous version, whole
-    assert [p["index"] for p in journal["points"]] == [0, 1, 2, 3]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["j.json"]  # no temporary file left
-    run = execute_treatment(SimulatedUR5e(3), plan, T_base_carm, R_base_tcp, path, deliver=lambda i, n: fired.append(i))
-    assert run.completed and run.resumed_at == 4
-    # point 4 was fired but never journaled: the documented (only) way a point is fired twice
-    assert sorted(fired) == sorted(list(range(len(plan))) + [4])
+
+    def therapy_fault_at_4(i, n):
+        fired.append(i)
+        if i == 4:
+            raise RuntimeError("generator fault")  # some pulses of point 4 may have gone out
+
+    with pytest.raises(RuntimeError, match="generator fault") as info:
+        execute_treatment(robot, plan, T_base_carm, R_base_tcp, path, deliver=therapy_fault_at_4)
+    assert any("may have been fired" in note for note in info.value.__notes__)
+    assert load_journal(path)["uncertain"] == 4 and TreatmentRun.load(path).uncertain == 4
+    fresh = SimulatedUR5e(3)
+    with pytest.raises(UncertainPointError, match="point 4") as refused:  # the default: never fire twice
+        execute_treatment(fresh, plan, T_base_carm, R_base_tcp, path, deliver=fired.append)
+    assert refused.value.index == 4 and fresh.moves_planned == 0
+    asked = []
+    run = execute_treatment(fresh, plan, T_base_carm, R_base_tcp, path, deliver=lambda i, n: fired.append(i),
+                            on_uncertain=lambda i: asked.append(i) or "refire")
+    assert asked == [4] and run.completed and run.refired == (4,) and run.skipped == ()
+    assert sorted(fired) == sorted(list(range(len(plan))) + [4])  # 4 twice, and the journal says so
+
+
+def test_skipping_an_uncertain_point_fires_it_no_more_and_is_recorded(tmp_path):
+    robot, zone, T_base_carm, R_base_tcp = robot_zone_and_calibration()
+    plan = plan_treatment(zone, 5.0, axes=R_CT)
+    path = tmp_path / "j.sqlite"
+    fired = []
+
+    def fault_at_2(i, n):
+        fired.append(i)
+        if i == 2:
+            raise RuntimeError("generator fault")
+
+    with pytest.raises(RuntimeError):
+        execute_treatment(robot, plan, T_base_carm, R_base_tcp, path, deliver=fault_at_2)
+    run = execute_treatment(SimulatedUR5e(4), plan, T_base_carm, R_base_tcp, path, deliver=lambda i, n: fired.append(i),
+                            on_uncertain="skip")
+    assert run.completed and run.skipped == (2,) and run.pulses[2] == 0 and sorted(fired) == list(range(len(plan)))
+    with pytest.raises(ValueError, match="on_uncertain"):
+        execute_treatment(robot, plan, T_base_carm, R_base_tcp, tmp_path / "k.sqlite", on_uncertain="ask")
 
 
 def test_journal_refuses_another_plan_or_calibration(tmp_path):
     robot, zone, T_base_carm, R_base_tcp = robot_zone_and_calibration()
     plan = plan_treatment(zone, 5.0, axes=R_CT)
-    path = tmp_path / "j.json"
+    path = tmp_path / "j.sqlite"
     with pytest.raises(RobotConnectionError):
         execute_treatment(SimulatedUR5e(1, faults=FaultPlan(disconnect_after_moves=3)), plan, T_base_carm, R_base_tcp, path)
     other = plan_treatment(zone, 4.0, axes=R_CT)
@@ -115,7 +134,7 @@ def test_journal_refuses_another_plan_or_calibration(tmp_path):
         execute_treatment(robot, plan, shifted, R_base_tcp, path)
     assert robot.moves_planned == 0  # refused before moving
     (tmp_path / "bad.json").write_text('{"format": "histostudy.treatment_journal", "points": [')
-    with pytest.raises(ValueError, match="not valid JSON"):
+    with pytest.raises(JournalError, match="neither SQLite nor valid JSON"):
         execute_treatment(robot, plan, T_base_carm, R_base_tcp, tmp_path / "bad.json")
 
 
