@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from histostudy.geometry import check_rigid
+from histostudy.transducer import check_label_image
 from .carm import View
 
 __all__ = ["Frame", "load_frame"]
@@ -53,10 +54,7 @@ class Frame:
             raise ValueError("image must be finite (line integrals); found NaN or inf")
         object.__setattr__(self, "image", image)
         if self.labels is not None:
-            labels = np.asarray(self.labels)
-            if labels.shape != image.shape:
-                raise ValueError(f"labels shape {labels.shape} does not match image shape {image.shape}")
-            object.__setattr__(self, "labels", labels.astype(np.uint8, copy=False))
+            object.__setattr__(self, "labels", check_label_image(self.labels, image.shape))
         if self.T_carm_transducer is not None:
             object.__setattr__(self, "T_carm_transducer", check_rigid(self.T_carm_transducer, "T_carm_transducer"))
 

@@ -27,7 +27,7 @@ import numpy as np
 from histostudy.imaging import Frame
 from histostudy.learning import (OrientationSource, Segmenter, direction_candidates, keep_largest_component,
                                  select_direction)
-from histostudy.transducer import Feature, TransducerModel
+from histostudy.transducer import Feature, TransducerModel, check_label_image
 from .cost import PoseCost
 from .distance_maps import DistanceMaps
 from .init import MEDIUM_GRID, PAPER_AXIAL_SEEDS_DEG, ROBUST_AXIAL_SEEDS_DEG, initialise_pose
@@ -90,7 +90,8 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
     timings = {}
 
     t0 = time.perf_counter()
-    labels = [np.asarray(segmenter.segment(f, rng), dtype=np.uint8) for f in frames]
+    labels = [check_label_image(segmenter.segment(f, rng), f.shape, f"the segmentation of view {f.view.name or a}")
+              for a, f in enumerate(frames)]
     if options.largest_component:
         labels = [keep_largest_component(lab) for lab in labels]
     timings["segmentation"] = time.perf_counter() - t0

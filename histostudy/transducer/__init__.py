@@ -9,7 +9,7 @@ from . import digital as _digital, physical as _physical, placement as _placemen
 from .digital import TransducerModel
 from .physical import ManufacturingDeviation
 from .placement import pose_facing
-from .spec import FEATURE_CLASSES, Feature, LABEL_PRIORITY, TransducerSpec, quadrant_index
+from .spec import FEATURE_CLASSES, Feature, LABEL_PRIORITY, TransducerSpec, check_label_image, quadrant_index
 
 # every public name of the modules above, as each module's __all__ declares it
 __all__ = list(dict.fromkeys([*_digital.__all__, *_physical.__all__, *_placement.__all__, *_spec.__all__]))

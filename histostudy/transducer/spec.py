@@ -26,6 +26,7 @@ __all__ = [
     "LABEL_PRIORITY",
     "Feature",
     "TransducerSpec",
+    "check_label_image",
     "quadrant_index",
 ]
 
@@ -42,6 +43,33 @@ class Feature(enum.IntEnum):
     INNER_BOUNDARY = 3
     GAPS = 4
     SCREWS = 5
+
+
+def check_label_image(labels, shape: tuple[int, int] | None = None, name: str = "labels") -> np.ndarray:
+    """``labels`` as a ``(rows, cols)`` uint8 label image of :class:`Feature` values (0..5).
+
+    Integer or boolean arrays, or floats holding whole numbers, are accepted; anything else, or a
+    value outside 0..5 (which a plain ``astype(uint8)`` would wrap silently: 300 -> 44, -1 -> 255),
+    raises a ValueError naming ``name``, the offending values and what was expected. ``shape``:
+    the ``(rows, cols)`` it must have (the image's), if given.
+    """
+    arr = np.asarray(labels)
+    if arr.ndim != 2 or (shape is not None and arr.shape != tuple(shape)):
+        expected = "a 2-D (rows, cols) array" if shape is None else f"shape {tuple(shape)} (the image's)"
+        raise ValueError(f"{name} must be {expected}, got shape {arr.shape}")
+    if arr.dtype == np.uint8:
+        bad = arr > max(Feature)
+    elif arr.dtype == bool or np.issubdtype(arr.dtype, np.integer):
+        bad = (arr < 0) | (arr > max(Feature))
+    elif np.issubdtype(arr.dtype, np.floating):
+        bad = ~np.isfinite(arr) | (arr != np.round(arr)) | (arr < 0) | (arr > max(Feature))
+    else:
+        raise ValueError(f"{name} must hold Feature values 0..{int(max(Feature))}, got dtype {arr.dtype}")
+    if bad.any():
+        values = np.unique(arr[bad])[:5].tolist()
+        raise ValueError(f"{name} must hold Feature values 0..{int(max(Feature))} (integers), got {values} "
+                         f"in {int(bad.sum())} pixels")
+    return arr.astype(np.uint8, copy=False)
 
 
 #: The five point classes of the model, in enum order.

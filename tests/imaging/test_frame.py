@@ -18,7 +18,7 @@ def test_frame_validates_shapes_and_pose(view):
     assert f.image.dtype == np.float32 and f.labels.dtype == np.uint8 and f.shape == (12, 16)
     with pytest.raises(ValueError, match="does not match view"):
         Frame(np.ones((10, 16)), view)
-    with pytest.raises(ValueError, match="labels shape"):
+    with pytest.raises(ValueError, match=r"labels must be shape \(12, 16\)"):
         Frame(img, view, labels=np.zeros((3, 3)))
     with pytest.raises(ValueError, match="T_carm_transducer"):
         Frame(img, view, T_carm_transducer=np.diag([1, 1, 2, 1.0]))
@@ -68,3 +68,9 @@ def test_load_rejects_wrong_shape_and_unknown_format(tmp_path, view):
     (tmp_path / "x.bmpx").write_bytes(b"")
     with pytest.raises(ValueError, match="unknown image format"):
         load_frame(tmp_path / "x.bmpx", view)
+
+
+def test_frame_labels_outside_the_feature_values_are_refused_not_wrapped():
+    view = View.from_gantry(0.0, 0.0, shape=(12, 16), name="A")
+    with pytest.raises(ValueError, match=r"labels must hold Feature values 0..5 \(integers\), got \[300\]"):
+        Frame(np.zeros((12, 16)), view, labels=np.full((12, 16), 300))

@@ -369,3 +369,13 @@ def test_default_stages_are_the_shipped_networks_when_good_enough_else_the_oracl
         assert isinstance(seg, OracleSegmenter)
     finally:
         pose.default_stages.cache_clear()
+
+
+def test_a_segmenter_returning_values_outside_the_feature_classes_is_refused(models, frames):
+    class Wrapping:  # what a network's raw argmax over a wrong head, or a cast from int16, can give
+        def segment(self, frame, rng):
+            return np.full(frame.shape, 300, dtype=np.int64)
+
+    with pytest.raises(ValueError, match=r"the segmentation of view .* must hold Feature values 0..5.*\[300\]"):
+        estimate_pose(frames[0], models[0], segmenter=Wrapping(), orientation=OracleOrientation(),
+                      rng=np.random.default_rng(0))

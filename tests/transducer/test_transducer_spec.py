@@ -1,6 +1,7 @@
 """Tests of histostudy.transducer.spec: the feature classes, the label priority and the spec's checks
 and JSON form."""
 
+import numpy as np
 import pytest
 
 from histostudy.transducer import FEATURE_CLASSES, Feature, LABEL_PRIORITY, TransducerSpec
@@ -37,3 +38,24 @@ def test_spec_round_trips_through_json(tmp_path):
     assert TransducerSpec.load(tmp_path / "bare.json").radius_mm == 150.0
     with pytest.raises(ValueError, match="unknown"):
         TransducerSpec.from_dict({"radius": 1.0})
+
+
+@pytest.mark.parametrize("labels, match", [
+    (np.array([[0, 300]]), r"\[300\]"), (np.array([[-1, 2]]), r"\[-1\]"), (np.array([[2.7, 1.0]]), r"\[2.7\]"),
+    (np.array([[np.nan, 1.0]]), "nan"), (np.array([[6, 1]], np.uint8), r"\[6\]"), (np.array(["a"]), "got dtype <U1"),
+])
+def test_label_images_outside_the_feature_values_are_refused_not_wrapped(labels, match):
+    from histostudy.transducer import check_label_image
+
+    with pytest.raises(ValueError, match=match):
+        check_label_image(labels if labels.ndim == 2 else labels[None], name="labels")
+
+
+def test_label_images_of_whole_numbers_become_uint8_and_the_shape_is_checked():
+    from histostudy.transducer import check_label_image
+
+    out = check_label_image(np.array([[0.0, 5.0], [3.0, 1.0]]))
+    assert out.dtype == np.uint8 and out.tolist() == [[0, 5], [3, 1]]
+    assert check_label_image(np.ones((2, 2), bool)).tolist() == [[1, 1], [1, 1]]
+    with pytest.raises(ValueError, match=r"shape \(3, 2\)"):
+        check_label_image(np.zeros((2, 2), np.uint8), (3, 2), "labels of view 'A'")
