@@ -7,7 +7,7 @@ papermill pipeline (``pipeline``), the report that sets each measured value besi
 from . import paper as _paper, pipeline as _pipeline, profiles as _profiles, report as _report, viz as _viz
 from .paper import PAPER, PaperValue, paper_value
 from .pipeline import NotebookFailed, discover_notebooks, run_study, select_notebooks
-from .profiles import PROFILE_NAMES, Profile, load_profile
+from .profiles import PROFILE_NAMES, Profile, load_profile, notebook_parameters, validate_profile
 from .report import RESULTS_FILE, SectionWriter, build_report, format_measure, load_section, results_coverage
 from .viz import FEATURE_COLOURS, label_rgb, model_scene, plot_frames_with_labels, plot_pose_overlay, targeting_scene
 

@@ -5,6 +5,9 @@ with the profile's parameters plus ``output_dir = <output>/NN_name``, where it r
 results (:class:`histostudy.reporting.report.SectionWriter`); the executed notebook lands in
 ``<output>/notebooks/``. The kernel is the running interpreter (a kernelspec written to a
 temporary Jupyter path), so the notebooks see exactly the installed package the CLI runs from.
+Before anything runs or is written, the profile is checked against every notebook of the folder
+(:func:`histostudy.reporting.profiles.validate_profile`), so a misspelt table or key stops the
+run at once instead of being ignored.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ from typing import Callable, Sequence
 
 from histostudy.core import atomic_path, provenance
 from histostudy.core.provenance import REPO_ROOT
-from .profiles import Profile, load_profile
+from .profiles import Profile, load_profile, validate_profile
 from .report import build_report, write_run_record
 
 __all__ = ["NotebookFailed", "discover_notebooks", "run_study", "select_notebooks"]
@@ -80,11 +83,17 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
               progress: bool = True, log: Callable[[str], None] | None = None) -> StudyRun:
     """Run the study notebooks of ``profile`` into ``output_dir`` and assemble the report.
 
+    Raises ValueError, before executing or writing anything, when the profile does not fit the
+    notebooks of ``notebooks_dir`` (:func:`~histostudy.reporting.profiles.validate_profile`).
     Raises :class:`NotebookFailed` (after writing the report of what ran, with the failure named)
     when a notebook raises; the executed copy of the failed notebook is kept.
     """
     prof = profile if isinstance(profile, Profile) else load_profile(profile)
-    notebooks = select_notebooks(discover_notebooks(notebooks_dir or DEFAULT_NOTEBOOK_DIR), only)
+    found = discover_notebooks(notebooks_dir or DEFAULT_NOTEBOOK_DIR)
+    # Against every notebook of the folder, not the --only subset: a table for a notebook left out
+    # of this run is still a valid table, and a misspelt one is wrong whatever runs.
+    validate_profile(prof, found)
+    notebooks = select_notebooks(found, only)
     out = Path(output_dir).resolve()
     (out / "notebooks").mkdir(parents=True, exist_ok=True)
     log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))

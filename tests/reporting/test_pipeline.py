@@ -1,4 +1,5 @@
-"""The papermill pipeline on tiny notebooks: order, parameters, results, failures, CLI errors."""
+"""The papermill pipeline on tiny notebooks: order, parameters, results, failures, CLI errors, and the
+profile refused before anything runs or is written."""
 
 import json
 
@@ -37,6 +38,14 @@ def toy_notebooks(tmp_path):
     return folder
 
 
+@pytest.fixture
+def toy_profile(tmp_path):
+    # The shipped profiles' tables name the study notebooks, which the toy folder lacks.
+    path = tmp_path / "toy.toml"
+    path.write_text('name = "toy"\nseed = 3\n[common]\nfactor = 1\n[notebooks.02_second]\nfactor = 2\n')
+    return path
+
+
 def test_discover_and_select(toy_notebooks):
     nbs = discover_notebooks(toy_notebooks)
     assert [p.stem for p in nbs] == ["01_first", "02_second"]
@@ -46,15 +55,16 @@ def test_discover_and_select(toy_notebooks):
 
 
 @pytest.mark.slow
-def test_run_writes_sections_executed_notebooks_and_report(toy_notebooks, tmp_path):
+def test_run_writes_sections_executed_notebooks_and_report(toy_notebooks, toy_profile, tmp_path):
     out = tmp_path / "reports"
-    run = run_study("smoke", out, notebooks_dir=toy_notebooks, progress=False, log=lambda m: None)
+    run = run_study(toy_profile, out, notebooks_dir=toy_notebooks, progress=False, log=lambda m: None)
     for name in ("01_first", "02_second"):
         res = json.loads((out / name / "results.json").read_text())
-        assert res["profile"] == "smoke" and res["seed"] == run.record["seed"]
+        assert res["profile"] == "toy" and res["seed"] == run.record["seed"] == 3
         assert (out / "notebooks" / f"{name}.ipynb").is_file()
     md = run.report_md.read_text()
     assert "## Toy 01_first" in md and "## Toy 02_second" in md and "| Splats | 16 | 16 |" in md
+    assert "| Splats | 32 | 16 |" in md  # 02_second's own table wins over [common]
     assert run.report_html.is_file()
     record = json.loads((out / "run.json").read_text())
     assert [n["status"] for n in record["notebooks"]] == ["ok", "ok"]
@@ -62,11 +72,11 @@ def test_run_writes_sections_executed_notebooks_and_report(toy_notebooks, tmp_pa
 
 
 @pytest.mark.slow
-def test_failing_notebook_names_notebook_and_cell_and_keeps_copy(toy_notebooks, tmp_path):
+def test_failing_notebook_names_notebook_and_cell_and_keeps_copy(toy_notebooks, toy_profile, tmp_path):
     _notebook(toy_notebooks / "01_first.ipynb", ["x = 1", "raise ValueError('boom in cell three')"])
     out = tmp_path / "reports"
     with pytest.raises(NotebookFailed) as err:
-        run_study("smoke", out, notebooks_dir=toy_notebooks, progress=False, log=lambda m: None)
+        run_study(toy_profile, out, notebooks_dir=toy_notebooks, progress=False, log=lambda m: None)
     exc = err.value
     assert exc.notebook == "01_first" and "boom in cell three" in exc.error
     assert str(exc.cell_index).startswith("3 ")  # markdown, parameters, x = 1, raise
@@ -77,14 +87,60 @@ def test_failing_notebook_names_notebook_and_cell_and_keeps_copy(toy_notebooks, 
 
 
 @pytest.mark.slow
-def test_cli_exit_codes(toy_notebooks, tmp_path, capsys):
+def test_cli_exit_codes(toy_notebooks, toy_profile, tmp_path, capsys):
     _notebook(toy_notebooks / "02_second.ipynb", ["1 / 0"])
-    code = main(["reproduce", "--profile", "smoke", "--output", str(tmp_path / "r"), "--notebooks",
+    code = main(["reproduce", "--profile", str(toy_profile), "--output", str(tmp_path / "r"), "--notebooks",
                  str(toy_notebooks), "--only", "02", "--no-progress"])
     assert code == 1
     assert "02_second failed at cell 2" in capsys.readouterr().err
-    assert main(["reproduce", "--notebooks", str(toy_notebooks), "--only", "nope", "--output", str(tmp_path / "r")]) == 2
+    assert main(["reproduce", "--profile", str(toy_profile), "--notebooks", str(toy_notebooks), "--only", "nope",
+                 "--output", str(tmp_path / "r")]) == 2
     with pytest.raises(SystemExit) as exit_info:
         main(["reproduce", "--profile", "no-such-profile"])
     assert exit_info.value.code == 2
     assert "no-such-profile" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("text, expected", [
+    ('seed = 3\n[common]\nfactr = 2\n', r"'factr' in \[common\].*did you mean 'factor'\?"),
+    ('seed = 3\n[notebooks.02_secnd]\nfactor = 2\n', r"\[notebooks.02_secnd\].*did you mean \[notebooks.02_second\]\?"),
+    ('seed = 3\n[notebooks.01_first]\nfactors = 2\n', r"'factors' in \[notebooks.01_first\].*did you mean 'factor'\?"),
+])
+def test_run_refuses_a_bad_profile_before_writing_anything(toy_notebooks, tmp_path, text, expected):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    out = tmp_path / "reports"
+    logged = []
+    with pytest.raises(ValueError, match=expected) as err:
+        run_study(path, out, notebooks_dir=toy_notebooks, progress=False, log=logged.append)
+    assert str(path) in str(err.value)
+    assert not out.exists() and not logged
+    # also when the table is for a notebook that --only leaves out
+    with pytest.raises(ValueError, match=expected):
+        run_study(path, out, only=["02" if "01_first" in text else "01"], notebooks_dir=toy_notebooks,
+                  progress=False, log=logged.append)
+    assert not out.exists() and not logged
+
+
+def test_shipped_profile_is_refused_for_a_folder_without_its_notebooks(toy_notebooks, tmp_path):
+    out = tmp_path / "reports"
+    out.mkdir()
+    with pytest.raises(ValueError,
+                       match=r"(?s)smoke.toml.*\[notebooks.01_transducer_and_projections\] names no notebook"):
+        run_study("smoke", out, notebooks_dir=toy_notebooks, progress=False, log=lambda m: None)
+    assert not list(out.iterdir())
+
+
+def test_cli_reports_a_bad_profile_with_exit_status_2(toy_notebooks, tmp_path, capsys):
+    path = tmp_path / "bad.toml"
+    path.write_text('seed = 3\n[common]\nfactr = 2\n')
+    out = tmp_path / "r"
+    assert main(["reproduce", "--profile", str(path), "--notebooks", str(toy_notebooks), "--output", str(out),
+                 "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "histostudy reproduce:" in err and "did you mean 'factor'?" in err and not out.exists()
+    path.write_text("seed = 1.7\n")
+    with pytest.raises(SystemExit) as exit_info:
+        main(["reproduce", "--profile", str(path), "--notebooks", str(toy_notebooks), "--output", str(out)])
+    assert exit_info.value.code == 2
+    assert "'seed' must be a non-negative integer, got 1.7 (float)" in capsys.readouterr().err
