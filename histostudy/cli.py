@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 
 from .reporting import PROFILE_NAMES, load_profile
@@ -64,7 +65,7 @@ def main(argv=None) -> int:
     if args.command == "train":
         return _train(args)
     if args.command == "reproduce":
-        from .reporting import NotebookFailed, run_study
+        from .reporting import NotebookFailed, StudyInterrupted, run_study
 
         try:
             run = run_study(args.profile, args.output, only=args.only, notebooks_dir=args.notebooks,
@@ -72,6 +73,13 @@ def main(argv=None) -> int:
         except NotebookFailed as exc:
             print(f"histostudy reproduce: {exc}", file=sys.stderr)
             return 1
+        except StudyInterrupted as exc:
+            print(f"histostudy reproduce: {exc}; the report names the interrupted section", file=sys.stderr)
+            return 128 + signal.SIGTERM
+        except KeyboardInterrupt:
+            print("histostudy reproduce: interrupted by SIGINT; the report names the interrupted section",
+                  file=sys.stderr)
+            return 128 + signal.SIGINT
         except ValueError as exc:
             print(f"histostudy reproduce: {exc}", file=sys.stderr)
             return 2

@@ -1,10 +1,12 @@
 """The study run in batch and its report: the profiles (``profiles``: smoke, standard, paper), the
-papermill pipeline (``pipeline``), the report that sets each measured value beside the paper's
-(``report``, with the paper's values in ``paper``) and the notebooks' figures and 3-D scenes
-(``viz``). The top layer: nothing below imports it.
+papermill pipeline (``pipeline``), stopped cleanly by SIGINT or SIGTERM (``interrupts``), the report
+that sets each measured value beside the paper's (``report``, with the paper's values in ``paper``)
+and the notebooks' figures and 3-D scenes (``viz``). The top layer: nothing below imports it.
 """
 
-from . import paper as _paper, pipeline as _pipeline, profiles as _profiles, report as _report, viz as _viz
+from . import (interrupts as _interrupts, paper as _paper, pipeline as _pipeline, profiles as _profiles,
+               report as _report, viz as _viz)
+from .interrupts import StudyInterrupted, remove_temporaries, signals_interrupt, stop_kernels
 from .paper import PAPER, PaperValue, paper_value
 from .pipeline import NotebookFailed, discover_notebooks, run_study, select_notebooks
 from .profiles import PROFILE_NAMES, Profile, load_profile, notebook_parameters, validate_profile
@@ -12,5 +14,5 @@ from .report import RESULTS_FILE, SectionWriter, build_report, format_measure, l
 from .viz import FEATURE_COLOURS, label_rgb, model_scene, plot_frames_with_labels, plot_pose_overlay, targeting_scene
 
 # every public name of the modules above, as each module's __all__ declares it
-__all__ = list(dict.fromkeys([*_paper.__all__, *_pipeline.__all__, *_profiles.__all__, *_report.__all__,
-                              *_viz.__all__]))
+__all__ = list(dict.fromkeys([*_interrupts.__all__, *_paper.__all__, *_pipeline.__all__, *_profiles.__all__,
+                              *_report.__all__, *_viz.__all__]))

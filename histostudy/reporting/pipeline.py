@@ -24,6 +24,7 @@ from typing import Callable, Sequence
 
 from histostudy.core import atomic_path, provenance
 from histostudy.core.provenance import REPO_ROOT
+from .interrupts import StudyInterrupted, remove_temporaries, signals_interrupt, stop_kernels
 from .profiles import Profile, load_profile, validate_profile
 from .report import build_report, write_run_record
 
@@ -86,7 +87,10 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
     Raises ValueError, before executing or writing anything, when the profile does not fit the
     notebooks of ``notebooks_dir`` (:func:`~histostudy.reporting.profiles.validate_profile`).
     Raises :class:`NotebookFailed` (after writing the report of what ran, with the failure named)
-    when a notebook raises; the executed copy of the failed notebook is kept.
+    when a notebook raises; the executed copy of the failed notebook is kept. On SIGINT or SIGTERM
+    the running notebook's kernel is stopped, its temporary files removed, its section marked
+    ``"interrupted"`` in ``run.json`` and the report, and ``KeyboardInterrupt`` /
+    :class:`~histostudy.reporting.interrupts.StudyInterrupted` raised after the report is written.
     """
     prof = profile if isinstance(profile, Profile) else load_profile(profile)
     found = discover_notebooks(notebooks_dir or DEFAULT_NOTEBOOK_DIR)
@@ -105,8 +109,8 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
         "notebooks": [{"name": p.stem, "status": "pending"} for p in notebooks],
         "failure": None,
     }
-    failure: NotebookFailed | None = None
-    with _running_kernel() as kernel_name:
+    failure: NotebookFailed | KeyboardInterrupt | StudyInterrupted | None = None
+    with signals_interrupt(), _running_kernel() as kernel_name:
         for i, (nb_path, entry) in enumerate(zip(notebooks, record["notebooks"]), start=1):
             section_dir = out / nb_path.stem
             params = prof.parameters_for(nb_path.stem) | {"output_dir": str(section_dir)}
@@ -120,6 +124,16 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
                 entry.update(status="failed", seconds=time.perf_counter() - t0)
                 record["failure"] = {"notebook": exc.notebook, "cell_index": exc.cell_index, "error": exc.error,
                                      "executed_notebook": str(exc.executed_notebook)}
+                failure = exc
+                break
+            except (KeyboardInterrupt, StudyInterrupted) as exc:
+                signal_name = getattr(exc, "signal_name", "SIGINT")
+                stop_kernels()
+                remove_temporaries(section_dir, out / "notebooks")
+                entry.update(status="interrupted", seconds=time.perf_counter() - t0)
+                record["failure"] = {"notebook": nb_path.stem, "cell_index": None,
+                                     "error": f"interrupted by {signal_name}", "executed_notebook": None}
+                log(f"      interrupted by {signal_name}: kernel stopped, section {nb_path.stem} marked interrupted")
                 failure = exc
                 break
             entry.update(status="ok", seconds=time.perf_counter() - t0)

@@ -254,14 +254,18 @@ def _report_markdown(out: Path, run: dict) -> str:
         "",
     ]
     failure = run.get("failure")
-    if failure:
+    if failure and failure.get("executed_notebook") is None:
+        lines += [f"> **Run stopped:** notebook `{failure['notebook']}` {failure.get('error')}; its kernel was "
+                  "stopped and its section is incomplete.", ""]
+    elif failure:
         lines += [f"> **Run failed:** notebook `{failure['notebook']}` at cell {failure.get('cell_index')}: "
                   f"{failure.get('error')}. Its executed copy is `{failure.get('executed_notebook')}`.", ""]
     sections = {}
     for nb in run.get("notebooks", []):
         name = nb["name"]
         section_dir = out / name
-        if not (section_dir / RESULTS_FILE).is_file():
+        # a section that did not finish in this run may hold an earlier run's results: not shown
+        if nb.get("status", "ok") != "ok" or not (section_dir / RESULTS_FILE).is_file():
             lines += [f"## {name}", "", f"*No results: status {nb.get('status', 'not run')}.*", ""]
             continue
         sections[name] = load_section(section_dir)

@@ -144,3 +144,50 @@ def test_cli_reports_a_bad_profile_with_exit_status_2(toy_notebooks, tmp_path, c
         main(["reproduce", "--profile", str(path), "--notebooks", str(toy_notebooks), "--output", str(out)])
     assert exit_info.value.code == 2
     assert "'seed' must be a non-negative integer, got 1.7 (float)" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signal_name", ["SIGTERM", "SIGINT"])
+def test_a_signal_stops_the_kernel_leaves_no_temporary_file_and_marks_the_section(tmp_path, toy_profile,
+                                                                                 signal_name):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    folder = tmp_path / "notebooks"
+    folder.mkdir()
+    marker = tmp_path / "kernel.pid"
+    # an earlier, complete run left results in the section: an interrupted run must not show them
+    _notebook(folder / "01_first.ipynb", [WRITE.format(name="01_first")])
+    _notebook(folder / "02_second.ipynb", [
+        "import os, time\nfrom pathlib import Path\n"
+        "from histostudy.core import atomic_path\n"
+        f"Path({str(marker)!r}).write_text(str(os.getpid()))\n"
+        "with atomic_path(Path(output_dir) / 'big.csv') as tmp:\n    tmp.write_text('half')\n    time.sleep(120)\n"])
+    out = tmp_path / "out"
+    (out / "02_second").mkdir(parents=True)
+    (out / "02_second" / "results.json").write_text('{"section": "02_second", "stale": true}')
+    cmd = [sys.executable, "-m", "histostudy.cli", "reproduce", "--profile", str(toy_profile), "--notebooks",
+           str(folder), "--output", str(out), "--no-progress"]
+    proc = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not marker.exists():
+        assert proc.poll() is None and time.monotonic() < deadline, "the second notebook never started"
+        time.sleep(0.1)
+    kernel_pid = int(marker.read_text())
+    time.sleep(1.0)  # inside the half-written file's block
+    proc.send_signal(getattr(signal, signal_name))
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + getattr(signal, signal_name), err
+    assert f"interrupted by {signal_name}" in err
+    time.sleep(0.5)
+    with pytest.raises(ProcessLookupError):  # the kernel is gone
+        os.kill(kernel_pid, 0)
+    assert [p for p in out.rglob(".*tmp*")] == []  # no temporary file left, in the section or elsewhere
+    assert not (out / "02_second" / "big.csv").exists()
+    run = json.loads((out / "run.json").read_text())
+    assert [n["status"] for n in run["notebooks"]] == ["ok", "interrupted"]
+    report = (out / "REPORT.md").read_text()
+    assert f"interrupted by {signal_name}" in report and "stale" not in report
