@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from .volume import Volume
-from .volume_io_grid import _axis_aligned_volume, _no_spacing
+from .volume_io_grid import _axis_aligned_volume, _no_spacing, _require_finite
 
 __all__ = [
     "SLICE_POSITION_RTOL",
@@ -52,10 +52,29 @@ def _numbers(value, count: int) -> np.ndarray | None:
     return arr if arr.shape == (count,) and np.all(np.isfinite(arr)) else None
 
 
-def _rescale(pixels: np.ndarray, slope, intercept) -> np.ndarray:
-    slope = 1.0 if slope in (None, "") else float(slope)
-    intercept = 0.0 if intercept in (None, "") else float(intercept)
-    return (pixels.astype(np.float64) * slope + intercept).astype(np.float32)
+def _rescale_term(source: str, keyword: str, tag: str, value, default: float) -> float:
+    if value is None or value == "":
+        return default
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{source}: {keyword} {tag} is {value!r}, expected one number") from None
+    if not np.isfinite(number):
+        raise ValueError(
+            f"{source}: {keyword} {tag} is {value!r}, expected a finite number "
+            "(the rescale to HU would make every voxel of the slice non-finite)"
+        )
+    return number
+
+
+def _rescale(source: str, pixels: np.ndarray, slope, intercept) -> np.ndarray:
+    slope = _rescale_term(source, "RescaleSlope", "(0028,1053)", slope, 1.0)
+    intercept = _rescale_term(source, "RescaleIntercept", "(0028,1052)", intercept, 0.0)
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused just below, by slice
+        values = (pixels.astype(np.float64) * slope + intercept).astype(np.float32)
+    # float pixel data can hold NaN/inf, and a huge slope overflows float32: name the slice now
+    _require_finite(values, source)
+    return values
 
 
 def _make_slice(source: str, pixels: np.ndarray, position, orientation, spacing,
@@ -81,7 +100,7 @@ def _make_slice(source: str, pixels: np.ndarray, position, orientation, spacing,
     row_cos, col_cos = cos[:3], cos[3:]
     if pixels.ndim != 2:
         raise ValueError(f"{source}: pixel data of shape {pixels.shape}, expected one monochrome 2-D slice")
-    return _Slice(source, _rescale(pixels, slope, intercept), pos,
+    return _Slice(source, _rescale(source, pixels, slope, intercept), pos,
                   row_cos / np.linalg.norm(row_cos), col_cos / np.linalg.norm(col_cos), pixel_spacing)
 
 
@@ -89,26 +108,89 @@ def _slice_from_dataset(ds, source: str) -> _Slice:
     try:
         pixels = ds.pixel_array
     except Exception as exc:  # missing decoder plugins raise several types; name the file
-        raise ValueError(f"{source}: the pixel data could not be decoded: {exc}") from exc
+        raise ValueError(f"{source}: the pixel data could not be decoded (a truncated or corrupt file, or a "
+                         f"missing decoder plugin): {exc}") from exc
     return _make_slice(
         source, np.asarray(pixels), ds.get("ImagePositionPatient"), ds.get("ImageOrientationPatient"),
         ds.get("PixelSpacing"), ds.get("RescaleSlope"), ds.get("RescaleIntercept"),
     )
 
 
-def _load_dicom_series(folder: Path) -> Volume:
+_DEFLATED_TRANSFER_SYNTAX = "1.2.840.10008.1.2.1.99"
+
+# Bulk data elements one of which every image holds; Rows/Columns without any is a cut-off image.
+_BULK_DATA = ("PixelData", "FloatPixelData", "DoubleFloatPixelData", "SpectroscopyData")
+
+
+def _has_dicom_prefix(path: Path) -> bool:
+    """Whether ``path`` starts as a DICOM file does: a 128-byte preamble, then ``DICM``."""
+    with open(path, "rb") as fh:
+        head = fh.read(132)
+    return len(head) == 132 and head[128:] == b"DICM"
+
+
+def _read_dicom(path: Path):
+    """The pydicom dataset of ``path``, or None where the file is not DICOM at all.
+
+    pydicom reads a file cut short without complaint (it stops at the last whole element, or keeps a
+    short value), which would drop a slice from a series unnoticed. A file that starts as DICOM (or
+    is named .dcm/.dicom) and cannot be read whole is therefore refused, not skipped.
+    """
     import pydicom
+    from pydicom.dataelem import RawDataElement
     from pydicom.errors import InvalidDicomError
 
+    source = f"DICOM file {str(path)!r}"
+    try:
+        claims_dicom = _has_dicom_prefix(path) or path.suffix.lower() in (".dcm", ".dicom")
+        size = path.stat().st_size
+    except OSError as exc:
+        raise ValueError(f"{source} could not be read: {exc}") from exc
+    try:
+        ds = pydicom.dcmread(path)
+    except Exception as exc:  # a damaged file escapes as struct.error, EOFError, ValueError, ...
+        if not claims_dicom and isinstance(exc, (InvalidDicomError, OSError, EOFError)):
+            return None  # not DICOM (notes, thumbnails, a DICOMDIR's neighbours): not a slice
+        raise ValueError(
+            f"{source} could not be read as DICOM: truncated or corrupt ({type(exc).__name__}: {exc})"
+        ) from exc
+    tags = ds.keys()
+    if not tags:
+        raise ValueError(f"{source} is truncated or corrupt: no data set follows its file meta information "
+                         f"({size} bytes in all)")
+    # Elements are stored in tag order, so the largest tag is the last in the file: past the end
+    # of the file its value was cut short; fewer than 8 bytes after it are a cut element header
+    # (pydicom stops there silently). An undefined length (a sequence's) cannot be checked this
+    # cheaply, and a deflated data set's positions are in the inflated stream, not the file.
+    last = ds.get_item(max(tags))
+    deflated = str(getattr(getattr(ds, "file_meta", None), "TransferSyntaxUID", "")) == _DEFLATED_TRANSFER_SYNTAX
+    if (isinstance(last, RawDataElement) and last.length != 0xFFFFFFFF and last.value_tell is not None
+            and not deflated):
+        end = last.value_tell + last.length
+        if end > size or 0 < size - end < 8:
+            raise ValueError(
+                f"{source} is truncated or corrupt: its last data element {last.tag} ends at byte {end}, "
+                f"but the file has {size} bytes"
+            )
+    # A cut between two whole elements leaves a well-formed but incomplete data set: an image
+    # (by its SOP class, kept in the file meta at the start, or by Rows/Columns) without pixels.
+    sop_class = (getattr(getattr(ds, "file_meta", None), "MediaStorageSOPClassUID", None)
+                 or ds.get("SOPClassUID") or "")
+    sop_name = getattr(sop_class, "name", str(sop_class))
+    is_image = "Image Storage" in sop_name or "Rows" in ds or "Columns" in ds
+    if is_image and not any(k in ds for k in _BULK_DATA):
+        raise ValueError(f"{source} is truncated or corrupt: an image ({sop_name or 'Rows/Columns'}) without "
+                         "its pixel data (7FE0,0010)")
+    return ds
+
+
+def _load_dicom_series(folder: Path) -> Volume:
     source = f"DICOM folder {str(folder)!r}"
     files = sorted(p for p in folder.iterdir() if p.is_file())
     datasets = []
     for f in files:
-        try:
-            ds = pydicom.dcmread(f)
-        except (InvalidDicomError, OSError, EOFError):
-            continue  # not DICOM (notes, thumbnails, a DICOMDIR's neighbours): not a slice
-        if "PixelData" in ds:
+        ds = _read_dicom(f)
+        if ds is not None and "PixelData" in ds:
             datasets.append((f, ds))
     if not datasets:
         raise ValueError(f"{source}: none of its {len(files)} files is a DICOM image; expected one series of slices")
@@ -149,14 +231,10 @@ def _functional_group_value(ds, frame: int, sequence: str, keyword: str):
 
 
 def _load_dicom_multiframe(path: Path) -> Volume:
-    import pydicom
-    from pydicom.errors import InvalidDicomError
-
     source = f"DICOM file {str(path)!r}"
-    try:
-        ds = pydicom.dcmread(path)
-    except (InvalidDicomError, OSError, EOFError) as exc:
-        raise ValueError(f"{source} could not be read as DICOM: {exc}") from exc
+    ds = _read_dicom(path)
+    if ds is None:
+        raise ValueError(f"{source} could not be read as DICOM: not a DICOM file")
     if "PixelData" not in ds:
         raise ValueError(f"{source} holds no image (no PixelData)")
     n_frames = int(ds.get("NumberOfFrames", 1) or 1)
@@ -168,7 +246,8 @@ def _load_dicom_multiframe(path: Path) -> Volume:
     try:
         pixels = np.asarray(ds.pixel_array)
     except Exception as exc:  # missing decoder plugins raise several types; name the file
-        raise ValueError(f"{source}: the pixel data could not be decoded: {exc}") from exc
+        raise ValueError(f"{source}: the pixel data could not be decoded (a truncated or corrupt file, or a "
+                         f"missing decoder plugin): {exc}") from exc
     if pixels.shape[0] != n_frames or pixels.ndim != 3:
         raise ValueError(f"{source}: pixel data of shape {pixels.shape}, expected {n_frames} monochrome frames")
     slices = []

@@ -10,8 +10,11 @@ writing stores float32 without scaling and is exact: :func:`save_volume_nifti` t
 
 from __future__ import annotations
 
+import gzip
+import io
 import os
 import warnings
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -79,14 +82,24 @@ def _load_nifti(path: Path) -> Volume:
     try:
         img = nib.load(str(path))
     except Exception as exc:  # nibabel raises many types for a damaged file; one message for all
-        raise ValueError(f"{source} could not be read as NIfTI: {exc}") from exc
+        raise ValueError(f"{source} could not be read as NIfTI (truncated or corrupt?): {exc}") from exc
     if not isinstance(img, nib.Nifti1Image):
         raise ValueError(f"{source} is a {type(img).__name__}, expected a NIfTI-1/NIfTI-2 image")
-    hdr = img.header
-    # nibabel silently "fixes" a zero pixdim to 1 on load (a 1 mm grid nobody measured), so the
-    # voxel sizes are checked in the header as written.
-    with ImageOpener(str(path)) as fh:
-        raw_hdr = type(hdr).from_fileobj(fh, check=False)
+    try:
+        contents = None
+        if path.name.lower().endswith(".gz"):
+            # nibabel reads a .gz only as far as the voxels go, so a file cut inside the gzip
+            # trailer (CRC, length) loads silently; reading the whole stream once checks both.
+            with gzip.open(path, "rb") as fh:
+                contents = fh.read()
+            img = type(img).from_bytes(contents)
+        hdr = img.header
+        # nibabel silently "fixes" a zero pixdim to 1 on load (a 1 mm grid nobody measured), so the
+        # voxel sizes are checked in the header as written.
+        with (io.BytesIO(contents) if contents is not None else ImageOpener(str(path))) as fh:
+            raw_hdr = type(hdr).from_fileobj(fh, check=False)
+    except (OSError, EOFError, zlib.error) as exc:
+        raise ValueError(f"{source} is truncated or corrupt: {type(exc).__name__}: {exc}") from exc
     shape = tuple(int(n) for n in img.shape)
     if len(shape) < 3 or any(n != 1 for n in shape[3:]):
         raise ValueError(
@@ -106,8 +119,16 @@ def _load_nifti(path: Path) -> Volume:
     if unit not in _NIFTI_UNIT_TO_MM:
         raise ValueError(f"{source}: unsupported spatial unit {unit!r} (expected mm, meter or micron)")
     affine = np.asarray(img.affine, dtype=np.float64) * _NIFTI_UNIT_TO_MM[unit]
-    # get_fdata applies scl_slope/scl_inter; float32 is the Volume's type, so no float64 copy.
-    data = np.asarray(img.get_fdata(caching="unchanged", dtype=np.float32))
+    try:
+        # get_fdata applies scl_slope/scl_inter; float32 is the Volume's type, so no float64 copy.
+        data = np.asarray(img.get_fdata(caching="unchanged", dtype=np.float32))
+    except (OSError, EOFError, zlib.error) as exc:
+        raise ValueError(
+            f"{source} is truncated or corrupt: its voxel data (shape {shape}) could not be read: "
+            f"{type(exc).__name__}: {exc}"
+        ) from exc
+    # the decompressed file is no longer needed; the reorientation below copies the data once more
+    del img, contents
     data = data.reshape(shape[:3])
     steps_lps = _RAS_TO_LPS @ affine[:3, :3]
     origin_lps = _RAS_TO_LPS @ affine[:3, 3]

@@ -53,8 +53,10 @@ def load_volume(path: str | os.PathLike) -> Volume:
 
     Raises:
         FileNotFoundError: ``path`` does not exist.
-        ValueError: an unsupported format, or a file whose geometry cannot be read without
-            resampling (oblique, sheared, unevenly spaced) or is missing (no spacing/position).
+        ValueError: an unsupported format; a truncated or corrupt file; a file whose geometry
+            cannot be read without resampling (oblique, sheared, unevenly spaced) or is missing
+            (no spacing/position); non-finite voxel values (NaN/inf), or a non-finite DICOM
+            RescaleSlope/RescaleIntercept.
     """
     path = Path(path)
     name = path.name.lower()

@@ -27,6 +27,19 @@ def _no_spacing(source: str, detail: str) -> ValueError:
     return ValueError(f"{source}: a CBCT volume without spacing has no geometry: {detail}")
 
 
+def _require_finite(values: np.ndarray, source: str) -> None:
+    """Refuse NaN/inf voxels: they would propagate through every trilinear sample (§II-A) and
+    every threshold of the segmentation (§II-E.3) without a trace of where they came from."""
+    n_finite = int(np.count_nonzero(np.isfinite(values)))
+    if n_finite != values.size:
+        n_nan = int(np.count_nonzero(np.isnan(values)))
+        raise ValueError(
+            f"{source}: {values.size - n_finite} of {values.size} voxel values are not finite "
+            f"({n_nan} NaN, {values.size - n_finite - n_nan} infinite); expected finite values "
+            "(Hounsfield units for CT): a damaged file or a broken rescale/scaling in its header"
+        )
+
+
 def _axis_aligned_volume(data: np.ndarray, steps_lps: np.ndarray, origin_lps: np.ndarray,
                          source: str) -> Volume:
     """The :class:`Volume` of a 3-D array whose axis ``a`` steps by ``steps_lps[:, a]`` (LPS mm).
@@ -35,6 +48,7 @@ def _axis_aligned_volume(data: np.ndarray, steps_lps: np.ndarray, origin_lps: np
     permutation times positive scales; axes are flipped and transposed (no value is changed)
     so that the Volume runs along +x, +y, +z.
     """
+    _require_finite(data, source)
     steps = np.asarray(steps_lps, dtype=np.float64)
     lengths = np.linalg.norm(steps, axis=0)
     if not np.all(np.isfinite(steps)) or np.any(lengths <= 0):

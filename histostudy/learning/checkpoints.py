@@ -8,9 +8,12 @@
      "profile": "standard", "seed": 20230119, "git_commit": "...", "training_steps": 4000,
      "validation": {...metrics}, "input_scale": 0.5, ...}
 
-The network config is also stored in the safetensors header metadata. Loading checks the file's
-hash against the manifest, that both configs agree, and that the tensors fit the network the
-config builds; any mismatch or a corrupt file raises a ``ValueError`` naming the file. Both
+The network config is also stored in the safetensors header metadata, and the manifest records
+each tensor's dtype (``"tensor_dtypes"``; older manifests lack it). Loading checks the file's
+hash against the manifest, that both configs agree, that every tensor has the dtype the manifest
+records and the network expects, that no floating-point tensor holds NaN or inf, and that the
+tensors fit the network the config builds; any mismatch or a corrupt file raises a
+``ValueError`` naming the file (and the tensor). Both
 files are written atomically (temporary file, then rename), weights first, so a manifest never
 names weights that are not completely on disk.
 
@@ -63,6 +66,50 @@ def manifest_path(path) -> Path:
     return _weights_path(path).with_suffix(".json")
 
 
+def _dtype_name(tensor: torch.Tensor) -> str:
+    return str(tensor.dtype).removeprefix("torch.")
+
+
+def _read_manifest(mpath: Path) -> dict:
+    """The manifest at ``mpath`` as a dict; ``ValueError`` naming the file when it is not one."""
+    try:
+        manifest = json.loads(mpath.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"manifest {str(mpath)!r} is not readable JSON: {exc}") from None
+    if not isinstance(manifest, dict):
+        raise ValueError(f"manifest {str(mpath)!r} holds a JSON {type(manifest).__name__}, expected a JSON "
+                         f"object ({FORMAT} manifest with format, sha256, config)")
+    return manifest
+
+
+def _check_tensors(tensors: dict, manifest: dict, weights: Path, mpath: Path) -> None:
+    """Refuse tensors whose dtypes differ from the manifest's record, and NaN/inf values.
+
+    A dtype relabelled in the safetensors header reinterprets the same bytes (float32 read as
+    int32, say); ``load_state_dict`` would then silently cast those numbers into the network.
+    """
+    recorded = manifest.get("tensor_dtypes")
+    if recorded is not None:
+        if not isinstance(recorded, dict):
+            raise ValueError(f"manifest {str(mpath)!r}: tensor_dtypes is {recorded!r}, expected an object "
+                             "mapping tensor names to dtypes")
+        for name in sorted(recorded.keys() | tensors.keys()):
+            found = _dtype_name(tensors[name]) if name in tensors else None
+            if found != recorded.get(name):
+                raise ValueError(
+                    f"weights {str(weights)!r}: tensor {name!r} has dtype {found or '(no such tensor)'}, but "
+                    f"manifest {str(mpath)!r} records {recorded.get(name) or '(no such tensor)'}"
+                )
+    for name, tensor in tensors.items():
+        if tensor.is_floating_point() or tensor.is_complex():
+            n_bad = int((~torch.isfinite(tensor)).sum())
+            if n_bad:
+                raise ValueError(
+                    f"weights {str(weights)!r}: tensor {name!r} holds {n_bad} non-finite value(s) (NaN or inf) "
+                    f"of {tensor.numel()}; expected finite weights (a diverged training run or a damaged export)"
+                )
+
+
 def save_checkpoint(path, tensors: dict, config: dict, **manifest) -> Path:
     """Write ``tensors`` to ``<path>.safetensors`` and the manifest to ``<path>.json``; returns the manifest path.
 
@@ -79,7 +126,8 @@ def save_checkpoint(path, tensors: dict, config: dict, **manifest) -> Path:
     with atomic_path(weights) as tmp:
         save_file(flat, str(tmp), metadata={"format": FORMAT, "config": json.dumps(to_jsonable(config), sort_keys=True)})
     record = {"format": FORMAT, "version": VERSION, "config": config, "weights_file": weights.name,
-              "sha256": sha256_file(weights), "size_bytes": weights.stat().st_size}
+              "sha256": sha256_file(weights), "size_bytes": weights.stat().st_size,
+              "tensor_dtypes": {k: _dtype_name(v) for k, v in sorted(flat.items())}}
     record["git_commit"] = commit
     record.update(manifest)
     return atomic_write_json(manifest_path(weights), record)
@@ -88,22 +136,23 @@ def save_checkpoint(path, tensors: dict, config: dict, **manifest) -> Path:
 def load_checkpoint(path, expected_config: dict | None = None) -> tuple[dict, dict]:
     """``(tensors, manifest)`` of a checkpoint, after checking hash and configuration.
 
-    Raises ``ValueError`` when the manifest is missing or unreadable, the weights' SHA-256 differs
-    from the manifest's, the file is not valid safetensors, the header's config differs from the
-    manifest's, or ``expected_config`` (if given) differs from the manifest's config.
+    Raises ``ValueError`` when the manifest is missing, unreadable or not a JSON object, the
+    weights' SHA-256 differs from the manifest's, the file is not valid safetensors, a tensor's
+    dtype differs from the one the manifest records, a floating-point tensor holds NaN or inf, the
+    header's config differs from the manifest's, or ``expected_config`` (if given) differs from the
+    manifest's config.
     """
     weights = _weights_path(path)
     mpath = manifest_path(weights)
     if not weights.is_file():
         raise ValueError(f"weights file {str(weights)!r} does not exist")
-    try:
-        manifest = json.loads(mpath.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise ValueError(f"weights {str(weights)!r} have no manifest {str(mpath)!r}") from None
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"manifest {str(mpath)!r} is not readable JSON: {exc}") from None
-    if manifest.get("format") != FORMAT or "sha256" not in manifest or "config" not in manifest:
-        raise ValueError(f"manifest {str(mpath)!r} is not a {FORMAT} manifest (needs format, sha256, config)")
+    if not mpath.is_file():
+        raise ValueError(f"weights {str(weights)!r} have no manifest {str(mpath)!r}")
+    manifest = _read_manifest(mpath)
+    if (manifest.get("format") != FORMAT or "sha256" not in manifest
+            or not isinstance(manifest.get("config"), dict)):
+        raise ValueError(f"manifest {str(mpath)!r} is not a {FORMAT} manifest (needs format, sha256, "
+                         "config: an object)")
     digest = sha256_file(weights)
     if digest != manifest["sha256"]:
         raise ValueError(f"weights {str(weights)!r} have SHA-256 {digest}, but manifest {str(mpath)!r} "
@@ -116,6 +165,7 @@ def load_checkpoint(path, expected_config: dict | None = None) -> tuple[dict, di
         tensors = load_file(str(weights))
     except (SafetensorError, OSError, ValueError) as exc:
         raise ValueError(f"weights {str(weights)!r} are not a valid safetensors file: {exc}") from None
+    _check_tensors(tensors, manifest, weights, mpath)
     config = to_jsonable(manifest["config"])
     if header_config != config:
         raise ValueError(f"weights {str(weights)!r} were saved for config {header_config}, but the manifest "
@@ -132,6 +182,15 @@ def load_network(path, expected_config: dict | None = None) -> tuple[torch.nn.Mo
     model_tensors = {k[len("model."):]: v for k, v in tensors.items() if k.startswith("model.")}
     if not model_tensors:
         raise ValueError(f"checkpoint {str(path)!r} holds no 'model.' tensors")
+    # Manifests written before tensor_dtypes (the shipped ones among them) are checked against the
+    # network itself: load_state_dict would cast a relabelled tensor without a word.
+    expected = net.state_dict()
+    for name in sorted(model_tensors.keys() & expected.keys()):
+        if model_tensors[name].dtype != expected[name].dtype:
+            raise ValueError(
+                f"checkpoint {str(path)!r}: tensor 'model.{name}' has dtype {_dtype_name(model_tensors[name])}, "
+                f"but the network of config {manifest['config']} expects {_dtype_name(expected[name])}"
+            )
     try:
         net.load_state_dict(model_tensors, strict=True)
     except RuntimeError as exc:
@@ -141,13 +200,14 @@ def load_network(path, expected_config: dict | None = None) -> tuple[torch.nn.Mo
 
 def shipped_model(name: str, models_dir=None) -> Path | None:
     """Path of the shipped weights ``data/models/<name>.safetensors`` if they and their manifest exist
-    and the hash matches, else None (with a warning when present but invalid)."""
+    and the hash matches, else None (with a warning when present but invalid: a manifest that is
+    not a JSON object, too)."""
     folder = MODELS_DIR if models_dir is None else Path(models_dir)
     weights = folder / f"{name}.safetensors"
     if not (weights.is_file() and manifest_path(weights).is_file()):
         return None
     try:
-        manifest = json.loads(manifest_path(weights).read_text(encoding="utf-8"))
+        manifest = _read_manifest(manifest_path(weights))
         if sha256_file(weights) != manifest.get("sha256"):
             raise ValueError("SHA-256 differs from the manifest")
     except (OSError, ValueError) as exc:

@@ -223,3 +223,56 @@ def test_dicom_series_round_trips_through_nifti(tmp_path):
     back = load_volume(save_volume_nifti(vol, tmp_path / "s.nii.gz"))
     assert np.array_equal(back.data, vol.data)
     assert np.array_equal(back.spacing_mm, vol.spacing_mm) and np.array_equal(back.origin_mm, vol.origin_mm)
+
+
+@pytest.mark.filterwarnings("ignore:Invalid value for VR DS:UserWarning")  # pydicom on writing 'nan'/'inf'
+@pytest.mark.parametrize("keyword, tag, value", [("RescaleSlope", r"\(0028,1053\)", "nan"),
+                                                 ("RescaleIntercept", r"\(0028,1052\)", "-inf")])
+def test_dicom_non_finite_rescale_is_refused_at_its_slice(tmp_path, keyword, tag, value):
+    _write_series(tmp_path / "s", (1, 0, 0, 0, 1, 0))
+    victim = tmp_path / "s" / "IM0003.dcm"
+    ds = pydicom.dcmread(victim)
+    setattr(ds, keyword, value)
+    _save(ds, victim)
+    with pytest.raises(ValueError, match=rf"(?s)IM0003\.dcm.*{keyword} {tag} is '{value}', expected a finite number"):
+        load_volume(tmp_path / "s")
+
+
+def test_dicom_non_finite_voxels_are_refused_at_their_slice(tmp_path):
+    # a finite slope whose rescale overflows float32 (the Volume's type): every voxel is +-inf
+    _write_series(tmp_path / "s", (1, 0, 0, 0, 1, 0))
+    victim = tmp_path / "s" / "IM0001.dcm"
+    ds = pydicom.dcmread(victim)
+    ds.RescaleSlope = "1e38"
+    _save(ds, victim)
+    with pytest.raises(ValueError, match=r"(?s)IM0001\.dcm.*of 42 voxel values are not finite.*expected finite"):
+        load_volume(tmp_path / "s")
+
+
+@pytest.mark.filterwarnings("ignore::UserWarning")  # pydicom warns about the values it reads cut short
+def test_truncated_dicom_slice_is_refused_not_skipped(tmp_path):
+    """A slice cut anywhere must not be dropped from the series (an end slice lost would leave a
+    uniform, shorter volume) nor escape as pydicom's raw EOFError/struct.error."""
+    _write_series(tmp_path / "s", (1, 0, 0, 0, 1, 0))
+    victim = tmp_path / "s" / "IM0002.dcm"
+    whole = victim.read_bytes()
+    for keep in [*range(0, len(whole), 9), len(whole) - 2, len(whole) - 1]:
+        victim.write_bytes(whole[:keep])
+        with pytest.raises(ValueError, match=r"IM0002\.dcm.*(truncated or corrupt|could not be read)"):
+            load_volume(tmp_path / "s")
+    victim.write_bytes(whole)
+    assert load_volume(tmp_path / "s").data.shape == (5, 7, 6)  # intact again: all five slices
+
+
+@pytest.mark.filterwarnings("ignore::UserWarning")
+def test_truncated_enhanced_multiframe_dicom_is_refused(tmp_path):
+    orientation = (1, 0, 0, 0, 1, 0)
+    raw = np.random.default_rng(6).integers(-500, 1500, (4, 7, 6)).astype(np.int16)
+    positions = np.array([0.0, 0.0, 1.0]) * np.arange(4)[:, None] * 1.5
+    _enhanced_ct(tmp_path / "enh.dcm", raw, positions, orientation)
+    whole = (tmp_path / "enh.dcm").read_bytes()
+    for keep in [100, 300, len(whole) // 2, len(whole) - 50, len(whole) - 1]:
+        (tmp_path / "cut.dcm").write_bytes(whole[:keep])
+        with pytest.raises(ValueError, match=r"cut\.dcm.*(truncated or corrupt|could not be)"):
+            load_volume(tmp_path / "cut.dcm")
+    assert load_volume(tmp_path / "enh.dcm").data.shape == (4, 7, 6)

@@ -124,3 +124,24 @@ def test_nifti_without_qform_or_sform_warns(tmp_path):
     nib.save(img, tmp_path / "n.nii")
     with pytest.warns(UserWarning, match="position in the C-arm frame is unknown"):
         load_volume(tmp_path / "n.nii")
+
+
+@pytest.mark.parametrize("suffix", [".nii", ".nii.gz"])
+def test_truncated_nifti_is_refused_naming_the_file(tmp_path, suffix):
+    """A file cut anywhere (in the header, the voxels, or only the gzip trailer) is a ValueError
+    naming the file, never nibabel's OSError or gzip's EOFError escaping raw."""
+    vol = Volume(np.random.default_rng(4).normal(0, 300, (20, 15, 10)).astype(np.float32), 0.5)
+    whole = save_volume_nifti(vol, tmp_path / f"whole{suffix}").read_bytes()
+    for keep in [10, 200, 400, len(whole) // 2, len(whole) - 9, len(whole) - 4, len(whole) - 1]:
+        cut = tmp_path / f"cut{keep}{suffix}"
+        cut.write_bytes(whole[:keep])
+        with pytest.raises(ValueError, match=rf"cut{keep}\.nii.*(truncated or corrupt|could not be read)") as err:
+            load_volume(cut)
+        assert err.value.__cause__ is not None  # the reader's own error stays on the chain
+    # the voxels or the gzip trailer cut: the reader's error is chained, the message says truncated
+    cut = tmp_path / f"half{suffix}"
+    cut.write_bytes(whole[: len(whole) - 100])
+    with pytest.raises(ValueError, match=r"half\.nii.*is truncated or corrupt") as err:
+        load_volume(cut)
+    assert isinstance(err.value.__cause__, (OSError, EOFError))
+    assert np.array_equal(load_volume(tmp_path / f"whole{suffix}").data, vol.data)  # the intact file still reads

@@ -152,3 +152,66 @@ def test_training_summary_reads_the_manifests_training_record():
     assert training_summary({"training_steps": 40}) == "40 training steps"  # an older manifest: nothing guessed
     with pytest.raises(TypeError, match="manifest must be a checkpoint manifest dict"):
         training_summary("vgg19_standard.json")
+
+
+def test_a_manifest_that_is_not_a_json_object(tmp_path):
+    _save(tmp_path / "unet")
+    manifest_path(tmp_path / "unet.safetensors").write_text(json.dumps(["histostudy.checkpoint", 1]))
+    with pytest.raises(ValueError, match=r"unet\.json.*JSON list, expected a JSON object"):
+        load_checkpoint(tmp_path / "unet.safetensors")
+    # the shipped-model lookup keeps its documented contract: a warning and None, not a crash
+    with pytest.warns(UserWarning, match=r"(?s)not usable.*JSON list, expected a JSON object"):
+        assert shipped_model("unet", models_dir=tmp_path) is None
+
+
+def _rewrite_weights(weights, edit_header):
+    """Edit a safetensors file's header and re-hash its manifest, as a careless converter would:
+    the hash check alone then lets it through."""
+    raw = weights.read_bytes()
+    n = int.from_bytes(raw[:8], "little")
+    header = json.loads(raw[8:8 + n])
+    edit_header(header)
+    text = json.dumps(header).encode()
+    text += b" " * (-len(text) % 8)
+    weights.write_bytes(len(text).to_bytes(8, "little") + text + raw[8 + n:])
+    m = json.loads(manifest_path(weights).read_text())
+    m["sha256"] = hashlib.sha256(weights.read_bytes()).hexdigest()
+    manifest_path(weights).write_text(json.dumps(m))
+    return m
+
+
+def test_relabelled_tensor_dtypes_are_refused(tmp_path):
+    net, _ = _save(tmp_path / "unet")
+    weights = tmp_path / "unet.safetensors"
+    victim = next(k for k, v in net.state_dict().items() if v.dtype == torch.float32)
+    manifest = json.loads(manifest_path(weights).read_text())
+    assert manifest["tensor_dtypes"][f"model.{victim}"] == "float32"
+
+    def relabel(header):  # same byte size: the float32 bits now read as int32
+        assert header[f"model.{victim}"]["dtype"] == "F32"
+        header[f"model.{victim}"]["dtype"] = "I32"
+
+    m = _rewrite_weights(weights, relabel)
+    with pytest.raises(ValueError, match=rf"tensor 'model\.{victim}' has dtype int32, but manifest .*records float32"):
+        load_checkpoint(weights)
+    # a manifest without the record (written before it, as the shipped ones): the network decides
+    del m["tensor_dtypes"]
+    manifest_path(weights).write_text(json.dumps(m))
+    tensors, _ = load_checkpoint(weights)
+    assert tensors[f"model.{victim}"].dtype == torch.int32
+    with pytest.raises(ValueError, match=rf"tensor 'model\.{victim}' has dtype int32, but the network .* expects "
+                                         r"float32"):
+        load_network(weights)
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_non_finite_weights_are_refused_naming_the_tensor(tmp_path, bad):
+    net = UNet(base_width=2, depth=2)
+    victim = next(k for k, v in net.state_dict().items() if v.dtype == torch.float32 and v.numel() > 2)
+    with torch.no_grad():
+        net.state_dict()[victim].view(-1)[:2] = bad
+    _save(tmp_path / "unet", net)
+    with pytest.raises(ValueError, match=rf"tensor 'model\.{victim}' holds 2 non-finite value\(s\).*expected finite"):
+        load_checkpoint(tmp_path / "unet.safetensors")
+    with pytest.raises(ValueError, match="non-finite"):
+        load_network(tmp_path / "unet.safetensors")
