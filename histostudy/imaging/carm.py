@@ -129,6 +129,9 @@ class View:
                 f"source_detector_mm must be finite and larger than source_isocenter_mm ({sod} mm), "
                 f"got {source_detector_mm!r}"
             )
+        pixel = float(pixel_mm)
+        if not (np.isfinite(pixel) and pixel > 0):
+            raise ValueError(f"pixel_mm must be a finite detector pixel pitch > 0 (mm), got {pixel_mm!r}")
         rows, cols = shape
         if principal_point is None:
             principal_point = ((cols - 1) / 2.0, (rows - 1) / 2.0)
