@@ -73,20 +73,26 @@ def test_interrupted_treatment_resumes_without_repeating_or_skipping(tmp_path, f
     assert err.max() <= 0.03 + 1e-9
 
 
-def test_a_fault_while_firing_leaves_the_point_uncertain_and_a_resume_refuses_until_told(tmp_path):
+def _stopped_while_firing(tmp_path, index):
+    """A treatment whose therapy system faults while firing point ``index`` (some of its pulses may
+    have gone out); returns the plan, the calibration, the journal, the firings and the error."""
     robot, zone, T_base_carm, R_base_tcp = robot_zone_and_calibration()
     plan = plan_treatment(zone, 5.0, axes=R_CT)
-    path = tmp_path / "j.sqlite"
-    fired = []
+    path, fired = tmp_path / "j.sqlite", []
 
-    def therapy_fault_at_4(i, n):
+    def therapy_fault(i, n):
         fired.append(i)
-        if i == 4:
-            raise RuntimeError("generator fault")  # some pulses of point 4 may have gone out
+        if i == index:
+            raise RuntimeError("generator fault")
 
     with pytest.raises(RuntimeError, match="generator fault") as info:
-        execute_treatment(robot, plan, T_base_carm, R_base_tcp, path, deliver=therapy_fault_at_4)
-    assert any("may have been fired" in note for note in info.value.__notes__)
+        execute_treatment(robot, plan, T_base_carm, R_base_tcp, path, deliver=therapy_fault)
+    return plan, T_base_carm, R_base_tcp, path, fired, info.value
+
+
+def test_a_fault_while_firing_leaves_the_point_uncertain_and_a_resume_refuses_until_told(tmp_path):
+    plan, T_base_carm, R_base_tcp, path, fired, error = _stopped_while_firing(tmp_path, 4)
+    assert any("may have been fired" in note for note in error.__notes__)
     assert load_journal(path)["uncertain"] == 4 and TreatmentRun.load(path).uncertain == 4
     fresh = SimulatedUR5e(3)
     with pytest.raises(UncertainPointError, match="point 4") as refused:  # the default: never fire twice
@@ -100,23 +106,12 @@ def test_a_fault_while_firing_leaves_the_point_uncertain_and_a_resume_refuses_un
 
 
 def test_skipping_an_uncertain_point_fires_it_no_more_and_is_recorded(tmp_path):
-    robot, zone, T_base_carm, R_base_tcp = robot_zone_and_calibration()
-    plan = plan_treatment(zone, 5.0, axes=R_CT)
-    path = tmp_path / "j.sqlite"
-    fired = []
-
-    def fault_at_2(i, n):
-        fired.append(i)
-        if i == 2:
-            raise RuntimeError("generator fault")
-
-    with pytest.raises(RuntimeError):
-        execute_treatment(robot, plan, T_base_carm, R_base_tcp, path, deliver=fault_at_2)
+    plan, T_base_carm, R_base_tcp, path, fired, _ = _stopped_while_firing(tmp_path, 2)
     run = execute_treatment(SimulatedUR5e(4), plan, T_base_carm, R_base_tcp, path, deliver=lambda i, n: fired.append(i),
                             on_uncertain="skip")
     assert run.completed and run.skipped == (2,) and run.pulses[2] == 0 and sorted(fired) == list(range(len(plan)))
     with pytest.raises(ValueError, match="on_uncertain"):
-        execute_treatment(robot, plan, T_base_carm, R_base_tcp, tmp_path / "k.sqlite", on_uncertain="ask")
+        execute_treatment(SimulatedUR5e(5), plan, T_base_carm, R_base_tcp, tmp_path / "k.sqlite", on_uncertain="ask")
 
 
 def test_journal_refuses_another_plan_or_calibration(tmp_path):
