@@ -31,7 +31,7 @@ import numpy as np
 import scipy.linalg
 
 from histostudy.core import atomic_write_json
-from histostudy.geometry import as_points, rotation_about_axis
+from histostudy.geometry import as_points, check_rotation, rotation_about_axis
 
 __all__ = ["View", "default_biplane", "load_views", "save_views"]
 
@@ -158,6 +158,56 @@ class View:
     def from_matrix(cls, P, shape: tuple[int, int], pixel_mm: float, name: str = "") -> "View":
         """A view from a user's calibrated 3x4 matrix (e.g. from a C-arm calibration phantom)."""
         return cls(P=P, shape=shape, pixel_mm=pixel_mm, name=name)
+
+    @classmethod
+    def from_krt(cls, K, R, t, shape: tuple[int, int], pixel_mm: float, name: str = "") -> "View":
+        """A view from a calibration's intrinsics and pose: ``P = K @ [R | t]`` (eq. 1).
+
+        ``K``: 3x3 upper-triangular intrinsics in pixels (focal lengths > 0, principal point in
+        ``K[:2, 2]``); ``R`` (3x3 rotation) and ``t`` (3, mm) map world (CBCT) points into the
+        camera frame, ``x_cam = R @ x + t``, with the camera's z along the beam, x along image
+        columns and y along rows (OpenCV's convention).
+        """
+        K = np.asarray(K, dtype=np.float64)
+        if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[2, 2] <= 0:
+            raise ValueError(f"K must be a finite 3x3 intrinsic matrix with K[2, 2] > 0, got {np.asarray(K).tolist()}")
+        K = K / K[2, 2]
+        if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[0, 0] <= 0 or K[1, 1] <= 0:
+            raise ValueError(f"K must be upper triangular with positive focal lengths (pixels), got {K.tolist()}")
+        R = check_rotation(R, "R")
+        t = np.asarray(t, dtype=np.float64).reshape(-1)
+        if t.shape != (3,) or not np.all(np.isfinite(t)):
+            raise ValueError(f"t must be 3 finite numbers (mm), got {np.asarray(t).tolist()}")
+        return cls(P=K @ np.hstack([R, t[:, None]]), shape=shape, pixel_mm=pixel_mm, name=name)
+
+    @classmethod
+    def from_dicom(cls, dataset, *, frame_index: int | None = None, name: str = "") -> "View":
+        """The view a DICOM XA/RF object records (a pydicom dataset or a file path).
+
+        Reads the positioner angles, the source distances, ``ImagerPixelSpacing`` and the image
+        size (:mod:`.dicom_geometry`, which documents the conventions: those of
+        :meth:`from_gantry`), from frame ``frame_index``'s functional groups in an enhanced object.
+        Unequal row and column spacings give unequal focal lengths; ``pixel_mm`` is the column
+        spacing. A missing attribute raises a ValueError naming it and its tag.
+        """
+        from .dicom_geometry import gantry_from_dicom
+
+        source = "the DICOM object"
+        if isinstance(dataset, (str, os.PathLike)):
+            import pydicom
+
+            source = str(dataset)
+            dataset = pydicom.dcmread(dataset, stop_before_pixels=True)
+        g = gantry_from_dicom(dataset, frame_index, source)
+        row_mm, col_mm = g["pixel_mm"]
+        view = cls.from_gantry(g["primary_deg"], g["secondary_deg"], source_isocenter_mm=g["source_isocenter_mm"],
+                               source_detector_mm=g["source_detector_mm"], shape=g["shape"], pixel_mm=col_mm,
+                               name=name)
+        gantry = dict(view.gantry, pixel_spacing_mm=[row_mm, col_mm])
+        # rows: focal length SID / row spacing instead of / column spacing, about the principal point
+        ratio, cv = col_mm / row_mm, view.gantry["principal_point"][1]
+        rows = np.array([[1.0, 0.0, 0.0], [0.0, ratio, cv * (1.0 - ratio)], [0.0, 0.0, 1.0]])
+        return cls(P=rows @ view.P, shape=view.shape, pixel_mm=col_mm, name=name, gantry=gantry)
 
     def scaled(self, factor: float) -> "View":
         """The view of the same geometry on an image resampled by ``factor`` (0.25: 1240x960 -> 310x240).

@@ -161,3 +161,96 @@ def test_bad_gantry_parameters():
         View.from_gantry(0, 0, source_isocenter_mm=800, source_detector_mm=700)
     with pytest.raises(ValueError, match="primary_deg"):
         View.from_gantry(float("nan"))
+
+
+def _xa_dataset(primary=30.0, secondary=-12.0, sod=785.0, sid=1200.0, spacing=(0.308, 0.308), shape=(96, 124)):
+    from pydicom.dataset import Dataset
+
+    ds = Dataset()
+    ds.Modality = "XA"
+    ds.PositionerPrimaryAngle, ds.PositionerSecondaryAngle = primary, secondary
+    ds.DistanceSourceToPatient, ds.DistanceSourceToDetector = sod, sid
+    ds.ImagerPixelSpacing = list(spacing)
+    ds.Rows, ds.Columns = shape
+    return ds
+
+
+def _points(n=50):
+    return np.random.default_rng(3).uniform(-60, 60, size=(n, 3))
+
+
+def test_a_view_from_krt_projects_as_the_view_it_was_decomposed_from():
+    view = View.from_gantry(25.0, -10.0, shape=(96, 124), pixel_mm=2.5)
+    K, R, source = view.decomposition
+    again = View.from_krt(K, R, -R @ source, view.shape, view.pixel_mm)
+    np.testing.assert_allclose(again.project(_points()), view.project(_points()), atol=1e-9)
+    with pytest.raises(ValueError, match="K must be upper triangular"):
+        View.from_krt(K.T, R, -R @ source, view.shape, view.pixel_mm)
+    with pytest.raises(ValueError, match="R"):
+        View.from_krt(K, 2 * R, -R @ source, view.shape, view.pixel_mm)
+    with pytest.raises(ValueError, match="t must be 3 finite"):
+        View.from_krt(K, R, [0.0, np.nan, 1.0], view.shape, view.pixel_mm)
+
+
+def test_a_view_from_dicom_xa_tags_is_the_gantry_view_of_the_same_angles():
+    ds = _xa_dataset()
+    view = View.from_dicom(ds, name="A")
+    reference = View.from_gantry(30.0, -12.0, source_isocenter_mm=785.0, source_detector_mm=1200.0,
+                                 shape=(96, 124), pixel_mm=0.308)
+    np.testing.assert_allclose(view.project(_points()), reference.project(_points()), atol=1e-9)
+    assert view.name == "A" and view.shape == (96, 124) and view.gantry["primary_deg"] == 30.0
+
+
+def test_unequal_dicom_pixel_spacings_give_unequal_focal_lengths():
+    view = View.from_dicom(_xa_dataset(spacing=(0.4, 0.2)))
+    K, _, _ = view.decomposition
+    assert K[0, 0] == pytest.approx(1200.0 / 0.2) and K[1, 1] == pytest.approx(1200.0 / 0.4)
+    assert K[0, 2] == pytest.approx(61.5) and K[1, 2] == pytest.approx(47.5)  # the principal point stays
+
+
+def test_an_enhanced_xa_object_gives_each_frame_its_own_angles(tmp_path):
+    from pydicom.dataset import Dataset, FileMetaDataset
+    from pydicom.uid import ExplicitVRLittleEndian
+
+    ds = _xa_dataset()
+    del ds.PositionerPrimaryAngle, ds.PositionerSecondaryAngle
+    frames = []
+    for primary in (-40.0, 45.0):
+        position = Dataset()
+        position.PositionerPrimaryAngle, position.PositionerSecondaryAngle = primary, 5.0
+        group = Dataset()
+        group.PositionerPositionSequence = [position]
+        frames.append(group)
+    ds.PerFrameFunctionalGroupsSequence = frames
+    second = View.from_dicom(ds, frame_index=1)
+    assert second.gantry["primary_deg"] == 45.0 and View.from_dicom(ds).gantry["primary_deg"] == -40.0
+    with pytest.raises(ValueError, match=r"frame_index must be in \[0, 2\)"):
+        View.from_dicom(ds, frame_index=2)
+    ds.file_meta = FileMetaDataset()
+    ds.file_meta.TransferSyntaxUID = ExplicitVRLittleEndian
+    ds.SOPClassUID, ds.SOPInstanceUID = "1.2.840.10008.5.1.4.1.1.12.1.1", "1.2.3.4"
+    ds.file_meta.MediaStorageSOPClassUID, ds.file_meta.MediaStorageSOPInstanceUID = ds.SOPClassUID, ds.SOPInstanceUID
+    path = tmp_path / "xa.dcm"
+    ds.save_as(path, enforce_file_format=True)
+    np.testing.assert_allclose(View.from_dicom(path, frame_index=1).P, second.P)
+
+
+@pytest.mark.parametrize("missing, tag", [("PositionerPrimaryAngle", r"\(0018,1510\)"),
+                                          ("DistanceSourceToPatient", r"\(0018,1111\)"),
+                                          ("ImagerPixelSpacing", r"\(0018,1164\)")])
+def test_a_dicom_object_without_the_geometry_is_refused_naming_the_tag(missing, tag):
+    ds = _xa_dataset()
+    delattr(ds, missing)
+    with pytest.raises(ValueError, match=rf"lacks {missing} {tag}"):
+        View.from_dicom(ds)
+
+
+def test_rotational_acquisitions_and_bad_values_are_refused():
+    ds = _xa_dataset()
+    ds.PositionerPrimaryAngleIncrement = [0.0, 1.0]
+    with pytest.raises(ValueError, match="rotational acquisition"):
+        View.from_dicom(ds)
+    with pytest.raises(ValueError, match="DistanceSourceToDetector"):
+        View.from_dicom(_xa_dataset(sid=700.0))  # closer than the isocentre
+    with pytest.raises(ValueError, match="ImagerPixelSpacing"):
+        View.from_dicom(_xa_dataset(spacing=(0.0, 0.3)))

@@ -1,0 +1,123 @@
+"""The C-arm geometry a DICOM X-ray angiography (XA) or RF object records, read for a view.
+
+:meth:`histostudy.imaging.View.from_dicom` builds a view from what this module reads: the
+positioner angles, the source distances, the detector pixel pitch and the image size, from the
+top-level attributes of a single-frame object or of a cine, or from a frame's per-frame functional
+groups in an enhanced XA object. Units as in DICOM: degrees and millimetres.
+
+Angle conventions (DICOM PS3.3 C.8.7.5 / C.8.19.6): ``PositionerPrimaryAngle`` (0018,1510) is
+positive from RAO towards LAO and ``PositionerSecondaryAngle`` (0018,1511) positive from caudal
+towards cranial, with the patient supine and the beam posterior to anterior at (0, 0): the
+conventions of :meth:`~histostudy.imaging.View.from_gantry`. ``DistanceSourceToPatient``
+(0018,1111) is the source to isocentre distance, ``DistanceSourceToDetector`` (0018,1110) the source
+to detector distance, and ``ImagerPixelSpacing`` (0018,1164) the pitch at the detector, row
+spacing first.
+"""
+
+from __future__ import annotations
+
+import math
+
+__all__ = ["REQUIRED_GEOMETRY_TAGS", "gantry_from_dicom"]
+
+#: The attributes a view needs, with their DICOM tags (for the error that names a missing one).
+REQUIRED_GEOMETRY_TAGS = {
+    "PositionerPrimaryAngle": "(0018,1510)",
+    "PositionerSecondaryAngle": "(0018,1511)",
+    "DistanceSourceToDetector": "(0018,1110)",
+    "DistanceSourceToPatient": "(0018,1111)",
+    "ImagerPixelSpacing": "(0018,1164)",
+    "Rows": "(0028,0010)",
+    "Columns": "(0028,0011)",
+}
+
+
+def _frame_groups(ds, frame_index: int | None) -> list:
+    """The datasets to search for a frame's geometry: its per-frame functional group items (enhanced
+    XA), then the shared functional groups, then the object's top level."""
+    sources = []
+    per_frame = getattr(ds, "PerFrameFunctionalGroupsSequence", None)
+    if per_frame:
+        if frame_index is None:
+            frame_index = 0
+        if not 0 <= frame_index < len(per_frame):
+            raise ValueError(f"frame_index must be in [0, {len(per_frame)}) for this {len(per_frame)}-frame "
+                             f"object, got {frame_index!r}")
+        sources.append(per_frame[frame_index])
+    shared = getattr(ds, "SharedFunctionalGroupsSequence", None)
+    if shared:
+        sources.append(shared[0])
+    sources.append(ds)
+    return sources
+
+
+def _find(sources: list, keyword: str):
+    """The first value of ``keyword`` in ``sources``, looking one sequence level deep as well
+    (functional groups nest the attributes in macros such as PositionerPositionSequence)."""
+    for item in sources:
+        value = getattr(item, keyword, None)
+        if value is not None:
+            return value
+        for element in item:
+            if getattr(element, "VR", None) == "SQ" and element.value:
+                value = getattr(element.value[0], keyword, None)
+                if value is not None:
+                    return value
+    return None
+
+
+def _number(value, keyword: str, source: str) -> float:
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{source}: {keyword} {REQUIRED_GEOMETRY_TAGS.get(keyword, '')} must be a number, "
+                         f"got {value!r}") from None
+    if not math.isfinite(number):
+        raise ValueError(f"{source}: {keyword} must be finite, got {value!r}")
+    return number
+
+
+def gantry_from_dicom(ds, frame_index: int | None = None, source: str = "the DICOM object") -> dict:
+    """The view parameters a DICOM XA/RF object records for frame ``frame_index``.
+
+    Returns ``primary_deg``, ``secondary_deg``, ``source_isocenter_mm``, ``source_detector_mm``,
+    ``shape`` ``(rows, cols)`` and ``pixel_mm`` ``(row spacing, column spacing)``. Raises a
+    ValueError naming ``source`` and the first missing attribute with its tag. A rotational
+    acquisition (``PositionerPrimaryAngleIncrement``) is refused: the standard leaves it open
+    whether its increments are per frame or cumulative, and a wrong guess moves every view.
+    """
+    if frame_index is not None and (isinstance(frame_index, bool) or not isinstance(frame_index, int)
+                                    or frame_index < 0):
+        raise ValueError(f"frame_index must be an integer >= 0 or None, got {frame_index!r}")
+    if getattr(ds, "PositionerPrimaryAngleIncrement", None) is not None:
+        raise ValueError(f"{source} is a rotational acquisition (PositionerPrimaryAngleIncrement (0018,1520)); "
+                         "its per-frame angles are not read yet: build its views with View.from_krt or "
+                         "View.from_matrix from the C-arm's calibration")
+    sources = _frame_groups(ds, frame_index)
+    values = {}
+    for keyword, tag in REQUIRED_GEOMETRY_TAGS.items():
+        value = _find(sources, keyword)
+        if value is None:
+            raise ValueError(f"{source} lacks {keyword} {tag}, which a view needs; give the view another way "
+                             "(View.from_gantry, View.from_krt or a views file)")
+        values[keyword] = value
+    spacing = values["ImagerPixelSpacing"]
+    try:
+        row_mm, col_mm = (_number(s, "ImagerPixelSpacing", source) for s in spacing)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{source}: ImagerPixelSpacing (0018,1164) must be two numbers (row, column) in mm, "
+                         f"got {spacing!r}") from exc
+    out = {
+        "primary_deg": _number(values["PositionerPrimaryAngle"], "PositionerPrimaryAngle", source),
+        "secondary_deg": _number(values["PositionerSecondaryAngle"], "PositionerSecondaryAngle", source),
+        "source_isocenter_mm": _number(values["DistanceSourceToPatient"], "DistanceSourceToPatient", source),
+        "source_detector_mm": _number(values["DistanceSourceToDetector"], "DistanceSourceToDetector", source),
+        "shape": (int(values["Rows"]), int(values["Columns"])),
+        "pixel_mm": (row_mm, col_mm),
+    }
+    if not 0 < out["source_isocenter_mm"] < out["source_detector_mm"]:
+        raise ValueError(f"{source}: DistanceSourceToDetector (0018,1110) {out['source_detector_mm']} mm must exceed "
+                         f"DistanceSourceToPatient (0018,1111) {out['source_isocenter_mm']} mm, both > 0")
+    if not (row_mm > 0 and col_mm > 0):
+        raise ValueError(f"{source}: ImagerPixelSpacing (0018,1164) must be > 0 mm, got {spacing!r}")
+    return out
