@@ -64,19 +64,31 @@ class Frame:
 
 
 def load_frame(path: str | os.PathLike, view: View, *, line_integrals: bool = True,
-               air_value: float | None = None) -> Frame:
+               air_value: float | None = None, frame_index: int | None = None, resample: bool = False) -> Frame:
     """Load a real fluoroscopic frame from ``.npy``, ``.png``/``.tif`` or DICOM (``.dcm``).
 
     Args:
         path: the image file.
-        view: its calibrated geometry (e.g. from :func:`~histostudy.imaging.carm.load_views`).
+        view: its calibrated geometry (e.g. from :func:`~histostudy.imaging.carm.load_views` or
+            :meth:`~histostudy.imaging.View.from_dicom`).
         line_integrals: True when the file already holds line integrals (as the paper's
             preprocessed projections). False for raw intensities, which are converted with
             ``-log(I / air_value)``.
         air_value: unattenuated intensity ``I0`` for the conversion; default the image maximum.
+        frame_index: the frame of a multi-frame file (an XA cine, a ``(frames, rows, cols)``
+            ``.npy`` stack); required for those, refused for single frames.
+        resample: resize an image whose size differs from ``view.shape`` onto it (area averaging
+            when shrinking, bilinear when enlarging); without it such an image is refused.
+
+    DICOM: the stored values are inverted first for ``MONOCHROME1`` (low values white), so that a
+    larger value is always more X-ray intensity; then ``RescaleSlope`` / ``RescaleIntercept``
+    (finite, or refused naming the tag) give the modality values.
     """
     path = Path(path)
     suffix = path.suffix.lower()
+    if frame_index is not None and (isinstance(frame_index, bool) or not isinstance(frame_index, (int, np.integer))
+                                    or frame_index < 0):
+        raise ValueError(f"frame_index must be an integer >= 0 or None, got {frame_index!r}")
     if suffix == ".npy":
         image = np.load(path, allow_pickle=False)
     elif suffix in (".png", ".tif", ".tiff"):
@@ -88,19 +100,59 @@ def load_frame(path: str | os.PathLike, view: View, *, line_integrals: bool = Tr
         if image.ndim == 3:
             image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     elif suffix in (".dcm", ".dicom", ""):
-        import pydicom
-
-        ds = pydicom.dcmread(path)
-        image = ds.pixel_array.astype(np.float64)
-        image = image * float(getattr(ds, "RescaleSlope", 1.0)) + float(getattr(ds, "RescaleIntercept", 0.0))
+        image = _dicom_pixels(path)
     else:
         raise ValueError(f"path {str(path)!r}: unknown image format {suffix!r} (expected .npy, .png, .tif, .dcm)")
-    image = np.asarray(image, dtype=np.float64)
-    if image.ndim != 2:
-        raise ValueError(f"path {str(path)!r} holds an image of shape {image.shape}, expected a 2-D frame")
+    image = _one_frame(np.asarray(image, dtype=np.float64), frame_index, path)
+    if image.shape != view.shape:
+        if not resample:
+            raise ValueError(f"path {str(path)!r} holds a {image.shape} image, the view {view.name!r} expects "
+                             f"{view.shape}: pass resample=True to resize it onto the view")
+        import cv2
+
+        shrink = image.shape[0] > view.shape[0] or image.shape[1] > view.shape[1]
+        image = cv2.resize(image, (view.shape[1], view.shape[0]),
+                           interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
     if not line_integrals:
         i0 = float(image.max()) if air_value is None else float(air_value)
         if not np.isfinite(i0) or i0 <= 0:
             raise ValueError(f"air_value must be a positive intensity, got {air_value!r}")
         image = -np.log(np.clip(image, 1e-6 * i0, None) / i0)
-    return Frame(image=image.astype(np.float32), view=view, meta={"source": str(path)})
+    meta = {"source": str(path)} | ({} if frame_index is None else {"frame_index": int(frame_index)})
+    return Frame(image=image.astype(np.float32), view=view, meta=meta)
+
+
+def _dicom_pixels(path: Path) -> np.ndarray:
+    """A DICOM object's pixel values as modality values: MONOCHROME1 inverted, rescale applied."""
+    import pydicom
+
+    ds = pydicom.dcmread(path)
+    pixels = ds.pixel_array.astype(np.float64)
+    if str(getattr(ds, "PhotometricInterpretation", "MONOCHROME2")).strip() == "MONOCHROME1":
+        bits = int(getattr(ds, "BitsStored", getattr(ds, "BitsAllocated", 16)))
+        pixels = (2.0 ** bits - 1.0) - pixels
+    rescale = []
+    for keyword, tag, default in (("RescaleSlope", "(0028,1053)", 1.0), ("RescaleIntercept", "(0028,1052)", 0.0)):
+        try:
+            value = float(getattr(ds, keyword, default))
+        except (TypeError, ValueError):
+            value = float("nan")
+        if not np.isfinite(value):
+            raise ValueError(f"path {str(path)!r}: {keyword} {tag} must be a finite number, "
+                             f"got {getattr(ds, keyword, None)!r}")
+        rescale.append(value)
+    return pixels * rescale[0] + rescale[1]
+
+
+def _one_frame(image: np.ndarray, frame_index, path: Path) -> np.ndarray:
+    if image.ndim == 3:
+        if frame_index is None:
+            raise ValueError(f"path {str(path)!r} holds {image.shape[0]} frames: pass frame_index= to pick one")
+        if frame_index >= image.shape[0]:
+            raise ValueError(f"frame_index must be in [0, {image.shape[0]}) for {str(path)!r}, got {frame_index}")
+        return image[frame_index]
+    if image.ndim != 2:
+        raise ValueError(f"path {str(path)!r} holds an image of shape {image.shape}, expected a 2-D frame")
+    if frame_index not in (None, 0):
+        raise ValueError(f"path {str(path)!r} holds a single frame, got frame_index={frame_index}")
+    return image

@@ -63,7 +63,7 @@ def test_load_dicom(tmp_path, view):
 
 def test_load_rejects_wrong_shape_and_unknown_format(tmp_path, view):
     np.save(tmp_path / "small.npy", np.zeros((5, 5)))
-    with pytest.raises(ValueError, match="does not match view"):
+    with pytest.raises(ValueError, match=r"holds a \(5, 5\) image, the view '' expects \(12, 16\).*resample=True"):
         load_frame(tmp_path / "small.npy", view)
     (tmp_path / "x.bmpx").write_bytes(b"")
     with pytest.raises(ValueError, match="unknown image format"):
@@ -74,3 +74,54 @@ def test_frame_labels_outside_the_feature_values_are_refused_not_wrapped():
     view = View.from_gantry(0.0, 0.0, shape=(12, 16), name="A")
     with pytest.raises(ValueError, match=r"labels must hold Feature values 0..5 \(integers\), got \[300\]"):
         Frame(np.zeros((12, 16)), view, labels=np.full((12, 16), 300))
+
+
+def _xa_cine(path, frames, photometric="MONOCHROME2", slope=None, bits=12):
+    """A multi-frame XA object (what a C-arm exports) holding ``frames`` (n, rows, cols) uint16."""
+    from pydicom.dataset import Dataset, FileMetaDataset
+    from pydicom.uid import ExplicitVRLittleEndian
+
+    ds = Dataset()
+    ds.file_meta = FileMetaDataset()
+    ds.file_meta.TransferSyntaxUID = ExplicitVRLittleEndian
+    ds.SOPClassUID, ds.SOPInstanceUID = "1.2.840.10008.5.1.4.1.1.12.1", "1.2.3.4.5"
+    ds.file_meta.MediaStorageSOPClassUID, ds.file_meta.MediaStorageSOPInstanceUID = ds.SOPClassUID, ds.SOPInstanceUID
+    ds.Modality = "XA"
+    ds.NumberOfFrames, (ds.Rows, ds.Columns) = len(frames), frames.shape[1:]
+    ds.SamplesPerPixel, ds.PhotometricInterpretation = 1, photometric
+    ds.BitsAllocated, ds.BitsStored, ds.HighBit, ds.PixelRepresentation = 16, bits, bits - 1, 0
+    if slope is not None:
+        ds.RescaleSlope, ds.RescaleIntercept = slope, 0.0
+    ds.PixelData = frames.astype(np.uint16).tobytes()
+    ds.save_as(path, enforce_file_format=True)
+    return path
+
+
+def test_a_frame_of_an_xa_cine_is_loaded_by_its_index(tmp_path, view):
+    rng = np.random.default_rng(2)
+    frames = rng.integers(100, 4000, size=(3, 12, 16))
+    path = _xa_cine(tmp_path / "cine.dcm", frames)
+    second = load_frame(path, view, frame_index=1)
+    np.testing.assert_array_equal(second.image, frames[1].astype(np.float32))
+    assert second.meta["frame_index"] == 1
+    with pytest.raises(ValueError, match="holds 3 frames: pass frame_index"):
+        load_frame(path, view)
+    with pytest.raises(ValueError, match=r"frame_index must be in \[0, 3\)"):
+        load_frame(path, view, frame_index=3)
+    intensity = load_frame(path, view, frame_index=2, line_integrals=False, air_value=4095.0)
+    np.testing.assert_allclose(intensity.image, -np.log(frames[2] / 4095.0), rtol=1e-5)
+
+
+def test_monochrome1_is_inverted_and_a_bad_rescale_refused(tmp_path, view):
+    frames = np.random.default_rng(3).integers(0, 4096, size=(2, 12, 16))
+    mono1 = load_frame(_xa_cine(tmp_path / "m1.dcm", frames, "MONOCHROME1", slope=2.0), view, frame_index=0)
+    np.testing.assert_array_equal(mono1.image, (2.0 * (4095 - frames[0])).astype(np.float32))
+    with pytest.raises(ValueError, match=r"RescaleSlope \(0028,1053\) must be a finite number"):
+        load_frame(_xa_cine(tmp_path / "nan.dcm", frames, slope="NaN"), view, frame_index=0)
+
+
+def test_a_frame_of_another_size_is_resampled_onto_the_view_when_asked(tmp_path, view):
+    big = np.kron(np.arange(12 * 16, dtype=float).reshape(12, 16), np.ones((2, 2)))  # each pixel as 2x2
+    np.save(tmp_path / "big.npy", big)
+    frame = load_frame(tmp_path / "big.npy", view, resample=True)
+    np.testing.assert_allclose(frame.image, np.arange(12 * 16).reshape(12, 16))  # area means give the pixels back
