@@ -1,4 +1,5 @@
-"""The ``histostudy`` command: ``histostudy reproduce --profile smoke``, ``histostudy train segmentation`` and friends."""
+"""The ``histostudy`` command: ``histostudy reproduce --profile smoke``, ``histostudy train segmentation``,
+``histostudy pose A.dcm B.dcm`` (the lab's own frames), ``histostudy report`` and friends."""
 
 from __future__ import annotations
 
@@ -19,7 +20,10 @@ def _profile(value: str):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from . import __version__
+
     parser = argparse.ArgumentParser(prog="histostudy", description=__doc__.strip().splitlines()[0])
+    parser.add_argument("--version", action="version", version=f"histostudy {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     rep = sub.add_parser("reproduce", help="run the study notebooks through papermill and write the report")
@@ -50,6 +54,21 @@ def build_parser() -> argparse.ArgumentParser:
                          "first needs them)")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
 
+    pose = sub.add_parser("pose", help="estimate the transducer pose from the lab's own frames (one per view)")
+    pose.add_argument("frames", nargs="+", help="frame files: DICOM XA (views from their geometry tags unless "
+                                                "--views), .npy, .png or .tif")
+    pose.add_argument("--views", default=None, help="views JSON file (histostudy.imaging.save_views): matched by "
+                                                    "order, or by name = the frame file's stem")
+    pose.add_argument("--frame-index", type=int, default=None, help="the frame of each multi-frame file (a cine)")
+    pose.add_argument("--line-integrals", action="store_true",
+                      help="the files hold line integrals already (default: intensities, converted with -log(I/I0))")
+    pose.add_argument("--resample", action="store_true", help="resize frames of another size onto their view")
+    pose.add_argument("--seed", type=int, default=0, help="seed of the estimate's random draws (default 0)")
+    pose.add_argument("--output", default="pose.json", help="where the pose is written as JSON (default pose.json)")
+
+    rebuild = sub.add_parser("report", help="rebuild REPORT.md and report.html from a reproduce output folder")
+    rebuild.add_argument("--output", default="reports", help="the folder reproduce wrote (default: reports)")
+
     prof = sub.add_parser("profiles", help="list the built-in profiles")
     prof.set_defaults(command="profiles")
     return parser
@@ -64,6 +83,10 @@ def main(argv=None) -> int:
         return 0
     if args.command == "train":
         return _train(args)
+    if args.command == "pose":
+        return _pose(args)
+    if args.command == "report":
+        return _report(args)
     if args.command == "reproduce":
         from .reporting import NotebookFailed, StudyInterrupted, run_study
 
@@ -131,6 +154,42 @@ def _train(args) -> int:
         name = f"{cfg.network['arch']}_{profile.name}"
         manifest = export(result, cfg, name, seed=profile.seed, profile=profile.name, models_dir=args.models_dir)
         print(f"exported {manifest.with_suffix('.safetensors')} (manifest {manifest})")
+    return 0
+
+
+def _pose(args) -> int:
+    from .core import atomic_write_json
+    from .pose import pose_from_files, pose_record
+
+    try:
+        result = pose_from_files(args.frames, args.views, frame_index=args.frame_index,
+                                 line_integrals=args.line_integrals, resample=args.resample, seed=args.seed)
+    except (ValueError, TypeError, FileNotFoundError) as exc:
+        print(f"histostudy pose: {exc}", file=sys.stderr)
+        return 2
+    record = pose_record(result, args.frames)
+    atomic_write_json(args.output, record)
+    focal = ", ".join(f"{x:.2f}" for x in record["focal_point_mm"])
+    verdict = "accepted" if record["accepted"] else "REFUSED: " + "; ".join(record["verdict"]["reasons"])
+    print(f"focal point (C-arm frame, mm): {focal}; {verdict}; written to {args.output}")
+    return 0 if record["accepted"] else 1
+
+
+def _report(args) -> int:
+    import json
+    from pathlib import Path
+
+    from .reporting import build_report
+
+    out = Path(args.output)
+    try:
+        run = json.loads((out / "run.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        print(f"histostudy report: {out} holds no readable run.json from histostudy reproduce ({exc})",
+              file=sys.stderr)
+        return 2
+    md, html_path = build_report(out, run)
+    print(f"report: {md}\n        {html_path}")
     return 0
 
 

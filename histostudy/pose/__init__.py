@@ -4,21 +4,22 @@ reference (``cost_reference``), the left perturbation and normal equations of it
 (``perturbation``); the initialisation's grid and axial searches (``init``), its silhouette seed
 (``silhouette``) and the inner boundary's conic (``conic``, ``conic_orientation``, with the
 pipeline's default orientation stage); the refinement (``refine``) and the verdict on a fit
-(``verdict``); and :func:`estimate_pose`, which runs them all on a set of frames (``estimate``),
-with its options (``options``), its result (``result``) and its default learned stages
-(``learned_stages``).
+(``verdict``); :func:`estimate_pose`, which runs them all on a set of frames (``estimate``), and on
+the lab's own frame files (``from_files``), with its options (``options``), its result (``result``)
+and its default learned stages (``learned_stages``).
 """
 
 from . import (conic as _conic, conic_orientation as _conic_orientation, cost as _cost, distance_maps as _distance_maps,
-               estimate as _estimate, init as _init, learned_stages as _learned_stages, options as _options,
-               perturbation as _perturbation, refine as _refine, result as _result, silhouette as _silhouette,
-               verdict as _verdict)
+               estimate as _estimate, from_files as _from_files, init as _init, learned_stages as _learned_stages,
+               options as _options, perturbation as _perturbation, refine as _refine, result as _result,
+               silhouette as _silhouette, verdict as _verdict)
 from .conic import (CirclePose, EllipseFit, circle_poses_from_conic, conic_from_ellipse, conic_from_points,
                     fit_ellipse_ransac)
 from .conic_orientation import ConicFit, ConicOrientation, default_orientation
 from .cost import OUTSIDE_DISTANCE_PX, PARALLEL_MIN_PROJECTIONS, PoseCost
 from .distance_maps import DistanceMaps, euclidean_distance_map
 from .estimate import estimate_pose
+from .from_files import frames_from_files, pose_from_files, pose_record
 from .init import (COARSE_GRID, FINE_GRID, GridSpec, InitResult, MEDIUM_GRID, PAPER_AXIAL_SEEDS_DEG,
                    ROBUST_AXIAL_SEEDS_DEG, axial_minima, axial_search, grid_offsets, grid_search, initialise_pose,
                    rotation_from_direction, translation_costs)
@@ -33,6 +34,6 @@ from .verdict import (PoseVerdict, check_unexplained, check_view_agreement, judg
 
 # every public name of the modules above, as each module's __all__ declares it
 __all__ = list(dict.fromkeys([*_conic.__all__, *_conic_orientation.__all__, *_cost.__all__, *_distance_maps.__all__,
-                              *_estimate.__all__, *_init.__all__, *_learned_stages.__all__, *_options.__all__,
-                              *_perturbation.__all__, *_refine.__all__, *_result.__all__, *_silhouette.__all__,
-                              *_verdict.__all__]))
+                              *_estimate.__all__, *_from_files.__all__, *_init.__all__, *_learned_stages.__all__,
+                              *_options.__all__, *_perturbation.__all__, *_refine.__all__, *_result.__all__,
+                              *_silhouette.__all__, *_verdict.__all__]))
