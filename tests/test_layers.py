@@ -27,9 +27,10 @@ LAYERS = {
     "calibration": 6,
     "robot": 6,
     "treatment": 7,
-    "study": 8,
-    "reporting": 9,
-    "cli": 10,
+    "lab": 8,
+    "study": 9,
+    "reporting": 10,
+    "cli": 11,
 }
 
 #: The old flat module paths kept importable for users' scripts, with where each moved.

@@ -1,5 +1,6 @@
 """The imaging chain (§II-A, §II-B.2, §II-D): C-arm views and their projection, eq. 1-2 (``carm``),
-with the geometry a DICOM XA object records (``dicom_geometry``); images with their geometry
+with the geometry a DICOM XA object records (``dicom_geometry``) and XA objects written as a C-arm
+writes them (``dicom_xa``); images with their geometry
 (``frame``); synthetic fluoroscopy of the transducer (``render``; its dose, splatting and scene,
 shared by every configuration that renders, in ``render_settings``) over random abdomen and phantom
 scenes (``anatomy``, their ranges in ``anatomy_params``); a scene and its line-integral image
@@ -12,7 +13,7 @@ DICOM to ``dicom_io``, both laid onto the Volume grid by ``volume_io_grid``).
 
 from . import (anatomy as _anatomy, anatomy_csg as _anatomy_csg, anatomy_params as _anatomy_params,
                anatomy_scene as _anatomy_scene, anatomy_shapes as _anatomy_shapes, carm as _carm, cbct as _cbct,
-               dicom_geometry as _dicom_geometry, dicom_io as _dicom_io, frame as _frame, nifti_io as _nifti_io,
+               dicom_geometry as _dicom_geometry, dicom_io as _dicom_io, dicom_xa as _dicom_xa, frame as _frame, nifti_io as _nifti_io,
                render as _render, render_settings as _render_settings, rtk_projector as _rtk_projector,
                volume as _volume, volume_io as _volume_io, volume_io_grid as _volume_io_grid)
 from .anatomy import MIXED_ABDOMEN_PROBABILITY, random_abdomen, random_background, random_phantom_setup
@@ -24,6 +25,7 @@ from .carm import View, default_biplane, load_views, save_views
 from .cbct import PhantomSpec, check_target, phantom_mask, phantom_values, phantom_volume, random_target, simulate_cbct
 from .dicom_geometry import REQUIRED_GEOMETRY_TAGS, gantry_from_dicom
 from .dicom_io import SLICE_POSITION_RTOL
+from .dicom_xa import XA_SOP_CLASS_UID, detector_counts, write_xa, xa_dataset
 from .frame import Frame, load_frame
 from .nifti_io import save_volume_nifti
 from .render import add_poisson_noise, background_line_integrals, render_frame, render_labels, render_line_integrals
@@ -36,6 +38,6 @@ from .volume_io_grid import AXIS_TOLERANCE
 # every public name of the modules above, as each module's __all__ declares it
 __all__ = list(dict.fromkeys([*_anatomy.__all__, *_anatomy_csg.__all__, *_anatomy_params.__all__,
                               *_anatomy_scene.__all__, *_anatomy_shapes.__all__, *_carm.__all__, *_cbct.__all__,
-                              *_dicom_geometry.__all__, *_dicom_io.__all__, *_frame.__all__, *_nifti_io.__all__,
+                              *_dicom_geometry.__all__, *_dicom_io.__all__, *_dicom_xa.__all__, *_frame.__all__, *_nifti_io.__all__,
                               *_render.__all__, *_render_settings.__all__, *_rtk_projector.__all__, *_volume.__all__,
                               *_volume_io.__all__, *_volume_io_grid.__all__]))

@@ -11,14 +11,13 @@ Transforms are 4x4 ``T_<to>_<from>`` in mm (base frame: the robot's; C-arm frame
 
 from __future__ import annotations
 
-import itertools
 from typing import Sequence
 
 import numpy as np
 import pandas as pd
 
-from histostudy.calibration import R_BASE_FLANGE_DOWN, HandEyeCalibration, calibrate
-from histostudy.geometry import make_transform, matrix_from_rotvec, rotation_about_axis, rotation_angle
+from histostudy.calibration import HALF_TURN, R_BASE_FLANGE_DOWN, DegenerateMotionError, HandEyeCalibration, calibrate_half_turns
+from histostudy.geometry import make_transform, matrix_from_rotvec, rotation_about_axis
 from histostudy.imaging import View, random_background, render_frame
 from histostudy.learning import OracleOrientation
 from histostudy.pose import PoseEstimationError, estimate_pose
@@ -26,11 +25,8 @@ from histostudy.robot import Robot
 from histostudy.transducer import TransducerModel
 from .targeting_setup import GroundTruth, TargetingError, TargetingStudyConfig
 
+# HALF_TURN lives in histostudy.calibration.targeting; named here too for the study's users.
 __all__ = ["HALF_TURN", "calibrate_robot", "calibration_poses", "config_focal_flange"]
-
-#: A half turn about the transducer's z axis: the aperture, gaps and cutout look the same after it.
-HALF_TURN = np.diag([-1.0, -1.0, 1.0, 1.0])
-
 
 def calibration_poses(rng: np.random.Generator, config: TargetingStudyConfig, truth: GroundTruth) -> list[np.ndarray]:
     """The preprogrammed flange poses ``T_base_flange`` (base frame) of the calibration (§II-C).
@@ -59,31 +55,6 @@ def calibration_poses(rng: np.random.Generator, config: TargetingStudyConfig, tr
 def config_focal_flange(T_flange_transducer) -> np.ndarray:
     """The focal point (transducer origin) in the flange frame."""
     return np.asarray(T_flange_transducer, float)[:3, 3].copy()
-
-def _resolve_half_turns(F: list[np.ndarray], C: list[np.ndarray], nominal_X: np.ndarray) -> tuple[list[np.ndarray], HandEyeCalibration]:
-    """Choose per pose between an estimate and its half turn about the axis (the transducer looks
-    the same; the pose estimate may return either), the combination with the smallest calibration
-    residuals, then the global half turn that keeps ``T_flange_transducer`` closest to the design."""
-    best = None
-    for flips in itertools.product((False, True), repeat=len(C) - 1):
-        Cs = [C[0]] + [c @ HALF_TURN if f else c for c, f in zip(C[1:], flips)]
-        try:
-            cal = calibrate(F, Cs)
-        except ValueError:
-            continue
-        score = cal.max_rotation_residual_deg
-        if best is None or score < best[0]:
-            best = (score, Cs, cal)
-    if best is None:
-        raise TargetingError("the calibration poses do not determine the hand-eye calibration")
-    _, Cs, cal = best
-    flipped = [c @ HALF_TURN for c in Cs]
-    cal2 = calibrate(F, flipped)
-    angle = lambda c: rotation_angle(c.T_flange_transducer[:3, :3].T @ nominal_X[:3, :3])
-    if angle(cal2) < angle(cal):
-        return flipped, cal2
-    return Cs, cal
-
 
 def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConfig, *, pose_model: TransducerModel,
                     render_model: TransducerModel, physical: TransducerModel, views: Sequence[View],
@@ -125,6 +96,9 @@ def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConf
                      **{f"pred_{a}": v for a, v in zip("xyz", res.focal_point_mm)},
                      "pose_error_mm": float(np.linalg.norm(res.focal_point_mm - true_focal)),
                      "seconds": res.timings_s.get("total", np.nan)})
-    _, cal = _resolve_half_turns(F, C, truth.T_flange_transducer_nominal)
+    try:
+        cal = calibrate_half_turns(F, C, nominal_T_flange_transducer=truth.T_flange_transducer_nominal)
+    except DegenerateMotionError as exc:
+        raise TargetingError(f"the calibration poses do not determine the hand-eye calibration: {exc}") from exc
     cal.check(config.max_focal_residual_mm, config.max_rotation_residual_deg)
     return cal, pd.DataFrame(rows)

@@ -10,39 +10,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from histostudy.calibration import R_BASE_FLANGE_DOWN, HandEyeCalibration
-from histostudy.geometry import invert_transform, make_transform, matrix_from_rotvec
+from histostudy.calibration import DOWN, HandEyeCalibration, target_orientation, tcp_for_target
+from histostudy.geometry import invert_transform
 from histostudy.robot import Robot, inverse_kinematics_closest
 from .targeting_setup import GroundTruth, start_joints
 
+# DOWN, target_orientation and tcp_for_target live in histostudy.calibration.targeting; named here too
+# because the study's users have imported them from here.
 __all__ = ["DOWN", "position_for_target", "scene_at_target", "target_orientation", "tcp_for_target"]
-
-#: World direction of propagation with the transducer pointing down (LPS: +y is posterior).
-DOWN = np.array([0.0, 1.0, 0.0])
-
-
-def target_orientation(calibration: HandEyeCalibration) -> np.ndarray:
-    """``R_carm_transducer`` of the treatment: propagation straight down (world +y), the axial
-    rotation the transducer has when the flange points straight down (the smallest turn from it)."""
-    R0 = calibration.T_carm_base[:3, :3] @ R_BASE_FLANGE_DOWN @ calibration.T_flange_transducer[:3, :3]
-    z0, z1 = R0[:, 2], -DOWN
-    axis = np.cross(z0, z1)
-    s, c = np.linalg.norm(axis), float(z0 @ z1)
-    turn = np.eye(3) if s < 1e-12 else matrix_from_rotvec(axis / s * np.arctan2(s, c))
-    return turn @ R0
-
-
-def tcp_for_target(calibration: HandEyeCalibration, target_mm, R_carm_transducer, T_flange_tcp=None) -> np.ndarray:
-    """``T_base_tcp`` that puts the TCP (``T_flange_tcp``; default the estimated focal point
-    ``T_flange_transducer``) on ``target_mm`` (C-arm frame) with the transducer orientation
-    ``R_carm_transducer``."""
-    X = calibration.T_flange_transducer
-    T_ft = X if T_flange_tcp is None else np.asarray(T_flange_tcp, float)
-    # The TCP's place in the transducer frame (the focal point, or the bias-corrected point).
-    local = (invert_transform(X) @ T_ft)[:3, 3]
-    R = np.asarray(R_carm_transducer, float)
-    T_carm_transducer = make_transform(R, np.asarray(target_mm, float) - R @ local)
-    return calibration.T_base_carm @ T_carm_transducer @ invert_transform(X) @ T_ft
 
 
 def position_for_target(robot: Robot, calibration: HandEyeCalibration, target_mm, R_carm_transducer,
