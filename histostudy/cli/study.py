@@ -1,5 +1,6 @@
-"""The ``histostudy`` command: ``histostudy reproduce --profile smoke``, ``histostudy train segmentation``,
-``histostudy pose A.dcm B.dcm`` (the lab's own frames), ``histostudy report`` and friends."""
+"""The study's subcommands of ``histostudy``: ``reproduce --profile smoke`` (the notebooks through
+papermill, then the report), ``train segmentation|orientation``, ``report`` (rebuilt from a
+reproduce folder) and ``profiles``."""
 
 from __future__ import annotations
 
@@ -7,9 +8,9 @@ import argparse
 import signal
 import sys
 
-from .reporting import PROFILE_NAMES, load_profile
+from histostudy.reporting import PROFILE_NAMES, load_profile
 
-__all__ = ["main"]
+__all__ = ["add_parsers"]
 
 
 def _profile(value: str):
@@ -19,14 +20,10 @@ def _profile(value: str):
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from . import __version__
-
-    parser = argparse.ArgumentParser(prog="histostudy", description=__doc__.strip().splitlines()[0])
-    parser.add_argument("--version", action="version", version=f"histostudy {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True)
-
-    rep = sub.add_parser("reproduce", help="run the study notebooks through papermill and write the report")
+def add_parsers(sub, parents) -> None:
+    """The study's subcommands on the ``histostudy`` parser's ``sub``."""
+    rep = sub.add_parser("reproduce", parents=parents,
+                         help="run the study notebooks through papermill and write the report")
     rep.add_argument("--profile", type=_profile, default="smoke",
                      help=f"one of {', '.join(PROFILE_NAMES)} or a .toml file (default: smoke)")
     rep.add_argument("--only", nargs="+", metavar="NAME",
@@ -34,8 +31,10 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--output", default="reports", help="output folder (default: reports)")
     rep.add_argument("--notebooks", default=None, help="notebook folder (default: the repository's notebooks/)")
     rep.add_argument("--no-progress", action="store_true", help="no per-cell progress bar")
+    rep.set_defaults(run=_reproduce)
 
-    tr = sub.add_parser("train", help="train a learned stage (U-Net or VGG19) on hybrid images and export its weights")
+    tr = sub.add_parser("train", parents=parents,
+                        help="train a learned stage (U-Net or VGG19) on hybrid images and export its weights")
     tr.add_argument("task", choices=("segmentation", "orientation"))
     tr.add_argument("--profile", type=_profile, default="standard",
                     help=f"one of {', '.join(PROFILE_NAMES)} or a .toml file with [training.<task>] (default: standard)")
@@ -53,69 +52,51 @@ def build_parser() -> argparse.ArgumentParser:
                          "this many processes before training (default 1: the training loop renders them as it "
                          "first needs them)")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
+    tr.set_defaults(run=_train)
 
-    pose = sub.add_parser("pose", help="estimate the transducer pose from the lab's own frames (one per view)")
-    pose.add_argument("frames", nargs="+", help="frame files: DICOM XA (views from their geometry tags unless "
-                                                "--views), .npy, .png or .tif")
-    pose.add_argument("--views", default=None, help="views JSON file (histostudy.imaging.save_views): matched by "
-                                                    "order, or by name = the frame file's stem")
-    pose.add_argument("--frame-index", type=int, default=None, help="the frame of each multi-frame file (a cine)")
-    pose.add_argument("--line-integrals", action="store_true",
-                      help="the files hold line integrals already (default: intensities, converted with -log(I/I0))")
-    pose.add_argument("--resample", action="store_true", help="resize frames of another size onto their view")
-    pose.add_argument("--seed", type=int, default=0, help="seed of the estimate's random draws (default 0)")
-    pose.add_argument("--output", default="pose.json", help="where the pose is written as JSON (default pose.json)")
-
-    rebuild = sub.add_parser("report", help="rebuild REPORT.md and report.html from a reproduce output folder")
+    rebuild = sub.add_parser("report", parents=parents,
+                             help="rebuild REPORT.md and report.html from a reproduce output folder")
     rebuild.add_argument("--output", default="reports", help="the folder reproduce wrote (default: reports)")
+    rebuild.set_defaults(run=_report)
 
-    prof = sub.add_parser("profiles", help="list the built-in profiles")
-    prof.set_defaults(command="profiles")
-    return parser
+    prof = sub.add_parser("profiles", parents=parents, help="list the built-in profiles")
+    prof.set_defaults(run=_profiles)
 
 
-def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    if args.command == "profiles":
-        for name in PROFILE_NAMES:
-            p = load_profile(name)
-            print(f"{p.name:9s} seed {p.seed}  {p.description}")
-        return 0
-    if args.command == "train":
-        return _train(args)
-    if args.command == "pose":
-        return _pose(args)
-    if args.command == "report":
-        return _report(args)
-    if args.command == "reproduce":
-        from .reporting import NotebookFailed, StudyInterrupted, run_study
+def _profiles(args) -> int:
+    for name in PROFILE_NAMES:
+        p = load_profile(name)
+        print(f"{p.name:9s} seed {p.seed}  {p.description}")
+    return 0
 
-        try:
-            run = run_study(args.profile, args.output, only=args.only, notebooks_dir=args.notebooks,
-                            progress=not args.no_progress)
-        except NotebookFailed as exc:
-            print(f"histostudy reproduce: {exc}", file=sys.stderr)
-            return 1
-        except StudyInterrupted as exc:
-            print(f"histostudy reproduce: {exc}; the report names the interrupted section", file=sys.stderr)
-            return 128 + signal.SIGTERM
-        except KeyboardInterrupt:
-            print("histostudy reproduce: interrupted by SIGINT; the report names the interrupted section",
-                  file=sys.stderr)
-            return 128 + signal.SIGINT
-        except ValueError as exc:
-            print(f"histostudy reproduce: {exc}", file=sys.stderr)
-            return 2
-        print(f"report: {run.report_md}\n        {run.report_html}")
-        return 0
-    return 2
+
+def _reproduce(args) -> int:
+    from histostudy.reporting import NotebookFailed, StudyInterrupted, run_study
+
+    try:
+        run = run_study(args.profile, args.output, only=args.only, notebooks_dir=args.notebooks,
+                        progress=not args.no_progress)
+    except NotebookFailed as exc:
+        print(f"histostudy reproduce: {exc}", file=sys.stderr)
+        return 1
+    except StudyInterrupted as exc:
+        print(f"histostudy reproduce: {exc}; the report names the interrupted section", file=sys.stderr)
+        return 128 + signal.SIGTERM
+    except KeyboardInterrupt:
+        print("histostudy reproduce: interrupted by SIGINT; the report names the interrupted section",
+              file=sys.stderr)
+        return 128 + signal.SIGINT
+    except ValueError as exc:
+        print(f"histostudy reproduce: {exc}", file=sys.stderr)
+        return 2
+    print(f"report: {run.report_md}\n        {run.report_html}")
+    return 0
 
 
 def _train(args) -> int:
     import dataclasses
 
-    from .learning import default_cache_dir
-    from .learning import TrainingConfig, export, train
+    from histostudy.learning import TrainingConfig, default_cache_dir, export, train
 
     profile = args.profile
     table = profile.training.get(args.task)
@@ -136,7 +117,7 @@ def _train(args) -> int:
     if args.render_workers > 1 and cfg.cache:
         import time
 
-        from .learning import HybridFrames, run_frame_sets
+        from histostudy.learning import HybridFrames, run_frame_sets
 
         t0 = time.monotonic()
         rendered = sum(HybridFrames(split, profile.seed, config=render, cache_dir=default_cache_dir())
@@ -157,29 +138,11 @@ def _train(args) -> int:
     return 0
 
 
-def _pose(args) -> int:
-    from .core import atomic_write_json
-    from .pose import pose_from_files, pose_record
-
-    try:
-        result = pose_from_files(args.frames, args.views, frame_index=args.frame_index,
-                                 line_integrals=args.line_integrals, resample=args.resample, seed=args.seed)
-    except (ValueError, TypeError, FileNotFoundError) as exc:
-        print(f"histostudy pose: {exc}", file=sys.stderr)
-        return 2
-    record = pose_record(result, args.frames)
-    atomic_write_json(args.output, record)
-    focal = ", ".join(f"{x:.2f}" for x in record["focal_point_mm"])
-    verdict = "accepted" if record["accepted"] else "REFUSED: " + "; ".join(record["verdict"]["reasons"])
-    print(f"focal point (C-arm frame, mm): {focal}; {verdict}; written to {args.output}")
-    return 0 if record["accepted"] else 1
-
-
 def _report(args) -> int:
     import json
     from pathlib import Path
 
-    from .reporting import build_report
+    from histostudy.reporting import build_report
 
     out = Path(args.output)
     try:
@@ -191,7 +154,3 @@ def _report(args) -> int:
     md, html_path = build_report(out, run)
     print(f"report: {md}\n        {html_path}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

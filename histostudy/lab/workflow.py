@@ -1,0 +1,198 @@
+"""The lab's workflow on its own files and robot (§II-C, §II-D, Fig. 2): pose estimates and flange
+poses in, a checked hand-eye calibration out; a target in the CBCT in, a checked robot move out —
+planned (a dry run) unless the caller asks, explicitly, to execute it.
+
+The files, all JSON (mm, 4x4 ``T_<to>_<from>``; docs/architecture.md, "Frames and units"):
+
+- a pose record, as ``histostudy pose`` writes it (:func:`histostudy.pose.pose_record`):
+  ``T_carm_transducer``, ``focal_point_mm``, ``accepted`` and the verdict;
+- the flange poses, read from the robot at each calibration station (:func:`load_flange_poses`):
+  ``{"T_base_flange": [4x4, ...]}`` in mm, or ``{"ur_pose": [[x, y, z, rx, ry, rz], ...]}`` as the
+  UR pendant and ``getActualTCPPose`` give them (m, axis-angle rad; with the TCP offset at zero);
+- the calibration, :meth:`~histostudy.calibration.HandEyeCalibration.save`'s schema;
+- the targeting plan, :meth:`TargetingPlan.to_dict`.
+
+A robot never moves on a pose this module has not checked: :func:`plan_targeting` runs the
+inverse kinematics from the robot's present joints and the workspace check, and
+:func:`execute_targeting` moves only on a plan that passed them (the robot checks again).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from histostudy.calibration import (HandEyeCalibration, calibrate_half_turns, target_orientation, tcp_for_target)
+from histostudy.core import to_jsonable
+from histostudy.geometry import check_rigid, check_rotation, invert_transform
+from histostudy.imaging import Volume, check_volume
+from histostudy.robot import (HOME_JOINTS_RAD, Robot, Workspace, forward_kinematics, inverse_kinematics_closest,
+                             transform_from_pose)
+
+__all__ = ["TargetingPlan", "calibrate_from_poses", "execute_targeting", "load_flange_poses", "load_pose_record",
+           "plan_targeting"]
+
+PLAN_SCHEMA = "histostudy.targeting_plan/1"
+
+
+def _read_json(path: str | os.PathLike, what: str):
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{what} {str(path)!r}: no such file")
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{what} {str(path)!r} is not JSON: {exc}") from None
+
+
+def load_pose_record(path: str | os.PathLike) -> dict:
+    """A pose record of ``histostudy pose`` (:func:`histostudy.pose.pose_record`), checked: its
+    ``T_carm_transducer`` rigid (mm) and its ``accepted`` flag present."""
+    record = _read_json(path, "pose record")
+    if not isinstance(record, dict) or "T_carm_transducer" not in record or "accepted" not in record:
+        raise ValueError(f"pose record {str(path)!r} must be a JSON object with 'T_carm_transducer' and "
+                         "'accepted', as `histostudy pose` writes it")
+    record["T_carm_transducer"] = check_rigid(np.asarray(record["T_carm_transducer"], dtype=np.float64),
+                                              f"{path}: T_carm_transducer")
+    return record
+
+
+def load_flange_poses(path: str | os.PathLike) -> list[np.ndarray]:
+    """The flange poses ``T_base_flange`` (4x4, mm) of a calibration, one per station, from a JSON
+    file holding ``T_base_flange`` (4x4 transforms in mm) or ``ur_pose`` (UR poses ``[x, y, z, rx,
+    ry, rz]`` in m and axis-angle rad, read with the TCP offset at zero)."""
+    data = _read_json(path, "flange poses file")
+    if not isinstance(data, dict) or not ({"T_base_flange", "ur_pose"} & set(data)):
+        raise ValueError(f"flange poses file {str(path)!r} must be a JSON object with 'T_base_flange' "
+                         "(4x4, mm) or 'ur_pose' ([x, y, z, rx, ry, rz] in m and rad) per station")
+    if "T_base_flange" in data:
+        return [check_rigid(np.asarray(T, dtype=np.float64), f"{path}: T_base_flange[{i}]")
+                for i, T in enumerate(data["T_base_flange"])]
+    return [transform_from_pose(p, f"{path}: ur_pose[{i}]") for i, p in enumerate(data["ur_pose"])]
+
+
+def calibrate_from_poses(pose_records: Sequence[dict], T_base_flange_list: Sequence, *,
+                         nominal_T_flange_transducer=None, max_focal_residual_mm: float = 2.0,
+                         max_rotation_residual_deg: float = 1.0) -> HandEyeCalibration:
+    """The hand-eye calibration of §II-C from the pose estimates at n >= 3 stations and the flange
+    poses the robot reported there, each estimate read as itself or its half turn
+    (:func:`~histostudy.calibration.calibrate_half_turns`), then checked against the residual bound
+    (:meth:`~histostudy.calibration.HandEyeCalibration.check`, raising
+    :class:`~histostudy.calibration.CalibrationError` beyond it). A pose record whose verdict was
+    refused is refused here, naming the station."""
+    records = list(pose_records)
+    flanges = list(T_base_flange_list)
+    if len(records) != len(flanges):
+        raise ValueError(f"pose_records and T_base_flange_list must pair up station by station, got "
+                         f"{len(records)} pose records and {len(flanges)} flange poses")
+    refused = [i for i, r in enumerate(records) if not r.get("accepted", False)]
+    if refused:
+        raise ValueError(f"pose_records {refused}: the pose estimate's verdict refused the fit; re-acquire the "
+                         "frames of those stations rather than calibrate on them")
+    C = [np.asarray(r["T_carm_transducer"], dtype=np.float64) for r in records]
+    calibration = calibrate_half_turns(flanges, C, nominal_T_flange_transducer=nominal_T_flange_transducer)
+    return calibration.check(max_focal_residual_mm, max_rotation_residual_deg)
+
+
+@dataclass(frozen=True, eq=False)
+class TargetingPlan:
+    """A checked move of the focal point onto a target (§II-D, Fig. 2 step 3); mm, rad, 4x4.
+
+    ``target_mm`` (C-arm frame), ``R_carm_transducer`` (the orientation at the target),
+    ``T_flange_tcp`` (the TCP the move aims: the calibrated focal point), ``T_base_tcp`` and
+    ``T_base_flange`` (the commanded poses), ``start_joints_rad`` (where the plan starts from: the
+    robot's joints, or the home configuration for a plan made without a robot) and
+    ``joints_rad`` (the inverse-kinematics solution nearest them), ``joint_travel_rad`` (largest
+    joint move) and ``workspace_ok`` (always True: a plan outside the workspace is not made).
+    """
+
+    target_mm: np.ndarray
+    R_carm_transducer: np.ndarray
+    T_flange_tcp: np.ndarray
+    T_base_tcp: np.ndarray
+    T_base_flange: np.ndarray
+    start_joints_rad: np.ndarray
+    joints_rad: np.ndarray
+    joint_travel_rad: float
+    workspace_ok: bool = True
+
+    def to_dict(self) -> dict:
+        return to_jsonable({"schema": PLAN_SCHEMA, "units": {"length": "mm", "angle": "rad"},
+                            **{k: getattr(self, k) for k in self.__dataclass_fields__}})
+
+
+def _orientation(calibration: HandEyeCalibration, orientation) -> np.ndarray:
+    if orientation is None or (isinstance(orientation, str) and orientation == "down"):
+        return target_orientation(calibration)
+    o = np.asarray(orientation, dtype=object if isinstance(orientation, str) else np.float64)
+    if o.shape == (4, 4):
+        return check_rigid(o, "orientation")[:3, :3]
+    if o.shape == (3, 3):
+        return check_rotation(o, "orientation")
+    raise ValueError(f"orientation must be 'down', a 3x3 R_carm_transducer or a 4x4 T_carm_transducer, "
+                     f"got {orientation!r}")
+
+
+def plan_targeting(calibration: HandEyeCalibration, target_mm, *, volume: Volume | None = None,
+                   orientation="down", start_joints_rad=None, workspace: Workspace | None = None) -> TargetingPlan:
+    """Plan the move that puts the calibrated focal point on ``target_mm`` (C-arm frame, mm; the
+    CBCT's world coordinates, the CBCT being taken by the same C-arm, §II-D).
+
+    ``volume``: the CBCT, when given the target must lie inside it. ``orientation``: ``"down"``
+    (propagation straight down, :func:`~histostudy.calibration.target_orientation`), or a 3x3
+    ``R_carm_transducer`` / 4x4 ``T_carm_transducer`` to keep (e.g. the present pose).
+    ``start_joints_rad``: the robot's present joints (default: the home configuration). Raises
+    :class:`~histostudy.robot.UnreachablePoseError` or
+    :class:`~histostudy.robot.WorkspaceViolation` for a move the robot cannot or must not make.
+    """
+    if not isinstance(calibration, HandEyeCalibration):
+        raise TypeError(f"calibration must be a HandEyeCalibration, got {type(calibration).__name__}")
+    target = np.asarray(target_mm, dtype=np.float64).reshape(-1)
+    if target.shape != (3,) or not np.all(np.isfinite(target)):
+        raise ValueError(f"target_mm must be 3 finite numbers (C-arm frame, mm), got {target_mm!r}")
+    if volume is not None:
+        volume = check_volume(volume)
+        if not volume.contains(target)[0]:
+            raise ValueError(f"target_mm={target.round(3).tolist()} lies outside the CBCT volume (voxel centres "
+                             f"span {volume.lower_mm.round(3).tolist()} to {volume.upper_mm.round(3).tolist()} mm)")
+    R = _orientation(calibration, orientation)
+    T_flange_tcp = calibration.T_flange_transducer.copy()
+    T_base_tcp = tcp_for_target(calibration, target, R, T_flange_tcp)
+    T_base_flange = T_base_tcp @ invert_transform(T_flange_tcp)
+    start = np.asarray(HOME_JOINTS_RAD if start_joints_rad is None else start_joints_rad, dtype=np.float64)
+    joints = inverse_kinematics_closest(T_base_flange, start)
+    # A guard on the kinematics themselves: the IK solution must reproduce the commanded flange.
+    if not np.allclose(forward_kinematics(joints), T_base_flange, atol=1e-6):
+        raise RuntimeError("inverse kinematics gave joints whose forward kinematics miss the commanded flange")
+    (workspace or Workspace()).check(T_base_tcp, T_base_flange)
+    return TargetingPlan(target_mm=target, R_carm_transducer=R, T_flange_tcp=T_flange_tcp, T_base_tcp=T_base_tcp,
+                         T_base_flange=T_base_flange, start_joints_rad=start, joints_rad=joints,
+                         joint_travel_rad=float(np.max(np.abs(joints - start))))
+
+
+def execute_targeting(plan: TargetingPlan, robot: Robot, *, speed_mm_s: float = 50.0,
+                      max_start_deviation_rad: float = 1e-3) -> dict:
+    """Move ``robot`` along ``plan``: set the TCP, then one linear move onto ``plan.T_base_tcp``.
+
+    Refuses (ValueError, nothing moved) when the robot is no longer where the plan started
+    (joints differ by more than ``max_start_deviation_rad``): the plan's checks were made from
+    there. Returns the reached ``T_base_tcp``, its distance from the commanded one (mm) and the
+    joints after the move."""
+    if not isinstance(plan, TargetingPlan):
+        raise TypeError(f"plan must be a TargetingPlan, got {type(plan).__name__}")
+    joints = np.asarray(robot.joints(), dtype=np.float64)
+    deviation = float(np.max(np.abs(joints - plan.start_joints_rad)))
+    if deviation > max_start_deviation_rad:
+        raise ValueError(f"the robot's joints {joints.round(4).tolist()} rad differ from the plan's start "
+                         f"{plan.start_joints_rad.round(4).tolist()} by {deviation:.4f} rad > "
+                         f"max_start_deviation_rad={max_start_deviation_rad}: plan again from where it is")
+    robot.set_tcp(plan.T_flange_tcp)
+    reached = np.asarray(robot.move_linear(plan.T_base_tcp, speed_mm_s), dtype=np.float64)
+    return to_jsonable({"T_base_tcp_reached": reached,
+                        "position_error_mm": float(np.linalg.norm(reached[:3, 3] - plan.T_base_tcp[:3, 3])),
+                        "joints_rad": robot.joints()})
