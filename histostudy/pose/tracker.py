@@ -1,0 +1,251 @@
+"""Tracking the transducer through a stream of biplane frames (§II-A, §II-B.3-4): :class:`Tracker`.
+
+The paper's workstation received live X-ray frames from the C-arm over Ethernet (§II-A) and
+estimated the transducer's pose from each biplane pair. A :class:`Tracker` holds what one
+estimate tells the next: the first update (and any update after the track was lost) runs
+:func:`~.estimate.estimate_pose` from scratch — segmentation, orientation, the §II-B.4 searches,
+the eq. 3 refinement — and every later update starts the refinement from the last accepted pose
+(``initial_pose=``, no orientation or search), which is several times cheaper while the
+transducer moves little between frames. A warm start whose verdict fails (the transducer moved
+too far, or the refinement slid into a wrong basin) loses the track: the same frames are then
+estimated from scratch (a re-acquisition), and both events are counted.
+
+Poses are 4x4 ``T_carm_transducer`` (mm, C-arm/CBCT frame, docs/architecture.md "Frames and
+units"); frames are line integrals (``-log(I / I0)``, dimensionless). Determinism: the tracker
+draws every random number from one Generator (``rng``), so the same frames in the same order with
+the same seed give the same poses (docs/architecture.md, "Seeding and determinism").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Sequence
+
+import numpy as np
+
+from histostudy.core import as_generator
+from histostudy.imaging import Frame, View
+from histostudy.transducer import TransducerModel
+from .estimate import estimate_pose
+from .learned_stages import default_stages
+from .options import PoseOptions
+from .result import PoseEstimationError, PoseResult
+
+__all__ = ["Tracker"]
+
+#: How an update found its pose (``Tracker.last_kind``).
+UPDATE_KINDS = ("from_scratch", "warm", "reacquired")
+
+
+class Tracker:
+    """The transducer's pose, frame pair after frame pair: warm-started :func:`~.estimate.estimate_pose`.
+
+    ``Tracker(model, views).update(frames)`` returns a :class:`~.result.PoseResult` per call.
+
+    Args:
+        model: the digital model whose points enter eq. 3 (the paper: the 0.47 mm model).
+        views: the C-arm views the frames are taken with, in the order ``update`` receives them
+            (the paper: planes A and B, §II-D); one view or a non-empty sequence of :class:`View`.
+        segmenter, orientation: the learned stages; None: those :func:`~.estimate.estimate_pose`
+            picks (:func:`~.learned_stages.default_stages`: the shipped U-Net and conic/VGG19
+            orientation, else the oracles with a warning), chosen once here.
+        rng: a ``numpy.random.Generator`` or an int seed for every random draw of the estimates;
+            None: a fresh, unseeded Generator (poses then vary slightly from run to run — pass a
+            seed for reproducible ones).
+        options, **option_overrides: :class:`~.options.PoseOptions` and keyword overrides of its
+            fields, as for :func:`~.estimate.estimate_pose`. Unlike there, ``raise_on_failure``
+            defaults to False when no ``options`` are given: a tracker reports a failed verdict in
+            the result (``result.verdict.ok``) rather than stopping the stream.
+
+    Attributes (read them, do not set them):
+        n_updates: calls of :meth:`update` that ran (bad input raises before counting).
+        n_warm: updates whose warm start was accepted.
+        n_from_scratch: estimates run from scratch (first updates, updates after a failure, and
+            re-acquisitions).
+        n_lost: warm starts whose verdict failed (or that found no feature): the track was lost.
+        n_reacquired: of those, the updates whose from-scratch estimate on the same frames was
+            accepted.
+        n_accepted, n_failed: updates that ended with an accepted pose / without one (a failed
+            verdict, or :class:`~.result.PoseEstimationError` raised).
+        stage_seconds: seconds per stage (the keys of ``PoseResult.timings_s``: segmentation,
+            distance_maps, orientation, initialisation, refinement, verdict, retries, total), summed
+            over every estimate run, a lost warm start's included.
+        update_seconds: wall seconds spent in :meth:`update`, input checks included.
+    """
+
+    def __init__(self, model: TransducerModel, views: Sequence[View] | View, *, segmenter=None, orientation=None,
+                 rng=None, options: PoseOptions | None = None, **option_overrides):
+        if not isinstance(model, TransducerModel):
+            raise TypeError(f"model must be a histostudy.transducer.TransducerModel, got {type(model).__name__}")
+        views = [views] if isinstance(views, View) else list(views)
+        if not views:
+            raise ValueError("views must hold at least one View, got none")
+        for i, v in enumerate(views):
+            if not isinstance(v, View):
+                raise TypeError(f"views[{i}] must be a histostudy.imaging.View, got {type(v).__name__}: {v!r}")
+        self.model = model
+        self.views = tuple(views)
+        if options is None:
+            option_overrides.setdefault("raise_on_failure", False)
+            options = PoseOptions()
+        elif not isinstance(options, PoseOptions):
+            raise TypeError(f"options must be a histostudy.pose.PoseOptions, got {type(options).__name__}")
+        unknown = sorted(set(option_overrides) - set(PoseOptions.field_names()))
+        if unknown:
+            raise TypeError(f"Tracker() got an unexpected keyword argument {unknown[0]!r}; its keywords are "
+                            f"segmenter, orientation, rng, options and the fields of PoseOptions: "
+                            f"{', '.join(PoseOptions.field_names())}")
+        self.options = dataclasses.replace(options, **option_overrides)
+        # Every estimate runs without raising on a failed verdict: a failed warm start is the
+        # tracker's cue to re-acquire, not an error. ``options.raise_on_failure`` applies to the
+        # update's final result only.
+        self._estimate_options = dataclasses.replace(self.options, raise_on_failure=False)
+        if segmenter is None or orientation is None:
+            default_segmenter, default_orientation = default_stages()
+            segmenter = default_segmenter if segmenter is None else segmenter
+            orientation = default_orientation if orientation is None else orientation
+        self.segmenter, self.orientation = segmenter, orientation
+        self.rng = np.random.default_rng() if rng is None else as_generator(rng)
+        self.reset()
+
+    # --- state ----------------------------------------------------------------------------------
+
+    def reset(self) -> None:
+        """Forget the track and zero the counters: the next update estimates from scratch."""
+        self._last_pose: np.ndarray | None = None
+        self.last_result: PoseResult | None = None
+        self.last_kind: str | None = None
+        self.n_updates = self.n_warm = self.n_from_scratch = 0
+        self.n_lost = self.n_reacquired = self.n_accepted = self.n_failed = 0
+        self.stage_seconds: dict[str, float] = {}
+        self.update_seconds = 0.0
+
+    @property
+    def last_pose(self) -> np.ndarray | None:
+        """The last accepted ``T_carm_transducer`` (4x4, mm; a copy), None before the first
+        accepted pose and after the track was lost."""
+        return None if self._last_pose is None else self._last_pose.copy()
+
+    @property
+    def tracking(self) -> bool:
+        """True when the next update will warm-start from :attr:`last_pose`."""
+        return self._last_pose is not None
+
+    def stats(self) -> dict:
+        """The counters and the summed stage seconds as a plain dict (JSON-ready)."""
+        return {"n_updates": self.n_updates, "n_warm": self.n_warm, "n_from_scratch": self.n_from_scratch,
+                "n_lost": self.n_lost, "n_reacquired": self.n_reacquired, "n_accepted": self.n_accepted,
+                "n_failed": self.n_failed, "stage_seconds": dict(self.stage_seconds),
+                "update_seconds": self.update_seconds}
+
+    # --- the update -----------------------------------------------------------------------------
+
+    def update(self, frames) -> PoseResult:
+        """The pose in ``frames``: one per view, in the order of ``views``.
+
+        Args:
+            frames: a sequence of :class:`~histostudy.imaging.Frame` (taken with the tracker's
+                views) or of 2-D arrays of line integrals ``(rows, cols)`` = each view's shape
+                (wrapped as ``Frame(image, view)``); a ``(n_views, rows, cols)`` array is read as
+                its n_views images.
+
+        Returns:
+            The :class:`~.result.PoseResult`; ``result.init`` is None for an accepted warm start.
+            :attr:`last_kind` says how it was found (``"from_scratch"``, ``"warm"`` or
+            ``"reacquired"`` after a lost warm start).
+
+        Raises:
+            ValueError: wrong number of frames, a frame of the wrong shape or view (naming it).
+            PoseEstimationError: a view shows no transducer feature (the track is then lost), or
+                a failed verdict with ``options.raise_on_failure``.
+        """
+        t_start = time.perf_counter()
+        frames = self._check_frames(frames)
+        self.n_updates += 1
+        was_tracking = self._last_pose is not None
+        try:
+            result = kind = None
+            if was_tracking:
+                try:
+                    result = self._estimate(frames, self._last_pose)
+                except PoseEstimationError:
+                    result = None  # no feature in a view: the from-scratch estimate below says so again
+                if result is not None and result.verdict.ok:
+                    kind = "warm"
+                    self.n_warm += 1
+                else:
+                    self.n_lost += 1
+                    self._last_pose = None
+            if kind is None:
+                kind = "reacquired" if was_tracking else "from_scratch"
+                self.n_from_scratch += 1
+                result = self._estimate(frames, None)
+                if kind == "reacquired" and result.verdict.ok:
+                    self.n_reacquired += 1
+        except PoseEstimationError:
+            self.n_failed += 1
+            self._last_pose = None
+            self.last_result, self.last_kind = None, None
+            raise
+        finally:
+            self.update_seconds += time.perf_counter() - t_start
+        self.last_result, self.last_kind = result, kind
+        if result.verdict.ok:
+            self.n_accepted += 1
+            self._last_pose = np.array(result.T_carm_transducer, dtype=np.float64)
+        else:
+            self.n_failed += 1
+            self._last_pose = None
+            if self.options.raise_on_failure:
+                raise PoseEstimationError("implausible pose: " + "; ".join(result.verdict.reasons), result.verdict,
+                                          result)
+        return result
+
+    def _estimate(self, frames: list[Frame], initial_pose) -> PoseResult:
+        result = estimate_pose(frames, self.model, segmenter=self.segmenter, orientation=self.orientation,
+                               rng=self.rng, initial_pose=initial_pose, options=self._estimate_options)
+        for stage, seconds in result.timings_s.items():
+            self.stage_seconds[stage] = self.stage_seconds.get(stage, 0.0) + float(seconds)
+        return result
+
+    def _check_frames(self, frames) -> list[Frame]:
+        """``frames`` as one :class:`Frame` per view, or a ValueError naming the bad one."""
+        names = ", ".join(repr(v.name) for v in self.views)
+        if isinstance(frames, Frame) or (isinstance(frames, np.ndarray) and frames.ndim < 3) \
+                or isinstance(frames, (str, bytes)):
+            raise ValueError(f"frames must be a sequence of one frame per view ({len(self.views)}: {names}), "
+                             f"got a single {type(frames).__name__}")
+        try:
+            frames = list(frames)
+        except TypeError:
+            raise ValueError(f"frames must be a sequence of one frame per view ({len(self.views)}: {names}), "
+                             f"got {type(frames).__name__}") from None
+        if len(frames) != len(self.views):
+            raise ValueError(f"frames must hold one frame per view, {len(self.views)} ({names}), got {len(frames)}")
+        out = []
+        for i, (f, view) in enumerate(zip(frames, self.views)):
+            if isinstance(f, Frame):
+                if f.shape != view.shape or not _same_projection(f.view, view):
+                    raise ValueError(f"frames[{i}] was taken with view {f.view!r}, not with views[{i}] = {view!r} "
+                                     "(the tracker's views, in order)")
+                out.append(f)
+                continue
+            image = np.asarray(f)
+            if image.ndim != 2 or not np.issubdtype(image.dtype, np.number):
+                raise ValueError(f"frames[{i}] must be a Frame or a 2-D numeric array of line integrals of view "
+                                 f"{view.name!r}'s shape {view.shape}, got shape {image.shape} dtype {image.dtype}")
+            if image.shape != view.shape:
+                raise ValueError(f"frames[{i}] has shape {image.shape}; view {view.name!r} (views[{i}]) expects "
+                                 f"{view.shape}")
+            try:
+                out.append(Frame(image, view))
+            except ValueError as exc:
+                raise ValueError(f"frames[{i}]: {exc}") from None
+        return out
+
+
+def _same_projection(a: View, b: View) -> bool:
+    """True when two views' 3x4 matrices agree up to their (positive) scale."""
+    Pa, Pb = a.P / np.linalg.norm(a.P), b.P / np.linalg.norm(b.P)
+    return bool(np.allclose(Pa, Pb, rtol=0.0, atol=1e-9))
