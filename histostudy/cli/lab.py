@@ -62,7 +62,8 @@ def add_parsers(sub, parents) -> None:
                          help="plan (default) or execute the move of the focal point onto a target in the CBCT")
     tgt.add_argument("--calibration", required=True, help="the calibration JSON of `histostudy calibrate`")
     where = tgt.add_mutually_exclusive_group(required=True)
-    where.add_argument("--target", type=_triple, help="x,y,z in the C-arm (CBCT world) frame, mm")
+    where.add_argument("--target", type=_triple, help="x,y,z in the C-arm (CBCT world) frame, mm (--target=-1,2,3 "
+                                                      "when x is negative)")
     where.add_argument("--target-voxel", type=_triple, help="i,j,k: a voxel of --cbct (x, y, z indices)")
     tgt.add_argument("--cbct", default=None, help="the CBCT (NIfTI .nii/.nii.gz or a DICOM folder): the target "
                                                   "must lie inside it")
