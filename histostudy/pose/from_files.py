@@ -57,15 +57,20 @@ def frames_from_files(frame_paths: Sequence[str | os.PathLike], views_path: str 
 
 def pose_from_files(frame_paths: Sequence[str | os.PathLike], views_path: str | os.PathLike | None = None, *,
                     frame_index: int | None = None, line_integrals: bool = False, resample: bool = False,
-                    model_spacing_mm: float = 0.47, seed: int = 0, **options) -> PoseResult:
-    """:func:`~.estimate.estimate_pose` on the frames of :func:`frames_from_files`, with the
-    digital model at ``model_spacing_mm`` (the paper's 0.47 mm), the shipped learned stages and
+                    model_spacing_mm: float = 0.47, seed: int = 0, model: TransducerModel | None = None,
+                    **options) -> PoseResult:
+    """:func:`~.estimate.estimate_pose` on the frames of :func:`frames_from_files`, with ``model``
+    (e.g. the lab's transducer from its CAD meshes, :meth:`TransducerModel.from_meshes`; default the
+    digital model at ``model_spacing_mm``, the paper's 0.47 mm), the shipped learned stages and
     ``numpy.random.default_rng(seed)``; ``options``: :class:`~.options.PoseOptions` fields. A
     refused fit comes back with its verdict (``raise_on_failure=False`` unless given)."""
     frames = frames_from_files(frame_paths, views_path, frame_index=frame_index, line_integrals=line_integrals,
                                resample=resample)
     options.setdefault("raise_on_failure", False)
-    model = TransducerModel.build(spacing_mm=model_spacing_mm)
+    if model is None:
+        model = TransducerModel.build(spacing_mm=model_spacing_mm)
+    elif not isinstance(model, TransducerModel):
+        raise TypeError(f"model must be a TransducerModel, got {type(model).__name__}")
     return estimate_pose(frames, model, rng=np.random.default_rng(seed), **options)
 
 

@@ -1,0 +1,175 @@
+"""A small lab-like dataset, generated: what a lab hands the workflow of ``histostudy.lab``, written in
+the lab's own formats, with the synthetic truth a lab never has kept beside it (§II-A to §II-D).
+
+:func:`write_lab_dataset` draws one set-up of the targeting study (:func:`draw_ground_truth`: the
+robot base in the C-arm frame, the transducer's mount, the phantom) and writes:
+
+- ``views.json``: the biplane views (:func:`histostudy.imaging.save_views`);
+- ``calibration/station_K/{A,B}.dcm``: a single-frame DICOM XA pair with the C-arm's geometry tags
+  at each of the calibration stations (:func:`calibration_poses`), and
+  ``calibration/flange_poses.json``: the flange poses the robot reported there, both as 4x4 mm
+  transforms and as UR poses (m, axis-angle rad);
+- ``cine/{A,B}.dcm``: a biplane XA cine (``FrameTime`` apart) of the transducer moving on the
+  robot, as a C-arm streams it during tracking;
+- ``cbct.nii.gz``: the pre-treatment CBCT of the layered phantom (C-arm frame, HU);
+- ``transducer/*.stl``: the transducer's meshes, one per feature class (the CAD files a lab has);
+- ``dataset.json``: what each file is, the suggested target (inside the phantom) and the seed;
+- ``truth.json``: the synthetic truth — ``T_carm_base``, ``T_flange_transducer`` and the true
+  ``T_carm_transducer`` of every station and cine frame — for measuring errors, never read by the
+  workflow.
+
+The frames are rendered from the *physical* transducer (quadrants moved, §IV) over the phantom
+scene, with the study's dose and splatting (:class:`~histostudy.imaging.RenderSettings`), and
+stored as 12-bit detector counts. Every draw comes from ``seed`` through one
+``numpy.random.SeedSequence``: the same seed writes the same files.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from histostudy.core import atomic_write_json, to_jsonable
+from histostudy.geometry import make_transform, matrix_from_rotvec
+from histostudy.imaging import (PhantomSpec, View, check_target, default_biplane, detector_counts,
+                                random_background, random_target, render_frame, save_views, save_volume_nifti,
+                                simulate_cbct, write_xa)
+from histostudy.robot import forward_kinematics, pose_from_transform
+from histostudy.transducer import TransducerModel, export_meshes
+from .targeting_calibration import calibration_poses
+from .targeting_setup import TargetingStudyConfig, draw_ground_truth, start_joints
+from .targeting_treatment import phantom_for
+
+__all__ = ["LabDataset", "write_lab_dataset"]
+
+DATASET_FORMAT = "histostudy.lab_dataset/1"
+
+
+@dataclass(frozen=True)
+class LabDataset:
+    """Where :func:`write_lab_dataset` put each file (paths), and the suggested target (C-arm mm)."""
+
+    folder: Path
+    views: Path
+    calibration_frames: tuple  # ((A.dcm, B.dcm), ...) per station
+    flange_poses: Path
+    cine: tuple  # (A.dcm, B.dcm)
+    cbct: Path
+    transducer_meshes: tuple
+    manifest: Path
+    truth: Path
+    target_mm: np.ndarray
+    n_cine_frames: int
+
+
+def _cine_flange_poses(start_flange: np.ndarray, n: int, step_mm: float, turn_deg: float,
+                       rng: np.random.Generator) -> list[np.ndarray]:
+    """Flange poses of a slow robot move: a straight line of ``step_mm`` per frame in a random
+    horizontal direction (base x-y), with a turn of ``turn_deg`` per frame about a random axis."""
+    phi = rng.uniform(0, 2 * np.pi)
+    direction = np.array([np.cos(phi), np.sin(phi), 0.0])
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    out = []
+    for k in range(n):
+        R = matrix_from_rotvec(np.radians(turn_deg * k) * axis) @ start_flange[:3, :3]
+        out.append(make_transform(R, start_flange[:3, 3] + step_mm * k * direction))
+    return out
+
+
+def write_lab_dataset(folder: str | os.PathLike, *, seed: int = 20231125, n_cine_frames: int = 4,
+                      frame_time_ms: float = 66.7, cine_step_mm: float = 0.5, cine_turn_deg: float = 0.2,
+                      config: TargetingStudyConfig | None = None, render_spacing_mm: float = 0.25,
+                      views: tuple[View, View] | None = None) -> LabDataset:
+    """Write the lab-like dataset described in the module docstring into ``folder``; returns its
+    paths. ``config``: the set-up's parameters (default: the targeting study's standard ones with 4
+    calibration stations); ``render_spacing_mm``: the rendered transducer's point spacing (the
+    study renders at 0.125 mm; 0.25 mm is 4x faster and enough for 0.3 mm pixels at the
+    isocentre); ``views``: the biplane (default :func:`default_biplane`)."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    if isinstance(n_cine_frames, bool) or not isinstance(n_cine_frames, (int, np.integer)) or n_cine_frames < 1:
+        raise ValueError(f"n_cine_frames must be an integer >= 1, got {n_cine_frames!r}")
+    for name, value in (("frame_time_ms", frame_time_ms), ("cine_step_mm", cine_step_mm),
+                        ("cine_turn_deg", cine_turn_deg)):
+        if not (np.isfinite(value) and value >= 0) or (name == "frame_time_ms" and value <= 0):
+            raise ValueError(f"{name} must be finite and {'> 0' if name == 'frame_time_ms' else '>= 0'}, "
+                             f"got {value!r}")
+    config = TargetingStudyConfig(n_experiments=1, background="phantom") if config is None else config
+    views = tuple(default_biplane() if views is None else views)
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+
+    s_truth, s_pose, s_scene, s_render, s_physical, s_cine, s_target, s_cbct = np.random.SeedSequence(seed).spawn(8)
+    truth = draw_ground_truth(np.random.default_rng(s_truth), config)
+    render_model = TransducerModel.build(spacing_mm=render_spacing_mm)
+    physical = TransducerModel.build_physical(spacing_mm=render_spacing_mm, rng=np.random.default_rng(s_physical))
+    scene = random_background(np.random.default_rng(s_scene), "phantom")
+    rng_render = np.random.default_rng(s_render)
+    when = _dt.datetime(2023, 1, 19, 10, 0, 0)
+
+    def render_pair(T_carm_transducer):
+        return [render_frame(render_model, T_carm_transducer, v, rng=rng_render, physical=physical,
+                             background=scene, **config.frame_kwargs()) for v in views]
+
+    # The calibration stations: single-frame pairs, the flange poses as the robot reports them.
+    flanges = calibration_poses(np.random.default_rng(s_pose), config, truth)
+    stations, true_station_poses = [], []
+    for k, F in enumerate(flanges):
+        T_true = truth.T_carm_transducer(F)
+        true_station_poses.append(T_true)
+        paths = []
+        for view, frame in zip(views, render_pair(T_true)):
+            paths.append(write_xa(out / "calibration" / f"station_{k}" / f"{view.name}.dcm", view,
+                                  detector_counts(frame.image), uid_seed=f"lab-{seed}-station-{k}",
+                                  acquisition_time=when + _dt.timedelta(minutes=k)))
+        stations.append(tuple(paths))
+    flange_file = atomic_write_json(out / "calibration" / "flange_poses.json", to_jsonable({
+        "T_base_flange": flanges, "ur_pose": [pose_from_transform(F) for F in flanges],
+        "units": {"T_base_flange": "mm", "ur_pose": "m, axis-angle rad"}}))
+
+    # The cine: the robot moving slowly from where the operator jogged it over the phantom.
+    start_flange = forward_kinematics(start_joints(truth))
+    cine_flanges = _cine_flange_poses(start_flange, n_cine_frames, cine_step_mm, cine_turn_deg,
+                                      np.random.default_rng(s_cine))
+    true_cine_poses = [truth.T_carm_transducer(F) for F in cine_flanges]
+    per_view = [render_pair(T) for T in true_cine_poses]
+    cine_start = when + _dt.timedelta(minutes=len(flanges) + 1)
+    cine = tuple(write_xa(out / "cine" / f"{view.name}.dcm", view,
+                          detector_counts(np.stack([pair[i].image for pair in per_view])),
+                          uid_seed=f"lab-{seed}-cine", frame_time_ms=frame_time_ms, acquisition_time=cine_start)
+                 for i, view in enumerate(views))
+
+    # The pre-treatment CBCT of the phantom, and a target inside it with a 12.5 mm zone around it.
+    phantom, _ = phantom_for(truth, config)
+    cbct = simulate_cbct(phantom, np.random.default_rng(s_cbct), blur_sigma_mm=config.cbct_blur_mm,
+                         noise_sd_hu=config.cbct_noise_hu, voxel_mm=config.cbct_voxel_mm)
+    cbct_path = save_volume_nifti(cbct, out / "cbct.nii.gz")
+    target = check_target(random_target(np.random.default_rng(s_target), PhantomSpec(), truth.T_carm_phantom,
+                                        border_mm=16.5), PhantomSpec(), truth.T_carm_phantom, volume=cbct,
+                          margin_mm=12.5)
+
+    meshes = tuple(export_meshes(render_model.spec, out / "transducer").values())
+    views_path = save_views(out / "views.json", views)
+    truth_path = atomic_write_json(out / "truth.json", to_jsonable({
+        "note": "the synthetic truth, which a lab never has: for measuring errors only",
+        "T_carm_base": truth.T_carm_base, "T_flange_transducer": truth.T_flange_transducer,
+        "T_carm_phantom": truth.T_carm_phantom, "physical_focal_point_mm": physical.focal_point_mm,
+        "station_T_carm_transducer": true_station_poses, "cine_T_carm_transducer": true_cine_poses,
+        "cine_T_base_flange": cine_flanges, "cine_start_joints_rad": start_joints(truth)}))
+    manifest = atomic_write_json(out / "dataset.json", to_jsonable({
+        "format": DATASET_FORMAT, "seed": int(seed),
+        "what": "a lab-like dataset generated by histostudy.study.write_lab_dataset: synthetic frames of the "
+                "physical transducer model standing in for a lab's C-arm, CBCT, transducer CAD and robot",
+        "views": "views.json", "calibration_stations": [[str(p.relative_to(out)) for p in s] for s in stations],
+        "flange_poses": str(flange_file.relative_to(out)), "cine": [str(p.relative_to(out)) for p in cine],
+        "n_cine_frames": int(n_cine_frames), "frame_time_ms": float(frame_time_ms),
+        "cbct": str(cbct_path.relative_to(out)), "transducer_meshes": [str(Path(p).relative_to(out)) for p in meshes],
+        "suggested_target_mm": target, "truth": "truth.json"}))
+    return LabDataset(folder=out, views=views_path, calibration_frames=tuple(stations), flange_poses=flange_file,
+                      cine=cine, cbct=cbct_path, transducer_meshes=meshes, manifest=manifest, truth=truth_path,
+                      target_mm=target, n_cine_frames=int(n_cine_frames))

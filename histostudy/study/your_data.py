@@ -1,0 +1,233 @@
+"""Notebook 06, the lab's own data end to end (§II-B to §II-D on a lab's files): its transducer from
+CAD meshes, the pose at each calibration station, the hand-eye calibration, the pose tracked over a
+cine, a target in the CBCT and the planned (or executed) robot move.
+
+Without a lab, :func:`lab_inputs` generates the lab-like dataset of :mod:`.lab_dataset` (DICOM XA
+with geometry tags, a NIfTI CBCT, STL meshes, flange poses) and the tables carry the errors
+against its synthetic truth; with a lab's files there is no truth and those columns are absent.
+Lengths in mm, 4x4 ``T_<to>_<from>`` (docs/architecture.md, "Frames and units").
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from histostudy.calibration import HandEyeCalibration
+from histostudy.imaging import Volume, load_views
+from histostudy.lab import TargetingPlan, calibrate_from_poses, load_flange_poses, plan_targeting
+from histostudy.pose import Tracker, frames_from_files, pose_from_files, pose_record
+from histostudy.transducer import TransducerModel
+from .lab_dataset import write_lab_dataset
+from .targeting_setup import TargetingStudyConfig
+
+__all__ = ["LabInputs", "SECTION_TITLE", "accepted_focal_errors", "calibration_table", "cine_frame_count", "lab_inputs", "plan_table",
+           "plot_cbct_target", "station_poses", "target_plan", "track_cine", "transducer_model"]
+
+SECTION_TITLE = "Your own data: frames, calibration, target and robot (§II-B to §II-D on a lab's files)"
+
+_FRAME_SUFFIXES = (".dcm", ".dicom", ".npy", ".png", ".tif", ".tiff")
+
+
+@dataclass(frozen=True)
+class LabInputs:
+    """The lab's files (paths; None where not given) and, for the generated dataset, its truth."""
+
+    views: Path | None
+    stations: tuple
+    flange_poses: Path
+    cine: tuple
+    cbct: Path
+    transducer_meshes: Path | None
+    target_mm: np.ndarray
+    truth: dict | None
+    generated: bool
+
+
+def lab_inputs(data_dir: str | os.PathLike | None, *, output_dir: str | os.PathLike, seed: int,
+               target_mm=None, n_cine_frames: int = 4, render: dict | None = None) -> LabInputs:
+    """The inputs of notebook 06: those in ``data_dir`` (laid out as the lab-like dataset:
+    ``views.json``, ``calibration/station_*/``, ``calibration/flange_poses.json``, ``cine/*.dcm``,
+    ``cbct.nii.gz`` or ``cbct/``, ``transducer/``), or, with ``data_dir`` None, the lab-like dataset
+    generated into ``output_dir/lab_data`` from ``seed``. ``target_mm``: the target (C-arm mm);
+    default the dataset's suggested one. ``render``: the generated frames' dose and splatting
+    (:class:`~histostudy.imaging.RenderSettings` fields; default the study's)."""
+    if data_dir is None:
+        config = TargetingStudyConfig(n_experiments=1, background="phantom", **(render or {}))
+        ds = write_lab_dataset(Path(output_dir) / "lab_data", seed=seed, n_cine_frames=n_cine_frames, config=config)
+        data_dir = ds.folder
+    folder = Path(data_dir)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"data_dir {str(folder)!r}: no such folder")
+    manifest = json.loads((folder / "dataset.json").read_text()) if (folder / "dataset.json").is_file() else {}
+    stations = tuple(sorted(p for p in (folder / "calibration").glob("station_*") if p.is_dir()))
+    cine = tuple(sorted((folder / "cine").glob("*.dcm")))
+    cbct = next((p for p in (folder / "cbct.nii.gz", folder / "cbct.nii", folder / "cbct") if p.exists()), None)
+    missing = [name for name, v in (("calibration/station_*", stations), ("cine/*.dcm", cine), ("cbct", cbct)) if not v]
+    if missing:
+        raise FileNotFoundError(f"data_dir {str(folder)!r} lacks {missing} (see histostudy.study.lab_dataset)")
+    if target_mm is None:
+        if "suggested_target_mm" not in manifest:
+            raise ValueError("target_mm must be given (x, y, z in the CBCT's world frame, mm): the data has no "
+                             "suggested target")
+        target_mm = manifest["suggested_target_mm"]
+    truth = json.loads((folder / "truth.json").read_text()) if (folder / "truth.json").is_file() else None
+    meshes = folder / "transducer"
+    return LabInputs(views=folder / "views.json" if (folder / "views.json").is_file() else None,
+                     stations=stations, flange_poses=folder / "calibration" / "flange_poses.json", cine=cine,
+                     cbct=cbct, transducer_meshes=meshes if meshes.is_dir() else None,
+                     target_mm=np.asarray(target_mm, dtype=np.float64), truth=truth,
+                     generated=bool(manifest))
+
+
+def transducer_model(inputs: LabInputs, spacing_mm: float = 0.47) -> TransducerModel:
+    """The transducer the pose is estimated with: from the lab's CAD meshes (one file per feature
+    class, named after it) when there are any, else the paper's digital model."""
+    if inputs.transducer_meshes is None:
+        return TransducerModel.build(spacing_mm=spacing_mm)
+    files = {p.stem: p for p in sorted(inputs.transducer_meshes.iterdir()) if p.suffix.lower() in (".stl", ".ply",
+                                                                                                   ".obj", ".vtp")}
+    return TransducerModel.from_meshes(files, spacing_mm=spacing_mm)
+
+
+def _station_frames(station: Path) -> list[Path]:
+    return sorted(p for p in station.iterdir() if p.suffix.lower() in _FRAME_SUFFIXES)
+
+
+def _focal_error_mm(T_est, T_true) -> float:
+    return float(np.linalg.norm(np.asarray(T_est)[:3, 3] - np.asarray(T_true)[:3, 3]))
+
+
+def station_poses(inputs: LabInputs, model: TransducerModel, seed: int) -> tuple[list[dict], pd.DataFrame]:
+    """The pose record of each calibration station (:func:`histostudy.pose.pose_record`) and a
+    table: focal point, verdict, seconds and, with a truth, the focal error."""
+    records, rows = [], []
+    for k, station in enumerate(inputs.stations):
+        frames = _station_frames(station)
+        result = pose_from_files(frames, inputs.views, model=model, seed=seed + k)
+        record = pose_record(result, frames)
+        records.append(record)
+        row = {"station": station.name, **{f"focal_{a}_mm": v for a, v in zip("xyz", record["focal_point_mm"])},
+               "accepted": record["accepted"], "seconds": result.timings_s.get("total", np.nan)}
+        if inputs.truth is not None:
+            row["focal_error_mm"] = _focal_error_mm(result.T_carm_transducer,
+                                                    inputs.truth["station_T_carm_transducer"][k])
+        rows.append(row)
+    return records, pd.DataFrame(rows)
+
+
+def calibration_table(records: list[dict], inputs: LabInputs) -> tuple[HandEyeCalibration, pd.DataFrame]:
+    """The checked hand-eye calibration of the stations (:func:`histostudy.lab.calibrate_from_poses`)
+    and its residuals per station, with the error of ``T_carm_base`` at the target against a truth."""
+    calibration = calibrate_from_poses(records, load_flange_poses(inputs.flange_poses))
+    table = pd.DataFrame({"station": [s.name for s in inputs.stations],
+                          "focal_residual_mm": calibration.focal_residuals_mm,
+                          "rotation_residual_deg": calibration.rotation_residuals_deg})
+    if inputs.truth is not None:
+        # Where the calibrated chain and the true one put a flange-carried point at the target.
+        T_true = np.asarray(inputs.truth["T_carm_base"]) @ np.linalg.inv(calibration.T_carm_base)
+        table["target_error_of_T_carm_base_mm"] = float(np.linalg.norm(T_true[:3, :3] @ inputs.target_mm
+                                                                       + T_true[:3, 3] - inputs.target_mm))
+    return calibration, table
+
+
+def cine_frame_count(inputs: LabInputs) -> int:
+    """Frames in the cine (the smallest count over the planes)."""
+    import pydicom
+
+    return min(int(getattr(pydicom.dcmread(p, stop_before_pixels=True), "NumberOfFrames", 1)) for p in inputs.cine)
+
+
+def track_cine(inputs: LabInputs, model: TransducerModel, seed: int,
+               max_frames: int | None = None) -> tuple[list, pd.DataFrame]:
+    """The pose tracked over the cine's biplane frames (:class:`histostudy.pose.Tracker`: from
+    scratch on the first pair, warm-started after) and a table per frame: focal point, verdict,
+    seconds, re-acquisitions and, with a truth, the focal error."""
+    n = cine_frame_count(inputs) if max_frames is None else min(max_frames, cine_frame_count(inputs))
+    views = load_views(inputs.views) if inputs.views is not None else None
+    first = frames_from_files(inputs.cine, inputs.views, frame_index=0)
+    tracker = Tracker(model, views or [f.view for f in first], rng=np.random.default_rng(seed),
+                      raise_on_failure=False)
+    results, rows = [], []
+    for k in range(n):
+        frames = first if k == 0 else frames_from_files(inputs.cine, inputs.views, frame_index=k)
+        result = tracker.update(frames)
+        results.append(result)
+        row = {"frame": k, **{f"focal_{a}_mm": v for a, v in zip("xyz", result.focal_point_mm)},
+               "accepted": bool(result.verdict.ok), "seconds": result.timings_s.get("total", np.nan),
+               "reacquired_so_far": tracker.n_reacquired}
+        if inputs.truth is not None:
+            row["focal_error_mm"] = _focal_error_mm(result.T_carm_transducer,
+                                                    inputs.truth["cine_T_carm_transducer"][k])
+        rows.append(row)
+    return results, pd.DataFrame(rows)
+
+
+def plan_table(plan: TargetingPlan) -> pd.DataFrame:
+    """The planned move as a table: the target, the commanded TCP position (base frame), the
+    joints before and after (deg)."""
+    rows = [{"quantity": "target (C-arm, mm)", "value": np.round(plan.target_mm, 2).tolist()},
+            {"quantity": "TCP position (robot base, mm)", "value": np.round(plan.T_base_tcp[:3, 3], 2).tolist()},
+            {"quantity": "joints at the start (deg)", "value": np.round(np.degrees(plan.start_joints_rad), 1).tolist()},
+            {"quantity": "joints at the target (deg)", "value": np.round(np.degrees(plan.joints_rad), 1).tolist()},
+            {"quantity": "largest joint move (deg)", "value": round(float(np.degrees(plan.joint_travel_rad)), 2)}]
+    return pd.DataFrame(rows)
+
+
+def plot_cbct_target(volume: Volume, target_mm, *, half_width_mm: float = 40.0, title: str = ""):
+    """Transverse, frontal and sagittal CBCT slices through ``target_mm`` (C-arm mm), the target
+    as a green dot. Returns the matplotlib figure."""
+    import matplotlib.pyplot as plt
+
+    target = np.asarray(target_mm, dtype=np.float64).reshape(3)
+    if not volume.contains(target)[0]:
+        raise ValueError(f"target_mm={target.round(2).tolist()} lies outside the volume")
+    i, j, k = np.round(volume.world_to_voxel(target)[0]).astype(int)
+    x, y, z = volume.axes_mm()
+    cuts = ((f"transverse (z = {z[k]:.1f} mm)", volume.data[k], y, x, (target[0], target[1]), "y (P) mm", "x (L) mm"),
+            (f"frontal (y = {y[j]:.1f} mm)", volume.data[:, j, :], z, x, (target[0], target[2]), "z (S) mm", "x (L) mm"),
+            (f"sagittal (x = {x[i]:.1f} mm)", volume.data[:, :, i], z, y, (target[1], target[2]), "z (S) mm",
+             "y (P) mm"))
+    fig, axes = plt.subplots(1, 3, figsize=(12, 4.2))
+    lo, hi = np.percentile(volume.data, [1, 99.5])
+    for ax, (name, img, rows, cols, (tc, tr), rlab, clab) in zip(axes, cuts):
+        ax.imshow(img, cmap="gray", vmin=lo, vmax=hi, origin="lower", extent=(cols[0], cols[-1], rows[0], rows[-1]),
+                  interpolation="nearest")
+        ax.plot(tc, tr, "o", color="lime", markersize=6, markeredgecolor="k")
+        ax.set_xlim(tc - half_width_mm, tc + half_width_mm)
+        flip = rlab.startswith("y")  # anterior at the top, as radiology shows a transverse slice
+        ax.set_ylim((tr + half_width_mm, tr - half_width_mm) if flip else (tr - half_width_mm, tr + half_width_mm))
+        ax.set_title(name, fontsize=9)
+        ax.set_xlabel(clab)
+        ax.set_ylabel(rlab)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def target_plan(calibration: HandEyeCalibration, inputs: LabInputs, volume: Volume,
+                start_joints_rad=None) -> TargetingPlan:
+    """:func:`histostudy.lab.plan_targeting` for the inputs' target in ``volume``, from
+    ``start_joints_rad`` (the robot's joints; default: the generated dataset's start, else home)."""
+    if start_joints_rad is None and inputs.truth is not None:
+        start_joints_rad = inputs.truth["cine_start_joints_rad"]
+    return plan_targeting(calibration, inputs.target_mm, volume=volume, start_joints_rad=start_joints_rad)
+
+
+
+
+
+def accepted_focal_errors(stations: pd.DataFrame, cine: pd.DataFrame) -> tuple[float, float] | None:
+    """Mean and SD of the focal error over the accepted poses of both tables (mm), None without a
+    truth (a lab's own data) or without an accepted pose."""
+    errors = [t.loc[t["accepted"], "focal_error_mm"] for t in (stations, cine) if "focal_error_mm" in t]
+    values = pd.concat(errors).to_numpy(float) if errors else np.zeros(0)
+    if len(values) == 0:
+        return None
+    return float(values.mean()), float(values.std(ddof=1)) if len(values) > 1 else 0.0
