@@ -50,4 +50,11 @@ Fig. 7), gathered by the front module :mod:`.targeting`:
 - :mod:`.targeting_summary` — §III's targeting figures, tables and comparisons with the paper.
 - :mod:`.targeting_figures` — Fig. 7's cuts through the target, the 3-D scene's inputs.
 - :mod:`.targeting_notebook` — notebook 05's parameters, set-up, seeds, stand-ins and text.
+
+Notebook 06, the lab's own data end to end (§II-B to §II-D on a lab's files):
+
+- :mod:`.your_data` — the notebook's inputs, the poses of the stations and the cine, the
+  calibration and the planned move, each as a table.
+- :mod:`.lab_dataset` — the lab-like dataset it generates when no lab files are given (DICOM XA,
+  NIfTI CBCT, STL meshes, flange poses, and the synthetic truth beside them).
 """
