@@ -21,6 +21,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .mesh import mesh_model_fields
 from .physical import ManufacturingDeviation, physical_model_fields
 from .sampling import (cap_points, check_spacing_mm, inner_wall_points, merge_parts, outer_wall_points,
                        rim_screw_bases_mm, screw_points)
@@ -116,6 +117,32 @@ class TransducerModel:
         if not isinstance(rng, np.random.Generator):
             raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
         return cls(**physical_model_fields(cls.build(spec, spacing_mm), deviation, rng))
+
+    @classmethod
+    def from_meshes(cls, meshes, *, spacing_mm: float = 0.47, mu_per_mm=None, units: str = "mm",
+                    T_transducer_mesh=None, focal_point_mm=None,
+                    spec: TransducerSpec | None = None) -> "TransducerModel":
+        """A model sampled from a lab's closed CAD surfaces (§II-B.1), as
+        :mod:`histostudy.transducer.mesh` describes.
+
+        Args:
+            meshes: ``{Feature or class name ("screws"): mesh file or pyvista.PolyData}``, or one
+                file / PolyData with a cell array ``"feature"`` (Feature values or names) per part.
+            spacing_mm: sampling spacing (no sampled edge longer than twice it).
+            mu_per_mm: ``{class: attenuation 1/mm}`` overriding
+                :func:`~histostudy.transducer.mesh.default_mesh_mu_per_mm` (GAPS must stay 0).
+            units: the files' length unit: "mm", "cm", "m" or "in".
+            T_transducer_mesh: 4x4 rigid transform from the CAD frame (after ``units``) into the
+                transducer frame (origin at the geometric focal point, +z towards the transducer;
+                :mod:`histostudy.transducer.spec`); default identity.
+            focal_point_mm: the acoustic focal point in the transducer frame; default zeros.
+            spec: the :class:`TransducerSpec` whose fields the pose stages read (``radius_mm``,
+                ``cutout_diameter_mm``, ``inner_band_mm`` for the conic orientation initialiser);
+                default ``TransducerSpec()``, the paper's: a lab sets them to its transducer's.
+        """
+        return cls(**mesh_model_fields(meshes, spacing_mm=spacing_mm, mu_per_mm=mu_per_mm, units=units,
+                                       T_transducer_mesh=T_transducer_mesh, focal_point_mm=focal_point_mm,
+                                       spec=spec))
 
     # --- access -------------------------------------------------------------------------------
 
