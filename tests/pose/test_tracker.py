@@ -7,7 +7,7 @@ half resolution, read by the oracle stages, so each estimate takes a fraction of
 import numpy as np
 import pytest
 
-from histostudy.geometry import compose, rotation_angle, transform_from_params
+from histostudy.geometry import rotation_angle, transform_from_params
 from histostudy.imaging import Frame, default_biplane
 from histostudy.learning import OracleOrientation, OracleSegmenter
 from histostudy.pose import ConicOrientation, PoseEstimationError, Tracker, estimate_pose

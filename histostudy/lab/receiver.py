@@ -1,0 +1,676 @@
+"""Live C-arm frames received over DICOM (C-STORE), paired across the planes and tracked (§II-A).
+
+The paper's workstation received the C-arm's live X-ray frames over Ethernet and estimated the
+transducer's pose from each biplane pair (§II-A, §II-B). :class:`FrameReceiver` is that end of the
+cable: a DICOM Storage SCP (``pynetdicom``) that a C-arm or a PACS sends X-ray angiography objects
+to — single frames or cines, each frame of a cine one frame — and that writes one pose per biplane
+pair to a JSON-lines file as it comes.
+
+The chain, per object:
+
+1. The C-STORE handler (pynetdicom's association thread) decodes and validates the object
+   (:func:`decode_xray_object`): the SOP class, the geometry tags, the frame times, the pixels;
+   each frame goes to a plane (a view): the view named as the object's ``SeriesDescription`` —
+   whose geometry the tags must confirm within ``match_tolerance_mm`` (a gantry moved since the
+   views were calibrated is refused, not silently mis-posed) — else the view the tags' geometry
+   matches (the two views' projections of the isocentre region, compared in mm at the
+   isocentre). The counts become line integrals as :func:`histostudy.imaging.load_frame` makes them
+   (MONOCHROME1 inverted, rescale applied, ``-log(I / I0)`` with ``I0`` = ``air_value`` or the
+   frame's maximum). The handler answers at once; nothing heavy runs on the network thread.
+2. The frames are paired by acquisition time (:mod:`.pairing`: ``AcquisitionDateTime`` + frame
+   index x ``FrameTime``; two planes' frames pair when less than half a frame interval apart).
+3. A worker thread takes the pairs in order from a queue and runs :class:`histostudy.pose.Tracker`
+   (each estimate warm-started from the last accepted pose; a lost track re-acquired from
+   scratch), then writes the record and calls ``on_pose(record)`` (e.g. a notebook's live figure).
+
+Each JSON line holds the fields of :func:`histostudy.pose.pose_record` (``T_carm_transducer`` 4x4
+in mm, C-arm/CBCT frame; ``focal_point_mm``; ``cost``; ``accepted`` and the ``verdict``;
+``timings_s`` per stage) and the pair's ``pair_index``, ``planes``, ``instance_uids``,
+``frame_indices``, ``frame_times`` (ISO 8601), ``tracking`` (``from_scratch``, ``warm`` or
+``reacquired``) and ``seconds`` (``decode``, ``queue``, ``pose``, ``latency`` from the pair's last
+frame received to its line written). A pair whose pose work raised gets a line with ``accepted``
+false and ``error``. Lines are appended and flushed one by one.
+
+Rejections (the C-STORE response status, with the reason as its ErrorComment and in the log; the
+other objects are unaffected):
+
+- ``0x0122`` Refused: SOP Class not supported — not an X-ray image (e.g. CT Image Storage). The
+  receiver accepts every storage SOP class at association time so that such an object gets this
+  answer rather than a refused presentation context.
+- ``0xA900`` Error: Data Set does not match SOP Class — an X-ray object that cannot be read as
+  one: undecodable, pixel data of the wrong length, the data set's SOP class differing from the
+  request's.
+- ``0xC000`` Error: Cannot understand — a readable X-ray object this receiver cannot use: missing
+  geometry tags, no acquisition time, colour pixels, a frame without signal, a plane matching no
+  view.
+- ``0xA700`` Refused: Out of resources — the receiver is stopping.
+
+A sender that aborts or drops its connection mid-association loses only that association's
+unfinished object: each association runs on its own thread, and the frames already decoded stay
+in the pairing. Units: mm, seconds; frames and transforms as in docs/architecture.md.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import datetime as _dt
+import json
+import logging
+import math
+import os
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from histostudy.core import to_jsonable
+from histostudy.imaging import View
+from histostudy.pose import Tracker, pose_record
+from histostudy.transducer import TransducerModel
+from .pairing import DEFAULT_FRAME_INTERVAL_S, BiplanePairer, PlaneFrame, frame_times, posix_seconds
+
+__all__ = ["FrameReceiver", "REJECTION_STATUSES", "ReceivedFrame", "X_RAY_SOP_CLASSES", "XRayObjectRejected",
+           "decode_xray_object", "listen"]
+
+log = logging.getLogger(__name__)
+
+#: The SOP classes whose frames are received (the others are answered 0x0122).
+X_RAY_SOP_CLASSES = {
+    "1.2.840.10008.5.1.4.1.1.12.1": "X-Ray Angiographic Image Storage",
+    "1.2.840.10008.5.1.4.1.1.12.1.1": "Enhanced XA Image Storage",
+    "1.2.840.10008.5.1.4.1.1.12.2": "X-Ray Radiofluoroscopic Image Storage",
+}
+
+STATUS_SUCCESS = 0x0000
+STATUS_SOP_CLASS_NOT_SUPPORTED = 0x0122
+STATUS_OUT_OF_RESOURCES = 0xA700
+STATUS_DATASET_MISMATCH = 0xA900
+STATUS_CANNOT_UNDERSTAND = 0xC000
+
+#: The C-STORE failure statuses this receiver answers, and when (see the module docstring).
+REJECTION_STATUSES = {
+    STATUS_SOP_CLASS_NOT_SUPPORTED: "Refused: SOP Class not supported (not an X-ray image)",
+    STATUS_OUT_OF_RESOURCES: "Refused: Out of resources (the receiver is stopping)",
+    STATUS_DATASET_MISMATCH: "Error: Data Set does not match SOP Class (unreadable X-ray object)",
+    STATUS_CANNOT_UNDERSTAND: "Error: Cannot understand (missing geometry or time, or no matching view)",
+}
+
+#: Test points (mm, C-arm frame) whose projections compare two views: the isocentre and the
+#: corners of a 100 mm cube around it, the region where the transducer's focal point is sought.
+_PROBE_POINTS_MM = np.array([[0.0, 0.0, 0.0]] + [[x, y, z] for x in (-50.0, 50.0) for y in (-50.0, 50.0)
+                                                 for z in (-50.0, 50.0)])
+
+
+class XRayObjectRejected(ValueError):
+    """A received object this receiver refuses: ``status`` is the C-STORE failure status to answer
+    (:data:`REJECTION_STATUSES`), the message the reason."""
+
+    def __init__(self, status: int, reason: str):
+        super().__init__(reason)
+        self.status = int(status)
+        self.reason = reason
+
+
+@dataclass(frozen=True, eq=False)
+class ReceivedFrame:
+    """One decoded frame: ``image`` line integrals (float32, the view's shape) of plane ``view``,
+    frame ``frame_index`` of the object ``instance_uid``, taken at ``acquired`` (its cine's interval
+    ``interval_s``, None for a single frame). ``decode_s``: its share of the object's decoding time."""
+
+    view: View
+    image: np.ndarray = field(repr=False)
+    instance_uid: str
+    frame_index: int
+    acquired: _dt.datetime
+    interval_s: float | None
+    decode_s: float = 0.0
+    received_at: float = 0.0  # time.perf_counter() when decoded
+
+    @property
+    def time_s(self) -> float:
+        return posix_seconds(self.acquired)
+
+
+def decode_xray_object(ds, views: Sequence[View], *, sop_class_uid: str | None = None, air_value: float | None = None,
+                       match_tolerance_mm: float | None = 5.0) -> list[ReceivedFrame]:
+    """The frames of one received DICOM X-ray object, each with its plane's view.
+
+    Args:
+        ds: the pydicom ``Dataset`` (with ``file_meta`` giving its transfer syntax).
+        views: the planes' views (their names are the planes').
+        sop_class_uid: the SOP class the sender said it stores (the C-STORE's affected SOP class);
+            None: the data set's own.
+        air_value: the unattenuated intensity ``I0`` of ``-log(I / I0)`` (modality units); None:
+            each frame's maximum, as :func:`histostudy.imaging.load_frame`.
+        match_tolerance_mm: the largest distance between the projections of the isocentre region
+            (the isocentre and the corners of a 100 mm cube around it) by the tags' geometry and by
+            a view, in mm at the isocentre (detector pixels times the view's pixel size there), for
+            a frame to be that view's: 5 mm passes a gantry 1 deg off its calibrated angle (0.9
+            mm) and refuses one 10 deg off (8.7 mm). None: a named plane is not checked and an
+            unnamed one takes the nearest view.
+
+    Raises:
+        XRayObjectRejected: with the status to answer and why (module docstring).
+    """
+    sop = str(getattr(ds, "SOPClassUID", "") or "")
+    expected = sop if sop_class_uid is None else str(sop_class_uid)
+    if expected not in X_RAY_SOP_CLASSES:
+        raise XRayObjectRejected(STATUS_SOP_CLASS_NOT_SUPPORTED,
+                                 f"SOP class {expected or '(none)'} is not an X-ray angiographic or RF image; "
+                                 f"this receiver takes {', '.join(X_RAY_SOP_CLASSES.values())}")
+    if sop != expected:
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
+                                 f"the data set's SOPClassUID {sop or '(none)'} differs from the stored SOP class "
+                                 f"{expected}")
+    uid = str(getattr(ds, "SOPInstanceUID", "") or "")
+    try:
+        n_frames = int(getattr(ds, "NumberOfFrames", 1) or 1)
+        rows, cols = int(ds.Rows), int(ds.Columns)
+    except (AttributeError, TypeError, ValueError) as exc:
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"no readable image size (Rows, Columns, "
+                                                          f"NumberOfFrames): {exc}") from None
+    samples = int(getattr(ds, "SamplesPerPixel", 1) or 1)
+    if samples != 1:
+        raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, f"SamplesPerPixel (0028,0002) is {samples}; X-ray "
+                                                           "frames must be greyscale (1)")
+    # the plane of each frame: once for a plain cine, per frame where functional groups may differ
+    per_frame = bool(getattr(ds, "PerFrameFunctionalGroupsSequence", None))
+    plane_views = []
+    for i in range(n_frames if per_frame else 1):
+        plane_views.append(_plane_view(ds, views, i if per_frame else None, match_tolerance_mm))
+    if not per_frame:
+        plane_views *= n_frames
+    try:
+        times, interval_s = frame_times(ds)
+    except ValueError as exc:
+        raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, str(exc)) from None
+    try:
+        pixels = np.asarray(ds.pixel_array)
+    except Exception as exc:  # pydicom raises several kinds for a broken pixel module
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
+                                 f"its pixel data cannot be read: {type(exc).__name__}: {exc}") from None
+    pixels = pixels.reshape((n_frames, rows, cols)) if pixels.size == n_frames * rows * cols else pixels
+    if pixels.shape != (n_frames, rows, cols) and not (n_frames == 1 and pixels.shape == (rows, cols)):
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"its pixel data decode to shape {pixels.shape}, not "
+                                                          f"{n_frames} frames of {rows} x {cols}")
+    images = _line_integrals(ds, pixels.reshape(n_frames, rows, cols), air_value)
+    return [ReceivedFrame(view=plane_views[i], image=images[i], instance_uid=uid, frame_index=i, acquired=times[i],
+                          interval_s=interval_s) for i in range(n_frames)]
+
+
+def _plane_view(ds, views: Sequence[View], frame_index: int | None, tol_mm: float | None) -> View:
+    """The view of a frame: named by SeriesDescription (and confirmed by the tags), else matched by
+    the geometry the tags record."""
+    try:
+        tag_view = View.from_dicom(ds, frame_index=frame_index)
+    except ValueError as exc:
+        raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, f"its geometry cannot be read: {exc}") from None
+    description = str(getattr(ds, "SeriesDescription", "") or "").strip()
+    named = [v for v in views if v.name and v.name == description]
+    if named:
+        view = named[0]
+        if tag_view.shape != view.shape:
+            raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND,
+                                     f"plane {description!r}: its {tag_view.shape[0]} x {tag_view.shape[1]} pixels "
+                                     f"differ from view {view.name!r}'s {view.shape}")
+        if tol_mm is not None:
+            distance = _projection_distance_mm(tag_view, view)
+            if distance > tol_mm:
+                raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND,
+                                         f"plane {description!r}: its geometry tags project {distance:.1f} mm (at the "
+                                         f"isocentre) from view {view.name!r} (> {tol_mm} mm); has the gantry moved "
+                                         "since the views were calibrated?")
+        return view
+    candidates = sorted(((_projection_distance_mm(tag_view, v), i) for i, v in enumerate(views)
+                         if v.shape == tag_view.shape))
+    if candidates and (tol_mm is None or candidates[0][0] <= tol_mm):
+        return views[candidates[0][1]]
+    nearest = f"; the nearest view is {candidates[0][0]:.1f} mm off (> {tol_mm} mm)" if candidates else \
+        f"; no view has its {tag_view.shape} pixels"
+    raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND,
+                             f"it matches no view: SeriesDescription {description!r} names none of "
+                             f"{[v.name for v in views]}{nearest}")
+
+
+def _projection_distance_mm(a: View, b: View) -> float:
+    """The largest distance between the two views' projections of the isocentre region, in mm at
+    the isocentre (pixels times the size of ``b``'s pixel there), so that one tolerance serves
+    any detector resolution."""
+    px = float(np.max(np.linalg.norm(a.project(_PROBE_POINTS_MM) - b.project(_PROBE_POINTS_MM), axis=1)))
+    return px * float(np.sqrt(b.pixel_footprint_mm2(np.zeros(3))[0]))
+
+
+def _line_integrals(ds, counts: np.ndarray, air_value: float | None) -> np.ndarray:
+    """``(n, rows, cols)`` float32 ``-log(I / I0)`` of the stored values, as load_frame computes them."""
+    pixels = counts.astype(np.float64)
+    if str(getattr(ds, "PhotometricInterpretation", "MONOCHROME2")).strip() == "MONOCHROME1":
+        bits = int(getattr(ds, "BitsStored", getattr(ds, "BitsAllocated", 16)))
+        pixels = (2.0 ** bits - 1.0) - pixels
+    for keyword, tag, default in (("RescaleSlope", "(0028,1053)", 1.0), ("RescaleIntercept", "(0028,1052)", 0.0)):
+        raw = getattr(ds, keyword, default)
+        try:
+            value = float(raw)
+        except (TypeError, ValueError):
+            value = math.nan
+        if not math.isfinite(value):
+            raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, f"{keyword} {tag} must be a finite number, got {raw!r}")
+        pixels = pixels * value if keyword == "RescaleSlope" else pixels + value
+    out = np.empty(pixels.shape, dtype=np.float32)
+    for i, frame in enumerate(pixels):
+        i0 = float(frame.max()) if air_value is None else float(air_value)
+        if not (math.isfinite(i0) and i0 > 0):
+            raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, f"frame {i} holds no X-ray signal (I0 = {i0!r})")
+        out[i] = -np.log(np.clip(frame, 1e-6 * i0, None) / i0)
+    return out
+
+
+class FrameReceiver:
+    """A DICOM C-STORE receiver of live C-arm frames that writes a pose per biplane pair (§II-A).
+
+    ``with FrameReceiver(views, output_path="poses.jsonl", port=0) as rx: ...`` — or
+    :meth:`start` / :meth:`stop`, or :meth:`serve_forever`; :func:`listen` for the command line.
+
+    Args:
+        views: one view per plane (the paper: planes A and B, §II-D), named as the planes'
+            ``SeriesDescription``; the pose uses these views (e.g. calibrated ones), the objects'
+            tags only pick and check the plane. Unique names.
+        model: the digital model of eq. 3; None: ``TransducerModel.build(spacing_mm=0.47)`` (the
+            paper's).
+        output_path: the JSON-lines file the poses are appended to (one line per pair, flushed).
+        ae_title: this receiver's AE title (the senders' "called AE title"), 1-16 characters.
+        port: TCP port to listen on; 0: a free one (:meth:`start` returns it).
+        host: the address to bind (default loopback; ``"0.0.0.0"`` for every interface).
+        seed: the tracker's random draws (an int or a Generator): the same frames and seed give
+            the same poses.
+        segmenter, orientation, options, **option_overrides: the pose stages and
+            :class:`~histostudy.pose.PoseOptions` for :class:`~histostudy.pose.Tracker`.
+        on_pose: called with each record (a dict, as written) on the worker thread; its errors are
+            logged, not raised.
+        air_value: ``I0`` for the line integrals (modality units); None: each frame's maximum.
+        tolerance_s, default_interval_s: the pairing's (:class:`~.pairing.BiplanePairer`).
+        match_tolerance_mm: how far (mm at the isocentre) the tags' geometry may project from a
+            plane's view (:func:`decode_xray_object`).
+        max_queued_pairs: the most pairs waiting for the pose; beyond, the oldest is skipped
+            (counted, logged, no line) so that the poses follow a live stream that outpaces them.
+            None (default): every pair gets its line.
+        network_timeout_s: how long an idle or half-open association is kept (s).
+    """
+
+    def __init__(self, views: Sequence[View], model: TransducerModel | None = None, *,
+                 output_path: str | os.PathLike, ae_title: str = "HISTOSTUDY", port: int = 11112,
+                 host: str = "127.0.0.1", seed=0, segmenter=None, orientation=None, options=None,
+                 on_pose: Callable[[dict], object] | None = None, air_value: float | None = None,
+                 tolerance_s: float | None = None, default_interval_s: float = DEFAULT_FRAME_INTERVAL_S,
+                 match_tolerance_mm: float | None = 5.0, max_queued_pairs: int | None = None,
+                 network_timeout_s: float = 30.0, **option_overrides):
+        views = [views] if isinstance(views, View) else list(views)
+        if not views or not all(isinstance(v, View) for v in views):
+            raise ValueError(f"views must be a non-empty sequence of histostudy.imaging.View, got {views!r}")
+        names = [v.name for v in views]
+        if len(set(names)) != len(names):
+            raise ValueError(f"views must have unique names (the planes' SeriesDescription), got {names!r}")
+        if not isinstance(output_path, (str, os.PathLike)) or not str(output_path):
+            raise ValueError(f"output_path must be a file path, got {output_path!r}")
+        if not isinstance(ae_title, str) or not 1 <= len(ae_title.strip()) <= 16 or not ae_title.isascii() \
+                or "\\" in ae_title:
+            raise ValueError(f"ae_title must be 1-16 ASCII characters without a backslash, got {ae_title!r}")
+        if isinstance(port, bool) or not isinstance(port, (int, np.integer)) or not 0 <= port <= 65535:
+            raise ValueError(f"port must be an integer in 0..65535 (0: any free port), got {port!r}")
+        if not isinstance(host, str) or not host:
+            raise ValueError(f"host must be an address to bind, e.g. '127.0.0.1', got {host!r}")
+        if air_value is not None and not (isinstance(air_value, (int, float)) and math.isfinite(air_value)
+                                          and air_value > 0):
+            raise ValueError(f"air_value must be None or a finite intensity > 0, got {air_value!r}")
+        if match_tolerance_mm is not None and not (isinstance(match_tolerance_mm, (int, float))
+                                                   and math.isfinite(match_tolerance_mm) and match_tolerance_mm > 0):
+            raise ValueError(f"match_tolerance_mm must be None or a finite number > 0 (mm at the isocentre), "
+                             f"got {match_tolerance_mm!r}")
+        if max_queued_pairs is not None and (isinstance(max_queued_pairs, bool) or not isinstance(max_queued_pairs, int)
+                                             or max_queued_pairs < 1):
+            raise ValueError(f"max_queued_pairs must be None or an integer >= 1, got {max_queued_pairs!r}")
+        if not (isinstance(network_timeout_s, (int, float)) and math.isfinite(network_timeout_s)
+                and network_timeout_s > 0):
+            raise ValueError(f"network_timeout_s must be a finite number of seconds > 0, got {network_timeout_s!r}")
+        if on_pose is not None and not callable(on_pose):
+            raise TypeError(f"on_pose must be callable (record -> None) or None, got {type(on_pose).__name__}")
+        self.views = tuple(views)
+        self.model = TransducerModel.build(spacing_mm=0.47) if model is None else model
+        self.tracker = Tracker(self.model, self.views, segmenter=segmenter, orientation=orientation, rng=seed,
+                               options=options, **option_overrides)
+        self.pairer = BiplanePairer(names, tolerance_s=tolerance_s, default_interval_s=default_interval_s)
+        self.output_path = Path(output_path)
+        self.ae_title, self.host, self.port = ae_title.strip(), host, int(port)
+        self.on_pose = on_pose
+        self.air_value, self.match_tolerance_mm = air_value, match_tolerance_mm
+        self.max_queued_pairs, self.network_timeout_s = max_queued_pairs, float(network_timeout_s)
+
+        self._cv = threading.Condition()  # guards the pairer, the queue and the counters
+        self._queue: collections.deque = collections.deque()
+        self._ae = self._server = self._worker = self._out = None
+        self._closing = False
+        self._stopped = False
+        self._max_pairs: int | None = None
+        self._counts = collections.Counter()
+        self._rejections = collections.Counter()
+        self._last_rejections: collections.deque = collections.deque(maxlen=20)
+        self._decode_s = 0.0
+        self._pose_s = 0.0
+        self._latency_s = 0.0
+        self._t_first_frame = self._t_last_line = self._t_started = None
+        self._tracker_stats = self.tracker.stats()
+
+    # --- life cycle -----------------------------------------------------------------------------
+
+    def start(self) -> int:
+        """Open the output, start the pose worker and listen (non-blocking); returns the bound port."""
+        from pynetdicom import AE, AllStoragePresentationContexts, evt
+        from pynetdicom.sop_class import Verification
+
+        if self._server is not None or self._stopped:
+            raise RuntimeError("this FrameReceiver was started already; make a new one")
+        self._out = open(self.output_path, "a", encoding="utf-8")
+        self._worker = threading.Thread(target=self._work, name="histostudy-pose-worker", daemon=True)
+        self._worker.start()
+        ae = AE(ae_title=self.ae_title)
+        # Every storage SOP class is accepted at negotiation, so that an object that is not an
+        # X-ray image reaches the handler and gets a C-STORE failure status naming why.
+        for context in AllStoragePresentationContexts:
+            ae.add_supported_context(context.abstract_syntax)
+        ae.add_supported_context(Verification)  # C-ECHO: the C-arm's connection test
+        ae.network_timeout = self.network_timeout_s
+        handlers = [(evt.EVT_C_STORE, self._on_c_store), (evt.EVT_CONN_OPEN, self._on_event("connections")),
+                    (evt.EVT_ACCEPTED, self._on_event("associations")),
+                    (evt.EVT_ABORTED, self._on_event("associations_aborted"))]
+        try:
+            self._server = ae.start_server((self.host, self.port), block=False, evt_handlers=handlers)
+        except BaseException:
+            self._ae = ae
+            self.stop(drain=False)
+            raise
+        self._ae = ae
+        self.port = int(self._server.server_address[1])
+        self._t_started = time.perf_counter()
+        log.info("receiving DICOM X-ray frames on %s:%d as %r; poses to %s", self.host, self.port, self.ae_title,
+                 self.output_path)
+        return self.port
+
+    def stop(self, drain: bool = True) -> None:
+        """Stop listening (open associations are aborted), let the worker finish — with ``drain``
+        every pair already received gets its pose, without it only the one in progress — and close
+        the output. Frames still waiting for a partner are counted as unpaired."""
+        if self._stopped:
+            return
+        self._stopped = True
+        if self._ae is not None:
+            self._ae.shutdown()
+        with self._cv:
+            self._closing = True
+            if not drain:
+                self._counts["pairs_skipped"] += len(self._queue)
+                self._queue.clear()
+            self._cv.notify_all()
+        if self._worker is not None:
+            self._worker.join()
+        with self._cv:
+            self._counts["pairs_skipped"] += len(self._queue)  # beyond max_pairs
+            self._queue.clear()
+            unpaired = self.pairer.flush()
+            self._counts["frames_unpaired"] += len(unpaired)
+        if self._out is not None:
+            self._out.close()
+        log.info("receiver stopped: %s", {k: v for k, v in self.stats().items() if not isinstance(v, dict)})
+
+    def __enter__(self) -> "FrameReceiver":
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def serve_forever(self, max_pairs: int | None = None, timeout_s: float | None = None) -> dict:
+        """Receive (starting if needed) until Ctrl-C, until ``max_pairs`` pairs have their line, or
+        for ``timeout_s`` seconds; then stop and return :meth:`stats`. On a timeout the pairs
+        already received still get their poses; on Ctrl-C only the one in progress does."""
+        if max_pairs is not None and (isinstance(max_pairs, bool) or not isinstance(max_pairs, int) or max_pairs < 1):
+            raise ValueError(f"max_pairs must be None or an integer >= 1, got {max_pairs!r}")
+        if timeout_s is not None and not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s)
+                                          and timeout_s > 0):
+            raise ValueError(f"timeout_s must be None or a finite number of seconds > 0, got {timeout_s!r}")
+        with self._cv:
+            self._max_pairs = max_pairs
+        if self._server is None:
+            self.start()
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        interrupted = False
+        try:
+            with self._cv:
+                while not self._closing:
+                    if max_pairs is not None and self._counts["pairs_processed"] >= max_pairs:
+                        break
+                    remaining = None if deadline is None else deadline - time.monotonic()
+                    if remaining is not None and remaining <= 0:
+                        break
+                    self._cv.wait(0.5 if remaining is None else min(0.5, remaining))
+        except KeyboardInterrupt:
+            interrupted = True
+            log.info("interrupted: stopping the receiver")
+        finally:
+            self.stop(drain=not interrupted)
+        return self.stats()
+
+    def wait_for_pairs(self, n: int, timeout_s: float) -> bool:
+        """Block until ``n`` pairs have their line (True) or ``timeout_s`` passed (False)."""
+        deadline = time.monotonic() + timeout_s
+        with self._cv:
+            while self._counts["pairs_processed"] < n:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return False
+                self._cv.wait(remaining)
+        return True
+
+    # --- the network side (pynetdicom's association threads) ------------------------------------
+
+    def _on_event(self, counter: str):
+        def handler(event):
+            with self._cv:
+                self._counts[counter] += 1
+        return handler
+
+    def _on_c_store(self, event):
+        """Decode and validate one object, pair its frames, queue completed pairs; answer at once."""
+        t0 = time.perf_counter()
+        sop_class = str(getattr(event.request, "AffectedSOPClassUID", "") or "")
+        uid = str(getattr(event.request, "AffectedSOPInstanceUID", "") or "")
+        with self._cv:
+            self._counts["objects_received"] += 1
+            closing = self._closing
+        if closing:
+            return self._reject(STATUS_OUT_OF_RESOURCES, uid, sop_class, "the receiver is stopping")
+        try:
+            if sop_class not in X_RAY_SOP_CLASSES:  # refused before decoding anything
+                raise XRayObjectRejected(STATUS_SOP_CLASS_NOT_SUPPORTED,
+                                         f"SOP class {sop_class} is not an X-ray angiographic or RF image")
+            try:
+                ds = event.dataset
+                ds.file_meta = event.file_meta
+            except Exception as exc:
+                raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"the data set cannot be decoded: "
+                                                                  f"{type(exc).__name__}: {exc}") from None
+            frames = decode_xray_object(ds, self.views, sop_class_uid=sop_class, air_value=self.air_value,
+                                        match_tolerance_mm=self.match_tolerance_mm)
+        except XRayObjectRejected as exc:
+            return self._reject(exc.status, uid, sop_class, exc.reason)
+        except Exception as exc:  # anything unforeseen in a sender's object: refuse it, keep serving
+            log.exception("unexpected error decoding object %s", uid)
+            return self._reject(STATUS_CANNOT_UNDERSTAND, uid, sop_class, f"{type(exc).__name__}: {exc}")
+        now = time.perf_counter()
+        share = (now - t0) / len(frames)
+        with self._cv:
+            self._decode_s += now - t0
+            self._counts["objects_accepted"] += 1
+            self._counts["frames_received"] += len(frames)
+            if self._t_first_frame is None:
+                self._t_first_frame = t0
+            for f in frames:
+                f = dataclasses.replace(f, decode_s=share, received_at=now)
+                pairing = self.pairer.add(PlaneFrame(f.view.name, f.time_s, f.interval_s, data=f))
+                for dropped in pairing.dropped:
+                    log.warning("frame %s[%d] of plane %r (%s) found no partner: dropped as unpaired",
+                                dropped.data.instance_uid, dropped.data.frame_index, dropped.plane,
+                                dropped.data.acquired.isoformat())
+                self._counts["frames_unpaired"] += len(pairing.dropped)
+                for pair in pairing.sets:
+                    self._enqueue(pair, now)
+            self._cv.notify_all()
+        log.info("received %s: %d frame(s) of plane(s) %s", uid, len(frames), sorted({f.view.name for f in frames}))
+        return STATUS_SUCCESS
+
+    def _enqueue(self, pair, now: float) -> None:
+        """Queue a completed pair (the caller holds the lock)."""
+        self._counts["pairs_completed"] += 1
+        self._queue.append((self._counts["pairs_completed"] - 1, pair, now))
+        if self.max_queued_pairs is not None and len(self._queue) > self.max_queued_pairs:
+            index, skipped, _ = self._queue.popleft()
+            self._counts["pairs_skipped"] += 1
+            log.warning("pair %d skipped: %d pairs wait for the pose (max_queued_pairs)", index, len(self._queue))
+
+    def _reject(self, status: int, uid: str, sop_class: str, reason: str):
+        from pydicom.dataset import Dataset
+
+        log.warning("rejected object %s (SOP class %s) with status 0x%04X: %s", uid or "(no UID)", sop_class,
+                    status, reason)
+        with self._cv:
+            self._counts["objects_rejected"] += 1
+            self._rejections[f"0x{status:04X}"] += 1
+            self._last_rejections.append({"instance_uid": uid, "sop_class_uid": sop_class, "status": status,
+                                          "reason": reason})
+        response = Dataset()
+        response.Status = status
+        response.ErrorComment = reason[:64]  # LO: at most 64 characters
+        return response
+
+    # --- the pose worker ----------------------------------------------------------------------
+
+    def _work(self) -> None:
+        while True:
+            with self._cv:
+                # take the next pair unless max_pairs lines are written; leave once closing with
+                # nothing (more) to take
+                while not self._queue or self._at_limit():
+                    if self._closing:
+                        return
+                    self._cv.wait()
+                index, pair, queued_at = self._queue.popleft()
+            record = self._pose_record(index, [f.data for f in pair], queued_at)
+            try:
+                self._out.write(json.dumps(record) + "\n")
+                self._out.flush()
+            except (OSError, ValueError):
+                log.exception("pair %d: the pose line could not be written to %s", index, self.output_path)
+            with self._cv:
+                self._counts["pairs_processed"] += 1
+                self._counts["pairs_accepted"] += bool(record.get("accepted"))
+                self._counts["pairs_errors"] += "error" in record
+                self._pose_s += record["seconds"]["pose"]
+                self._latency_s += record["seconds"]["latency"]
+                self._t_last_line = time.perf_counter()
+                self._tracker_stats = self.tracker.stats()  # a snapshot: stats() reads it from other threads
+                self._cv.notify_all()
+            if self.on_pose is not None:
+                try:
+                    self.on_pose(record)
+                except Exception:
+                    log.exception("on_pose raised on pair %d; the receiver goes on", index)
+
+    def _at_limit(self) -> bool:
+        return self._max_pairs is not None and self._counts["pairs_processed"] >= self._max_pairs
+
+    def _pose_record(self, index: int, frames: list[ReceivedFrame], queued_at: float) -> dict:
+        """The pair's JSON record: the pose (pose_record's fields) or the error, and where it came from."""
+        t0 = time.perf_counter()
+        ids = [f"{f.instance_uid}[{f.frame_index}]" for f in frames]
+        head = {"pair_index": index, "planes": [f.view.name for f in frames],
+                "instance_uids": [f.instance_uid for f in frames], "frame_indices": [f.frame_index for f in frames],
+                "frame_times": [f.acquired.isoformat() for f in frames]}
+        try:
+            result = self.tracker.update([f.image for f in frames])
+            record = {**head, **pose_record(result, ids), "tracking": self.tracker.last_kind}
+        except Exception as exc:  # one pair's failure is a line, not the end of the stream
+            log.warning("pair %d: no pose: %s: %s", index, type(exc).__name__, exc)
+            record = {**head, "frames": ids, "accepted": False, "error": f"{type(exc).__name__}: {exc}",
+                      "tracking": None}
+        t1 = time.perf_counter()
+        record["seconds"] = {"decode": sum(f.decode_s for f in frames), "queue": t0 - queued_at, "pose": t1 - t0,
+                             "latency": t1 - max(f.received_at for f in frames)}
+        return to_jsonable(record)
+
+    # --- statistics -----------------------------------------------------------------------------
+
+    def stats(self) -> dict:
+        """Throughput and counts so far (a JSON-ready dict).
+
+        ``objects_received`` / ``objects_accepted`` / ``objects_rejected`` (with ``rejections`` per
+        status and ``last_rejections``' reasons), ``frames_received``, ``frames_unpaired``,
+        ``pairs_completed`` (paired), ``pairs_processed`` (a line written), ``pairs_accepted``,
+        ``pairs_errors``, ``pairs_skipped``, ``pairs_waiting``; ``connections``, ``associations``,
+        ``associations_aborted``; ``stage_seconds`` summed (``decode`` in the handlers, the pose
+        stages of :attr:`Tracker.stage_seconds`) and ``seconds_per_pair`` (those over
+        ``pairs_processed``, plus ``pose`` and ``latency``); ``frames_per_s``: the frames of the
+        processed pairs over the time from the first frame received to the last line written;
+        ``pose_frames_per_s``: the same frames over the pose worker's busy time; ``tracker``:
+        :meth:`Tracker.stats`.
+        """
+        with self._cv:
+            counts = dict(self._counts)
+            n_pairs = counts.get("pairs_processed", 0)
+            n_frames = n_pairs * len(self.views)
+            stage = {"decode": self._decode_s, **self._tracker_stats["stage_seconds"]}
+            span = None if self._t_first_frame is None or self._t_last_line is None else \
+                self._t_last_line - self._t_first_frame
+            out = {key: counts.get(key, 0) for key in (
+                "objects_received", "objects_accepted", "objects_rejected", "frames_received", "frames_unpaired",
+                "pairs_completed", "pairs_processed", "pairs_accepted", "pairs_errors", "pairs_skipped",
+                "connections", "associations", "associations_aborted")}
+            out.update({
+                "pairs_waiting": len(self._queue),
+                "rejections": dict(self._rejections),
+                "last_rejections": list(self._last_rejections),
+                "stage_seconds": stage,
+                "seconds_per_pair": ({k: v / n_pairs for k, v in stage.items()}
+                                     | {"pose": self._pose_s / n_pairs, "latency": self._latency_s / n_pairs})
+                if n_pairs else {},
+                "frames_per_s": n_frames / span if span else None,
+                "pose_frames_per_s": n_frames / self._pose_s if self._pose_s > 0 else None,
+                "tracker": self._tracker_stats,
+                "port": self.port,
+                "elapsed_s": None if self._t_started is None else time.perf_counter() - self._t_started,
+            })
+        return to_jsonable(out)
+
+
+def listen(views: Sequence[View], *, port: int = 11112, output_path: str | os.PathLike = "poses.jsonl",
+           host: str = "127.0.0.1", ae_title: str = "HISTOSTUDY", max_pairs: int | None = None,
+           timeout_s: float | None = None, model: TransducerModel | None = None, seed=0,
+           on_pose: Callable[[dict], object] | None = None, on_start: Callable[[int], object] | None = None,
+           **receiver_options) -> dict:
+    """Receive live C-arm frames and write a pose per biplane pair until Ctrl-C, ``max_pairs`` lines
+    or ``timeout_s`` seconds (what ``histostudy listen`` runs); returns :meth:`FrameReceiver.stats`.
+
+    ``on_start(port)`` is called once listening (the bound port, useful with ``port=0``); the
+    other arguments are :class:`FrameReceiver`'s.
+    """
+    receiver = FrameReceiver(views, model, output_path=output_path, ae_title=ae_title, port=port, host=host,
+                             seed=seed, on_pose=on_pose, **receiver_options)
+    bound = receiver.start()
+    if on_start is not None:
+        try:
+            on_start(bound)
+        except BaseException:
+            receiver.stop(drain=False)
+            raise
+    return receiver.serve_forever(max_pairs=max_pairs, timeout_s=timeout_s)

@@ -1,0 +1,348 @@
+"""Tests of histostudy.lab.receiver: the DICOM C-STORE receiver of live C-arm frames (§II-A), end to
+end on loopback.
+
+A synthetic biplane cine (three frames per plane, the transducer moving a little between frames)
+is rendered on the paper's biplane views, written as XA objects as a C-arm writes them, and sent
+with DCMTK's ``storescu`` (where installed) and with pynetdicom's own SCU. The receiver runs the
+shipped learned stages (real frames carry no labels for the oracles); each pose is compared with a
+:class:`~histostudy.pose.Tracker` given the same frames as arrays with the same seed.
+"""
+
+import datetime as dt
+import json
+import shutil
+import socket
+import subprocess
+import time
+
+import numpy as np
+import pydicom
+import pytest
+from pydicom.dataset import Dataset, FileMetaDataset
+from pydicom.uid import ExplicitVRLittleEndian, generate_uid
+
+from histostudy.geometry import transform_from_params
+from histostudy.imaging import (default_biplane, detector_counts, load_frame, random_background, render_frame,
+                                write_xa, xa_dataset)
+from histostudy.lab import FrameReceiver, XRayObjectRejected, decode_xray_object, listen
+from histostudy.pose import Tracker, pose_record
+from histostudy.transducer import TransducerModel, pose_facing
+
+T0 = dt.datetime(2024, 5, 6, 10, 30, 0)
+FRAME_TIME_MS = 66.7
+N_FRAMES = 3
+SEED = 0
+CT_IMAGE_STORAGE = "1.2.840.10008.5.1.4.1.1.2"
+#: The fields of a pose line beyond pose_record's.
+PAIR_FIELDS = {"pair_index", "planes", "instance_uids", "frame_indices", "frame_times", "tracking", "seconds"}
+
+
+def moving_poses(n):
+    """``n`` poses of the transducer, each about 0.9 mm and 0.9 deg from the last."""
+    step = transform_from_params([0.01, -0.01, 0.005, 0.6, -0.5, 0.4])
+    poses = [pose_facing()]
+    for _ in range(n - 1):
+        T = poses[-1].copy()
+        T[:3, :3] = step[:3, :3] @ T[:3, :3]
+        T[:3, 3] += step[:3, 3]
+        poses.append(T)
+    return poses
+
+
+@pytest.fixture(scope="module")
+def views():
+    return default_biplane()
+
+
+@pytest.fixture(scope="module")
+def cine(tmp_path_factory, views):
+    """One XA cine per plane (A.dcm, B.dcm) of N_FRAMES frames taken together, and single-frame
+    objects of the first frame (A0.dcm, B0.dcm)."""
+    folder = tmp_path_factory.mktemp("cine")
+    model = TransducerModel.build(spacing_mm=0.25)
+    # seeds whose three pairs the shipped stages all accept (the first from scratch, then warm)
+    scene = random_background(np.random.default_rng(4), "phantom")
+    rng = np.random.default_rng(5)
+    poses = moving_poses(N_FRAMES)
+    paths = {}
+    for view in views:
+        counts = np.stack([detector_counts(render_frame(model, T, view, rng=rng, background=scene).image)
+                           for T in poses])
+        paths[view.name] = write_xa(folder / f"{view.name}.dcm", view, counts, frame_time_ms=FRAME_TIME_MS,
+                                    uid_seed="cine", acquisition_time=T0)
+        paths[view.name + "0"] = write_xa(folder / f"{view.name}0.dcm", view, counts[0], uid_seed="single",
+                                          acquisition_time=T0)
+    return {"folder": folder, "paths": paths, "poses": poses}
+
+
+@pytest.fixture(scope="module")
+def model():
+    return TransducerModel.build(spacing_mm=0.47)
+
+
+@pytest.fixture(scope="module")
+def direct(cine, views, model):
+    """What a Tracker finds on the cine's frames given as arrays (same seed): result per pair."""
+    tracker = Tracker(model, views, rng=SEED)
+    out = []
+    for i in range(N_FRAMES):
+        frames = [load_frame(cine["paths"][v.name], v, line_integrals=False, frame_index=i) for v in views]
+        result = tracker.update([f.image for f in frames])
+        out.append((result, tracker.last_kind))
+    return out
+
+
+def read_lines(path):
+    return [json.loads(line) for line in path.read_text().splitlines()]
+
+
+def send_with_pynetdicom(port, datasets, abort=False):
+    """C-STORE each dataset (or file path) in one association; the statuses, in order."""
+    from pynetdicom import AE
+
+    datasets = [pydicom.dcmread(d) if not isinstance(d, Dataset) else d for d in datasets]
+    ae = AE(ae_title="TESTSCU")
+    for uid in dict.fromkeys(str(ds.SOPClassUID) for ds in datasets):
+        ae.add_requested_context(uid, ExplicitVRLittleEndian)
+    assoc = ae.associate("127.0.0.1", port, ae_title="HISTOSTUDY")
+    assert assoc.is_established
+    statuses = [int(assoc.send_c_store(ds).Status) for ds in datasets]
+    assoc.abort() if abort else assoc.release()
+    return statuses
+
+
+def ct_dataset():
+    """A small CT Image Storage object: a valid DICOM image that is not an X-ray frame."""
+    ds = Dataset()
+    ds.file_meta = FileMetaDataset()
+    ds.file_meta.TransferSyntaxUID = ExplicitVRLittleEndian
+    ds.SOPClassUID, ds.SOPInstanceUID = CT_IMAGE_STORAGE, generate_uid(entropy_srcs=["ct"])
+    ds.file_meta.MediaStorageSOPClassUID, ds.file_meta.MediaStorageSOPInstanceUID = ds.SOPClassUID, ds.SOPInstanceUID
+    ds.Modality, ds.Rows, ds.Columns = "CT", 4, 4
+    ds.SamplesPerPixel, ds.PhotometricInterpretation = 1, "MONOCHROME2"
+    ds.BitsAllocated, ds.BitsStored, ds.HighBit, ds.PixelRepresentation = 16, 12, 11, 0
+    ds.PixelData = np.zeros((4, 4), "<u2").tobytes()
+    return ds
+
+
+def assert_same_poses(lines, direct, pairs=None):
+    for line in lines:
+        result, kind = direct[line["pair_index"] if pairs is None else pairs[line["pair_index"]]]
+        assert line["accepted"] == result.verdict.ok and line["tracking"] == kind
+        assert np.linalg.norm(np.array(line["focal_point_mm"]) - result.focal_point_mm) < 0.1
+
+
+# --- decoding and plane assignment, without the network --------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def small_views():
+    return default_biplane(shape=(48, 62), pixel_mm=6.16)
+
+
+def small_object(view, n=2, **changes):
+    counts = np.random.default_rng(0).integers(100, 4000, size=(n,) + view.shape).astype(np.uint16)
+    ds = xa_dataset(view, counts if n > 1 else counts[0], acquisition_time=T0, frame_time_ms=40.0, uid_seed="small")
+    for keyword, value in changes.items():
+        if value is None:
+            delattr(ds, keyword)
+        else:
+            setattr(ds, keyword, value)
+    return ds, counts
+
+
+def test_decode_assigns_planes_by_name_or_geometry_and_gives_load_frames_line_integrals(small_views, tmp_path):
+    ds, counts = small_object(small_views[1])
+    frames = decode_xray_object(ds, small_views)
+    assert [(f.view.name, f.frame_index, f.acquired, f.interval_s) for f in frames] == [
+        ("B", 0, T0, pytest.approx(0.04)), ("B", 1, T0 + dt.timedelta(milliseconds=40), pytest.approx(0.04))]
+    ds.save_as(tmp_path / "B.dcm", enforce_file_format=True)
+    for f in frames:
+        expected = load_frame(tmp_path / "B.dcm", small_views[1], line_integrals=False, frame_index=f.frame_index)
+        np.testing.assert_array_equal(f.image, expected.image)
+    # no plane name: the view whose geometry the tags record
+    unnamed, _ = small_object(small_views[1], SeriesDescription="")
+    assert {f.view.name for f in decode_xray_object(unnamed, small_views)} == {"B"}
+    # a fixed air value instead of each frame's maximum
+    fixed = decode_xray_object(ds, small_views, air_value=4095.0)
+    np.testing.assert_allclose(fixed[0].image, -np.log(counts[0] / 4095.0), rtol=1e-6)
+
+
+@pytest.mark.parametrize("case, status, reason", [
+    ("ct", 0x0122, "not an X-ray angiographic or RF image"),
+    ("sop_mismatch", 0xA900, "differs from the stored SOP class"),
+    ("short_pixels", 0xA900, "pixel data cannot be read"),
+    ("no_geometry", 0xC000, r"lacks PositionerPrimaryAngle \(0018,1510\)"),
+    ("no_time", 0xC000, r"lacks AcquisitionDateTime \(0008,002A\)"),
+    ("moved_gantry", 0xC000, "has the gantry moved"),
+    ("no_view", 0xC000, "matches no view"),
+    ("wrong_size", 0xC000, "no view has its"),
+    ("colour", 0xC000, "SamplesPerPixel"),
+    ("blank", 0xC000, "holds no X-ray signal"),
+])
+def test_decode_refuses_what_it_cannot_use_with_the_status_to_answer(small_views, case, status, reason):
+    view = small_views[0]
+    kwargs = {}
+    if case == "ct":
+        ds = ct_dataset()
+    elif case == "moved_gantry":  # named A, but its positioner 10 deg from plane A's
+        ds, _ = small_object(view, PositionerPrimaryAngle=-35.0)
+    elif case == "no_view":  # unnamed, at an angle neither plane has
+        ds, _ = small_object(view, PositionerPrimaryAngle=10.0, SeriesDescription="LAT")
+    elif case == "wrong_size":
+        ds, _ = small_object(default_biplane(shape=(40, 62), pixel_mm=6.16)[0], SeriesDescription="")
+    else:
+        changes = {"short_pixels": {}, "no_geometry": {"PositionerPrimaryAngle": None},
+                   "no_time": {"AcquisitionDateTime": None, "ContentDate": None},
+                   "colour": {"SamplesPerPixel": 3}, "sop_mismatch": {}, "blank": {}}[case]
+        ds, _ = small_object(view, **changes)
+        if case == "short_pixels":
+            ds.PixelData = ds.PixelData[:-2 * view.shape[1]]  # a row short
+        elif case == "sop_mismatch":
+            kwargs["sop_class_uid"] = "1.2.840.10008.5.1.4.1.1.12.2"  # sent as RF, says XA
+        elif case == "blank":
+            ds.PixelData = bytes(len(ds.PixelData))
+    with pytest.raises(XRayObjectRejected, match=reason) as err:
+        decode_xray_object(ds, small_views, **kwargs)
+    assert err.value.status == status
+
+
+def test_receiver_arguments_are_checked(views, tmp_path):
+    out = tmp_path / "p.jsonl"
+    with pytest.raises(ValueError, match="port must be an integer in 0..65535"):
+        FrameReceiver(views, output_path=out, port=70000)
+    with pytest.raises(ValueError, match="ae_title must be 1-16 ASCII"):
+        FrameReceiver(views, output_path=out, ae_title="A_VERY_LONG_AE_TITLE")
+    with pytest.raises(ValueError, match="views must have unique names"):
+        FrameReceiver([views[0], views[0]], output_path=out)
+    with pytest.raises(ValueError, match="output_path must be a file path"):
+        FrameReceiver(views, output_path=None)
+    with pytest.raises(ValueError, match="max_pairs must be None or an integer >= 1"):
+        listen(views, port=0, output_path=out, max_pairs=0)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'speed'"):
+        FrameReceiver(views, output_path=out, speed=1)
+
+
+def test_listen_serves_until_its_timeout_and_answers_c_echo(views, tmp_path):
+    from pynetdicom import AE
+    from pynetdicom.sop_class import Verification
+
+    ports = []
+
+    def echo(port):
+        ports.append(port)
+        ae = AE()
+        ae.add_requested_context(Verification)
+        assoc = ae.associate("127.0.0.1", port, ae_title="HISTOSTUDY")
+        ports.append(int(assoc.send_c_echo().Status))
+        assoc.release()
+
+    t0 = time.perf_counter()
+    stats = listen(views, port=0, output_path=tmp_path / "p.jsonl", timeout_s=0.5, on_start=echo)
+    assert 0.5 <= time.perf_counter() - t0 < 10
+    assert ports[0] > 0 and ports[1] == 0x0000 and stats["port"] == ports[0]
+    assert stats["pairs_processed"] == 0 and stats["associations"] == 1 and stats["frames_per_s"] is None
+    assert (tmp_path / "p.jsonl").read_text() == ""
+
+
+# --- end to end on loopback ------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_a_cine_sent_by_storescu_gets_a_pose_per_pair_as_a_direct_tracker(cine, views, model, direct, tmp_path):
+    """Every frame pair of the two planes' cines gets its line, with the pose a Tracker finds on the
+    same frames as arrays; on_pose sees each record as written. With DCMTK's storescu where it is
+    installed, else with pynetdicom's SCU."""
+    out = tmp_path / "poses.jsonl"
+    seen = []
+    paths = [str(cine["paths"][v.name]) for v in views]
+    with FrameReceiver(views, model, output_path=out, port=0, seed=SEED, on_pose=seen.append) as receiver:
+        if shutil.which("storescu"):
+            done = subprocess.run(["storescu", "-aec", "HISTOSTUDY", "127.0.0.1", str(receiver.port), *paths],
+                                  capture_output=True, text=True, timeout=60)
+            assert done.returncode == 0, done.stderr
+        else:
+            assert send_with_pynetdicom(receiver.port, paths) == [0, 0]
+        assert receiver.wait_for_pairs(N_FRAMES, timeout_s=120)
+    stats = receiver.stats()
+    lines = read_lines(out)
+    assert [line["pair_index"] for line in lines] == list(range(N_FRAMES)) and seen == lines
+    uids = [pydicom.dcmread(p, stop_before_pixels=True).SOPInstanceUID for p in paths]
+    for i, line in enumerate(lines):
+        assert set(line) >= PAIR_FIELDS | set(pose_record(direct[0][0])) and "error" not in line
+        assert line["planes"] == ["A", "B"] and line["instance_uids"] == uids and line["frame_indices"] == [i, i]
+        expected_time = (T0 + dt.timedelta(milliseconds=i * FRAME_TIME_MS)).isoformat()
+        assert line["frame_times"] == [expected_time, expected_time]
+        assert np.asarray(line["T_carm_transducer"]).shape == (4, 4)
+    assert_same_poses(lines, direct)
+    assert [line["tracking"] for line in lines][1:] == ["warm"] * (N_FRAMES - 1)
+    assert (stats["objects_received"], stats["frames_received"], stats["pairs_processed"], stats["objects_rejected"],
+            stats["frames_unpaired"]) == (2, 2 * N_FRAMES, N_FRAMES, 0, 0)
+    assert stats["frames_per_s"] > 0 and stats["pose_frames_per_s"] >= stats["frames_per_s"]
+    assert set(stats["seconds_per_pair"]) >= {"decode", "segmentation", "refinement", "total", "pose", "latency"}
+    assert stats["tracker"]["n_updates"] == N_FRAMES
+
+
+@pytest.mark.slow
+def test_refused_objects_get_failure_statuses_and_the_other_frames_still_get_poses(cine, views, model, direct,
+                                                                                   tmp_path):
+    """A CT object (0x0122), an XA object without its geometry tags and one with a row of pixel
+    data missing (0xC000, 0xA900) are refused between the good cines, which are all posed."""
+    bad_geometry = pydicom.dcmread(cine["paths"]["A0"])
+    del bad_geometry.PositionerPrimaryAngle
+    bad_geometry.SOPInstanceUID = generate_uid(entropy_srcs=["no geometry"])
+    short = pydicom.dcmread(cine["paths"]["B0"])
+    short.PixelData = short.PixelData[:-2 * views[1].shape[1]]
+    short.SOPInstanceUID = generate_uid(entropy_srcs=["short"])
+    out = tmp_path / "poses.jsonl"
+    with FrameReceiver(views, model, output_path=out, port=0, seed=SEED) as receiver:
+        statuses = send_with_pynetdicom(receiver.port, [ct_dataset(), cine["paths"]["A"], bad_geometry, short,
+                                                        cine["paths"]["B"]])
+        assert receiver.wait_for_pairs(N_FRAMES, timeout_s=120)
+    assert statuses == [0x0122, 0x0000, 0xC000, 0xA900, 0x0000]
+    stats = receiver.stats()
+    assert stats["rejections"] == {"0x0122": 1, "0xC000": 1, "0xA900": 1} and stats["objects_rejected"] == 3
+    reasons = [r["reason"] for r in stats["last_rejections"]]
+    assert "PositionerPrimaryAngle" in reasons[1] and "pixel data" in reasons[2]
+    lines = read_lines(out)
+    assert len(lines) == N_FRAMES and stats["frames_unpaired"] == 0
+    assert_same_poses(lines, direct)
+
+
+@pytest.mark.slow
+def test_an_aborted_association_and_a_dropped_connection_leave_the_receiver_serving(cine, views, model, direct,
+                                                                                   tmp_path):
+    """Plane A's frame comes in an association its sender aborts; a raw TCP connection sends half
+    an A-ASSOCIATE-RQ PDU and closes; plane B's frame, in the next association, still pairs with
+    A's and gets its pose."""
+    out = tmp_path / "poses.jsonl"
+    with FrameReceiver(views, model, output_path=out, port=0, seed=SEED) as receiver:
+        assert send_with_pynetdicom(receiver.port, [cine["paths"]["A0"]], abort=True) == [0]
+        with socket.create_connection(("127.0.0.1", receiver.port), timeout=5) as raw:
+            # PDU type 0x01 (A-ASSOCIATE-RQ) announcing 200 bytes, then only 10 of them
+            raw.sendall(bytes([0x01, 0x00]) + (200).to_bytes(4, "big") + b"\x00\x01" + b"\x00" * 8)
+        assert send_with_pynetdicom(receiver.port, [cine["paths"]["B0"]]) == [0]
+        assert receiver.wait_for_pairs(1, timeout_s=120)
+    stats = receiver.stats()
+    lines = read_lines(out)
+    assert len(lines) == 1 and lines[0]["frame_indices"] == [0, 0]
+    assert_same_poses(lines, direct)  # the first pair, from scratch, as the direct tracker's
+    assert stats["associations"] == 2 and stats["associations_aborted"] >= 1 and stats["connections"] == 3
+
+
+def test_a_pair_whose_pose_fails_is_a_line_with_the_error(views, tmp_path):
+    """Frames without the transducer (uniform exposure): the pose work raises, the line records the
+    error and the receiver, whose on_pose callback raises too, goes on."""
+    def broken_callback(record):
+        raise RuntimeError("a notebook's figure failed")
+
+    out = tmp_path / "poses.jsonl"
+    flat = np.full(views[0].shape, 3000, np.uint16)
+    objects = [xa_dataset(v, flat, acquisition_time=T0, uid_seed=f"flat/{v.name}") for v in views]
+    with FrameReceiver(views, output_path=out, port=0, seed=SEED, on_pose=broken_callback) as receiver:
+        assert send_with_pynetdicom(receiver.port, objects) == [0, 0]
+        assert receiver.wait_for_pairs(1, timeout_s=60)
+    (line,) = read_lines(out)
+    assert line["accepted"] is False and line["tracking"] is None
+    assert line["error"].startswith("PoseEstimationError") and "no transducer feature" in line["error"]
+    assert receiver.stats()["pairs_errors"] == 1
