@@ -34,10 +34,6 @@ from .result import PoseEstimationError, PoseResult
 
 __all__ = ["Tracker"]
 
-#: How an update found its pose (``Tracker.last_kind``).
-UPDATE_KINDS = ("from_scratch", "warm", "reacquired")
-
-
 class Tracker:
     """The transducer's pose, frame pair after frame pair: warm-started :func:`~.estimate.estimate_pose`.
 
