@@ -160,7 +160,7 @@ def _read_sources(meshes, mm_per_unit: float) -> list:
                 raise ValueError(f"meshes keys {seen[feature]!r} and {key!r} both name {feature.name}; give one "
                                  f"mesh per class (several parts may share a file)")
             seen[feature] = key
-            label = str(source) if isinstance(source, (str, os.PathLike)) else f"meshes[{key!r}]"
+            label = f"meshes[{key!r}]" + (f" = {source}" if isinstance(source, (str, os.PathLike)) else "")
             points, triangles, _ = _read_mesh(source, label, mm_per_unit)
             out.append((label, points, triangles, np.full(len(triangles), int(feature), np.uint8)))
         return out
@@ -290,7 +290,7 @@ def _sample_class(parts: list, mu: float, s: float):
     if not parts:
         return np.zeros((0, 3)), np.zeros(0), None
     volumes = np.array([_signed_volume(p, t) for p, t, _ in parts])
-    for (_, _, label), v, (p, t, _) in zip(parts, volumes, parts):
+    for (p, t, label), v in zip(parts, volumes):
         if abs(v) <= 1e-9 * _area(p, t).sum() ** 1.5:
             raise ValueError(f"{label}: a closed surface encloses no volume ({v:.3g} mm³); expected solids")
     group = _cavity_parents(parts, np.abs(volumes))
@@ -306,7 +306,9 @@ def _sample_class(parts: list, mu: float, s: float):
 
 
 def _signed_volume(points: np.ndarray, triangles: np.ndarray) -> float:
-    p = points[triangles]
+    """Volume (mm³) of a closed, consistently oriented surface by the divergence theorem; positive
+    for outward normals. Taken about one of its vertices: CAD frames may sit far from the origin."""
+    p = points[triangles] - points[triangles[0, 0]]
     return float(np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])).sum() / 6)
 
 

@@ -196,9 +196,12 @@ def _quadrant_piece(spec, curves, sx: int, sy: int, max_edge_mm: float):
     straight sides are exactly the gap edges ``x = sx g/2`` and ``y = sy g/2``."""
     g = spec.gap_width_mm / 2
     corner = np.array([sx * g, sy * g])
-    phi = _equal_arc(lambda p: corner + _ray_to_curve(curves[-1][1], np.tile(corner, (len(p), 1)),
-                                                      _dirs(p, sx, sy))[:, None] * _dirs(p, sx, sy),
-                     0.0, math.pi / 2, max_edge_mm)
+
+    def outermost(phi):  # the piece's outer edge, whose arc length sets the rays' spacing
+        d = _dirs(phi, sx, sy)
+        return corner + _ray_to_curve(curves[-1][1], np.tile(corner, (len(phi), 1)), d)[:, None] * d
+
+    phi = _equal_arc(outermost, 0.0, math.pi / 2, max_edge_mm)
     return _column_piece(spec, curves, np.tile(corner, (len(phi), 1)), _dirs(phi, sx, sy), max_edge_mm,
                          spec.element_thickness_mm)
 
@@ -212,7 +215,7 @@ def _arm_piece(spec, curves, axis: int, sign: int, max_edge_mm: float):
     from across the stripe ``|other| <= g/2``."""
     g = spec.gap_width_mm / 2
     n = max(1, math.ceil(2 * g / max_edge_mm))
-    across = np.linspace(-g, g, n + 1) * (sign if axis == 0 else -sign)  # keeps the pieces' handedness
+    across = np.linspace(-g, g, n + 1) * (sign if axis == 0 else -sign)  # one handedness for all arms
     c = np.zeros((n + 1, 2))
     c[:, 1 - axis] = across
     d = np.zeros((n + 1, 2))
