@@ -30,6 +30,8 @@ def test_notebook_is_stored_clean_with_a_parameters_cell(path):
     tagged = [c for c in code if "parameters" in c.metadata.get("tags", [])]
     assert len(tagged) == 1, "exactly one cell tagged 'parameters'"
     assert {"profile", "seed", "output_dir"} <= _parameter_names(nb)
+    # Bound to the kernel `make env` installs (the project's virtualenv), not to whatever python3 is.
+    assert nb.metadata["kernelspec"]["name"] == "histostudy"
 
 
 @pytest.mark.parametrize("profile", PROFILE_NAMES)
