@@ -8,7 +8,7 @@ CBCT, §II-A, §II-B.2), ``learning`` (U-Net and VGG19, §II-B.2, §II-B.4), ``p
 §II-B.3-4), ``calibration`` and ``robot`` (§II-C), ``treatment`` (§II-D, §II-E.3-4), ``study``
 (one front module per notebook) and ``reporting`` (profiles, the papermill pipeline, the report
 beside the paper's values). The modules at this level other than ``cli`` are deprecated shims of
-the old flat paths (README, "Where modules moved").
+the old flat paths (docs/architecture.md, "Where modules moved").
 """
 
 __version__ = "0.1.0"

@@ -1,4 +1,4 @@
-"""Deprecated path: ``histostudy.frame`` moved to :mod:`histostudy.imaging` (README, "Where modules moved").
+"""Deprecated path: ``histostudy.frame`` moved to :mod:`histostudy.imaging` (docs/architecture.md, "Where modules moved").
 
 Kept so that existing scripts still import; it re-exports the old module's public names and warns.
 """

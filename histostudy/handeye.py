@@ -1,4 +1,4 @@
-"""Deprecated path: ``histostudy.handeye`` moved to :mod:`histostudy.calibration` (README, "Where modules moved").
+"""Deprecated path: ``histostudy.handeye`` moved to :mod:`histostudy.calibration` (docs/architecture.md, "Where modules moved").
 
 Kept so that existing scripts still import; it re-exports the old module's public names and warns.
 """

@@ -1,4 +1,4 @@
-"""Deprecated path: ``histostudy.segment`` moved to :mod:`histostudy.learning` (README, "Where modules moved").
+"""Deprecated path: ``histostudy.segment`` moved to :mod:`histostudy.learning` (docs/architecture.md, "Where modules moved").
 
 Kept so that existing scripts still import; it re-exports the old module's public names and warns.
 """

@@ -1,4 +1,4 @@
-"""Deprecated path: ``histostudy.stats`` moved to :mod:`histostudy.study.stats` (README, "Where modules moved").
+"""Deprecated path: ``histostudy.stats`` moved to :mod:`histostudy.study.stats` (docs/architecture.md, "Where modules moved").
 
 Kept so that existing scripts still import; it re-exports the old module's public names and warns.
 """
