@@ -29,6 +29,7 @@ from histostudy.geometry import check_rigid
 from histostudy.transducer import FEATURE_CLASSES, LABEL_PRIORITY, TransducerModel
 from .carm import View
 from .frame import Frame
+from .render_settings import check_n_splats, check_photons_per_pixel, check_splat_sigma_mm
 
 __all__ = ["add_poisson_noise", "background_line_integrals", "render_frame", "render_labels",
            "render_line_integrals"]
@@ -83,8 +84,8 @@ def _splat_chunks(model: TransducerModel, T_carm_transducer, view: View, *, rng:
     T = check_rigid(T_carm_transducer, "T_carm_transducer")
     _check_view(view)
     _check_rng(rng)
-    n_splats = _check_count(n_splats, "n_splats")
-    sigma = _check_sigma(splat_sigma_mm)
+    n_splats = check_n_splats(n_splats)
+    sigma = check_splat_sigma_mm(splat_sigma_mm)
     rows, cols = view.shape
 
     points = np.vstack([model.points[f] for f in FEATURE_CLASSES])
@@ -230,14 +231,11 @@ def add_poisson_noise(line_integrals, photons_per_pixel: float, rng: np.random.G
     p = np.asarray(line_integrals, dtype=np.float64)
     if not np.all(np.isfinite(p)):
         raise ValueError("line_integrals must be finite; found NaN or inf")
-    n0 = photons_per_pixel
-    if isinstance(n0, bool) or not isinstance(n0, (int, float, np.integer, np.floating)) \
-            or not math.isfinite(float(n0)) or float(n0) <= 0:
-        raise ValueError(f"photons_per_pixel must be a finite number > 0 (photons per pixel), got {n0!r}")
+    n0 = check_photons_per_pixel(photons_per_pixel, allow_none=False)
     _check_rng(rng)
-    counts = rng.poisson(float(n0) * np.exp(-p)).astype(np.float64)
+    counts = rng.poisson(n0 * np.exp(-p)).astype(np.float64)
     np.maximum(counts, ZERO_COUNT_CLAMP, out=counts)
-    return (-np.log(counts / float(n0))).astype(np.float32)
+    return (-np.log(counts / n0)).astype(np.float32)
 
 
 # --- frames ---------------------------------------------------------------------------------
@@ -347,17 +345,3 @@ def _check_rng(rng) -> np.random.Generator:
     if not isinstance(rng, np.random.Generator):
         raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
     return rng
-
-
-def _check_count(value, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
-    return int(value)
-
-
-def _check_sigma(value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-            or not math.isfinite(float(value)) or float(value) < 0:
-        raise ValueError(f"splat_sigma_mm must be a finite number >= 0 (mm), got {value!r}")
-    return float(value)
-

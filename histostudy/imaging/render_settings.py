@@ -37,15 +37,9 @@ class RenderSettings:
     background: str = "phantom"
 
     def __post_init__(self):
-        photons = self.photons_per_pixel
-        if photons is not None and (isinstance(photons, bool) or not isinstance(photons, numbers.Real)
-                                    or not math.isfinite(photons) or photons <= 0):
-            raise ValueError(f"photons_per_pixel must be a finite number > 0 or None, got {photons!r}")
-        if isinstance(self.n_splats, bool) or not isinstance(self.n_splats, numbers.Integral) or self.n_splats < 1:
-            raise ValueError(f"n_splats must be an integer >= 1, got {self.n_splats!r}")
-        sigma = self.splat_sigma_mm
-        if isinstance(sigma, bool) or not isinstance(sigma, numbers.Real) or not math.isfinite(sigma) or sigma < 0:
-            raise ValueError(f"splat_sigma_mm must be a finite number >= 0 (mm), got {sigma!r}")
+        check_photons_per_pixel(self.photons_per_pixel, allow_none=True)
+        check_n_splats(self.n_splats)
+        check_splat_sigma_mm(self.splat_sigma_mm)
         if self.background not in BACKGROUNDS:
             raise ValueError(f"background must be one of {BACKGROUNDS}, got {self.background!r}")
 
@@ -53,3 +47,29 @@ class RenderSettings:
         """The keyword arguments of :func:`~histostudy.imaging.render.render_frame` these settings fix."""
         return {"photons_per_pixel": self.photons_per_pixel, "n_splats": self.n_splats,
                 "splat_sigma_mm": self.splat_sigma_mm}
+
+
+# The checks of each setting, here once; render_frame and add_poisson_noise call them too.
+
+def check_photons_per_pixel(value, *, allow_none: bool) -> float | None:
+    """``value`` as unattenuated photons per pixel (finite, > 0; None for no noise where allowed)."""
+    if value is None and allow_none:
+        return None
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value <= 0:
+        expected = "a finite number > 0 or None" if allow_none else "a finite number > 0"
+        raise ValueError(f"photons_per_pixel must be {expected} (photons per pixel), got {value!r}")
+    return float(value)
+
+
+def check_n_splats(value) -> int:
+    """``value`` as a number of splats per model point (an integer >= 1)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+        raise ValueError(f"n_splats must be an integer >= 1, got {value!r}")
+    return int(value)
+
+
+def check_splat_sigma_mm(value) -> float:
+    """``value`` as the splat jitter's standard deviation (finite, >= 0, mm)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value < 0:
+        raise ValueError(f"splat_sigma_mm must be a finite number >= 0 (mm), got {value!r}")
+    return float(value)

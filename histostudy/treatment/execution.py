@@ -16,6 +16,7 @@ which the journal records. One process at a time holds a journal.
 
 from __future__ import annotations
 
+import json
 import math
 import os
 from dataclasses import dataclass
@@ -90,7 +91,6 @@ def load_journal(path: str | os.PathLike) -> dict:
     with ``index``, ``point_carm_mm``, ``commanded_T_base_tcp``, ``reached_T_base_tcp``, ``pulses``,
     ``resolution``) and ``uncertain`` (an unsettled point's index, or None). Raises
     :class:`~.journal.JournalError` for a journal that fails its checks."""
-    import json
 
     with TreatmentJournal.open_for_reading(path) as journal:
         meta = journal.meta

@@ -23,6 +23,7 @@ JSON's) and refuses a journal that fails any check. Version-1 journals (JSON) ar
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import hashlib
 import json
@@ -207,19 +208,15 @@ class TreatmentJournal:
             out.append((idx, json.loads(p), json.loads(c), json.loads(r), pulses, res))
         return out
 
+    @contextlib.contextmanager
     def _transaction(self):
-        db = self._db
-
-        class _Tx:
-            def __enter__(self_):
-                db.execute("BEGIN IMMEDIATE")
-                return db
-
-            def __exit__(self_, kind, value, tb):
-                db.execute("COMMIT" if kind is None else "ROLLBACK")
-                return False
-
-        return _Tx()
+        self._db.execute("BEGIN IMMEDIATE")
+        try:
+            yield self._db
+        except BaseException:
+            self._db.execute("ROLLBACK")
+            raise
+        self._db.execute("COMMIT")
 
     def close(self) -> None:
         self._db.close()
