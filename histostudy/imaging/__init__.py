@@ -1,7 +1,7 @@
 """The imaging chain (§II-A, §II-B.2, §II-D): C-arm views and their projection, eq. 1-2 (``carm``),
 with the geometry a DICOM XA object records (``dicom_geometry``) and XA objects written as a C-arm
-writes them (``dicom_xa``); images with their geometry
-(``frame``); synthetic fluoroscopy of the transducer (``render``; its dose, splatting and scene,
+writes them (``dicom_xa``); images with their geometry, and a detector's stored values as line
+integrals (``frame``); synthetic fluoroscopy of the transducer (``render``; its dose, splatting and scene,
 shared by every configuration that renders, in ``render_settings``) over random abdomen and phantom
 scenes (``anatomy``, their ranges in ``anatomy_params``); a scene and its line-integral image
 (``anatomy_scene``), built of analytic solids (``anatomy_shapes``), their composites
@@ -26,7 +26,7 @@ from .cbct import PhantomSpec, check_target, phantom_mask, phantom_values, phant
 from .dicom_geometry import REQUIRED_GEOMETRY_TAGS, gantry_from_dicom
 from .dicom_io import SLICE_POSITION_RTOL
 from .dicom_xa import XA_SOP_CLASS_UID, detector_counts, write_xa, xa_dataset
-from .frame import Frame, load_frame
+from .frame import Frame, line_integrals_from_pixels, load_frame
 from .nifti_io import save_volume_nifti
 from .render import add_poisson_noise, background_line_integrals, render_frame, render_labels, render_line_integrals
 from .render_settings import BACKGROUNDS, RenderSettings

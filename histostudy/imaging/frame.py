@@ -4,10 +4,16 @@ The same :class:`Frame` carries a synthetic frame (with reference labels and the
 real one loaded from disk (labels and pose unknown: ``None``). Everything downstream —
 segmentation, pose estimation, the studies — takes Frames, so real data and the synthetic study
 share one code path.
+
+:func:`line_integrals_from_pixels` is the one conversion of a detector's stored values into line
+integrals (``-log(I / I0)``, the form of docs/architecture.md "Frames and units"): DICOM's
+MONOCHROME1 inversion and modality rescale, then the log against the air intensity ``I0``.
+:func:`load_frame` and the lab's live receiver (:mod:`histostudy.lab.xray_objects`) both use it.
 """
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,7 +24,7 @@ from histostudy.geometry import check_rigid
 from histostudy.transducer import check_label_image
 from .carm import View
 
-__all__ = ["Frame", "load_frame"]
+__all__ = ["Frame", "line_integrals_from_pixels", "load_frame"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -82,13 +88,16 @@ def load_frame(path: str | os.PathLike, view: View, *, line_integrals: bool = Tr
 
     DICOM: the stored values are inverted first for ``MONOCHROME1`` (low values white), so that a
     larger value is always more X-ray intensity; then ``RescaleSlope`` / ``RescaleIntercept``
-    (finite, or refused naming the tag) give the modality values.
+    (finite, or refused naming the tag) give the modality values
+    (:func:`line_integrals_from_pixels`, which also makes the line integrals).
     """
     path = Path(path)
+    source = f"path {str(path)!r}"
     suffix = path.suffix.lower()
     if frame_index is not None and (isinstance(frame_index, bool) or not isinstance(frame_index, (int, np.integer))
                                     or frame_index < 0):
         raise ValueError(f"frame_index must be an integer >= 0 or None, got {frame_index!r}")
+    dataset = None
     if suffix == ".npy":
         image = np.load(path, allow_pickle=False)
     elif suffix in (".png", ".tif", ".tiff"):
@@ -96,17 +105,20 @@ def load_frame(path: str | os.PathLike, view: View, *, line_integrals: bool = Tr
 
         image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if image is None:
-            raise ValueError(f"path {str(path)!r} could not be read as an image")
+            raise ValueError(f"{source} could not be read as an image")
         if image.ndim == 3:
             image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     elif suffix in (".dcm", ".dicom", ""):
-        image = _dicom_pixels(path)
+        import pydicom
+
+        dataset = pydicom.dcmread(path)
+        image = dataset.pixel_array
     else:
-        raise ValueError(f"path {str(path)!r}: unknown image format {suffix!r} (expected .npy, .png, .tif, .dcm)")
-    image = _one_frame(np.asarray(image, dtype=np.float64), frame_index, path)
+        raise ValueError(f"{source}: unknown image format {suffix!r} (expected .npy, .png, .tif, .dcm)")
+    image = _modality_values(_one_frame(np.asarray(image, dtype=np.float64), frame_index, path), dataset, source)
     if image.shape != view.shape:
         if not resample:
-            raise ValueError(f"path {str(path)!r} holds a {image.shape} image, the view {view.name!r} expects "
+            raise ValueError(f"{source} holds a {image.shape} image, the view {view.name!r} expects "
                              f"{view.shape}: pass resample=True to resize it onto the view")
         import cv2
 
@@ -114,32 +126,77 @@ def load_frame(path: str | os.PathLike, view: View, *, line_integrals: bool = Tr
         image = cv2.resize(image, (view.shape[1], view.shape[0]),
                            interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
     if not line_integrals:
-        i0 = float(image.max()) if air_value is None else float(air_value)
-        if not np.isfinite(i0) or i0 <= 0:
-            raise ValueError(f"air_value must be a positive intensity, got {air_value!r}")
-        image = -np.log(np.clip(image, 1e-6 * i0, None) / i0)
+        image = line_integrals_from_pixels(image, air_value=air_value, source=source)
     meta = {"source": str(path)} | ({} if frame_index is None else {"frame_index": int(frame_index)})
     return Frame(image=image.astype(np.float32), view=view, meta=meta)
 
 
-def _dicom_pixels(path: Path) -> np.ndarray:
-    """A DICOM object's pixel values as modality values: MONOCHROME1 inverted, rescale applied."""
-    import pydicom
+def line_integrals_from_pixels(pixels, dataset=None, *, air_value: float | None = None,
+                               source: str | None = None) -> np.ndarray:
+    """Line integrals ``-log(I / I0)`` (float32, dimensionless) of a detector's stored values.
 
-    ds = pydicom.dcmread(path)
-    pixels = ds.pixel_array.astype(np.float64)
-    if str(getattr(ds, "PhotometricInterpretation", "MONOCHROME2")).strip() == "MONOCHROME1":
-        bits = int(getattr(ds, "BitsStored", getattr(ds, "BitsAllocated", 16)))
+    Args:
+        pixels: ``(rows, cols)`` or ``(frames, rows, cols)`` stored values (a DICOM object's
+            ``pixel_array``; counts or intensities).
+        dataset: where the values' pixel module is read: a pydicom ``Dataset`` or any object with
+            its attributes. ``PhotometricInterpretation`` ``MONOCHROME1`` inverts the values
+            (``2**BitsStored - 1 - value``, ``BitsAllocated`` then 16 without ``BitsStored``), so
+            that a larger value is more X-ray intensity; ``RescaleSlope`` (0028,1053) and
+            ``RescaleIntercept`` (0028,1052) (default 1 and 0; finite, or refused naming the tag)
+            then give the modality values ``I``. None: the values are intensities already.
+        air_value: the unattenuated intensity ``I0`` (modality units), finite and > 0; None: each
+            frame's maximum.
+        source: what the values are, to start error messages with (e.g. ``"path 'A.dcm'"``).
+
+    Intensities below ``1e-6 I0`` are clipped there (a line integral of at most ``log(1e6)``).
+
+    Raises:
+        ValueError: naming the bad tag or argument, or the frame that holds no signal (its
+            maximum, ``I0``, not > 0).
+    """
+    prefix = "" if source is None else f"{source}: "
+    if air_value is not None and (isinstance(air_value, bool) or not isinstance(air_value, (int, float, np.number))
+                                  or not math.isfinite(air_value) or air_value <= 0):
+        raise ValueError(f"{prefix}air_value must be None or a finite intensity > 0, got {air_value!r}")
+    values = np.asarray(pixels)
+    if values.ndim not in (2, 3) or not (np.issubdtype(values.dtype, np.number) and values.dtype.kind != "c"):
+        raise ValueError(f"{prefix}pixels must be a real (rows, cols) or (frames, rows, cols) array, got shape "
+                         f"{values.shape} dtype {values.dtype}")
+    values = _modality_values(values.astype(np.float64), dataset, source)
+    frames = values.reshape((-1,) + values.shape[-2:])
+    out = np.empty(frames.shape, dtype=np.float32)
+    for i, frame in enumerate(frames):
+        i0 = float(frame.max()) if air_value is None else float(air_value)
+        if not (math.isfinite(i0) and i0 > 0):
+            raise ValueError(f"{prefix}frame {i} holds no X-ray signal (I0 = its maximum = {i0!r}); give air_value")
+        out[i] = -np.log(np.clip(frame, 1e-6 * i0, None) / i0)
+    return out.reshape(values.shape)
+
+
+def _modality_values(pixels: np.ndarray, dataset, source: str | None) -> np.ndarray:
+    """The stored values as modality values: MONOCHROME1 inverted, rescale applied
+    (:func:`line_integrals_from_pixels`'s ``dataset``); unchanged for ``dataset`` None."""
+    if dataset is None:
+        return pixels
+    prefix = "" if source is None else f"{source}: "
+    if str(getattr(dataset, "PhotometricInterpretation", "MONOCHROME2")).strip() == "MONOCHROME1":
+        raw = getattr(dataset, "BitsStored", getattr(dataset, "BitsAllocated", 16))
+        try:
+            bits = int(raw)
+        except (TypeError, ValueError):
+            bits = 0
+        if not 1 <= bits <= 32:
+            raise ValueError(f"{prefix}BitsStored (0028,0101) must be an integer in 1..32, got {raw!r}")
         pixels = (2.0 ** bits - 1.0) - pixels
     rescale = []
     for keyword, tag, default in (("RescaleSlope", "(0028,1053)", 1.0), ("RescaleIntercept", "(0028,1052)", 0.0)):
+        raw = getattr(dataset, keyword, default)
         try:
-            value = float(getattr(ds, keyword, default))
+            value = float(raw)
         except (TypeError, ValueError):
-            value = float("nan")
-        if not np.isfinite(value):
-            raise ValueError(f"path {str(path)!r}: {keyword} {tag} must be a finite number, "
-                             f"got {getattr(ds, keyword, None)!r}")
+            value = math.nan
+        if not math.isfinite(value):
+            raise ValueError(f"{prefix}{keyword} {tag} must be a finite number, got {raw!r}")
         rescale.append(value)
     return pixels * rescale[0] + rescale[1]
 

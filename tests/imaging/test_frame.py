@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from histostudy.imaging import Frame, View, load_frame
+from histostudy.imaging import Frame, View, line_integrals_from_pixels, load_frame
 
 
 @pytest.fixture
@@ -125,3 +125,38 @@ def test_a_frame_of_another_size_is_resampled_onto_the_view_when_asked(tmp_path,
     np.save(tmp_path / "big.npy", big)
     frame = load_frame(tmp_path / "big.npy", view, resample=True)
     np.testing.assert_allclose(frame.image, np.arange(12 * 16).reshape(12, 16))  # area means give the pixels back
+
+
+def test_line_integrals_from_pixels_reads_the_pixel_module_and_refuses_what_it_cannot_use():
+    from types import SimpleNamespace
+
+    counts = np.random.default_rng(4).integers(1, 4096, size=(2, 12, 16))
+    mono2 = SimpleNamespace(PhotometricInterpretation="MONOCHROME2", BitsStored=12, RescaleSlope="2.0",
+                            RescaleIntercept="0")
+    mono1 = SimpleNamespace(**{**vars(mono2), "PhotometricInterpretation": "MONOCHROME1"})
+    L = line_integrals_from_pixels(counts, mono2)
+    # the same intensities stored inverted (MONOCHROME1: low values white) give the same line integrals
+    np.testing.assert_array_equal(line_integrals_from_pixels(4095 - counts, mono1), L)
+    # -log(I / I0), I0 each frame's maximum (so the slope cancels): 0 at each frame's brightest pixel
+    assert L.dtype == np.float32 and L.shape == counts.shape
+    for frame, c in zip(L, counts):
+        np.testing.assert_allclose(frame, -np.log(c / c.max()), rtol=1e-6)
+    # a fixed air value I0 (modality units); the rescale intercept shifts I before the log
+    np.testing.assert_allclose(line_integrals_from_pixels(counts[0], air_value=4095.0), -np.log(counts[0] / 4095),
+                               rtol=1e-6)
+    shifted = SimpleNamespace(RescaleIntercept=100.0)
+    np.testing.assert_allclose(line_integrals_from_pixels(counts[0], shifted, air_value=4195.0),
+                               -np.log((counts[0] + 100.0) / 4195.0), rtol=1e-6)
+    with pytest.raises(ValueError, match=r"^path 'x.dcm': RescaleSlope \(0028,1053\) must be a finite number, "
+                                         r"got nan"):
+        line_integrals_from_pixels(counts, SimpleNamespace(RescaleSlope=float("nan")), source="path 'x.dcm'")
+    with pytest.raises(ValueError, match=r"RescaleIntercept \(0028,1052\) must be a finite number, got 'inf'"):
+        line_integrals_from_pixels(counts, SimpleNamespace(RescaleIntercept="inf"))
+    with pytest.raises(ValueError, match=r"BitsStored \(0028,0101\) must be an integer in 1..32, got 40"):
+        line_integrals_from_pixels(counts, SimpleNamespace(PhotometricInterpretation="MONOCHROME1", BitsStored=40))
+    with pytest.raises(ValueError, match=r"frame 1 holds no X-ray signal \(I0 = its maximum = 0.0\)"):
+        line_integrals_from_pixels(np.stack([counts[0], np.zeros((12, 16))]))
+    with pytest.raises(ValueError, match=r"air_value must be None or a finite intensity > 0, got -1.0"):
+        line_integrals_from_pixels(counts, air_value=-1.0)
+    with pytest.raises(ValueError, match=r"pixels must be a real \(rows, cols\) or \(frames, rows, cols\) array"):
+        line_integrals_from_pixels(np.zeros(5))
