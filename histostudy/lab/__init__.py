@@ -1,17 +1,22 @@
 """The lab's own data and equipment (§II-A to §II-D on real hardware): the workflow a lab runs on its
 C-arm's files, its CBCT and its robot — pose records and flange poses to a checked hand-eye
 calibration, a target in the CBCT to a checked robot move, planned or executed (``workflow``) — and
-the frames streamed live from the C-arm over DICOM (``receiver``, biplane pairing in ``pairing``).
+the frames streamed live from the C-arm over DICOM: the C-STORE receiver that poses each biplane
+pair (``receiver``), the received X-ray objects decoded and checked (``xray_objects``), their
+biplane pairing by time (``pairing``) and a sender of DICOM objects to it (``sender``).
 The lab-like dataset the project generates to stand in for a lab's files is the study's
 (:mod:`histostudy.study.lab_dataset`).
 """
 
-from . import pairing as _pairing, receiver as _receiver, workflow as _workflow
+from . import (pairing as _pairing, receiver as _receiver, sender as _sender, workflow as _workflow,
+               xray_objects as _xray_objects)
 from .pairing import BiplanePairer, DEFAULT_FRAME_INTERVAL_S, Pairing, PlaneFrame, frame_times, posix_seconds
-from .receiver import (FrameReceiver, REJECTION_STATUSES, ReceivedFrame, X_RAY_SOP_CLASSES, XRayObjectRejected,
-                       decode_xray_object, listen)
+from .receiver import FrameReceiver, listen
+from .sender import send_frames
 from .workflow import (TargetingPlan, calibrate_from_poses, execute_targeting, load_flange_poses, load_pose_record,
                        plan_targeting)
+from .xray_objects import REJECTION_STATUSES, ReceivedFrame, X_RAY_SOP_CLASSES, XRayObjectRejected, decode_xray_object
 
 # every public name of the modules above, as each module's __all__ declares it
-__all__ = list(dict.fromkeys([*_pairing.__all__, *_receiver.__all__, *_workflow.__all__]))
+__all__ = list(dict.fromkeys([*_pairing.__all__, *_receiver.__all__, *_sender.__all__, *_workflow.__all__,
+                              *_xray_objects.__all__]))

@@ -8,15 +8,11 @@ pair to a JSON-lines file as it comes.
 
 The chain, per object:
 
-1. The C-STORE handler (pynetdicom's association thread) decodes and validates the object
-   (:func:`decode_xray_object`): the SOP class, the geometry tags, the frame times, the pixels;
-   each frame goes to a plane (a view): the view named as the object's ``SeriesDescription`` —
-   whose geometry the tags must confirm within ``match_tolerance_mm`` (a gantry moved since the
-   views were calibrated is refused, not silently mis-posed) — else the view the tags' geometry
-   matches (the two views' projections of the isocentre region, compared in mm at the
-   isocentre). The counts become line integrals as :func:`histostudy.imaging.load_frame` makes them
-   (MONOCHROME1 inverted, rescale applied, ``-log(I / I0)`` with ``I0`` = ``air_value`` or the
-   frame's maximum). The handler answers at once; nothing heavy runs on the network thread.
+1. The C-STORE handler (pynetdicom's association thread) decodes and validates the object and
+   gives each frame its plane (:func:`.xray_objects.decode_c_store` over
+   :func:`~.xray_objects.decode_xray_object`: the SOP class, the geometry tags checked against the
+   views, the frame times, the pixels as line integrals). The handler answers at once; nothing
+   heavy runs on the network thread.
 2. The frames are paired by acquisition time (:mod:`.pairing`: ``AcquisitionDateTime`` + frame
    index x ``FrameTime``; two planes' frames pair when less than half a frame interval apart).
 3. A worker thread takes the pairs in order from a queue and runs :class:`histostudy.pose.Tracker`
@@ -31,241 +27,43 @@ in mm, C-arm/CBCT frame; ``focal_point_mm``; ``cost``; ``accepted`` and the ``ve
 frame received to its line written). A pair whose pose work raised gets a line with ``accepted``
 false and ``error``. Lines are appended and flushed one by one.
 
-Rejections (the C-STORE response status, with the reason as its ErrorComment and in the log; the
-other objects are unaffected):
-
-- ``0x0122`` Refused: SOP Class not supported — not an X-ray image (e.g. CT Image Storage). The
-  receiver accepts every storage SOP class at association time so that such an object gets this
-  answer rather than a refused presentation context.
-- ``0xA900`` Error: Data Set does not match SOP Class — an X-ray object that cannot be read as
-  one: undecodable, pixel data of the wrong length, the data set's SOP class differing from the
-  request's.
-- ``0xC000`` Error: Cannot understand — a readable X-ray object this receiver cannot use: missing
-  geometry tags, no acquisition time, colour pixels, a frame without signal, a plane matching no
-  view.
-- ``0xA700`` Refused: Out of resources — the receiver is stopping.
+Rejections: the C-STORE failure status of :mod:`.xray_objects` (``0x0122`` not an X-ray image,
+``0xA900`` unreadable as one, ``0xC000`` unusable; :data:`.xray_objects.REJECTION_STATUSES`), or
+``0xA700`` while the receiver is stopping, with the reason as its ErrorComment and in the log; the
+other objects are unaffected. The receiver accepts every storage SOP class at association time so
+that an object that is not an X-ray image gets its 0x0122 answer rather than a refused
+presentation context.
 
 A sender that aborts or drops its connection mid-association loses only that association's
 unfinished object: each association runs on its own thread, and the frames already decoded stay
-in the pairing. Units: mm, seconds; frames and transforms as in docs/architecture.md.
+in the pairing. :func:`histostudy.lab.send_frames` (:mod:`.sender`) is a sender. Units: mm,
+seconds; frames and transforms as in docs/architecture.md.
 """
 
 from __future__ import annotations
 
 import collections
 import dataclasses
-import datetime as _dt
 import json
 import logging
-import math
 import os
 import threading
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
-
-import numpy as np
 
 from histostudy.core import to_jsonable
 from histostudy.imaging import View
 from histostudy.pose import Tracker, pose_record
 from histostudy.transducer import TransducerModel
-from .pairing import DEFAULT_FRAME_INTERVAL_S, BiplanePairer, PlaneFrame, frame_times, posix_seconds
+from .pairing import DEFAULT_FRAME_INTERVAL_S, BiplanePairer, PlaneFrame
+from .sender import check_ae_title, check_count, check_host, check_port, check_positive
+from .xray_objects import (STATUS_OUT_OF_RESOURCES, STATUS_SUCCESS, ReceivedFrame, XRayObjectRejected,
+                           decode_c_store, rejection_response)
 
-__all__ = ["FrameReceiver", "REJECTION_STATUSES", "ReceivedFrame", "X_RAY_SOP_CLASSES", "XRayObjectRejected",
-           "decode_xray_object", "listen"]
+__all__ = ["FrameReceiver", "listen"]
 
 log = logging.getLogger(__name__)
-
-#: The SOP classes whose frames are received (the others are answered 0x0122).
-X_RAY_SOP_CLASSES = {
-    "1.2.840.10008.5.1.4.1.1.12.1": "X-Ray Angiographic Image Storage",
-    "1.2.840.10008.5.1.4.1.1.12.1.1": "Enhanced XA Image Storage",
-    "1.2.840.10008.5.1.4.1.1.12.2": "X-Ray Radiofluoroscopic Image Storage",
-}
-
-STATUS_SUCCESS = 0x0000
-STATUS_SOP_CLASS_NOT_SUPPORTED = 0x0122
-STATUS_OUT_OF_RESOURCES = 0xA700
-STATUS_DATASET_MISMATCH = 0xA900
-STATUS_CANNOT_UNDERSTAND = 0xC000
-
-#: The C-STORE failure statuses this receiver answers, and when (see the module docstring).
-REJECTION_STATUSES = {
-    STATUS_SOP_CLASS_NOT_SUPPORTED: "Refused: SOP Class not supported (not an X-ray image)",
-    STATUS_OUT_OF_RESOURCES: "Refused: Out of resources (the receiver is stopping)",
-    STATUS_DATASET_MISMATCH: "Error: Data Set does not match SOP Class (unreadable X-ray object)",
-    STATUS_CANNOT_UNDERSTAND: "Error: Cannot understand (missing geometry or time, or no matching view)",
-}
-
-#: Test points (mm, C-arm frame) whose projections compare two views: the isocentre and the
-#: corners of a 100 mm cube around it, the region where the transducer's focal point is sought.
-_PROBE_POINTS_MM = np.array([[0.0, 0.0, 0.0]] + [[x, y, z] for x in (-50.0, 50.0) for y in (-50.0, 50.0)
-                                                 for z in (-50.0, 50.0)])
-
-
-class XRayObjectRejected(ValueError):
-    """A received object this receiver refuses: ``status`` is the C-STORE failure status to answer
-    (:data:`REJECTION_STATUSES`), the message the reason."""
-
-    def __init__(self, status: int, reason: str):
-        super().__init__(reason)
-        self.status = int(status)
-        self.reason = reason
-
-
-@dataclass(frozen=True, eq=False)
-class ReceivedFrame:
-    """One decoded frame: ``image`` line integrals (float32, the view's shape) of plane ``view``,
-    frame ``frame_index`` of the object ``instance_uid``, taken at ``acquired`` (its cine's interval
-    ``interval_s``, None for a single frame). ``decode_s``: its share of the object's decoding time."""
-
-    view: View
-    image: np.ndarray = field(repr=False)
-    instance_uid: str
-    frame_index: int
-    acquired: _dt.datetime
-    interval_s: float | None
-    decode_s: float = 0.0
-    received_at: float = 0.0  # time.perf_counter() when decoded
-
-    @property
-    def time_s(self) -> float:
-        return posix_seconds(self.acquired)
-
-
-def decode_xray_object(ds, views: Sequence[View], *, sop_class_uid: str | None = None, air_value: float | None = None,
-                       match_tolerance_mm: float | None = 5.0) -> list[ReceivedFrame]:
-    """The frames of one received DICOM X-ray object, each with its plane's view.
-
-    Args:
-        ds: the pydicom ``Dataset`` (with ``file_meta`` giving its transfer syntax).
-        views: the planes' views (their names are the planes').
-        sop_class_uid: the SOP class the sender said it stores (the C-STORE's affected SOP class);
-            None: the data set's own.
-        air_value: the unattenuated intensity ``I0`` of ``-log(I / I0)`` (modality units); None:
-            each frame's maximum, as :func:`histostudy.imaging.load_frame`.
-        match_tolerance_mm: the largest distance between the projections of the isocentre region
-            (the isocentre and the corners of a 100 mm cube around it) by the tags' geometry and by
-            a view, in mm at the isocentre (detector pixels times the view's pixel size there), for
-            a frame to be that view's: 5 mm passes a gantry 1 deg off its calibrated angle (0.9
-            mm) and refuses one 10 deg off (8.7 mm). None: a named plane is not checked and an
-            unnamed one takes the nearest view.
-
-    Raises:
-        XRayObjectRejected: with the status to answer and why (module docstring).
-    """
-    sop = str(getattr(ds, "SOPClassUID", "") or "")
-    expected = sop if sop_class_uid is None else str(sop_class_uid)
-    if expected not in X_RAY_SOP_CLASSES:
-        raise XRayObjectRejected(STATUS_SOP_CLASS_NOT_SUPPORTED,
-                                 f"SOP class {expected or '(none)'} is not an X-ray angiographic or RF image; "
-                                 f"this receiver takes {', '.join(X_RAY_SOP_CLASSES.values())}")
-    if sop != expected:
-        raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
-                                 f"the data set's SOPClassUID {sop or '(none)'} differs from the stored SOP class "
-                                 f"{expected}")
-    uid = str(getattr(ds, "SOPInstanceUID", "") or "")
-    try:
-        n_frames = int(getattr(ds, "NumberOfFrames", 1) or 1)
-        rows, cols = int(ds.Rows), int(ds.Columns)
-    except (AttributeError, TypeError, ValueError) as exc:
-        raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"no readable image size (Rows, Columns, "
-                                                          f"NumberOfFrames): {exc}") from None
-    samples = int(getattr(ds, "SamplesPerPixel", 1) or 1)
-    if samples != 1:
-        raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, f"SamplesPerPixel (0028,0002) is {samples}; X-ray "
-                                                           "frames must be greyscale (1)")
-    # the plane of each frame: once for a plain cine, per frame where functional groups may differ
-    per_frame = bool(getattr(ds, "PerFrameFunctionalGroupsSequence", None))
-    plane_views = []
-    for i in range(n_frames if per_frame else 1):
-        plane_views.append(_plane_view(ds, views, i if per_frame else None, match_tolerance_mm))
-    if not per_frame:
-        plane_views *= n_frames
-    try:
-        times, interval_s = frame_times(ds)
-    except ValueError as exc:
-        raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, str(exc)) from None
-    try:
-        pixels = np.asarray(ds.pixel_array)
-    except Exception as exc:  # pydicom raises several kinds for a broken pixel module
-        raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
-                                 f"its pixel data cannot be read: {type(exc).__name__}: {exc}") from None
-    pixels = pixels.reshape((n_frames, rows, cols)) if pixels.size == n_frames * rows * cols else pixels
-    if pixels.shape != (n_frames, rows, cols) and not (n_frames == 1 and pixels.shape == (rows, cols)):
-        raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"its pixel data decode to shape {pixels.shape}, not "
-                                                          f"{n_frames} frames of {rows} x {cols}")
-    images = _line_integrals(ds, pixels.reshape(n_frames, rows, cols), air_value)
-    return [ReceivedFrame(view=plane_views[i], image=images[i], instance_uid=uid, frame_index=i, acquired=times[i],
-                          interval_s=interval_s) for i in range(n_frames)]
-
-
-def _plane_view(ds, views: Sequence[View], frame_index: int | None, tol_mm: float | None) -> View:
-    """The view of a frame: named by SeriesDescription (and confirmed by the tags), else matched by
-    the geometry the tags record."""
-    try:
-        tag_view = View.from_dicom(ds, frame_index=frame_index)
-    except ValueError as exc:
-        raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, f"its geometry cannot be read: {exc}") from None
-    description = str(getattr(ds, "SeriesDescription", "") or "").strip()
-    named = [v for v in views if v.name and v.name == description]
-    if named:
-        view = named[0]
-        if tag_view.shape != view.shape:
-            raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND,
-                                     f"plane {description!r}: its {tag_view.shape[0]} x {tag_view.shape[1]} pixels "
-                                     f"differ from view {view.name!r}'s {view.shape}")
-        if tol_mm is not None:
-            distance = _projection_distance_mm(tag_view, view)
-            if distance > tol_mm:
-                raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND,
-                                         f"plane {description!r}: its geometry tags project {distance:.1f} mm (at the "
-                                         f"isocentre) from view {view.name!r} (> {tol_mm} mm); has the gantry moved "
-                                         "since the views were calibrated?")
-        return view
-    candidates = sorted(((_projection_distance_mm(tag_view, v), i) for i, v in enumerate(views)
-                         if v.shape == tag_view.shape))
-    if candidates and (tol_mm is None or candidates[0][0] <= tol_mm):
-        return views[candidates[0][1]]
-    nearest = f"; the nearest view is {candidates[0][0]:.1f} mm off (> {tol_mm} mm)" if candidates else \
-        f"; no view has its {tag_view.shape} pixels"
-    raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND,
-                             f"it matches no view: SeriesDescription {description!r} names none of "
-                             f"{[v.name for v in views]}{nearest}")
-
-
-def _projection_distance_mm(a: View, b: View) -> float:
-    """The largest distance between the two views' projections of the isocentre region, in mm at
-    the isocentre (pixels times the size of ``b``'s pixel there), so that one tolerance serves
-    any detector resolution."""
-    px = float(np.max(np.linalg.norm(a.project(_PROBE_POINTS_MM) - b.project(_PROBE_POINTS_MM), axis=1)))
-    return px * float(np.sqrt(b.pixel_footprint_mm2(np.zeros(3))[0]))
-
-
-def _line_integrals(ds, counts: np.ndarray, air_value: float | None) -> np.ndarray:
-    """``(n, rows, cols)`` float32 ``-log(I / I0)`` of the stored values, as load_frame computes them."""
-    pixels = counts.astype(np.float64)
-    if str(getattr(ds, "PhotometricInterpretation", "MONOCHROME2")).strip() == "MONOCHROME1":
-        bits = int(getattr(ds, "BitsStored", getattr(ds, "BitsAllocated", 16)))
-        pixels = (2.0 ** bits - 1.0) - pixels
-    for keyword, tag, default in (("RescaleSlope", "(0028,1053)", 1.0), ("RescaleIntercept", "(0028,1052)", 0.0)):
-        raw = getattr(ds, keyword, default)
-        try:
-            value = float(raw)
-        except (TypeError, ValueError):
-            value = math.nan
-        if not math.isfinite(value):
-            raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, f"{keyword} {tag} must be a finite number, got {raw!r}")
-        pixels = pixels * value if keyword == "RescaleSlope" else pixels + value
-    out = np.empty(pixels.shape, dtype=np.float32)
-    for i, frame in enumerate(pixels):
-        i0 = float(frame.max()) if air_value is None else float(air_value)
-        if not (math.isfinite(i0) and i0 > 0):
-            raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, f"frame {i} holds no X-ray signal (I0 = {i0!r})")
-        out[i] = -np.log(np.clip(frame, 1e-6 * i0, None) / i0)
-    return out
 
 
 class FrameReceiver:
@@ -293,7 +91,7 @@ class FrameReceiver:
         air_value: ``I0`` for the line integrals (modality units); None: each frame's maximum.
         tolerance_s, default_interval_s: the pairing's (:class:`~.pairing.BiplanePairer`).
         match_tolerance_mm: how far (mm at the isocentre) the tags' geometry may project from a
-            plane's view (:func:`decode_xray_object`).
+            plane's view (:func:`.xray_objects.decode_xray_object`).
         max_queued_pairs: the most pairs waiting for the pose; beyond, the oldest is skipped
             (counted, logged, no line) so that the poses follow a live stream that outpaces them.
             None (default): every pair gets its line.
@@ -315,26 +113,11 @@ class FrameReceiver:
             raise ValueError(f"views must have unique names (the planes' SeriesDescription), got {names!r}")
         if not isinstance(output_path, (str, os.PathLike)) or not str(output_path):
             raise ValueError(f"output_path must be a file path, got {output_path!r}")
-        if not isinstance(ae_title, str) or not 1 <= len(ae_title.strip()) <= 16 or not ae_title.isascii() \
-                or "\\" in ae_title:
-            raise ValueError(f"ae_title must be 1-16 ASCII characters without a backslash, got {ae_title!r}")
-        if isinstance(port, bool) or not isinstance(port, (int, np.integer)) or not 0 <= port <= 65535:
-            raise ValueError(f"port must be an integer in 0..65535 (0: any free port), got {port!r}")
-        if not isinstance(host, str) or not host:
-            raise ValueError(f"host must be an address to bind, e.g. '127.0.0.1', got {host!r}")
-        if air_value is not None and not (isinstance(air_value, (int, float)) and math.isfinite(air_value)
-                                          and air_value > 0):
-            raise ValueError(f"air_value must be None or a finite intensity > 0, got {air_value!r}")
-        if match_tolerance_mm is not None and not (isinstance(match_tolerance_mm, (int, float))
-                                                   and math.isfinite(match_tolerance_mm) and match_tolerance_mm > 0):
-            raise ValueError(f"match_tolerance_mm must be None or a finite number > 0 (mm at the isocentre), "
-                             f"got {match_tolerance_mm!r}")
-        if max_queued_pairs is not None and (isinstance(max_queued_pairs, bool) or not isinstance(max_queued_pairs, int)
-                                             or max_queued_pairs < 1):
-            raise ValueError(f"max_queued_pairs must be None or an integer >= 1, got {max_queued_pairs!r}")
-        if not (isinstance(network_timeout_s, (int, float)) and math.isfinite(network_timeout_s)
-                and network_timeout_s > 0):
-            raise ValueError(f"network_timeout_s must be a finite number of seconds > 0, got {network_timeout_s!r}")
+        ae_title, port, host = check_ae_title(ae_title), check_port(port), check_host(host)
+        check_positive("air_value", air_value, "a finite intensity > 0")
+        check_positive("match_tolerance_mm", match_tolerance_mm, "a finite number > 0 (mm at the isocentre)")
+        check_count("max_queued_pairs", max_queued_pairs)
+        check_positive("network_timeout_s", network_timeout_s, "a finite number of seconds > 0", optional=False)
         if on_pose is not None and not callable(on_pose):
             raise TypeError(f"on_pose must be callable (record -> None) or None, got {type(on_pose).__name__}")
         self.views = tuple(views)
@@ -343,7 +126,7 @@ class FrameReceiver:
                                options=options, **option_overrides)
         self.pairer = BiplanePairer(names, tolerance_s=tolerance_s, default_interval_s=default_interval_s)
         self.output_path = Path(output_path)
-        self.ae_title, self.host, self.port = ae_title.strip(), host, int(port)
+        self.ae_title, self.host, self.port = ae_title, host, port
         self.on_pose = on_pose
         self.air_value, self.match_tolerance_mm = air_value, match_tolerance_mm
         self.max_queued_pairs, self.network_timeout_s = max_queued_pairs, float(network_timeout_s)
@@ -351,15 +134,12 @@ class FrameReceiver:
         self._cv = threading.Condition()  # guards the pairer, the queue and the counters
         self._queue: collections.deque = collections.deque()
         self._ae = self._server = self._worker = self._out = None
-        self._closing = False
-        self._stopped = False
+        self._closing = self._stopped = False
         self._max_pairs: int | None = None
         self._counts = collections.Counter()
         self._rejections = collections.Counter()
         self._last_rejections: collections.deque = collections.deque(maxlen=20)
-        self._decode_s = 0.0
-        self._pose_s = 0.0
-        self._latency_s = 0.0
+        self._decode_s = self._pose_s = self._latency_s = 0.0
         self._t_first_frame = self._t_last_line = self._t_started = None
         self._tracker_stats = self.tracker.stats()
 
@@ -435,26 +215,16 @@ class FrameReceiver:
         """Receive (starting if needed) until Ctrl-C, until ``max_pairs`` pairs have their line, or
         for ``timeout_s`` seconds; then stop and return :meth:`stats`. On a timeout the pairs
         already received still get their poses; on Ctrl-C only the one in progress does."""
-        if max_pairs is not None and (isinstance(max_pairs, bool) or not isinstance(max_pairs, int) or max_pairs < 1):
-            raise ValueError(f"max_pairs must be None or an integer >= 1, got {max_pairs!r}")
-        if timeout_s is not None and not (isinstance(timeout_s, (int, float)) and math.isfinite(timeout_s)
-                                          and timeout_s > 0):
-            raise ValueError(f"timeout_s must be None or a finite number of seconds > 0, got {timeout_s!r}")
+        check_count("max_pairs", max_pairs)
+        check_positive("timeout_s", timeout_s, "a finite number of seconds > 0")
         with self._cv:
             self._max_pairs = max_pairs
         if self._server is None:
             self.start()
-        deadline = None if timeout_s is None else time.monotonic() + timeout_s
         interrupted = False
         try:
             with self._cv:
-                while not self._closing:
-                    if max_pairs is not None and self._counts["pairs_processed"] >= max_pairs:
-                        break
-                    remaining = None if deadline is None else deadline - time.monotonic()
-                    if remaining is not None and remaining <= 0:
-                        break
-                    self._cv.wait(0.5 if remaining is None else min(0.5, remaining))
+                self._wait(lambda: self._closing or self._at_limit(), timeout_s)
         except KeyboardInterrupt:
             interrupted = True
             log.info("interrupted: stopping the receiver")
@@ -464,13 +234,18 @@ class FrameReceiver:
 
     def wait_for_pairs(self, n: int, timeout_s: float) -> bool:
         """Block until ``n`` pairs have their line (True) or ``timeout_s`` passed (False)."""
-        deadline = time.monotonic() + timeout_s
         with self._cv:
-            while self._counts["pairs_processed"] < n:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    return False
-                self._cv.wait(remaining)
+            return self._wait(lambda: self._counts["pairs_processed"] >= n, timeout_s)
+
+    def _wait(self, done: Callable[[], bool], timeout_s: float | None) -> bool:
+        """Wait (holding the lock) until ``done()`` (True) or ``timeout_s`` passed (False; None:
+        no limit), waking at least every 0.5 s so that Ctrl-C is seen."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while not done():
+            remaining = None if deadline is None else deadline - time.monotonic()
+            if remaining is not None and remaining <= 0:
+                return False
+            self._cv.wait(0.5 if remaining is None else min(0.5, remaining))
         return True
 
     # --- the network side (pynetdicom's association threads) ------------------------------------
@@ -492,22 +267,10 @@ class FrameReceiver:
         if closing:
             return self._reject(STATUS_OUT_OF_RESOURCES, uid, sop_class, "the receiver is stopping")
         try:
-            if sop_class not in X_RAY_SOP_CLASSES:  # refused before decoding anything
-                raise XRayObjectRejected(STATUS_SOP_CLASS_NOT_SUPPORTED,
-                                         f"SOP class {sop_class} is not an X-ray angiographic or RF image")
-            try:
-                ds = event.dataset
-                ds.file_meta = event.file_meta
-            except Exception as exc:
-                raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"the data set cannot be decoded: "
-                                                                  f"{type(exc).__name__}: {exc}") from None
-            frames = decode_xray_object(ds, self.views, sop_class_uid=sop_class, air_value=self.air_value,
-                                        match_tolerance_mm=self.match_tolerance_mm)
+            frames = decode_c_store(event, self.views, air_value=self.air_value,
+                                    match_tolerance_mm=self.match_tolerance_mm)
         except XRayObjectRejected as exc:
             return self._reject(exc.status, uid, sop_class, exc.reason)
-        except Exception as exc:  # anything unforeseen in a sender's object: refuse it, keep serving
-            log.exception("unexpected error decoding object %s", uid)
-            return self._reject(STATUS_CANNOT_UNDERSTAND, uid, sop_class, f"{type(exc).__name__}: {exc}")
         now = time.perf_counter()
         share = (now - t0) / len(frames)
         with self._cv:
@@ -540,8 +303,6 @@ class FrameReceiver:
             log.warning("pair %d skipped: %d pairs wait for the pose (max_queued_pairs)", index, len(self._queue))
 
     def _reject(self, status: int, uid: str, sop_class: str, reason: str):
-        from pydicom.dataset import Dataset
-
         log.warning("rejected object %s (SOP class %s) with status 0x%04X: %s", uid or "(no UID)", sop_class,
                     status, reason)
         with self._cv:
@@ -549,10 +310,7 @@ class FrameReceiver:
             self._rejections[f"0x{status:04X}"] += 1
             self._last_rejections.append({"instance_uid": uid, "sop_class_uid": sop_class, "status": status,
                                           "reason": reason})
-        response = Dataset()
-        response.Status = status
-        response.ErrorComment = reason[:64]  # LO: at most 64 characters
-        return response
+        return rejection_response(status, reason)
 
     # --- the pose worker ----------------------------------------------------------------------
 
@@ -674,3 +432,4 @@ def listen(views: Sequence[View], *, port: int = 11112, output_path: str | os.Pa
             receiver.stop(drain=False)
             raise
     return receiver.serve_forever(max_pairs=max_pairs, timeout_s=timeout_s)
+

@@ -3,7 +3,8 @@ end on loopback.
 
 A synthetic biplane cine (three frames per plane, the transducer moving a little between frames)
 is rendered on the paper's biplane views, written as XA objects as a C-arm writes them, and sent
-with DCMTK's ``storescu`` (where installed) and with pynetdicom's own SCU. The receiver runs the
+with DCMTK's ``storescu`` (where installed) and with :func:`histostudy.lab.send_frames` (pynetdicom's
+SCU). The receiver runs the
 shipped learned stages (real frames carry no labels for the oracles); each pose is compared with a
 :class:`~histostudy.pose.Tracker` given the same frames as arrays with the same seed.
 """
@@ -24,7 +25,7 @@ from pydicom.uid import ExplicitVRLittleEndian, generate_uid
 from histostudy.geometry import transform_from_params
 from histostudy.imaging import (default_biplane, detector_counts, load_frame, random_background, render_frame,
                                 write_xa, xa_dataset)
-from histostudy.lab import FrameReceiver, XRayObjectRejected, decode_xray_object, listen
+from histostudy.lab import FrameReceiver, XRayObjectRejected, decode_xray_object, listen, send_frames
 from histostudy.pose import Tracker, pose_record
 from histostudy.transducer import TransducerModel, pose_facing
 
@@ -96,19 +97,23 @@ def read_lines(path):
     return [json.loads(line) for line in path.read_text().splitlines()]
 
 
-def send_with_pynetdicom(port, datasets, abort=False):
-    """C-STORE each dataset (or file path) in one association; the statuses, in order."""
+def send(port, objects):
+    """C-STORE each object (file path or dataset) in one association; the statuses, in order."""
+    return send_frames(objects, "127.0.0.1", port, calling_ae_title="TESTSCU")
+
+
+def send_and_abort(port, path):
+    """A sender that stores one file and then aborts its association (A-ABORT) instead of releasing it."""
     from pynetdicom import AE
 
-    datasets = [pydicom.dcmread(d) if not isinstance(d, Dataset) else d for d in datasets]
+    ds = pydicom.dcmread(path)
     ae = AE(ae_title="TESTSCU")
-    for uid in dict.fromkeys(str(ds.SOPClassUID) for ds in datasets):
-        ae.add_requested_context(uid, ExplicitVRLittleEndian)
+    ae.add_requested_context(ds.SOPClassUID, ExplicitVRLittleEndian)
     assoc = ae.associate("127.0.0.1", port, ae_title="HISTOSTUDY")
     assert assoc.is_established
-    statuses = [int(assoc.send_c_store(ds).Status) for ds in datasets]
-    assoc.abort() if abort else assoc.release()
-    return statuses
+    status = int(assoc.send_c_store(ds).Status)
+    assoc.abort()
+    return status
 
 
 def ct_dataset():
@@ -245,24 +250,72 @@ def test_listen_serves_until_its_timeout_and_answers_c_echo(views, tmp_path):
     assert (tmp_path / "p.jsonl").read_text() == ""
 
 
+# --- the sender ------------------------------------------------------------------------------------
+
+
+def free_port():
+    """A TCP port nothing listens on (bound, then closed)."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def test_send_frames_checks_its_arguments_before_connecting(small_views, tmp_path):
+    ds, _ = small_object(small_views[0])
+    with pytest.raises(ValueError, match=r"port must be an integer in 1..65535, got 0"):
+        send_frames([ds], "127.0.0.1", 0)
+    with pytest.raises(ValueError, match="calling_ae_title must be 1-16 ASCII"):
+        send_frames([ds], "127.0.0.1", 104, calling_ae_title="")
+    with pytest.raises(ValueError, match="paths must name at least one DICOM object"):
+        send_frames([], "127.0.0.1", 104)
+    with pytest.raises(FileNotFoundError, match=r"paths\[0\] '.*missing.dcm': no such file"):
+        send_frames([tmp_path / "missing.dcm"], "127.0.0.1", 104)
+    (tmp_path / "text.dcm").write_text("not DICOM")
+    with pytest.raises(ValueError, match=r"paths\[0\] '.*text.dcm' is not a readable DICOM file"):
+        send_frames([tmp_path / "text.dcm"], "127.0.0.1", 104)
+    del ds.file_meta
+    with pytest.raises(ValueError, match="lacks its SOPClassUID .* or its file meta TransferSyntaxUID"):
+        send_frames([ds], "127.0.0.1", 104)
+
+
+def test_send_frames_raises_connection_error_when_unreachable_or_rejected(small_views):
+    from pynetdicom import AE
+
+    ds, _ = small_object(small_views[0])
+    with pytest.raises(ConnectionError, match=r"HISTOSTUDY@127.0.0.1:\d+ could not be reached"):
+        send_frames([ds], "127.0.0.1", free_port(), timeout_s=5)
+    scp = AE(ae_title="STRICT")
+    scp.require_called_aet = True  # rejects associations called by another AE title
+    scp.add_supported_context(ds.SOPClassUID, ExplicitVRLittleEndian)
+    server = scp.start_server(("127.0.0.1", 0), block=False)
+    try:
+        with pytest.raises(ConnectionError, match="rejected the association"):
+            send_frames([ds], "127.0.0.1", server.server_address[1], ae_title="HISTOSTUDY", timeout_s=5)
+    finally:
+        server.shutdown()
+
+
 # --- end to end on loopback ------------------------------------------------------------------------
 
 
 @pytest.mark.slow
-def test_a_cine_sent_by_storescu_gets_a_pose_per_pair_as_a_direct_tracker(cine, views, model, direct, tmp_path):
+@pytest.mark.parametrize("sender", ["storescu", "send_frames"])
+def test_a_cine_sent_gets_a_pose_per_pair_as_a_direct_tracker(cine, views, model, direct, tmp_path, sender):
     """Every frame pair of the two planes' cines gets its line, with the pose a Tracker finds on the
-    same frames as arrays; on_pose sees each record as written. With DCMTK's storescu where it is
-    installed, else with pynetdicom's SCU."""
+    same frames as arrays; on_pose sees each record as written. Sent by DCMTK's storescu (where it
+    is installed) and by send_frames."""
+    if sender == "storescu" and not shutil.which("storescu"):
+        pytest.skip("DCMTK's storescu is not installed")
     out = tmp_path / "poses.jsonl"
     seen = []
     paths = [str(cine["paths"][v.name]) for v in views]
     with FrameReceiver(views, model, output_path=out, port=0, seed=SEED, on_pose=seen.append) as receiver:
-        if shutil.which("storescu"):
+        if sender == "storescu":
             done = subprocess.run(["storescu", "-aec", "HISTOSTUDY", "127.0.0.1", str(receiver.port), *paths],
                                   capture_output=True, text=True, timeout=60)
             assert done.returncode == 0, done.stderr
         else:
-            assert send_with_pynetdicom(receiver.port, paths) == [0, 0]
+            assert send(receiver.port, paths) == [0, 0]
         assert receiver.wait_for_pairs(N_FRAMES, timeout_s=120)
     stats = receiver.stats()
     lines = read_lines(out)
@@ -296,8 +349,7 @@ def test_refused_objects_get_failure_statuses_and_the_other_frames_still_get_pos
     short.SOPInstanceUID = generate_uid(entropy_srcs=["short"])
     out = tmp_path / "poses.jsonl"
     with FrameReceiver(views, model, output_path=out, port=0, seed=SEED) as receiver:
-        statuses = send_with_pynetdicom(receiver.port, [ct_dataset(), cine["paths"]["A"], bad_geometry, short,
-                                                        cine["paths"]["B"]])
+        statuses = send(receiver.port, [ct_dataset(), cine["paths"]["A"], bad_geometry, short, cine["paths"]["B"]])
         assert receiver.wait_for_pairs(N_FRAMES, timeout_s=120)
     assert statuses == [0x0122, 0x0000, 0xC000, 0xA900, 0x0000]
     stats = receiver.stats()
@@ -317,11 +369,11 @@ def test_an_aborted_association_and_a_dropped_connection_leave_the_receiver_serv
     A's and gets its pose."""
     out = tmp_path / "poses.jsonl"
     with FrameReceiver(views, model, output_path=out, port=0, seed=SEED) as receiver:
-        assert send_with_pynetdicom(receiver.port, [cine["paths"]["A0"]], abort=True) == [0]
+        assert send_and_abort(receiver.port, cine["paths"]["A0"]) == 0
         with socket.create_connection(("127.0.0.1", receiver.port), timeout=5) as raw:
             # PDU type 0x01 (A-ASSOCIATE-RQ) announcing 200 bytes, then only 10 of them
             raw.sendall(bytes([0x01, 0x00]) + (200).to_bytes(4, "big") + b"\x00\x01" + b"\x00" * 8)
-        assert send_with_pynetdicom(receiver.port, [cine["paths"]["B0"]]) == [0]
+        assert send(receiver.port, [cine["paths"]["B0"]]) == [0]
         assert receiver.wait_for_pairs(1, timeout_s=120)
     stats = receiver.stats()
     lines = read_lines(out)
@@ -340,7 +392,7 @@ def test_a_pair_whose_pose_fails_is_a_line_with_the_error(views, tmp_path):
     flat = np.full(views[0].shape, 3000, np.uint16)
     objects = [xa_dataset(v, flat, acquisition_time=T0, uid_seed=f"flat/{v.name}") for v in views]
     with FrameReceiver(views, output_path=out, port=0, seed=SEED, on_pose=broken_callback) as receiver:
-        assert send_with_pynetdicom(receiver.port, objects) == [0, 0]
+        assert send(receiver.port, objects) == [0, 0]
         assert receiver.wait_for_pairs(1, timeout_s=60)
     (line,) = read_lines(out)
     assert line["accepted"] is False and line["tracking"] is None

@@ -1,0 +1,155 @@
+"""X-ray objects sent to a DICOM Storage SCP (C-STORE): the C-arm's end of the cable, for tests,
+demonstrations and replaying a lab's recorded cines to :class:`~.receiver.FrameReceiver` (§II-A).
+
+:func:`send_frames` opens one association (pynetdicom's SCU) with the receiver, proposes each
+object's SOP class with its own transfer syntax (and the uncompressed little-endian ones), stores
+the objects in order and releases the association; it returns the C-STORE status of each object
+(0x0000 success; the receiver's refusals in :data:`.xray_objects.REJECTION_STATUSES`).
+
+The ``check_*`` functions are the argument checks of both ends (AE titles, ports, hosts, counts,
+timeouts), which the receiver shares; each raises ValueError naming the argument and its value.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+__all__ = ["send_frames"]
+
+
+def check_ae_title(value, name: str = "ae_title") -> str:
+    """A DICOM AE title (1-16 ASCII characters, no backslash), stripped; else ValueError naming ``name``."""
+    if not isinstance(value, str) or not 1 <= len(value.strip()) <= 16 or not value.isascii() or "\\" in value:
+        raise ValueError(f"{name} must be 1-16 ASCII characters without a backslash, got {value!r}")
+    return value.strip()
+
+
+def check_port(value, name: str = "port", *, allow_zero: bool = True) -> int:
+    """A TCP port (0..65535; 0, any free one, only where ``allow_zero``); else ValueError naming ``name``."""
+    low = 0 if allow_zero else 1
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not low <= value <= 65535:
+        raise ValueError(f"{name} must be an integer in {low}..65535" + (" (0: any free port)" if allow_zero else "")
+                         + f", got {value!r}")
+    return int(value)
+
+
+def check_host(value, name: str = "host") -> str:
+    """A host name or address (a non-empty string); else ValueError naming ``name``."""
+    if not isinstance(value, str) or not value.strip():
+        raise ValueError(f"{name} must be a host name or address, e.g. '127.0.0.1', got {value!r}")
+    return value.strip()
+
+
+def check_positive(name: str, value, what: str = "a finite number > 0", *, optional: bool = True) -> None:
+    """ValueError naming ``name`` unless ``value`` is a finite real number > 0 (or None where
+    ``optional``); ``what`` says what it must be (with its unit) in the message."""
+    if value is None and optional:
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or not math.isfinite(value) \
+            or value <= 0:
+        raise ValueError(f"{name} must be {'None or ' if optional else ''}{what}, got {value!r}")
+
+
+def check_count(name: str, value) -> None:
+    """ValueError naming ``name`` unless ``value`` is None or an integer >= 1."""
+    if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1):
+        raise ValueError(f"{name} must be None or an integer >= 1, got {value!r}")
+
+
+def send_frames(paths: Sequence, host: str, port: int, *, ae_title: str = "HISTOSTUDY",
+                calling_ae_title: str = "HISTOSTUDY_SCU", timeout_s: float = 30.0) -> list[int]:
+    """Store DICOM objects on a Storage SCP in one association; the C-STORE status of each, in order.
+
+    Args:
+        paths: the objects: DICOM files (paths) or pydicom ``Dataset`` objects with their
+            ``file_meta`` (its ``TransferSyntaxUID``), sent in this order.
+        host, port: the SCP's address and TCP port (1..65535).
+        ae_title: the SCP's AE title (the "called AE title"; the receiver's default
+            ``HISTOSTUDY``).
+        calling_ae_title: this sender's AE title.
+        timeout_s: seconds to wait for the association and for each response.
+
+    Returns:
+        The C-STORE response status per object (an int: 0x0000 success, else the SCP's failure
+        or warning status).
+
+    Raises:
+        FileNotFoundError: a path that does not exist (before anything is sent).
+        ValueError: an object that is not DICOM, lacks its SOP class or transfer syntax, or a bad
+            argument (naming it).
+        ConnectionError: the SCP unreachable, the association rejected or aborted, or no response
+            to an object (naming the object and what was stored before it).
+    """
+    import pydicom
+    from pydicom.dataset import Dataset
+    from pydicom.errors import InvalidDicomError
+    from pydicom.uid import ExplicitVRLittleEndian, ImplicitVRLittleEndian
+    from pynetdicom import AE, evt
+
+    if isinstance(paths, (str, os.PathLike, Dataset)):
+        paths = [paths]
+    items = list(paths)
+    if not items:
+        raise ValueError("paths must name at least one DICOM object, got none")
+    host, port = check_host(host), check_port(port, allow_zero=False)
+    ae_title, calling_ae_title = check_ae_title(ae_title), check_ae_title(calling_ae_title, "calling_ae_title")
+    check_positive("timeout_s", timeout_s, "a finite number of seconds > 0", optional=False)
+
+    datasets, names = [], []
+    for i, item in enumerate(items):
+        if isinstance(item, Dataset):
+            ds, name = item, f"paths[{i}] (SOPInstanceUID {getattr(item, 'SOPInstanceUID', '?')})"
+        elif isinstance(item, (str, os.PathLike)):
+            name = f"paths[{i}] {str(item)!r}"
+            if not Path(item).is_file():
+                raise FileNotFoundError(f"{name}: no such file")
+            try:
+                ds = pydicom.dcmread(item)
+            except (InvalidDicomError, OSError, ValueError) as exc:
+                raise ValueError(f"{name} is not a readable DICOM file: {exc}") from None
+        else:
+            raise ValueError(f"paths[{i}] must be a file path or a pydicom Dataset, got {type(item).__name__}")
+        syntax = getattr(getattr(ds, "file_meta", None), "TransferSyntaxUID", None)
+        if not getattr(ds, "SOPClassUID", None) or syntax is None:
+            raise ValueError(f"{name} lacks its SOPClassUID (0008,0016) or its file meta TransferSyntaxUID "
+                             "(0002,0010): a C-STORE needs both")
+        datasets.append(ds)
+        names.append(name)
+
+    ae = AE(ae_title=calling_ae_title)
+    ae.acse_timeout = ae.dimse_timeout = ae.network_timeout = float(timeout_s)
+    contexts: dict[str, list[str]] = {}
+    for ds in datasets:
+        syntaxes = contexts.setdefault(str(ds.SOPClassUID), [])
+        for uid in (str(ds.file_meta.TransferSyntaxUID), ExplicitVRLittleEndian, ImplicitVRLittleEndian):
+            if uid not in syntaxes:
+                syntaxes.append(uid)
+    for sop_class, syntaxes in contexts.items():
+        ae.add_requested_context(sop_class, syntaxes)
+    where = f"{ae_title}@{host}:{port}"
+    connected = []  # the TCP connection opened: a failed association is then the peer's answer
+    assoc = ae.associate(host, port, ae_title=ae_title, evt_handlers=[(evt.EVT_CONN_OPEN, connected.append)])
+    if not assoc.is_established:
+        why = "could not be reached (is it listening there?)" if not connected else \
+            "rejected the association" if assoc.is_rejected else "aborted the association request"
+        raise ConnectionError(f"the DICOM Storage SCP {where} {why}")
+    statuses: list[int] = []
+    try:
+        for name, ds in zip(names, datasets):
+            try:
+                response = assoc.send_c_store(ds)
+            except ValueError as exc:  # pynetdicom: no accepted presentation context for its class
+                raise ConnectionError(f"{where} accepted no presentation context for {name}: {exc}") from None
+            if "Status" not in response:
+                raise ConnectionError(f"{where} sent no C-STORE response to {name} (after {len(statuses)} "
+                                      "object(s) stored): the association was aborted or timed out")
+            statuses.append(int(response.Status))
+    finally:
+        if assoc.is_established:
+            assoc.release()
+    return statuses
