@@ -237,10 +237,13 @@ def _listen(args) -> int:
     from histostudy.imaging import load_views
     from histostudy.lab import listen
 
+    def started(port: int) -> None:  # the bound port (--port 0: a free one), for whoever sends the frames
+        print(f"listening on {args.host}:{port} as {args.ae_title}; poses to {args.output}", flush=True)
+
     try:
         views = load_views(args.views)
         stats = listen(views, port=args.port, host=args.host, ae_title=args.ae_title, output_path=args.output,
-                       max_pairs=args.max_pairs, timeout_s=args.timeout_s, seed=args.seed)
+                       max_pairs=args.max_pairs, timeout_s=args.timeout_s, seed=args.seed, on_start=started)
     except (ValueError, TypeError, FileNotFoundError, OSError) as exc:
         return _fail("listen", exc)
     print(f"listen: {stats}")
