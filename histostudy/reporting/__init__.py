@@ -4,15 +4,17 @@ that sets each measured value beside the paper's (``report``, with the paper's v
 and the notebooks' figures and 3-D scenes (``viz``). The top layer: nothing below imports it.
 """
 
-from . import (interrupts as _interrupts, paper as _paper, pipeline as _pipeline, profiles as _profiles,
-               report as _report, viz as _viz)
+from . import (interrupts as _interrupts, markdown as _markdown, paper as _paper, pipeline as _pipeline,
+               profiles as _profiles, report as _report, report_html as _report_html, viz as _viz)
 from .interrupts import StudyInterrupted, remove_temporaries, signals_interrupt, stop_kernels
+from .markdown import Markdown, dataframe_markdown, md_code, md_escape, md_link, md_table
 from .paper import PAPER, PaperValue, paper_value
 from .pipeline import NotebookFailed, discover_notebooks, run_study, select_notebooks
 from .profiles import PROFILE_NAMES, Profile, load_profile, notebook_parameters, validate_profile
 from .report import RESULTS_FILE, SectionWriter, build_report, format_measure, load_section, results_coverage
+from .report_html import CARD_COLUMNS, render_html
 from .viz import FEATURE_COLOURS, label_rgb, model_scene, plot_frames_with_labels, plot_pose_overlay, targeting_scene
 
 # every public name of the modules above, as each module's __all__ declares it
-__all__ = list(dict.fromkeys([*_interrupts.__all__, *_paper.__all__, *_pipeline.__all__, *_profiles.__all__,
-                              *_report.__all__, *_viz.__all__]))
+__all__ = list(dict.fromkeys([*_interrupts.__all__, *_markdown.__all__, *_paper.__all__, *_pipeline.__all__,
+                              *_profiles.__all__, *_report.__all__, *_report_html.__all__, *_viz.__all__]))
