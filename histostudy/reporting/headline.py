@@ -1,0 +1,102 @@
+"""The report's first screen: what kind of run it is, the paper's key results beside their
+reproduction, and the contents.
+
+The banner says what the profile is (a smoke run exercises the pipeline and is not a
+reproduction) with the run's study sizes against the paper's. The headline table holds
+:data:`HEADLINE_KEYS`, the results a reader of the paper looks for first (§III: global accuracy and
+Table I's screws row, the angle MAEs, Table II's centre error, the targeting error), each with the
+reproduced value, the difference and the status of
+:func:`~histostudy.reporting.twins.status_markdown` (docs/architecture.md, reporting layer).
+"""
+
+from __future__ import annotations
+
+from .markdown import Markdown, md_code, md_escape, md_link, md_table
+from .paper import PAPER
+from .twins import TWINS_ANCHOR, TWINS_HEADING, section_anchor, status_markdown
+
+__all__ = ["CONTENTS_ANCHOR", "HEADLINE_ANCHOR", "HEADLINE_KEYS", "SOFTWARE_ANCHOR", "contents_markdown",
+           "headline_markdown", "profile_banner", "run_facts"]
+
+#: The paper's key results, in the order of the first screen's table.
+HEADLINE_KEYS = ("seg.global_accuracy", "table1.screws.precision", "table1.screws.recall", "table1.screws.iou",
+                 "table1.screws.accuracy", "angles.azimuth.mae", "angles.elevation.mae",
+                 "table2.center_mae.overall", "targeting.euclidean")
+HEADLINE_ANCHOR, CONTENTS_ANCHOR, SOFTWARE_ANCHOR = "at-a-glance", "contents", "software"
+
+_TITLES = {
+    "smoke": ("WARNING", "Smoke run: it exercises the pipeline; it is not a reproduction."),
+    "standard": ("NOTE", "Standard run: a reproduction at the paper's study sizes, on synthetic data."),
+    "paper": ("NOTE", "Paper run: a reproduction with the paper's hyper-parameters and study sizes, on synthetic "
+                      "data."),
+}
+_SMOKE_NOTE = ("Means over so few samples, and SDs over a single experiment (± 0.00), say nothing about the "
+               "method: the statuses below only show that every stage runs. The `standard` profile runs the "
+               "paper's study sizes.")
+# (notebook number, parameter, what it counts, the paper's count)
+_SIZES = (("02", "n_eval_images", "evaluation frames", "seg.n_images"),
+          ("04", "n_experiments", "pose experiments", "pose.n_studies"),
+          ("05", "n_experiments", "targeting experiments", "targeting.n_studies"))
+
+
+def profile_banner(run: dict, description: str = "") -> list[str]:
+    """The banner's Markdown lines: a GitHub alert (``> [!WARNING]`` for the smoke profile,
+    ``> [!NOTE]`` otherwise) naming the profile, its ``description`` and the run's study sizes."""
+    name = str(run.get("profile", ""))
+    kind, title = _TITLES.get(name, ("NOTE", f"Profile {name}: a custom run; its study sizes decide "
+                                             "whether it reproduces the paper."))
+    body = [f"**{md_escape(title)}**"]
+    if description:
+        body.append(md_escape(description.rstrip(".") + "."))
+    sizes = _study_sizes(run)
+    if sizes:
+        body.append(f"This run: {md_escape(sizes)}.")
+    if name == "smoke":
+        body.append(Markdown(_SMOKE_NOTE))
+    return [f"> [!{kind}]", "> " + " ".join(body), ""]
+
+
+def _study_sizes(run: dict) -> str:
+    parts = []
+    for number, parameter, what, paper_key in _SIZES:
+        nb = next((n for n in run.get("notebooks", []) if n["name"][:2] == number), None)
+        value = (nb or {}).get("parameters", {}).get(parameter)
+        if value is not None:
+            parts.append(f"{value} {what} (the paper: {PAPER[paper_key].format()})")
+    return ", ".join(parts)
+
+
+def headline_markdown(coverage: list[dict]) -> list[str]:
+    """The headline table (:data:`HEADLINE_KEYS`) and its legend, as Markdown lines."""
+    by_key = {row["key"]: row for row in coverage}
+    rows = []
+    for key in HEADLINE_KEYS:
+        row, value = by_key[key], PAPER[key]
+        c, a = row["comparison"], row["agreement"]
+        label = f"{value.label[:1].upper()}{value.label[1:]} ({value.where})"
+        result = md_link(label, section_anchor(row["section"])) if row["section"] else label
+        rows.append([result, value.format(), c["ours_text"] if c else "—", a.difference_text() if a else "—",
+                     status_markdown(row)])
+    legend = ("A number **agrees** when it is within the paper's SD of the paper's value, **differs** beyond it, "
+              "and is ⚠ **far off** beyond three SDs; *why* links to what stands in for the lab in that "
+              f"section. Every other number of the paper is in {md_link(TWINS_HEADING.lower(), TWINS_ANCHOR)}.")
+    return [md_table(["Paper result", "Paper", "This run", "Difference", "Status"], rows), "", legend, ""]
+
+
+def contents_markdown(entries: list[tuple[str, str]]) -> list[str]:
+    """The table of contents: ``entries`` of (title, anchor), as a Markdown list under a heading."""
+    lines = [f'<a id="{CONTENTS_ANCHOR}"></a>', "", "## Contents", ""]
+    lines += [f"- {md_link(title, anchor)}" for title, anchor in entries]
+    return lines + [""]
+
+
+def run_facts(run: dict) -> list[str]:
+    """Profile, seed, commit, creation time and the notebooks with their status, as a Markdown list."""
+    prov = run.get("provenance", {})
+    notebooks = ", ".join(f"{md_code(n['name'])} ({md_escape(n.get('status', 'pending'))}"
+                          + (f", {n['seconds']:.0f} s)" if isinstance(n.get("seconds"), (int, float)) else ")")
+                          for n in run.get("notebooks", []))
+    return [f"- Profile: {md_code(run.get('profile'))} (seed {md_escape(run.get('seed'))})",
+            f"- Commit: {md_code(prov.get('git_commit', 'unknown'))}",
+            f"- Created (UTC): {md_escape(prov.get('created_utc', ''))}",
+            f"- Notebooks: {notebooks}", ""]
