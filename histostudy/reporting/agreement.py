@@ -67,13 +67,15 @@ class Agreement:
         return f"{text} {self.unit}".strip()
 
     def summary(self) -> str:
-        """The status with its measure: ``"far off (33 SD)"``, ``"agrees (at the paper's rounding)"``."""
+        """The status with its measure and, beyond the tolerance, its direction:
+        ``"far off (33 SD above)"``, ``"agrees (0.3 SD)"``, ``"agrees (at the paper's rounding)"``."""
         if self.status == NOT_JUDGED:
             return f"not judged: {self.basis}"
         n = self.n_sd
-        if n is not None:
-            return f"{self.status} ({n:.1f} SD)" if n < 10 else f"{self.status} ({n:.0f} SD)"
-        return f"{self.status} ({self.basis})"
+        if n is None:
+            return f"{self.status} ({self.basis})"
+        side = "" if self.status == AGREES else (" above" if self.difference > 0 else " below")
+        return f"{self.status} ({n:.1f} SD{side})" if n < 10 else f"{self.status} ({n:.0f} SD{side})"
 
 
 def judge(comparison: dict, paper: PaperValue, *, twin: PaperValue | None = None) -> Agreement:

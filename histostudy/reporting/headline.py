@@ -50,7 +50,7 @@ def profile_banner(run: dict, description: str = "") -> list[str]:
         body.append(md_escape(description.rstrip(".") + "."))
     sizes = _study_sizes(run)
     if sizes:
-        body.append(f"This run: {md_escape(sizes)}.")
+        body.append(f"In this run, {md_escape(sizes)}.")
     if name == "smoke":
         body.append(Markdown(_SMOKE_NOTE))
     return [f"> [!{kind}]", "> " + " ".join(body), ""]
@@ -62,8 +62,8 @@ def _study_sizes(run: dict) -> str:
         nb = next((n for n in run.get("notebooks", []) if n["name"][:2] == number), None)
         value = (nb or {}).get("parameters", {}).get(parameter)
         if value is not None:
-            parts.append(f"{value} {what} (the paper: {PAPER[paper_key].format()})")
-    return ", ".join(parts)
+            parts.append(f"{what}: {value} (the paper: {PAPER[paper_key].format()})")
+    return "; ".join(parts)
 
 
 def headline_markdown(coverage: list[dict]) -> list[str]:

@@ -140,9 +140,10 @@ def twins_markdown(coverage: list[dict]) -> list[str]:
         rows.append([f"{row['label']} ({row['where']})", row["paper_text"], c["ours_text"] if c else "—",
                      a.difference_text() if a else "—", status_markdown(row), where, md_code(row["key"])])
     n = sum(1 for row in coverage if row["comparison"])
+    count = (f"all **{n} of {len(coverage)}** have a twin in this run" if n == len(coverage) else
+             f"**{n} of {len(coverage)}** have a twin in this run; each of the others says why not")
     return [f'<a id="{TWINS_ANCHOR}"></a>', "", f"## {md_escape(TWINS_HEADING)}", "",
             f"Every number of the paper's §III (Tables I and II, the statistics in the text, the targeting "
-            f"paragraph) and the abstract beside its reproduction: **{n} of {len(coverage)}** have a twin in "
-            "this run; each of the others says why not.", "",
+            f"paragraph) and the abstract beside its reproduction: {count}.", "",
             md_table(["Paper result", "Paper", "This run", "Difference", "Status", "Reproduced in", "Key"], rows),
             ""]

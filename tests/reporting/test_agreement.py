@@ -26,7 +26,8 @@ def test_status_from_the_paper_sd(ours, status, n_sd):
 def test_far_off_is_flagged_in_the_summary_with_its_size():
     a = judge(_row(24.63), MAE)
     assert a.difference_text() == "+23.57 deg"
-    assert a.summary() == "far off (33 SD)"
+    assert a.summary() == "far off (33 SD above)"
+    assert judge(_row(0.2), PaperValue(1.06, 0.2, "deg")).summary() == "far off (4.3 SD below)"
     assert judge(_row(1.5), MAE).summary() == "agrees (0.6 SD)"
 
 

@@ -12,7 +12,7 @@ def test_smoke_banner_says_it_is_not_a_reproduction_with_the_run_sizes(folder):
     assert lines[0] == "> [!WARNING]" and lines[-1] == ""
     text = lines[1]
     assert "exercises the pipeline; it is not a reproduction" in text
-    assert "4 evaluation frames (the paper: 310), 1 pose experiments (the paper: 10)" in text
+    assert "In this run, evaluation frames: 4 (the paper: 310); pose experiments: 1 (the paper: 10)." in text
     assert "CI and a first look." in text and "targeting" not in text
 
 
@@ -35,7 +35,7 @@ def test_headline_sets_each_key_result_beside_the_paper_with_difference_and_stat
     rows = {key: line for key, line in zip(HEADLINE_KEYS, table[2:])}
     assert rows["angles.azimuth.mae"] == (
         "| [Azimuth MAE (§III)](#03_angles) | 1.06 ± 0.71 deg | 24.63 ± 31.29 deg | +23.57 deg | "
-        "⚠ **far off** (33 SD); why: [03 stand-ins](#03_angles-stand-ins) |")
+        "⚠ **far off** (33 SD above); why: [03 stand-ins](#03_angles-stand-ins) |")
     assert rows["angles.elevation.mae"].endswith("| +0.74 deg | **agrees** (0.3 SD) |")
     assert rows["targeting.euclidean"].endswith("| — | — | not in this run: notebook 05 was not run |")
     for key in HEADLINE_KEYS:
