@@ -4,13 +4,15 @@ A notebook never relies on its own cell outputs to reach the report. It records 
 :class:`SectionWriter` — values, comparisons with the paper, tables (CSV + Markdown), figures
 (PNG), text, and what stands in for the lab — and :meth:`SectionWriter.save` writes
 ``<output>/<section>/results.json``. After the run, :func:`build_report` reads every section's
-``results.json`` and writes ``REPORT.md`` and ``report.html``. Every file is written atomically.
+``results.json`` and writes ``REPORT.md`` and the self-contained ``report.html`` (its first screen
+from ``headline``, the closing table from ``twins``, the page from ``report_html``; the reporting
+layer of docs/architecture.md).
+Every file is written atomically; every piece of plain text is escaped by ``markdown.md_escape``.
 """
 
 from __future__ import annotations
 
 import contextlib
-import html
 import json
 import time
 from dataclasses import dataclass
@@ -19,9 +21,15 @@ from pathlib import Path
 import numpy as np
 
 from histostudy.core import atomic_path, atomic_write_json, atomic_write_text, provenance, to_jsonable
+from .agreement import FAR_OFF, NOT_JUDGED, judge
+from .headline import SOFTWARE_ANCHOR, contents_markdown, headline_markdown, profile_banner, run_facts
+from .markdown import dataframe_markdown, md_code, md_escape, md_table
 from .paper import PAPER, paper_value
+from .profiles import load_profile
+from .report_html import render_html
+from .twins import TWINS_ANCHOR, TWINS_HEADING, results_coverage, section_anchor, stand_ins_anchor, twins_markdown
 
-__all__ = ["RESULTS_FILE", "SectionWriter", "build_report", "format_measure", "load_section", "results_coverage"]
+__all__ = ["RESULTS_FILE", "SectionWriter", "build_report", "format_measure", "load_section"]
 
 RESULTS_FILE = "results.json"
 RUN_FILE = "run.json"
@@ -136,7 +144,7 @@ class SectionWriter:
         csv_path, md_path = tables / f"{name}.csv", tables / f"{name}.md"
         with atomic_path(csv_path) as tmp:
             df.to_csv(tmp, index=index)
-        atomic_write_text(md_path, df.to_markdown(index=index, floatfmt=f".{digits}f") + "\n")
+        atomic_write_text(md_path, dataframe_markdown(df, index=index, digits=digits) + "\n")
         self.tables.append(_Entry(name, caption, f"tables/{name}.md"))
         return df
 
@@ -203,24 +211,19 @@ def load_section(section_dir) -> dict:
 
 # --- report assembly ---------------------------------------------------------------------------
 
-_CSS = """
-body{font-family:system-ui,-apple-system,Segoe UI,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;
-line-height:1.45;color:#222}
-table{border-collapse:collapse;margin:.8em 0;font-size:.92em}
-th,td{border:1px solid #ccc;padding:.3em .6em;text-align:left}
-th{background:#f3f3f3}
-img{max-width:100%;border:1px solid #ddd;margin:.4em 0}
-code{background:#f6f6f6;padding:0 .2em}
-.fail{background:#fee;border:1px solid #c00;padding:.6em}
-"""
+REPORT_TITLE = "histostudy: X-ray C-arm guided automatic targeting for histotripsy, reproduced"
+RUN_ANCHOR = "this-run"
 
 
 def build_report(output_dir, run: dict | None = None) -> tuple[Path, Path]:
-    """Assemble ``REPORT.md`` and ``report.html`` in ``output_dir`` from the sections' results.
+    """Assemble ``REPORT.md`` and the self-contained ``report.html`` in ``output_dir``.
 
     ``run`` is the pipeline's run record (profile, notebook order, timings, failure); by default it
-    is read from ``output_dir/run.json``. Sections are taken in the run's order; a section whose
-    notebook did not finish is named with its failure.
+    is read from ``output_dir/run.json``. The report opens with the profile's banner, the paper's
+    key results beside their reproduction (``headline``) and the contents; then each section in the
+    run's order (a section whose notebook did not finish is named with its failure), every paper
+    result with its reproduced twin (``twins``) and the software versions. ``REPORT.md`` links its
+    figures relatively (GitHub); ``report.html`` embeds them (``report_html``).
     """
     out = Path(output_dir)
     if run is None:
@@ -228,122 +231,114 @@ def build_report(output_dir, run: dict | None = None) -> tuple[Path, Path]:
             run = json.load(fh)
     md = _report_markdown(out, run)
     md_path = atomic_write_text(out / "REPORT.md", md)
-    import markdown as markdown_lib
-
-    body = markdown_lib.markdown(md, extensions=["tables", "fenced_code"])
-    page = (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
-            f"<title>histostudy report ({html.escape(str(run.get('profile', '')))})</title>"
-            f"<style>{_CSS}</style></head><body>\n{body}\n</body></html>\n")
+    page = render_html(md, out, title=f"histostudy report ({run.get('profile', '')})")
     html_path = atomic_write_text(out / "report.html", page)
     return md_path, html_path
 
 
 def _report_markdown(out: Path, run: dict) -> str:
-    lines = [
-        "# histostudy: X-ray C-arm guided automatic targeting for histotripsy, reproduced",
-        "",
-        "Reproduction on synthetic data of Wagner et al., *An X-ray C-arm Guided Automatic Targeting "
-        "System for Histotripsy*, IEEE TBME 70(2):592-602, 2023. Each reproduced figure stands beside "
-        "the paper's value; the paper's experiments used a physical transducer, porcine and phantom "
-        "studies and a UR5e, and each section names what stands in for them here.",
-        "",
-        f"- Profile: `{run.get('profile')}` (seed {run.get('seed')})",
-        f"- Commit: `{run.get('provenance', {}).get('git_commit', 'unknown')}`",
-        f"- Created (UTC): {run.get('provenance', {}).get('created_utc', '')}",
-        f"- Notebooks: {', '.join(n['name'] for n in run.get('notebooks', []))}",
-        "",
-    ]
-    failure = run.get("failure")
-    if failure and failure.get("executed_notebook") is None:
-        lines += [f"> **Run stopped:** notebook `{failure['notebook']}` {failure.get('error')}; its kernel was "
-                  "stopped and its section is incomplete.", ""]
-    elif failure:
-        lines += [f"> **Run failed:** notebook `{failure['notebook']}` at cell {failure.get('cell_index')}: "
-                  f"{failure.get('error')}. Its executed copy is `{failure.get('executed_notebook')}`.", ""]
-    sections = {}
+    sections, body, contents = {}, [], []
     for nb in run.get("notebooks", []):
         name = nb["name"]
         section_dir = out / name
         # a section that did not finish in this run may hold an earlier run's results: not shown
         if nb.get("status", "ok") != "ok" or not (section_dir / RESULTS_FILE).is_file():
-            lines += [f"## {name}", "", f"*No results: status {nb.get('status', 'not run')}.*", ""]
-            continue
-        sections[name] = load_section(section_dir)
-        lines += _section_markdown(name, sections[name], nb)
-    coverage = results_coverage(sections)
-    lines += ["## The paper's results and their reproduced twins", "",
-              "Every number of the paper's §III (Tables I and II, the statistics in the text, the targeting "
-              "paragraph) and the abstract, and the section of this report that reproduces it "
-              f"({sum(1 for c in coverage if c['sections'])} of {len(coverage)} in this run).", "",
-              "| Paper value | Where | Reproduced in |", "|---|---|---|"]
-    for c in coverage:
-        where = ", ".join(f"`{name}`" for name in c["sections"]) or "**not in this run**"
-        lines.append(f"| {_md_cell(c['key'])}: {_md_cell(c['paper_text'])} | {_md_cell(c['where'])} | {where} |")
-    lines.append("")
+            title = name
+            body += [f'<a id="{section_anchor(name)}"></a>', "", f"## {md_escape(name)}", "",
+                     f"*No results: status {md_escape(nb.get('status', 'not run'))}.*", ""]
+        else:
+            sections[name] = load_section(section_dir)
+            title = sections[name].get("title", name)
+            body += _section_markdown(name, sections[name], nb, section_dir)
+        contents.append((title, section_anchor(name)))
+    coverage = results_coverage(sections, run)
     versions = run.get("provenance", {}).get("versions", {})
+    lines = [f"# {md_escape(REPORT_TITLE)}", ""]
+    lines += profile_banner(run, _profile_description(run))
+    lines += _failure_banner(run.get("failure"))
+    lines += headline_markdown(coverage)
+    lines += contents_markdown([("This run", RUN_ANCHOR), *contents, (TWINS_HEADING, TWINS_ANCHOR),
+                                *([("Software", SOFTWARE_ANCHOR)] if versions else [])])
+    lines += [f'<a id="{RUN_ANCHOR}"></a>', "", "## This run", "",
+              "Wagner et al., *An X-ray C-arm Guided Automatic Targeting System for Histotripsy*, IEEE TBME "
+              "70(2):592-602, 2023, reproduced on synthetic data: each section sets its numbers beside the "
+              "paper's and names what stands in for the lab.", "", *run_facts(run)]
+    lines += body
+    lines += twins_markdown(coverage)
     if versions:
-        lines += ["## Software", "", "| package | version |", "|---|---|"]
-        lines += [f"| {k} | {v} |" for k, v in versions.items()]
-        lines.append("")
+        lines += [f'<a id="{SOFTWARE_ANCHOR}"></a>', "", "## Software", "",
+                  md_table(["package", "version"], versions.items()), ""]
     return "\n".join(lines)
 
 
-def results_coverage(sections: dict[str, dict]) -> list[dict]:
-    """Which section compares each of the paper's results (§III, Tables I-II, abstract).
-
-    ``sections``: section name -> its loaded results (:func:`load_section`). Returns one row per
-    paper result (``key``, ``paper_text``, ``where``, ``sections``: the names of the sections with a
-    comparison against it), in :data:`histostudy.reporting.paper.PAPER` order. The report lists them so
-    that a result the study does not reproduce is seen, not silently missing.
-    """
-    rows = []
-    for key, value in PAPER.items():
-        if not any(tag in value.where for tag in ("§III", "Table", "abstract")):
-            continue
-        found = [name for name, res in sections.items()
-                 if any(c.get("paper_key", c.get("key")) == key for c in res.get("comparisons", []))]
-        rows.append({"key": key, "paper_text": value.format(), "where": value.where, "sections": found})
-    return rows
+def _profile_description(run: dict) -> str:
+    source = run.get("profile_source") or run.get("profile")
+    try:
+        return load_profile(source).description if source else ""
+    except (OSError, ValueError, KeyError):
+        return ""
 
 
-def _section_markdown(name: str, res: dict, nb: dict) -> list[str]:
-    lines = [f"## {res.get('title', name)}", ""]
-    lines += [f"*Notebook `{name}` — executed copy `notebooks/{name}.ipynb`, "
-              f"{nb.get('seconds', float('nan')):.1f} s.*", ""]
+def _failure_banner(failure: dict | None) -> list[str]:
+    if not failure:
+        return []
+    if failure.get("executed_notebook") is None:
+        text = (f"**Run stopped:** notebook {md_code(failure['notebook'])} {md_escape(failure.get('error'))}; "
+                "its kernel was stopped and its section is incomplete.")
+    else:
+        text = (f"**Run failed:** notebook {md_code(failure['notebook'])} at cell "
+                f"{md_escape(failure.get('cell_index'))}: {md_escape(failure.get('error'))}. Its executed copy is "
+                f"{md_code(failure.get('executed_notebook'))}.")
+    # the comment keeps Python-Markdown from merging this quote into the profile's banner above it
+    return ["<!-- run failure -->", "", "> [!CAUTION]", f"> {text}", ""]
+
+
+def _section_markdown(name: str, res: dict, nb: dict, section_dir: Path) -> list[str]:
+    seconds = nb.get("seconds")
+    lines = [f'<a id="{section_anchor(name)}"></a>', "", f"## {md_escape(res.get('title', name))}", ""]
+    lines += [f"*Notebook {md_code(name)}, executed copy {md_code(f'notebooks/{name}.ipynb')}"
+              + (f", {seconds:.1f} s.*" if isinstance(seconds, (int, float)) else ".*"), ""]
     for para in res.get("text", []):
         lines += [para, ""]
     comps = res.get("comparisons", [])
     if comps:
-        lines += ["| Quantity | This study | Paper | Source | Note |", "|---|---|---|---|---|"]
-        for c in comps:
-            cells = [c["label"], c["ours_text"], c["paper_text"], c.get("paper_where", ""), c.get("note", "")]
-            lines.append("| " + " | ".join(_md_cell(x) for x in cells) + " |")
-        lines.append("")
+        rows = [[c["label"], c["ours_text"], c["paper_text"], _versus_paper(c), c.get("paper_where", ""),
+                 c.get("note", "")] for c in comps]
+        lines += [md_table(["Quantity", "This study", "Paper", "Difference", "Source", "Note"], rows), ""]
     for t in res.get("tables", []):
-        path = Path(nb.get("output_dir", "")) / t["path"] if nb.get("output_dir") else None
-        md_table = _read_text(path) if path else None
-        lines += [f"**{t['caption'] or t['name']}**", "", md_table or f"(table `{t['path']}` missing)", ""]
+        lines += [f"**{md_escape(t['caption'] or t['name'])}**", "",
+                  _read_text(section_dir / t["path"]) or f"(table {md_code(t['path'])} missing)", ""]
     for f in res.get("figures", []):
-        lines += [f"![{f['caption'] or f['name']}]({name}/{f['path']})", "", f"*{f['caption']}*" if f["caption"] else "", ""]
+        lines += [f"![{md_escape(f['caption'] or f['name'])}]({name}/{f['path']})", ""]
+        if f["caption"]:
+            lines += [f"*{md_escape(f['caption'])}*", ""]
     stand_ins = res.get("stand_ins", [])
     if stand_ins:
-        lines += ["What stands in for the lab:", ""]
-        lines += [f"- {s['lab']} → {s['synthetic']}" for s in stand_ins]
+        lines += [f'<a id="{stand_ins_anchor(name)}"></a>', "", "What stands in for the lab:", ""]
+        lines += [f"- {md_escape(s['lab'])} → {md_escape(s['synthetic'])}" for s in stand_ins]
         lines.append("")
     timings = res.get("timings_s", {})
     if timings:
-        lines.append("Timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in timings.items()))
-        lines.append("")
+        lines += ["Timings: " + md_escape(", ".join(f"{k} {v:.2f} s" for k, v in timings.items())), ""]
     return lines
 
 
-def _md_cell(x) -> str:
-    return str(x).replace("|", "\\|").replace("\n", " ")
+def _versus_paper(comparison: dict) -> str:
+    """The section table's "Difference" cell: ``"+23.57 deg, ⚠ far off (33 SD)"``, or "—"."""
+    value = PAPER.get(comparison.get("paper_key") or "")
+    if value is None:
+        return "—"
+    agreement = judge(comparison, value, twin=PAPER.get(value.twin))
+    if agreement.status == NOT_JUDGED:
+        return "—"
+    flag = "⚠ " if agreement.status == FAR_OFF else ""
+    prefix = "" if agreement.difference is None else f"{agreement.difference_text()}, "
+    return f"{prefix}{flag}{agreement.summary()}"
 
 
-def _read_text(path: Path | None) -> str | None:
+def _read_text(path: Path) -> str | None:
     try:
-        return Path(path).read_text(encoding="utf-8").strip()
+        return path.read_text(encoding="utf-8").strip()
     except OSError:
         return None
 

@@ -73,7 +73,8 @@ def test_report_is_assembled_from_results_files(tmp_path):
     assert "| class   |   n |" in md or "| class" in md
     assert "02_missing" in md and "No results" in md
     html = html_path.read_text()
-    assert "<table>" in html and "01_demo/figures/line.png" in html
+    assert '<table class="cards">' in html and "data:image/png;base64," in html
+    assert "01_demo/figures/line.png" not in html  # embedded, not linked
 
 
 def test_report_names_a_failure(tmp_path):
@@ -103,6 +104,39 @@ def test_report_lists_every_paper_result_and_where_it_is_reproduced(tmp_path):
     run = {"profile": "smoke", "seed": 3, "provenance": {}, "failure": None,
            "notebooks": [{"name": "04_pose", "status": "ok", "seconds": 1.0, "output_dir": str(tmp_path / "04_pose")}]}
     md = build_report(tmp_path, run)[0].read_text()
-    assert "## The paper's results and their reproduced twins" in md
-    assert f"(2 of {len(expected)} in this run)" in md
-    assert "| targeting.euclidean: 1.64 ± 0.34 mm | §III, abstract 1.4 ± 0.5 | **not in this run** |" in md
+    assert md.count("The paper's results and their reproduced twins") == 2  # its heading, and the link in the headline
+    assert md.count("## The paper's results and their reproduced twins") == 1
+    assert f"**2 of {len(expected)}** have a twin in this run" in md
+    assert ("| centre MAE, overall (Table II) | 1.4 ± 0.5 mm | 0.60 mm | -0.80 mm | **differs** (1.6 SD below); see "
+            "[04](#04_pose) | [04\\_pose](#04_pose) | `table2.center_mae.overall` |") in md
+    assert ("| targeting error, Euclidean (§III, abstract 1.4 ± 0.5) | 1.64 ± 0.34 mm | — | — | "
+            "not in this run: notebook 05 was not run |  | `targeting.euclidean` |") in md
+
+
+def test_first_screen_comes_first_and_every_section_is_in_the_contents(tmp_path):
+    _section(tmp_path)
+    run = {"profile": "smoke", "seed": 3, "provenance": {"versions": {"numpy": "2"}}, "failure": None,
+           "notebooks": [{"name": "01_demo", "status": "ok", "seconds": 1.0, "output_dir": str(tmp_path / "01_demo")},
+                         {"name": "06_your_data", "status": "pending"}]}
+    md = build_report(tmp_path, run)[0].read_text()
+    order = ["> [!WARNING]", "| Paper result | Paper | This run | Difference | Status |", "## Contents",
+             "## This run", "## Demo section", "## 06\\_your\\_data", "## The paper's results", "## Software"]
+    assert all(marker in md for marker in order), [marker for marker in order if marker not in md]
+    positions = [md.index(marker) for marker in order]
+    assert positions == sorted(positions)
+    assert "- [Demo section](#01_demo)" in md and "- [06\\_your\\_data](#06_your_data)" in md
+    assert '<a id="01_demo-stand-ins"></a>' in md
+    # a large gap carries its flag in the section's own table too
+    assert "| Centre error | 0.41 ± 0.20 mm | 1.38 ± 0.54 mm | -0.97 mm, differs (1.8 SD below) |" in md
+
+
+def test_tables_with_pipes_in_their_names_stay_tables(tmp_path):
+    w = SectionWriter(tmp_path / "04_pose", "04_pose", "Pose", profile="smoke", seed=3)
+    w.table("variants", pd.DataFrame({"mode": ["paper"], "centre |depth|": [0.5]}), "Centre |error|")
+    w.save()
+    text = (tmp_path / "04_pose/tables/variants.md").read_text()
+    assert text.splitlines()[0] == "| mode | centre \\|depth\\| |"
+    run = {"profile": "smoke", "seed": 3, "provenance": {}, "failure": None,
+           "notebooks": [{"name": "04_pose", "status": "ok", "seconds": 1.0, "output_dir": str(tmp_path / "04_pose")}]}
+    html = build_report(tmp_path, run)[1].read_text()
+    assert ">centre |depth|</th>" in html and "<strong>Centre |error|</strong>" in html
