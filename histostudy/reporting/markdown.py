@@ -12,13 +12,17 @@ with :meth:`~histostudy.reporting.report.SectionWriter.text`) is marked by wrapp
 from __future__ import annotations
 
 import numbers
+import re
 
 __all__ = ["Markdown", "dataframe_markdown", "md_code", "md_escape", "md_link", "md_table"]
 
 # The characters inline Markdown (CommonMark + GitHub tables) can read as syntax, and what each
 # becomes. The backslash comes first so that the escapes added for the others are not escaped again.
-_ESCAPES = (("\\", "\\\\"), ("&", "&amp;"), ("<", "&lt;"), ("|", "\\|"), ("*", "\\*"), ("_", "\\_"),
-            ("`", "\\`"), ("[", "\\["), ("]", "\\]"))
+_ESCAPES = (("\\", "\\\\"), ("&", "&amp;"), ("<", "&lt;"), ("|", "\\|"), ("*", "\\*"), ("`", "\\`"),
+            ("[", "\\["), ("]", "\\]"))
+# An underscore opens or closes emphasis only beside a non-alphanumeric character: one inside a word
+# (06_your_data, in_channels) stays as it is, so names read the same in REPORT.md as rendered.
+_EDGE_UNDERSCORE = re.compile(r"(?<![^\W_])_|_(?![^\W_])")
 
 
 class Markdown(str):
@@ -28,7 +32,8 @@ class Markdown(str):
 def md_escape(text) -> Markdown:
     """Plain ``text`` (anything; ``str()`` is taken) as inline Markdown that shows it literally.
 
-    Escapes ``\\ & < | * _ ` [ ]`` and folds line breaks into spaces (a table row is one line).
+    Escapes ``\\ & < | * ` [ ]``, and ``_`` where it touches a non-alphanumeric character (inside a
+    word it cannot start emphasis), and folds line breaks into spaces (a table row is one line).
     A :class:`Markdown` passes through with its line breaks folded. ``None`` gives ``""``.
     """
     if text is None:
@@ -38,7 +43,7 @@ def md_escape(text) -> Markdown:
     out = " ".join(str(text).splitlines())
     for char, escaped in _ESCAPES:
         out = out.replace(char, escaped)
-    return Markdown(out)
+    return Markdown(_EDGE_UNDERSCORE.sub(r"\\_", out))
 
 
 def md_code(text) -> Markdown:

@@ -21,7 +21,7 @@ def test_standard_paper_and_custom_banners(folder):
     assert "a reproduction at the paper's study sizes" in profile_banner(folder.run("standard"))[1]
     assert "hyper-parameters" in profile_banner(folder.run("paper"))[1]
     custom = profile_banner(folder.run("my_lab"), "Our <own> sizes")[1]
-    assert "Profile my\\_lab: a custom run" in custom and "Our &lt;own> sizes." in custom
+    assert "Profile my_lab: a custom run" in custom and "Our &lt;own> sizes." in custom
 
 
 def test_headline_sets_each_key_result_beside_the_paper_with_difference_and_status(folder):

@@ -12,7 +12,8 @@ import pytest
 
 from histostudy.reporting import Markdown, dataframe_markdown, md_code, md_escape, md_link, md_table, render_html
 
-TRICKY = ["a | b", "x < y & z > w", "*not emphasis*", "snake_case_name", "`tick`", "[not](a link)", "back\\slash",
+TRICKY = ["a | b", "x < y & z > w", "*not emphasis*", "snake_case_name", "_not emphasis_", "__init__ a_b_ _c",
+          "in_channels': 1, 'n_classes", "`tick`", "[not](a link)", "back\\slash",
           "&amp; stays literal", "<b>no tag</b>", "2 * 3 * 4", "line one\nline two", "± 0.5 mm, ≈ 240 x 170", ""]
 
 
@@ -68,6 +69,8 @@ def test_table_keeps_every_cell_in_its_column(tmp_path):
 
 
 def test_markdown_passes_through_and_helpers():
+    assert md_escape("06_your_data") == "06_your_data"  # an underscore inside a word cannot start emphasis
+    assert md_escape("_x_") == "\\_x\\_"
     assert md_escape(Markdown("[x](#y)")) == "[x](#y)"
     assert md_escape(None) == ""
     assert md_code("table1.screws.precision") == "`table1.screws.precision`"

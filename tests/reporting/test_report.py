@@ -108,7 +108,7 @@ def test_report_lists_every_paper_result_and_where_it_is_reproduced(tmp_path):
     assert md.count("## The paper's results and their reproduced twins") == 1
     assert f"**2 of {len(expected)}** have a twin in this run" in md
     assert ("| centre MAE, overall (Table II) | 1.4 ± 0.5 mm | 0.60 mm | -0.80 mm | **differs** (1.6 SD below); see "
-            "[04](#04_pose) | [04\\_pose](#04_pose) | `table2.center_mae.overall` |") in md
+            "[04](#04_pose) | [04_pose](#04_pose) | `table2.center_mae.overall` |") in md
     assert ("| targeting error, Euclidean (§III, abstract 1.4 ± 0.5) | 1.64 ± 0.34 mm | — | — | "
             "not in this run: notebook 05 was not run |  | `targeting.euclidean` |") in md
 
@@ -120,11 +120,11 @@ def test_first_screen_comes_first_and_every_section_is_in_the_contents(tmp_path)
                          {"name": "06_your_data", "status": "pending"}]}
     md = build_report(tmp_path, run)[0].read_text()
     order = ["> [!WARNING]", "| Paper result | Paper | This run | Difference | Status |", "## Contents",
-             "## This run", "## Demo section", "## 06\\_your\\_data", "## The paper's results", "## Software"]
+             "## This run", "## Demo section", "## 06_your_data", "## The paper's results", "## Software"]
     assert all(marker in md for marker in order), [marker for marker in order if marker not in md]
     positions = [md.index(marker) for marker in order]
     assert positions == sorted(positions)
-    assert "- [Demo section](#01_demo)" in md and "- [06\\_your\\_data](#06_your_data)" in md
+    assert "- [Demo section](#01_demo)" in md and "- [06_your_data](#06_your_data)" in md
     assert '<a id="01_demo-stand-ins"></a>' in md
     # a large gap carries its flag in the section's own table too
     assert "| Centre error | 0.41 ± 0.20 mm | 1.38 ± 0.54 mm | -0.97 mm, differs (1.8 SD below) |" in md

@@ -57,7 +57,7 @@ def test_a_missing_tukey_interval_says_the_screws_were_not_predicted(folder):
                                       dict(key="seg.anova_F", label="F", ours=4.0)])
     row = {r["key"]: r for r in results_coverage(_sections(folder), folder.run())}["seg.tukey_screws_vs_background_ci"]
     assert row["comparison"] is None and row["agreement"] is None
-    assert row["reason"].startswith("not computed in [02\\_seg](#02_seg): Tukey's test takes a class")
+    assert row["reason"].startswith("not computed in [02_seg](#02_seg): Tukey's test takes a class")
     assert row["reason"].endswith("this run's screws precision: n/a")
 
 
@@ -68,4 +68,4 @@ def test_reasons_name_the_notebook_that_did_not_run_or_finish(folder):
     assert by_key["targeting.euclidean"]["reason"] == "not in this run: notebook 05 was not run"
     assert by_key["table2.center_mae.overall"]["reason"] == \
         "not in this run: notebook `04_pose` did not finish (failed)"
-    assert by_key["seg.weighted_iou"]["reason"] == "[02\\_seg](#02_seg) records no comparison for it"
+    assert by_key["seg.weighted_iou"]["reason"] == "[02_seg](#02_seg) records no comparison for it"
