@@ -138,7 +138,8 @@ class SectionWriter:
         self.stand_ins.append({"lab": lab, "synthetic": synthetic})
 
     def table(self, name: str, df, caption: str = "", *, index: bool = False, digits: int = 3):
-        """Write a pandas DataFrame as ``tables/<name>.csv`` and ``.md``; returns the DataFrame."""
+        """Write a pandas DataFrame as ``tables/<name>.csv`` and ``.md`` (``dataframe_markdown``: floats
+        with ``digits`` decimals, every cell and column name escaped); returns the DataFrame."""
         _check_name(name)
         tables = self.output_dir / "tables"
         csv_path, md_path = tables / f"{name}.csv", tables / f"{name}.md"
