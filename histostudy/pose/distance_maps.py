@@ -152,6 +152,33 @@ class DistanceMaps:
         counts = np.bincount(labels.ravel().astype(np.intp), minlength=len(Feature))
         return {f: labels == int(f) for f in FEATURE_CLASSES if counts[int(f)] > 0}
 
+    @classmethod
+    def from_maps(cls, view: View, maps: Mapping, *, occlusion_aware: bool) -> "DistanceMaps":
+        """Distance maps made elsewhere, wrapped for :class:`~.cost.PoseCost` without recomputing them
+        (e.g. :class:`~.tracking_maps.RegionMaps`, which writes a tracking region's maps into reused
+        buffers). ``maps``: ``{Feature: (rows, cols) float32}`` distances in pixels of ``view``, one
+        per class present (as :attr:`maps`); ``occlusion_aware`` says how they were made. The
+        arrays are kept, not copied."""
+        out = cls.__new__(cls)
+        out.view = _check_view(view)
+        if occlusion_aware not in (True, False):
+            raise ValueError(f"occlusion_aware must be True or False, got {occlusion_aware!r}")
+        out.occlusion_aware = bool(occlusion_aware)
+        if not isinstance(maps, Mapping):
+            raise TypeError(f"maps must be a dict {{Feature: (rows, cols) float32}}, got {type(maps).__name__}")
+        checked = {}
+        for key, value in maps.items():
+            feature = feature_class(key, "maps")
+            if not isinstance(value, np.ndarray) or value.dtype != np.float32 or value.shape != view.shape:
+                raise ValueError(f"maps[{feature.name}] must be a float32 array of view {view.name!r}'s shape "
+                                 f"{view.shape}, got {getattr(value, 'dtype', type(value).__name__)} "
+                                 f"{getattr(value, 'shape', '')}")
+            checked[feature] = value
+        out.maps = {f: checked[f] for f in FEATURE_CLASSES if f in checked}
+        out.present = tuple(out.maps)
+        out.absent = tuple(f for f in FEATURE_CLASSES if f not in out.maps)
+        return out
+
     @property
     def shape(self) -> tuple[int, int]:
         return self.view.shape
