@@ -2,12 +2,14 @@
 (``nets``), their input transforms (``preprocess``), the hybrid synthetic training images
 (``datasets``); training: its configuration and stages (``training_config``), losses and validation
 metrics (``training_losses``), the loop (``training``) and the export (``training_export``);
-checkpoints with their provenance (``checkpoints``), the segmenters (``segment``) and the
+checkpoints with their provenance (``checkpoints``), the segmenters (``segment``), the U-Net's fast
+CPU inference on a region for tracking (``fast_segment``) and the
 orientation angles and sources (``orientation``). The pose estimation above this layer takes a
 segmenter and an orientation source.
 """
 
-from . import (nets as _nets, checkpoints as _checkpoints, datasets as _datasets, orientation as _orientation,
+from . import (nets as _nets, checkpoints as _checkpoints, datasets as _datasets, fast_segment as _fast_segment,
+               orientation as _orientation,
                preprocess as _preprocess, segment as _segment, training as _training,
                training_config as _training_config, training_export as _training_export,
                training_losses as _training_losses)
@@ -16,6 +18,7 @@ from .checkpoints import (MODELS_DIR, load_checkpoint, load_network, load_shippe
                           sha256_file, shipped_model, training_summary)
 from .datasets import (HybridFrames, HybridImageDataset, RenderConfig, SPLIT_CODES, default_cache_dir, flip_angles,
                        random_training_pose, true_angles)
+from .fast_segment import FastUNet
 from .orientation import (LearnedOrientation, N_ORIENTATION_CLASSES, OracleOrientation, OrientationSource,
                           angles_from_direction, beam_direction_of_pose, default_vgg19, direction_candidates,
                           hemisphere_angles, hemisphere_directions, orientation_angle_error, orientation_class,
@@ -29,6 +32,7 @@ from .training_export import export
 from .training_losses import angle_loss, dice_loss
 
 # every public name of the modules above, as each module's __all__ declares it
-__all__ = list(dict.fromkeys([*_nets.__all__, *_checkpoints.__all__, *_datasets.__all__, *_orientation.__all__,
+__all__ = list(dict.fromkeys([*_nets.__all__, *_checkpoints.__all__, *_datasets.__all__, *_fast_segment.__all__,
+                              *_orientation.__all__,
                               *_preprocess.__all__, *_segment.__all__, *_training.__all__, *_training_config.__all__,
                               *_training_export.__all__, *_training_losses.__all__]))

@@ -1,0 +1,151 @@
+"""The U-Net of §II-B.2 made fast for tracking on CPU: :class:`FastUNet`, labels of a region at the
+network's resolution.
+
+:class:`~.segment.UNetSegmenter` (the torch checkpoint, the source of truth) segments a whole frame
+and upsamples the six logit channels bilinearly to the frame's full resolution before the
+arg-max. For tracking (``histostudy.pose.Tracker(fast=True)``, docs/tracking.md) most of that work
+is waste: the logits carry no detail finer than the network's input grid, and the pose only needs
+the region where the transducer projects. :class:`FastUNet` therefore
+
+- folds each batch normalisation into the convolution before it (inference only: the same
+  function, one pass over memory less per layer) and keeps activations channels-last, which the
+  CPU convolutions run about 1.5-2x faster than NCHW (docs/tracking.md);
+- runs the network on a box of the input (the same :func:`~.preprocess.prepare_image` transform,
+  standardised over the whole frame as in training, then cropped), padded as
+  :class:`~.nets.unet.UNet` pads;
+- takes the arg-max at the network's resolution: the labels live on the grid of
+  ``view.scaled(scale)`` restricted to the box (pixel centres as in
+  :meth:`~histostudy.imaging.carm.View.scaled`), not on the frame's.
+
+Boxes are ``(row0, row1, col0, col1)`` in full-frame pixels, half-open, with all four multiples
+of :attr:`FastUNet.stride_px` (one network-input pixel for every ``1 / scale`` frame pixels,
+``histostudy.pose.tracking_roi`` aligns them to a whole U-Net stride). Measured alternatives that
+did not pay off (TorchScript freezing, ``torch.compile``, int8 static quantisation, ONNX Runtime)
+are in docs/tracking.md.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+
+from histostudy.imaging import Frame
+from .segment import UNetSegmenter
+
+__all__ = ["FastUNet"]
+
+
+def _fold_batch_norms(network):
+    """A copy of a :class:`~.nets.unet.UNet` (eval mode) with every ``Conv2d -> BatchNorm2d`` pair of
+    its blocks folded into one convolution."""
+    from torch import nn
+    from torch.nn.utils.fusion import fuse_conv_bn_eval
+
+    net = copy.deepcopy(network).eval()
+    for blocks in (net.down, net.dec):
+        for j, block in enumerate(blocks):
+            layers, folded, i = list(block), [], 0
+            while i < len(layers):
+                if (i + 1 < len(layers) and isinstance(layers[i], nn.Conv2d)
+                        and isinstance(layers[i + 1], nn.BatchNorm2d)):
+                    folded.append(fuse_conv_bn_eval(layers[i], layers[i + 1]))
+                    i += 2
+                else:
+                    folded.append(layers[i])
+                    i += 1
+            blocks[j] = nn.Sequential(*folded)
+    return net
+
+
+class FastUNet:
+    """Fast CPU inference of a :class:`~.segment.UNetSegmenter`'s network on a region of a frame.
+
+    Args:
+        segmenter: the :class:`UNetSegmenter` whose checkpoint (weights, input scale) this runs;
+            it is not modified (its network is copied and folded).
+
+    Attributes:
+        segmenter: the reference segmenter (the torch checkpoint as loaded).
+        scale: the network's input scale (the checkpoint's ``input_scale``, 0.5 for the shipped
+            U-Net): labels have ``scale`` times the frame's rows and columns.
+        stride_px: frame pixels per network-input pixel (``1 / scale``); box corners are multiples of it.
+        network_stride_px: frame pixels per cell of the U-Net's coarsest level (``2**depth / scale``).
+    """
+
+    def __init__(self, segmenter: UNetSegmenter):
+        import torch
+
+        if not isinstance(segmenter, UNetSegmenter):
+            raise TypeError(f"segmenter must be a histostudy.learning.UNetSegmenter, got {type(segmenter).__name__}")
+        self.segmenter = segmenter
+        self.scale = float(segmenter.scale)
+        self.stride_px = int(round(1.0 / self.scale))
+        self._depth = int(segmenter.network.depth)
+        self.network_stride_px = self.stride_px * 2 ** self._depth
+        self._net = _fold_batch_norms(segmenter.network).to(memory_format=torch.channels_last)
+
+    def segment_region(self, frame: Frame, box) -> np.ndarray:
+        """``uint8`` labels (:class:`~histostudy.transducer.Feature` values) of ``box`` of ``frame``
+        at the network's resolution: shape ``((row1 - row0) * scale, (col1 - col0) * scale)``,
+        the arg-max of the logits on the grid of ``frame.view.scaled(scale)`` cut to the box."""
+        import torch
+        from torch.nn import functional as F
+
+        from .preprocess import prepare_image
+
+        if not isinstance(frame, Frame):
+            raise TypeError(f"frame must be a histostudy.imaging.frame.Frame, got {type(frame).__name__}")
+        r0, r1, c0, c1 = self._check_box(box, frame.shape)
+        try:
+            x = prepare_image(frame.image, self.scale)
+        except ValueError as exc:
+            raise ValueError(f"frame of view {frame.view.name!r} with shape {frame.image.shape} cannot be "
+                             f"segmented at scale {self.scale}: {exc}") from None
+        k = self.stride_px
+        x = np.ascontiguousarray(x[r0 // k:r1 // k, c0 // k:c1 // k])
+        with torch.no_grad():
+            t = torch.from_numpy(x)[None, None]
+            rows, cols = x.shape
+            m = 2 ** self._depth
+            pad_r, pad_c = (-rows) % m, (-cols) % m
+            if pad_r or pad_c:  # as UNet.forward pads
+                mode = "reflect" if min(rows, cols) > max(pad_r, pad_c) else "replicate"
+                t = F.pad(t, (0, pad_c, 0, pad_r), mode=mode)
+            logits = self._forward(t.contiguous(memory_format=torch.channels_last))
+            return logits[0, :, :rows, :cols].argmax(dim=0).to(torch.uint8).numpy()
+
+    def _forward(self, x):
+        """The U-Net's layers (:meth:`~.nets.unet.UNet.forward` without its padding) on ``x``,
+        whose rows and columns are multiples of ``2**depth``."""
+        from torch.nn import functional as F
+        import torch
+
+        net, skips = self._net, []
+        for i, block in enumerate(net.down):
+            if i:
+                x = F.max_pool2d(x, 2)
+            x = block(x)
+            skips.append(x)
+        skips.pop()
+        for up, dec in zip(net.up, net.dec):
+            x = dec(torch.cat([skips.pop(), up(x)], dim=1))
+        return net.head(x)
+
+    def _check_box(self, box, shape) -> tuple[int, int, int, int]:
+        try:
+            r0, r1, c0, c1 = (int(b) for b in box)
+            if any(int(b) != b for b in box):
+                raise ValueError
+        except (TypeError, ValueError):
+            raise ValueError(f"box must be 4 integers (row0, row1, col0, col1) in frame pixels, got {box!r}") from None
+        rows, cols = shape
+        k = self.stride_px
+        if not (0 <= r0 < r1 <= rows and 0 <= c0 < c1 <= cols):
+            raise ValueError(f"box {box!r} must lie in the frame's {shape} pixels with row0 < row1, col0 < col1")
+        if any(b % k for b in (r0, r1, c0, c1)):
+            raise ValueError(f"box {box!r} must have its corners on multiples of {k} frame pixels (1 / scale)")
+        return r0, r1, c0, c1
+
+    def __repr__(self) -> str:
+        return f"FastUNet(scale={self.scale}, network_stride_px={self.network_stride_px})"

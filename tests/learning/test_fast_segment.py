@@ -1,0 +1,102 @@
+"""Tests of histostudy.learning.FastUNet: the U-Net with folded batch norms, channels-last, on a
+region, checked against the torch checkpoint run eagerly (the source of truth)."""
+
+import numpy as np
+import pytest
+import torch
+
+from histostudy.imaging import Frame, default_biplane, random_background, render_frame
+from histostudy.learning import FastUNet, UNet, UNetSegmenter, default_segmenter, prepare_image
+from histostudy.transducer import TransducerModel, pose_facing
+
+
+def _eager_labels(segmenter, frame):
+    """The checkpoint's arg-max at the network's resolution, run as trained (NCHW, batch norms)."""
+    with torch.no_grad():
+        x = torch.from_numpy(prepare_image(frame.image, segmenter.scale))[None, None]
+        return segmenter.network.eval()(x)[0].argmax(dim=0).numpy().astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def random_unet():
+    torch.manual_seed(0)
+    net = UNet(base_width=4, depth=3).eval()
+    with torch.no_grad():  # batch-norm statistics other than the identity, so that folding matters
+        for m in net.modules():
+            if isinstance(m, torch.nn.BatchNorm2d):
+                m.running_mean.uniform_(-0.5, 0.5)
+                m.running_var.uniform_(0.5, 2.0)
+                m.weight.uniform_(0.5, 1.5)
+                m.bias.uniform_(-0.2, 0.2)
+    return UNetSegmenter(net, scale=0.5)
+
+
+def test_folded_channels_last_network_gives_the_eager_logits(random_unet):
+    fast = FastUNet(random_unet)
+    x = torch.randn(1, 1, 64, 96)
+    with torch.no_grad():
+        reference = random_unet.network(x)
+        out = fast._forward(x.contiguous(memory_format=torch.channels_last))
+    torch.testing.assert_close(out, reference, rtol=1e-4, atol=1e-4)
+    assert random_unet.network.down[0][1].__class__ is torch.nn.BatchNorm2d  # the checkpoint is untouched
+    assert (fast.scale, fast.stride_px, fast.network_stride_px) == (0.5, 2, 16)
+
+
+def test_region_labels_are_the_network_resolution_labels_of_the_box(random_unet):
+    view = default_biplane()[0].scaled(0.25)  # 240 x 310
+    image = np.random.default_rng(1).standard_normal(view.shape).astype(np.float32)
+    frame = Frame(image, view)
+    fast = FastUNet(random_unet)
+    full = fast.segment_region(frame, (0, 240, 0, 310))
+    np.testing.assert_array_equal(full, _eager_labels(random_unet, frame))
+    part = fast.segment_region(frame, (32, 160, 64, 224))
+    assert part.shape == (64, 80) and part.dtype == np.uint8
+
+
+@pytest.fixture(scope="module")
+def shipped_and_frame():
+    segmenter = default_segmenter()
+    if segmenter is None:
+        pytest.skip("the shipped U-Net (data/models/unet_standard) is not available")
+    view = default_biplane()[0]
+    rng = np.random.default_rng(11)
+    T = pose_facing((0.1, 1.0, 0.2), focal_point_mm=(3.0, -4.0, 6.0), axial_rotation_rad=0.4)
+    frame = render_frame(TransducerModel.build(spacing_mm=0.47), T, view, rng=rng,
+                         background=random_background(rng, "phantom"))
+    return segmenter, frame
+
+
+def test_fast_labels_agree_with_the_checkpoint_on_a_rendered_frame(shipped_and_frame):
+    """The fast path's labels against the torch checkpoint run eagerly, at the network's resolution:
+    on the whole frame, and on a tracking region (the crop changes the context near its edges)."""
+    segmenter, frame = shipped_and_frame
+    fast = FastUNet(segmenter)
+    reference = _eager_labels(segmenter, frame)
+    whole = fast.segment_region(frame, (0, 960, 0, 1240))
+    assert whole.shape == reference.shape == (480, 620)
+    assert np.mean(whole == reference) >= 0.999
+    foreground = (whole > 0) | (reference > 0)
+    assert foreground.sum() > 10000 and np.mean(whole[foreground] == reference[foreground]) >= 0.995
+    box = (64, 896, 128, 1152)
+    region = fast.segment_region(frame, box)
+    in_box = reference[32:448, 64:576]
+    assert region.shape == in_box.shape
+    assert np.mean(region == in_box) >= 0.99
+    foreground = (region > 0) | (in_box > 0)
+    assert np.mean(region[foreground] == in_box[foreground]) >= 0.98
+
+
+def test_bad_input_is_refused_naming_the_argument(random_unet):
+    fast = FastUNet(random_unet)
+    view = default_biplane()[0].scaled(0.25)
+    frame = Frame(np.zeros(view.shape, np.float32), view)
+    with pytest.raises(ValueError, match=r"box must be 4 integers"):
+        fast.segment_region(frame, (0, 64, 0))
+    with pytest.raises(ValueError, match=r"must lie in the frame"):
+        fast.segment_region(frame, (0, 400, 0, 64))
+    with pytest.raises(ValueError, match=r"multiples of 2 frame pixels"):
+        fast.segment_region(frame, (1, 65, 0, 64))
+    with pytest.raises(TypeError, match="frame must be"):
+        fast.segment_region(frame.image, (0, 64, 0, 64))
+    with pytest.raises(TypeError, match="segmenter must be a histostudy.learning.UNetSegmenter"):
+        FastUNet("unet")
