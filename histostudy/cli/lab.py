@@ -53,6 +53,9 @@ def add_parsers(sub, parents) -> None:
     cal.add_argument("--nominal-mount", default=None,
                      help="JSON with 'T_flange_transducer' (4x4, mm): the mount as designed; picks the transducer's "
                           "half turn (default: the first station's reading)")
+    cal.add_argument("--exclude-refused", action="store_true",
+                     help="leave out stations whose pose the verdict refused, if 3 remain (default: refuse to "
+                          "calibrate; re-acquire those stations)")
     _frame_options(cal)
     _residual_options(cal)
     cal.add_argument("--output", default="calibration.json", help="calibration JSON (default calibration.json)")
@@ -160,7 +163,7 @@ def _calibrate(args) -> int:
 
     from histostudy.calibration import CalibrationError
     from histostudy.core import atomic_write_json, to_jsonable
-    from histostudy.lab import calibrate_from_poses, load_flange_poses
+    from histostudy.lab import accepted_stations, calibrate_from_poses, load_flange_poses
 
     try:
         flanges = load_flange_poses(args.flange_poses)
@@ -175,12 +178,15 @@ def _calibrate(args) -> int:
             records.append(record)
         calibration = calibrate_from_poses(records, flanges, nominal_T_flange_transducer=nominal,
                                            max_focal_residual_mm=args.max_focal_residual_mm,
-                                           max_rotation_residual_deg=args.max_rotation_residual_deg)
+                                           max_rotation_residual_deg=args.max_rotation_residual_deg,
+                                           on_refused="exclude" if args.exclude_refused else "raise")
     except CalibrationError as exc:
         return _fail("calibrate", exc, 1)
     except (ValueError, TypeError, KeyError, FileNotFoundError, OSError) as exc:
         return _fail("calibrate", exc)
-    atomic_write_json(args.output, to_jsonable({**calibration.to_dict(), "stations": [str(s) for s in args.stations]}))
+    used = [args.stations[i] for i in accepted_stations(records)]
+    atomic_write_json(args.output, to_jsonable({**calibration.to_dict(), "stations": list(args.stations),
+                                                "used_stations": used}))
     print(f"calibrated on {calibration.n_poses} stations: focal residual max {calibration.max_focal_residual_mm:.3f} mm, "
           f"rotation residual max {calibration.max_rotation_residual_deg:.3f} deg; written to {args.output}")
     return 0

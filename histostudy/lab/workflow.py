@@ -34,7 +34,7 @@ from histostudy.imaging import Volume, check_volume
 from histostudy.robot import (HOME_JOINTS_RAD, Robot, Workspace, forward_kinematics, inverse_kinematics_closest,
                              transform_from_pose)
 
-__all__ = ["TargetingPlan", "calibrate_from_poses", "execute_targeting", "load_flange_poses", "load_pose_record",
+__all__ = ["TargetingPlan", "accepted_stations", "calibrate_from_poses", "execute_targeting", "load_flange_poses", "load_pose_record",
            "plan_targeting"]
 
 PLAN_SCHEMA = "histostudy.targeting_plan/1"
@@ -78,25 +78,37 @@ def load_flange_poses(path: str | os.PathLike) -> list[np.ndarray]:
 
 def calibrate_from_poses(pose_records: Sequence[dict], T_base_flange_list: Sequence, *,
                          nominal_T_flange_transducer=None, max_focal_residual_mm: float = 2.0,
-                         max_rotation_residual_deg: float = 1.0) -> HandEyeCalibration:
+                         max_rotation_residual_deg: float = 1.0, on_refused: str = "raise") -> HandEyeCalibration:
     """The hand-eye calibration of §II-C from the pose estimates at n >= 3 stations and the flange
     poses the robot reported there, each estimate read as itself or its half turn
     (:func:`~histostudy.calibration.calibrate_half_turns`), then checked against the residual bound
     (:meth:`~histostudy.calibration.HandEyeCalibration.check`, raising
-    :class:`~histostudy.calibration.CalibrationError` beyond it). A pose record whose verdict was
-    refused is refused here, naming the station."""
+    :class:`~histostudy.calibration.CalibrationError` beyond it). A station whose pose the verdict
+    refused is never calibrated on: ``on_refused="raise"`` (the default) refuses the calibration,
+    naming the stations (re-acquire their frames); ``"exclude"`` leaves them out, as long as at
+    least 3 stations remain (:func:`accepted_stations` says which)."""
     records = list(pose_records)
     flanges = list(T_base_flange_list)
     if len(records) != len(flanges):
         raise ValueError(f"pose_records and T_base_flange_list must pair up station by station, got "
                          f"{len(records)} pose records and {len(flanges)} flange poses")
-    refused = [i for i, r in enumerate(records) if not r.get("accepted", False)]
-    if refused:
-        raise ValueError(f"pose_records {refused}: the pose estimate's verdict refused the fit; re-acquire the "
+    if on_refused not in ("raise", "exclude"):
+        raise ValueError(f"on_refused must be 'raise' or 'exclude', got {on_refused!r}")
+    used = accepted_stations(records)
+    refused = sorted(set(range(len(records))) - set(used))
+    if refused and (on_refused == "raise" or len(used) < 3):
+        left = "" if on_refused == "raise" else f" and only {len(used)} stations remain (3 needed)"
+        raise ValueError(f"pose_records {refused}: the pose estimate's verdict refused the fit{left}; re-acquire the "
                          "frames of those stations rather than calibrate on them")
-    C = [np.asarray(r["T_carm_transducer"], dtype=np.float64) for r in records]
-    calibration = calibrate_half_turns(flanges, C, nominal_T_flange_transducer=nominal_T_flange_transducer)
+    C = [np.asarray(records[i]["T_carm_transducer"], dtype=np.float64) for i in used]
+    calibration = calibrate_half_turns([flanges[i] for i in used], C,
+                                       nominal_T_flange_transducer=nominal_T_flange_transducer)
     return calibration.check(max_focal_residual_mm, max_rotation_residual_deg)
+
+
+def accepted_stations(pose_records: Sequence[dict]) -> list[int]:
+    """Indices of the pose records whose verdict accepted the fit (those a calibration uses)."""
+    return [i for i, r in enumerate(pose_records) if r.get("accepted", False)]
 
 
 @dataclass(frozen=True, eq=False)

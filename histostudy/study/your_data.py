@@ -20,7 +20,7 @@ import pandas as pd
 
 from histostudy.calibration import HandEyeCalibration
 from histostudy.imaging import Volume, load_views
-from histostudy.lab import TargetingPlan, calibrate_from_poses, load_flange_poses, plan_targeting
+from histostudy.lab import TargetingPlan, accepted_stations, calibrate_from_poses, load_flange_poses, plan_targeting
 from histostudy.pose import Tracker, frames_from_files, pose_from_files, pose_record
 from histostudy.transducer import TransducerModel
 from .lab_dataset import write_lab_dataset
@@ -122,10 +122,12 @@ def station_poses(inputs: LabInputs, model: TransducerModel, seed: int) -> tuple
 
 
 def calibration_table(records: list[dict], inputs: LabInputs) -> tuple[HandEyeCalibration, pd.DataFrame]:
-    """The checked hand-eye calibration of the stations (:func:`histostudy.lab.calibrate_from_poses`)
-    and its residuals per station, with the error of ``T_carm_base`` at the target against a truth."""
-    calibration = calibrate_from_poses(records, load_flange_poses(inputs.flange_poses))
-    table = pd.DataFrame({"station": [s.name for s in inputs.stations],
+    """The checked hand-eye calibration of the stations whose pose the verdict accepted
+    (:func:`histostudy.lab.calibrate_from_poses`, refused stations left out while 3 remain) and
+    its residuals per station used, with the error of ``T_carm_base`` at the target against a truth."""
+    calibration = calibrate_from_poses(records, load_flange_poses(inputs.flange_poses), on_refused="exclude")
+    used = accepted_stations(records)
+    table = pd.DataFrame({"station": [inputs.stations[i].name for i in used],
                           "focal_residual_mm": calibration.focal_residuals_mm,
                           "rotation_residual_deg": calibration.rotation_residuals_deg})
     if inputs.truth is not None:
