@@ -104,6 +104,10 @@ def _frame_options(parser) -> None:
                         help="the files hold line integrals already (default: intensities, converted with -log(I/I0))")
     parser.add_argument("--resample", action="store_true", help="resize frames of another size onto their view")
     parser.add_argument("--seed", type=int, default=0, help="seed of the estimate's random draws (default 0)")
+    parser.add_argument("--transducer", default=None, metavar="DIR",
+                        help="the transducer's CAD meshes, one file per feature class named after it (transducer.stl, "
+                             "outer_boundary.stl, inner_boundary.stl, gaps.stl, screws.stl; mm, transducer frame); "
+                             "default: the paper's digital model")
 
 
 def _residual_options(parser) -> None:
@@ -118,11 +122,31 @@ def _fail(command: str, exc: BaseException, code: int = 2) -> int:
     return code
 
 
+_MESH_SUFFIXES = (".stl", ".ply", ".obj", ".vtp")
+
+
+def _model(args):
+    """The transducer model of ``--transducer`` (cached on ``args``: calibrate estimates several poses)."""
+    from histostudy.transducer import TransducerModel
+
+    if args.transducer is None:
+        return None
+    if getattr(args, "_model", None) is None:
+        folder = Path(args.transducer)
+        if not folder.is_dir():
+            raise FileNotFoundError(f"--transducer {str(folder)!r}: no such folder of meshes")
+        meshes = {p.stem: p for p in sorted(folder.iterdir()) if p.suffix.lower() in _MESH_SUFFIXES}
+        if not meshes:
+            raise ValueError(f"--transducer {str(folder)!r} holds no mesh files ({', '.join(_MESH_SUFFIXES)})")
+        args._model = TransducerModel.from_meshes(meshes)
+    return args._model
+
+
 def _estimate(frames, args):
     from histostudy.pose import pose_from_files
 
     return pose_from_files(frames, args.views, frame_index=args.frame_index, line_integrals=args.line_integrals,
-                           resample=args.resample, seed=args.seed)
+                           resample=args.resample, seed=args.seed, model=_model(args))
 
 
 def _pose(args) -> int:

@@ -91,3 +91,16 @@ def test_bad_input_to_the_lab_commands_is_named(tmp_path, capsys):
         with pytest.raises(SystemExit) as done:
             main([command, "--version"])
         assert done.value.code == 0 and capsys.readouterr().out.startswith("histostudy ")
+
+
+@pytest.mark.slow
+def test_pose_with_the_transducer_from_its_cad_meshes(lab, truth, tmp_path, capsys):
+    a, b = lab.calibration_frames[1]
+    out = tmp_path / "pose.json"
+    code = main(["pose", str(a), str(b), "--transducer", str(lab.folder / "transducer"), "--output", str(out)])
+    record = json.loads(out.read_text())
+    assert code == (0 if record["accepted"] else 1)
+    error = np.linalg.norm(np.asarray(record["T_carm_transducer"])[:3, 3] - truth["station_T_carm_transducer"][1][:3, 3])
+    assert error < 2.0
+    assert main(["pose", str(a), str(b), "--transducer", str(tmp_path / "none"), "--output", str(tmp_path / "x")]) == 2
+    assert "no such folder of meshes" in capsys.readouterr().err
