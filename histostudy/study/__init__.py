@@ -55,6 +55,8 @@ Notebook 06, the lab's own data end to end (§II-B to §II-D on a lab's files):
 
 - :mod:`.your_data` — the notebook's inputs, the poses of the stations and the cine, the
   calibration and the planned move, each as a table.
+- :mod:`.your_data_live` — the cine streamed over DICOM to the receiver on loopback, a live
+  figure of the received poses, and the received poses beside the tracked ones.
 - :mod:`.lab_dataset` — the lab-like dataset it generates when no lab files are given (DICOM XA,
   NIfTI CBCT, STL meshes, flange poses, and the synthetic truth beside them).
 """
