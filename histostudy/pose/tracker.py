@@ -10,6 +10,12 @@ transducer moves little between frames. A warm start whose verdict fails (the tr
 too far, or the refinement slid into a wrong basin) loses the track: the same frames are then
 estimated from scratch (a re-acquisition), and both events are counted.
 
+With ``fast=True`` (or ``fast=TrackingOptions(...)``) a warm update runs
+:class:`~.tracking_warm.RegionEstimator` instead: the same stages on the region where the last pose
+projects, at the segmenter's own resolution (docs/tracking.md: where the time goes, and the
+figures). From-scratch estimates and re-acquisitions still run :func:`~.estimate.estimate_pose` on
+the full frames.
+
 Poses are 4x4 ``T_carm_transducer`` (mm, C-arm/CBCT frame, docs/architecture.md "Frames and
 units"); frames are line integrals (``-log(I / I0)``, dimensionless). Determinism: the tracker
 draws every random number from one Generator (``rng``), so the same frames in the same order with
@@ -31,6 +37,8 @@ from .estimate import estimate_pose
 from .learned_stages import default_stages
 from .options import PoseOptions
 from .result import PoseEstimationError, PoseResult
+from .tracking_options import TrackingOptions
+from .tracking_warm import RegionEstimator
 
 __all__ = ["Tracker"]
 
@@ -53,6 +61,12 @@ class Tracker:
             fields, as for :func:`~.estimate.estimate_pose`. Unlike there, ``raise_on_failure``
             defaults to False when no ``options`` are given: a tracker reports a failed verdict in
             the result (``result.verdict.ok``) rather than stopping the stream.
+        fast: False (default): every warm update is :func:`~.estimate.estimate_pose` from the last
+            pose on the full frames. True or a :class:`~.tracking_options.TrackingOptions`: warm
+            updates run on the regions where the last pose projects
+            (:class:`~.tracking_warm.RegionEstimator`: Levenberg-Marquardt whatever ``mode``, which
+            then applies to the from-scratch estimates only); ``result.labels`` are then the regions'
+            labels at the label scale, and :attr:`last_regions` says where they lie.
 
     Attributes (read them, do not set them):
         n_updates: calls of :meth:`update` that ran (bad input raises before counting).
@@ -68,10 +82,13 @@ class Tracker:
             distance_maps, orientation, initialisation, refinement, verdict, retries, total), summed
             over every estimate run, a lost warm start's included.
         update_seconds: wall seconds spent in :meth:`update`, input checks included.
+        tracking_options: the :class:`~.tracking_options.TrackingOptions` of the fast warm path (None
+            without ``fast``).
     """
 
     def __init__(self, model: TransducerModel, views: Sequence[View] | View, *, segmenter=None, orientation=None,
-                 rng=None, options: PoseOptions | None = None, **option_overrides):
+                 rng=None, options: PoseOptions | None = None, fast: bool | TrackingOptions = False,
+                 **option_overrides):
         if not isinstance(model, TransducerModel):
             raise TypeError(f"model must be a histostudy.transducer.TransducerModel, got {type(model).__name__}")
         views = [views] if isinstance(views, View) else list(views)
@@ -90,7 +107,7 @@ class Tracker:
         unknown = sorted(set(option_overrides) - set(PoseOptions.field_names()))
         if unknown:
             raise TypeError(f"Tracker() got an unexpected keyword argument {unknown[0]!r}; its keywords are "
-                            f"segmenter, orientation, rng, options and the fields of PoseOptions: "
+                            f"segmenter, orientation, rng, options, fast and the fields of PoseOptions: "
                             f"{', '.join(PoseOptions.field_names())}")
         self.options = dataclasses.replace(options, **option_overrides)
         # Every estimate runs without raising on a failed verdict: a failed warm start is the
@@ -103,6 +120,13 @@ class Tracker:
             orientation = default_orientation if orientation is None else orientation
         self.segmenter, self.orientation = segmenter, orientation
         self.rng = np.random.default_rng() if rng is None else as_generator(rng)
+        if fast is True:
+            fast = TrackingOptions()
+        elif fast is not False and not isinstance(fast, TrackingOptions):
+            raise TypeError(f"fast must be True, False or a histostudy.pose.TrackingOptions, got {fast!r}")
+        self.tracking_options = fast or None
+        self._region = None if self.tracking_options is None else RegionEstimator(
+            model, self.views, segmenter, self._estimate_options, self.tracking_options, self.rng)
         self.reset()
 
     # --- state ----------------------------------------------------------------------------------
@@ -116,12 +140,22 @@ class Tracker:
         self.n_lost = self.n_reacquired = self.n_accepted = self.n_failed = 0
         self.stage_seconds: dict[str, float] = {}
         self.update_seconds = 0.0
+        if getattr(self, "_region", None) is not None:
+            self._region.last_regions = []
 
     @property
     def last_pose(self) -> np.ndarray | None:
         """The last accepted ``T_carm_transducer`` (4x4, mm; a copy), None before the first
         accepted pose and after the track was lost."""
         return None if self._last_pose is None else self._last_pose.copy()
+
+    @property
+    def last_regions(self) -> list | None:
+        """With ``fast``: each view's :class:`~.tracking_roi.RegionOfInterest` of the last warm
+        update that ran (None before one, and without ``fast``)."""
+        if self._region is None or not self._region.last_regions:
+            return None
+        return list(self._region.last_regions)
 
     @property
     def tracking(self) -> bool:
@@ -199,8 +233,11 @@ class Tracker:
         return result
 
     def _estimate(self, frames: list[Frame], initial_pose) -> PoseResult:
-        result = estimate_pose(frames, self.model, segmenter=self.segmenter, orientation=self.orientation,
-                               rng=self.rng, initial_pose=initial_pose, options=self._estimate_options)
+        if initial_pose is not None and self._region is not None:
+            result = self._region.estimate(frames, initial_pose, self.rng)
+        else:
+            result = estimate_pose(frames, self.model, segmenter=self.segmenter, orientation=self.orientation,
+                                   rng=self.rng, initial_pose=initial_pose, options=self._estimate_options)
         for stage, seconds in result.timings_s.items():
             self.stage_seconds[stage] = self.stage_seconds.get(stage, 0.0) + float(seconds)
         return result

@@ -1,0 +1,89 @@
+"""How :class:`~.tracker.Tracker`'s fast warm path runs (``Tracker(..., fast=True)``; §II-B.3,
+docs/tracking.md): one frozen, validated record, :class:`TrackingOptions`.
+
+Units are in the names: ``_px`` full-frame detector pixels, ``_mm`` millimetres in the C-arm frame,
+``_deg`` degrees. The defaults are the choices measured in docs/tracking.md (beyond the paper,
+which tracked nothing).
+"""
+
+from __future__ import annotations
+
+import numbers
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+__all__ = ["TrackingOptions"]
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+@dataclass(frozen=True)
+class TrackingOptions:
+    """The fast warm path of :class:`~.tracker.Tracker` (``fast=True`` or ``fast=TrackingOptions(...)``).
+
+    A warm update segments only the region where the last accepted pose projects
+    (:func:`~.tracking_roi.region_of_interest`), at the segmenter's own resolution, builds the
+    region's distance maps into reused buffers (:class:`~.tracking_maps.RegionMaps`), refines the
+    last pose by Levenberg-Marquardt, coarse to fine, and judges it with the verdict of
+    :func:`~.estimate.estimate_pose` on the region (:mod:`.tracking_warm`). From-scratch estimates
+    (the first update, re-acquisitions) still run :func:`~.estimate.estimate_pose` on the full frames.
+
+    Attributes:
+        roi_margin_px: frame pixels added on each side of the box of the model projected at the last
+            pose. It must cover the motion between two frames (0.5 mm at the isocentre is about
+            2.5 px in the default views) plus the reach of the coarse refinement stage's 30 px cap,
+            and keep the U-Net's crop edges away from the transducer.
+        label_scale: label pixels per frame pixel of the region's segmentation and distance maps
+            (1, 1/2, 1/4, ...). None: a U-Net's own input scale (0.5 for the shipped one: its
+            arg-max taken at the network's resolution), 1 for other segmenters (their labels
+            cropped). A scale below the U-Net's pools its labels by the overlap priority
+            (:func:`~histostudy.learning.preprocess.pool_labels`). Every pixel threshold of
+            :class:`~.options.PoseOptions` is multiplied by it, so that it keeps its length on the
+            detector.
+        refine_points_per_class: model points per class of the fine refinement stage (drawn once,
+            seeded, when the tracker is made); None: every point, as :func:`estimate_pose`.
+        stop_step_mm, stop_step_deg: the refinement stops when an accepted step moves the focal point
+            less than ``stop_step_mm`` and turns the transducer less than ``stop_step_deg`` (the
+            noise of the estimate is tenths of a millimetre: a step a hundred times smaller changes
+            nothing a user sees), or as :func:`~.refine.refine_levenberg_marquardt` stops otherwise.
+        unexplained_points: model points (all classes, drawn once, seeded) projected by the
+            verdict's unexplained-segmentation check; None: every point.
+        parallel_views: segment the views and build their maps on two threads at once (torch and
+            OpenCV release the GIL); False: one after the other.
+    """
+
+    roi_margin_px: float = 48.0
+    label_scale: float | None = None
+    refine_points_per_class: int | None = 12000
+    stop_step_mm: float = 0.01
+    stop_step_deg: float = 0.001
+    unexplained_points: int | None = 40000
+    parallel_views: bool = False
+
+    def __post_init__(self):
+        if not (_is_number(self.roi_margin_px) and np.isfinite(self.roi_margin_px) and self.roi_margin_px >= 0):
+            raise ValueError(f"roi_margin_px must be a finite number >= 0 (frame pixels), got {self.roi_margin_px!r}")
+        if self.label_scale is not None:
+            s = self.label_scale
+            k = int(round(1.0 / s)) if _is_number(s) and np.isfinite(s) and s > 0 else 0
+            if k < 1 or abs(k * s - 1.0) > 1e-9:
+                raise ValueError(f"label_scale must be None or 1/k for an integer k >= 1 (1, 0.5, 0.25, ...), "
+                                 f"got {s!r}")
+        for name in ("refine_points_per_class", "unexplained_points"):
+            n = getattr(self, name)
+            if n is not None and not (_is_number(n) and n == int(n) and n >= 1):
+                raise ValueError(f"{name} must be None or a positive integer, got {n!r}")
+        for name in ("stop_step_mm", "stop_step_deg"):
+            value = getattr(self, name)
+            if not (_is_number(value) and np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        if not isinstance(self.parallel_views, (bool, np.bool_)):
+            raise ValueError(f"parallel_views must be True or False, got {self.parallel_views!r}")
+
+    @classmethod
+    def field_names(cls) -> tuple[str, ...]:
+        """The names of the options, in declaration order."""
+        return tuple(f.name for f in fields(cls))

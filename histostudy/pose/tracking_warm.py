@@ -1,0 +1,204 @@
+"""The fast warm update of :class:`~.tracker.Tracker` (``fast=True``; §II-B.2-3, docs/tracking.md):
+:class:`RegionEstimator`.
+
+What :func:`~.estimate.estimate_pose` does with ``initial_pose=`` (segmentation, distance maps, the
+eq. 3 refinement from the last pose, the verdict), restricted to where it matters:
+
+1. each view's region of interest, the box of the model projected at the last accepted pose plus
+   a margin (:func:`~.tracking_roi.region_of_interest`), and its view at the label scale
+   (:func:`~.tracking_roi.crop_view`);
+2. the region's labels: a U-Net through :class:`~histostudy.learning.FastUNet` (arg-max at the
+   network's resolution, folded batch norms, channels-last); any other segmenter on the whole
+   frame, its labels cut to the region (and pooled by priority below scale 1);
+3. the region's distance maps into reused buffers (:class:`~.tracking_maps.RegionMaps`);
+4. Levenberg-Marquardt from the last pose, coarse to fine as in ``estimate_pose``'s fast mode
+   (the point subset with distances capped at ``search_truncation_px``, then the fine subset capped at
+   ``refine_truncation_px``), stopping once a step moves the pose less than the noise
+   (:class:`~.tracking_options.TrackingOptions`);
+5. the verdict of ``estimate_pose`` on the region (:func:`~.verdict.judge_fit`,
+   :func:`~.verdict.check_unexplained`, :func:`~.verdict.check_view_agreement`).
+
+Pixel thresholds of :class:`~.options.PoseOptions` are multiplied by the label scale (their length on
+the detector is kept). Poses are 4x4 ``T_carm_transducer`` (mm, C-arm frame); random draws (the
+point subsets, drawn once) come from the tracker's Generator (docs/architecture.md, "Seeding and
+determinism").
+"""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from histostudy.imaging import Frame, View
+from histostudy.learning import FastUNet, UNetSegmenter, keep_largest_component, pool_labels
+from histostudy.transducer import TransducerModel, check_label_image
+from .cost import PoseCost
+from .options import PoseOptions
+from .refine import refine_levenberg_marquardt
+from .result import PoseEstimationError, PoseResult
+from .tracking_maps import RegionMaps
+from .tracking_options import TrackingOptions
+from .tracking_roi import RegionOfInterest, region_of_interest
+from .verdict import check_unexplained, check_view_agreement, judge_fit
+
+__all__ = ["RegionEstimator"]
+
+#: Model points projected to box the region (every n-th point of each class; the margin covers the
+#: spacing they leave).
+ROI_POINT_STRIDE = 16
+
+
+@dataclass(frozen=True)
+class _RegionFrame:
+    """What the verdict reads of a frame: its view (here a region's)."""
+
+    view: View
+
+
+def _subset(points: np.ndarray, n: int | None, rng: np.random.Generator) -> np.ndarray:
+    if n is None or len(points) <= n:
+        return points
+    return points[np.sort(rng.choice(len(points), size=int(n), replace=False))]
+
+
+class RegionEstimator:
+    """Warm-started pose estimates on the regions where the last pose projects (module docstring).
+
+    Args:
+        model: the digital model of eq. 3.
+        views: the full-frame views, in the order of the frames.
+        segmenter: a :class:`~histostudy.learning.UNetSegmenter` (run through
+            :class:`~histostudy.learning.FastUNet`) or any segmenter (``segment(frame, rng)``).
+        options: the :class:`PoseOptions` of the estimates (distance maps, caps, verdict).
+        tracking: the :class:`TrackingOptions`.
+        rng: draws the fixed point subsets once, here.
+
+    Attributes:
+        label_scale: label pixels per frame pixel of the regions.
+        last_regions: the :class:`~.tracking_roi.RegionOfInterest` of each view at the last call.
+    """
+
+    def __init__(self, model: TransducerModel, views: Sequence[View], segmenter, options: PoseOptions,
+                 tracking: TrackingOptions, rng: np.random.Generator):
+        self.model, self.views, self.segmenter = model, tuple(views), segmenter
+        self.options, self.tracking = options, tracking
+        self.fast_unet = FastUNet(segmenter) if isinstance(segmenter, UNetSegmenter) else None
+        if self.fast_unet is not None:
+            s = self.fast_unet.scale if tracking.label_scale is None else float(tracking.label_scale)
+            if s > self.fast_unet.scale + 1e-12 or abs(round(self.fast_unet.scale / s) * s - self.fast_unet.scale) > 1e-9:
+                raise ValueError(f"label_scale {tracking.label_scale!r} must be the U-Net's input scale "
+                                 f"{self.fast_unet.scale} or that divided by an integer (labels are not upsampled)")
+            align = self.fast_unet.network_stride_px
+        else:
+            s = 1.0 if tracking.label_scale is None else float(tracking.label_scale)
+            align = int(round(1.0 / s))
+        self.label_scale, self._align_px = s, align
+        for i, v in enumerate(self.views):
+            k = int(round(1.0 / s))
+            if v.shape[0] % k or v.shape[1] % k:
+                raise ValueError(f"views[{i}] shape {v.shape} is not divisible by 1/label_scale = {k}")
+        self._maps = RegionMaps(occlusion_aware=options.distance_maps == "occlusion_aware")
+        self._roi_points = np.vstack([p[::ROI_POINT_STRIDE] for p in model.points.values() if len(p)])
+        self._refine_points = {k: _subset(np.asarray(p, dtype=np.float64), tracking.refine_points_per_class, rng)
+                               for k, p in model.points.items() if len(p)}
+        stacked = np.vstack([p for p in model.points.values() if len(p)])
+        self._unexplained_points = _subset(stacked, tracking.unexplained_points, rng)
+        self._pool = ThreadPoolExecutor(max_workers=len(self.views)) if tracking.parallel_views else None
+        self.last_regions: list[RegionOfInterest] = []
+
+    def close(self) -> None:
+        """Stop the view threads (with ``parallel_views``)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
+    # --- stages ---------------------------------------------------------------------------------
+
+    def _labels(self, frame: Frame, region: RegionOfInterest, rng) -> np.ndarray:
+        """The region's labels at the label scale (largest component kept if the options say so)."""
+        r0, r1, c0, c1 = region.box
+        if self.fast_unet is not None:
+            labels = self.fast_unet.segment_region(frame, region.box)
+            ratio = self.label_scale / self.fast_unet.scale
+        else:
+            full = check_label_image(self.segmenter.segment(frame, rng), frame.shape,
+                                     f"the segmentation of view {frame.view.name!r}")
+            labels, ratio = full[r0:r1, c0:c1], self.label_scale
+        if ratio != 1.0:
+            labels = pool_labels(labels, ratio)
+        labels = np.ascontiguousarray(labels, dtype=np.uint8)
+        return keep_largest_component(labels) if self.options.largest_component else labels
+
+    def estimate(self, frames: Sequence[Frame], T_prev: np.ndarray, rng: np.random.Generator) -> PoseResult:
+        """The pose in ``frames`` refined from ``T_prev`` on the regions (module docstring).
+
+        Raises :class:`~.result.PoseEstimationError` when a region shows no transducer feature.
+        ``result.labels`` are the regions' labels (:attr:`last_regions` says where they lie)."""
+        t_start = time.perf_counter()
+        opts, s = self.options, self.label_scale
+        regions = [region_of_interest(v, self._roi_points, T_prev, margin_px=self.tracking.roi_margin_px,
+                                      align_px=self._align_px, scale=s) for v in self.views]
+        self.last_regions = regions
+        timings = {"segmentation": 0.0, "distance_maps": 0.0}
+
+        def per_view(a):
+            t0 = time.perf_counter()
+            labels = self._labels(frames[a], regions[a], rng)
+            t1 = time.perf_counter()
+            maps = self._maps.build(a, regions[a].view, labels)
+            return labels, maps, t1 - t0, time.perf_counter() - t1
+
+        if self._pool is not None and self.fast_unet is not None:
+            outputs = list(self._pool.map(per_view, range(len(frames))))
+        else:
+            outputs = [per_view(a) for a in range(len(frames))]
+        labels = [o[0] for o in outputs]
+        maps = [o[1] for o in outputs]
+        timings["segmentation"] = sum(o[2] for o in outputs)
+        timings["distance_maps"] = sum(o[3] for o in outputs)
+        timings["orientation"] = timings["initialisation"] = 0.0
+        for region, m in zip(regions, maps):
+            if not m.present:
+                raise PoseEstimationError(f"view {region.view.name!r}: no transducer feature was segmented in the "
+                                          f"tracking region {region.box}; the transducer left it or the "
+                                          f"segmentation failed")
+
+        t0 = time.perf_counter()
+        cap = None if opts.refine_truncation_px is None else opts.refine_truncation_px * s
+        outside = opts.outside_distance_px * s
+        cost = PoseCost(self._refine_points, maps, class_weights=opts.class_weights, outside_distance_px=outside)
+        coarse = cost.subset(opts.init_points_per_class, rng)
+        tau = opts.search_truncation_px * s
+        polish = coarse.capped(tau, outside_distance_px=tau).with_outside_distance(outside)
+        refined = refine_levenberg_marquardt(cost.capped(cap), T_prev, coarse=polish, ftol=1e-6,
+                                             xtol_mm=self.tracking.stop_step_mm,
+                                             xtol_rad=np.deg2rad(self.tracking.stop_step_deg), max_iter=50)
+        timings["refinement"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        region_frames = [_RegionFrame(r.view) for r in regions]
+        occlusion_aware = opts.distance_maps == "occlusion_aware"
+        verdict_cap = None if opts.verdict_truncation_px is None else opts.verdict_truncation_px * s
+        verdict = judge_fit(coarse.capped(verdict_cap), region_frames, refined.T, opts.search_centre_mm,
+                            opts.max_rms_px * s, opts.min_inside_fraction,
+                            opts.max_body_rms_px * s if occlusion_aware and opts.max_body_rms_px is not None else None)
+        if opts.max_unexplained_fraction is not None:
+            tolerance = (10.0 if opts.verdict_truncation_px is None else opts.verdict_truncation_px) * s
+            check_unexplained(verdict, region_frames, labels, self.model, refined.T, opts.max_unexplained_fraction,
+                              tolerance, points_mm=self._unexplained_points)
+        if verdict.ok and len(frames) > 1 and opts.max_view_disagreement_mm is not None:
+            consistency = coarse.capped((1.0 if opts.refine_truncation_px is None else opts.refine_truncation_px) * s)
+            check_view_agreement(verdict, consistency, region_frames, refined.T, self.model.focal_point_mm,
+                                 opts.max_view_disagreement_mm)
+        timings["verdict"] = time.perf_counter() - t0
+        timings["retries"] = 0.0
+        timings["total"] = time.perf_counter() - t_start
+        T = refined.T
+        focal = T[:3, :3] @ np.asarray(self.model.focal_point_mm, dtype=np.float64) + T[:3, 3]
+        return PoseResult(T_carm_transducer=T, focal_point_mm=focal, cost=refined.cost, iterations=refined.iterations,
+                          evaluations=refined.evaluations, timings_s=timings, verdict=verdict, mode="fast",
+                          init=None, refine=refined, labels=labels, retries=0)

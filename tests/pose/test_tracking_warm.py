@@ -1,0 +1,122 @@
+"""Tests of the tracker's fast warm path (histostudy.pose.tracking_warm, Tracker(fast=...)).
+
+Geometry first: with the oracle stages (exact labels) on the half-resolution biplane views, the
+fast path's poses must stay within 0.1 mm of the full-frame path's on a small moving sequence, at
+label scale 1 (the labels cropped) and 1/2 (pooled by priority, the shipped U-Net's resolution).
+"""
+
+import numpy as np
+import pytest
+
+from histostudy.geometry import transform_from_params
+from histostudy.imaging import Frame, default_biplane
+from histostudy.learning import OracleOrientation, OracleSegmenter
+from histostudy.pose import PoseEstimationError, PoseOptions, RegionEstimator, Tracker, TrackingOptions
+from histostudy.transducer import TransducerModel
+
+from pose_frames import POSES, focal_error, frames_of
+
+ORACLES = dict(segmenter=OracleSegmenter(), orientation=OracleOrientation())
+STEP = transform_from_params(np.r_[np.deg2rad(0.2) * np.array([0.6, -0.48, 0.64]), [0.3, -0.25, 0.3]])
+
+
+@pytest.fixture(scope="module")
+def models():
+    return TransducerModel.build(spacing_mm=0.47), TransducerModel.build(spacing_mm=0.25)
+
+
+@pytest.fixture(scope="module")
+def views():
+    return [v.scaled(0.5) for v in default_biplane()]
+
+
+def moved(T, step):
+    out = T.copy()
+    out[:3, :3] = step[:3, :3] @ T[:3, :3]
+    out[:3, 3] = T[:3, 3] + step[:3, 3]
+    return out
+
+
+@pytest.fixture(scope="module")
+def sequence(models, views):
+    """Four frame pairs of a transducer moving 0.5 mm and 0.2 deg a frame, with their poses."""
+    poses = [POSES[0]]
+    for _ in range(3):
+        poses.append(moved(poses[-1], STEP))
+    return poses, [frames_of(models[1], T, views) for T in poses]
+
+
+@pytest.fixture(scope="module")
+def full_frame_poses(models, views, sequence):
+    tracker = Tracker(models[0], views, rng=3, mode="fast", **ORACLES)
+    return [tracker.update(f).T_carm_transducer for f in sequence[1]]
+
+
+@pytest.mark.parametrize("label_scale", [1.0, 0.5])
+def test_fast_warm_path_stays_within_0_1_mm_of_the_full_frame_path(models, views, sequence, full_frame_poses,
+                                                                    label_scale):
+    poses, frames = sequence
+    tracker = Tracker(models[0], views, rng=3, mode="fast", fast=TrackingOptions(label_scale=label_scale), **ORACLES)
+    for i, (pair, T_true, T_full) in enumerate(zip(frames, poses, full_frame_poses)):
+        result = tracker.update(pair)
+        assert result.verdict.ok, result.verdict.reasons
+        assert tracker.last_kind == ("from_scratch" if i == 0 else "warm")
+        focal_gap = np.linalg.norm(result.T_carm_transducer[:3, 3] - T_full[:3, 3])
+        assert focal_gap < 0.1, (i, focal_gap)
+        assert focal_error(result, T_true) < 0.2
+    regions = tracker.last_regions
+    assert [r.scale for r in regions] == [label_scale] * 2
+    assert [lab.shape for lab in result.labels] == [r.view.shape for r in regions]
+    assert all(r.area_fraction < 1.0 for r in regions)  # the transducer does not fill these frames
+    assert result.init is None and result.timings_s["orientation"] == result.timings_s["initialisation"] == 0.0
+    assert (tracker.n_warm, tracker.n_from_scratch, tracker.n_lost) == (3, 1, 0)
+
+
+def test_a_jump_loses_the_fast_track_and_is_reacquired_and_counted(models, views):
+    """The transducer moved 16 mm and turned between two frames: the fast warm start from the last
+    pose fails its verdict, the full frames are estimated from scratch, and the track goes on fast.
+    (A 40-80 mm shift alone is followed: the coarse stage's 30 px cap pulls the model along.)"""
+    model, fine = models
+    T0, T_jump = POSES[0], POSES[1]
+    tracker = Tracker(model, views, rng=2, mode="fast", fast=True, **ORACLES)
+    tracker.update(frames_of(fine, T0, views))
+    result = tracker.update(frames_of(fine, T_jump, views))
+    assert tracker.last_kind == "reacquired" and result.verdict.ok and result.init is not None
+    assert focal_error(result, T_jump) < 0.1
+    assert (tracker.n_lost, tracker.n_reacquired, tracker.n_from_scratch) == (1, 1, 2)
+    tracker.update(frames_of(fine, moved(T_jump, STEP), views))
+    assert tracker.last_kind == "warm" and tracker.n_warm == 1 and tracker.n_accepted == 3
+    tracker.reset()
+    assert tracker.last_regions is None and not tracker.tracking
+
+
+def test_a_region_without_features_raises_for_the_tracker_to_reacquire(models, views):
+    model, fine = models
+    estimator = RegionEstimator(model, views, OracleSegmenter(), PoseOptions(mode="fast"), TrackingOptions(),
+                                np.random.default_rng(0))
+    blank = [Frame(np.zeros(v.shape, np.float32), v, labels=np.zeros(v.shape, np.uint8)) for v in views]
+    with pytest.raises(PoseEstimationError, match="no transducer feature was segmented in the tracking region"):
+        estimator.estimate(blank, POSES[0], np.random.default_rng(0))
+
+
+def test_the_same_seed_gives_the_same_fast_track(models, views, sequence):
+    runs = []
+    for _ in range(2):
+        tracker = Tracker(models[0], views, rng=9, mode="fast", fast=True, **ORACLES)
+        runs.append([tracker.update(f).T_carm_transducer for f in sequence[1][:2]])
+    np.testing.assert_array_equal(np.array(runs[0]), np.array(runs[1]))
+
+
+def test_bad_fast_options_are_refused_naming_the_argument(models, views):
+    with pytest.raises(TypeError, match="fast must be True, False or a histostudy.pose.TrackingOptions"):
+        Tracker(models[0], views, fast="yes", **ORACLES)
+    with pytest.raises(ValueError, match="roi_margin_px must be"):
+        TrackingOptions(roi_margin_px=-5)
+    with pytest.raises(ValueError, match="label_scale must be None or 1/k"):
+        TrackingOptions(label_scale=0.4)
+    with pytest.raises(ValueError, match="refine_points_per_class must be None or a positive integer"):
+        TrackingOptions(refine_points_per_class=0)
+    with pytest.raises(ValueError, match="stop_step_mm must be"):
+        TrackingOptions(stop_step_mm=0)
+    with pytest.raises(ValueError, match="parallel_views must be True or False"):
+        TrackingOptions(parallel_views=1)
