@@ -1,0 +1,290 @@
+"""Monte-Carlo sweeps run in this process or on ``dask.distributed`` (no paper section: the
+study's sweeps, e.g. the pose robustness sweep and the calibration sensitivity).
+
+A sweep is a list of independent tasks, each a pure function of its argument, its own child of
+one ``numpy.random.SeedSequence`` and read-only shared inputs (docs/architecture.md, "Seeding
+and determinism"). :func:`run_sweep` returns the results in task order, the same bit for bit
+whatever runs them:
+
+- ``"sequential"``: one after the other in this process (the default);
+- ``"local"`` / ``"local:<workers>"``: a ``dask.distributed.LocalCluster`` of that many worker
+  processes (2 by default) started for the sweep and closed after it;
+- ``"tcp://host:port"`` (or ``tls://``): the scheduler of a running cluster, whose workers must
+  have ``histostudy`` installed.
+
+Left unset, the executor is read from the environment variable ``HISTOSTUDY_SCHEDULER``
+(:data:`SCHEDULER_ENV`, same strings), so that a study can be pointed at a cluster without
+editing its notebooks. A worker that dies mid-sweep loses nothing: the scheduler runs its tasks
+again elsewhere (a task is a pure function of its seed, so a re-run gives the same result), and
+each result is collected once, by its task's future. A task whose workers die more than
+``allowed_failures`` times, or that raises, makes the sweep raise :class:`SweepTaskError`
+naming the task's index. ``dask`` is imported only when a cluster is used.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import re
+import sys
+import uuid
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+__all__ = ["SCHEDULER_ENV", "SweepExecutor", "SweepTaskError", "resolve_executor", "run_sweep"]
+
+#: The environment variable that picks the executor of every sweep whose ``executor`` is left unset.
+SCHEDULER_ENV = "HISTOSTUDY_SCHEDULER"
+
+#: Thread-pool sizes a worker is started with (numpy's BLAS, torch's OpenMP pool, numba).
+_THREAD_VARS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS")
+_ADDRESS = re.compile(r"^(tcp|tls)://([A-Za-z0-9._-]+|\[[0-9A-Fa-f:]+\]):(\d{1,5})$")
+_SPEC_HELP = "'sequential', 'local', 'local:<workers>' or a scheduler address 'tcp://host:port'"
+
+
+class SweepTaskError(RuntimeError):
+    """A sweep task raised, or its workers kept dying; ``index`` is the task's position."""
+
+    def __init__(self, index: int, message: str):
+        super().__init__(message)
+        self.index = index
+
+
+@dataclass(frozen=True)
+class SweepExecutor:
+    """Where :func:`run_sweep` runs its tasks.
+
+    ``kind`` is ``"sequential"``, ``"local"`` (a LocalCluster of ``n_workers`` processes with
+    ``threads_per_worker`` threads each) or ``"scheduler"`` (the running cluster at
+    ``address``). ``threads_per_worker`` also caps the torch, numba and BLAS thread pools inside
+    each worker. ``allowed_failures``: how many worker deaths a task survives before the sweep
+    fails (LocalCluster only; a running scheduler keeps its own setting).
+    """
+
+    kind: str = "sequential"
+    address: str | None = None
+    n_workers: int = 2
+    threads_per_worker: int = 1
+    allowed_failures: int = 3
+
+    def __post_init__(self):
+        if self.kind not in ("sequential", "local", "scheduler"):
+            raise ValueError(f"kind must be 'sequential', 'local' or 'scheduler', got {self.kind!r}")
+        for name in ("n_workers", "threads_per_worker"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        failures = self.allowed_failures
+        if isinstance(failures, bool) or not isinstance(failures, (int, np.integer)) or failures < 0:
+            raise ValueError(f"allowed_failures must be an integer >= 0, got {failures!r}")
+        if self.kind == "scheduler":
+            _check_address(self.address, "address")
+        elif self.address is not None:
+            raise ValueError(f"address is only for kind='scheduler', got {self.address!r} with kind={self.kind!r}")
+
+    @classmethod
+    def parse(cls, spec: str, *, name: str = "executor", **options) -> SweepExecutor:
+        """The executor a string names (``"sequential"``, ``"local"``, ``"local:<workers>"``,
+        ``"tcp://host:port"``); ``options`` fill the other fields.
+        A bad string raises ValueError naming ``name`` (the argument or variable it came from)."""
+        if not isinstance(spec, str):
+            raise TypeError(f"{name} must be a string, a SweepExecutor or None, got {type(spec).__name__}: {spec!r}")
+        text = spec.strip()
+        if text == "sequential":
+            return cls("sequential", **options)
+        if text == "local":
+            return cls("local", **options)
+        if text.startswith("local:"):
+            count = text[len("local:"):]
+            if not count.isdigit() or int(count) < 1:
+                raise ValueError(f"{name}: the workers of 'local:<workers>' must be an integer >= 1, got {spec!r}")
+            return cls("local", **{**options, "n_workers": int(count)})
+        if "://" in text:
+            return cls("scheduler", address=_check_address(text, name), **options)
+        raise ValueError(f"{name} must be {_SPEC_HELP}, got {spec!r}")
+
+
+def resolve_executor(executor: SweepExecutor | str | None = None) -> SweepExecutor:
+    """``executor`` as a :class:`SweepExecutor`: a string is parsed (:meth:`SweepExecutor.parse`);
+    None reads :data:`SCHEDULER_ENV` (``HISTOSTUDY_SCHEDULER``), sequential when it is unset or
+    empty. This is the one place that reads the variable."""
+    if isinstance(executor, SweepExecutor):
+        return executor
+    if executor is None:
+        spec = os.environ.get(SCHEDULER_ENV, "").strip()
+        return SweepExecutor.parse(spec, name=SCHEDULER_ENV) if spec else SweepExecutor()
+    return SweepExecutor.parse(executor)
+
+
+def run_sweep(task_fn: Callable[..., Any], tasks: Sequence, *, seed: int | np.random.SeedSequence | None = None,
+              executor: SweepExecutor | str | None = None, shared: dict | None = None,
+              progress: bool = False) -> list:
+    """Run ``task_fn`` on every element of ``tasks``; the results in task order.
+
+    Task ``i`` is called ``task_fn(tasks[i], seeds[i], **shared)`` with ``seeds =
+    SeedSequence(seed).spawn(len(tasks))`` (an int seed) or ``seed.spawn(len(tasks))`` (a
+    SeedSequence, which advances as numpy's spawn does), or ``task_fn(tasks[i], **shared)`` when
+    ``seed`` is None (the tasks then carry all their randomness). ``shared`` holds read-only
+    inputs common to all tasks: on a cluster they are sent once to every worker, not with each
+    task. ``task_fn`` must be importable by its module path on the workers (a module-level
+    function). ``executor``: see :func:`resolve_executor`. ``progress`` shows a tqdm bar.
+
+    Raises :class:`SweepTaskError` naming the first task that raised (by completion) or whose
+    workers died more than ``allowed_failures`` times.
+    """
+    if not callable(task_fn):
+        raise TypeError(f"task_fn must be callable, got {type(task_fn).__name__}")
+    tasks = list(tasks)
+    if seed is None:
+        seeds = None
+    elif isinstance(seed, np.random.SeedSequence):
+        seeds = seed.spawn(len(tasks))
+    elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+        seeds = np.random.SeedSequence(int(seed)).spawn(len(tasks))
+    else:
+        raise TypeError(f"seed must be an int, a numpy.random.SeedSequence or None, got {type(seed).__name__}: {seed!r}")
+    shared = {} if shared is None else dict(shared)
+    ex = resolve_executor(executor)
+    calls = [(arg,) if seeds is None else (arg, s) for arg, s in zip(tasks, seeds or [None] * len(tasks))]
+    if ex.kind == "sequential" or not calls:
+        return _run_sequential(task_fn, calls, shared, progress)
+    return _run_distributed(task_fn, calls, shared, ex, progress)
+
+
+def _run_sequential(task_fn, calls, shared, progress) -> list:
+    results = []
+    for i, args in enumerate(_progress(calls, len(calls), progress)):
+        try:
+            results.append(task_fn(*args, **shared))
+        except Exception as exc:
+            raise _task_error(task_fn, i, exc) from exc
+    return results
+
+
+def _run_distributed(task_fn, calls, shared, ex: SweepExecutor, progress) -> list:
+    import logging
+
+    import dask
+    from distributed import Client, LocalCluster, as_completed
+
+    cluster, environ = None, {var: os.environ.get(var) for var in _THREAD_VARS}
+    try:
+        if ex.kind == "local":
+            # The workers are spawned (dask's default) with their thread pools capped in their
+            # environment; dask's Nanny takes these variables from this process's environment
+            # (and leaves them there, also when it restarts a worker): restored at the end.
+            threads = {var: str(ex.threads_per_worker) for var in _THREAD_VARS}
+            os.environ.update(threads)
+            with dask.config.set({"distributed.scheduler.allowed-failures": int(ex.allowed_failures),
+                                  "distributed.nanny.pre-spawn-environ": {**dask.config.get(
+                                      "distributed.nanny.pre-spawn-environ", {}), **threads}}):
+                cluster = LocalCluster(n_workers=int(ex.n_workers), threads_per_worker=int(ex.threads_per_worker),
+                                       processes=True, dashboard_address=":0", silence_logs=logging.ERROR)
+        with Client(cluster if cluster is not None else ex.address, set_as_default=False) as client:
+            token = f"sweep-{getattr(task_fn, '__name__', 'task')}-{uuid.uuid4().hex[:12]}"
+            # Shared inputs as a task of their own, not scattered: the scheduler keeps its spec, so
+            # if every worker holding them dies they are made again rather than lost; each worker
+            # fetches them once from a peer.
+            with dask.config.set({"distributed.admin.large-graph-warning-threshold": "2GB"}):
+                shared_ref = client.submit(_identity, _dumps(shared), pure=False, key=f"shared-{token}")
+            futures = [client.submit(_call, task_fn, _dumps(args), token, shared_ref, ex.threads_per_worker,
+                                     pure=False, key=f"{token}-{i}") for i, args in enumerate(calls)]
+            index = {f.key: i for i, f in enumerate(futures)}
+            results: dict[int, Any] = {}
+            try:
+                for future in _progress(as_completed(futures, loop=client.loop), len(futures), progress):
+                    i = index[future.key]
+                    try:
+                        value = future.result()
+                    except Exception as exc:
+                        # a task that raised or killed its workers before the cancellations it caused
+                        erred = [j for j, f in enumerate(futures) if f.status == "error"]
+                        if erred and erred[0] != i:
+                            i, exc = erred[0], futures[erred[0]].exception()
+                        raise _task_error(task_fn, i, exc) from exc
+                    results[i] = pickle.loads(value)  # as_completed yields each future once, re-run or not
+            finally:
+                client.cancel(futures)
+        return [results[i] for i in range(len(calls))]
+    finally:
+        if cluster is not None:
+            cluster.close()
+        for var, value in environ.items():
+            if value is None:
+                os.environ.pop(var, None)
+            else:
+                os.environ[var] = value
+
+
+def _dumps(obj) -> bytes:
+    """``obj`` pickled in one piece. Data cross the cluster as such bytes, never as dask's own
+    serialisation: that can hand a worker numpy arrays at byte offsets that break their element
+    alignment, and numpy reduces unaligned arrays in another order (last-bit differences, measured
+    on the pose sweep). Unpickled from bytes, every array owns aligned memory, as in this process."""
+    import cloudpickle
+
+    return cloudpickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def _identity(blob: bytes) -> bytes:
+    return blob
+
+
+#: Per worker process: the shared inputs of the latest sweeps, unpickled once (token -> dict).
+_SHARED: dict[str, dict] = {}
+
+
+def _call(task_fn, args: bytes, token: str, shared: bytes, threads: int) -> bytes:
+    """On a worker: cap the thread pools at ``threads``, then run the task on its unpickled
+    arguments and the sweep's shared inputs (unpickled once per process); the result pickled."""
+    _cap_threads(threads)
+    if token not in _SHARED:
+        while len(_SHARED) >= 2:
+            _SHARED.pop(next(iter(_SHARED)))
+        _SHARED[token] = pickle.loads(shared)
+    return _dumps(task_fn(*pickle.loads(args), **_SHARED[token]))
+
+
+def _cap_threads(threads: int) -> None:
+    """Cap the thread pools at ``threads``: the variables torch, numba and BLAS read when they load,
+    and, from the calling thread (their setting is per thread), the pools of torch and numba where
+    they are loaded already (not while another task thread is still importing them)."""
+    for var in _THREAD_VARS:
+        os.environ[var] = str(threads)
+    torch, numba = _loaded("torch"), _loaded("numba")
+    if torch is not None and torch.get_num_threads() != threads:
+        torch.set_num_threads(threads)
+    if numba is not None:
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+
+
+def _loaded(name: str):
+    module = sys.modules.get(name)
+    return None if module is None or getattr(module.__spec__, "_initializing", False) else module
+
+
+def _task_error(task_fn, i: int, exc: BaseException) -> SweepTaskError:
+    name = getattr(task_fn, "__name__", repr(task_fn))
+    if type(exc).__name__ == "KilledWorker":
+        return SweepTaskError(i, f"sweep task {i} ({name}): its worker died too often ({exc})")
+    if type(exc).__name__ in ("CancelledError", "FutureCancelledError"):
+        return SweepTaskError(i, f"sweep task {i} ({name}) was cancelled, by the scheduler or its loss ({exc})")
+    return SweepTaskError(i, f"sweep task {i} ({name}) failed: {type(exc).__name__}: {exc}")
+
+
+def _progress(iterable, total: int, show: bool):
+    if not show:
+        return iterable
+    from tqdm.auto import tqdm
+
+    return tqdm(iterable, total=total, desc="sweep")
+
+
+def _check_address(address, name: str) -> str:
+    match = _ADDRESS.match(address) if isinstance(address, str) else None
+    if match is None or not 1 <= int(match.group(3)) <= 65535:
+        raise ValueError(f"{name} must be a scheduler address 'tcp://host:port' (or tls://, port 1-65535), "
+                         f"got {address!r}")
+    return address
