@@ -1,6 +1,7 @@
 """Simulated calibrations (§II-C; the sensitivity study is beyond the paper): flange poses and the
 transducer poses they give, pose-estimation noise, and the Monte-Carlo of the calibration error
-against the number of poses and the noise. Lengths in mm in the robot base and C-arm frames
+against the number of poses and the noise (its calibrations a sweep of :func:`histostudy.core.run_sweep`,
+the same rows in this process or on a cluster). Lengths in mm in the robot base and C-arm frames
 (docs/architecture.md, Frames and units), angles in degrees where the names say so.
 """
 
@@ -8,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from histostudy.core import as_generator
+from histostudy.core import SweepExecutor, as_generator, run_sweep
 from histostudy.geometry import check_rigid, invert_transform, make_transform, matrix_from_rotvec
 from .dual_quaternion import rotation_angles_rad
 from .procedure import calibrate
@@ -83,6 +84,7 @@ def calibration_sensitivity(
     pairs: str = "all",
     box_mm: float = 300.0,
     max_tilt_deg: float = 30.0,
+    executor: SweepExecutor | str | None = None,
 ):
     """Monte-Carlo calibration errors vs number of poses and pose-estimation noise (beyond the paper).
 
@@ -101,6 +103,12 @@ def calibration_sensitivity(
     ``target_error_mm``: the distance from ``target_carm_mm`` to the true focal point after moving
     the flange to :func:`flange_pose_for_target` of the estimate (orientation: nominal downward),
     plus ``rms_focal_residual_mm`` (what :meth:`HandEyeCalibration.check` sees).
+
+    All the draws come from ``rng`` in this process, one trial after the other; the calibrations
+    then run on ``executor`` (:func:`histostudy.core.run_sweep`: ``"sequential"``, ``"local"``,
+    ``"local:<workers>"``, ``"tcp://host:port"``, a :class:`~histostudy.core.SweepExecutor`, or
+    None: ``$HISTOSTUDY_SCHEDULER``, else sequential), so the rows are the same bit for bit
+    whatever runs them.
     """
     import pandas as pd
 
@@ -114,41 +122,55 @@ def calibration_sensitivity(
     if int(n_trials) < 1:
         raise ValueError(f"n_trials must be >= 1, got {n_trials!r}")
     target = np.asarray(target_carm_mm, dtype=np.float64).reshape(3)
+    # every random draw here, in the order of the single-stream loop, so that the numbers do not
+    # depend on the executor; the trials (calibrate and score) then run anywhere
+    trials = [(n, trial, *_draw_trial(n, levels, rng, box_mm, max_tilt_deg))
+              for n in n_list for trial in range(int(n_trials))]
+    per_trial = run_sweep(_score_trial, trials, executor=executor, shared=dict(target=target, pairs=pairs))
+    return pd.DataFrame([row for rows in per_trial for row in rows])
+
+
+def _draw_trial(n: int, levels, rng: np.random.Generator, box_mm: float, max_tilt_deg: float):
+    """One trial's truth (``X_true``, ``Y_true``), flange poses and noisy transducer poses per noise level."""
+    X_true = make_transform(
+        matrix_from_rotvec(_ball(rng, np.radians(10.0))),
+        [0.0, 0.0, NOMINAL_FLANGE_TO_FOCAL_MM] + rng.uniform(-20.0, 20.0, 3),
+    )
+    yaw = matrix_from_rotvec([0.0, 0.0, rng.uniform(-np.pi, np.pi)])
+    R_Y = matrix_from_rotvec(_ball(rng, np.radians(2.0))) @ yaw
+    focal_nominal_base = np.asarray(NOMINAL_FLANGE_IN_BASE_MM) + R_BASE_FLANGE_DOWN @ X_true[:3, 3]
+    Y_true = make_transform(R_Y, -R_Y @ focal_nominal_base + rng.uniform(-50.0, 50.0, 3))
+    F, C_true = simulate_poses(n, X_true, Y_true, rng, box_mm=box_mm, max_tilt_deg=max_tilt_deg)
+    noisy = [(t_sd, r_sd, [perturb_pose(Ci, t_sd, r_sd, rng) for Ci in C_true]) for t_sd, r_sd in levels]
+    return X_true, Y_true, F, noisy
+
+
+def _score_trial(trial, *, target: np.ndarray, pairs: str) -> list[dict]:
+    """The rows of one drawn trial: calibrate at each noise level and measure the errors (a sweep task)."""
+    n, index, X_true, Y_true, F, noisy = trial
+    R_nominal = Y_true[:3, :3] @ R_BASE_FLANGE_DOWN @ X_true[:3, :3]
     rows = []
-    for n in n_list:
-        for trial in range(int(n_trials)):
-            X_true = make_transform(
-                matrix_from_rotvec(_ball(rng, np.radians(10.0))),
-                [0.0, 0.0, NOMINAL_FLANGE_TO_FOCAL_MM] + rng.uniform(-20.0, 20.0, 3),
-            )
-            yaw = matrix_from_rotvec([0.0, 0.0, rng.uniform(-np.pi, np.pi)])
-            R_Y = matrix_from_rotvec(_ball(rng, np.radians(2.0))) @ yaw
-            focal_nominal_base = np.asarray(NOMINAL_FLANGE_IN_BASE_MM) + R_BASE_FLANGE_DOWN @ X_true[:3, 3]
-            Y_true = make_transform(R_Y, -R_Y @ focal_nominal_base + rng.uniform(-50.0, 50.0, 3))
-            F, C_true = simulate_poses(n, X_true, Y_true, rng, box_mm=box_mm, max_tilt_deg=max_tilt_deg)
-            R_nominal = Y_true[:3, :3] @ R_BASE_FLANGE_DOWN @ X_true[:3, :3]
-            for t_sd, r_sd in levels:
-                C = [perturb_pose(Ci, t_sd, r_sd, rng) for Ci in C_true]
-                cal = calibrate(F, C, pairs=pairs)
-                F_target = cal.flange_pose_for_target(target, R_nominal)
-                focal_true = (Y_true @ F_target @ X_true)[:3, 3]
-                E_X = invert_transform(X_true) @ cal.T_flange_transducer
-                E_Y = invert_transform(Y_true) @ cal.T_carm_base
-                rows.append(
-                    {
-                        "n_poses": n,
-                        "noise_translation_mm": t_sd,
-                        "noise_rotation_deg": r_sd,
-                        "trial": trial,
-                        "X_rotation_error_deg": np.degrees(rotation_angles_rad(E_X[:3, :3])),
-                        "X_translation_error_mm": float(np.linalg.norm(cal.T_flange_transducer[:3, 3] - X_true[:3, 3])),
-                        "Y_rotation_error_deg": np.degrees(rotation_angles_rad(E_Y[:3, :3])),
-                        "Y_translation_error_mm": float(np.linalg.norm(cal.T_carm_base[:3, 3] - Y_true[:3, 3])),
-                        "target_error_mm": float(np.linalg.norm(focal_true - target)),
-                        "rms_focal_residual_mm": cal.rms_focal_residual_mm,
-                    }
-                )
-    return pd.DataFrame(rows)
+    for t_sd, r_sd, C in noisy:
+        cal = calibrate(F, C, pairs=pairs)
+        F_target = cal.flange_pose_for_target(target, R_nominal)
+        focal_true = (Y_true @ F_target @ X_true)[:3, 3]
+        E_X = invert_transform(X_true) @ cal.T_flange_transducer
+        E_Y = invert_transform(Y_true) @ cal.T_carm_base
+        rows.append(
+            {
+                "n_poses": n,
+                "noise_translation_mm": t_sd,
+                "noise_rotation_deg": r_sd,
+                "trial": index,
+                "X_rotation_error_deg": np.degrees(rotation_angles_rad(E_X[:3, :3])),
+                "X_translation_error_mm": float(np.linalg.norm(cal.T_flange_transducer[:3, 3] - X_true[:3, 3])),
+                "Y_rotation_error_deg": np.degrees(rotation_angles_rad(E_Y[:3, :3])),
+                "Y_translation_error_mm": float(np.linalg.norm(cal.T_carm_base[:3, 3] - Y_true[:3, 3])),
+                "target_error_mm": float(np.linalg.norm(focal_true - target)),
+                "rms_focal_residual_mm": cal.rms_focal_residual_mm,
+            }
+        )
+    return rows
 
 
 def _ball(rng: np.random.Generator, radius: float) -> np.ndarray:

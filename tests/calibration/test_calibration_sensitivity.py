@@ -25,3 +25,15 @@ def test_calibration_sensitivity_shapes_determinism_and_trends():
         he.calibration_sensitivity(n_poses_list=(2,), rng=0)
     with pytest.raises(TypeError, match="rng"):
         he.calibration_sensitivity(rng=None)
+
+
+def test_calibration_sensitivity_gives_the_same_rows_in_process_or_on_a_local_cluster(monkeypatch):
+    kw = dict(n_poses_list=(4, 8), noise_levels=((0.5, 0.2), (1.0, 0.4)), n_trials=6, rng=3)
+    monkeypatch.delenv("HISTOSTUDY_SCHEDULER", raising=False)
+    sequential = he.calibration_sensitivity(**kw)  # the default: this process
+    cluster = he.calibration_sensitivity(**kw, executor="local:2")
+    pd.testing.assert_frame_equal(sequential, cluster, check_exact=True)
+    assert len(sequential) == 2 * 2 * 6 and list(sequential["trial"][:2]) == [0, 0]
+    monkeypatch.setenv("HISTOSTUDY_SCHEDULER", "local:0")  # the default executor comes from the environment
+    with pytest.raises(ValueError, match="HISTOSTUDY_SCHEDULER: the workers of 'local:<workers>'"):
+        he.calibration_sensitivity(**kw)
