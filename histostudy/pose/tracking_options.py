@@ -13,6 +13,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from histostudy.learning import FAST_UNET_PRECISIONS
+
 __all__ = ["TrackingOptions"]
 
 
@@ -53,6 +55,8 @@ class TrackingOptions:
             verdict's unexplained-segmentation check; None: every point.
         parallel_views: segment the views and build their maps on two threads at once (torch and
             OpenCV release the GIL); False: one after the other.
+        precision: what a U-Net computes in (:class:`~histostudy.learning.FastUNet`): ``"auto"``
+            (bfloat16 on a CPU with native bfloat16, else float32), ``"float32"`` or ``"bfloat16"``.
     """
 
     roi_margin_px: float = 48.0
@@ -62,6 +66,7 @@ class TrackingOptions:
     stop_step_deg: float = 0.001
     unexplained_points: int | None = 40000
     parallel_views: bool = False
+    precision: str = "auto"
 
     def __post_init__(self):
         if not (_is_number(self.roi_margin_px) and np.isfinite(self.roi_margin_px) and self.roi_margin_px >= 0):
@@ -82,6 +87,8 @@ class TrackingOptions:
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
         if not isinstance(self.parallel_views, (bool, np.bool_)):
             raise ValueError(f"parallel_views must be True or False, got {self.parallel_views!r}")
+        if self.precision not in FAST_UNET_PRECISIONS:
+            raise ValueError(f"precision must be one of {FAST_UNET_PRECISIONS}, got {self.precision!r}")
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:

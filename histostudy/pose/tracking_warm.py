@@ -86,7 +86,8 @@ class RegionEstimator:
                  tracking: TrackingOptions, rng: np.random.Generator):
         self.model, self.views, self.segmenter = model, tuple(views), segmenter
         self.options, self.tracking = options, tracking
-        self.fast_unet = FastUNet(segmenter) if isinstance(segmenter, UNetSegmenter) else None
+        self.fast_unet = (FastUNet(segmenter, precision=tracking.precision) if isinstance(segmenter, UNetSegmenter)
+                          else None)
         if self.fast_unet is not None:
             s = self.fast_unet.scale if tracking.label_scale is None else float(tracking.label_scale)
             if s > self.fast_unet.scale + 1e-12 or abs(round(self.fast_unet.scale / s) * s - self.fast_unet.scale) > 1e-9:

@@ -32,7 +32,7 @@ def random_unet():
 
 
 def test_folded_channels_last_network_gives_the_eager_logits(random_unet):
-    fast = FastUNet(random_unet)
+    fast = FastUNet(random_unet, precision="float32")
     x = torch.randn(1, 1, 64, 96)
     with torch.no_grad():
         reference = random_unet.network(x)
@@ -46,7 +46,7 @@ def test_region_labels_are_the_network_resolution_labels_of_the_box(random_unet)
     view = default_biplane()[0].scaled(0.25)  # 240 x 310
     image = np.random.default_rng(1).standard_normal(view.shape).astype(np.float32)
     frame = Frame(image, view)
-    fast = FastUNet(random_unet)
+    fast = FastUNet(random_unet, precision="float32")
     full = fast.segment_region(frame, (0, 240, 0, 310))
     np.testing.assert_array_equal(full, _eager_labels(random_unet, frame))
     part = fast.segment_region(frame, (32, 160, 64, 224))
@@ -66,11 +66,13 @@ def shipped_and_frame():
     return segmenter, frame
 
 
-def test_fast_labels_agree_with_the_checkpoint_on_a_rendered_frame(shipped_and_frame):
-    """The fast path's labels against the torch checkpoint run eagerly, at the network's resolution:
-    on the whole frame, and on a tracking region (the crop changes the context near its edges)."""
+@pytest.mark.parametrize("precision", ["auto", "float32"])
+def test_fast_labels_agree_with_the_checkpoint_on_a_rendered_frame(shipped_and_frame, precision):
+    """The fast path's labels against the torch checkpoint run eagerly in float32, at the network's
+    resolution: on the whole frame, and on a tracking region (the crop changes the context near its
+    edges). "auto" is bfloat16 on a CPU with native bfloat16."""
     segmenter, frame = shipped_and_frame
-    fast = FastUNet(segmenter)
+    fast = FastUNet(segmenter, precision=precision)
     reference = _eager_labels(segmenter, frame)
     whole = fast.segment_region(frame, (0, 960, 0, 1240))
     assert whole.shape == reference.shape == (480, 620)
@@ -100,3 +102,5 @@ def test_bad_input_is_refused_naming_the_argument(random_unet):
         fast.segment_region(frame.image, (0, 64, 0, 64))
     with pytest.raises(TypeError, match="segmenter must be a histostudy.learning.UNetSegmenter"):
         FastUNet("unet")
+    with pytest.raises(ValueError, match="precision must be one of"):
+        FastUNet(random_unet, precision="int8")
