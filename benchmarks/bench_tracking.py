@@ -1,0 +1,160 @@
+"""Live tracking speed (§II-A, §II-B.2-3; docs/tracking.md): warm-started ``Tracker`` updates with
+the learned stages, segmentation included, on a synthetic moving cine.
+
+Baseline, measured in the same run: today's full-frame path, ``Tracker(model, views, mode=...)``
+(every warm update is ``estimate_pose`` from the last pose on the full frames; ``--baseline-mode``,
+default ``fast``: the same Levenberg-Marquardt refinement as the fast path, so that the focal errors
+compare the regions and resolution alone). Against it: ``Tracker(..., fast=True)`` (the region of
+the last pose at the U-Net's resolution, views one after the other) and the same with
+``parallel_views=True`` (the two views' segmentation and maps on two threads). The trackers update
+on the same frames, in an order that rotates frame by frame so that a slow spell of the machine
+does not fall on one of them only.
+
+Cine: the physical transducer (0.25 mm render model) on a phantom scene with Poisson noise, on
+``default_biplane()`` (960 x 1240), starting at a pose of notebook 04's distribution and moving
+``--step-mm`` (0.5) and ``--step-deg`` (0.2) per frame along a drifting direction, about a drifting axis.
+Truth: the physical transducer's focal point. Each tracker's first update is from scratch (timed
+apart); from-scratch seconds are also timed on ``--scratch`` later frames (``reset()`` then ``update``).
+
+Prints: warm pairs/s (1 / median seconds of the accepted warm updates) and overall pairs/s (all
+updates after the first, re-acquisitions included), the median seconds per stage of warm updates,
+the ratio to the baseline, the losses and re-acquisitions, each frame's focal error against the
+truth and the difference fast - baseline; from-scratch seconds per pair. Torch, numba and OpenCV
+run on ``--threads`` (2) threads; the load average before and after says how busy the machine was.
+
+Run: ``python benchmarks/bench_tracking.py [--frames 12] [--seed 5] [--threads 2]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import cv2
+import numba
+import numpy as np
+import torch
+
+from histostudy.geometry import transform_from_params
+from histostudy.imaging import Frame, default_biplane, random_background, render_frame
+from histostudy.pose import Tracker, TrackingOptions, default_stages
+from histostudy.study.pose_estimation import PoseStudyConfig, experiment_pose
+from histostudy.transducer import TransducerModel
+
+STAGES = ("segmentation", "distance_maps", "refinement", "verdict", "total")
+
+
+def cine(n_frames: int, seed: int, step_mm: float, step_deg: float):
+    """``n_frames`` biplane pairs of a moving transducer: (poses, frames, physical model)."""
+    rng = np.random.default_rng(seed)
+    views = default_biplane()
+    render_model = TransducerModel.build(spacing_mm=0.25)
+    physical = TransducerModel.build_physical(spacing_mm=0.25, rng=rng)
+    scene = random_background(rng, "phantom")
+    T = experiment_pose(rng, PoseStudyConfig(), scene.meta.get("phantom_center_mm", np.zeros(3)))
+    direction, axis = (v / np.linalg.norm(v) for v in rng.standard_normal((2, 3)))
+    poses, frames = [], []
+    for _ in range(n_frames):
+        poses.append(T)
+        frames.append([render_frame(render_model, T, v, rng=rng, physical=physical, background=scene) for v in views])
+        step = transform_from_params(np.r_[np.deg2rad(step_deg) * axis, step_mm * direction])
+        T = T.copy()
+        T[:3, :3] = step[:3, :3] @ T[:3, :3]
+        T[:3, 3] = T[:3, 3] + step[:3, 3]
+        direction = direction + 0.3 * rng.standard_normal(3)
+        direction /= np.linalg.norm(direction)
+        axis = axis + 0.3 * rng.standard_normal(3)
+        axis /= np.linalg.norm(axis)
+    return poses, frames, physical, views
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=12)
+    parser.add_argument("--seed", type=int, default=5)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--step-mm", type=float, default=0.5)
+    parser.add_argument("--step-deg", type=float, default=0.2)
+    parser.add_argument("--scratch", type=int, default=2, help="later frames also timed from scratch")
+    parser.add_argument("--baseline-mode", choices=("fast", "paper"), default="fast")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    numba.set_num_threads(args.threads)
+    cv2.setNumThreads(args.threads)
+
+    t0 = time.perf_counter()
+    poses, frames, physical, views = cine(args.frames, args.seed, args.step_mm, args.step_deg)
+    print(f"rendered {args.frames} biplane pairs ({views[0].shape[0]}x{views[0].shape[1]}) in "
+          f"{time.perf_counter() - t0:.0f} s; torch/numba/OpenCV threads = {args.threads}; "
+          f"load average before: {os.getloadavg()[0]:.2f}")
+    model = TransducerModel.build(spacing_mm=0.47)
+    segmenter, orientation = default_stages()
+    stages = dict(segmenter=segmenter, orientation=orientation)
+    trackers = {
+        "baseline": Tracker(model, views, rng=args.seed, mode=args.baseline_mode, **stages),
+        "fast": Tracker(model, views, rng=args.seed, mode="fast", fast=True, **stages),
+        "fast+threads": Tracker(model, views, rng=args.seed, mode="fast",
+                                fast=TrackingOptions(parallel_views=True), **stages),
+    }
+    names = list(trackers)
+    truth = [T[:3, :3] @ physical.focal_point_mm + T[:3, 3] for T in poses]
+    log = {name: [] for name in names}  # per frame: (kind, seconds, timings, focal error or nan)
+    for i, pair in enumerate(frames):
+        order = names[i % len(names):] + names[:i % len(names)]
+        for name in order:
+            tracker = trackers[name]
+            t = time.perf_counter()
+            result = tracker.update(pair)
+            seconds = time.perf_counter() - t
+            error = np.linalg.norm(result.focal_point_mm - truth[i]) if result.verdict.ok else np.nan
+            log[name].append((tracker.last_kind, seconds, dict(result.timings_s), error))
+    scratch = {name: [log[name][0][1]] for name in ("baseline", "fast")}
+    for k in range(1, 1 + min(args.scratch, args.frames - 1)):
+        i = k * (args.frames - 1) // max(args.scratch, 1)
+        for name in scratch:
+            trackers[name].reset()
+            t = time.perf_counter()
+            trackers[name].update(frames[i])
+            scratch[name].append(time.perf_counter() - t)
+    load_after = os.getloadavg()[0]
+
+    print(f"\nwarm updates (frames 1-{args.frames - 1}; baseline mode {args.baseline_mode!r}): "
+          f"median seconds per stage of the accepted warm updates")
+    print(f"{'':16s}" + "".join(f"{n:>14s}" for n in names))
+    warm = {n: [e for e in log[n][1:] if e[0] == "warm"] for n in names}
+    for s in STAGES:
+        print(f"{s:16s}" + "".join(f"{np.median([e[2].get(s, 0.0) for e in warm[n]]) if warm[n] else np.nan:14.3f}"
+                                   for n in names))
+    rate = {n: 1.0 / np.median([e[1] for e in warm[n]]) if warm[n] else np.nan for n in names}
+    overall = {n: (args.frames - 1) / sum(e[1] for e in log[n][1:]) for n in names}
+    print(f"{'warm pairs/s':16s}" + "".join(f"{rate[n]:14.2f}" for n in names))
+    print(f"{'  x baseline':16s}" + "".join(f"{rate[n] / rate['baseline']:14.2f}" for n in names))
+    print(f"{'overall pairs/s':16s}" + "".join(f"{overall[n]:14.2f}" for n in names))
+    print(f"{'  x baseline':16s}" + "".join(f"{overall[n] / overall['baseline']:14.2f}" for n in names))
+    print(f"{'lost/reacquired':16s}" + "".join(f"{trackers[n].n_lost:>10d}/{trackers[n].n_reacquired:<3d}"
+                                                for n in names))
+    errors = {n: np.array([e[3] for e in log[n]]) for n in names}
+    print(f"{'focal err mean':16s}" + "".join(f"{np.nanmean(errors[n]):14.3f}" for n in names))
+
+    print("\nper frame: kind, seconds, focal error (mm) against the truth; diff = fast - baseline error")
+    print(f"{'frame':>5s}" + "".join(f"{n:>30s}" for n in names) + f"{'diff fast':>11s}{'diff thr':>10s}")
+    for i in range(args.frames):
+        row = f"{i:5d}"
+        for n in names:
+            kind, seconds, _, error = log[n][i]
+            row += f"{kind:>14s} {seconds:6.3f} s {error:6.3f}"
+        row += f"{errors['fast'][i] - errors['baseline'][i]:+11.3f}{errors['fast+threads'][i] - errors['baseline'][i]:+10.3f}"
+        print(row)
+    diff = np.abs(errors["fast"][1:] - errors["baseline"][1:])
+    print(f"|focal error fast - baseline| over frames 1-{args.frames - 1}: mean {np.nanmean(diff):.3f} mm, "
+          f"max {np.nanmax(diff):.3f} mm ({int(np.sum(diff <= 0.1))}/{int(np.sum(np.isfinite(diff)))} within 0.1 mm)")
+    print("\nfrom scratch (full frames, estimate_pose): seconds per pair "
+          + ", ".join(f"{n} median {np.median(v):.2f} ({', '.join(f'{x:.2f}' for x in v)})" for n, v in scratch.items()))
+    print(f"load average after: {load_after:.2f} (on {os.cpu_count()} cores)")
+
+
+if __name__ == "__main__":
+    t_start = time.perf_counter()
+    main()
+    print(f"(benchmark wall time {time.perf_counter() - t_start:.0f} s)")
