@@ -3,8 +3,8 @@ paper's training ranges (§II-B.2: Euler angles in [0, 360) deg, translations ±
 
 One row per (random pose, initialisation): the focal-point error (mm, C-arm frame), the
 verdict of :func:`histostudy.pose.estimate_pose` and its per-view statistics (px, mm), seconds.
-The worker functions of :func:`robustness_sweep` stay at module level, importable by their
-path, because ``workers > 1`` runs them in spawned processes.
+The pose task of :func:`robustness_sweep` stays at module level, importable by its path,
+because a cluster's workers run it (:func:`histostudy.core.run_sweep`).
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
+from histostudy.core import SweepExecutor, run_sweep
 from histostudy.imaging import View, random_background, render_frame
 from histostudy.learning import OracleOrientation, OrientationSource, Segmenter
 from histostudy.pose import PoseEstimationError, estimate_pose
@@ -29,7 +30,8 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
                      physical: TransducerModel, views: Sequence[View], seed: int, config: PoseStudyConfig,
                      inits: Sequence[str] = ("robust", "paper"), mode: str = "fast",
                      success_mm: float = 2.0, segmenter: Segmenter | None = None,
-                     orientation: OrientationSource | None = None, workers: int = 1) -> pd.DataFrame:
+                     orientation: OrientationSource | None = None, workers: int | None = None,
+                     executor: SweepExecutor | str | None = None) -> pd.DataFrame:
     """Initialisation success over random poses in the paper's training ranges; one row per (pose, init).
 
     The focal point and the transducer's centre (the centroid of the model's element points)
@@ -39,47 +41,28 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
     and ``orientation`` default to the config's oracles (Table I degradation, the paper's angle
     MAE); pass the learned ones to measure the whole pipeline.
 
-    ``workers`` > 1 spreads the poses over that many spawned processes (one torch thread each).
-    Every pose draws from its own child of ``SeedSequence(seed)``, so the rows are the same as
-    with one worker. Each row also records the verdict's reasons (``failure``) and, per view, its
-    statistics (``rms_<view>``, ``body_rms_<view>``, ``unexplained_<view>``,
+    ``executor`` runs the poses (:func:`histostudy.core.run_sweep`): ``"sequential"``, ``"local"``
+    / ``"local:<workers>"`` (a dask LocalCluster), a scheduler address ``"tcp://host:port"``, a
+    :class:`~histostudy.core.SweepExecutor`, or None: ``$HISTOSTUDY_SCHEDULER``, else sequential.
+    ``workers`` > 1 is the older spelling of ``executor="local:<workers>"``; 1 runs in this process.
+    Every pose draws from its own child of ``SeedSequence(seed)``, so the rows are the same
+    whatever runs them (but ``seconds``). Each row also records the verdict's reasons (``failure``)
+    and, per view, its statistics (``rms_<view>``, ``body_rms_<view>``, ``unexplained_<view>``,
     ``disagreement_mm_<view>``; NaN where not reached).
     """
-    if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
-        raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+    if workers is not None:
+        if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
+            raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+        if executor is not None:
+            raise ValueError(f"give workers or executor, not both (workers={workers!r}, executor={executor!r})")
+        executor = SweepExecutor("local", n_workers=int(workers)) if workers > 1 else "sequential"
     segmenter = config.segmenter() if segmenter is None else segmenter
     orientation = OracleOrientation() if orientation is None else orientation
     shared = dict(pose_model=pose_model, render_model=render_model, physical=physical, views=list(views),
                   config=config, inits=tuple(inits), mode=mode, success_mm=success_mm, segmenter=segmenter,
                   orientation=orientation)
-    poses = list(enumerate(np.random.SeedSequence(seed).spawn(n_poses)))
-    if workers == 1 or n_poses < 2:
-        per_pose = [_sweep_pose(i, seq, **shared) for i, seq in poses]
-    else:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
-        # spawned, not forked: a fork of a process whose torch/OpenMP pools are running can hang
-        with ProcessPoolExecutor(max_workers=int(workers), mp_context=multiprocessing.get_context("spawn"),
-                                 initializer=_init_sweep_worker, initargs=(shared,)) as pool:
-            per_pose = list(pool.map(_sweep_pose_in_worker, poses))
+    per_pose = run_sweep(_sweep_pose, range(n_poses), seed=seed, executor=executor, shared=shared)
     return pd.DataFrame([row for rows in per_pose for row in rows])
-
-
-_SWEEP_SHARED: dict = {}
-
-
-def _init_sweep_worker(shared: dict) -> None:
-    try:
-        import torch
-        torch.set_num_threads(1)
-    except ImportError:
-        pass
-    _SWEEP_SHARED.update(shared)
-
-
-def _sweep_pose_in_worker(pose) -> list[dict]:
-    return _sweep_pose(*pose, **_SWEEP_SHARED)
 
 
 def _sweep_pose(i: int, seq: np.random.SeedSequence, *, pose_model, render_model, physical, views, config, inits,

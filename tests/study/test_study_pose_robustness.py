@@ -47,7 +47,7 @@ def test_robustness_summary_counts_refusals_and_wrong_accepted_poses():
 
 
 @pytest.mark.slow
-def test_robustness_sweep_gives_the_same_rows_on_one_worker_or_two():
+def test_robustness_sweep_gives_the_same_rows_in_process_or_on_a_local_cluster():
     from histostudy.learning import OracleOrientation
 
     model = TransducerModel.build(spacing_mm=0.47)
@@ -55,9 +55,22 @@ def test_robustness_sweep_gives_the_same_rows_on_one_worker_or_two():
     kwargs = dict(pose_model=model, render_model=model, physical=physical, views=default_biplane(), seed=11,
                   config=study.PoseStudyConfig(n_splats=1), inits=("robust",), orientation=OracleOrientation())
     one = study.robustness_sweep(2, **kwargs)
-    two = study.robustness_sweep(2, workers=2, **kwargs)
-    pd.testing.assert_frame_equal(one.drop(columns="seconds"), two.drop(columns="seconds"))
+    two = study.robustness_sweep(2, workers=2, **kwargs)  # a dask LocalCluster of 2 worker processes
+    pd.testing.assert_frame_equal(one.drop(columns="seconds"), two.drop(columns="seconds"), check_exact=True)
     assert {"rms_A", "body_rms_B", "unexplained_A", "disagreement_mm_B"} <= set(one.columns)
     assert one["verdict_ok"].all() and (one["error_mm"] < 2.0).all()
     with pytest.raises(ValueError, match="workers must be an integer >= 1, got 0"):
         study.robustness_sweep(2, workers=0, **kwargs)
+
+
+def test_robustness_sweep_refuses_a_bad_executor_before_any_work(monkeypatch):
+    model = TransducerModel.build(spacing_mm=2.0)
+    kwargs = dict(pose_model=model, render_model=model, physical=model, views=default_biplane(), seed=11,
+                  config=study.PoseStudyConfig(n_splats=1))
+    with pytest.raises(ValueError, match="give workers or executor, not both"):
+        study.robustness_sweep(2, workers=2, executor="local", **kwargs)
+    with pytest.raises(ValueError, match="executor must be 'sequential', 'local'"):
+        study.robustness_sweep(2, executor="threads", **kwargs)
+    monkeypatch.setenv("HISTOSTUDY_SCHEDULER", "tcp://nowhere")
+    with pytest.raises(ValueError, match="HISTOSTUDY_SCHEDULER must be a scheduler address"):
+        study.robustness_sweep(2, **kwargs)
