@@ -51,6 +51,9 @@ class SweepTaskError(RuntimeError):
         super().__init__(message)
         self.index = index
 
+    def __reduce__(self):  # raised on a worker, re-raised here
+        return type(self), (self.index, str(self))
+
 
 @dataclass(frozen=True)
 class SweepExecutor:
@@ -120,7 +123,7 @@ def resolve_executor(executor: SweepExecutor | str | None = None) -> SweepExecut
 
 def run_sweep(task_fn: Callable[..., Any], tasks: Sequence, *, seed: int | np.random.SeedSequence | None = None,
               executor: SweepExecutor | str | None = None, shared: dict | None = None,
-              progress: bool = False) -> list:
+              chunk_size: int | None = None, progress: bool = False) -> list:
     """Run ``task_fn`` on every element of ``tasks``; the results in task order.
 
     Task ``i`` is called ``task_fn(tasks[i], seeds[i], **shared)`` with ``seeds =
@@ -129,7 +132,10 @@ def run_sweep(task_fn: Callable[..., Any], tasks: Sequence, *, seed: int | np.ra
     ``seed`` is None (the tasks then carry all their randomness). ``shared`` holds read-only
     inputs common to all tasks: on a cluster they are sent once to every worker, not with each
     task. ``task_fn`` must be importable by its module path on the workers (a module-level
-    function). ``executor``: see :func:`resolve_executor`. ``progress`` shows a tqdm bar.
+    function). ``executor``: see :func:`resolve_executor`. On a cluster, consecutive tasks go in
+    chunks of ``chunk_size`` (default: about 4 chunks per worker thread), one dask task each, so
+    that tasks of milliseconds do not pay dask's overhead one by one; the results do not depend
+    on it. ``progress`` shows a tqdm bar (per chunk on a cluster).
 
     Raises :class:`SweepTaskError` naming the first task that raised (by completion) or whose
     workers died more than ``allowed_failures`` times.
@@ -145,12 +151,15 @@ def run_sweep(task_fn: Callable[..., Any], tasks: Sequence, *, seed: int | np.ra
         seeds = np.random.SeedSequence(int(seed)).spawn(len(tasks))
     else:
         raise TypeError(f"seed must be an int, a numpy.random.SeedSequence or None, got {type(seed).__name__}: {seed!r}")
+    if chunk_size is not None and (isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer))
+                                   or chunk_size < 1):
+        raise ValueError(f"chunk_size must be an integer >= 1 or None, got {chunk_size!r}")
     shared = {} if shared is None else dict(shared)
     ex = resolve_executor(executor)
     calls = [(arg,) if seeds is None else (arg, s) for arg, s in zip(tasks, seeds or [None] * len(tasks))]
     if ex.kind == "sequential" or not calls:
         return _run_sequential(task_fn, calls, shared, progress)
-    return _run_distributed(task_fn, calls, shared, ex, progress)
+    return _run_distributed(task_fn, calls, shared, ex, chunk_size, progress)
 
 
 def _run_sequential(task_fn, calls, shared, progress) -> list:
@@ -163,7 +172,7 @@ def _run_sequential(task_fn, calls, shared, progress) -> list:
     return results
 
 
-def _run_distributed(task_fn, calls, shared, ex: SweepExecutor, progress) -> list:
+def _run_distributed(task_fn, calls, shared, ex: SweepExecutor, chunk_size, progress) -> list:
     import logging
 
     import dask
@@ -189,22 +198,28 @@ def _run_distributed(task_fn, calls, shared, ex: SweepExecutor, progress) -> lis
             # fetches them once from a peer.
             with dask.config.set({"distributed.admin.large-graph-warning-threshold": "2GB"}):
                 shared_ref = client.submit(_identity, _dumps(shared), pure=False, key=f"shared-{token}")
-            futures = [client.submit(_call, task_fn, _dumps(args), token, shared_ref, ex.threads_per_worker,
-                                     pure=False, key=f"{token}-{i}") for i, args in enumerate(calls)]
-            index = {f.key: i for i, f in enumerate(futures)}
+            if chunk_size is None:
+                chunk_size = -(-len(calls) // (4 * max(1, sum(client.nthreads().values()))))
+            chunk_size = int(chunk_size)
+            starts = range(0, len(calls), chunk_size)
+            futures = [client.submit(_call, task_fn, _dumps(calls[a:a + chunk_size]), a, token, shared_ref,
+                                     ex.threads_per_worker, pure=False, key=f"{token}-{a}") for a in starts]
+            first = {f.key: a for f, a in zip(futures, starts)}
             results: dict[int, Any] = {}
             try:
                 for future in _progress(as_completed(futures, loop=client.loop), len(futures), progress):
-                    i = index[future.key]
                     try:
-                        value = future.result()
+                        values = pickle.loads(future.result())
                     except Exception as exc:
                         # a task that raised or killed its workers before the cancellations it caused
-                        erred = [j for j, f in enumerate(futures) if f.status == "error"]
-                        if erred and erred[0] != i:
-                            i, exc = erred[0], futures[erred[0]].exception()
-                        raise _task_error(task_fn, i, exc) from exc
-                    results[i] = pickle.loads(value)  # as_completed yields each future once, re-run or not
+                        erred = [f for f in futures if f.status == "error"]
+                        failed = erred[0] if erred else future
+                        exc = failed.exception() if erred else exc
+                        if isinstance(exc, SweepTaskError):
+                            raise exc
+                        raise _task_error(task_fn, first[failed.key], exc) from exc
+                    # as_completed yields each future once, re-run or not
+                    results.update(enumerate(values, start=first[future.key]))
             finally:
                 client.cancel(futures)
         return [results[i] for i in range(len(calls))]
@@ -236,15 +251,22 @@ def _identity(blob: bytes) -> bytes:
 _SHARED: dict[str, dict] = {}
 
 
-def _call(task_fn, args: bytes, token: str, shared: bytes, threads: int) -> bytes:
-    """On a worker: cap the thread pools at ``threads``, then run the task on its unpickled
-    arguments and the sweep's shared inputs (unpickled once per process); the result pickled."""
+def _call(task_fn, chunk: bytes, start: int, token: str, shared: bytes, threads: int) -> bytes:
+    """On a worker: cap the thread pools at ``threads``, then run a chunk of tasks (the first is
+    task ``start``) on their unpickled arguments and the sweep's shared inputs (unpickled once
+    per process); the results pickled. A task that raises raises :class:`SweepTaskError`."""
     _cap_threads(threads)
     if token not in _SHARED:
         while len(_SHARED) >= 2:
             _SHARED.pop(next(iter(_SHARED)))
         _SHARED[token] = pickle.loads(shared)
-    return _dumps(task_fn(*pickle.loads(args), **_SHARED[token]))
+    results = []
+    for i, args in enumerate(pickle.loads(chunk), start=start):
+        try:
+            results.append(task_fn(*args, **_SHARED[token]))
+        except Exception as exc:
+            raise _task_error(task_fn, i, exc) from exc
+    return _dumps(results)
 
 
 def _cap_threads(threads: int) -> None:
@@ -268,7 +290,8 @@ def _loaded(name: str):
 def _task_error(task_fn, i: int, exc: BaseException) -> SweepTaskError:
     name = getattr(task_fn, "__name__", repr(task_fn))
     if type(exc).__name__ == "KilledWorker":
-        return SweepTaskError(i, f"sweep task {i} ({name}): its worker died too often ({exc})")
+        return SweepTaskError(i, f"sweep task {i} ({name}), or one chunked with it: its worker died too often "
+                                 f"({exc})")
     if type(exc).__name__ in ("CancelledError", "FutureCancelledError"):
         return SweepTaskError(i, f"sweep task {i} ({name}) was cancelled, by the scheduler or its loss ({exc})")
     return SweepTaskError(i, f"sweep task {i} ({name}) failed: {type(exc).__name__}: {exc}")

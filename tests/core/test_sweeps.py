@@ -61,8 +61,9 @@ def scheduler():
 TABLE = np.random.default_rng(7).normal(size=(117328, 3))
 
 
-def sweep(executor, fn=monte_carlo, **shared):
-    return run_sweep(fn, range(N_TASKS), seed=20230119, executor=executor, shared={"table": TABLE, **shared})
+def sweep(executor, fn=monte_carlo, chunk_size=None, **shared):
+    return run_sweep(fn, range(N_TASKS), seed=20230119, executor=executor, shared={"table": TABLE, **shared},
+                     chunk_size=chunk_size)
 
 
 def assert_same_walks(results, reference):
@@ -76,9 +77,10 @@ def test_sequential_one_worker_and_two_workers_give_the_same_results_bit_for_bit
     assert [len(w) for w, *_ in sequential] == list(range(N_TASKS))  # in task order
     assert {pid for *_, pid in sequential} == {os.getpid()}
     one = sweep("local:1")  # a LocalCluster of its own, started and closed by the sweep
-    two = sweep(scheduler)
+    two = sweep(scheduler, chunk_size=1)
     assert_same_walks(one, sequential)
     assert_same_walks(two, sequential)
+    assert_same_walks(sweep(scheduler, chunk_size=5), sequential)  # chunks of 5, 5 and 2 tasks
     assert len({pid for *_, pid in one}) == 1 and len({pid for *_, pid in two}) == 2
     assert os.getpid() not in {pid for *_, pid in one + two}
     # the seeds are SeedSequence(seed).spawn(n): the same with the sequence itself
@@ -103,12 +105,16 @@ def test_a_failing_task_is_named_by_its_index(scheduler):
                                                  r"calibration for three poses") as info:
             run_sweep(raises_on_three, range(6), seed=1, executor=executor)
         assert info.value.index == 3
-    with pytest.raises(SweepTaskError, match=r"sweep task 0 \(always_dies_on_two\): its worker died too often"):
+    died = r"\(always_dies_on_two\), or one chunked with it: its worker died too often"
+    with pytest.raises(SweepTaskError, match=r"sweep task 0 " + died):
         run_sweep(always_dies_on_two, [2], seed=1, executor=scheduler)
     # amid other tasks: dask also gives up on a task queued on the dying worker, so the index
     # named is the first task it gave up on
-    with pytest.raises(SweepTaskError, match=r"sweep task [0-3] \(always_dies_on_two\): its worker died too often"):
-        run_sweep(always_dies_on_two, range(4), seed=1, executor=scheduler)
+    with pytest.raises(SweepTaskError, match=r"sweep task [0-3] " + died):
+        run_sweep(always_dies_on_two, range(4), seed=1, executor=scheduler, chunk_size=1)
+    with pytest.raises(SweepTaskError, match=r"sweep task 3 \(raises_on_three\) failed") as info:
+        run_sweep(raises_on_three, range(6), seed=1, executor=scheduler, chunk_size=4)  # inside a chunk
+    assert info.value.index == 3
 
 
 def test_executors_are_parsed_and_bad_ones_refused(monkeypatch):
@@ -140,3 +146,5 @@ def test_executors_are_parsed_and_bad_ones_refused(monkeypatch):
         resolve_executor(4)
     with pytest.raises(TypeError, match="seed must be an int"):
         run_sweep(raises_on_three, range(2), seed=1.5, executor="sequential")
+    with pytest.raises(ValueError, match="chunk_size must be an integer >= 1 or None, got 0"):
+        run_sweep(raises_on_three, range(2), seed=1, chunk_size=0)
