@@ -21,11 +21,12 @@ from .targeting_positioning import scene_at_target
 __all__ = ["SceneFigure", "fig7_figures", "plot_target_slices", "scene_figure"]
 
 
-def plot_target_slices(volume: Volume, segmentation: ZoneSegmentation, target_mm, *, title: str = "",
+def plot_target_slices(volume: Volume, segmentation: ZoneSegmentation | None, target_mm, *, title: str = "",
                        half_width_mm: float = 30.0):
     """Fig. 7: transverse, frontal and sagittal slices of a post-treatment CBCT through the
     target, the target from the pre-treatment CBCT as a green dot and the segmented zone's outline
-    in blue. Returns the matplotlib figure."""
+    in blue (``segmentation`` None: the slices and the target only, e.g. a pre-treatment CBCT).
+    Returns the matplotlib figure."""
     import matplotlib.pyplot as plt
 
     target = np.asarray(target_mm, dtype=np.float64).reshape(3)
@@ -33,7 +34,7 @@ def plot_target_slices(volume: Volume, segmentation: ZoneSegmentation, target_mm
         raise ValueError(f"target_mm={target.round(2).tolist()} lies outside the volume")
     i, j, k = np.round(volume.world_to_voxel(target)[0]).astype(int)
     x, y, z = volume.axes_mm()
-    mask = segmentation.mask
+    mask = np.zeros(volume.data.shape, bool) if segmentation is None else segmentation.mask
     if mask.shape != volume.data.shape:
         raise ValueError(f"segmentation mask {mask.shape} does not match the volume {volume.data.shape}")
     # (name, image rows x cols, row axis, col axis, target (col, row), row/col labels)

@@ -24,6 +24,7 @@ from histostudy.lab import TargetingPlan, accepted_stations, calibrate_from_pose
 from histostudy.pose import Tracker, frames_from_files, pose_from_files, pose_record
 from histostudy.transducer import TransducerModel
 from .lab_dataset import write_lab_dataset
+from .targeting_figures import plot_target_slices
 from .targeting_setup import TargetingStudyConfig
 
 __all__ = ["LabInputs", "SECTION_TITLE", "accepted_focal_errors", "calibration_table", "cine_frame_count", "lab_inputs", "plan_table",
@@ -183,34 +184,8 @@ def plan_table(plan: TargetingPlan) -> pd.DataFrame:
 
 def plot_cbct_target(volume: Volume, target_mm, *, half_width_mm: float = 40.0, title: str = ""):
     """Transverse, frontal and sagittal CBCT slices through ``target_mm`` (C-arm mm), the target
-    as a green dot. Returns the matplotlib figure."""
-    import matplotlib.pyplot as plt
-
-    target = np.asarray(target_mm, dtype=np.float64).reshape(3)
-    if not volume.contains(target)[0]:
-        raise ValueError(f"target_mm={target.round(2).tolist()} lies outside the volume")
-    i, j, k = np.round(volume.world_to_voxel(target)[0]).astype(int)
-    x, y, z = volume.axes_mm()
-    cuts = ((f"transverse (z = {z[k]:.1f} mm)", volume.data[k], y, x, (target[0], target[1]), "y (P) mm", "x (L) mm"),
-            (f"frontal (y = {y[j]:.1f} mm)", volume.data[:, j, :], z, x, (target[0], target[2]), "z (S) mm", "x (L) mm"),
-            (f"sagittal (x = {x[i]:.1f} mm)", volume.data[:, :, i], z, y, (target[1], target[2]), "z (S) mm",
-             "y (P) mm"))
-    fig, axes = plt.subplots(1, 3, figsize=(12, 4.2))
-    lo, hi = np.percentile(volume.data, [1, 99.5])
-    for ax, (name, img, rows, cols, (tc, tr), rlab, clab) in zip(axes, cuts):
-        ax.imshow(img, cmap="gray", vmin=lo, vmax=hi, origin="lower", extent=(cols[0], cols[-1], rows[0], rows[-1]),
-                  interpolation="nearest")
-        ax.plot(tc, tr, "o", color="lime", markersize=6, markeredgecolor="k")
-        ax.set_xlim(tc - half_width_mm, tc + half_width_mm)
-        flip = rlab.startswith("y")  # anterior at the top, as radiology shows a transverse slice
-        ax.set_ylim((tr + half_width_mm, tr - half_width_mm) if flip else (tr - half_width_mm, tr + half_width_mm))
-        ax.set_title(name, fontsize=9)
-        ax.set_xlabel(clab)
-        ax.set_ylabel(rlab)
-    if title:
-        fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    return fig
+    as a green dot (:func:`.targeting_figures.plot_target_slices` without a treated zone)."""
+    return plot_target_slices(volume, None, target_mm, title=title, half_width_mm=half_width_mm)
 
 
 def target_plan(calibration: HandEyeCalibration, inputs: LabInputs, volume: Volume,
