@@ -6,15 +6,19 @@ Baseline, measured in the same run: today's full-frame path, ``Tracker(model, vi
 default ``fast``: the same Levenberg-Marquardt refinement as the fast path, so that the focal errors
 compare the regions and resolution alone). Against it: ``Tracker(..., fast=True)`` (the region of
 the last pose at the U-Net's resolution, views one after the other) and the same with
-``parallel_views=True`` (the two views' segmentation and maps on two threads). The trackers update
+``parallel_views=True`` (the two views' segmentation and maps on two threads). These three update
 on the same frames, in an order that rotates frame by frame so that a slow spell of the machine
-does not fall on one of them only.
+does not fall on one of them only. Then, alone (its worker thread would run on while the others are
+timed), ``fast+pipeline``: ``Tracker(..., fast=True).track(frames)``, which segments the next pair
+while this one is refined; its seconds per pair are the wall time between two results.
 
 Cine: the physical transducer (0.25 mm render model) on a phantom scene with Poisson noise, on
 ``default_biplane()`` (960 x 1240), starting at a pose of notebook 04's distribution and moving
 ``--step-mm`` (0.5) and ``--step-deg`` (0.2) per frame along a drifting direction, about a drifting axis.
-Truth: the physical transducer's focal point. Each tracker's first update is from scratch (timed
-apart); from-scratch seconds are also timed on ``--scratch`` later frames (``reset()`` then ``update``).
+Truth: the physical transducer's focal point. Every tracker first runs two untimed updates (numba's
+kernels, torch's convolution primitives) and is reset; its first timed update is then from scratch
+(timed apart), and from-scratch seconds are also timed on ``--scratch`` later frames (``reset()``
+then ``update``).
 
 Prints: warm pairs/s (1 / median seconds of the accepted warm updates) and overall pairs/s (all
 updates after the first, re-acquisitions included), the median seconds per stage of warm updates,
@@ -98,6 +102,11 @@ def main() -> None:
                                 fast=TrackingOptions(parallel_views=True), **stages),
     }
     names = list(trackers)
+    # Warm-up, untimed: numba's kernels, torch's convolution primitives for these frames' regions.
+    for tracker in trackers.values():
+        tracker.update(frames[0])
+        tracker.update(frames[min(1, args.frames - 1)])
+        tracker.reset()
     truth = [T[:3, :3] @ physical.focal_point_mm + T[:3, 3] for T in poses]
     log = {name: [] for name in names}  # per frame: (kind, seconds, timings, focal error or nan)
     for i, pair in enumerate(frames):
@@ -109,48 +118,75 @@ def main() -> None:
             seconds = time.perf_counter() - t
             error = np.linalg.norm(result.focal_point_mm - truth[i]) if result.verdict.ok else np.nan
             log[name].append((tracker.last_kind, seconds, dict(result.timings_s), error))
+    # Tracker.track overlaps a pair's refinement with the next pair's segmentation on a worker
+    # thread, which would run on while the other trackers are timed: it runs alone, after them.
+    name = "fast+pipeline"
+    tracker = Tracker(model, views, rng=args.seed, mode="fast", fast=True, **stages)
+    list(tracker.track(frames[:2]))
+    tracker.reset()
+    names.append(name)
+    trackers[name] = tracker
+    log[name] = []
+    stream = tracker.track(iter(frames))
+    for i in range(args.frames):
+        t = time.perf_counter()
+        result = next(stream)
+        seconds = time.perf_counter() - t
+        error = np.linalg.norm(result.focal_point_mm - truth[i]) if result.verdict.ok else np.nan
+        log[name].append((tracker.last_kind, seconds, dict(result.timings_s), error))
+    stream.close()
     scratch = {name: [log[name][0][1]] for name in ("baseline", "fast")}
+    scratch_stages = {name: [log[name][0][2]] for name in scratch}
     for k in range(1, 1 + min(args.scratch, args.frames - 1)):
         i = k * (args.frames - 1) // max(args.scratch, 1)
         for name in scratch:
             trackers[name].reset()
             t = time.perf_counter()
-            trackers[name].update(frames[i])
+            result = trackers[name].update(frames[i])
             scratch[name].append(time.perf_counter() - t)
+            scratch_stages[name].append(dict(result.timings_s))
     load_after = os.getloadavg()[0]
 
     print(f"\nwarm updates (frames 1-{args.frames - 1}; baseline mode {args.baseline_mode!r}): "
           f"median seconds per stage of the accepted warm updates")
-    print(f"{'':16s}" + "".join(f"{n:>14s}" for n in names))
+    print(f"{'':16s}" + "".join(f"{n:>15s}" for n in names))
     warm = {n: [e for e in log[n][1:] if e[0] == "warm"] for n in names}
     for s in STAGES:
-        print(f"{s:16s}" + "".join(f"{np.median([e[2].get(s, 0.0) for e in warm[n]]) if warm[n] else np.nan:14.3f}"
+        print(f"{s:16s}" + "".join(f"{np.median([e[2].get(s, 0.0) for e in warm[n]]) if warm[n] else np.nan:15.3f}"
                                    for n in names))
     rate = {n: 1.0 / np.median([e[1] for e in warm[n]]) if warm[n] else np.nan for n in names}
     overall = {n: (args.frames - 1) / sum(e[1] for e in log[n][1:]) for n in names}
-    print(f"{'warm pairs/s':16s}" + "".join(f"{rate[n]:14.2f}" for n in names))
-    print(f"{'  x baseline':16s}" + "".join(f"{rate[n] / rate['baseline']:14.2f}" for n in names))
-    print(f"{'overall pairs/s':16s}" + "".join(f"{overall[n]:14.2f}" for n in names))
-    print(f"{'  x baseline':16s}" + "".join(f"{overall[n] / overall['baseline']:14.2f}" for n in names))
-    print(f"{'lost/reacquired':16s}" + "".join(f"{trackers[n].n_lost:>10d}/{trackers[n].n_reacquired:<3d}"
+    print(f"{'warm pairs/s':16s}" + "".join(f"{rate[n]:15.2f}" for n in names))
+    print(f"{'  x baseline':16s}" + "".join(f"{rate[n] / rate['baseline']:15.2f}" for n in names))
+    print(f"{'overall pairs/s':16s}" + "".join(f"{overall[n]:15.2f}" for n in names))
+    print(f"{'  x baseline':16s}" + "".join(f"{overall[n] / overall['baseline']:15.2f}" for n in names))
+    print(f"{'lost/reacquired':16s}" + "".join(f"{trackers[n].n_lost:>11d}/{trackers[n].n_reacquired:<3d}"
                                                 for n in names))
     errors = {n: np.array([e[3] for e in log[n]]) for n in names}
-    print(f"{'focal err mean':16s}" + "".join(f"{np.nanmean(errors[n]):14.3f}" for n in names))
+    print(f"{'focal err mean':16s}" + "".join(f"{np.nanmean(errors[n]):15.3f}" for n in names))
 
     print("\nper frame: kind, seconds, focal error (mm) against the truth; diff = fast - baseline error")
-    print(f"{'frame':>5s}" + "".join(f"{n:>30s}" for n in names) + f"{'diff fast':>11s}{'diff thr':>10s}")
+    print(f"{'frame':>5s}" + "".join(f"{n:>30s}" for n in names) + "".join(f"{'d ' + n[:8]:>10s}" for n in names[1:]))
     for i in range(args.frames):
         row = f"{i:5d}"
         for n in names:
             kind, seconds, _, error = log[n][i]
             row += f"{kind:>14s} {seconds:6.3f} s {error:6.3f}"
-        row += f"{errors['fast'][i] - errors['baseline'][i]:+11.3f}{errors['fast+threads'][i] - errors['baseline'][i]:+10.3f}"
+        row += "".join(f"{errors[n][i] - errors['baseline'][i]:+10.3f}" for n in names[1:])
         print(row)
-    diff = np.abs(errors["fast"][1:] - errors["baseline"][1:])
-    print(f"|focal error fast - baseline| over frames 1-{args.frames - 1}: mean {np.nanmean(diff):.3f} mm, "
-          f"max {np.nanmax(diff):.3f} mm ({int(np.sum(diff <= 0.1))}/{int(np.sum(np.isfinite(diff)))} within 0.1 mm)")
+    for n in names[1:]:
+        signed = errors[n][1:] - errors["baseline"][1:]
+        diff = np.abs(signed)
+        print(f"{n}: focal error - baseline's over frames 1-{args.frames - 1}: mean {np.nanmean(signed):+.3f} mm, "
+              f"largest {np.nanmax(signed):+.3f} mm (worse than the baseline), |diff| mean {np.nanmean(diff):.3f} mm, "
+              f"max {np.nanmax(diff):.3f} mm ({int(np.sum(diff <= 0.1))}/{int(np.sum(np.isfinite(diff)))} within 0.1 mm)")
     print("\nfrom scratch (full frames, estimate_pose): seconds per pair "
           + ", ".join(f"{n} median {np.median(v):.2f} ({', '.join(f'{x:.2f}' for x in v)})" for n, v in scratch.items()))
+    print("  median seconds per stage: " + "; ".join(
+        f"{n}: " + ", ".join(f"{st} {np.median([t.get(st, 0.0) for t in v]):.3f}"
+                             for st in ("segmentation", "distance_maps", "orientation", "initialisation", "refinement",
+                                        "verdict", "retries"))
+        for n, v in scratch_stages.items()))
     print(f"load average after: {load_after:.2f} (on {os.cpu_count()} cores)")
 
 

@@ -21,6 +21,12 @@ the region where the transducer projects. :class:`FastUNet` therefore
   ``view.scaled(scale)`` restricted to the box (pixel centres as in
   :meth:`~histostudy.imaging.carm.View.scaled`), not on the frame's.
 
+:meth:`FastUNet.segment` is the same network as a :class:`~.segment.Segmenter` of whole frames at
+their full resolution (the tracker's from-scratch estimates): the arg-max of the bilinearly
+upsampled logits equals the arg-max at the network's resolution wherever the four logit vectors
+the interpolation blends share their arg-max (a convex combination keeps a common maximum), so
+only the pixels where they differ, along the label edges, are interpolated.
+
 Boxes are ``(row0, row1, col0, col1)`` in full-frame pixels, half-open, with all four multiples
 of :attr:`FastUNet.stride_px` (one network-input pixel for every ``1 / scale`` frame pixels,
 ``histostudy.pose.tracking_roi`` aligns them to a whole U-Net stride). Measured alternatives that
@@ -77,6 +83,16 @@ def _fold_batch_norms(network):
     return net
 
 
+def _bilinear_support(n_out: int, n_in: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per output index of a bilinear resize from ``n_in`` to ``n_out`` samples (pixel centres
+    aligned, ``align_corners=False`` as :meth:`UNetSegmenter.segment` resizes): the two input
+    indices it blends and the weight of the second."""
+    src = np.maximum((np.arange(n_out) + 0.5) * (n_in / n_out) - 0.5, 0.0)
+    lo = np.minimum(np.floor(src).astype(np.intp), n_in - 1)
+    hi = np.minimum(lo + 1, n_in - 1)
+    return lo, hi, (src - lo).astype(np.float32)
+
+
 class FastUNet:
     """Fast CPU inference of a :class:`~.segment.UNetSegmenter`'s network on a region of a frame.
 
@@ -122,12 +138,50 @@ class FastUNet:
         at the network's resolution: shape ``((row1 - row0) * scale, (col1 - col0) * scale)``,
         the arg-max of the logits on the grid of ``frame.view.scaled(scale)`` cut to the box."""
         import torch
+
+        if not isinstance(frame, Frame):
+            raise TypeError(f"frame must be a histostudy.imaging.frame.Frame, got {type(frame).__name__}")
+        return self._logits(frame, box).argmax(dim=0).to(torch.uint8).numpy()
+
+    def segment(self, frame: Frame, rng: np.random.Generator | None = None) -> np.ndarray:
+        """``uint8`` labels of the whole frame at its full resolution, as
+        :meth:`~.segment.UNetSegmenter.segment` gives them (module docstring): a
+        :class:`~.segment.Segmenter`. ``rng`` is accepted for the protocol and unused."""
+        import torch
+
+        if not isinstance(frame, Frame):
+            raise TypeError(f"frame must be a histostudy.imaging.frame.Frame, got {type(frame).__name__}")
+        rows, cols = frame.shape
+        k = self.stride_px
+        if rows % k or cols % k:
+            raise ValueError(f"frame of view {frame.view.name!r} with shape {frame.shape} cannot be segmented at "
+                             f"scale {self.scale}: its shape is not divisible by 1/scale = {k}")
+        logits = self._logits(frame, (0, rows, 0, cols))
+        labels = logits.argmax(dim=0).to(torch.uint8).numpy()
+        if k == 1:
+            return labels
+        logits = logits.numpy()
+        (y0, y1, wy), (x0, x1, wx) = _bilinear_support(rows, labels.shape[0]), _bilinear_support(cols, labels.shape[1])
+        top, bottom = labels[y0], labels[y1]
+        out = np.take(top, x0, axis=1)
+        mixed = out != np.take(top, x1, axis=1)
+        mixed |= out != np.take(bottom, x0, axis=1)
+        mixed |= out != np.take(bottom, x1, axis=1)
+        v, u = np.nonzero(mixed)
+        if len(v):
+            a, b, c, d = (logits[:, y0[v], x0[u]], logits[:, y0[v], x1[u]], logits[:, y1[v], x0[u]],
+                          logits[:, y1[v], x1[u]])
+            blended = (1 - wy[v]) * ((1 - wx[u]) * a + wx[u] * b) + wy[v] * ((1 - wx[u]) * c + wx[u] * d)
+            out[v, u] = blended.argmax(axis=0)
+        return out
+
+    def _logits(self, frame: Frame, box):
+        """float32 logits ``(6, rows, cols)`` (a torch tensor) of ``box`` at the network's resolution."""
+        import torch
         from torch.nn import functional as F
 
         from .preprocess import prepare_image
 
-        if not isinstance(frame, Frame):
-            raise TypeError(f"frame must be a histostudy.imaging.frame.Frame, got {type(frame).__name__}")
         r0, r1, c0, c1 = self._check_box(box, frame.shape)
         try:
             x = prepare_image(frame.image, self.scale)
@@ -145,7 +199,7 @@ class FastUNet:
                 mode = "reflect" if min(rows, cols) > max(pad_r, pad_c) else "replicate"
                 t = F.pad(t, (0, pad_c, 0, pad_r), mode=mode)
             logits = self._forward(t.contiguous(memory_format=torch.channels_last).to(self._dtype))
-            return logits[0, :, :rows, :cols].argmax(dim=0).to(torch.uint8).numpy()
+            return logits[0, :, :rows, :cols].contiguous()
 
     def _forward(self, x):
         """The U-Net's layers (:meth:`~.nets.unet.UNet.forward` without its padding) on ``x`` (of the

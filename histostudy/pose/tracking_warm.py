@@ -45,11 +45,30 @@ from .tracking_options import TrackingOptions
 from .tracking_roi import RegionOfInterest, region_of_interest
 from .verdict import check_unexplained, check_view_agreement, judge_fit
 
-__all__ = ["RegionEstimator"]
+__all__ = ["PreparedRegions", "RegionEstimator"]
 
 #: Model points projected to box the region (every n-th point of each class; the margin covers the
 #: spacing they leave).
 ROI_POINT_STRIDE = 16
+
+
+@dataclass
+class PreparedRegions:
+    """What :meth:`RegionEstimator.prepare` made of a frame pair (steps 1-3 of the module docstring).
+
+    Attributes:
+        regions: each view's :class:`~.tracking_roi.RegionOfInterest`.
+        labels: each region's ``uint8`` labels at the label scale.
+        maps: each region's :class:`~.distance_maps.DistanceMaps` (in the estimator's buffers of the slot).
+        timings_s: ``segmentation`` and ``distance_maps`` seconds (summed over views).
+        seconds: wall seconds of the preparation.
+    """
+
+    regions: list
+    labels: list
+    maps: list
+    timings_s: dict
+    seconds: float
 
 
 @dataclass(frozen=True)
@@ -108,8 +127,18 @@ class RegionEstimator:
                                for k, p in model.points.items() if len(p)}
         stacked = np.vstack([p for p in model.points.values() if len(p)])
         self._unexplained_points = _subset(stacked, tracking.unexplained_points, rng)
+        # The coarse stage's subset (``init_points_per_class`` of each class) is drawn with this
+        # seed at every update: the same points each time, and nothing drawn while a pair is
+        # refined on one thread as the next is prepared on another.
+        self._subset_seed = int(rng.integers(2 ** 63))
         self._pool = ThreadPoolExecutor(max_workers=len(self.views)) if tracking.parallel_views else None
         self.last_regions: list[RegionOfInterest] = []
+
+    @property
+    def full_frame_segmenter(self):
+        """The segmenter of the tracker's from-scratch estimates on full frames: the U-Net through
+        :meth:`~histostudy.learning.FastUNet.segment`, or the segmenter as given."""
+        return self.segmenter if self.fast_unet is None else self.fast_unet
 
     def close(self) -> None:
         """Stop the view threads (with ``parallel_views``)."""
@@ -135,33 +164,51 @@ class RegionEstimator:
         return keep_largest_component(labels) if self.options.largest_component else labels
 
     def estimate(self, frames: Sequence[Frame], T_prev: np.ndarray, rng: np.random.Generator) -> PoseResult:
-        """The pose in ``frames`` refined from ``T_prev`` on the regions (module docstring).
+        """The pose in ``frames`` refined from ``T_prev`` on the regions of ``T_prev`` (module
+        docstring): :meth:`finish` of :meth:`prepare`.
 
         Raises :class:`~.result.PoseEstimationError` when a region shows no transducer feature.
         ``result.labels`` are the regions' labels (:attr:`last_regions` says where they lie)."""
+        return self.finish(self.prepare(frames, T_prev, rng), T_prev)
+
+    def prepare(self, frames: Sequence[Frame], T_roi: np.ndarray, rng: np.random.Generator | None,
+                slot: int = 0) -> PreparedRegions:
+        """Steps 1-3 (module docstring) of ``frames``: the regions where ``T_roi`` projects, their
+        labels and distance maps. ``rng``: for a segmenter that draws (not a U-Net). ``slot`` (0 or
+        1) picks the map buffers: :meth:`Tracker.track` prepares the next pair in the other slot
+        while this one is refined. Safe to run on another thread than :meth:`finish`."""
         t_start = time.perf_counter()
-        opts, s = self.options, self.label_scale
-        regions = [region_of_interest(v, self._roi_points, T_prev, margin_px=self.tracking.roi_margin_px,
+        if slot not in (0, 1):
+            raise ValueError(f"slot must be 0 or 1, got {slot!r}")
+        s = self.label_scale
+        regions = [region_of_interest(v, self._roi_points, T_roi, margin_px=self.tracking.roi_margin_px,
                                       align_px=self._align_px, scale=s) for v in self.views]
-        self.last_regions = regions
-        timings = {"segmentation": 0.0, "distance_maps": 0.0}
 
         def per_view(a):
             t0 = time.perf_counter()
             labels = self._labels(frames[a], regions[a], rng)
             t1 = time.perf_counter()
-            maps = self._maps.build(a, regions[a].view, labels)
+            maps = self._maps.build(2 * a + slot, regions[a].view, labels)
             return labels, maps, t1 - t0, time.perf_counter() - t1
 
         if self._pool is not None and self.fast_unet is not None:
             outputs = list(self._pool.map(per_view, range(len(frames))))
         else:
             outputs = [per_view(a) for a in range(len(frames))]
-        labels = [o[0] for o in outputs]
-        maps = [o[1] for o in outputs]
-        timings["segmentation"] = sum(o[2] for o in outputs)
-        timings["distance_maps"] = sum(o[3] for o in outputs)
-        timings["orientation"] = timings["initialisation"] = 0.0
+        timings = {"segmentation": sum(o[2] for o in outputs), "distance_maps": sum(o[3] for o in outputs),
+                   "orientation": 0.0, "initialisation": 0.0}
+        return PreparedRegions(regions=regions, labels=[o[0] for o in outputs], maps=[o[1] for o in outputs],
+                               timings_s=timings, seconds=time.perf_counter() - t_start)
+
+    def finish(self, prepared: PreparedRegions, T_prev: np.ndarray) -> PoseResult:
+        """Steps 4-5 (module docstring): the refinement from ``T_prev`` on ``prepared``'s maps and
+        the verdict; the result's ``timings_s["total"]`` adds :meth:`prepare`'s seconds. Draws
+        nothing: the point subsets were drawn when the estimator was made."""
+        t_start = time.perf_counter()
+        opts, s = self.options, self.label_scale
+        regions, labels, maps = prepared.regions, prepared.labels, prepared.maps
+        self.last_regions = list(regions)
+        timings = dict(prepared.timings_s)
         for region, m in zip(regions, maps):
             if not m.present:
                 raise PoseEstimationError(f"view {region.view.name!r}: no transducer feature was segmented in the "
@@ -172,7 +219,7 @@ class RegionEstimator:
         cap = None if opts.refine_truncation_px is None else opts.refine_truncation_px * s
         outside = opts.outside_distance_px * s
         cost = PoseCost(self._refine_points, maps, class_weights=opts.class_weights, outside_distance_px=outside)
-        coarse = cost.subset(opts.init_points_per_class, rng)
+        coarse = cost.subset(opts.init_points_per_class, np.random.default_rng(self._subset_seed))
         tau = opts.search_truncation_px * s
         polish = coarse.capped(tau, outside_distance_px=tau).with_outside_distance(outside)
         refined = refine_levenberg_marquardt(cost.capped(cap), T_prev, coarse=polish, ftol=1e-6,
@@ -191,13 +238,13 @@ class RegionEstimator:
             tolerance = (10.0 if opts.verdict_truncation_px is None else opts.verdict_truncation_px) * s
             check_unexplained(verdict, region_frames, labels, self.model, refined.T, opts.max_unexplained_fraction,
                               tolerance, points_mm=self._unexplained_points)
-        if verdict.ok and len(frames) > 1 and opts.max_view_disagreement_mm is not None:
+        if verdict.ok and len(regions) > 1 and opts.max_view_disagreement_mm is not None:
             consistency = coarse.capped((1.0 if opts.refine_truncation_px is None else opts.refine_truncation_px) * s)
             check_view_agreement(verdict, consistency, region_frames, refined.T, self.model.focal_point_mm,
                                  opts.max_view_disagreement_mm)
         timings["verdict"] = time.perf_counter() - t0
         timings["retries"] = 0.0
-        timings["total"] = time.perf_counter() - t_start
+        timings["total"] = time.perf_counter() - t_start + prepared.seconds
         T = refined.T
         focal = T[:3, :3] @ np.asarray(self.model.focal_point_mm, dtype=np.float64) + T[:3, 3]
         return PoseResult(T_carm_transducer=T, focal_point_mm=focal, cost=refined.cost, iterations=refined.iterations,

@@ -120,3 +120,33 @@ def test_bad_fast_options_are_refused_naming_the_argument(models, views):
         TrackingOptions(stop_step_mm=0)
     with pytest.raises(ValueError, match="parallel_views must be True or False"):
         TrackingOptions(parallel_views=1)
+
+
+def test_track_overlaps_the_stages_and_gives_the_poses_of_update(models, views, sequence):
+    """Tracker.track prepares each pair's regions on a worker thread from the pose one pair older:
+    the same kinds, counters and (within a hundredth of a millimetre) the same poses as update()."""
+    poses, frames = sequence
+    stepwise = Tracker(models[0], views, rng=4, mode="fast", fast=True, **ORACLES)
+    expected = [stepwise.update(pair) for pair in frames]
+    streamed = Tracker(models[0], views, rng=4, mode="fast", fast=True, **ORACLES)
+    results = list(streamed.track(iter(frames)))
+    assert len(results) == len(frames)
+    for a, b in zip(results, expected):
+        assert a.verdict.ok and np.linalg.norm(a.focal_point_mm - b.focal_point_mm) < 0.01
+    assert streamed.stats()["n_warm"] == stepwise.stats()["n_warm"] == len(frames) - 1
+    plain = Tracker(models[0], views, rng=4, mode="fast", **ORACLES)  # without fast: update in a loop
+    assert [r.verdict.ok for r in plain.track(frames[:2])] == [True, True] and plain.n_updates == 2
+
+
+def test_track_reacquires_after_a_jump_and_stops_on_bad_input(models, views):
+    model, fine = models
+    stream = [frames_of(fine, T, views) for T in (POSES[0], POSES[1], moved(POSES[1], STEP))]
+    tracker = Tracker(model, views, rng=2, mode="fast", fast=True, **ORACLES)
+    kinds = []
+    for result in tracker.track(stream):
+        kinds.append(tracker.last_kind)
+        assert result.verdict.ok
+    assert kinds == ["from_scratch", "reacquired", "warm"]
+    assert (tracker.n_lost, tracker.n_reacquired, tracker.n_warm) == (1, 1, 1)
+    with pytest.raises(ValueError, match="frames must hold one frame per view"):
+        list(tracker.track([stream[0], stream[0][:1]]))
