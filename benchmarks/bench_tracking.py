@@ -4,13 +4,14 @@ the learned stages, segmentation included, on a synthetic moving cine.
 Baseline, measured in the same run: today's full-frame path, ``Tracker(model, views, mode=...)``
 (every warm update is ``estimate_pose`` from the last pose on the full frames; ``--baseline-mode``,
 default ``fast``: the same Levenberg-Marquardt refinement as the fast path, so that the focal errors
-compare the regions and resolution alone). Against it: ``Tracker(..., fast=True)`` (the region of
-the last pose at the U-Net's resolution, views one after the other) and the same with
-``parallel_views=True`` (the two views' segmentation and maps on two threads). These three update
-on the same frames, in an order that rotates frame by frame so that a slow spell of the machine
-does not fall on one of them only. Then, alone (its worker thread would run on while the others are
-timed), ``fast+pipeline``: ``Tracker(..., fast=True).track(frames)``, which segments the next pair
-while this one is refined; its seconds per pair are the wall time between two results.
+compare the regions and resolution alone). Against it: ``fast``, ``Tracker(..., fast=True)`` (the
+region of the last pose at the U-Net's resolution, the two views' segmentation and maps on two
+threads), and ``fast-in-turn``, the same with ``parallel_views=False``. These three update on the
+same frames, in an order that rotates frame by frame so that a slow spell of the machine does not
+fall on one of them only. Then, each alone (its worker thread would run on while the others are
+timed), ``fast+pipeline`` and ``pipe-in-turn``: ``Tracker(..., fast=...).track(frames)``, which
+segments the next pair while this one is refined; their seconds per pair are the wall time between
+two results.
 
 Cine: the physical transducer (0.25 mm render model) on a phantom scene with Poisson noise, on
 ``default_biplane()`` (960 x 1240), starting at a pose of notebook 04's distribution and moving
@@ -95,11 +96,11 @@ def main() -> None:
     model = TransducerModel.build(spacing_mm=0.47)
     segmenter, orientation = default_stages()
     stages = dict(segmenter=segmenter, orientation=orientation)
+    in_turn = TrackingOptions(parallel_views=False)
     trackers = {
         "baseline": Tracker(model, views, rng=args.seed, mode=args.baseline_mode, **stages),
+        "fast-in-turn": Tracker(model, views, rng=args.seed, mode="fast", fast=in_turn, **stages),
         "fast": Tracker(model, views, rng=args.seed, mode="fast", fast=True, **stages),
-        "fast+threads": Tracker(model, views, rng=args.seed, mode="fast",
-                                fast=TrackingOptions(parallel_views=True), **stages),
     }
     names = list(trackers)
     # Warm-up, untimed: numba's kernels, torch's convolution primitives for these frames' regions.
@@ -120,21 +121,21 @@ def main() -> None:
             log[name].append((tracker.last_kind, seconds, dict(result.timings_s), error))
     # Tracker.track overlaps a pair's refinement with the next pair's segmentation on a worker
     # thread, which would run on while the other trackers are timed: it runs alone, after them.
-    name = "fast+pipeline"
-    tracker = Tracker(model, views, rng=args.seed, mode="fast", fast=True, **stages)
-    list(tracker.track(frames[:2]))
-    tracker.reset()
-    names.append(name)
-    trackers[name] = tracker
-    log[name] = []
-    stream = tracker.track(iter(frames))
-    for i in range(args.frames):
-        t = time.perf_counter()
-        result = next(stream)
-        seconds = time.perf_counter() - t
-        error = np.linalg.norm(result.focal_point_mm - truth[i]) if result.verdict.ok else np.nan
-        log[name].append((tracker.last_kind, seconds, dict(result.timings_s), error))
-    stream.close()
+    for name, options in (("pipe-in-turn", in_turn), ("fast+pipeline", TrackingOptions())):
+        tracker = Tracker(model, views, rng=args.seed, mode="fast", fast=options, **stages)
+        list(tracker.track(frames[:2]))
+        tracker.reset()
+        names.append(name)
+        trackers[name] = tracker
+        log[name] = []
+        stream = tracker.track(iter(frames))
+        for i in range(args.frames):
+            t = time.perf_counter()
+            result = next(stream)
+            seconds = time.perf_counter() - t
+            error = np.linalg.norm(result.focal_point_mm - truth[i]) if result.verdict.ok else np.nan
+            log[name].append((tracker.last_kind, seconds, dict(result.timings_s), error))
+        stream.close()
     scratch = {name: [log[name][0][1]] for name in ("baseline", "fast")}
     scratch_stages = {name: [log[name][0][2]] for name in scratch}
     for k in range(1, 1 + min(args.scratch, args.frames - 1)):
@@ -165,14 +166,14 @@ def main() -> None:
     errors = {n: np.array([e[3] for e in log[n]]) for n in names}
     print(f"{'focal err mean':16s}" + "".join(f"{np.nanmean(errors[n]):15.3f}" for n in names))
 
-    print("\nper frame: kind, seconds, focal error (mm) against the truth; diff = fast - baseline error")
-    print(f"{'frame':>5s}" + "".join(f"{n:>30s}" for n in names) + "".join(f"{'d ' + n[:8]:>10s}" for n in names[1:]))
+    print("\nper frame: kind, seconds, focal error (mm) against the truth; diff: each error - the baseline's")
+    print(f"{'frame':>5s}" + "".join(f"{n:>30s}" for n in names) + "  diff: " + " ".join(f"{n[:13]:>13s}" for n in names[1:]))
     for i in range(args.frames):
         row = f"{i:5d}"
         for n in names:
             kind, seconds, _, error = log[n][i]
             row += f"{kind:>14s} {seconds:6.3f} s {error:6.3f}"
-        row += "".join(f"{errors[n][i] - errors['baseline'][i]:+10.3f}" for n in names[1:])
+        row += "        " + " ".join(f"{errors[n][i] - errors['baseline'][i]:+13.3f}" for n in names[1:])
         print(row)
     for n in names[1:]:
         signed = errors[n][1:] - errors["baseline"][1:]

@@ -54,7 +54,8 @@ class TrackingOptions:
         unexplained_points: model points (all classes, drawn once, seeded) projected by the
             verdict's unexplained-segmentation check; None: every point.
         parallel_views: segment the views and build their maps on two threads at once (torch and
-            OpenCV release the GIL); False: one after the other.
+            OpenCV release the GIL; on two free cores 15-25 % more pairs per second, nothing gained
+            when other processes hold the cores: docs/tracking.md); False: one after the other.
         precision: what a U-Net computes in (:class:`~histostudy.learning.FastUNet`): ``"auto"``
             (bfloat16 on a CPU with native bfloat16, else float32), ``"float32"`` or ``"bfloat16"``.
     """
@@ -65,7 +66,7 @@ class TrackingOptions:
     stop_step_mm: float = 0.01
     stop_step_deg: float = 0.001
     unexplained_points: int | None = 40000
-    parallel_views: bool = False
+    parallel_views: bool = True
     precision: str = "auto"
 
     def __post_init__(self):
