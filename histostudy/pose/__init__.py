@@ -39,7 +39,7 @@ from .tracker import Tracker
 from .tracking_maps import RegionMaps
 from .tracking_options import TrackingOptions
 from .tracking_roi import RegionOfInterest, crop_view, region_of_interest
-from .tracking_warm import RegionEstimator
+from .tracking_warm import PreparedRegions, RegionEstimator
 from .verdict import (PoseVerdict, check_unexplained, check_view_agreement, judge_fit, unexplained_fraction,
                       view_disagreement_mm)
 
