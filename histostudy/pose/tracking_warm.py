@@ -140,12 +140,6 @@ class RegionEstimator:
         :meth:`~histostudy.learning.FastUNet.segment`, or the segmenter as given."""
         return self.segmenter if self.fast_unet is None else self.fast_unet
 
-    def close(self) -> None:
-        """Stop the view threads (with ``parallel_views``)."""
-        if self._pool is not None:
-            self._pool.shutdown(wait=True)
-            self._pool = None
-
     # --- stages ---------------------------------------------------------------------------------
 
     def _labels(self, frame: Frame, region: RegionOfInterest, rng) -> np.ndarray:

@@ -120,6 +120,8 @@ def test_bad_fast_options_are_refused_naming_the_argument(models, views):
         TrackingOptions(stop_step_mm=0)
     with pytest.raises(ValueError, match="parallel_views must be True or False"):
         TrackingOptions(parallel_views=1)
+    with pytest.raises(ValueError, match="precision must be one of"):
+        TrackingOptions(precision="int8")
 
 
 def test_track_overlaps_the_stages_and_gives_the_poses_of_update(models, views, sequence):
