@@ -54,7 +54,7 @@ class TrackingOptions:
         unexplained_points: model points (all classes, drawn once, seeded) projected by the
             verdict's unexplained-segmentation check; None: every point.
         parallel_views: segment the views and build their maps on two threads at once (torch and
-            OpenCV release the GIL; on two free cores 15-25 % more pairs per second, nothing gained
+            OpenCV release the GIL; on two free cores 25-40 % more pairs per second, nothing gained
             when other processes hold the cores: docs/tracking.md); False: one after the other.
         precision: what a U-Net computes in (:class:`~histostudy.learning.FastUNet`): ``"auto"``
             (bfloat16 on a CPU with native bfloat16, else float32), ``"float32"`` or ``"bfloat16"``.
