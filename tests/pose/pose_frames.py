@@ -29,3 +29,11 @@ def frames_of(fine, T, views=None, labels_pose=None):
 def focal_error(result, T):
     """Distance (mm) of an estimate's focal point from ``T``'s (the transducer frame's origin)."""
     return float(np.linalg.norm(result.focal_point_mm - T[:3, 3]))
+
+
+def moved(T, step):
+    """``T`` moved by ``step`` (a transform in the C-arm frame, about the focal point)."""
+    out = T.copy()
+    out[:3, :3] = step[:3, :3] @ T[:3, :3]
+    out[:3, 3] = T[:3, 3] + step[:3, 3]
+    return out

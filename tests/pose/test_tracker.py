@@ -8,12 +8,11 @@ import numpy as np
 import pytest
 
 from histostudy.geometry import rotation_angle, transform_from_params
-from histostudy.imaging import Frame, default_biplane
+from histostudy.imaging import Frame
 from histostudy.learning import OracleOrientation, OracleSegmenter
 from histostudy.pose import ConicOrientation, PoseEstimationError, Tracker, estimate_pose
-from histostudy.transducer import TransducerModel
 
-from pose_frames import POSES, focal_error, frames_of
+from pose_frames import POSES, focal_error, frames_of, moved
 
 ORACLES = dict(segmenter=OracleSegmenter(), orientation=OracleOrientation())
 
@@ -21,22 +20,7 @@ ORACLES = dict(segmenter=OracleSegmenter(), orientation=OracleOrientation())
 SMALL_MOVE = transform_from_params([0.01, -0.012, 0.008, 0.5, -0.4, 0.5])
 
 
-@pytest.fixture(scope="module")
-def models():
-    return TransducerModel.build(spacing_mm=0.47), TransducerModel.build(spacing_mm=0.25)
 
-
-@pytest.fixture(scope="module")
-def views():
-    return [v.scaled(0.5) for v in default_biplane()]
-
-
-def moved(T, step):
-    """``T`` moved by ``step`` (a transform in the C-arm frame, about the focal point)."""
-    out = T.copy()
-    out[:3, :3] = step[:3, :3] @ T[:3, :3]
-    out[:3, 3] = T[:3, 3] + step[:3, 3]
-    return out
 
 
 def test_warm_start_gives_the_from_scratch_pose_at_less_cost(models, views):

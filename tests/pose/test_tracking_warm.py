@@ -9,32 +9,17 @@ import numpy as np
 import pytest
 
 from histostudy.geometry import transform_from_params
-from histostudy.imaging import Frame, default_biplane
+from histostudy.imaging import Frame
 from histostudy.learning import OracleOrientation, OracleSegmenter
 from histostudy.pose import PoseEstimationError, PoseOptions, RegionEstimator, Tracker, TrackingOptions
-from histostudy.transducer import TransducerModel
 
-from pose_frames import POSES, focal_error, frames_of
+from pose_frames import POSES, focal_error, frames_of, moved
 
 ORACLES = dict(segmenter=OracleSegmenter(), orientation=OracleOrientation())
 STEP = transform_from_params(np.r_[np.deg2rad(0.2) * np.array([0.6, -0.48, 0.64]), [0.3, -0.25, 0.3]])
 
 
-@pytest.fixture(scope="module")
-def models():
-    return TransducerModel.build(spacing_mm=0.47), TransducerModel.build(spacing_mm=0.25)
 
-
-@pytest.fixture(scope="module")
-def views():
-    return [v.scaled(0.5) for v in default_biplane()]
-
-
-def moved(T, step):
-    out = T.copy()
-    out[:3, :3] = step[:3, :3] @ T[:3, :3]
-    out[:3, 3] = T[:3, 3] + step[:3, 3]
-    return out
 
 
 @pytest.fixture(scope="module")
