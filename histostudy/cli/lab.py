@@ -93,6 +93,11 @@ def add_parsers(sub, parents) -> None:
     lis.add_argument("--max-pairs", type=int, default=None, help="stop after this many pairs")
     lis.add_argument("--timeout-s", type=float, default=None, help="stop after this many seconds")
     lis.add_argument("--seed", type=int, default=0, help="seed of the estimates' random draws (default 0)")
+    lis.add_argument("--fast", action="store_true",
+                     help="track on the region of the last pose (pose.Tracker(fast=True), docs/tracking.md)")
+    lis.add_argument("--max-queued-pairs", type=int, default=None,
+                     help="drop the oldest waiting pairs beyond this many rather than fall behind (counted in the "
+                          "stats; default: keep every pair)")
     lis.set_defaults(run=_listen)
 
 
@@ -273,7 +278,8 @@ def _listen(args) -> int:
     try:
         views = load_views(args.views)
         stats = listen(views, port=args.port, host=args.host, ae_title=args.ae_title, output_path=args.output,
-                       max_pairs=args.max_pairs, timeout_s=args.timeout_s, seed=args.seed, on_start=started)
+                       max_pairs=args.max_pairs, timeout_s=args.timeout_s, seed=args.seed,
+                       max_queued_pairs=args.max_queued_pairs, fast=args.fast, on_start=started)
     except (ValueError, TypeError, FileNotFoundError, OSError) as exc:
         return _fail("listen", exc)
     print(f"listen: {stats}")

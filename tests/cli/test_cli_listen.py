@@ -42,11 +42,12 @@ def lines_of(stream, lines: queue.Queue) -> None:
 
 
 @pytest.mark.slow
-def test_listen_prints_its_port_and_poses_every_pair_of_a_cine_sent_to_it(lab, tmp_path):
+@pytest.mark.parametrize("fast", [False, True], ids=["full_frame", "fast"])
+def test_listen_prints_its_port_and_poses_every_pair_of_a_cine_sent_to_it(lab, tmp_path, fast):
     output = tmp_path / "poses.jsonl"
     command = [sys.executable, "-m", "histostudy.cli", "listen", "--port", "0", "--host", "127.0.0.1",
                "--views", str(lab.views), "--output", str(output), "--max-pairs", str(N_FRAMES),
-               "--seed", str(SEED), "--timeout-s", "400"]
+               "--seed", str(SEED), "--timeout-s", "400", *(["--fast"] if fast else [])]
     log = tmp_path / "listen.err"
     with open(log, "w") as err:  # a file, not a pipe: a full pipe would block the command
         process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=err, text=True, cwd=tmp_path)
@@ -81,7 +82,7 @@ def test_listen_prints_its_port_and_poses_every_pair_of_a_cine_sent_to_it(lab, t
 
     # The same frames as arrays, through a Tracker with the same seed and the command's model.
     views = load_views(lab.views)
-    tracker = Tracker(TransducerModel.build(spacing_mm=0.47), views, rng=SEED)
+    tracker = Tracker(TransducerModel.build(spacing_mm=0.47), views, rng=SEED, fast=fast)
     truth = json.loads(lab.truth.read_text())["cine_T_carm_transducer"]
     for k, record in enumerate(records):
         frames = [load_frame(path, view, line_integrals=False, frame_index=k) for path, view in zip(lab.cine, views)]
