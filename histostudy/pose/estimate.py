@@ -18,7 +18,6 @@ running the search for both candidates and keeping the lower cost. Poses are 4x4
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from typing import Sequence
 
@@ -301,13 +300,5 @@ def _check_frames(frames) -> list[Frame]:
 
 def _resolve_options(options, overrides: dict) -> PoseOptions:
     """``options`` (default ``PoseOptions()``) with the keyword ``overrides`` of its fields applied."""
-    if options is None:
-        options = PoseOptions()
-    elif not isinstance(options, PoseOptions):
-        raise TypeError(f"options must be a histostudy.pose.PoseOptions, got {type(options).__name__}")
-    unknown = sorted(set(overrides) - set(PoseOptions.field_names()))
-    if unknown:
-        raise TypeError(f"estimate_pose() got an unexpected keyword argument {unknown[0]!r}; its keywords are "
-                        f"segmenter, orientation, rng, initial_pose, options and the fields of PoseOptions: "
-                        f"{', '.join(PoseOptions.field_names())}")
-    return dataclasses.replace(options, **overrides) if overrides else options
+    return PoseOptions.resolve(options, overrides, caller="estimate_pose",
+                               keywords="segmenter, orientation, rng, initial_pose, options")

@@ -9,7 +9,7 @@ and otherwise the measured choices documented beside each field (beyond the pape
 from __future__ import annotations
 
 import numbers
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from types import MappingProxyType
 from typing import Mapping
 
@@ -207,3 +207,18 @@ class PoseOptions:
     def field_names(cls) -> tuple[str, ...]:
         """The names of the options, in declaration order (each also a keyword of estimate_pose)."""
         return tuple(f.name for f in fields(cls))
+
+    @classmethod
+    def resolve(cls, options, overrides: dict, *, caller: str, keywords: str) -> "PoseOptions":
+        """``options`` (default ``PoseOptions()``) with the keyword ``overrides`` of its fields
+        applied, for a ``caller`` whose own keywords are ``keywords``: an unknown keyword raises
+        TypeError naming it, the caller's keywords and the fields."""
+        if options is None:
+            options = cls()
+        elif not isinstance(options, cls):
+            raise TypeError(f"options must be a histostudy.pose.PoseOptions, got {type(options).__name__}")
+        unknown = sorted(set(overrides) - set(cls.field_names()))
+        if unknown:
+            raise TypeError(f"{caller}() got an unexpected keyword argument {unknown[0]!r}; its keywords are "
+                            f"{keywords} and the fields of PoseOptions: {', '.join(cls.field_names())}")
+        return replace(options, **overrides) if overrides else options

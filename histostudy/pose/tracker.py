@@ -106,15 +106,8 @@ class Tracker:
         self.views = tuple(views)
         if options is None:
             option_overrides.setdefault("raise_on_failure", False)
-            options = PoseOptions()
-        elif not isinstance(options, PoseOptions):
-            raise TypeError(f"options must be a histostudy.pose.PoseOptions, got {type(options).__name__}")
-        unknown = sorted(set(option_overrides) - set(PoseOptions.field_names()))
-        if unknown:
-            raise TypeError(f"Tracker() got an unexpected keyword argument {unknown[0]!r}; its keywords are "
-                            f"segmenter, orientation, rng, options, fast and the fields of PoseOptions: "
-                            f"{', '.join(PoseOptions.field_names())}")
-        self.options = dataclasses.replace(options, **option_overrides)
+        self.options = PoseOptions.resolve(options, option_overrides, caller="Tracker",
+                                           keywords="segmenter, orientation, rng, options, fast")
         # Every estimate runs without raising on a failed verdict: a failed warm start is the
         # tracker's cue to re-acquire, not an error. ``options.raise_on_failure`` applies to the
         # update's final result only.
