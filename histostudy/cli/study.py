@@ -81,7 +81,7 @@ def _reproduce(args) -> int:
         return 1
     except StudyInterrupted as exc:
         print(f"histostudy reproduce: {exc}; the report names the interrupted section", file=sys.stderr)
-        return 128 + signal.SIGTERM
+        return 128 + signal.Signals[exc.signal_name]
     except KeyboardInterrupt:
         print("histostudy reproduce: interrupted by SIGINT; the report names the interrupted section",
               file=sys.stderr)

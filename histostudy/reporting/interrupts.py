@@ -1,9 +1,12 @@
 """Stopping a batch run cleanly on SIGINT or SIGTERM: no kernel left running, no temporary file left.
 
 :func:`~histostudy.reporting.pipeline.run_study` runs inside :func:`signals_interrupt`: SIGTERM (a
-scheduler's or ``kill``'s stop) raises :class:`StudyInterrupted` in the main thread as SIGINT
-(Ctrl-C) raises ``KeyboardInterrupt``, so the run unwinds through its ``finally`` blocks (the
-executed notebook's temporary file goes). Then :func:`stop_kernels` ends the notebook kernels this
+scheduler's or ``kill``'s stop) and SIGINT (Ctrl-C) raise :class:`StudyInterrupted` in the main
+thread, so the run unwinds through its ``finally`` blocks (the executed notebook's temporary file
+goes). SIGINT gets the same handler rather than Python's default ``KeyboardInterrupt``: with the
+default one installed, asyncio (under papermill's notebook client) swaps in its own handler that
+cancels the running task instead, and a kernel client that waits through that cancellation could
+leave the run hanging after Ctrl-C (seen once in CI: no exit within 60 s). Then :func:`stop_kernels` ends the notebook kernels this
 process started (papermill's own clean-up does not run when a signal interrupts its event loop),
 and :func:`remove_temporaries` removes what a killed kernel left half-written. The interrupted
 section is marked ``"interrupted"`` in ``run.json`` and the report.
@@ -31,8 +34,8 @@ class StudyInterrupted(Exception):
 
 @contextlib.contextmanager
 def signals_interrupt():
-    """Within the block, SIGTERM raises :class:`StudyInterrupted` (main thread only; elsewhere, as
-    in a notebook kernel's worker thread, signals keep their handlers)."""
+    """Within the block, SIGTERM and SIGINT raise :class:`StudyInterrupted` (main thread only;
+    elsewhere, as in a notebook kernel's worker thread, signals keep their handlers)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -40,11 +43,12 @@ def signals_interrupt():
     def raise_interrupted(signum, frame):
         raise StudyInterrupted(signal.Signals(signum).name)
 
-    previous = signal.signal(signal.SIGTERM, raise_interrupted)
+    previous = {sig: signal.signal(sig, raise_interrupted) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 def _children(pid: int) -> list[int]:
