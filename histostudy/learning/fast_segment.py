@@ -202,21 +202,9 @@ class FastUNet:
             return logits[0, :, :rows, :cols].contiguous()
 
     def _forward(self, x):
-        """The U-Net's layers (:meth:`~.nets.unet.UNet.forward` without its padding) on ``x`` (of the
+        """The U-Net's layers (:meth:`~.nets.unet.UNet.features`, then the float32 head) on ``x`` (of the
         network's dtype), whose rows and columns are multiples of ``2**depth``: float32 logits."""
-        from torch.nn import functional as F
-        import torch
-
-        net, skips = self._net, []
-        for i, block in enumerate(net.down):
-            if i:
-                x = F.max_pool2d(x, 2)
-            x = block(x)
-            skips.append(x)
-        skips.pop()
-        for up, dec in zip(net.up, net.dec):
-            x = dec(torch.cat([skips.pop(), up(x)], dim=1))
-        return self._head(x.float())
+        return self._head(self._net.features(x).float())
 
     def _check_box(self, box, shape) -> tuple[int, int, int, int]:
         try:

@@ -63,6 +63,11 @@ class UNet(nn.Module):
         if pad_r or pad_c:
             mode = "reflect" if min(rows, cols) > max(pad_r, pad_c) else "replicate"
             x = F.pad(x, (0, pad_c, 0, pad_r), mode=mode)
+        return self.head(self.features(x))[..., :rows, :cols]
+
+    def features(self, x: torch.Tensor) -> torch.Tensor:
+        """The encoder-decoder before the 1x1 head, on ``x`` whose rows and columns are multiples of
+        ``2**depth``: the last decoder block's output."""
         skips = []
         for i, block in enumerate(self.down):
             if i:
@@ -72,4 +77,4 @@ class UNet(nn.Module):
         skips.pop()
         for up, dec in zip(self.up, self.dec):
             x = dec(torch.cat([skips.pop(), up(x)], dim=1))
-        return self.head(x)[..., :rows, :cols]
+        return x
