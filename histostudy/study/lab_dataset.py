@@ -35,18 +35,65 @@ import numpy as np
 
 from histostudy.core import atomic_write_json, to_jsonable
 from histostudy.geometry import make_transform, matrix_from_rotvec
-from histostudy.imaging import (PhantomSpec, View, check_target, default_biplane, detector_counts,
-                                random_background, random_target, render_frame, save_views, save_volume_nifti,
-                                simulate_cbct, write_xa)
+from histostudy.imaging import (PhantomSpec, View, add_poisson_noise, background_line_integrals, check_target,
+                                default_biplane, detector_counts, random_background, random_target,
+                                render_line_integrals, save_views, save_volume_nifti, simulate_cbct, write_xa)
 from histostudy.robot import forward_kinematics, pose_from_transform
 from histostudy.transducer import TransducerModel, export_meshes
 from .targeting_calibration import calibration_poses
 from .targeting_setup import TargetingStudyConfig, draw_ground_truth, start_joints
 from .targeting_treatment import phantom_for
 
-__all__ = ["LabDataset", "write_lab_dataset"]
+__all__ = ["LabDataset", "LabScene", "write_lab_dataset"]
 
 DATASET_FORMAT = "histostudy.lab_dataset/1"
+
+
+@dataclass(frozen=True, eq=False)
+class LabScene:
+    """What the lab-like frames are rendered from: the physical transducer (quadrants moved, §IV)
+    splatted over the phantom scene's exact line integrals (``backgrounds``, one ``(rows, cols)``
+    array per view, computed once: the scene does not move), on ``views``, with the study's dose
+    and splatting (``settings``: :class:`~histostudy.imaging.RenderSettings`, e.g. a
+    :class:`.targeting_setup.TargetingStudyConfig`).
+
+    :meth:`draw` makes one from two Generators; :meth:`render_pair` renders the biplane images of a
+    pose. :func:`write_lab_dataset` and :mod:`.moving_cine` render through it.
+    """
+
+    views: tuple
+    physical: TransducerModel
+    backgrounds: tuple
+    settings: object
+
+    @classmethod
+    def draw(cls, settings, views, *, rng_scene: np.random.Generator, rng_physical: np.random.Generator,
+             render_spacing_mm: float = 0.25) -> "LabScene":
+        """The scene of ``settings`` (its ``frame_kwargs``) on ``views``: the phantom scene drawn from
+        ``rng_scene``, the physical transducer's deviations from ``rng_physical``, sampled at
+        ``render_spacing_mm`` (mm)."""
+        if not (np.isfinite(render_spacing_mm) and render_spacing_mm > 0):
+            raise ValueError(f"render_spacing_mm must be a finite spacing > 0 mm, got {render_spacing_mm!r}")
+        physical = TransducerModel.build_physical(spacing_mm=render_spacing_mm, rng=rng_physical)
+        scene = random_background(rng_scene, "phantom")
+        views = tuple(views)
+        return cls(views, physical, tuple(background_line_integrals(scene, v) for v in views), settings)
+
+    def render_pair(self, T_carm_transducer, rng: np.random.Generator) -> list[np.ndarray]:
+        """The line-integral image (``(rows, cols)`` float32) of each view with the transducer at
+        ``T_carm_transducer`` (4x4, mm, C-arm frame): the image of
+        :func:`~histostudy.imaging.render_frame` with ``physical`` and the scene, the same draws from
+        ``rng`` (splat jitter, then photon noise, view after view), without its labels."""
+        kwargs = self.settings.frame_kwargs()
+        photons = kwargs.pop("photons_per_pixel")
+        out = []
+        for view, back in zip(self.views, self.backgrounds):
+            image = back + render_line_integrals(self.physical, T_carm_transducer, view, rng=rng,
+                                                 **kwargs).astype(np.float64)
+            if photons is not None:
+                image = add_poisson_noise(image, photons, rng)
+            out.append(image.astype(np.float32))
+        return out
 
 
 @dataclass(frozen=True)
@@ -106,15 +153,14 @@ def write_lab_dataset(folder: str | os.PathLike, *, seed: int = 20231125, n_cine
 
     s_truth, s_pose, s_scene, s_render, s_physical, s_cine, s_target, s_cbct = np.random.SeedSequence(seed).spawn(8)
     truth = draw_ground_truth(np.random.default_rng(s_truth), config)
-    render_model = TransducerModel.build(spacing_mm=render_spacing_mm)
-    physical = TransducerModel.build_physical(spacing_mm=render_spacing_mm, rng=np.random.default_rng(s_physical))
-    scene = random_background(np.random.default_rng(s_scene), "phantom")
+    scene = LabScene.draw(config, views, rng_scene=np.random.default_rng(s_scene),
+                          rng_physical=np.random.default_rng(s_physical), render_spacing_mm=render_spacing_mm)
+    render_model, physical = TransducerModel.build(spacing_mm=render_spacing_mm), scene.physical
     rng_render = np.random.default_rng(s_render)
     when = _dt.datetime(2023, 1, 19, 10, 0, 0)
 
     def render_pair(T_carm_transducer):
-        return [render_frame(render_model, T_carm_transducer, v, rng=rng_render, physical=physical,
-                             background=scene, **config.frame_kwargs()) for v in views]
+        return scene.render_pair(T_carm_transducer, rng_render)
 
     # The calibration stations: single-frame pairs, the flange poses as the robot reports them.
     flanges = calibration_poses(np.random.default_rng(s_pose), config, truth)
@@ -123,9 +169,9 @@ def write_lab_dataset(folder: str | os.PathLike, *, seed: int = 20231125, n_cine
         T_true = truth.T_carm_transducer(F)
         true_station_poses.append(T_true)
         paths = []
-        for view, frame in zip(views, render_pair(T_true)):
+        for view, image in zip(views, render_pair(T_true)):
             paths.append(write_xa(out / "calibration" / f"station_{k}" / f"{view.name}.dcm", view,
-                                  detector_counts(frame.image), uid_seed=f"lab-{seed}-station-{k}",
+                                  detector_counts(image), uid_seed=f"lab-{seed}-station-{k}",
                                   acquisition_time=when + _dt.timedelta(minutes=k)))
         stations.append(tuple(paths))
     flange_file = atomic_write_json(out / "calibration" / "flange_poses.json", to_jsonable({
@@ -140,7 +186,7 @@ def write_lab_dataset(folder: str | os.PathLike, *, seed: int = 20231125, n_cine
     per_view = [render_pair(T) for T in true_cine_poses]
     cine_start = when + _dt.timedelta(minutes=len(flanges) + 1)
     cine = tuple(write_xa(out / "cine" / f"{view.name}.dcm", view,
-                          detector_counts(np.stack([pair[i].image for pair in per_view])),
+                          detector_counts(np.stack([pair[i] for pair in per_view])),
                           uid_seed=f"lab-{seed}-cine", frame_time_ms=frame_time_ms, acquisition_time=cine_start)
                  for i, view in enumerate(views))
 

@@ -69,3 +69,24 @@ def test_bad_arguments_are_refused_before_anything_is_written(tmp_path):
         with pytest.raises(ValueError, match=match):
             write_lab_dataset(tmp_path / "x", **kwargs)
     assert not (tmp_path / "x").exists()
+
+
+def test_the_lab_scene_renders_render_frames_images_with_the_same_draws():
+    from histostudy.imaging import random_background, render_frame
+    from histostudy.study.lab_dataset import LabScene
+    from histostudy.study.targeting_setup import TargetingStudyConfig
+    from histostudy.transducer import pose_facing
+
+    config, views = TargetingStudyConfig(n_experiments=1, background="phantom"), _small_views()
+    scene = LabScene.draw(config, views, rng_scene=np.random.default_rng(1), rng_physical=np.random.default_rng(2),
+                          render_spacing_mm=0.5)
+    images = scene.render_pair(pose_facing(), np.random.default_rng(3))
+    physical = TransducerModel.build_physical(spacing_mm=0.5, rng=np.random.default_rng(2))
+    background, rng = random_background(np.random.default_rng(1), "phantom"), np.random.default_rng(3)
+    frames = [render_frame(TransducerModel.build(spacing_mm=0.5), pose_facing(), v, rng=rng, physical=physical,
+                           background=background, **config.frame_kwargs()) for v in views]
+    for image, frame in zip(images, frames):
+        np.testing.assert_array_equal(image, frame.image)
+    with pytest.raises(ValueError, match="render_spacing_mm must be a finite spacing > 0 mm, got 0"):
+        LabScene.draw(config, views, rng_scene=np.random.default_rng(1), rng_physical=np.random.default_rng(2),
+                      render_spacing_mm=0)
