@@ -12,7 +12,7 @@ from . import (pairing as _pairing, receiver as _receiver, sender as _sender, wo
                xray_objects as _xray_objects)
 from .pairing import BiplanePairer, DEFAULT_FRAME_INTERVAL_S, Pairing, PlaneFrame, frame_times, posix_seconds
 from .receiver import FrameReceiver, listen
-from .sender import send_frames
+from .sender import SentObject, send_frames, stream_frames
 from .workflow import (TargetingPlan, accepted_stations, calibrate_from_poses, execute_targeting, load_flange_poses,
                        load_pose_record, plan_targeting)
 from .xray_objects import REJECTION_STATUSES, ReceivedFrame, X_RAY_SOP_CLASSES, XRayObjectRejected, decode_xray_object

@@ -5,6 +5,12 @@ demonstrations and replaying a lab's recorded cines to :class:`~.receiver.FrameR
 object's SOP class with its own transfer syntax (and the uncompressed little-endian ones), stores
 the objects in order and releases the association; it returns the C-STORE status of each object
 (0x0000 success; the receiver's refusals in :data:`.xray_objects.REJECTION_STATUSES`).
+:func:`stream_frames` does the same at the pace of the acquisition, as a C-arm streams a
+fluoroscopy run: each object is stored once its last frame has been taken (its
+``AcquisitionDateTime`` plus its cine offset, :func:`.pairing.frame_times`, counted from the
+first object's first frame), and it reports when each object went out and how late. Objects given
+as paths are read when they are stored (their headers before the association), so a long run
+never sits in memory.
 
 The ``check_*`` functions are the argument checks of both ends (AE titles, ports, hosts, counts,
 timeouts), which the receiver shares; each raises ValueError naming the argument and its value.
@@ -14,12 +20,14 @@ from __future__ import annotations
 
 import math
 import os
+import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
-__all__ = ["send_frames"]
+__all__ = ["SentObject", "send_frames", "stream_frames"]
 
 
 def check_ae_title(value, name: str = "ae_title") -> str:
@@ -61,6 +69,24 @@ def check_count(name: str, value) -> None:
         raise ValueError(f"{name} must be None or an integer >= 1, got {value!r}")
 
 
+@dataclass(frozen=True)
+class SentObject:
+    """One object :func:`stream_frames` stored: its ``index`` in the input, the C-STORE ``status``;
+    ``due_s``: when its last frame was taken (s from the first frame, over the pace); ``sent_s`` and
+    ``answered_s``: when its C-STORE request went out and its response came back (s from the
+    start of the sending); ``late_s = sent_s - due_s`` (> 0: the sender fell behind the C-arm)."""
+
+    index: int
+    status: int
+    due_s: float
+    sent_s: float
+    answered_s: float
+
+    @property
+    def late_s(self) -> float:
+        return self.sent_s - self.due_s
+
+
 def send_frames(paths: Sequence, host: str, port: int, *, ae_title: str = "HISTOSTUDY",
                 calling_ae_title: str = "HISTOSTUDY_SCU", timeout_s: float = 30.0) -> list[int]:
     """Store DICOM objects on a Storage SCP in one association; the C-STORE status of each, in order.
@@ -85,9 +111,77 @@ def send_frames(paths: Sequence, host: str, port: int, *, ae_title: str = "HISTO
         ConnectionError: the SCP unreachable, the association rejected or aborted, or no response
             to an object (naming the object and what was stored before it).
     """
+    return [sent.status for sent in _store(paths, host, port, ae_title=ae_title, calling_ae_title=calling_ae_title,
+                                           timeout_s=timeout_s, pace=None)]
+
+
+def stream_frames(paths: Sequence, host: str, port: int, *, pace: float = 1.0, ae_title: str = "HISTOSTUDY",
+                  calling_ae_title: str = "HISTOSTUDY_SCU", timeout_s: float = 30.0) -> list[SentObject]:
+    """:func:`send_frames` at the pace of the acquisition: each object is stored no earlier than
+    its last frame's acquisition time (:func:`.pairing.frame_times`) after the first object's first
+    frame, divided by ``pace`` (1.0: real time; 2.0: twice as fast). An object whose time has passed
+    (the SCP answered the one before late) goes at once: the sender never skips. The objects should
+    be given in acquisition order (e.g. plane A's frame k, plane B's frame k, then frame k + 1).
+
+    Returns one :class:`SentObject` per object, in order. Raises as :func:`send_frames` does, and
+    ValueError for an object without an acquisition time (naming it) or a ``pace`` that is not a
+    finite number > 0.
+    """
+    check_positive("pace", pace, "a finite speed-up > 0 (1.0: the acquisition's own pace)", optional=False)
+    return _store(paths, host, port, ae_title=ae_title, calling_ae_title=calling_ae_title, timeout_s=timeout_s,
+                  pace=float(pace))
+
+
+def _read(items: list) -> tuple[list, list[str]]:
+    """Each object's dataset (a path: its header only, the pixels read when it is stored) and name,
+    checked as :func:`send_frames` says."""
     import pydicom
     from pydicom.dataset import Dataset
     from pydicom.errors import InvalidDicomError
+
+    headers, names = [], []
+    for i, item in enumerate(items):
+        if isinstance(item, Dataset):
+            ds, name = item, f"paths[{i}] (SOPInstanceUID {getattr(item, 'SOPInstanceUID', '?')})"
+        elif isinstance(item, (str, os.PathLike)):
+            name = f"paths[{i}] {str(item)!r}"
+            if not Path(item).is_file():
+                raise FileNotFoundError(f"{name}: no such file")
+            try:
+                ds = pydicom.dcmread(item, stop_before_pixels=True)
+            except (InvalidDicomError, OSError, ValueError) as exc:
+                raise ValueError(f"{name} is not a readable DICOM file: {exc}") from None
+        else:
+            raise ValueError(f"paths[{i}] must be a file path or a pydicom Dataset, got {type(item).__name__}")
+        syntax = getattr(getattr(ds, "file_meta", None), "TransferSyntaxUID", None)
+        if not getattr(ds, "SOPClassUID", None) or syntax is None:
+            raise ValueError(f"{name} lacks its SOPClassUID (0008,0016) or its file meta TransferSyntaxUID "
+                             "(0002,0010): a C-STORE needs both")
+        headers.append(ds)
+        names.append(name)
+    return headers, names
+
+
+def _due_s(headers: list, names: list[str], pace: float) -> list[float]:
+    """When each object may go (s from the first object's first frame, over ``pace``): its last frame's time."""
+    from .pairing import frame_times, posix_seconds
+
+    last = []
+    for ds, name in zip(headers, names):
+        try:
+            times, _ = frame_times(ds)
+        except ValueError as exc:
+            raise ValueError(f"{name} cannot be paced: {exc}") from None
+        last.append((posix_seconds(times[0]), posix_seconds(times[-1])))
+    first = last[0][0]
+    return [(end - first) / pace for _, end in last]
+
+
+def _store(paths, host: str, port: int, *, ae_title: str, calling_ae_title: str, timeout_s: float,
+           pace: float | None) -> list[SentObject]:
+    """Store the objects in one association (at ``pace``, or at once with None); a SentObject each."""
+    import pydicom
+    from pydicom.dataset import Dataset
     from pydicom.uid import ExplicitVRLittleEndian, ImplicitVRLittleEndian
     from pynetdicom import AE, evt
 
@@ -99,32 +193,13 @@ def send_frames(paths: Sequence, host: str, port: int, *, ae_title: str = "HISTO
     host, port = check_host(host), check_port(port, allow_zero=False)
     ae_title, calling_ae_title = check_ae_title(ae_title), check_ae_title(calling_ae_title, "calling_ae_title")
     check_positive("timeout_s", timeout_s, "a finite number of seconds > 0", optional=False)
-
-    datasets, names = [], []
-    for i, item in enumerate(items):
-        if isinstance(item, Dataset):
-            ds, name = item, f"paths[{i}] (SOPInstanceUID {getattr(item, 'SOPInstanceUID', '?')})"
-        elif isinstance(item, (str, os.PathLike)):
-            name = f"paths[{i}] {str(item)!r}"
-            if not Path(item).is_file():
-                raise FileNotFoundError(f"{name}: no such file")
-            try:
-                ds = pydicom.dcmread(item)
-            except (InvalidDicomError, OSError, ValueError) as exc:
-                raise ValueError(f"{name} is not a readable DICOM file: {exc}") from None
-        else:
-            raise ValueError(f"paths[{i}] must be a file path or a pydicom Dataset, got {type(item).__name__}")
-        syntax = getattr(getattr(ds, "file_meta", None), "TransferSyntaxUID", None)
-        if not getattr(ds, "SOPClassUID", None) or syntax is None:
-            raise ValueError(f"{name} lacks its SOPClassUID (0008,0016) or its file meta TransferSyntaxUID "
-                             "(0002,0010): a C-STORE needs both")
-        datasets.append(ds)
-        names.append(name)
+    headers, names = _read(items)
+    due = [0.0] * len(items) if pace is None else _due_s(headers, names, pace)
 
     ae = AE(ae_title=calling_ae_title)
     ae.acse_timeout = ae.dimse_timeout = ae.network_timeout = float(timeout_s)
     contexts: dict[str, list[str]] = {}
-    for ds in datasets:
+    for ds in headers:
         syntaxes = contexts.setdefault(str(ds.SOPClassUID), [])
         for uid in (str(ds.file_meta.TransferSyntaxUID), ExplicitVRLittleEndian, ImplicitVRLittleEndian):
             if uid not in syntaxes:
@@ -138,18 +213,24 @@ def send_frames(paths: Sequence, host: str, port: int, *, ae_title: str = "HISTO
         why = "could not be reached (is it listening there?)" if not connected else \
             "rejected the association" if assoc.is_rejected else "aborted the association request"
         raise ConnectionError(f"the DICOM Storage SCP {where} {why}")
-    statuses: list[int] = []
+    sent: list[SentObject] = []
+    t0 = time.perf_counter()
     try:
-        for name, ds in zip(names, datasets):
+        for i, (item, name) in enumerate(zip(items, names)):
+            ds = item if isinstance(item, Dataset) else pydicom.dcmread(item)
+            wait = due[i] - (time.perf_counter() - t0)
+            if wait > 0:
+                time.sleep(wait)
+            t_sent = time.perf_counter() - t0
             try:
                 response = assoc.send_c_store(ds)
             except ValueError as exc:  # pynetdicom: no accepted presentation context for its class
                 raise ConnectionError(f"{where} accepted no presentation context for {name}: {exc}") from None
             if "Status" not in response:
-                raise ConnectionError(f"{where} sent no C-STORE response to {name} (after {len(statuses)} "
+                raise ConnectionError(f"{where} sent no C-STORE response to {name} (after {len(sent)} "
                                       "object(s) stored): the association was aborted or timed out")
-            statuses.append(int(response.Status))
+            sent.append(SentObject(i, int(response.Status), due[i], t_sent, time.perf_counter() - t0))
     finally:
         if assoc.is_established:
             assoc.release()
-    return statuses
+    return sent
