@@ -1,5 +1,5 @@
 """The study's subcommands of ``histostudy``: ``reproduce --profile smoke`` (the notebooks through
-papermill, then the report), ``train segmentation|orientation``, ``report`` (rebuilt from a
+papermill, then the report), ``train segmentation|orientation|segmentation_tracking``, ``report`` (rebuilt from a
 reproduce folder) and ``profiles``."""
 
 from __future__ import annotations
@@ -9,6 +9,9 @@ import signal
 import sys
 
 from histostudy.reporting import PROFILE_NAMES, load_profile
+
+#: The ``[training.<table>]`` tables ``histostudy train`` runs (histostudy.learning.TRAINING_TABLES).
+TRAINING_TABLE_NAMES = ("segmentation", "orientation", "segmentation_tracking")
 
 __all__ = ["add_parsers"]
 
@@ -35,7 +38,9 @@ def add_parsers(sub, parents) -> None:
 
     tr = sub.add_parser("train", parents=parents,
                         help="train a learned stage (U-Net or VGG19) on hybrid images and export its weights")
-    tr.add_argument("task", choices=("segmentation", "orientation"))
+    tr.add_argument("task", choices=tuple(TRAINING_TABLE_NAMES),
+                    help="the profile's [training.<task>] table: segmentation (U-Net), orientation (VGG19) or "
+                         "segmentation_tracking (the U-Net of Tracker(fast=True), exported as unet_tracking)")
     tr.add_argument("--profile", type=_profile, default="standard",
                     help=f"one of {', '.join(PROFILE_NAMES)} or a .toml file with [training.<task>] (default: standard)")
     tr.add_argument("--run-dir", default=None,
@@ -96,7 +101,7 @@ def _reproduce(args) -> int:
 def _train(args) -> int:
     import dataclasses
 
-    from histostudy.learning import TrainingConfig, default_cache_dir, export, train
+    from histostudy.learning import TRAINING_TABLES, TrainingConfig, default_cache_dir, export, export_name, train
 
     profile = args.profile
     table = profile.training.get(args.task)
@@ -104,7 +109,7 @@ def _train(args) -> int:
         print(f"histostudy train: profile {profile.name!r} has no [training.{args.task}] table", file=sys.stderr)
         return 2
     try:
-        cfg = TrainingConfig.from_table(args.task, table)
+        cfg = TrainingConfig.from_table(TRAINING_TABLES[args.task][0], table)
         overrides = {k: v for k, v in (("max_minutes", args.max_minutes), ("threads", args.threads),
                                        ("init_weights", args.init_weights)) if v is not None}
         cfg = dataclasses.replace(cfg, **overrides)
@@ -132,7 +137,7 @@ def _train(args) -> int:
     print(f"{args.task}: {result.steps} steps, {result.epochs} epochs in the last stage; stopped: {result.stopped}")
     print(f"best validation: {result.validation}")
     if not args.no_export:
-        name = f"{cfg.network['arch']}_{profile.name}"
+        name = export_name(args.task, cfg.network["arch"], profile.name)
         manifest = export(result, cfg, name, seed=profile.seed, profile=profile.name, models_dir=args.models_dir)
         print(f"exported {manifest.with_suffix('.safetensors')} (manifest {manifest})")
     return 0

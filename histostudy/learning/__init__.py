@@ -27,7 +27,8 @@ from .preprocess import pool_labels, prepare_image
 from .segment import (OracleSegmenter, SegmentationDegradation, Segmenter, UNetSegmenter, default_segmenter,
                       keep_largest_component, masks_from_labels)
 from .training import train
-from .training_config import FineTuneConfig, SEGMENTATION_LOSSES, TrainingConfig, TrainingResult, run_frame_sets
+from .training_config import (FineTuneConfig, SEGMENTATION_LOSSES, TRAINING_TABLES, TrainingConfig, TrainingResult,
+                              export_name, run_frame_sets)
 from .training_export import export
 from .training_losses import angle_loss, dice_loss
 

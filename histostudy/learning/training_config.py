@@ -21,10 +21,31 @@ import torch
 from .datasets import RenderConfig, TASKS
 from .nets import build_network
 
-__all__ = ["FineTuneConfig", "SEGMENTATION_LOSSES", "TrainingConfig", "TrainingResult", "run_frame_sets"]
+__all__ = ["FineTuneConfig", "SEGMENTATION_LOSSES", "TRAINING_TABLES", "TrainingConfig", "TrainingResult",
+           "export_name", "run_frame_sets"]
 
 #: The segmentation losses a profile may choose (:attr:`TrainingConfig.loss`).
 SEGMENTATION_LOSSES = ("cross_entropy", "cross_entropy+dice")
+
+#: A profile's ``[training.<table>]`` tables that ``histostudy train <table>`` runs: the table's
+#: name -> ``(task, variant)``. The variant names what the network is for beyond its task
+#: (``"tracking"``: the U-Net of ``pose.Tracker``'s fast warm path, docs/tracking.md) and its
+#: exported name (:func:`export_name`); ``""`` for the study's networks.
+TRAINING_TABLES = {"segmentation": ("segmentation", ""), "orientation": ("orientation", ""),
+                   "segmentation_tracking": ("segmentation", "tracking")}
+
+
+def export_name(table: str, arch: str, profile: str) -> str:
+    """The name of the weights ``histostudy train <table>`` exports to ``data/models``:
+    ``<arch>_<profile>`` (``unet_standard``) for a task's own table, ``<arch>_<variant>`` for a
+    variant of the ``standard`` profile (``unet_tracking``) and ``<arch>_<variant>_<profile>`` for
+    one of another profile."""
+    if table not in TRAINING_TABLES:
+        raise ValueError(f"table must be one of {sorted(TRAINING_TABLES)}, got {table!r}")
+    variant = TRAINING_TABLES[table][1]
+    if not variant:
+        return f"{arch}_{profile}"
+    return f"{arch}_{variant}" if profile == "standard" else f"{arch}_{variant}_{profile}"
 
 
 @dataclass(frozen=True)
