@@ -13,6 +13,7 @@ MONOCHROME1 inversion and modality rescale, then the log against the air intensi
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from dataclasses import dataclass, field
@@ -67,6 +68,13 @@ class Frame:
     @property
     def shape(self) -> tuple[int, int]:
         return self.view.shape
+
+    def with_view(self, view: View) -> "Frame":
+        """The same image, labels and truth under another geometry: what an estimator given a
+        lab's (imperfect) calibration of the C-arm sees. Returns ``self`` for the same view."""
+        if view is self.view:
+            return self
+        return dataclasses.replace(self, view=view)
 
 
 def load_frame(path: str | os.PathLike, view: View, *, line_integrals: bool = True,

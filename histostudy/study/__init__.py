@@ -59,4 +59,27 @@ Notebook 06, the lab's own data end to end (§II-B to §II-D on a lab's files):
   figure of the received poses, and the received poses beside the tracked ones.
 - :mod:`.lab_dataset` — the lab-like dataset it generates when no lab files are given (DICOM XA,
   NIfTI CBCT, STL meshes, flange poses, and the synthetic truth beside them).
+
+Notebook 07, the error budget (§III, §IV), gathered by the front module :mod:`.budget`:
+
+- :mod:`.lab_errors` — :class:`LabErrorModel`: the lab's error sources, each documented and
+  switchable, and one lab's draws of them.
+- :mod:`.error_budget` — both studies run under every configuration (all on, each alone, all but
+  one) on the same draws, on :func:`histostudy.core.run_sweep`.
+- :mod:`.error_budget_summary` — the configurations' figures, the sources' shares, the waterfall
+  and the comparisons with the paper.
+- :mod:`.error_budget_notebook` — the notebook's parameters, set-up, seeds and prose.
+
+``histostudy.study.LabErrorModel`` is the one name this package gives itself, imported on first
+use so that importing a notebook's module costs no more than that module.
 """
+
+__all__ = ["LabErrorModel"]
+
+
+def __getattr__(name: str):
+    if name == "LabErrorModel":
+        from .lab_errors import LabErrorModel
+
+        return LabErrorModel
+    raise AttributeError(f"module 'histostudy.study' has no attribute {name!r}")

@@ -43,6 +43,10 @@ class PoseStudyConfig(RenderSettings):
         focal_jitter_mm: focal point uniform within ± this of the phantom centre, per axis.
         robot_repeatability_mm: SD of the robot's positioning noise (UR5e: ±0.03 mm).
         bubble_offset_mm: offset of the bubble cloud from the acoustic focal point, transducer frame.
+        assumed_bubble_offset_mm: the offset the prediction adds to the estimated focal point
+            (transducer frame); None: ``bubble_offset_mm``, known as after a test pulse. A lab
+            that did not calibrate it (:class:`~histostudy.study.lab_errors.LabErrorModel`)
+            assumes zeros.
     """
 
     n_experiments: int = 10
@@ -55,9 +59,14 @@ class PoseStudyConfig(RenderSettings):
     focal_jitter_mm: float = 5.0
     robot_repeatability_mm: float = 0.01
     bubble_offset_mm: tuple = (0.0, 0.0, 0.0)
+    assumed_bubble_offset_mm: tuple | None = None
 
     def __post_init__(self):
         super().__post_init__()
+        for name in ("bubble_offset_mm", "assumed_bubble_offset_mm"):
+            value = getattr(self, name)
+            if value is not None and (np.shape(value) != (3,) or not np.all(np.isfinite(np.asarray(value, float)))):
+                raise ValueError(f"{name} must be 3 finite numbers (transducer frame, mm), got {value!r}")
         if self.n_experiments < 1:
             raise ValueError(f"n_experiments must be >= 1, got {self.n_experiments!r}")
         if not self.margin_mm or any(not (np.isfinite(r) and r > 0) for r in self.margin_mm):
@@ -76,6 +85,12 @@ class PoseStudyConfig(RenderSettings):
     def segmenter(self) -> OracleSegmenter:
         """The oracle segmenter of ``degradation``."""
         return OracleSegmenter.named(self.degradation)
+
+    @property
+    def predicted_bubble_offset_mm(self) -> np.ndarray:
+        """The offset the prediction adds to the estimated focal point (transducer frame, mm)."""
+        offset = self.bubble_offset_mm if self.assumed_bubble_offset_mm is None else self.assumed_bubble_offset_mm
+        return np.asarray(offset, dtype=np.float64)
 
 
 @dataclass(frozen=True, eq=False)

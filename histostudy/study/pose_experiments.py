@@ -80,7 +80,8 @@ def experiment_setups(config: PoseStudyConfig, seed: int) -> list[PoseExperiment
 def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, render_model: TransducerModel,
                    physical: TransducerModel, views: Sequence[View], seed: int,
                    segmenter: Segmenter | None = None, orientation: OrientationSource | None = None,
-                   progress: Callable[[str], None] | None = None) -> pd.DataFrame:
+                   progress: Callable[[str], None] | None = None, estimator_views: Sequence[View] | None = None,
+                   experiments: Sequence[int] | None = None) -> pd.DataFrame:
     """Run the experiments; one row per (experiment, position, mode, maps), plus tracking rows.
 
     Columns: experiment, radius_mm, position, mode, maps, the true and predicted focal points
@@ -92,17 +93,30 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
 
     ``segmenter`` and ``orientation`` default to the config's oracles (Table I degradation and
     the paper's angle MAE); pass learned ones to run the study on them.
+
+    ``views`` make the frames (the C-arm's true geometry); ``estimator_views``, when given, are
+    what the estimator is told (a lab's calibration, :mod:`~histostudy.study.lab_errors`).
+    ``experiments``: run only these experiment indices (the others are drawn, not rendered, so
+    each keeps its numbers).
     """
     rows = []
+    estimator_views = list(views) if estimator_views is None else list(estimator_views)
+    if len(estimator_views) != len(views):
+        raise ValueError(f"estimator_views must hold one view per frame view ({len(views)}), got {len(estimator_views)}")
+    wanted = None if experiments is None else {int(e) for e in experiments}
     segmenter = config.segmenter() if segmenter is None else segmenter
     orientation = OracleOrientation() if orientation is None else orientation
+    predicted_offset = config.predicted_bubble_offset_mm
     for exp, rng_render, rng_est, _ in draw_experiments(config, seed):
+        if wanted is not None and exp.experiment not in wanted:
+            continue
         e, radius, scene = exp.experiment, exp.radius_mm, exp.scene
         axes = transducer_axes(exp.T_centre)
         centre_estimate = None
         for position, T_true in exp.T_true.items():
             frames = [render_frame(render_model, T_true, v, rng=rng_render, physical=physical, background=scene,
-                                   **config.frame_kwargs()) for v in views]
+                                   **config.frame_kwargs()).with_view(given)
+                      for v, given in zip(views, estimator_views)]
             truth = bubble_cloud_centre_mm(physical, T_true, config.bubble_offset_mm)
             variants = list(config.variants)
             if config.track and position != "centre":
@@ -121,7 +135,7 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
                                         rng=rng_mode, **kwargs)
                     if position == "centre" and (mode, maps) == config.variants[0]:
                         centre_estimate = res.T_carm_transducer
-                    pred = res.focal_point_mm + res.T_carm_transducer[:3, :3] @ np.asarray(config.bubble_offset_mm)
+                    pred = res.focal_point_mm + res.T_carm_transducer[:3, :3] @ predicted_offset
                     err = pred - truth
                     row.update({f"pred_{a}": v for a, v in zip("xyz", pred)})
                     row.update({f"err_{d}": float(err @ axes[d]) for d in DIRECTIONS})

@@ -14,7 +14,7 @@ C-arm (CBCT) frame, mm; CBCT intensities in HU.
 from __future__ import annotations
 
 import time
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 import pandas as pd
@@ -94,7 +94,8 @@ def cbct_reference(config: PoseStudyConfig, *, physical: TransducerModel, seed: 
                    records: pd.DataFrame | None = None, phantom_voxel_mm=0.5, cbct_voxel_mm=1.0,
                    cbct_blur_mm: float = 0.5, cbct_noise_hu: float = 20.0,
                    treatment_spacing_mm=STUDY_PLAN_SPACING_MM, treatment_inset_mm=STUDY_PLAN_INSET_MM,
-                   keep_volumes: bool = False, progress: Callable[[str], None] | None = None) -> pd.DataFrame:
+                   keep_volumes: bool = False, progress: Callable[[str], None] | None = None,
+                   experiments: Sequence[int] | None = None) -> pd.DataFrame:
     """The paper's reference of Table II (§II-D, §II-E.3): the treated zone in a post-treatment CBCT.
 
     For each experiment of :func:`run_pose_study` with the same ``config`` and ``seed`` (the
@@ -131,6 +132,8 @@ def cbct_reference(config: PoseStudyConfig, *, physical: TransducerModel, seed: 
       means) instead of stopping the study; with ``keep_volumes``, ``_volumes`` (the
       post-treatment CBCT and the segmentation).
 
+    ``experiments``: treat only these experiment indices (as ``records`` does, without records).
+
     Pass the table to :func:`experiment_metrics` (``reference=``) for Table II against it.
     """
     if not isinstance(physical, TransducerModel):
@@ -150,12 +153,15 @@ def cbct_reference(config: PoseStudyConfig, *, physical: TransducerModel, seed: 
         if beyond:
             raise ValueError(f"records hold experiments {beyond} beyond config.n_experiments={config.n_experiments}: "
                              "pass the config and seed the records were made with")
+    if experiments is not None:
+        chosen = {int(e) for e in experiments}
+        wanted = chosen if wanted is None else wanted & chosen
     rows = []
     for exp, _, _, rng_cbct in draw_experiments(config, seed):
         if wanted is not None and exp.experiment not in wanted:
             continue
         truth = bubble_cloud_centre_mm(physical, exp.T_true["centre"], config.bubble_offset_mm)
-        if wanted is not None:
+        if records is not None:
             got = centres.loc[exp.experiment, ["true_x", "true_y", "true_z"]].to_numpy(float) \
                 if exp.experiment in centres.index else None
             if got is None or not np.allclose(got, truth, atol=1e-6) \

@@ -59,8 +59,8 @@ def config_focal_flange(T_flange_transducer) -> np.ndarray:
 def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConfig, *, pose_model: TransducerModel,
                     render_model: TransducerModel, physical: TransducerModel, views: Sequence[View],
                     rng_pose: np.random.Generator, rng_scene: np.random.Generator, rng_render: np.random.Generator,
-                    rng_est: np.random.Generator, segmenter=None,
-                    orientation=None) -> tuple[HandEyeCalibration, pd.DataFrame]:
+                    rng_est: np.random.Generator, segmenter=None, orientation=None,
+                    estimator_views: Sequence[View] | None = None) -> tuple[HandEyeCalibration, pd.DataFrame]:
     """§II-C on ``robot``: move to the preprogrammed poses, estimate the transducer pose from a
     biplane pair rendered from the true pose at each, calibrate, check the residuals.
 
@@ -68,10 +68,16 @@ def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConf
     from :func:`histostudy.study.pose_estimation.study_stages`); None: the config's oracle
     segmenter and the oracle orientation.
 
+    ``views`` make the frames (the C-arm's true geometry); ``estimator_views``, when given, are
+    what the estimator is told (a lab's calibration of the C-arm).
+
     Returns the checked calibration and one row per pose (the true and estimated focal points,
     the pose-estimation error). Raises :class:`TargetingError` when a pose estimate fails its
     verdict and :class:`~histostudy.calibration.CalibrationError` beyond the residual bound.
     """
+    estimator_views = list(views) if estimator_views is None else list(estimator_views)
+    if len(estimator_views) != len(views):
+        raise ValueError(f"estimator_views must hold one view per frame view ({len(views)}), got {len(estimator_views)}")
     robot.set_tcp(np.eye(4))  # calibration poses are flange poses
     scene = None if config.background == "none" else random_background(rng_scene, config.background)
     segmenter = config.segmenter() if segmenter is None else segmenter
@@ -82,7 +88,7 @@ def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConf
         F_k = robot.flange_pose()  # what the encoders say
         T_true = truth.T_carm_transducer(F_k)
         frames = [render_frame(render_model, T_true, v, rng=rng_render, physical=physical, background=scene,
-                               **config.frame_kwargs()) for v in views]
+                               **config.frame_kwargs()).with_view(given) for v, given in zip(views, estimator_views)]
         try:
             res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=orientation,
                                 rng=np.random.default_rng(rng_est.integers(2**63)), mode=config.pose_mode)

@@ -75,11 +75,13 @@ def calibration_errors(calibration: HandEyeCalibration, calibration_rows: pd.Dat
 def run_targeting_experiment(config: TargetingStudyConfig, seq: np.random.SeedSequence, *,
                              pose_model: TransducerModel, render_model: TransducerModel, physical: TransducerModel,
                              views: Sequence[View], robot_factory=None, keep_volumes: bool = False,
-                             experiment: int = 0, segmenter=None, orientation=None) -> dict:
+                             experiment: int = 0, segmenter=None, orientation=None,
+                             estimator_views: Sequence[View] | None = None) -> dict:
     """One experiment (module docstring) from the seed sequence ``seq``; returns one flat row.
 
     ``segmenter`` / ``orientation``: the calibration's pose-estimation stages (see
-    :func:`calibrate_robot`; None: the oracles).
+    :func:`calibrate_robot`; None: the oracles). ``estimator_views``: the views the estimator is
+    told, when they differ from the ``views`` that make the frames (a lab's calibration).
 
     ``robot_factory(seed, initial_joints_rad) -> context manager yielding a Robot`` (default
     :func:`sim_robot`); the robot starts where the operator jogged it, the flange pointing down
@@ -115,8 +117,11 @@ def run_targeting_experiment(config: TargetingStudyConfig, seq: np.random.SeedSe
                                         physical=physical, views=views, rng_pose=np.random.default_rng(s_pose),
                                         rng_scene=np.random.default_rng(s_scene),
                                         rng_render=np.random.default_rng(s_render), rng_est=np.random.default_rng(s_est),
-                                        segmenter=segmenter, orientation=orientation)
+                                        segmenter=segmenter, orientation=orientation,
+                                        estimator_views=estimator_views)
         R_des = target_orientation(cal)
+        axes = transducer_axes(make_transform(R_des))
+        row.update({f"axis_{d}_{a}": float(v) for d in DIRECTIONS for a, v in zip("xyz", axes[d])})
         X = cal.T_flange_transducer
         row.update(calibration_errors(cal, cal_rows, truth))
         F_cmd = tcp_for_target(cal, target, R_des) @ invert_transform(X)
@@ -151,7 +156,8 @@ def run_targeting_experiment(config: TargetingStudyConfig, seq: np.random.SeedSe
 def run_targeting_study(config: TargetingStudyConfig, *, pose_model: TransducerModel, render_model: TransducerModel,
                         physical: TransducerModel, views: Sequence[View], seed: int, robot: str = "sim",
                         keep_volumes: bool = False, progress: Callable[[str], None] | None = None,
-                        segmenter=None, orientation=None) -> pd.DataFrame:
+                        segmenter=None, orientation=None, estimator_views: Sequence[View] | None = None,
+                        experiments: Sequence[int] | None = None) -> pd.DataFrame:
     """Run ``config.n_experiments`` experiments; one row per (experiment, robot).
 
     ``segmenter`` / ``orientation``: the calibration's pose-estimation stages, e.g. the learned
@@ -162,19 +168,24 @@ def run_targeting_study(config: TargetingStudyConfig, *, pose_model: TransducerM
     robot, diameter_mm, target_*, the errors (``err_depth``, ``err_tb``, ``err_lr``,
     ``err_euclidean``, ``radius_err_mm``; ``corr_*`` with the bias correction), the learnt bias
     (``bias_learnt_*``, depth/TB/LR), the calibration's residuals and errors against the truth
-    (``cal_*``), the moves made.
+    (``cal_*``), the moves made, and the commanded axes at the target (``axis_<d>_<x|y|z>``).
+    ``estimator_views``: see :func:`run_targeting_experiment`; ``experiments``: run only these
+    experiment indices (each keeps its seeds).
     """
     robots = {"sim": ("sim",), "rtde": ("rtde",), "both": ("sim", "rtde")}.get(robot)
     if robots is None:
         raise ValueError(f"robot must be 'sim', 'rtde' or 'both', got {robot!r}")
     factories = {"sim": sim_robot(config), "rtde": rtde_robot(config)}
     rows = []
+    wanted = None if experiments is None else {int(e) for e in experiments}
     for e, seq in enumerate(np.random.SeedSequence(seed).spawn(config.n_experiments)):
+        if wanted is not None and e not in wanted:
+            continue
         for name in robots:
             row = run_targeting_experiment(config, seq, pose_model=pose_model, render_model=render_model,
                                            physical=physical, views=views, robot_factory=factories[name],
                                            keep_volumes=keep_volumes, experiment=e, segmenter=segmenter,
-                                           orientation=orientation)
+                                           orientation=orientation, estimator_views=estimator_views)
             rows.append({"robot": name, **row})
             if progress:
                 progress(f"experiment {e + 1}/{config.n_experiments} ({name}): {row['err_euclidean']:.2f} mm")

@@ -1,0 +1,368 @@
+"""The lab's error sources (§IV), each a named, documented, switchable part of :class:`LabErrorModel`.
+
+The synthetic studies of notebooks 04 and 05 are cleaner than a lab. §IV names the suspects
+behind the paper's 1.4 mm (Table II) and 1.6 mm (targeting): the digital model against the
+physical transducer, the bubble cloud's offset from the geometric focus, the calibration; a
+lab adds its C-arm's geometric calibration, gantry sag, the CBCT-to-fluoroscopy registration,
+the manual annotation of the treated zone, the robot and the phantom moving. Each is one field
+of :class:`LabErrorModel`; ``None`` turns it off. Every default is stated with where it comes
+from; none was fitted to the paper's figures.
+
+A source acts where it acts in the lab (:class:`LabDraw`):
+
+- ``manufacturing``: the physical transducer the frames show and whose focus makes the bubble
+  clouds, drawn with these tolerances instead of the study's own (transducer frame, mm);
+- ``bubble_offset``: the bubble cloud's centre off the physical focal point, one offset per
+  transducer (transducer frame: x = LR, y = TB, z = -depth), unknown to the estimator;
+- ``projection``: the views the estimator is given differ from the C-arm's (the frames are made
+  with the true geometry): source position and principal point, one error per plane;
+- ``gantry_sag``: the true geometry of each plane is its calibration moved rigidly along gravity;
+- ``registration``: the CBCT's coordinates differ from the fluoroscopy's by a small rigid
+  transform, per experiment; every point read from a CBCT (the target, the treated zone) carries
+  it;
+- ``annotation``: the observer's hand segmentation of the treated zone: its centroid and radii;
+- ``robot``: the UR5e's landing noise (both studies' robot);
+- ``phantom_motion``: the phantom shifts between the treatment and the post-treatment CBCT.
+
+Frames: C-arm (LPS) mm for points, transducer frame for the bubble offset, degrees where named.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from histostudy.geometry import make_transform, matrix_from_rotvec
+from histostudy.imaging import GRAVITY_CARM, View, displaced_view, miscalibrated_view
+from histostudy.transducer import ManufacturingDeviation, TransducerModel
+
+__all__ = ["AnnotationError", "BubbleOffset", "ExperimentDraw", "GantrySag", "LAB_SOURCES", "LabDraw", "LabErrorModel",
+           "PhantomMotion", "ProjectionError", "RegistrationError", "RobotRepeatability", "draw_lab"]
+
+#: The sources, in the order of :class:`LabErrorModel`'s fields and of their seed streams.
+LAB_SOURCES = ("manufacturing", "bubble_offset", "projection", "gantry_sag", "registration", "annotation", "robot",
+               "phantom_motion")
+
+
+def _check_magnitudes(obj) -> None:
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        values = value if isinstance(value, tuple) else (value,)
+        for v in values:
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
+                    or not math.isfinite(float(v)) or float(v) < 0:
+                raise ValueError(f"{type(obj).__name__}.{f.name} must be finite and >= 0, got {value!r}")
+        object.__setattr__(obj, f.name, tuple(float(v) for v in values) if isinstance(value, tuple) else float(value))
+
+
+@dataclass(frozen=True)
+class BubbleOffset:
+    """SD of the bubble cloud's offset from the physical focal point, per transducer axis (mm;
+    LR, TB, depth). One offset per transducer: it is systematic, a bias.
+
+    Default (0.5, 0.5, 1.0) mm: an assumption scaled to the cloud (§II-C: 3 x 3 x 6 mm), a sixth
+    of its extent per axis. The clinical workflow calibrates this offset with a test pulse
+    (§I, step 3) because it is not negligible; the paper's C-arm targeting did not.
+    """
+
+    sd_mm: tuple = (0.5, 0.5, 1.0)
+
+    def __post_init__(self):
+        if np.shape(self.sd_mm) != (3,):
+            raise ValueError(f"BubbleOffset.sd_mm must be 3 SDs (LR, TB, depth) in mm, got {self.sd_mm!r}")
+        object.__setattr__(self, "sd_mm", tuple(self.sd_mm))
+        _check_magnitudes(self)
+
+
+@dataclass(frozen=True)
+class ProjectionError:
+    """The C-arm's geometric calibration error, one draw per plane: the principal point off by
+    ``reprojection_px`` (SD per detector axis) and the source off by ``source_mm`` (SD per world
+    axis), the detector where the calibration says.
+
+    Defaults: 0.5 px (0.15 mm at the 0.308 mm detector pixel), the order of the residual
+    reprojection error of phantom-based C-arm calibrations; 1.0 mm for the focal spot, the
+    order of its size. Both are assumptions, stated as such.
+    """
+
+    reprojection_px: float = 0.5
+    source_mm: float = 1.0
+
+    def __post_init__(self):
+        _check_magnitudes(self)
+
+
+@dataclass(frozen=True)
+class GantrySag:
+    """Each plane's source-detector assembly displaced along gravity (SD, mm), one draw per plane:
+    what the geometric calibration did not capture at the fluoroscopy's angulation.
+
+    Default 0.5 mm: an assumption, a fraction of the millimetre-scale flexing that C-arm gantries
+    show over an orbit (which their calibration captures for the CBCT orbit, not for each
+    fluoroscopic angulation of a biplane pair).
+    """
+
+    sd_mm: float = 0.5
+
+    def __post_init__(self):
+        _check_magnitudes(self)
+
+
+@dataclass(frozen=True)
+class RegistrationError:
+    """The CBCT's coordinates against the fluoroscopy's: a rigid error, per experiment (SD of each
+    translation axis in mm, of each rotation-vector component in degrees).
+
+    Defaults 0.3 mm and 0.1 deg: assumptions of a same-C-arm registration (the CBCT is
+    reconstructed in the frame of the C-arm's calibration; what differs is its reproducibility).
+    """
+
+    translation_mm: float = 0.3
+    rotation_deg: float = 0.1
+
+    def __post_init__(self):
+        _check_magnitudes(self)
+
+
+@dataclass(frozen=True)
+class AnnotationError:
+    """The observer's segmentation of the treated zone (per experiment): centroid SD per axis and
+    radius SD per direction (mm).
+
+    Defaults 0.41 mm: derived, not fitted. A sphere annotated by hand in a CBCT of 1 mm voxels
+    (the studies' reconstruction) has each of its six extreme points placed within ±1 voxel
+    (uniform, SD 1/√3 mm); a centroid or radius is half the sum or difference of two of them:
+    SD (1/√3)/√2 = 0.41 mm.
+    """
+
+    centroid_mm: float = 0.41
+    radius_mm: float = 0.41
+
+    def __post_init__(self):
+        _check_magnitudes(self)
+
+
+@dataclass(frozen=True)
+class RobotRepeatability:
+    """The UR5e's landing noise, SD per axis (mm). Default 0.03 mm: the paper's ±0.03 mm pose
+    repeatability (§II-C, the UR5e's data sheet) taken as one SD, the conservative reading."""
+
+    sd_mm: float = 0.03
+
+    def __post_init__(self):
+        _check_magnitudes(self)
+
+
+@dataclass(frozen=True)
+class PhantomMotion:
+    """The phantom's shift between the treatment and the post-treatment CBCT (SD per axis, mm; per
+    experiment). Default 0.2 mm: an assumption for an agarose phantom in a water bath as the
+    transducer is lifted out of it."""
+
+    sd_mm: float = 0.2
+
+    def __post_init__(self):
+        _check_magnitudes(self)
+
+
+#: The manufacturing tolerances of the lab model: ISO 2768-1 class m ("medium") for the quadrants'
+#: placement in a 120-400 mm housing, ±0.5 mm and ±0°10', read as uniform (SD = tolerance / √3).
+ISO_2768_M_DEVIATION = ManufacturingDeviation(quadrant_offset_sd_mm=0.5 / math.sqrt(3),
+                                              quadrant_tilt_sd_deg=(10.0 / 60.0) / math.sqrt(3))
+
+_SOURCE_TYPES = {"manufacturing": ManufacturingDeviation, "bubble_offset": BubbleOffset,
+                 "projection": ProjectionError, "gantry_sag": GantrySag, "registration": RegistrationError,
+                 "annotation": AnnotationError, "robot": RobotRepeatability, "phantom_motion": PhantomMotion}
+
+
+@dataclass(frozen=True)
+class LabErrorModel:
+    """The lab's error sources (module docstring): one field per source, ``None`` = off.
+
+    ``LabErrorModel()`` is the lab with every source at its documented default;
+    :meth:`off` is the study as notebooks 04 and 05 run it (its own physical transducer and robot
+    noise); :meth:`only` and :meth:`without` toggle one source and keep the others' magnitudes.
+    """
+
+    manufacturing: ManufacturingDeviation | None = ISO_2768_M_DEVIATION
+    bubble_offset: BubbleOffset | None = BubbleOffset()
+    projection: ProjectionError | None = ProjectionError()
+    gantry_sag: GantrySag | None = GantrySag()
+    registration: RegistrationError | None = RegistrationError()
+    annotation: AnnotationError | None = AnnotationError()
+    robot: RobotRepeatability | None = RobotRepeatability()
+    phantom_motion: PhantomMotion | None = PhantomMotion()
+
+    def __post_init__(self):
+        for name, kind in _SOURCE_TYPES.items():
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, kind):
+                raise TypeError(f"LabErrorModel.{name} must be a {kind.__name__} or None (off), got {value!r}")
+
+    @property
+    def enabled(self) -> tuple[str, ...]:
+        """The sources that are on, in :data:`LAB_SOURCES` order."""
+        return tuple(name for name in LAB_SOURCES if getattr(self, name) is not None)
+
+    @staticmethod
+    def _check_name(name: str) -> None:
+        if name not in LAB_SOURCES:
+            raise ValueError(f"source must be one of {LAB_SOURCES}, got {name!r}")
+
+    def off(self) -> "LabErrorModel":
+        """Every source off: the studies as they run without a lab model."""
+        return dataclasses.replace(self, **{name: None for name in LAB_SOURCES})
+
+    def only(self, name: str) -> "LabErrorModel":
+        """This model with every source but ``name`` off."""
+        self._check_name(name)
+        return dataclasses.replace(self.off(), **{name: getattr(self, name)})
+
+    def without(self, name: str) -> "LabErrorModel":
+        """This model with ``name`` off."""
+        self._check_name(name)
+        return dataclasses.replace(self, **{name: None})
+
+    def describe(self) -> list[dict]:
+        """One row per source: its name, whether it is on, and its magnitudes."""
+        rows = []
+        for name in LAB_SOURCES:
+            value = getattr(self, name) or getattr(LabErrorModel(), name)
+            rows.append({"source": name, "on": getattr(self, name) is not None,
+                         "magnitudes": ", ".join(f"{f.name} = {getattr(value, f.name)!r}".replace("(", "").replace(")", "")
+                                                 for f in dataclasses.fields(value)
+                                                 if not f.name.startswith("extra_screw"))})
+        return rows
+
+
+def _stream(seq: np.random.SeedSequence, *keys: int) -> np.random.Generator:
+    """A generator on ``seq``'s child at ``keys`` (stateless: the same keys give the same draws)."""
+    return np.random.default_rng(np.random.SeedSequence(seq.entropy, spawn_key=tuple(seq.spawn_key) + tuple(keys)))
+
+
+@dataclass(frozen=True, eq=False)
+class ExperimentDraw:
+    """The per-experiment draws (zeros where the source is off): ``T_cbct_carm`` (the CBCT's
+    coordinates of a C-arm point, 4x4 mm), the annotation's centroid offset (3, mm) and radius
+    errors per direction (depth, TB, LR; mm), the phantom's motion (3, mm, C-arm frame)."""
+
+    T_cbct_carm: np.ndarray
+    annotation_centroid_mm: np.ndarray
+    annotation_radius_mm: np.ndarray
+    phantom_motion_mm: np.ndarray
+
+    def measured_point(self, point_mm) -> np.ndarray:
+        """Where the lab reads a treated zone's centroid at ``point_mm`` (C-arm frame) in its
+        post-treatment CBCT: moved with the phantom, read through the registration, annotated."""
+        p = np.asarray(point_mm, float) + self.phantom_motion_mm
+        return self.T_cbct_carm[:3, :3] @ p + self.T_cbct_carm[:3, 3] + self.annotation_centroid_mm
+
+    def read_target(self, target_mm) -> np.ndarray:
+        """The target's coordinates as read from the pre-treatment CBCT (through the registration)."""
+        return self.T_cbct_carm[:3, :3] @ np.asarray(target_mm, float) + self.T_cbct_carm[:3, 3]
+
+
+@dataclass(frozen=True, eq=False)
+class LabDraw:
+    """One lab's realisation of a :class:`LabErrorModel` (its systematic sources), and its
+    per-experiment draws (:meth:`experiment`). Each source draws from its own stream, so turning
+    one off changes no other's numbers (:meth:`variant` is :func:`draw_lab` of a sub-model).
+
+    ``physical``: the transducer the frames show (the study's where ``manufacturing`` is off);
+    ``bubble_offset_mm``: transducer frame (x, y, z), zeros when off; ``frame_views``: the true
+    geometry (gantry sag); ``estimator_views``: what the estimator is given (the calibration,
+    with its error). ``study_physical`` / ``study_views``: the study's, for the sources off.
+    """
+
+    model: LabErrorModel
+    seed: np.random.SeedSequence
+    physical: TransducerModel
+    bubble_offset_mm: np.ndarray
+    frame_views: tuple
+    estimator_views: tuple
+    study_physical: TransducerModel
+    study_views: tuple
+
+    def variant(self, model: LabErrorModel) -> "LabDraw":
+        """This lab with only ``model``'s sources on: each must be on here with the same
+        magnitudes. The same numbers as :func:`draw_lab` of ``model`` on this seed, without
+        drawing the transducer again."""
+        if not isinstance(model, LabErrorModel):
+            raise TypeError(f"model must be a LabErrorModel, got {type(model).__name__}")
+        for name in model.enabled:
+            if getattr(model, name) != getattr(self.model, name):
+                raise ValueError(f"model.{name} = {getattr(model, name)!r} is not this lab's "
+                                 f"({getattr(self.model, name)!r}): draw that lab with draw_lab")
+        on = set(model.enabled)
+        return LabDraw(model, self.seed,
+                       self.physical if "manufacturing" in on else self.study_physical,
+                       self.bubble_offset_mm if "bubble_offset" in on else np.zeros(3),
+                       self.frame_views if "gantry_sag" in on else self.study_views,
+                       self.estimator_views if "projection" in on else self.study_views,
+                       self.study_physical, self.study_views)
+
+    def robot_repeatability_mm(self, study_value: float) -> float:
+        """The robot's landing noise SD: the lab's where the source is on, else the study's."""
+        return study_value if self.model.robot is None else self.model.robot.sd_mm
+
+    def experiment(self, index: int) -> ExperimentDraw:
+        """The per-experiment draws of experiment ``index`` (the same for every configuration)."""
+        m = self.model
+        rng_reg = _stream(self.seed, LAB_SOURCES.index("registration"), int(index))
+        t, w = rng_reg.normal(0.0, 1.0, 3), rng_reg.normal(0.0, 1.0, 3)
+        T = np.eye(4)
+        if m.registration is not None:
+            T = make_transform(matrix_from_rotvec(np.radians(m.registration.rotation_deg) * w),
+                               m.registration.translation_mm * t)
+        rng_ann = _stream(self.seed, LAB_SOURCES.index("annotation"), int(index))
+        c, r = rng_ann.normal(0.0, 1.0, 3), rng_ann.normal(0.0, 1.0, 3)
+        ann = (np.zeros(3), np.zeros(3)) if m.annotation is None else \
+            (m.annotation.centroid_mm * c, m.annotation.radius_mm * r)
+        rng_mot = _stream(self.seed, LAB_SOURCES.index("phantom_motion"), int(index))
+        motion = rng_mot.normal(0.0, 1.0, 3)
+        motion = np.zeros(3) if m.phantom_motion is None else m.phantom_motion.sd_mm * motion
+        return ExperimentDraw(T, ann[0], ann[1], motion)
+
+
+def draw_lab(model: LabErrorModel, seed, *, physical: TransducerModel, views,
+             physical_seed: np.random.SeedSequence | int | None = None) -> LabDraw:
+    """Draw one lab of ``model`` from ``seed`` (an int or a ``SeedSequence``).
+
+    ``physical`` and ``views``: the study's transducer and calibrated views, used where the
+    corresponding sources are off. With ``manufacturing`` on, the lab's transducer is built from
+    ``physical``'s spec and spacing with the model's tolerances, from ``physical_seed`` when
+    given (the seed the study drew its transducer from: the same quadrants, moved by the lab's
+    tolerances instead of the study's), else from the lab's own stream. Standard normal draws
+    are scaled by the magnitudes, so a magnitude changes no other draw.
+    """
+    if not isinstance(model, LabErrorModel):
+        raise TypeError(f"model must be a LabErrorModel, got {type(model).__name__}")
+    seq = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(int(seed))
+    if not isinstance(physical, TransducerModel):
+        raise TypeError(f"physical must be a TransducerModel, got {type(physical).__name__}")
+    views = tuple(views)
+    if not views or not all(isinstance(v, View) for v in views):
+        raise ValueError(f"views must be a non-empty sequence of View, got {views!r}")
+    study_physical = physical
+    if model.manufacturing is not None:
+        rng = _stream(seq, LAB_SOURCES.index("manufacturing")) if physical_seed is None \
+            else np.random.default_rng(physical_seed)
+        physical = TransducerModel.build_physical(physical.spec, physical.spacing_mm, deviation=model.manufacturing,
+                                                  rng=rng)
+    offset = _stream(seq, LAB_SOURCES.index("bubble_offset")).normal(0.0, 1.0, 3)
+    offset = np.zeros(3) if model.bubble_offset is None else np.asarray(model.bubble_offset.sd_mm) * offset
+    rng_proj = _stream(seq, LAB_SOURCES.index("projection"))
+    rng_sag = _stream(seq, LAB_SOURCES.index("gantry_sag"))
+    frame_views, estimator_views = [], []
+    for v in views:
+        source, shift = rng_proj.normal(0.0, 1.0, 3), rng_proj.normal(0.0, 1.0, 2)
+        sag = rng_sag.normal(0.0, 1.0)
+        estimator_views.append(v if model.projection is None else miscalibrated_view(
+            v, source_offset_mm=model.projection.source_mm * source,
+            detector_shift_px=model.projection.reprojection_px * shift))
+        frame_views.append(v if model.gantry_sag is None else displaced_view(
+            v, make_transform(None, model.gantry_sag.sd_mm * sag * GRAVITY_CARM)))
+    return LabDraw(model, seq, physical, offset, tuple(frame_views), tuple(estimator_views), study_physical, views)
