@@ -15,6 +15,7 @@ Each writes its result as JSON (atomically: whole or not at all). Exit status 0 
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -93,8 +94,9 @@ def add_parsers(sub, parents) -> None:
     lis.add_argument("--max-pairs", type=int, default=None, help="stop after this many pairs")
     lis.add_argument("--timeout-s", type=float, default=None, help="stop after this many seconds")
     lis.add_argument("--seed", type=int, default=0, help="seed of the estimates' random draws (default 0)")
-    lis.add_argument("--fast", action="store_true",
-                     help="track on the region of the last pose (pose.Tracker(fast=True), docs/tracking.md)")
+    lis.add_argument("--fast", action=argparse.BooleanOptionalAction, default=True,
+                     help="track on the region of the last pose (pose.Tracker(fast=True), the default: "
+                          "docs/tracking.md); --no-fast: every pair on the full frames")
     lis.add_argument("--max-queued-pairs", type=int, default=None,
                      help="drop the oldest waiting pairs beyond this many rather than fall behind (counted in the "
                           "stats; default: keep every pair)")

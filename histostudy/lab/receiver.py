@@ -16,8 +16,12 @@ The chain, per object:
 2. The frames are paired by acquisition time (:mod:`.pairing`: ``AcquisitionDateTime`` + frame
    index x ``FrameTime``; two planes' frames pair when less than half a frame interval apart).
 3. A worker thread takes the pairs in order from a queue and runs :class:`histostudy.pose.Tracker`
-   (each estimate warm-started from the last accepted pose; a lost track re-acquired from
-   scratch), then writes the record and calls ``on_pose(record)`` (e.g. a notebook's live figure).
+   (each estimate warm-started from the last accepted pose, by default on the region where it
+   projects: ``fast``, docs/tracking.md; a lost track re-acquired from scratch), then writes the
+   record and calls ``on_pose(record)`` (e.g. a notebook's live figure). With
+   ``max_queued_pairs`` a pair arriving while that many wait pushes the oldest waiting one out
+   (counted as skipped), so the poses follow a stream that outpaces them at most that many pairs
+   behind.
 
 Each JSON line holds the fields of :func:`histostudy.pose.pose_record` (``T_carm_transducer`` 4x4
 in mm, C-arm/CBCT frame; ``focal_point_mm``; ``cost``; ``accepted`` and the ``verdict``;
@@ -86,6 +90,11 @@ class FrameReceiver:
             the same poses.
         segmenter, orientation, options, **option_overrides: the pose stages and
             :class:`~histostudy.pose.PoseOptions` for :class:`~histostudy.pose.Tracker`.
+        fast: the tracker's warm path (:class:`~histostudy.pose.Tracker`'s ``fast``): True
+            (default) or a :class:`~histostudy.pose.TrackingOptions`: warm updates on the region of
+            the last pose, 5-6 times the pairs per second of the full-frame path within 0.1 mm of its
+            poses (docs/tracking.md); False: every update on the full frames, as the study's
+            :func:`~histostudy.pose.estimate_pose`.
         on_pose: called with each record (a dict, as written) on the worker thread; its errors are
             logged, not raised.
         air_value: ``I0`` for the line integrals (modality units); None: each frame's maximum.
@@ -104,7 +113,7 @@ class FrameReceiver:
                  on_pose: Callable[[dict], object] | None = None, air_value: float | None = None,
                  tolerance_s: float | None = None, default_interval_s: float = DEFAULT_FRAME_INTERVAL_S,
                  match_tolerance_mm: float | None = 5.0, max_queued_pairs: int | None = None,
-                 network_timeout_s: float = 30.0, **option_overrides):
+                 network_timeout_s: float = 30.0, fast=True, **option_overrides):
         views = [views] if isinstance(views, View) else list(views)
         if not views or not all(isinstance(v, View) for v in views):
             raise ValueError(f"views must be a non-empty sequence of histostudy.imaging.View, got {views!r}")
@@ -123,7 +132,7 @@ class FrameReceiver:
         self.views = tuple(views)
         self.model = TransducerModel.build(spacing_mm=0.47) if model is None else model
         self.tracker = Tracker(self.model, self.views, segmenter=segmenter, orientation=orientation, rng=seed,
-                               options=options, **option_overrides)
+                               options=options, fast=fast, **option_overrides)
         self.pairer = BiplanePairer(names, tolerance_s=tolerance_s, default_interval_s=default_interval_s)
         self.output_path = Path(output_path)
         self.ae_title, self.host, self.port = ae_title, host, port
@@ -301,6 +310,7 @@ class FrameReceiver:
             index, skipped, _ = self._queue.popleft()
             self._counts["pairs_skipped"] += 1
             log.warning("pair %d skipped: %d pairs wait for the pose (max_queued_pairs)", index, len(self._queue))
+        self._counts["pairs_waiting_max"] = max(self._counts["pairs_waiting_max"], len(self._queue))
 
     def _reject(self, status: int, uid: str, sop_class: str, reason: str):
         log.warning("rejected object %s (SOP class %s) with status 0x%04X: %s", uid or "(no UID)", sop_class,
@@ -375,7 +385,8 @@ class FrameReceiver:
         ``objects_received`` / ``objects_accepted`` / ``objects_rejected`` (with ``rejections`` per
         status and ``last_rejections``' reasons), ``frames_received``, ``frames_unpaired``,
         ``pairs_completed`` (paired), ``pairs_processed`` (a line written), ``pairs_accepted``,
-        ``pairs_errors``, ``pairs_skipped``, ``pairs_waiting``; ``connections``, ``associations``,
+        ``pairs_errors``, ``pairs_skipped``, ``pairs_waiting`` (now) and ``pairs_waiting_max`` (the most
+        that ever waited: at most ``max_queued_pairs``); ``connections``, ``associations``,
         ``associations_aborted``; ``stage_seconds`` summed (``decode`` in the handlers, the pose
         stages of :attr:`Tracker.stage_seconds`) and ``seconds_per_pair`` (those over
         ``pairs_processed``, plus ``pose`` and ``latency``); ``frames_per_s``: the frames of the
@@ -393,7 +404,7 @@ class FrameReceiver:
             out = {key: counts.get(key, 0) for key in (
                 "objects_received", "objects_accepted", "objects_rejected", "frames_received", "frames_unpaired",
                 "pairs_completed", "pairs_processed", "pairs_accepted", "pairs_errors", "pairs_skipped",
-                "connections", "associations", "associations_aborted")}
+                "pairs_waiting_max", "connections", "associations", "associations_aborted")}
             out.update({
                 "pairs_waiting": len(self._queue),
                 "rejections": dict(self._rejections),

@@ -38,9 +38,10 @@ def stream_cine(inputs: LabInputs, model: TransducerModel, seed: int, *, output_
     """Stream the cine of ``inputs`` to a pose receiver on loopback and collect a pose per pair.
 
     The receiver listens on ``127.0.0.1`` (a free port) with the cine's views (the views file's, or
-    the DICOM geometry tags' named as the files) and ``model``, its tracker seeded with ``seed`` as
-    :func:`.your_data.track_cine`'s, so that the same frames give the same poses; the cine files go
-    to it in one association (:func:`histostudy.lab.send_frames`).
+    the DICOM geometry tags' named as the files) and ``model``, its tracker seeded with ``seed`` and
+    on the full frames as :func:`.your_data.track_cine`'s (``fast=False``), so that the same frames
+    give the same poses; the cine files go to it in one association
+    (:func:`histostudy.lab.send_frames`).
 
     Args:
         output_path: the receiver's JSON-lines file (replaced if it exists).
@@ -65,7 +66,7 @@ def stream_cine(inputs: LabInputs, model: TransducerModel, seed: int, *, output_
     output.unlink(missing_ok=True)  # the receiver appends: start from an empty file
     views = [f.view for f in frames_from_files(inputs.cine, inputs.views, frame_index=0)]
     receiver = FrameReceiver(views, model, output_path=output, port=0, host="127.0.0.1", seed=seed,
-                             on_pose=on_pose)
+                             on_pose=on_pose, fast=False)  # track_cine's full-frame path: the same poses
     receiver.start()
     try:
         statuses = send_frames(inputs.cine, "127.0.0.1", receiver.port, ae_title=receiver.ae_title)
