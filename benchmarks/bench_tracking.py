@@ -6,10 +6,12 @@ Baseline, measured in the same run: today's full-frame path, ``Tracker(model, vi
 default ``fast``: the same Levenberg-Marquardt refinement as the fast path, so that the focal errors
 compare the regions and resolution alone). Against it: ``fast``, ``Tracker(..., fast=True)`` (the
 region of the last pose at the U-Net's resolution, the two views' segmentation and maps on two
-threads), and ``fast-in-turn``, the same with ``parallel_views=False``. These three update on the
-same frames, in an order that rotates frame by frame so that a slow spell of the machine does not
+threads), and ``fast-in-turn``, the same with ``parallel_views=False``. These update on the
+same frames, and ``net-<name>``, ``fast`` with ``TrackingOptions(network=--network)`` (default
+``unet_tracking``: the U-Net trained at input scale 0.25 for the warm regions; docs/tracking.md, "A
+network trained for tracking"), in an order that rotates frame by frame so that a slow spell of the machine does not
 fall on one of them only. Then, each alone (its worker thread would run on while the others are
-timed), ``fast+pipeline`` and ``pipe-in-turn``: ``Tracker(..., fast=...).track(frames)``, which
+timed), ``fast+pipeline``, ``pipe-in-turn`` and ``net+pipeline``: ``Tracker(..., fast=...).track(frames)``, which
 segments the next pair while this one is refined; their seconds per pair are the wall time between
 two results.
 
@@ -83,6 +85,9 @@ def main() -> None:
     parser.add_argument("--step-deg", type=float, default=0.2)
     parser.add_argument("--scratch", type=int, default=2, help="later frames also timed from scratch")
     parser.add_argument("--baseline-mode", choices=("fast", "paper"), default="fast")
+    parser.add_argument("--network", default="unet_tracking",
+                        help="also track with TrackingOptions(network=NAME), the shipped U-Net trained for tracking "
+                             "(warm regions at its input scale; '' leaves it out)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     numba.set_num_threads(args.threads)
@@ -102,6 +107,9 @@ def main() -> None:
         "fast-in-turn": Tracker(model, views, rng=args.seed, mode="fast", fast=in_turn, **stages),
         "fast": Tracker(model, views, rng=args.seed, mode="fast", fast=True, **stages),
     }
+    if args.network:
+        trackers["net-" + args.network[-8:]] = Tracker(model, views, rng=args.seed, mode="fast",
+                                                       fast=TrackingOptions(network=args.network), **stages)
     names = list(trackers)
     # Warm-up, untimed: numba's kernels, torch's convolution primitives for these frames' regions.
     for tracker in trackers.values():
@@ -121,7 +129,10 @@ def main() -> None:
             log[name].append((tracker.last_kind, seconds, dict(result.timings_s), error))
     # Tracker.track overlaps a pair's refinement with the next pair's segmentation on a worker
     # thread, which would run on while the other trackers are timed: it runs alone, after them.
-    for name, options in (("pipe-in-turn", in_turn), ("fast+pipeline", TrackingOptions())):
+    piped = [("pipe-in-turn", in_turn), ("fast+pipeline", TrackingOptions())]
+    if args.network:
+        piped.append(("net+pipeline", TrackingOptions(network=args.network)))
+    for name, options in piped:
         tracker = Tracker(model, views, rng=args.seed, mode="fast", fast=options, **stages)
         list(tracker.track(frames[:2]))
         tracker.reset()

@@ -25,7 +25,7 @@ from .orientation import (LearnedOrientation, N_ORIENTATION_CLASSES, OracleOrien
                           select_direction, wrap_angle)
 from .preprocess import pool_labels, prepare_image
 from .segment import (OracleSegmenter, SegmentationDegradation, Segmenter, UNetSegmenter, default_segmenter,
-                      keep_largest_component, masks_from_labels)
+                      keep_largest_component, masks_from_labels, tracking_segmenter)
 from .training import train
 from .training_config import (FineTuneConfig, SEGMENTATION_LOSSES, TRAINING_TABLES, TrainingConfig, TrainingResult,
                               export_name, run_frame_sets)

@@ -24,7 +24,7 @@ from histostudy.imaging import Frame
 from histostudy.transducer import FEATURE_CLASSES, Feature
 
 __all__ = ["keep_largest_component", "OracleSegmenter", "SegmentationDegradation", "Segmenter", "UNetSegmenter", "default_segmenter",
-           "masks_from_labels"]
+           "masks_from_labels", "tracking_segmenter"]
 
 
 @runtime_checkable
@@ -256,3 +256,13 @@ def default_segmenter() -> UNetSegmenter | None:
     from .checkpoints import load_shipped
 
     return load_shipped("unet_standard", UNetSegmenter.load, "U-Net")
+
+
+def tracking_segmenter() -> UNetSegmenter | None:
+    """The shipped U-Net trained for tracking (``data/models/unet_tracking``: input scale 0.25,
+    ``histostudy train segmentation_tracking``; docs/tracking.md, "A network trained for tracking")
+    as a :class:`UNetSegmenter`, or None when the weights are missing or fail their hash or
+    configuration check (with a warning then)."""
+    from .checkpoints import load_shipped
+
+    return load_shipped("unet_tracking", UNetSegmenter.load, "tracking U-Net")

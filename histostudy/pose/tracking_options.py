@@ -13,7 +13,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from histostudy.learning import FAST_UNET_PRECISIONS
+from histostudy.learning import FAST_UNET_PRECISIONS, UNetSegmenter
 
 __all__ = ["TrackingOptions"]
 
@@ -42,7 +42,9 @@ class TrackingOptions:
             (1, 1/2, 1/4, ...). None: a U-Net's own input scale (0.5 for the shipped one: its
             arg-max taken at the network's resolution), 1 for other segmenters (their labels
             cropped). A scale below the U-Net's pools its labels by the overlap priority
-            (:func:`~histostudy.learning.preprocess.pool_labels`). Every pixel threshold of
+            (:func:`~histostudy.learning.preprocess.pool_labels`); a scale k times the U-Net's
+            upsamples its logits bilinearly before the arg-max (the tracking U-Net at 0.25
+            labelling at 0.5: docs/tracking.md, "A network trained for tracking"). Every pixel threshold of
             :class:`~.options.PoseOptions` is multiplied by it, so that it keeps its length on the
             detector.
         refine_points_per_class: model points per class of the fine refinement stage (drawn once,
@@ -58,6 +60,13 @@ class TrackingOptions:
             when other processes hold the cores: docs/tracking.md); False: one after the other.
         precision: what a U-Net computes in (:class:`~histostudy.learning.FastUNet`): ``"auto"``
             (bfloat16 on a CPU with native bfloat16, else float32), ``"float32"`` or ``"bfloat16"``.
+        network: the U-Net of the warm updates' regions, in place of the tracker's U-Net: None (the
+            tracker's segmenter), the name of shipped weights in ``data/models`` (``"unet_tracking"``:
+            :func:`~histostudy.learning.tracking_segmenter`, the U-Net trained at input scale 0.25;
+            loaded with its SHA-256 checked) or a :class:`~histostudy.learning.UNetSegmenter`. The
+            regions' labels are then at its input scale (``label_scale`` None). From-scratch estimates
+            (the first update, re-acquisitions) keep the tracker's segmenter on the full frames. It
+            replaces a U-Net only: with another segmenter (an oracle) the tracker refuses it.
     """
 
     roi_margin_px: float = 48.0
@@ -68,6 +77,7 @@ class TrackingOptions:
     unexplained_points: int | None = 40000
     parallel_views: bool = True
     precision: str = "auto"
+    network: object = None
 
     def __post_init__(self):
         if not (_is_number(self.roi_margin_px) and np.isfinite(self.roi_margin_px) and self.roi_margin_px >= 0):
@@ -90,6 +100,10 @@ class TrackingOptions:
             raise ValueError(f"parallel_views must be True or False, got {self.parallel_views!r}")
         if self.precision not in FAST_UNET_PRECISIONS:
             raise ValueError(f"precision must be one of {FAST_UNET_PRECISIONS}, got {self.precision!r}")
+        if not (self.network is None or isinstance(self.network, UNetSegmenter)
+                or (isinstance(self.network, str) and self.network.isidentifier())):
+            raise ValueError(f"network must be None, the name of shipped U-Net weights in data/models (e.g. "
+                             f"'unet_tracking') or a histostudy.learning.UNetSegmenter, got {self.network!r}")
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:

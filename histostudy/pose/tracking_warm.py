@@ -84,6 +84,24 @@ def _subset(points: np.ndarray, n: int | None, rng: np.random.Generator) -> np.n
     return points[np.sort(rng.choice(len(points), size=int(n), replace=False))]
 
 
+def _tracking_network(network, segmenter) -> UNetSegmenter:
+    """The :class:`UNetSegmenter` of :attr:`TrackingOptions.network` (a shipped name is loaded, its
+    SHA-256 checked); ValueError when it cannot be loaded or the tracker's segmenter is no U-Net."""
+    from histostudy.learning import MODELS_DIR
+
+    if not isinstance(segmenter, UNetSegmenter):
+        raise ValueError(f"TrackingOptions.network {network!r} replaces the tracker's U-Net in the warm updates, "
+                         f"but the tracker's segmenter is {type(segmenter).__name__}: pass network=None with it")
+    if isinstance(network, UNetSegmenter):
+        return network
+    path = MODELS_DIR / f"{network}.safetensors"
+    try:
+        return UNetSegmenter.load(path)
+    except ValueError as exc:
+        raise ValueError(f"TrackingOptions.network {network!r}: the weights {str(path)!r} cannot be used ({exc}); "
+                         f"expected a U-Net checkpoint in data/models (histostudy train segmentation_tracking)") from None
+
+
 class RegionEstimator:
     """Warm-started pose estimates on the regions where the last pose projects (module docstring).
 
@@ -107,11 +125,20 @@ class RegionEstimator:
         self.options, self.tracking = options, tracking
         self.fast_unet = (FastUNet(segmenter, precision=tracking.precision) if isinstance(segmenter, UNetSegmenter)
                           else None)
+        # The full frames' network (from-scratch estimates) and the regions' (warm updates), which
+        # TrackingOptions.network may replace by one trained for tracking.
+        self._full_unet = self.fast_unet
+        if tracking.network is not None:
+            self.fast_unet = FastUNet(_tracking_network(tracking.network, segmenter), precision=tracking.precision)
         if self.fast_unet is not None:
-            s = self.fast_unet.scale if tracking.label_scale is None else float(tracking.label_scale)
-            if s > self.fast_unet.scale + 1e-12 or abs(round(self.fast_unet.scale / s) * s - self.fast_unet.scale) > 1e-9:
-                raise ValueError(f"label_scale {tracking.label_scale!r} must be the U-Net's input scale "
-                                 f"{self.fast_unet.scale} or that divided by an integer (labels are not upsampled)")
+            net_scale = self.fast_unet.scale
+            s = net_scale if tracking.label_scale is None else float(tracking.label_scale)
+            ratio = max(s, net_scale) / min(s, net_scale)
+            if abs(ratio - round(ratio)) > 1e-9:
+                raise ValueError(f"label_scale {tracking.label_scale!r} must be the U-Net's input scale {net_scale} "
+                                 f"times or divided by an integer (labels are pooled or the logits upsampled)")
+            # above the network's scale its logits are upsampled (FastUNet.segment_region's upsample)
+            self._upsample = int(round(s / net_scale)) if s > net_scale else 1
             align = self.fast_unet.network_stride_px
         else:
             s = 1.0 if tracking.label_scale is None else float(tracking.label_scale)
@@ -138,7 +165,7 @@ class RegionEstimator:
     def full_frame_segmenter(self):
         """The segmenter of the tracker's from-scratch estimates on full frames: the U-Net through
         :meth:`~histostudy.learning.FastUNet.segment`, or the segmenter as given."""
-        return self.segmenter if self.fast_unet is None else self.fast_unet
+        return self.segmenter if self._full_unet is None else self._full_unet
 
     # --- stages ---------------------------------------------------------------------------------
 
@@ -146,8 +173,8 @@ class RegionEstimator:
         """The region's labels at the label scale (largest component kept if the options say so)."""
         r0, r1, c0, c1 = region.box
         if self.fast_unet is not None:
-            labels = self.fast_unet.segment_region(frame, region.box)
-            ratio = self.label_scale / self.fast_unet.scale
+            labels = self.fast_unet.segment_region(frame, region.box, self._upsample)
+            ratio = self.label_scale / (self.fast_unet.scale * self._upsample)
         else:
             full = check_label_image(self.segmenter.segment(frame, rng), frame.shape,
                                      f"the segmentation of view {frame.view.name!r}")
