@@ -105,12 +105,16 @@ def measured_reference(reference: pd.DataFrame, draw: ExperimentDraw) -> pd.Data
 
 
 def measured_zone(row: dict, draw: ExperimentDraw) -> dict:
-    """A targeting row's zone errors as the lab measures them: the target read from the
-    pre-treatment CBCT and the zone's centroid from the post-treatment one (both through the
-    registration), the zone moved with the phantom and annotated; mm along the commanded axes."""
+    """A targeting row's zone errors as the lab measures them (mm along the commanded axes).
+
+    The robot is commanded to the target's coordinates as read from the pre-treatment CBCT
+    (through the registration), so the zone lands shifted by the reading's error (the
+    calibration's error is the same a millimetre away); its centroid is then read from the
+    post-treatment CBCT (moved with the phantom, through the registration, annotated)."""
     target = np.array([row[f"target_{a}"] for a in "xyz"])
     centroid = np.array([row[f"centroid_{a}"] for a in "xyz"])
-    err = draw.measured_point(centroid) - draw.read_target(target)
+    target_read = draw.read_target(target)
+    err = draw.measured_point(centroid + (target_read - target)) - target_read
     out = {}
     for d in DIRECTIONS:
         axis = np.array([row[f"axis_{d}_{a}"] for a in "xyz"])
@@ -125,9 +129,9 @@ def _pose_task(setup: BudgetSetup, seed: int, experiment: int,
     """Table II's per-experiment metrics under every configuration, for one pose experiment."""
     lab, base = setup.lab, setup.pose_config
     records, references, rows = {}, {}, []
-    draw = lab.experiment(experiment)
     for label, model in configurations:
         sub = lab.variant(model)
+        draw = sub.experiment(experiment)
         config = dataclasses.replace(base, robot_repeatability_mm=sub.robot_repeatability_mm(base.robot_repeatability_mm),
                                      bubble_offset_mm=tuple(float(v) for v in sub.bubble_offset_mm),
                                      assumed_bubble_offset_mm=(0.0, 0.0, 0.0))
@@ -159,10 +163,10 @@ def _targeting_task(setup: BudgetSetup, seed: int, experiment: int,
     """The targeting errors under every configuration, for one targeting experiment."""
     lab, base = setup.lab, setup.targeting_config
     seq = np.random.SeedSequence(seed).spawn(base.n_experiments)[experiment]
-    draw = lab.experiment(10_000 + experiment)  # the targeting study's own experiments
     runs, rows = {}, []
     for label, model in configurations:
         sub = lab.variant(model)
+        draw = sub.experiment(10_000 + experiment)  # the targeting study's own experiments
         key = _key(model, (*ESTIMATE_SOURCES, "bubble_offset"))
         if key not in runs:
             config = dataclasses.replace(
@@ -194,7 +198,8 @@ def _run_task(task: tuple, *, setup: BudgetSetup, configurations: list) -> pd.Da
 
 
 def run_error_budget(setup: BudgetSetup, *, seed: int, configurations: list[tuple[str, LabErrorModel]] | None = None,
-                     executor: SweepExecutor | str | None = None, progress: bool = False) -> pd.DataFrame:
+                     executor: SweepExecutor | str | None = None, progress: bool = False,
+                     studies: Sequence[str] = ("pose", "targeting")) -> pd.DataFrame:
     """Run every configuration (default :func:`budget_configurations` of the lab's model) on the
     pose experiments and the targeting experiments of ``setup``'s configurations.
 
@@ -205,13 +210,20 @@ def run_error_budget(setup: BudgetSetup, *, seed: int, configurations: list[tupl
     ``err_<d>``, ``err_euclidean``, ``radius_err_mm``, ``cal_error_at_target_mm``, and ``ok`` /
     ``failure`` (a calibration refused by its bound or a failed estimate). ``executor``: see
     :func:`histostudy.core.run_sweep` (the numbers do not depend on it); ``progress``: a
-    progress bar per task.
+    progress bar per task; ``studies``: ``"pose"`` and/or ``"targeting"``.
     """
     if not isinstance(setup, BudgetSetup):
         raise TypeError(f"setup must be a BudgetSetup, got {type(setup).__name__}")
+    studies = tuple(studies)
+    if not studies or any(s not in ("pose", "targeting") for s in studies):
+        raise ValueError(f"studies must name 'pose' and/or 'targeting', got {studies!r}")
     configurations = budget_configurations(setup.lab.model) if configurations is None else list(configurations)
-    tasks = [("pose", int(seed), e) for e in range(setup.pose_config.n_experiments)]
-    tasks += [("targeting", int(seed), e) for e in range(setup.targeting_config.n_experiments)]
+    labels = [label for label, _ in configurations]
+    if "baseline" not in labels or len(set(labels)) != len(labels):
+        raise ValueError(f"configurations must have unique labels including 'baseline', got {labels}")
+    tasks = [("pose", int(seed), e) for e in range(setup.pose_config.n_experiments) if "pose" in studies]
+    tasks += [("targeting", int(seed), e) for e in range(setup.targeting_config.n_experiments)
+              if "targeting" in studies]
     frames = run_sweep(_run_task, tasks, executor=executor, shared={"setup": setup, "configurations": configurations},
                        chunk_size=1, progress=progress)
     return pd.concat(frames, ignore_index=True)
