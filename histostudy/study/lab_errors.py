@@ -47,19 +47,23 @@ LAB_SOURCES = ("manufacturing", "bubble_offset", "projection", "gantry_sag", "re
                "phantom_motion")
 
 
-def _check_magnitudes(obj) -> None:
-    for f in dataclasses.fields(obj):
-        value = getattr(obj, f.name)
-        values = value if isinstance(value, tuple) else (value,)
-        for v in values:
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
-                    or not math.isfinite(float(v)) or float(v) < 0:
-                raise ValueError(f"{type(obj).__name__}.{f.name} must be finite and >= 0, got {value!r}")
-        object.__setattr__(obj, f.name, tuple(float(v) for v in values) if isinstance(value, tuple) else float(value))
+class _Magnitudes:
+    """A source's magnitudes: every field a finite number >= 0 (or a tuple of them), checked and
+    made float when the dataclass is built."""
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            values = value if isinstance(value, tuple) else (value,)
+            for v in values:
+                if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
+                        or not math.isfinite(float(v)) or float(v) < 0:
+                    raise ValueError(f"{type(self).__name__}.{f.name} must be finite and >= 0, got {value!r}")
+            object.__setattr__(self, f.name, tuple(float(v) for v in values) if isinstance(value, tuple) else float(value))
 
 
 @dataclass(frozen=True)
-class BubbleOffset:
+class BubbleOffset(_Magnitudes):
     """SD of the bubble cloud's offset from the physical focal point, per transducer axis (mm;
     LR, TB, depth). One offset per transducer: it is systematic, a bias.
 
@@ -74,11 +78,11 @@ class BubbleOffset:
         if np.shape(self.sd_mm) != (3,):
             raise ValueError(f"BubbleOffset.sd_mm must be 3 SDs (LR, TB, depth) in mm, got {self.sd_mm!r}")
         object.__setattr__(self, "sd_mm", tuple(self.sd_mm))
-        _check_magnitudes(self)
+        super().__post_init__()
 
 
 @dataclass(frozen=True)
-class ProjectionError:
+class ProjectionError(_Magnitudes):
     """The C-arm's geometric calibration error, one draw per plane: the principal point off by
     ``reprojection_px`` (SD per detector axis) and the source off by ``source_mm`` (SD per world
     axis), the detector where the calibration says.
@@ -91,12 +95,9 @@ class ProjectionError:
     reprojection_px: float = 0.5
     source_mm: float = 1.0
 
-    def __post_init__(self):
-        _check_magnitudes(self)
-
 
 @dataclass(frozen=True)
-class GantrySag:
+class GantrySag(_Magnitudes):
     """Each plane's source-detector assembly displaced along gravity (SD, mm), one draw per plane:
     what the geometric calibration did not capture at the fluoroscopy's angulation.
 
@@ -107,12 +108,9 @@ class GantrySag:
 
     sd_mm: float = 0.5
 
-    def __post_init__(self):
-        _check_magnitudes(self)
-
 
 @dataclass(frozen=True)
-class RegistrationError:
+class RegistrationError(_Magnitudes):
     """The CBCT's coordinates against the fluoroscopy's: a rigid error, per experiment (SD of each
     translation axis in mm, of each rotation-vector component in degrees).
 
@@ -123,12 +121,9 @@ class RegistrationError:
     translation_mm: float = 0.3
     rotation_deg: float = 0.1
 
-    def __post_init__(self):
-        _check_magnitudes(self)
-
 
 @dataclass(frozen=True)
-class AnnotationError:
+class AnnotationError(_Magnitudes):
     """The observer's segmentation of the treated zone (per experiment): centroid SD per axis and
     radius SD per direction (mm).
 
@@ -141,31 +136,22 @@ class AnnotationError:
     centroid_mm: float = 0.41
     radius_mm: float = 0.41
 
-    def __post_init__(self):
-        _check_magnitudes(self)
-
 
 @dataclass(frozen=True)
-class RobotRepeatability:
+class RobotRepeatability(_Magnitudes):
     """The UR5e's landing noise, SD per axis (mm). Default 0.03 mm: the paper's ±0.03 mm pose
     repeatability (§II-C, the UR5e's data sheet) taken as one SD, the conservative reading."""
 
     sd_mm: float = 0.03
 
-    def __post_init__(self):
-        _check_magnitudes(self)
-
 
 @dataclass(frozen=True)
-class PhantomMotion:
+class PhantomMotion(_Magnitudes):
     """The phantom's shift between the treatment and the post-treatment CBCT (SD per axis, mm; per
     experiment). Default 0.2 mm: an assumption for an agarose phantom in a water bath as the
     transducer is lifted out of it."""
 
     sd_mm: float = 0.2
-
-    def __post_init__(self):
-        _check_magnitudes(self)
 
 
 #: The manufacturing tolerances of the lab model: ISO 2768-1 class m ("medium") for the quadrants'
