@@ -1,0 +1,86 @@
+"""A minute of moving cine through the pose receiver (§II-A live frames; docs/tracking.md, "A minute
+of moving cine through the receiver").
+
+Writes (or reuses, when ``--folder`` already holds one) the cine of
+:func:`histostudy.study.moving_cine.write_moving_cine`: the robot carrying the physical transducer
+between the margin points of the study at up to ``--speed-mm-s``, ``--seconds`` long at ``--fps``
+frames per second, single-frame DICOM XA per plane and frame. Then, for each of ``--modes`` (``fast``:
+the receiver's default, ``Tracker(fast=True)``; ``full``: every pair on the full frames), streams it
+at its frame rate to a :class:`histostudy.lab.FrameReceiver` on loopback with ``--max-queued-pairs``
+(:func:`histostudy.study.moving_cine_live.stream_moving_cine`) and prints the counts, rates, latency
+and focal error (:func:`~histostudy.study.moving_cine_live.count_table`), the seconds per posed pair
+of each stage, and per kind of update (warm, from scratch, re-acquired) the pose seconds, latency and
+focal error. Writes ``<mode>_frames.csv``, ``<mode>_counts.csv``, ``<mode>_stats.json`` and
+``<mode>_focal_error.png`` into ``--output``. The load average before and after says how busy the
+machine was.
+
+Usage: ``.venv/bin/python benchmarks/bench_moving_cine.py --folder /tmp/cine --output /tmp/out``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+import pandas as pd
+
+from histostudy.core import atomic_write_json, to_jsonable
+from histostudy.study.moving_cine import load_moving_cine, write_moving_cine
+from histostudy.study.moving_cine_live import count_table, frame_table, plot_focal_error, stream_moving_cine
+from histostudy.transducer import TransducerModel
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--folder", required=True, help="the cine's folder (written unless it holds one)")
+    parser.add_argument("--output", required=True, help="folder for the tables, stats and figures")
+    parser.add_argument("--seed", type=int, default=20230119, help="the cine's seed (default: the study's)")
+    parser.add_argument("--seconds", type=float, default=60.0, help="cine length, s (default 60)")
+    parser.add_argument("--fps", type=float, default=7.5, help="frame rate, frames/s (default 7.5)")
+    parser.add_argument("--speed-mm-s", type=float, default=10.0, help="the robot's peak speed, mm/s (default 10)")
+    parser.add_argument("--modes", default="fast,full", help="comma-separated: fast, full (default both)")
+    parser.add_argument("--max-queued-pairs", type=int, default=2, help="the receiver's queue (default 2)")
+    parser.add_argument("--tracker-seed", type=int, default=0, help="the receiver's tracker seed (default 0)")
+    args = parser.parse_args()
+    pd.set_option("display.width", 200)
+
+    folder, out = Path(args.folder), Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    if (folder / "cine.json").is_file():
+        cine = load_moving_cine(folder)
+        print(f"reusing the cine in {folder}: {cine.n_frames} frames at {cine.fps:g} frames/s", flush=True)
+    else:
+        t0 = time.perf_counter()
+        cine = write_moving_cine(folder, seed=args.seed, duration_s=args.seconds, fps=args.fps,
+                                 max_speed_mm_s=args.speed_mm_s,
+                                 progress=lambda k, n: print(f"rendered {k}/{n}", flush=True) if k % 50 == 0 else None)
+        print(f"rendered {cine.n_frames} pairs in {time.perf_counter() - t0:.0f} s", flush=True)
+    model = TransducerModel.build(spacing_mm=0.47)
+    for mode in args.modes.split(","):
+        if mode not in ("fast", "full"):
+            raise SystemExit(f"--modes must name fast and/or full, got {mode!r}")
+        print(f"== {mode}: load average before {os.getloadavg()}", flush=True)
+        t0 = time.perf_counter()
+        run = stream_moving_cine(cine, model, args.tracker_seed, output_path=out / f"{mode}_poses.jsonl",
+                                 fast=mode == "fast", max_queued_pairs=args.max_queued_pairs)
+        frames = frame_table(run, cine)
+        counts = count_table(run, frames)
+        frames.to_csv(out / f"{mode}_frames.csv", index=False)
+        counts.to_csv(out / f"{mode}_counts.csv", index=False)
+        atomic_write_json(out / f"{mode}_stats.json", to_jsonable({
+            "stats": run.stats, "stream_s": run.stream_s, "wall_s": run.wall_s,
+            "late_s": [o.late_s for o in run.sent]}))
+        plot_focal_error(frames, title=f"{cine.n_frames / cine.fps:g} s at {cine.fps:g} frames/s, {mode}").savefig(
+            out / f"{mode}_focal_error.png", dpi=110)
+        print(f"load average after {os.getloadavg()}; {time.perf_counter() - t0:.1f} s", flush=True)
+        print(counts.to_string(), flush=True)
+        print("seconds per posed pair:", json.dumps({k: round(v, 3) for k, v in run.stats["seconds_per_pair"].items()}))
+        posed = frames[frames["status"] == "posed"]
+        print(posed.groupby("tracking")[["pose_s", "latency_s", "focal_error_mm"]].median().to_string(), flush=True)
+
+
+if __name__ == "__main__":
+    main()
