@@ -31,7 +31,8 @@ Boxes are ``(row0, row1, col0, col1)`` in full-frame pixels, half-open, with all
 of :attr:`FastUNet.stride_px` (one network-input pixel for every ``1 / scale`` frame pixels,
 ``histostudy.pose.tracking_roi`` aligns them to a whole U-Net stride). Measured alternatives that
 did not pay off (TorchScript freezing, ``torch.compile``, batching the two views, int8 static
-quantisation, ONNX Runtime, a quarter-scale input) are in docs/tracking.md.
+quantisation, ONNX Runtime, the shipped network on a quarter-scale input) are in docs/tracking.md,
+with the U-Net trained at 0.25 for tracking (``data/models/unet_tracking``).
 """
 
 from __future__ import annotations

@@ -361,7 +361,12 @@ class PoseCost:
 
         With ``backend="numpy"`` they are formed from the materialised reference Jacobian.
         """
-        T = self._pose(pose)
+        return self._normal_equations(self._pose(pose))
+
+    def _normal_equations(self, T: np.ndarray) -> NormalEquations:
+        """:meth:`normal_equations` at a pose already checked: a float64 4x4 rigid ``T`` (the
+        Levenberg-Marquardt loop's steps, :func:`~.perturbation.apply_left_perturbation` of a checked
+        pose, which skip the ~25 µs of :func:`~histostudy.geometry.check_rigid` per step)."""
         if self.backend == "numpy":
             r, J = self.reference_residuals_and_jacobian(T)
             return NormalEquations(float(r @ r), J.T @ J, J.T @ r)

@@ -131,7 +131,7 @@ def _lm(cost: PoseCost, T: np.ndarray, *, max_iter: int, ftol: float, xtol_rad: 
 
     Returns ``(T, cost, iterations, evaluations, converged, message, damping)``.
     """
-    ne = cost.normal_equations(T)
+    ne = cost._normal_equations(T)  # T: checked by the caller, or a step of an earlier run
     evals, nu = 1, 2.0
     mu = damping
     for it in range(1, max_iter + 1):
@@ -145,7 +145,8 @@ def _lm(cost: PoseCost, T: np.ndarray, *, max_iter: int, ftol: float, xtol_rad: 
         predicted = -(2.0 * delta @ ne.Jtr + delta @ ne.JtJ @ delta)
         small = np.linalg.norm(delta[:3]) < xtol_rad and np.linalg.norm(delta[3:]) < xtol_mm
         T_new = apply_left_perturbation(T, delta)
-        ne_new = cost.normal_equations(T_new)
+        # rigid by construction (a rotation times a checked rotation): not checked again
+        ne_new = cost._normal_equations(T_new)
         evals += 1
         gain = (ne.cost - ne_new.cost) / predicted if predicted > 0 else -1.0
         if gain > 0:
