@@ -59,6 +59,10 @@ Notebook 06, the lab's own data end to end (§II-B to §II-D on a lab's files):
   figure of the received poses, and the received poses beside the tracked ones.
 - :mod:`.lab_dataset` — the lab-like dataset it generates when no lab files are given (DICOM XA,
   NIfTI CBCT, STL meshes, flange poses, and the synthetic truth beside them).
+- :mod:`.moving_cine` — a biplane cine of the robot carrying the transducer between the study's
+  margin points, as timed DICOM XA frames, the truth apart.
+- :mod:`.moving_cine_live` — that cine streamed at its frame rate through the receiver: a row per
+  frame (posed, dropped, refused; focal error; latency), the counts and the figure.
 
 Notebook 07, the error budget (§III, §IV), gathered by the front module :mod:`.budget`:
 
