@@ -1,5 +1,5 @@
 """The study's subcommands of ``histostudy``: ``reproduce --profile smoke`` (the notebooks through
-papermill, then the report), ``train segmentation|orientation|segmentation_tracking``, ``report`` (rebuilt from a
+papermill, then the report), ``train segmentation|orientation|segmentation_tracking[_fine]``, ``report`` (rebuilt from a
 reproduce folder) and ``profiles``."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import sys
 from histostudy.reporting import PROFILE_NAMES, load_profile
 
 #: The ``[training.<table>]`` tables ``histostudy train`` runs (histostudy.learning.TRAINING_TABLES).
-TRAINING_TABLE_NAMES = ("segmentation", "orientation", "segmentation_tracking")
+TRAINING_TABLE_NAMES = ("segmentation", "orientation", "segmentation_tracking", "segmentation_tracking_fine")
 
 __all__ = ["add_parsers"]
 
@@ -40,7 +40,9 @@ def add_parsers(sub, parents) -> None:
                         help="train a learned stage (U-Net or VGG19) on hybrid images and export its weights")
     tr.add_argument("task", choices=tuple(TRAINING_TABLE_NAMES),
                     help="the profile's [training.<task>] table: segmentation (U-Net), orientation (VGG19) or "
-                         "segmentation_tracking (the U-Net of Tracker(fast=True), exported as unet_tracking)")
+                         "segmentation_tracking (the U-Net of Tracker(fast=True) at input scale 0.25, exported as "
+                         "unet_tracking) or segmentation_tracking_fine (the U-Net that reads 0.5 and runs its levels "
+                         "at 0.25, exported as unet_tracking_fine)")
     tr.add_argument("--profile", type=_profile, default="standard",
                     help=f"one of {', '.join(PROFILE_NAMES)} or a .toml file with [training.<task>] (default: standard)")
     tr.add_argument("--run-dir", default=None,

@@ -29,10 +29,12 @@ SEGMENTATION_LOSSES = ("cross_entropy", "cross_entropy+dice")
 
 #: A profile's ``[training.<table>]`` tables that ``histostudy train <table>`` runs: the table's
 #: name -> ``(task, variant)``. The variant names what the network is for beyond its task
-#: (``"tracking"``: the U-Net of ``pose.Tracker``'s fast warm path, docs/tracking.md) and its
+#: (``"tracking"``: the U-Net of ``pose.Tracker``'s fast warm path at input scale 0.25;
+#: ``"tracking_fine"``: the U-Net that reads 0.5 and runs its levels at 0.25, docs/tracking.md) and its
 #: exported name (:func:`export_name`); ``""`` for the study's networks.
 TRAINING_TABLES = {"segmentation": ("segmentation", ""), "orientation": ("orientation", ""),
-                   "segmentation_tracking": ("segmentation", "tracking")}
+                   "segmentation_tracking": ("segmentation", "tracking"),
+                   "segmentation_tracking_fine": ("segmentation", "tracking_fine")}
 
 
 def export_name(table: str, arch: str, profile: str) -> str:

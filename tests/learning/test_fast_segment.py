@@ -17,10 +17,10 @@ def _eager_labels(segmenter, frame):
         return segmenter.network.eval()(x)[0].argmax(dim=0).numpy().astype(np.uint8)
 
 
-@pytest.fixture(scope="module")
-def random_unet():
+@pytest.fixture(scope="module", params=[1, 2], ids=["plain", "input_stride2"])
+def random_unet(request):
     torch.manual_seed(0)
-    net = UNet(base_width=4, depth=3).eval()
+    net = UNet(base_width=4, depth=3, input_stride=request.param).eval()
     with torch.no_grad():  # batch-norm statistics other than the identity, so that folding matters
         for m in net.modules():
             if isinstance(m, torch.nn.BatchNorm2d):
@@ -39,7 +39,7 @@ def test_folded_channels_last_network_gives_the_eager_logits(random_unet):
         out = fast._forward(x.contiguous(memory_format=torch.channels_last))
     torch.testing.assert_close(out, reference, rtol=1e-4, atol=1e-4)
     assert random_unet.network.down[0][1].__class__ is torch.nn.BatchNorm2d  # the checkpoint is untouched
-    assert (fast.scale, fast.stride_px, fast.network_stride_px) == (0.5, 2, 16)
+    assert (fast.scale, fast.stride_px, fast.network_stride_px) == (0.5, 2, 16 * random_unet.network.input_stride)
 
 
 def test_region_labels_are_the_network_resolution_labels_of_the_box(random_unet):

@@ -39,6 +39,30 @@ def test_unet_layout_and_config():
         net(torch.zeros(1, 3, 16, 16))
 
 
+@pytest.mark.parametrize("stride", [2, 4])
+def test_strided_unet_reads_and_labels_the_input_grid(stride):
+    # the levels run on a grid `stride` times coarser; stem and sub-pixel head bring the logits back
+    torch.manual_seed(0)
+    net = UNet(base_width=4, depth=2, input_stride=stride).eval()
+    assert net.pad_multiple == 4 * stride and net.config["input_stride"] == stride
+    for shape in ((64, 64), (50, 70)):
+        assert net(torch.randn(1, 1, *shape)).shape == (1, 6, *shape)
+    assert net.features(torch.randn(1, 1, 32, 48)).shape == (1, 4, 32 // stride, 48 // stride)
+    rebuilt = build_network(net.config)
+    rebuilt.load_state_dict(net.state_dict())  # a checkpoint's config rebuilds the same layout
+    expected = _unet_params(4, 6, 4, 2) - (4 * 6 + 6)  # the levels, whose first block reads the stem's 4 channels
+    expected += 1 * 4 * (2 * stride) ** 2 + 2 * 4  # stem: strided conv without bias, batch norm
+    expected += 4 * 6 * stride ** 2 * 9 + 6 * stride ** 2  # sub-pixel head: 3x3 conv to 6 * stride**2
+    assert sum(p.numel() for p in net.parameters()) == expected
+    # a plain U-Net's layout and config are those of the checkpoints made before input_stride existed
+    plain = UNet(base_width=4, depth=2)
+    assert "input_stride" not in plain.config and not any(k.startswith("stem") for k in plain.state_dict())
+    assert plain.pad_multiple == 4
+    for bad in (0, 3, True, 2.0):
+        with pytest.raises(ValueError, match="input_stride"):
+            UNet(input_stride=bad)
+
+
 def test_unet_is_local_far_from_a_change():
     # a pixel change affects the logits only within the receptive field, not across the image
     torch.manual_seed(1)

@@ -30,6 +30,15 @@ def test_the_tracking_table_trains_the_unet_at_quarter_scale_from_the_shipped_we
         export_name("tracking", "unet", "standard")
 
 
+def test_the_fine_tracking_table_reads_half_scale_and_runs_its_levels_at_quarter_scale():
+    cfg = TrainingConfig.from_table(TRAINING_TABLES["segmentation_tracking_fine"][0],
+                                    load_profile("standard").training["segmentation_tracking_fine"])
+    standard = TrainingConfig.from_table("segmentation", load_profile("standard").training["segmentation"])
+    assert cfg.task == "segmentation" and cfg.scale == standard.scale == 0.5 and cfg.crop is None
+    assert cfg.network == {**standard.network, "input_stride": 2} and cfg.init_weights is None
+    assert export_name("segmentation_tracking_fine", "unet", "standard") == "unet_tracking_fine"
+
+
 @pytest.fixture(scope="module")
 def networks():
     tracking, shipped = tracking_segmenter(), default_segmenter()

@@ -7,8 +7,19 @@ normalisation and ReLU; the encoder halves the resolution with 2x2 max pooling, 
 it with a 2x2 transposed convolution and concatenates the encoder's features. Level ``i`` has
 ``base_width * 2**i`` channels; the original U-Net is ``base_width=64, depth=4`` (64 ... 1024).
 
-Inputs of any size are accepted: they are padded (reflect) to a multiple of ``2**depth`` and the
-logits are cropped back, so a full 1240x960 frame (or its 0.5x downscale) runs in one pass.
+Inputs of any size are accepted: they are padded (reflect) to a multiple of :attr:`UNet.pad_multiple`
+(``2**depth * input_stride``) and the logits are cropped back, so a full 1240x960 frame (or its 0.5x
+downscale) runs in one pass.
+
+``input_stride`` > 1 makes a U-Net that reads its input at one resolution and runs its levels on a
+grid ``input_stride`` times coarser, for the tracker's warm regions (docs/tracking.md, "A network
+that reads fine and computes coarse"): a strided convolution (kernel ``2 * input_stride``, stride
+``input_stride``, batch norm, ReLU) turns the input into ``base_width`` channels on the coarse grid,
+the levels run there, and the head is a sub-pixel convolution (Shi et al. 2016: a 3x3 convolution to
+``n_classes * input_stride**2`` channels, then :class:`torch.nn.PixelShuffle`) that puts the logits
+back on the input's grid. The interface is unchanged: logits at the input's resolution. On CPU the
+levels' cost falls with the pixels they run on, while the input's detail (edges finer than the
+coarse grid) still reaches the network and its labels.
 """
 
 from __future__ import annotations
@@ -35,30 +46,47 @@ class UNet(nn.Module):
         n_classes: output classes (6: background + 5 feature classes).
         base_width: channels of the first level (64 in the original; the width multiplier).
         depth: number of poolings (4 in the original: five levels).
+        input_stride: input pixels per pixel of the first level (1, 2 or 4; 1 in the original): above
+            1, a strided stem and a sub-pixel head (module docstring). It enters :attr:`config` only
+            when it is not 1, so the configs of plain U-Nets stay as they were.
+
+    Attributes:
+        pad_multiple: inputs are padded to a multiple of this many pixels (``2**depth * input_stride``).
     """
 
-    def __init__(self, in_channels: int = 1, n_classes: int = 6, base_width: int = 64, depth: int = 4):
+    def __init__(self, in_channels: int = 1, n_classes: int = 6, base_width: int = 64, depth: int = 4,
+                 input_stride: int = 1):
         super().__init__()
         for name, value, low in (("in_channels", in_channels, 1), ("n_classes", n_classes, 2),
                                  ("base_width", base_width, 1), ("depth", depth, 1)):
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
+        if isinstance(input_stride, bool) or not isinstance(input_stride, int) or input_stride not in (1, 2, 4):
+            raise ValueError(f"input_stride must be 1, 2 or 4 (input pixels per first-level pixel), got {input_stride!r}")
         self.config = {"arch": "unet", "in_channels": in_channels, "n_classes": n_classes,
                        "base_width": base_width, "depth": depth}
-        self.depth = depth
+        if input_stride != 1:
+            self.config["input_stride"] = input_stride
+        self.depth, self.input_stride = depth, input_stride
+        self.pad_multiple = 2 ** depth * input_stride
         widths = [base_width * 2 ** i for i in range(depth + 1)]
-        self.down = nn.ModuleList([_block(in_channels, widths[0])] +
+        s = input_stride
+        self.stem = None if s == 1 else nn.Sequential(
+            nn.Conv2d(in_channels, widths[0], 2 * s, stride=s, padding=s // 2, bias=False),
+            nn.BatchNorm2d(widths[0]), nn.ReLU(inplace=True))
+        self.down = nn.ModuleList([_block(in_channels if s == 1 else widths[0], widths[0])] +
                                   [_block(widths[i - 1], widths[i]) for i in range(1, depth + 1)])
         self.up = nn.ModuleList([nn.ConvTranspose2d(widths[i], widths[i - 1], 2, stride=2)
                                  for i in range(depth, 0, -1)])
         self.dec = nn.ModuleList([_block(2 * widths[i - 1], widths[i - 1]) for i in range(depth, 0, -1)])
-        self.head = nn.Conv2d(widths[0], n_classes, 1)
+        self.head = nn.Conv2d(widths[0], n_classes, 1) if s == 1 else nn.Sequential(
+            nn.Conv2d(widths[0], n_classes * s * s, 3, padding=1), nn.PixelShuffle(s))
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if x.ndim != 4 or x.shape[1] != self.config["in_channels"]:
             raise ValueError(f"x must be (N, {self.config['in_channels']}, H, W), got {tuple(x.shape)}")
         rows, cols = x.shape[-2:]
-        m = 2 ** self.depth
+        m = self.pad_multiple
         pad_r, pad_c = (-rows) % m, (-cols) % m
         if pad_r or pad_c:
             mode = "reflect" if min(rows, cols) > max(pad_r, pad_c) else "replicate"
@@ -66,8 +94,11 @@ class UNet(nn.Module):
         return self.head(self.features(x))[..., :rows, :cols]
 
     def features(self, x: torch.Tensor) -> torch.Tensor:
-        """The encoder-decoder before the 1x1 head, on ``x`` whose rows and columns are multiples of
-        ``2**depth``: the last decoder block's output."""
+        """The stem (if any) and the encoder-decoder before the head, on ``x`` whose rows and columns
+        are multiples of :attr:`pad_multiple`: the last decoder block's output (on the first level's
+        grid)."""
+        if self.stem is not None:
+            x = self.stem(x)
         skips = []
         for i, block in enumerate(self.down):
             if i:
