@@ -1,9 +1,12 @@
-"""The U-Net trained for tracking against the shipped U-Net (§II-B.2 Table I; docs/tracking.md, "A
+"""The U-Nets trained for tracking against the shipped U-Net (§II-B.2 Table I; docs/tracking.md, "A
 network trained for tracking"): labels on held-out frames, and inference time on a tracking region.
 
-Baseline, in the same run: the shipped ``data/models/unet_standard`` (input scale 0.5). Against it:
-``data/models/unet_tracking`` (the same 8...128-channel U-Net at input scale 0.25, started from the
-shipped weights; ``histostudy train segmentation_tracking``).
+Baseline, in the same run: the shipped ``data/models/unet_standard`` (input scale 0.5). Against it,
+``--networks`` (names in ``data/models`` or checkpoint paths; default ``unet_tracking`` and, where
+present, ``unet_tracking_fine``): ``unet_tracking`` is the same 8...128-channel U-Net at input scale
+0.25, started from the shipped weights (``histostudy train segmentation_tracking``);
+``unet_tracking_fine`` reads 0.5 and runs its levels at 0.25 (``input_stride=2``, ``histostudy train
+segmentation_tracking_fine``).
 
 Frames: the first ``--images`` (30) of the evaluation split (split ``eval``, seed of the standard
 profile, which no training or validation frame shares) with notebook 02's standard rendering (the
@@ -15,10 +18,10 @@ Prints, per network:
 - Table I (per class mean precision, recall and IoU in %, over the images where defined) of its
   full-resolution labels (``UNetSegmenter.segment``: logits upsampled to 960 x 1240) against the
   reference labels, and the global accuracy;
-- the agreement of the tracking network's labels with the shipped one's: at full resolution, and
-  on the grid the tracker uses (its arg-max at 0.25 against the shipped 0.5 labels pooled to 0.25
-  by overlap priority, :func:`~histostudy.learning.pool_labels`), over all pixels and over the
-  pixels either network calls foreground;
+- the agreement of each tracking network's labels with the shipped one's: at full resolution, and
+  on the grid the tracker uses (its arg-max at its input scale against the shipped 0.5 labels, pooled
+  to that scale by overlap priority where it is coarser, :func:`~histostudy.learning.pool_labels`),
+  over all pixels and over the pixels either network calls foreground;
 - the median ms of ``FastUNet.segment_region`` on a 448 x 448 frame-pixel tracking region
   (``--precision``, default ``auto``: bfloat16 on a CPU with native bfloat16) over ``--repeats``
   interleaved calls, and the ratio to the baseline. Torch runs on ``--threads`` (2) threads; the
@@ -36,7 +39,7 @@ import time
 import numpy as np
 import torch
 
-from histostudy.learning import FastUNet, default_segmenter, pool_labels, tracking_segmenter
+from histostudy.learning import MODELS_DIR, FastUNet, UNetSegmenter, default_segmenter, pool_labels
 from histostudy.reporting import load_profile
 from histostudy.study.segmentation import evaluate_segmentation, held_out_frames, table1
 
@@ -50,14 +53,22 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=20)
     parser.add_argument("--precision", default="auto")
+    parser.add_argument("--networks", nargs="+", default=None, metavar="NAME_OR_PATH",
+                        help="tracking U-Nets: names in data/models or checkpoint paths (default: unet_tracking and, "
+                             "where present, unet_tracking_fine)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     profile = load_profile("standard")
     common, nb = profile.common, profile.notebooks["02_segmentation"]
-    networks = {"shipped (0.5)": default_segmenter(), "tracking (0.25)": tracking_segmenter()}
-    missing = [name for name, net in networks.items() if net is None]
-    if missing:
-        raise SystemExit(f"weights missing or failing their check: {missing}")
+    names = args.networks or ["unet_tracking"] + (["unet_tracking_fine"] if (MODELS_DIR / "unet_tracking_fine.safetensors").exists() else [])
+    networks = {"shipped (0.5)": default_segmenter()}
+    if networks["shipped (0.5)"] is None:
+        raise SystemExit("the shipped U-Net (data/models/unet_standard) is missing or fails its check")
+    for name in names:
+        path = name if name.endswith(".safetensors") else MODELS_DIR / f"{name}.safetensors"
+        net = UNetSegmenter.load(path)  # a ValueError names a missing or damaged file
+        label = os.path.basename(str(name)).removesuffix(".safetensors").removeprefix("unet_")
+        networks[f"{label[:18]} ({net.scale:g})"] = net
     t0 = time.perf_counter()
     frames = held_out_frames(profile.seed, args.images, render_spacing_mm=nb["render_spacing_mm"],
                              photons_per_pixel=common["photons_per_pixel"], n_splats=common["n_splats"],
@@ -84,24 +95,28 @@ def main() -> None:
         print(row)
     print(f"{'global accuracy':16s}" + "".join(f"{accuracy[n]:26.2f}" for n in networks))
 
-    shipped, tracking = networks["shipped (0.5)"], networks["tracking (0.25)"]
+    shipped = networks["shipped (0.5)"]
     fast = {name: FastUNet(net, precision=args.precision) for name, net in networks.items()}
-    agree_full, agree_full_fg, agree_grid, agree_grid_fg = [], [], [], []
-    for i, f in enumerate(frame_list):
-        a, b = full_labels["tracking (0.25)"][i], full_labels["shipped (0.5)"][i]
-        fg = (a > 0) | (b > 0)
-        agree_full.append(np.mean(a == b))
-        agree_full_fg.append(np.mean(a[fg] == b[fg]))
-        rows, cols = f.shape
-        grid = FastUNet(tracking, precision="float32").segment_region(f, (0, rows, 0, cols))
-        ref = pool_labels(FastUNet(shipped, precision="float32").segment_region(f, (0, rows, 0, cols)), 0.5)
-        fg = (grid > 0) | (ref > 0)
-        agree_grid.append(np.mean(grid == ref))
-        agree_grid_fg.append(np.mean(grid[fg] == ref[fg]))
-    print("\nagreement of the tracking network's labels with the shipped network's (mean over images, min)")
-    for label, values in (("full resolution, all pixels", agree_full), ("full resolution, foreground", agree_full_fg),
-                          ("0.25 grid, all pixels", agree_grid), ("0.25 grid, foreground", agree_grid_fg)):
-        print(f"  {label:30s} {100 * np.mean(values):6.2f} %  (min {100 * np.min(values):.2f} %)")
+    shipped_grid = [FastUNet(shipped, precision="float32").segment_region(f, (0, f.shape[0], 0, f.shape[1]))
+                    for f in frame_list]
+    for name, tracking in list(networks.items())[1:]:
+        agree_full, agree_full_fg, agree_grid, agree_grid_fg = [], [], [], []
+        for i, f in enumerate(frame_list):
+            a, b = full_labels[name][i], full_labels["shipped (0.5)"][i]
+            fg = (a > 0) | (b > 0)
+            agree_full.append(np.mean(a == b))
+            agree_full_fg.append(np.mean(a[fg] == b[fg]))
+            rows, cols = f.shape
+            grid = FastUNet(tracking, precision="float32").segment_region(f, (0, rows, 0, cols))
+            ref = shipped_grid[i] if tracking.scale == shipped.scale else pool_labels(shipped_grid[i], tracking.scale / shipped.scale)
+            fg = (grid > 0) | (ref > 0)
+            agree_grid.append(np.mean(grid == ref))
+            agree_grid_fg.append(np.mean(grid[fg] == ref[fg]))
+        print(f"\nagreement of {name}'s labels with the shipped network's (mean over images, min)")
+        for label, values in (("full resolution, all pixels", agree_full), ("full resolution, foreground", agree_full_fg),
+                              (f"{tracking.scale:g} grid, all pixels", agree_grid),
+                              (f"{tracking.scale:g} grid, foreground", agree_grid_fg)):
+            print(f"  {label:30s} {100 * np.mean(values):6.2f} %  (min {100 * np.min(values):.2f} %)")
 
     times = {name: [] for name in fast}
     frame = frame_list[0]
