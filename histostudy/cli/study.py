@@ -58,6 +58,9 @@ def add_parsers(sub, parents) -> None:
                     help="render the profile's uncached training and validation frames (the fine-tune's too) in "
                          "this many processes before training (default 1: the training loop renders them as it "
                          "first needs them)")
+    tr.add_argument("--render-only", action="store_true",
+                    help="render the uncached frames (in --render-workers processes) and stop without training: on a "
+                         "leased GPU, render first, then give the training the time that is left (--max-minutes)")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.set_defaults(run=_train)
 
@@ -121,7 +124,11 @@ def _train(args) -> int:
     if args.render_workers < 1:
         print(f"histostudy train: --render-workers must be >= 1, got {args.render_workers}", file=sys.stderr)
         return 2
-    if args.render_workers > 1 and cfg.cache:
+    if args.render_only and not cfg.cache:
+        print(f"histostudy train: --render-only renders into the frame cache, but [training.{args.task}] has "
+              f"cache = false", file=sys.stderr)
+        return 2
+    if (args.render_workers > 1 or args.render_only) and cfg.cache:
         import time
 
         from histostudy.learning import HybridFrames, run_frame_sets
@@ -133,6 +140,8 @@ def _train(args) -> int:
                        for split, n in (("val", n_val), ("train", n_train)))
         print(f"rendered {rendered} uncached frames in {(time.monotonic() - t0) / 60:.1f} min "
               f"with {args.render_workers} processes")
+        if args.render_only:
+            return 0
     run_dir = args.run_dir or default_cache_dir() / "runs" / f"{args.task}-{profile.name}"
     result = train(cfg, run_dir, seed=profile.seed, profile=profile.name, resume=not args.no_resume,
                    progress=not args.no_progress)

@@ -128,11 +128,14 @@ def test_cli_train_exports_weights_with_manifest(tmp_path, capsys, monkeypatch):
                        'render = { render_spacing_mm = 0.47, label_spacing_mm = 0.47, detector = [240, 320] }\n')
     assert main(["train", "segmentation", "--profile", str(profile), "--render-workers", "0"]) == 2
     assert "--render-workers must be >= 1, got 0" in capsys.readouterr().err
+    assert main(["train", "segmentation", "--profile", str(profile), "--render-only", "--render-workers", "2"]) == 0
+    assert "rendered 3 uncached frames" in capsys.readouterr().out
+    assert not (tmp_path / "cache" / "runs").exists()  # rendered, nothing trained
     code = main(["train", "segmentation", "--profile", str(profile), "--models-dir", str(tmp_path / "models"),
                  "--no-progress", "--render-workers", "2"])
     assert code == 0
     out = capsys.readouterr().out
-    assert "rendered 3 uncached frames" in out  # 1 validation + 2 training frames, before the loop
+    assert "rendered 0 uncached frames" in out  # the 1 validation + 2 training frames were rendered above
     assert "exported" in out and (tmp_path / "cache" / "runs" / "segmentation-tiny" / "state.json").is_file()
     manifest = json.loads((tmp_path / "models" / "unet_tiny.json").read_text())
     assert manifest["profile"] == "tiny" and manifest["seed"] == 11 and manifest["training_steps"] == 1
