@@ -14,7 +14,10 @@ With ``fast=True`` (or ``fast=TrackingOptions(...)``) a warm update runs
 :class:`~.tracking_warm.RegionEstimator` instead: the same stages on the region where the last pose
 projects, at the segmenter's own resolution (docs/tracking.md: where the time goes, and the
 figures). From-scratch estimates and re-acquisitions still run :func:`~.estimate.estimate_pose` on
-the full frames.
+the full frames. A fast warm start the verdict refuses is tried once more on the same regions at the
+detector's resolution (``TrackingOptions.rescue_scale``) before the track is lost: on the 0.5 label
+grid the verdict's view agreement reads high and refused half the warm starts of a moving cine that
+the full-resolution grid accepts (docs/tracking.md, "Warm starts that hold").
 
 Poses are 4x4 ``T_carm_transducer`` (mm, C-arm/CBCT frame, docs/architecture.md "Frames and
 units"); frames are line integrals (``-log(I / I0)``, dimensionless). Determinism: the tracker
@@ -27,7 +30,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from concurrent.futures import ThreadPoolExecutor
-from typing import Iterable, Iterator, Sequence
+from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
@@ -44,6 +47,13 @@ from .tracking_warm import RegionEstimator
 __all__ = ["Tracker"]
 
 _END = object()  # the end of a stream in Tracker.track
+
+
+@dataclasses.dataclass(frozen=True)
+class _BadPair:
+    """A pair of Tracker.track's stream taken ahead whose check failed: raised at its turn."""
+
+    error: ValueError
 
 class Tracker:
     """The transducer's pose, frame pair after frame pair: warm-started :func:`~.estimate.estimate_pose`.
@@ -75,14 +85,31 @@ class Tracker:
             ``TrackingOptions(network="unet_tracking")`` runs the warm regions through the U-Net
             trained at input scale 0.25 instead (about 2x the warm pairs per second, focal errors
             about 0.2 mm above the full-frame path's: docs/tracking.md, "A network trained for
-            tracking"); the from-scratch estimates keep the tracker's U-Net.
+            tracking"); the from-scratch estimates keep the tracker's U-Net. A refused fast warm
+            start is tried again at ``TrackingOptions.rescue_scale`` (default 1: the detector's
+            pixels) from the refused pose, on the same regions, before the track is lost; an
+            accepted second attempt is a warm update (its labels at that scale), counted in
+            ``n_rescued``. After a pose the verdict refused only for its views' agreement (the fit
+            checks passed), the next update first tries a warm start from it
+            (``TrackingOptions.resume_refused``; counted in ``n_resume_attempts`` / ``n_resumed``)
+            before estimating from scratch.
 
     Attributes (read them, do not set them):
         n_updates: calls of :meth:`update` that ran (bad input raises before counting).
-        n_warm: updates whose warm start was accepted.
+        n_warm: updates whose warm start was accepted (at the first attempt or, with ``fast``, the
+            second).
+        n_rescue_attempts: with ``fast``, refused warm starts tried a second time at
+            ``TrackingOptions.rescue_scale``.
+        n_rescued: of those, the second attempts the verdict accepted (counted in ``n_warm`` too, not
+            in ``n_lost``).
         n_from_scratch: estimates run from scratch (first updates, updates after a failure, and
             re-acquisitions).
-        n_lost: warm starts whose verdict failed (or that found no feature): the track was lost.
+        n_lost: warm starts whose verdict failed (both attempts, with ``fast``) or that found no
+            feature: the track was lost.
+        n_resume_attempts: with ``fast``, updates after a refused pose that first tried a warm start
+            from it (``TrackingOptions.resume_refused``).
+        n_resumed: of those, the warm starts accepted (counted in ``n_warm`` too). Every update ends
+            warm or from scratch: ``n_updates = n_warm + n_from_scratch`` (+ updates that raised).
         n_reacquired: of those, the updates whose from-scratch estimate on the same frames was
             accepted.
         n_accepted, n_failed: updates that ended with an accepted pose / without one (a failed
@@ -140,6 +167,8 @@ class Tracker:
         self.last_kind: str | None = None
         self.n_updates = self.n_warm = self.n_from_scratch = 0
         self.n_lost = self.n_reacquired = self.n_accepted = self.n_failed = 0
+        self.n_rescue_attempts = self.n_rescued = self.n_resume_attempts = self.n_resumed = 0
+        self._refused_pose: np.ndarray | None = None  # the last update's refused pose, for a resumed start
         self.stage_seconds: dict[str, float] = {}
         self.update_seconds = 0.0
         if getattr(self, "_region", None) is not None:
@@ -168,7 +197,9 @@ class Tracker:
         """The counters and the summed stage seconds as a plain dict (JSON-ready)."""
         return {"n_updates": self.n_updates, "n_warm": self.n_warm, "n_from_scratch": self.n_from_scratch,
                 "n_lost": self.n_lost, "n_reacquired": self.n_reacquired, "n_accepted": self.n_accepted,
-                "n_failed": self.n_failed, "stage_seconds": dict(self.stage_seconds),
+                "n_failed": self.n_failed, "n_rescue_attempts": self.n_rescue_attempts, "n_rescued": self.n_rescued,
+                "n_resume_attempts": self.n_resume_attempts, "n_resumed": self.n_resumed,
+                "stage_seconds": dict(self.stage_seconds),
                 "update_seconds": self.update_seconds}
 
     # --- the update -----------------------------------------------------------------------------
@@ -196,7 +227,7 @@ class Tracker:
         frames = self._check_frames(frames)
         return self._update(frames, None, t_start)
 
-    def track(self, pairs: Iterable) -> Iterator[PoseResult]:
+    def track(self, pairs: Iterable, *, ready: Callable[[], bool] | None = None) -> Iterator[PoseResult]:
         """:meth:`update` of each frame pair of ``pairs`` (an iterable, e.g. a live stream), yielded in order.
 
         Without ``fast`` this is ``update`` in a loop. With ``fast`` the stages overlap across
@@ -206,25 +237,52 @@ class Tracker:
         margin covers the motion). After a lost track the prepared regions are dropped and the
         next pair is prepared again from the new pose. Counters, :attr:`last_kind` and the
         results are as :meth:`update`'s; the poses are the same as ``update``'s wherever the two
-        regions are. An error (bad input, :class:`~.result.PoseEstimationError`) ends the iteration.
+        regions are.
+
+        ``ready``: for a live source whose next pair may not have arrived, a callable that says
+        whether taking the next pair now would not wait (e.g. a queue is not empty). When it says
+        False the current pair is posed first and the next taken after its result (no overlap for
+        that pair, and no result held back waiting for the stream). None: the next pair is always
+        taken ahead.
+
+        An error (bad input, :class:`~.result.PoseEstimationError`) ends the iteration at the pair
+        that caused it, after the results of every pair before it: a pair taken ahead is checked
+        when its turn comes.
         """
         if self._region is None:
             for frames in pairs:
                 yield self.update(frames)
             return
         source = iter(pairs)
+
+        def take():
+            # the next pair, checked; a bad one is raised when its turn comes, not ahead of it
+            item = next(source, _END)
+            if item is _END:
+                return _END
+            try:
+                return self._check_frames(item)
+            except ValueError as exc:
+                return _BadPair(exc)
+
         worker = ThreadPoolExecutor(max_workers=1)
         pending = None
         try:
-            nxt = next(source, _END)
-            nxt = nxt if nxt is _END else self._check_frames(nxt)
+            nxt = take()
             slot = 0  # the map buffers of the pair being finished; the next pair is prepared in the other
-            while nxt is not _END:
+            while True:
+                if nxt is None:
+                    nxt = take()
+                if nxt is _END:
+                    break
                 frames, prepared_future = nxt, pending
-                nxt = next(source, _END)
-                nxt = nxt if nxt is _END else self._check_frames(nxt)
-                pending = None
-                if nxt is not _END and self._last_pose is not None:
+                pending = nxt = None
+                if isinstance(frames, _BadPair):
+                    raise frames.error
+                if ready is None or ready():
+                    nxt = take()
+                if nxt is not None and nxt is not _END and not isinstance(nxt, _BadPair) \
+                        and self._last_pose is not None:
                     # A segmenter that draws gets its own Generator, seeded here: nothing is drawn
                     # from the tracker's on the worker thread.
                     rng = None if self._region.fast_unet is not None else \
@@ -248,17 +306,25 @@ class Tracker:
         from an earlier pose (fast warm path), or None (then prepared here, in map buffers ``slot``)."""
         self.n_updates += 1
         was_tracking = self._last_pose is not None
+        # A pose refused only for its views' agreement fitted each view: near the limit of a noisy
+        # statistic, the next frames may accept it at the price of a warm update, not of an estimate
+        # from scratch (docs/tracking.md, "Warm starts that hold").
+        resume = not was_tracking and self._refused_pose is not None
+        T_start = self._last_pose if was_tracking else self._refused_pose if resume else None
+        self._refused_pose = None
         try:
             result = kind = None
-            if was_tracking:
+            if T_start is not None:
+                self.n_resume_attempts += resume
                 try:
-                    result = self._estimate(frames, self._last_pose, prepared, slot)
+                    result = self._warm(frames, T_start, prepared, slot)
                 except PoseEstimationError:
                     result = None  # no feature in a view: the from-scratch estimate below says so again
                 if result is not None and result.verdict.ok:
                     kind = "warm"
                     self.n_warm += 1
-                else:
+                    self.n_resumed += resume
+                elif was_tracking:
                     self.n_lost += 1
                     self._last_pose = None
             if kind is None:
@@ -281,9 +347,38 @@ class Tracker:
         else:
             self.n_failed += 1
             self._last_pose = None
+            # the fit checks passed when the views' agreement was measured (verdict.py)
+            if self._region is not None and self.tracking_options.resume_refused \
+                    and result.verdict.view_disagreement_mm:
+                self._refused_pose = np.array(result.T_carm_transducer, dtype=np.float64)
             if self.options.raise_on_failure:
                 raise PoseEstimationError("implausible pose: " + "; ".join(result.verdict.reasons), result.verdict,
                                           result)
+        return result
+
+    def _warm(self, frames: list[Frame], T_start: np.ndarray, prepared, slot: int) -> PoseResult:
+        """The warm start from ``T_start``: :meth:`_estimate`'s; with ``fast``, a refused first attempt
+        is tried again on the same regions at the rescue scale from the refused pose (counted)."""
+        region = self._region
+        if region is None:
+            return self._estimate(frames, T_start)
+        if prepared is None:
+            prepared = region.prepare(frames, T_start, self.rng, slot)
+        result = self._add_timings(region.finish(prepared, T_start))
+        if result.verdict.ok or region.rescue_scale is None:
+            return result
+        # The verdict's statistics read high on the coarse label grid (docs/tracking.md, "Warm
+        # starts that hold"): the grid estimate_pose judges on decides before a re-acquisition,
+        # which costs ten warm updates.
+        self.n_rescue_attempts += 1
+        rescued = region.prepare_rescue(prepared, self.rng)
+        second = self._add_timings(region.finish(rescued, result.T_carm_transducer))
+        self.n_rescued += bool(second.verdict.ok)
+        return second
+
+    def _add_timings(self, result: PoseResult) -> PoseResult:
+        for stage, seconds in result.timings_s.items():
+            self.stage_seconds[stage] = self.stage_seconds.get(stage, 0.0) + float(seconds)
         return result
 
     def _estimate(self, frames: list[Frame], initial_pose, prepared=None, slot: int = 0) -> PoseResult:

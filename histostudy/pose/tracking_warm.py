@@ -18,6 +18,12 @@ eq. 3 refinement from the last pose, the verdict), restricted to where it matter
 5. the verdict of ``estimate_pose`` on the region (:func:`~.verdict.judge_fit`,
    :func:`~.verdict.check_unexplained`, :func:`~.verdict.check_view_agreement`).
 
+A refused warm start gets one more chance before the tracker re-acquires
+(:attr:`~.tracking_options.TrackingOptions.rescue_scale`): :meth:`RegionEstimator.prepare_rescue`
+segments the same regions again at the rescue scale (1: the detector's pixels, where
+``estimate_pose`` judges), and :meth:`RegionEstimator.finish` refines from the refused pose there and
+judges again (docs/tracking.md, "Warm starts that hold").
+
 Pixel thresholds of :class:`~.options.PoseOptions` are multiplied by the label scale (their length on
 the detector is kept). Poses are 4x4 ``T_carm_transducer`` (mm, C-arm frame); random draws (the
 point subsets, drawn once) come from the tracker's Generator (docs/architecture.md, "Seeding and
@@ -42,7 +48,7 @@ from .refine import refine_levenberg_marquardt
 from .result import PoseEstimationError, PoseResult
 from .tracking_maps import RegionMaps
 from .tracking_options import TrackingOptions
-from .tracking_roi import RegionOfInterest, region_of_interest
+from .tracking_roi import RegionOfInterest, crop_view, region_of_interest
 from .verdict import check_unexplained, check_view_agreement, judge_fit
 
 __all__ = ["PreparedRegions", "RegionEstimator"]
@@ -62,6 +68,8 @@ class PreparedRegions:
         maps: each region's :class:`~.distance_maps.DistanceMaps` (in the estimator's buffers of the slot).
         timings_s: ``segmentation`` and ``distance_maps`` seconds (summed over views).
         seconds: wall seconds of the preparation.
+        frames: the frames the regions were cut from (:meth:`RegionEstimator.prepare_rescue`
+            segments them again).
     """
 
     regions: list
@@ -69,6 +77,7 @@ class PreparedRegions:
     maps: list
     timings_s: dict
     seconds: float
+    frames: list | None = None
 
 
 @dataclass(frozen=True)
@@ -116,6 +125,8 @@ class RegionEstimator:
 
     Attributes:
         label_scale: label pixels per frame pixel of the regions.
+        rescue_scale: the label scale of :meth:`prepare_rescue` (``TrackingOptions.rescue_scale``),
+            None where there is no second attempt (not set, or not above ``label_scale``).
         last_regions: the :class:`~.tracking_roi.RegionOfInterest` of each view at the last call.
     """
 
@@ -133,17 +144,20 @@ class RegionEstimator:
         if self.fast_unet is not None:
             net_scale = self.fast_unet.scale
             s = net_scale if tracking.label_scale is None else float(tracking.label_scale)
-            ratio = max(s, net_scale) / min(s, net_scale)
-            if abs(ratio - round(ratio)) > 1e-9:
-                raise ValueError(f"label_scale {tracking.label_scale!r} must be the U-Net's input scale {net_scale} "
-                                 f"times or divided by an integer (labels are pooled or the logits upsampled)")
-            # above the network's scale its logits are upsampled (FastUNet.segment_region's upsample)
-            self._upsample = int(round(s / net_scale)) if s > net_scale else 1
             align = self.fast_unet.network_stride_px
         else:
             s = 1.0 if tracking.label_scale is None else float(tracking.label_scale)
             align = int(round(1.0 / s))
+        self._check_grid("label_scale", s)
         self.label_scale, self._align_px = s, align
+        r = tracking.rescue_scale
+        self.rescue_scale = float(r) if r is not None and r > s + 1e-12 else None
+        if self.rescue_scale is not None:
+            self._check_grid("rescue_scale", self.rescue_scale)
+            # the regions' boxes (aligned for the label scale) must hold whole pixels of the rescue's grid
+            if align % int(round(1.0 / self.rescue_scale)):
+                raise ValueError(f"rescue_scale {r!r}: the regions' corners lie on multiples of {align} frame "
+                                 f"pixels, not of 1/rescue_scale; expected 1/rescue_scale to divide {align}")
         for i, v in enumerate(self.views):
             k = int(round(1.0 / s))
             if v.shape[0] % k or v.shape[1] % k:
@@ -161,6 +175,17 @@ class RegionEstimator:
         self._pool = ThreadPoolExecutor(max_workers=len(self.views)) if tracking.parallel_views else None
         self.last_regions: list[RegionOfInterest] = []
 
+    def _check_grid(self, name: str, s: float) -> None:
+        """ValueError unless labels at scale ``s`` come from a U-Net's grid by pooling or by upsampling
+        its logits by an integer factor."""
+        if self.fast_unet is None:
+            return
+        net_scale = self.fast_unet.scale
+        ratio = max(s, net_scale) / min(s, net_scale)
+        if abs(ratio - round(ratio)) > 1e-9:
+            raise ValueError(f"{name} {s!r} must be the U-Net's input scale {net_scale} times or divided by an "
+                             f"integer (labels are pooled or the logits upsampled)")
+
     @property
     def full_frame_segmenter(self):
         """The segmenter of the tracker's from-scratch estimates on full frames: the U-Net through
@@ -170,15 +195,18 @@ class RegionEstimator:
     # --- stages ---------------------------------------------------------------------------------
 
     def _labels(self, frame: Frame, region: RegionOfInterest, rng) -> np.ndarray:
-        """The region's labels at the label scale (largest component kept if the options say so)."""
+        """The region's labels at its scale (largest component kept if the options say so)."""
         r0, r1, c0, c1 = region.box
         if self.fast_unet is not None:
-            labels = self.fast_unet.segment_region(frame, region.box, self._upsample)
-            ratio = self.label_scale / (self.fast_unet.scale * self._upsample)
+            # above the network's scale its logits are upsampled (FastUNet.segment_region's upsample)
+            net_scale = self.fast_unet.scale
+            upsample = int(round(region.scale / net_scale)) if region.scale > net_scale else 1
+            labels = self.fast_unet.segment_region(frame, region.box, upsample)
+            ratio = region.scale / (net_scale * upsample)
         else:
             full = check_label_image(self.segmenter.segment(frame, rng), frame.shape,
                                      f"the segmentation of view {frame.view.name!r}")
-            labels, ratio = full[r0:r1, c0:c1], self.label_scale
+            labels, ratio = full[r0:r1, c0:c1], region.scale
         if ratio != 1.0:
             labels = pool_labels(labels, ratio)
         labels = np.ascontiguousarray(labels, dtype=np.uint8)
@@ -204,12 +232,32 @@ class RegionEstimator:
         s = self.label_scale
         regions = [region_of_interest(v, self._roi_points, T_roi, margin_px=self.tracking.roi_margin_px,
                                       align_px=self._align_px, scale=s) for v in self.views]
+        return self._segment_and_map(frames, regions, rng, [2 * a + slot for a in range(len(frames))], t_start)
 
+    def prepare_rescue(self, prepared: PreparedRegions, rng: np.random.Generator | None) -> PreparedRegions:
+        """The regions of ``prepared`` (same boxes) segmented again and mapped at :attr:`rescue_scale`,
+        for a second attempt after a refused :meth:`finish` (module docstring). ``rng``: as for
+        :meth:`prepare`. Its maps have buffers of their own: a pair prepared for the next update
+        in either slot is kept. ValueError when there is no second attempt (``rescue_scale`` None)."""
+        t_start = time.perf_counter()
+        if self.rescue_scale is None:
+            raise ValueError("rescue_scale is None: this estimator makes no second attempt (TrackingOptions."
+                             "rescue_scale must be above the label scale)")
+        if prepared.frames is None:
+            raise ValueError("prepared holds no frames: pass regions made by RegionEstimator.prepare")
+        r = self.rescue_scale
+        regions = [RegionOfInterest(box=reg.box, scale=r, view=crop_view(v, reg.box, r), frame_shape=reg.frame_shape)
+                   for v, reg in zip(self.views, prepared.regions)]
+        n = len(self.views)
+        return self._segment_and_map(prepared.frames, regions, rng, [2 * n + a for a in range(n)], t_start)
+
+    def _segment_and_map(self, frames, regions, rng, buffers, t_start) -> PreparedRegions:
+        """Labels and distance maps of each view's region (into the map buffers ``buffers[a]``)."""
         def per_view(a):
             t0 = time.perf_counter()
             labels = self._labels(frames[a], regions[a], rng)
             t1 = time.perf_counter()
-            maps = self._maps.build(2 * a + slot, regions[a].view, labels)
+            maps = self._maps.build(buffers[a], regions[a].view, labels)
             return labels, maps, t1 - t0, time.perf_counter() - t1
 
         if self._pool is not None and self.fast_unet is not None:
@@ -219,14 +267,15 @@ class RegionEstimator:
         timings = {"segmentation": sum(o[2] for o in outputs), "distance_maps": sum(o[3] for o in outputs),
                    "orientation": 0.0, "initialisation": 0.0}
         return PreparedRegions(regions=regions, labels=[o[0] for o in outputs], maps=[o[1] for o in outputs],
-                               timings_s=timings, seconds=time.perf_counter() - t_start)
+                               timings_s=timings, seconds=time.perf_counter() - t_start, frames=list(frames))
 
     def finish(self, prepared: PreparedRegions, T_prev: np.ndarray) -> PoseResult:
         """Steps 4-5 (module docstring): the refinement from ``T_prev`` on ``prepared``'s maps and
-        the verdict; the result's ``timings_s["total"]`` adds :meth:`prepare`'s seconds. Draws
-        nothing: the point subsets were drawn when the estimator was made."""
+        the verdict, at the regions' scale (pixel thresholds times it); the result's
+        ``timings_s["total"]`` adds :meth:`prepare`'s seconds. Draws nothing: the point subsets were
+        drawn when the estimator was made."""
         t_start = time.perf_counter()
-        opts, s = self.options, self.label_scale
+        opts, s = self.options, prepared.regions[0].scale
         regions, labels, maps = prepared.regions, prepared.labels, prepared.maps
         self.last_regions = list(regions)
         timings = dict(prepared.timings_s)

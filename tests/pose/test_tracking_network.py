@@ -54,7 +54,7 @@ def test_the_tracking_network_follows_a_short_cine(models, cine):
     # labels at 0.5 from the same network (its logits upsampled) are an option too
     half = Tracker(models[0], views, rng=4, mode="fast", orientation=OracleOrientation(),
                    fast=TrackingOptions(network=tracking_segmenter(), label_scale=0.5))
-    assert half._region.label_scale == 0.5 and half._region._upsample == 2
+    assert half._region.label_scale == 0.5 and half._region.fast_unet.scale == 0.25  # logits upsampled 2x
 
 
 def test_bad_tracking_networks_are_refused_naming_the_argument(models):
