@@ -7,7 +7,8 @@ between the margin points of the study at up to ``--speed-mm-s``, ``--seconds`` 
 frames per second, single-frame DICOM XA per plane and frame. Then, for each of ``--modes`` (``fast``:
 the receiver's default, ``Tracker(fast=True)``; ``full``: every pair on the full frames), streams it
 at its frame rate to a :class:`histostudy.lab.FrameReceiver` on loopback with ``--max-queued-pairs``
-(:func:`histostudy.study.moving_cine_live.stream_moving_cine`) and prints the counts, rates, latency
+(:func:`histostudy.study.moving_cine_live.stream_moving_cine`; ``--pipeline``: the receiver's pipeline
+on) and prints the counts, rates, latency
 and focal error (:func:`~histostudy.study.moving_cine_live.count_table`), the seconds per posed pair
 of each stage, and per kind of update (warm, from scratch, re-acquired) the pose seconds, latency and
 focal error. Writes ``<mode>_frames.csv``, ``<mode>_counts.csv``, ``<mode>_stats.json`` and
@@ -44,6 +45,8 @@ def main() -> None:
     parser.add_argument("--modes", default="fast,full", help="comma-separated: fast, full (default both)")
     parser.add_argument("--max-queued-pairs", type=int, default=2, help="the receiver's queue (default 2)")
     parser.add_argument("--tracker-seed", type=int, default=0, help="the receiver's tracker seed (default 0)")
+    parser.add_argument("--pipeline", action="store_true",
+                        help="the receiver's pipeline (FrameReceiver(pipeline=True): the next pair segmented ahead)")
     args = parser.parse_args()
     pd.set_option("display.width", 200)
 
@@ -65,7 +68,8 @@ def main() -> None:
         print(f"== {mode}: load average before {os.getloadavg()}", flush=True)
         t0 = time.perf_counter()
         run = stream_moving_cine(cine, model, args.tracker_seed, output_path=out / f"{mode}_poses.jsonl",
-                                 fast=mode == "fast", max_queued_pairs=args.max_queued_pairs)
+                                 fast=mode == "fast", max_queued_pairs=args.max_queued_pairs,
+                                 pipeline=args.pipeline)
         frames = frame_table(run, cine)
         counts = count_table(run, frames)
         frames.to_csv(out / f"{mode}_frames.csv", index=False)

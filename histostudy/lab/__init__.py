@@ -2,7 +2,7 @@
 C-arm's files, its CBCT and its robot — pose records and flange poses to a checked hand-eye
 calibration, a target in the CBCT to a checked robot move, planned or executed (``workflow``) — and
 the frames streamed live from the C-arm over DICOM: the C-STORE receiver that poses each biplane
-pair (``receiver``), the received X-ray objects decoded and checked (``xray_objects``), their
+pair (``receiver``, its counts and timings in ``receiver_counts``), the received X-ray objects decoded and checked (``xray_objects``), their
 biplane pairing by time (``pairing``) and a sender of DICOM objects to it (``sender``).
 The lab-like dataset the project generates to stand in for a lab's files is the study's
 (:mod:`histostudy.study.lab_dataset`).

@@ -16,20 +16,25 @@ The chain, per object:
 2. The frames are paired by acquisition time (:mod:`.pairing`: ``AcquisitionDateTime`` + frame
    index x ``FrameTime``; two planes' frames pair when less than half a frame interval apart).
 3. A worker thread takes the pairs in order from a queue and runs :class:`histostudy.pose.Tracker`
-   (each estimate warm-started from the last accepted pose, by default on the region where it
-   projects: ``fast``, docs/tracking.md; a lost track re-acquired from scratch), then writes the
-   record and calls ``on_pose(record)`` (e.g. a notebook's live figure). With
-   ``max_queued_pairs`` a pair arriving while that many wait pushes the oldest waiting one out
+   through :meth:`~histostudy.pose.Tracker.track` (each estimate warm-started from the last
+   accepted pose, by default on the region where it projects: ``fast``, docs/tracking.md; a lost
+   track re-acquired from scratch). With ``pipeline`` (and ``fast``), while a pair is refined, the
+   next waiting pair's regions are segmented on another thread (taken from the queue only when one
+   waits, so that no pose waits for the stream); by default each pair is posed before the next is
+   taken. It then writes the record and calls ``on_pose(record)`` (e.g. a notebook's live figure).
+   With ``max_queued_pairs`` a pair arriving while that many wait pushes the oldest waiting one out
    (counted as skipped), so the poses follow a stream that outpaces them at most that many pairs
-   behind.
+   (and, with ``pipeline``, the one taken ahead) behind.
 
 Each JSON line holds the fields of :func:`histostudy.pose.pose_record` (``T_carm_transducer`` 4x4
 in mm, C-arm/CBCT frame; ``focal_point_mm``; ``cost``; ``accepted`` and the ``verdict``;
 ``timings_s`` per stage) and the pair's ``pair_index``, ``planes``, ``instance_uids``,
 ``frame_indices``, ``frame_times`` (ISO 8601), ``tracking`` (``from_scratch``, ``warm`` or
-``reacquired``) and ``seconds`` (``decode``, ``queue``, ``pose``, ``latency`` from the pair's last
-frame received to its line written). A pair whose pose work raised gets a line with ``accepted``
-false and ``error``. Lines are appended and flushed one by one.
+``reacquired``) and ``seconds`` (``decode``; ``queue``, from queued to taken by the tracker;
+``pose``, the worker's time on it since the previous line or since it was taken, whichever is later:
+the lines' ``pose`` seconds sum to the worker's busy time; ``latency`` from the pair's last frame
+received to its line written). A pair whose pose work raised gets a line with ``accepted`` false
+and ``error``. Lines are appended and flushed one by one.
 
 Rejections: the C-STORE failure status of :mod:`.xray_objects` (``0x0122`` not an X-ray image,
 ``0xA900`` unreadable as one, ``0xC000`` unusable; :data:`.xray_objects.REJECTION_STATUSES`), or
@@ -61,8 +66,9 @@ from histostudy.imaging import View
 from histostudy.pose import Tracker, pose_record
 from histostudy.transducer import TransducerModel
 from .pairing import DEFAULT_FRAME_INTERVAL_S, BiplanePairer, PlaneFrame
+from .receiver_counts import ReceiverCounts
 from .sender import check_ae_title, check_count, check_host, check_port, check_positive
-from .xray_objects import (STATUS_OUT_OF_RESOURCES, STATUS_SUCCESS, ReceivedFrame, XRayObjectRejected,
+from .xray_objects import (STATUS_OUT_OF_RESOURCES, STATUS_SUCCESS, XRayObjectRejected,
                            decode_c_store, rejection_response)
 
 __all__ = ["FrameReceiver", "listen"]
@@ -93,8 +99,9 @@ class FrameReceiver:
         fast: the tracker's warm path (:class:`~histostudy.pose.Tracker`'s ``fast``): True
             (default) or a :class:`~histostudy.pose.TrackingOptions`: warm updates on the region of
             the last pose, 5-6 times the pairs per second of the full-frame path within 0.1 mm of its
-            poses (docs/tracking.md); False: every update on the full frames, as the study's
-            :func:`~histostudy.pose.estimate_pose`.
+            poses, a refused one tried again at the detector's resolution before a re-acquisition
+            (docs/tracking.md, "Warm starts that hold"); False: every update on the full frames, as
+            the study's :func:`~histostudy.pose.estimate_pose`.
         on_pose: called with each record (a dict, as written) on the worker thread; its errors are
             logged, not raised.
         air_value: ``I0`` for the line integrals (modality units); None: each frame's maximum.
@@ -105,6 +112,11 @@ class FrameReceiver:
             (counted, logged, no line) so that the poses follow a live stream that outpaces them.
             None (default): every pair gets its line.
         network_timeout_s: how long an idle or half-open association is kept (s).
+        pipeline: overlap the next waiting pair's segmentation with the current pair's refinement
+            (:meth:`~histostudy.pose.Tracker.track`). Off by default: on the shared two-core machine
+            it posed 19 pairs of a 60-s cine where one pair at a time posed 28-31, because the pair
+            taken ahead can no longer be dropped for a newer one and the threads find no free core
+            (docs/tracking.md, "Warm starts that hold").
     """
 
     def __init__(self, views: Sequence[View], model: TransducerModel | None = None, *,
@@ -113,7 +125,7 @@ class FrameReceiver:
                  on_pose: Callable[[dict], object] | None = None, air_value: float | None = None,
                  tolerance_s: float | None = None, default_interval_s: float = DEFAULT_FRAME_INTERVAL_S,
                  match_tolerance_mm: float | None = 5.0, max_queued_pairs: int | None = None,
-                 network_timeout_s: float = 30.0, fast=True, **option_overrides):
+                 network_timeout_s: float = 30.0, fast=True, pipeline: bool = False, **option_overrides):
         views = [views] if isinstance(views, View) else list(views)
         if not views or not all(isinstance(v, View) for v in views):
             raise ValueError(f"views must be a non-empty sequence of histostudy.imaging.View, got {views!r}")
@@ -126,6 +138,8 @@ class FrameReceiver:
         check_positive("air_value", air_value, "a finite intensity > 0")
         check_positive("match_tolerance_mm", match_tolerance_mm, "a finite number > 0 (mm at the isocentre)")
         check_count("max_queued_pairs", max_queued_pairs)
+        if pipeline not in (True, False):
+            raise ValueError(f"pipeline must be True or False, got {pipeline!r}")
         check_positive("network_timeout_s", network_timeout_s, "a finite number of seconds > 0", optional=False)
         if on_pose is not None and not callable(on_pose):
             raise TypeError(f"on_pose must be callable (record -> None) or None, got {type(on_pose).__name__}")
@@ -139,18 +153,15 @@ class FrameReceiver:
         self.on_pose = on_pose
         self.air_value, self.match_tolerance_mm = air_value, match_tolerance_mm
         self.max_queued_pairs, self.network_timeout_s = max_queued_pairs, float(network_timeout_s)
+        self.pipeline = bool(pipeline)
 
         self._cv = threading.Condition()  # guards the pairer, the queue and the counters
         self._queue: collections.deque = collections.deque()
         self._ae = self._server = self._worker = self._out = None
         self._closing = self._stopped = False
         self._max_pairs: int | None = None
-        self._counts = collections.Counter()
-        self._rejections = collections.Counter()
-        self._last_rejections: collections.deque = collections.deque(maxlen=20)
-        self._decode_s = self._pose_s = self._latency_s = 0.0
-        self._t_first_frame = self._t_last_line = self._t_started = None
-        self._tracker_stats = self.tracker.stats()
+        self._stats = ReceiverCounts(self.tracker.stats())
+        self._counts = self._stats.counts
 
     # --- life cycle -----------------------------------------------------------------------------
 
@@ -182,15 +193,16 @@ class FrameReceiver:
             raise
         self._ae = ae
         self.port = int(self._server.server_address[1])
-        self._t_started = time.perf_counter()
+        self._stats.t_started = time.perf_counter()
         log.info("receiving DICOM X-ray frames on %s:%d as %r; poses to %s", self.host, self.port, self.ae_title,
                  self.output_path)
         return self.port
 
     def stop(self, drain: bool = True) -> None:
         """Stop listening (open associations are aborted), let the worker finish — with ``drain``
-        every pair already received gets its pose, without it only the one in progress — and close
-        the output. Frames still waiting for a partner are counted as unpaired."""
+        every pair already received gets its pose, without it only the ones in progress (with
+        ``pipeline``, the one posed and the one taken ahead) — and close the output. Frames still waiting for a partner
+        are counted as unpaired."""
         if self._stopped:
             return
         self._stopped = True
@@ -283,11 +295,11 @@ class FrameReceiver:
         now = time.perf_counter()
         share = (now - t0) / len(frames)
         with self._cv:
-            self._decode_s += now - t0
+            self._stats.decode_s += now - t0
             self._counts["objects_accepted"] += 1
             self._counts["frames_received"] += len(frames)
-            if self._t_first_frame is None:
-                self._t_first_frame = t0
+            if self._stats.t_first_frame is None:
+                self._stats.t_first_frame = t0
             for f in frames:
                 f = dataclasses.replace(f, decode_s=share, received_at=now)
                 pairing = self.pairer.add(PlaneFrame(f.view.name, f.time_s, f.interval_s, data=f))
@@ -316,110 +328,97 @@ class FrameReceiver:
         log.warning("rejected object %s (SOP class %s) with status 0x%04X: %s", uid or "(no UID)", sop_class,
                     status, reason)
         with self._cv:
-            self._counts["objects_rejected"] += 1
-            self._rejections[f"0x{status:04X}"] += 1
-            self._last_rejections.append({"instance_uid": uid, "sop_class_uid": sop_class, "status": status,
-                                          "reason": reason})
+            self._stats.add_rejection(status, uid, sop_class, reason)
         return rejection_response(status, reason)
 
     # --- the pose worker ----------------------------------------------------------------------
 
     def _work(self) -> None:
+        """Pose the queued pairs through ``Tracker.track`` until closing leaves none; a pair whose
+        pose raised gets its error line, and the stream goes on in a new ``track``."""
+        handed: collections.deque = collections.deque()  # taken by the tracker, line not yet written
+        again: collections.deque = collections.deque()   # taken by a track() that ended on an error
+        t_free = time.perf_counter()  # when the worker last wrote a line (its pose time starts after)
+
+        def ready() -> bool:  # take the next pair ahead: it is there, and the pipeline is on
+            return self.pipeline and (bool(again) or (bool(self._queue) and not self._at_limit(len(handed))))
+
         while True:
-            with self._cv:
-                # take the next pair unless max_pairs lines are written; leave once closing with
-                # nothing (more) to take
-                while not self._queue or self._at_limit():
-                    if self._closing:
-                        return
-                    self._cv.wait()
-                index, pair, queued_at = self._queue.popleft()
-            record = self._pose_record(index, [f.data for f in pair], queued_at)
+            results = self.tracker.track(self._pairs(handed, again), ready=ready)
             try:
-                self._out.write(json.dumps(record) + "\n")
-                self._out.flush()
-            except (OSError, ValueError):
-                log.exception("pair %d: the pose line could not be written to %s", index, self.output_path)
-            with self._cv:
-                self._counts["pairs_processed"] += 1
-                self._counts["pairs_accepted"] += bool(record.get("accepted"))
-                self._counts["pairs_errors"] += "error" in record
-                self._pose_s += record["seconds"]["pose"]
-                self._latency_s += record["seconds"]["latency"]
-                self._t_last_line = time.perf_counter()
-                self._tracker_stats = self.tracker.stats()  # a snapshot: stats() reads it from other threads
-                self._cv.notify_all()
-            if self.on_pose is not None:
-                try:
-                    self.on_pose(record)
-                except Exception:
-                    log.exception("on_pose raised on pair %d; the receiver goes on", index)
+                for result in results:
+                    t_free = self._write(handed.popleft(), result, None, t_free)
+                return  # closing, nothing left to pose
+            except Exception as exc:  # one pair's failure is a line, not the end of the stream
+                entry = handed.popleft()
+                log.warning("pair %d: no pose: %s: %s", entry[0], type(exc).__name__, exc)
+                t_free = self._write(entry, None, exc, t_free)
+                again.extend(handed)
+                handed.clear()
 
-    def _at_limit(self) -> bool:
-        return self._max_pairs is not None and self._counts["pairs_processed"] >= self._max_pairs
+    def _pairs(self, handed: collections.deque, again: collections.deque):
+        """The pairs' images for the tracker, in order (a generator that waits for the queue and ends
+        once closing with none left); each entry taken goes to ``handed`` first."""
+        while True:
+            if again:
+                entry = again.popleft()
+            else:
+                with self._cv:
+                    # wait for a pair unless max_pairs lines are written or on their way
+                    while not self._queue or self._at_limit(len(handed)):
+                        if self._closing:
+                            return
+                        self._cv.wait()
+                    index, pair, queued_at = self._queue.popleft()
+                entry = (index, [f.data for f in pair], queued_at, time.perf_counter())
+            handed.append(entry)
+            yield [f.image for f in entry[1]]
 
-    def _pose_record(self, index: int, frames: list[ReceivedFrame], queued_at: float) -> dict:
-        """The pair's JSON record: the pose (pose_record's fields) or the error, and where it came from."""
-        t0 = time.perf_counter()
-        ids = [f"{f.instance_uid}[{f.frame_index}]" for f in frames]
-        head = {"pair_index": index, "planes": [f.view.name for f in frames],
-                "instance_uids": [f.instance_uid for f in frames], "frame_indices": [f.frame_index for f in frames],
-                "frame_times": [f.acquired.isoformat() for f in frames]}
-        try:
-            result = self.tracker.update([f.image for f in frames])
-            record = {**head, **pose_record(result, ids), "tracking": self.tracker.last_kind}
-        except Exception as exc:  # one pair's failure is a line, not the end of the stream
-            log.warning("pair %d: no pose: %s: %s", index, type(exc).__name__, exc)
-            record = {**head, "frames": ids, "accepted": False, "error": f"{type(exc).__name__}: {exc}",
-                      "tracking": None}
+    def _at_limit(self, in_flight: int = 0) -> bool:
+        return self._max_pairs is not None and self._counts["pairs_processed"] + in_flight >= self._max_pairs
+
+    def _write(self, entry, result, error, t_free: float) -> float:
+        """Write the line of ``entry`` (its result, or the ``error`` its pose raised), count it, call
+        ``on_pose``; returns when done."""
+        index, frames, queued_at, taken_at = entry
         t1 = time.perf_counter()
-        record["seconds"] = {"decode": sum(f.decode_s for f in frames), "queue": t0 - queued_at, "pose": t1 - t0,
-                             "latency": t1 - max(f.received_at for f in frames)}
-        return to_jsonable(record)
+        ids = [f"{f.instance_uid}[{f.frame_index}]" for f in frames]
+        record = {"pair_index": index, "planes": [f.view.name for f in frames],
+                  "instance_uids": [f.instance_uid for f in frames], "frame_indices": [f.frame_index for f in frames],
+                  "frame_times": [f.acquired.isoformat() for f in frames]}
+        if error is None:
+            record.update({**pose_record(result, ids), "tracking": self.tracker.last_kind})
+        else:
+            record.update({"frames": ids, "accepted": False, "error": f"{type(error).__name__}: {error}",
+                           "tracking": None})
+        record["seconds"] = {"decode": sum(f.decode_s for f in frames), "queue": taken_at - queued_at,
+                             "pose": t1 - max(taken_at, t_free), "latency": t1 - max(f.received_at for f in frames)}
+        record = to_jsonable(record)
+        try:
+            self._out.write(json.dumps(record) + "\n")
+            self._out.flush()
+        except (OSError, ValueError):
+            log.exception("pair %d: the pose line could not be written to %s", index, self.output_path)
+        now = time.perf_counter()
+        with self._cv:
+            # a snapshot of the tracker's counters: stats() reads it from other threads
+            self._stats.add_line(record, self.tracker.stats(), now)
+            self._cv.notify_all()
+        if self.on_pose is not None:
+            try:
+                self.on_pose(record)
+            except Exception:
+                log.exception("on_pose raised on pair %d; the receiver goes on", index)
+        return time.perf_counter()  # on_pose's time is no pair's pose time
 
     # --- statistics -----------------------------------------------------------------------------
 
     def stats(self) -> dict:
-        """Throughput and counts so far (a JSON-ready dict).
-
-        ``objects_received`` / ``objects_accepted`` / ``objects_rejected`` (with ``rejections`` per
-        status and ``last_rejections``' reasons), ``frames_received``, ``frames_unpaired``,
-        ``pairs_completed`` (paired), ``pairs_processed`` (a line written), ``pairs_accepted``,
-        ``pairs_errors``, ``pairs_skipped``, ``pairs_waiting`` (now) and ``pairs_waiting_max`` (the most
-        that ever waited: at most ``max_queued_pairs``); ``connections``, ``associations``,
-        ``associations_aborted``; ``stage_seconds`` summed (``decode`` in the handlers, the pose
-        stages of :attr:`Tracker.stage_seconds`) and ``seconds_per_pair`` (those over
-        ``pairs_processed``, plus ``pose`` and ``latency``); ``frames_per_s``: the frames of the
-        processed pairs over the time from the first frame received to the last line written;
-        ``pose_frames_per_s``: the same frames over the pose worker's busy time; ``tracker``:
-        :meth:`Tracker.stats`.
-        """
+        """Throughput and counts so far (a JSON-ready dict): the keys of
+        :meth:`.receiver_counts.ReceiverCounts.stats`; ``tracker`` is :meth:`Tracker.stats`."""
         with self._cv:
-            counts = dict(self._counts)
-            n_pairs = counts.get("pairs_processed", 0)
-            n_frames = n_pairs * len(self.views)
-            stage = {"decode": self._decode_s, **self._tracker_stats["stage_seconds"]}
-            span = None if self._t_first_frame is None or self._t_last_line is None else \
-                self._t_last_line - self._t_first_frame
-            out = {key: counts.get(key, 0) for key in (
-                "objects_received", "objects_accepted", "objects_rejected", "frames_received", "frames_unpaired",
-                "pairs_completed", "pairs_processed", "pairs_accepted", "pairs_errors", "pairs_skipped",
-                "pairs_waiting_max", "connections", "associations", "associations_aborted")}
-            out.update({
-                "pairs_waiting": len(self._queue),
-                "rejections": dict(self._rejections),
-                "last_rejections": list(self._last_rejections),
-                "stage_seconds": stage,
-                "seconds_per_pair": ({k: v / n_pairs for k, v in stage.items()}
-                                     | {"pose": self._pose_s / n_pairs, "latency": self._latency_s / n_pairs})
-                if n_pairs else {},
-                "frames_per_s": n_frames / span if span else None,
-                "pose_frames_per_s": n_frames / self._pose_s if self._pose_s > 0 else None,
-                "tracker": self._tracker_stats,
-                "port": self.port,
-                "elapsed_s": None if self._t_started is None else time.perf_counter() - self._t_started,
-            })
-        return to_jsonable(out)
+            return self._stats.stats(n_views=len(self.views), pairs_waiting=len(self._queue), port=self.port,
+                                     now=time.perf_counter())
 
 
 def listen(views: Sequence[View], *, port: int = 11112, output_path: str | os.PathLike = "poses.jsonl",

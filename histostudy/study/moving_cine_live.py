@@ -122,7 +122,8 @@ def count_table(run: MovingCineRun, frames: pd.DataFrame) -> pd.DataFrame:
     """The run in numbers (``quantity``, ``value``): pairs sent, posed, dropped by the receiver
     (``max_queued_pairs``), refused (an object of the pair refused), whether they add up, and the
     frames left unpaired (0 unless an object was refused); the tracking (warm,
-    from scratch, lost, re-acquired, accepted); the rates (frames of the cine per second, poses per
+    from scratch, warm starts tried again at the rescue scale and held by that second attempt, warm
+    starts from a refused pose and held, lost, re-acquired, accepted); the rates (frames of the cine per second, poses per
     second over the stream); the latency (median, 90th percentile, largest) and the focal error of
     the accepted poses (mean, median, 95th percentile, largest); how late the sender ran. The rates
     are over ``run.stream_s`` (the C-arm's time) and ``run.wall_s`` (the last poses come after it)."""
@@ -143,6 +144,10 @@ def count_table(run: MovingCineRun, frames: pd.DataFrame) -> pd.DataFrame:
             ("sent = posed + dropped + refused", n_sent == s["pairs_processed"] + s["pairs_skipped"] + refused),
             ("max_queued_pairs", run.max_queued_pairs), ("most pairs ever waiting", int(s["pairs_waiting_max"])),
             ("warm updates", tracker.get("n_warm")), ("estimates from scratch", tracker.get("n_from_scratch")),
+            ("warm starts tried again (rescue_scale)", tracker.get("n_rescue_attempts")),
+            ("warm starts held by the second attempt", tracker.get("n_rescued")),
+            ("warm starts from a refused pose (resume_refused)", tracker.get("n_resume_attempts")),
+            ("warm starts from a refused pose held", tracker.get("n_resumed")),
             ("track lost", tracker.get("n_lost")), ("track re-acquired", tracker.get("n_reacquired")),
             ("poses accepted", int(s["pairs_accepted"])),
             ("cine frames per second", n_sent / run.stream_s if run.stream_s > 0 else np.nan),

@@ -227,6 +227,8 @@ def test_receiver_arguments_are_checked(views, tmp_path):
         listen(views, port=0, output_path=out, max_pairs=0)
     with pytest.raises(TypeError, match="unexpected keyword argument 'speed'"):
         FrameReceiver(views, output_path=out, speed=1)
+    with pytest.raises(ValueError, match="pipeline must be True or False, got 'yes'"):
+        FrameReceiver(views, output_path=out, pipeline="yes")
 
 
 def test_listen_serves_until_its_timeout_and_answers_c_echo(views, tmp_path):
@@ -399,3 +401,28 @@ def test_a_pair_whose_pose_fails_is_a_line_with_the_error(views, tmp_path):
     assert line["accepted"] is False and line["tracking"] is None
     assert line["error"].startswith("PoseEstimationError") and "no transducer feature" in line["error"]
     assert receiver.stats()["pairs_errors"] == 1
+
+
+@pytest.mark.slow
+def test_the_pipeline_poses_as_a_direct_tracker_and_a_failed_pair_does_not_end_the_stream(cine, views, model,
+                                                                                          direct, tmp_path):
+    """With pipeline=True the pair after the current one is taken ahead when it waits. A pair
+    without the transducer (flat frames, a second before the cine) raises in the tracker: its line
+    holds the error, the pair taken ahead is posed in a new track(), and the cine's pairs get the
+    poses of a direct tracker; the counts add up."""
+    flat = np.full(views[0].shape, 3000, np.uint16)
+    before = T0 - dt.timedelta(seconds=1)
+    objects = [xa_dataset(v, flat, acquisition_time=before, uid_seed=f"flat-first/{v.name}") for v in views]
+    out = tmp_path / "poses.jsonl"
+    with FrameReceiver(views, model, output_path=out, port=0, seed=SEED, pipeline=True) as receiver:
+        assert send(receiver.port, objects + [cine["paths"][v.name] for v in views]) == [0] * 4
+        assert receiver.wait_for_pairs(1 + N_FRAMES, timeout_s=180)
+    stats = receiver.stats()
+    lines = read_lines(out)
+    assert [line["pair_index"] for line in lines] == list(range(1 + N_FRAMES))
+    assert lines[0]["error"].startswith("PoseEstimationError") and lines[0]["accepted"] is False
+    assert_same_poses(lines[1:], direct, pairs={i + 1: i for i in range(N_FRAMES)})
+    assert (stats["pairs_completed"], stats["pairs_processed"], stats["pairs_errors"], stats["pairs_skipped"]) \
+        == (1 + N_FRAMES, 1 + N_FRAMES, 1, 0)
+    assert stats["tracker"]["n_updates"] == 1 + N_FRAMES
+    assert all(line["seconds"]["pose"] >= 0 and line["seconds"]["queue"] >= 0 for line in lines)

@@ -1,0 +1,99 @@
+"""What the pose receiver (:class:`.receiver.FrameReceiver`, §II-A) counts and times:
+:class:`ReceiverCounts`.
+
+The counts of objects, frames and pairs, the rejections by status, the seconds spent decoding and
+posing, and the latency, kept in one place so that the receiver's network and worker threads add to
+them (under the receiver's lock) and :meth:`ReceiverCounts.stats` reports them. Times in seconds
+(``time.perf_counter``).
+"""
+
+from __future__ import annotations
+
+import collections
+
+from histostudy.core import to_jsonable
+
+__all__ = ["COUNT_KEYS", "ReceiverCounts"]
+
+#: The counters :meth:`ReceiverCounts.stats` reports (0 until counted).
+COUNT_KEYS = ("objects_received", "objects_accepted", "objects_rejected", "frames_received", "frames_unpaired",
+              "pairs_completed", "pairs_processed", "pairs_accepted", "pairs_errors", "pairs_skipped",
+              "pairs_waiting_max", "connections", "associations", "associations_aborted")
+
+
+class ReceiverCounts:
+    """The receiver's counters and timers; not thread-safe by itself (the receiver holds its lock).
+
+    Attributes:
+        counts: a ``collections.Counter`` of :data:`COUNT_KEYS` (and any other event).
+        rejections: rejected objects per status (``"0xA900"``, ...).
+        last_rejections: the last 20 rejections (instance UID, SOP class, status, reason).
+        decode_s, pose_s, latency_s: seconds summed: decoding in the handlers, the pose worker's
+            work per line, and from each pair's last frame received to its line.
+        t_first_frame, t_last_line, t_started: ``perf_counter`` times of the first frame decoded,
+            the last line written and the server's start (None until then).
+        tracker: the last snapshot of :meth:`histostudy.pose.Tracker.stats`.
+    """
+
+    def __init__(self, tracker_stats: dict):
+        self.counts: collections.Counter = collections.Counter()
+        self.rejections: collections.Counter = collections.Counter()
+        self.last_rejections: collections.deque = collections.deque(maxlen=20)
+        self.decode_s = self.pose_s = self.latency_s = 0.0
+        self.t_first_frame = self.t_last_line = self.t_started = None
+        self.tracker = tracker_stats
+
+    def add_rejection(self, status: int, uid: str, sop_class: str, reason: str) -> None:
+        """One object refused with C-STORE ``status`` (an int) for ``reason``."""
+        self.counts["objects_rejected"] += 1
+        self.rejections[f"0x{status:04X}"] += 1
+        self.last_rejections.append({"instance_uid": uid, "sop_class_uid": sop_class, "status": status,
+                                     "reason": reason})
+
+    def add_line(self, record: dict, tracker_stats: dict, now: float) -> None:
+        """One pose line written at ``now``: its outcome and seconds, and the tracker's counters then."""
+        self.counts["pairs_processed"] += 1
+        self.counts["pairs_accepted"] += bool(record.get("accepted"))
+        self.counts["pairs_errors"] += "error" in record
+        self.pose_s += record["seconds"]["pose"]
+        self.latency_s += record["seconds"]["latency"]
+        self.t_last_line = now
+        self.tracker = tracker_stats
+
+    def stats(self, *, n_views: int, pairs_waiting: int, port: int, now: float) -> dict:
+        """The JSON-ready statistics of :meth:`.receiver.FrameReceiver.stats` at ``now``.
+
+        ``objects_received`` / ``objects_accepted`` / ``objects_rejected`` (with ``rejections`` per
+        status and ``last_rejections``' reasons), ``frames_received``, ``frames_unpaired``,
+        ``pairs_completed`` (paired), ``pairs_processed`` (a line written), ``pairs_accepted``,
+        ``pairs_errors``, ``pairs_skipped``, ``pairs_waiting`` (now) and ``pairs_waiting_max`` (the most
+        that ever waited: at most ``max_queued_pairs``); ``connections``, ``associations``,
+        ``associations_aborted``; ``stage_seconds`` summed (``decode`` in the handlers, the pose
+        stages of :attr:`histostudy.pose.Tracker.stage_seconds`) and ``seconds_per_pair`` (those over
+        ``pairs_processed``, plus ``pose`` and ``latency``); ``frames_per_s``: the frames of the
+        processed pairs over the time from the first frame received to the last line written;
+        ``pose_frames_per_s``: the same frames over the pose worker's busy time; ``tracker``: the
+        tracker's counters (:meth:`histostudy.pose.Tracker.stats`) at the last line; ``port``;
+        ``elapsed_s`` since the server started.
+        """
+        n_pairs = self.counts.get("pairs_processed", 0)
+        n_frames = n_pairs * n_views
+        stage = {"decode": self.decode_s, **self.tracker["stage_seconds"]}
+        span = None if self.t_first_frame is None or self.t_last_line is None else \
+            self.t_last_line - self.t_first_frame
+        out = {key: self.counts.get(key, 0) for key in COUNT_KEYS}
+        out.update({
+            "pairs_waiting": pairs_waiting,
+            "rejections": dict(self.rejections),
+            "last_rejections": list(self.last_rejections),
+            "stage_seconds": stage,
+            "seconds_per_pair": ({k: v / n_pairs for k, v in stage.items()}
+                                 | {"pose": self.pose_s / n_pairs, "latency": self.latency_s / n_pairs})
+            if n_pairs else {},
+            "frames_per_s": n_frames / span if span else None,
+            "pose_frames_per_s": n_frames / self.pose_s if self.pose_s > 0 else None,
+            "tracker": self.tracker,
+            "port": port,
+            "elapsed_s": None if self.t_started is None else now - self.t_started,
+        })
+        return to_jsonable(out)
