@@ -21,15 +21,21 @@ Cine: the physical transducer (0.25 mm render model) on a phantom scene with Poi
 Truth: the physical transducer's focal point. Every tracker first runs two untimed updates (numba's
 kernels, torch's convolution primitives) and is reset; its first timed update is then from scratch
 (timed apart), and from-scratch seconds are also timed on ``--scratch`` later frames (``reset()``
-then ``update``).
+then ``update``), interleaved with ``fast-full``, the fast tracker with
+``TrackingOptions(scratch_label_scale=1)``: its from-scratch path before docs/tracking.md "From
+scratch in under a second" (FastUNet.segment on the full frames, then ``estimate_pose``), against
+``fast``'s default (``estimate_pose`` at the U-Net's label scale 0.5); with ``--scratch-poses N``
+also on one pair each of N independent poses (notebook 04's distribution, each with its own
+physical transducer and scene: seeds ``--seed`` + 1000, 1001, ...).
 
 Prints: warm pairs/s (1 / median seconds of the accepted warm updates) and overall pairs/s (all
 updates after the first, re-acquisitions included), the median seconds per stage of warm updates,
 the ratio to the baseline, the losses and re-acquisitions, each frame's focal error against the
-truth and the difference fast - baseline; from-scratch seconds per pair. Torch, numba and OpenCV
+truth and the difference fast - baseline; from-scratch seconds per pair (median, the ratio fast /
+fast-full, per stage), acceptance and focal errors. Torch, numba and OpenCV
 run on ``--threads`` (2) threads; the load average before and after says how busy the machine was.
 
-Run: ``python benchmarks/bench_tracking.py [--frames 12] [--seed 5] [--threads 2]``.
+Run: ``python benchmarks/bench_tracking.py [--frames 12] [--seed 5] [--threads 2] [--scratch 2] [--scratch-poses 0]``.
 """
 
 from __future__ import annotations
@@ -76,6 +82,51 @@ def cine(n_frames: int, seed: int, step_mm: float, step_deg: float):
     return poses, frames, physical, views
 
 
+def from_scratch(trackers: dict, pairs: list, truths: list) -> dict:
+    """Each tracker's from-scratch estimate (``reset()``, then ``update``) of each pair, interleaved pair
+    by pair in a rotating order: per tracker, a list of (seconds, timings, focal error or nan if
+    refused, focal point, the fast path's step)."""
+    log = {name: [] for name in trackers}
+    names = list(trackers)
+    for j, (pair, truth) in enumerate(zip(pairs, truths)):
+        for name in names[j % len(names):] + names[:j % len(names)]:
+            tracker = trackers[name]
+            tracker.reset()
+            t = time.perf_counter()
+            result = tracker.update(pair)
+            seconds = time.perf_counter() - t
+            error = np.linalg.norm(result.focal_point_mm - truth) if result.verdict.ok else np.nan
+            step = tracker._scratch.last_step if tracker._scratch is not None else "full"
+            log[name].append((seconds, dict(result.timings_s), error, result.focal_point_mm, step))
+    return log
+
+
+def print_from_scratch(title: str, log: dict) -> None:
+    """Seconds (median, each), acceptance, focal errors and the median seconds per stage of
+    :func:`from_scratch`'s log; the ratio of the fast path's median to the full frames'."""
+    print(f"\nfrom scratch on {title}, interleaved: seconds per pair (median, then each), poses accepted, "
+          f"focal error (mm) of the accepted poses; the fast path's steps (scaled / full_frame_warm / full_frame)")
+    for n, v in log.items():
+        ok = [e[2] for e in v if np.isfinite(e[2])]
+        steps = {s: sum(e[4] == s for e in v) for s in dict.fromkeys(e[4] for e in v)}
+        print(f"  {n:10s} median {np.median([e[0] for e in v]):.3f} s ({', '.join(f'{e[0]:.2f}' for e in v)}); "
+              f"accepted {len(ok)}/{len(v)}; focal error mean {np.mean(ok) if ok else np.nan:.3f}, largest "
+              f"{np.max(ok) if ok else np.nan:.3f}; steps {steps}")
+    medians = {n: np.median([e[0] for e in v]) for n, v in log.items()}
+    print(f"  fast / fast-full: {medians['fast'] / medians['fast-full']:.2f} ({medians['fast']:.3f} s against "
+          f"{medians['fast-full']:.3f} s); fast / baseline: {medians['fast'] / medians['baseline']:.2f}")
+    apart = np.array([np.linalg.norm(a[3] - b[3]) for a, b in zip(log["fast"], log["fast-full"])])
+    excess = np.array([a[2] - b[2] for a, b in zip(log["fast"], log["fast-full"])])
+    print(f"  fast vs fast-full: focal points apart mean {apart.mean():.3f} mm, largest {apart.max():.3f} mm; focal "
+          f"error fast - fast-full mean {np.nanmean(excess):+.3f} mm, largest {np.nanmax(excess):+.3f} mm")
+    print("  median seconds per stage:")
+    columns = ("segmentation", "distance_maps", "orientation", "initialisation", "refinement", "verdict", "retries",
+               "total")
+    print(f"    {'':12s}" + "".join(f"{c[:14]:>15s}" for c in columns))
+    for n, v in log.items():
+        print(f"    {n:12s}" + "".join(f"{np.median([e[1].get(c, 0.0) for e in v]):15.3f}" for c in columns))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=12)
@@ -84,6 +135,8 @@ def main() -> None:
     parser.add_argument("--step-mm", type=float, default=0.5)
     parser.add_argument("--step-deg", type=float, default=0.2)
     parser.add_argument("--scratch", type=int, default=2, help="later frames also timed from scratch")
+    parser.add_argument("--scratch-poses", type=int, default=0,
+                        help="also time from scratch one pair each of this many independent poses")
     parser.add_argument("--baseline-mode", choices=("fast", "paper"), default="fast")
     parser.add_argument("--network", default="unet_tracking",
                         help="also track with TrackingOptions(network=NAME), the shipped U-Net trained for tracking "
@@ -147,16 +200,26 @@ def main() -> None:
             error = np.linalg.norm(result.focal_point_mm - truth[i]) if result.verdict.ok else np.nan
             log[name].append((tracker.last_kind, seconds, dict(result.timings_s), error))
         stream.close()
-    scratch = {name: [log[name][0][1]] for name in ("baseline", "fast")}
-    scratch_stages = {name: [log[name][0][2]] for name in scratch}
-    for k in range(1, 1 + min(args.scratch, args.frames - 1)):
-        i = k * (args.frames - 1) // max(args.scratch, 1)
-        for name in scratch:
-            trackers[name].reset()
-            t = time.perf_counter()
-            result = trackers[name].update(frames[i])
-            scratch[name].append(time.perf_counter() - t)
-            scratch_stages[name].append(dict(result.timings_s))
+    # From scratch (first updates, re-acquisitions): the baseline (estimate_pose, UNetSegmenter), the
+    # fast tracker's full-frame path before docs/tracking.md "From scratch in under a second"
+    # (scratch_label_scale=1: FastUNet.segment on the full frames, then estimate_pose) and the fast
+    # tracker's default (estimate_pose at the U-Net's label scale).
+    scratch_trackers = {"baseline": trackers["baseline"],
+                        "fast-full": Tracker(model, views, rng=args.seed, mode="fast",
+                                             fast=TrackingOptions(scratch_label_scale=1), **stages),
+                        "fast": trackers["fast"]}
+    scratch_trackers["fast-full"].update(frames[0])  # warm-up, untimed
+    scratch_frames = [0] + [k * (args.frames - 1) // max(args.scratch, 1)
+                            for k in range(1, 1 + min(args.scratch, args.frames - 1))]
+    scratch = from_scratch(scratch_trackers, [frames[i] for i in scratch_frames], [truth[i] for i in scratch_frames])
+    independent = None
+    if args.scratch_poses:
+        pairs, truths = [], []
+        for k in range(args.scratch_poses):  # one pair per pose, each pose and transducer of its own seed
+            poses_k, frames_k, physical_k, _ = cine(1, args.seed + 1000 + k, args.step_mm, args.step_deg)
+            pairs.append(frames_k[0])
+            truths.append(poses_k[0][:3, :3] @ physical_k.focal_point_mm + poses_k[0][:3, 3])
+        independent = from_scratch(scratch_trackers, pairs, truths)
     load_after = os.getloadavg()[0]
 
     print(f"\nwarm updates (frames 1-{args.frames - 1}; baseline mode {args.baseline_mode!r}): "
@@ -192,13 +255,9 @@ def main() -> None:
         print(f"{n}: focal error - baseline's over frames 1-{args.frames - 1}: mean {np.nanmean(signed):+.3f} mm, "
               f"largest {np.nanmax(signed):+.3f} mm (worse than the baseline), |diff| mean {np.nanmean(diff):.3f} mm, "
               f"max {np.nanmax(diff):.3f} mm ({int(np.sum(diff <= 0.1))}/{int(np.sum(np.isfinite(diff)))} within 0.1 mm)")
-    print("\nfrom scratch (full frames, estimate_pose): seconds per pair "
-          + ", ".join(f"{n} median {np.median(v):.2f} ({', '.join(f'{x:.2f}' for x in v)})" for n, v in scratch.items()))
-    print("  median seconds per stage: " + "; ".join(
-        f"{n}: " + ", ".join(f"{st} {np.median([t.get(st, 0.0) for t in v]):.3f}"
-                             for st in ("segmentation", "distance_maps", "orientation", "initialisation", "refinement",
-                                        "verdict", "retries"))
-        for n, v in scratch_stages.items()))
+    print_from_scratch(f"the cine's frames {scratch_frames}", scratch)
+    if independent is not None:
+        print_from_scratch(f"{args.scratch_poses} independent poses (seeds {args.seed + 1000}...)", independent)
     print(f"load average after: {load_after:.2f} (on {os.cpu_count()} cores)")
 
 

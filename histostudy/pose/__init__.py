@@ -9,15 +9,16 @@ the lab's own frame files (``from_files``), with its options (``options``), its 
 and its default learned stages (``learned_stages``); :class:`Tracker`, which follows the pose
 through a stream of frames, warm-starting each estimate from the last (``tracker``), and its fast
 warm path on the region where the last pose projects: the region and its view (``tracking_roi``),
-its distance maps in reused buffers (``tracking_maps``), the warm estimate (``tracking_warm``) and
-its options (``tracking_options``).
+its distance maps in reused buffers (``tracking_maps``), the warm estimate (``tracking_warm``), the
+fast from-scratch estimate at the label scale (``tracking_scratch``) and its options (``tracking_options``).
 """
 
 from . import (conic as _conic, conic_orientation as _conic_orientation, cost as _cost, distance_maps as _distance_maps,
                estimate as _estimate, from_files as _from_files, init as _init, learned_stages as _learned_stages,
                options as _options, perturbation as _perturbation, refine as _refine, result as _result,
                silhouette as _silhouette, tracker as _tracker, tracking_maps as _tracking_maps,
-               tracking_options as _tracking_options, tracking_roi as _tracking_roi, tracking_warm as _tracking_warm,
+               tracking_options as _tracking_options, tracking_roi as _tracking_roi,
+               tracking_scratch as _tracking_scratch, tracking_warm as _tracking_warm,
                verdict as _verdict)
 from .conic import (CirclePose, EllipseFit, circle_poses_from_conic, conic_from_ellipse, conic_from_points,
                     fit_ellipse_ransac)
@@ -39,6 +40,7 @@ from .tracker import Tracker
 from .tracking_maps import RegionMaps
 from .tracking_options import TrackingOptions
 from .tracking_roi import RegionOfInterest, crop_view, region_of_interest
+from .tracking_scratch import ScratchEstimator, scaled_pose_options, scratch_estimator
 from .tracking_warm import PreparedRegions, RegionEstimator
 from .verdict import (PoseVerdict, check_unexplained, check_view_agreement, judge_fit, unexplained_fraction,
                       view_disagreement_mm)
@@ -48,5 +50,6 @@ __all__ = list(dict.fromkeys([*_conic.__all__, *_conic_orientation.__all__, *_co
                               *_estimate.__all__, *_from_files.__all__, *_init.__all__, *_learned_stages.__all__,
                               *_options.__all__, *_perturbation.__all__, *_refine.__all__, *_result.__all__,
                               *_silhouette.__all__, *_tracker.__all__, *_tracking_maps.__all__,
-                              *_tracking_options.__all__, *_tracking_roi.__all__, *_tracking_warm.__all__,
+                              *_tracking_options.__all__, *_tracking_roi.__all__, *_tracking_scratch.__all__,
+                              *_tracking_warm.__all__,
                               *_verdict.__all__]))

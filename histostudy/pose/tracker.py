@@ -13,11 +13,13 @@ estimated from scratch (a re-acquisition), and both events are counted.
 With ``fast=True`` (or ``fast=TrackingOptions(...)``) a warm update runs
 :class:`~.tracking_warm.RegionEstimator` instead: the same stages on the region where the last pose
 projects, at the segmenter's own resolution (docs/tracking.md: where the time goes, and the
-figures). From-scratch estimates and re-acquisitions still run :func:`~.estimate.estimate_pose` on
-the full frames. A fast warm start the verdict refuses is tried once more on the same regions at the
-detector's resolution (``TrackingOptions.rescue_scale``) before the track is lost: on the 0.5 label
-grid the verdict's view agreement reads high and refused half the warm starts of a moving cine that
-the full-resolution grid accepts (docs/tracking.md, "Warm starts that hold").
+figures). From-scratch estimates and re-acquisitions run :func:`~.estimate.estimate_pose` on the
+whole frames at the U-Net's label scale (:class:`~.tracking_scratch.ScratchEstimator`; the full
+frames when its verdict refuses: docs/tracking.md, "From scratch in under a second"). A fast warm
+start the verdict refuses is tried once more on the same regions at the detector's resolution
+(``TrackingOptions.rescue_scale``) before the track is lost: on the 0.5 label grid the verdict's
+view agreement reads high and refused half the warm starts of a moving cine that the
+full-resolution grid accepts (docs/tracking.md, "Warm starts that hold").
 
 Poses are 4x4 ``T_carm_transducer`` (mm, C-arm/CBCT frame, docs/architecture.md "Frames and
 units"); frames are line integrals (``-log(I / I0)``, dimensionless). Determinism: the tracker
@@ -42,6 +44,7 @@ from .learned_stages import default_stages
 from .options import PoseOptions
 from .result import PoseEstimationError, PoseResult
 from .tracking_options import TrackingOptions
+from .tracking_scratch import scratch_estimator
 from .tracking_warm import RegionEstimator
 
 __all__ = ["Tracker"]
@@ -80,8 +83,14 @@ class Tracker:
             (:class:`~.tracking_warm.RegionEstimator`: Levenberg-Marquardt whatever ``mode``, which
             then applies to the from-scratch estimates only); ``result.labels`` are then the regions'
             labels at the label scale, and :attr:`last_regions` says where they lie. From-scratch
-            estimates then segment with :meth:`~histostudy.learning.FastUNet.segment` when the
-            segmenter is a U-Net (full-resolution labels, 99.9 % the checkpoint's; 100 % in float32).
+            estimates then run at ``TrackingOptions.scratch_label_scale`` (default: a U-Net's input
+            scale, 0.5; :class:`~.tracking_scratch.ScratchEstimator`): ``estimate_pose`` on the
+            U-Net's arg-max at its own resolution, every pixel threshold scaled (0.65 s per pair
+            against 1.5 s on the full frames at a load of 5: docs/tracking.md); a pose its verdict refuses is refined and judged
+            again on the full frames (``result.labels`` are then full-resolution). With scale 1, or
+            another segmenter, they segment the full frames (a U-Net through
+            :meth:`~histostudy.learning.FastUNet.segment`: 99.9 % the checkpoint's labels, 100 % in
+            float32).
             ``TrackingOptions(network="unet_tracking")`` runs the warm regions through the U-Net
             trained at input scale 0.25 instead (about 2x the warm pairs per second, focal errors
             about 0.2 mm above the full-frame path's: docs/tracking.md, "A network trained for
@@ -156,6 +165,10 @@ class Tracker:
         self.tracking_options = fast or None
         self._region = None if self.tracking_options is None else RegionEstimator(
             model, self.views, segmenter, self._estimate_options, self.tracking_options, self.rng)
+        # From scratch at the label scale (TrackingOptions.scratch_label_scale); None: full frames.
+        self._scratch = None if self._region is None else scratch_estimator(
+            model, self.views, self._region.full_frame_segmenter, orientation, self._estimate_options,
+            self.tracking_options, self.rng)
         self.reset()
 
     # --- state ----------------------------------------------------------------------------------
@@ -386,6 +399,8 @@ class Tracker:
             if prepared is None:
                 prepared = self._region.prepare(frames, initial_pose, self.rng, slot)
             result = self._region.finish(prepared, initial_pose)
+        elif initial_pose is None and self._scratch is not None:
+            result = self._scratch.estimate(frames, self.rng)
         else:
             # With ``fast``, a U-Net segments the full frames through FastUNet.segment: its labels
             # (the checkpoint's upsampled arg-max, computed along the label edges only) in a

@@ -31,7 +31,8 @@ class TrackingOptions:
     region's distance maps into reused buffers (:class:`~.tracking_maps.RegionMaps`), refines the
     last pose by Levenberg-Marquardt, coarse to fine, and judges it with the verdict of
     :func:`~.estimate.estimate_pose` on the region (:mod:`.tracking_warm`). From-scratch estimates
-    (the first update, re-acquisitions) still run :func:`~.estimate.estimate_pose` on the full frames.
+    (the first update, re-acquisitions) run :func:`~.estimate.estimate_pose` on the whole frames at
+    ``scratch_label_scale`` (:mod:`.tracking_scratch`).
 
     Attributes:
         roi_margin_px: frame pixels added on each side of the box of the model projected at the last
@@ -65,7 +66,7 @@ class TrackingOptions:
             :func:`~histostudy.learning.tracking_segmenter`, the U-Net trained at input scale 0.25;
             loaded with its SHA-256 checked) or a :class:`~histostudy.learning.UNetSegmenter`. The
             regions' labels are then at its input scale (``label_scale`` None). From-scratch estimates
-            (the first update, re-acquisitions) keep the tracker's segmenter on the full frames. It
+            (the first update, re-acquisitions) keep the tracker's segmenter on the whole frames. It
             replaces a U-Net only: with another segmenter (an oracle) the tracker refuses it.
         rescue_scale: the label scale of a second warm attempt after a refused first one (1, 1/2,
             ...; 1: the detector's pixels, the grid of :func:`~.estimate.estimate_pose`'s verdict),
@@ -82,6 +83,17 @@ class TrackingOptions:
             next update first tries a warm start from that pose, and estimates from scratch only if
             that is refused too. Such poses lay within about 1 mm of the truth on the physical
             transducer, where a refused estimate from scratch costs 3-14 s; False: from scratch at once.
+        scratch_label_scale: label pixels per frame pixel of the from-scratch estimates (the first
+            update, re-acquisitions after a lost track): :func:`~.estimate.estimate_pose` on the
+            whole frames at this scale, every pixel threshold scaled, the searches on
+            ``init_points_per_class`` times the scale points per class and the rest on a model of
+            ``refine_points_per_class`` points per class (:class:`~.tracking_scratch.ScratchEstimator`);
+            a pose its verdict refuses is refined and judged again on the full frames, then estimated
+            from scratch there. None (default): a U-Net's input scale (0.5 for the shipped one: its
+            arg-max at the network's resolution; 0.4 of the seconds of the full frames, with the same
+            acceptance and focal errors: docs/tracking.md, "From scratch in under a second"), 1
+            for other segmenters. 1: ``estimate_pose`` on the full frames, as before. Below 1, 1/k of
+            a U-Net's input scale (its labels pooled by priority).
     """
 
     roi_margin_px: float = 48.0
@@ -95,11 +107,12 @@ class TrackingOptions:
     network: object = None
     rescue_scale: float | None = 1.0
     resume_refused: bool = True
+    scratch_label_scale: float | None = None
 
     def __post_init__(self):
         if not (_is_number(self.roi_margin_px) and np.isfinite(self.roi_margin_px) and self.roi_margin_px >= 0):
             raise ValueError(f"roi_margin_px must be a finite number >= 0 (frame pixels), got {self.roi_margin_px!r}")
-        for name in ("label_scale", "rescue_scale"):
+        for name in ("label_scale", "rescue_scale", "scratch_label_scale"):
             s = getattr(self, name)
             if s is None:
                 continue

@@ -1,0 +1,269 @@
+"""The tracker's fast from-scratch estimate (``Tracker(..., fast=True)``: its first update and its
+re-acquisitions after a lost track; §II-B.2-4, docs/tracking.md "From scratch in under a second"):
+:class:`ScratchEstimator`.
+
+:func:`~.estimate.estimate_pose` itself, run on the frames at the label scale ``s`` (0.5: the
+shipped U-Net's own resolution) instead of the detector's:
+
+1. **labels**: the U-Net's arg-max at its input scale over the whole frame
+   (:meth:`~histostudy.learning.FastUNet.segment_region`; no upsampling of the six logit channels
+   to 960 x 1240), pooled by priority below it; any other segmenter's full-resolution labels pooled
+   to ``s`` (:func:`~histostudy.learning.pool_labels`). The two views are segmented on two threads
+   with ``TrackingOptions.parallel_views``.
+2. **views**: each view cropped to the whole detector at ``s`` (:func:`~.tracking_roi.crop_view`,
+   ``u' = s u + (s - 1) / 2``, the pixel-centre convention of ``View.scaled``), with the frame's
+   image averaged over ``1/s x 1/s`` blocks, so that each scaled frame is a consistent frame of its
+   view. Pixel ``(i, j)`` of the labels is pixel ``(i, j)`` of the scaled view.
+3. **options**: every pixel threshold of :class:`~.options.PoseOptions` multiplied by ``s``
+   (:func:`scaled_pose_options`), so it keeps its length on the detector, as
+   :class:`~.tracking_warm.RegionEstimator` does for the warm regions.
+4. **points**: the digital model cut to ``TrackingOptions.refine_points_per_class`` points per
+   class (drawn once, seeded, when the estimator is made; the warm refinement's count): the
+   refinement and the verdict's unexplained-segmentation check run on it (41 000 points of the
+   0.47 mm model instead of 166 000). The grid and axial searches use ``init_points_per_class``
+   times ``s`` points per class (750 at 0.5): a class's features span ``s`` times the label pixels,
+   and the same points per label pixel rank the grid nodes alike (36 of 36 rendered pairs accepted
+   at the first step, focal errors as the full frames': docs/tracking.md).
+5. **orientation**: :class:`~.conic_orientation.ConicOrientation` reads the ellipse in the scaled
+   labels, with its pixel thresholds scaled (RANSAC tolerance, fewest pixels, thinnest ellipse);
+   where a view shows no usable ellipse its fallback (the VGG19) reads the full-resolution frame as
+   it was trained to. Another orientation source reads the full frame.
+
+Distance maps, orientation, searches, refinement and verdict then work on a quarter of the pixels.
+The stages and their order are ``estimate_pose``'s. A pose its verdict refuses is refined and judged
+again on the full frames, and only then estimated there from scratch, with ``estimate_pose``'s
+retries (:meth:`ScratchEstimator.estimate`). :func:`~.estimate.estimate_pose` itself is unchanged,
+so the study's numbers do not move. Poses are 4x4
+``T_carm_transducer`` (mm, C-arm frame); random draws come from the tracker's Generator
+(docs/architecture.md, "Seeding and determinism").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from concurrent.futures import ThreadPoolExecutor
+from typing import Sequence
+
+import cv2
+import numpy as np
+
+from histostudy.imaging import Frame, View
+from histostudy.learning import FastUNet, direction_candidates, pool_labels
+from histostudy.transducer import TransducerModel, check_label_image
+from .conic_orientation import ConicOrientation
+from .estimate import estimate_pose
+from .options import PoseOptions
+from .result import PoseResult
+from .tracking_options import TrackingOptions
+from .tracking_roi import crop_view
+
+__all__ = ["ScratchEstimator", "scaled_pose_options", "scratch_estimator"]
+
+#: The :class:`PoseOptions` fields that are lengths in detector pixels, multiplied by the label scale
+#: by :func:`scaled_pose_options`.
+PIXEL_OPTIONS = ("outside_distance_px", "search_truncation_px", "coarse_truncation_px", "max_rms_px",
+                 "refine_truncation_px", "verdict_truncation_px", "max_body_rms_px")
+
+
+def scaled_pose_options(options: PoseOptions, scale: float) -> PoseOptions:
+    """``options`` with every pixel threshold (:data:`PIXEL_OPTIONS`, those not None) multiplied by
+    ``scale`` (label pixels per frame pixel), so that each keeps its length on the detector."""
+    if not isinstance(options, PoseOptions):
+        raise TypeError(f"options must be a histostudy.pose.PoseOptions, got {type(options).__name__}")
+    s = float(scale) if not isinstance(scale, bool) else float("nan")
+    if not (np.isfinite(s) and 0 < s <= 1):
+        raise ValueError(f"scale must be a number in (0, 1] (label pixels per frame pixel), got {scale!r}")
+    return dataclasses.replace(options, **{name: getattr(options, name) * s for name in PIXEL_OPTIONS
+                                           if getattr(options, name) is not None})
+
+
+class _Labels:
+    """A segmenter that returns labels made beforehand, for the scaled frames they belong to."""
+
+    def __init__(self, by_frame: dict):
+        self._by_frame = by_frame
+
+    def segment(self, frame: Frame, rng=None) -> np.ndarray:
+        return self._by_frame[id(frame)]
+
+
+class _ScaledOrientation:
+    """An orientation source for the scaled frames (module docstring, 5): per scaled frame, the
+    conic with scaled thresholds on its labels, or the fallback (any other source) on the full frame."""
+
+    def __init__(self, orientation, by_frame: dict):
+        self.orientation, self._by_frame = orientation, by_frame  # id(scaled frame) -> (full frame, conic)
+
+    def direction_candidates_from_labels(self, frame: Frame, labels, rng: np.random.Generator, maps=None) -> np.ndarray:
+        full, conic = self._by_frame[id(frame)]
+        source = self.orientation
+        if conic is not None:
+            fit = conic.fit(labels, frame.view, rng, maps)
+            if fit is not None:
+                return fit.directions
+            source = conic.fallback
+            if source is None:
+                raise ValueError(f"view {frame.view.name!r}: no usable inner-boundary ellipse and no fallback "
+                                 f"orientation source")
+        return direction_candidates(*source.estimate(full, rng), full.view)
+
+
+def _scaled_conic(conic: ConicOrientation, full_view: View, scale: float) -> ConicOrientation:
+    """``conic`` with its pixel thresholds for ``full_view`` at the label scale: the RANSAC tolerance
+    and the thinnest ellipse times ``scale``, the fewest pixels times ``scale**2`` (a band's pixel
+    count scales with its length and its width)."""
+    tolerance = conic.tolerance_px if conic.tolerance_px is not None else conic._tolerance_px(full_view)
+    return dataclasses.replace(
+        conic, tolerance_px=tolerance * scale,
+        min_minor_axis_px=None if conic.min_minor_axis_px is None else conic.min_minor_axis_px * scale,
+        min_pixels=max(6, math.ceil(conic.min_pixels * scale * scale)))
+
+
+class ScratchEstimator:
+    """From-scratch pose estimates at a label scale (module docstring).
+
+    Args:
+        model: the digital model of eq. 3.
+        views: the full-frame views, in the order of the frames; their rows and columns must be
+            multiples of ``1 / scale``.
+        segmenter: a :class:`~histostudy.learning.FastUNet` (its arg-max at its input scale) or any
+            segmenter (``segment(frame, rng)``, full-resolution labels).
+        orientation: the orientation source of :func:`~.estimate.estimate_pose`.
+        options: the :class:`PoseOptions` of the estimates, in frame pixels (scaled here).
+        tracking: the :class:`TrackingOptions` (``parallel_views``, ``refine_points_per_class``).
+        scale: label pixels per frame pixel (1/k < 1); with a U-Net, its input scale divided by an
+            integer.
+        rng: draws the model's point subset once, here.
+
+    Attributes:
+        scale: the label scale; views: the scaled views.
+        last_step: which step of :meth:`estimate` gave its last result (None before one).
+    """
+
+    def __init__(self, model: TransducerModel, views: Sequence[View], segmenter, orientation, options: PoseOptions,
+                 tracking: TrackingOptions, scale: float, rng: np.random.Generator):
+        s = float(scale)
+        k = int(round(1.0 / s)) if np.isfinite(s) and s > 0 else 0
+        if k < 2 or abs(k * s - 1.0) > 1e-9:
+            raise ValueError(f"scale must be 1/k for an integer k >= 2 (0.5, 0.25, ...), got {scale!r}")
+        if isinstance(segmenter, FastUNet):
+            ratio = segmenter.scale / s
+            if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+                raise ValueError(f"scratch_label_scale {scale!r} must be the U-Net's input scale {segmenter.scale} "
+                                 f"divided by an integer (its labels are pooled), or 1")
+        for i, v in enumerate(views):
+            if v.shape[0] % k or v.shape[1] % k:
+                raise ValueError(f"views[{i}] shape {v.shape} is not divisible by 1/scratch_label_scale = {k}")
+        self.scale, self._k = s, k
+        self.segmenter, self.orientation = segmenter, orientation
+        # Step 1 (estimate) runs without retries: a refused pose is tried on the full frames instead.
+        # The searches' points per class scale with the label grid: each class's features span
+        # ``s`` times the label pixels, so ``s`` times the points keep their density per pixel.
+        self.options = dataclasses.replace(scaled_pose_options(options, s), retry_hypotheses=False,
+                                           raise_on_failure=False,
+                                           init_points_per_class=max(1, round(options.init_points_per_class * s)))
+        self.full_options, self.full_model = options, model
+        self.last_step: str | None = None
+        self.full_views = tuple(views)
+        self.views = tuple(crop_view(v, (0, v.shape[0], 0, v.shape[1]), s) for v in views)
+        # made once: each keeps its own cache of model points
+        self._conics = tuple(_scaled_conic(orientation, v, s) if isinstance(orientation, ConicOrientation) else None
+                             for v in views)
+        n = tracking.refine_points_per_class
+        chosen = {f: _subset_indices(len(p), n, rng) for f, p in model.points.items()}
+        self.model = dataclasses.replace(model, points={f: model.points[f][i] for f, i in chosen.items()},
+                                         weights={f: model.weights[f][i] for f, i in chosen.items()})
+        threads = tracking.parallel_views and isinstance(segmenter, FastUNet) and len(views) > 1
+        self._pool = ThreadPoolExecutor(max_workers=len(views)) if threads else None
+
+    def _labels(self, frame: Frame, rng) -> np.ndarray:
+        """The whole frame's labels at the label scale (before the largest component is kept)."""
+        if isinstance(self.segmenter, FastUNet):
+            labels = self.segmenter.segment_region(frame, (0, frame.shape[0], 0, frame.shape[1]))
+            ratio = self.scale / self.segmenter.scale
+        else:
+            labels = check_label_image(self.segmenter.segment(frame, rng), frame.shape,
+                                       f"the segmentation of view {frame.view.name!r}")
+            ratio = self.scale
+        return np.ascontiguousarray(pool_labels(labels, ratio) if ratio != 1.0 else labels, dtype=np.uint8)
+
+    def _scaled_frame(self, frame: Frame, view: View) -> Frame:
+        # INTER_AREA on an integer factor is the mean of each k x k block
+        image = cv2.resize(frame.image, (view.shape[1], view.shape[0]), interpolation=cv2.INTER_AREA)
+        return Frame(image, view)
+
+    def estimate(self, frames: Sequence[Frame], rng: np.random.Generator) -> PoseResult:
+        """The pose in ``frames`` (one per view, in order) from scratch (module docstring), in up to
+        three steps, each run only when the verdict refused the one before (:attr:`last_step` says
+        which gave the result):
+
+        1. ``"scaled"``: :func:`~.estimate.estimate_pose` at the label scale, without its retries;
+        2. ``"full_frame_warm"``: ``estimate_pose`` on the full frames from that pose
+           (``initial_pose=``; the tracker's full-frame warm start). On the 0.5 grid the verdict's
+           view agreement reads higher than on the detector's pixels, and refused 2 of 24 poses of
+           notebook 04's distribution that it accepts there (docs/tracking.md);
+        3. ``"full_frame"``: ``estimate_pose`` on the full frames from scratch, retries included
+           (the path before this module).
+
+        ``result.labels`` are the labels of the step that gave it (scaled ones for step 1). Its
+        ``timings_s`` sum the stages of every step run, ``["total"]`` their wall seconds. Raises
+        as ``estimate_pose`` does (a view without a feature)."""
+        t_start = time.perf_counter()
+        if len(frames) != len(self.views):
+            raise ValueError(f"frames must hold one frame per view ({len(self.views)}), got {len(frames)}")
+        if self._pool is not None:
+            labels = list(self._pool.map(lambda f: self._labels(f, rng), frames))
+        else:
+            labels = [self._labels(f, rng) for f in frames]
+        scaled = [self._scaled_frame(f, v) for f, v in zip(frames, self.views)]
+        seconds = time.perf_counter() - t_start
+        result = estimate_pose(scaled, self.model, segmenter=_Labels({id(f): lab for f, lab in zip(scaled, labels)}),
+                               orientation=_ScaledOrientation(self.orientation, {
+                                   id(f): (full, conic) for f, full, conic in zip(scaled, frames, self._conics)}),
+                               rng=rng, options=self.options)
+        result.timings_s["segmentation"] += seconds
+        self.last_step, timings = "scaled", dict(result.timings_s)
+        if not result.verdict.ok:
+            first = result
+            full = dict(model=self.full_model, segmenter=self.segmenter, orientation=self.orientation, rng=rng)
+            result = estimate_pose(frames, initial_pose=first.T_carm_transducer, **full,
+                                   options=dataclasses.replace(self.full_options, raise_on_failure=False))
+            result.init, self.last_step = first.init, "full_frame_warm"
+            result.evaluations += first.evaluations
+            _add_timings(timings, result.timings_s)
+            if not result.verdict.ok:
+                result = estimate_pose(frames, **full, options=self.full_options)
+                self.last_step = "full_frame"
+                _add_timings(timings, result.timings_s)
+        timings["total"] = time.perf_counter() - t_start
+        result.timings_s = timings
+        return result
+
+
+def _add_timings(into: dict, timings: dict) -> None:
+    for stage, seconds in timings.items():
+        into[stage] = into.get(stage, 0.0) + float(seconds)
+
+
+def _subset_indices(n_points: int, n: int | None, rng: np.random.Generator) -> np.ndarray:
+    if n is None or n_points <= n:
+        return np.arange(n_points)
+    return np.sort(rng.choice(n_points, size=int(n), replace=False))
+
+
+def scratch_estimator(model: TransducerModel, views: Sequence[View], segmenter, orientation, options: PoseOptions,
+                      tracking: TrackingOptions, rng: np.random.Generator) -> ScratchEstimator | None:
+    """The :class:`ScratchEstimator` of a fast tracker at ``tracking.scratch_label_scale``, or None
+    where that scale is 1 (the tracker then runs :func:`~.estimate.estimate_pose` on the full frames).
+
+    ``segmenter``: what the tracker segments full frames with (a
+    :class:`~histostudy.learning.FastUNet` for a U-Net). None as the scale: the U-Net's input scale,
+    1 for any other segmenter. Draws from ``rng`` only when an estimator is made."""
+    s = tracking.scratch_label_scale
+    if s is None:
+        s = segmenter.scale if isinstance(segmenter, FastUNet) else 1.0
+    if abs(float(s) - 1.0) < 1e-12:
+        return None
+    return ScratchEstimator(model, views, segmenter, orientation, options, tracking, s, rng)
