@@ -8,15 +8,16 @@ The lab-like dataset the project generates to stand in for a lab's files is the 
 (:mod:`histostudy.study.lab_dataset`).
 """
 
-from . import (pairing as _pairing, receiver as _receiver, sender as _sender, workflow as _workflow,
-               xray_objects as _xray_objects)
+from . import (pairing as _pairing, receiver as _receiver, receiver_counts as _receiver_counts, sender as _sender,
+               workflow as _workflow, xray_objects as _xray_objects)
 from .pairing import BiplanePairer, DEFAULT_FRAME_INTERVAL_S, Pairing, PlaneFrame, frame_times, posix_seconds
 from .receiver import FrameReceiver, listen
+from .receiver_counts import COUNT_KEYS, ReceiverCounts
 from .sender import SentObject, send_frames, stream_frames
 from .workflow import (TargetingPlan, accepted_stations, calibrate_from_poses, execute_targeting, load_flange_poses,
                        load_pose_record, plan_targeting)
 from .xray_objects import REJECTION_STATUSES, ReceivedFrame, X_RAY_SOP_CLASSES, XRayObjectRejected, decode_xray_object
 
 # every public name of the modules above, as each module's __all__ declares it
-__all__ = list(dict.fromkeys([*_pairing.__all__, *_receiver.__all__, *_sender.__all__, *_workflow.__all__,
-                              *_xray_objects.__all__]))
+__all__ = list(dict.fromkeys([*_pairing.__all__, *_receiver.__all__, *_receiver_counts.__all__, *_sender.__all__,
+                              *_workflow.__all__, *_xray_objects.__all__]))
