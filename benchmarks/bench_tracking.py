@@ -33,7 +33,9 @@ updates after the first, re-acquisitions included), the median seconds per stage
 the ratio to the baseline, the losses and re-acquisitions, each frame's focal error against the
 truth and the difference fast - baseline; from-scratch seconds per pair (median, the ratio fast /
 fast-full, per stage), acceptance and focal errors. Torch, numba and OpenCV
-run on ``--threads`` (2) threads; the load average before and after says how busy the machine was.
+run on ``--threads`` (2) threads (torch on ``--torch-threads`` where given: with ``parallel_views`` each
+view's convolutions then run on that many threads at once); the load average before and after says
+how busy the machine was.
 
 Run: ``python benchmarks/bench_tracking.py [--frames 12] [--seed 5] [--threads 2] [--scratch 2] [--scratch-poses 0]``.
 """
@@ -132,6 +134,8 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=12)
     parser.add_argument("--seed", type=int, default=5)
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--torch-threads", type=int, default=None,
+                        help="torch's intra-op threads (default: --threads)")
     parser.add_argument("--step-mm", type=float, default=0.5)
     parser.add_argument("--step-deg", type=float, default=0.2)
     parser.add_argument("--scratch", type=int, default=2, help="later frames also timed from scratch")
@@ -142,14 +146,14 @@ def main() -> None:
                         help="also track with TrackingOptions(network=NAME), the shipped U-Net trained for tracking "
                              "(warm regions at its input scale; '' leaves it out)")
     args = parser.parse_args()
-    torch.set_num_threads(args.threads)
+    torch.set_num_threads(args.threads if args.torch_threads is None else args.torch_threads)
     numba.set_num_threads(args.threads)
     cv2.setNumThreads(args.threads)
 
     t0 = time.perf_counter()
     poses, frames, physical, views = cine(args.frames, args.seed, args.step_mm, args.step_deg)
     print(f"rendered {args.frames} biplane pairs ({views[0].shape[0]}x{views[0].shape[1]}) in "
-          f"{time.perf_counter() - t0:.0f} s; torch/numba/OpenCV threads = {args.threads}; "
+          f"{time.perf_counter() - t0:.0f} s; torch/numba/OpenCV threads = {torch.get_num_threads()}/{args.threads}/{args.threads}; "
           f"load average before: {os.getloadavg()[0]:.2f}")
     model = TransducerModel.build(spacing_mm=0.47)
     segmenter, orientation = default_stages()
