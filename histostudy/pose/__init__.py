@@ -10,13 +10,14 @@ and its default learned stages (``learned_stages``); :class:`Tracker`, which fol
 through a stream of frames, warm-starting each estimate from the last (``tracker``), and its fast
 warm path on the region where the last pose projects: the region and its view (``tracking_roi``),
 its distance maps in reused buffers (``tracking_maps``), the warm estimate (``tracking_warm``), the
-fast from-scratch estimate at the label scale (``tracking_scratch``) and its options (``tracking_options``).
+fast from-scratch estimate at the label scale (``tracking_scratch``), its options (``tracking_options``)
+and the frame pairs it accepts (``tracking_input``).
 """
 
 from . import (conic as _conic, conic_orientation as _conic_orientation, cost as _cost, distance_maps as _distance_maps,
                estimate as _estimate, from_files as _from_files, init as _init, learned_stages as _learned_stages,
                options as _options, perturbation as _perturbation, refine as _refine, result as _result,
-               silhouette as _silhouette, tracker as _tracker, tracking_maps as _tracking_maps,
+               silhouette as _silhouette, tracker as _tracker, tracking_input as _tracking_input, tracking_maps as _tracking_maps,
                tracking_options as _tracking_options, tracking_roi as _tracking_roi,
                tracking_scratch as _tracking_scratch, tracking_warm as _tracking_warm,
                verdict as _verdict)
@@ -37,6 +38,7 @@ from .refine import RefineResult, refine_levenberg_marquardt, refine_nelder_mead
 from .result import PoseEstimationError, PoseResult
 from .silhouette import SILHOUETTE_CELL_PX, segmented_occupancy, silhouette_candidates, silhouette_seed
 from .tracker import Tracker
+from .tracking_input import frames_for_views
 from .tracking_maps import RegionMaps
 from .tracking_options import TrackingOptions
 from .tracking_roi import RegionOfInterest, crop_view, region_of_interest
@@ -49,7 +51,7 @@ from .verdict import (PoseVerdict, check_unexplained, check_view_agreement, judg
 __all__ = list(dict.fromkeys([*_conic.__all__, *_conic_orientation.__all__, *_cost.__all__, *_distance_maps.__all__,
                               *_estimate.__all__, *_from_files.__all__, *_init.__all__, *_learned_stages.__all__,
                               *_options.__all__, *_perturbation.__all__, *_refine.__all__, *_result.__all__,
-                              *_silhouette.__all__, *_tracker.__all__, *_tracking_maps.__all__,
+                              *_silhouette.__all__, *_tracker.__all__, *_tracking_input.__all__, *_tracking_maps.__all__,
                               *_tracking_options.__all__, *_tracking_roi.__all__, *_tracking_scratch.__all__,
                               *_tracking_warm.__all__,
                               *_verdict.__all__]))

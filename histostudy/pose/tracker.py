@@ -43,6 +43,7 @@ from .estimate import estimate_pose
 from .learned_stages import default_stages
 from .options import PoseOptions
 from .result import PoseEstimationError, PoseResult
+from .tracking_input import frames_for_views
 from .tracking_options import TrackingOptions
 from .tracking_scratch import scratch_estimator
 from .tracking_warm import RegionEstimator
@@ -237,7 +238,7 @@ class Tracker:
                 a failed verdict with ``options.raise_on_failure``.
         """
         t_start = time.perf_counter()
-        frames = self._check_frames(frames)
+        frames = frames_for_views(frames, self.views)
         return self._update(frames, None, t_start)
 
     def track(self, pairs: Iterable, *, ready: Callable[[], bool] | None = None) -> Iterator[PoseResult]:
@@ -274,7 +275,7 @@ class Tracker:
             if item is _END:
                 return _END
             try:
-                return self._check_frames(item)
+                return frames_for_views(item, self.views)
             except ValueError as exc:
                 return _BadPair(exc)
 
@@ -411,44 +412,3 @@ class Tracker:
         for stage, seconds in result.timings_s.items():
             self.stage_seconds[stage] = self.stage_seconds.get(stage, 0.0) + float(seconds)
         return result
-
-    def _check_frames(self, frames) -> list[Frame]:
-        """``frames`` as one :class:`Frame` per view, or a ValueError naming the bad one."""
-        names = ", ".join(repr(v.name) for v in self.views)
-        if isinstance(frames, Frame) or (isinstance(frames, np.ndarray) and frames.ndim < 3) \
-                or isinstance(frames, (str, bytes)):
-            raise ValueError(f"frames must be a sequence of one frame per view ({len(self.views)}: {names}), "
-                             f"got a single {type(frames).__name__}")
-        try:
-            frames = list(frames)
-        except TypeError:
-            raise ValueError(f"frames must be a sequence of one frame per view ({len(self.views)}: {names}), "
-                             f"got {type(frames).__name__}") from None
-        if len(frames) != len(self.views):
-            raise ValueError(f"frames must hold one frame per view, {len(self.views)} ({names}), got {len(frames)}")
-        out = []
-        for i, (f, view) in enumerate(zip(frames, self.views)):
-            if isinstance(f, Frame):
-                if f.shape != view.shape or not _same_projection(f.view, view):
-                    raise ValueError(f"frames[{i}] was taken with view {f.view!r}, not with views[{i}] = {view!r} "
-                                     "(the tracker's views, in order)")
-                out.append(f)
-                continue
-            image = np.asarray(f)
-            if image.ndim != 2 or not np.issubdtype(image.dtype, np.number):
-                raise ValueError(f"frames[{i}] must be a Frame or a 2-D numeric array of line integrals of view "
-                                 f"{view.name!r}'s shape {view.shape}, got shape {image.shape} dtype {image.dtype}")
-            if image.shape != view.shape:
-                raise ValueError(f"frames[{i}] has shape {image.shape}; view {view.name!r} (views[{i}]) expects "
-                                 f"{view.shape}")
-            try:
-                out.append(Frame(image, view))
-            except ValueError as exc:
-                raise ValueError(f"frames[{i}]: {exc}") from None
-        return out
-
-
-def _same_projection(a: View, b: View) -> bool:
-    """True when two views' 3x4 matrices agree up to their (positive) scale."""
-    Pa, Pb = a.P / np.linalg.norm(a.P), b.P / np.linalg.norm(b.P)
-    return bool(np.allclose(Pa, Pb, rtol=0.0, atol=1e-9))
