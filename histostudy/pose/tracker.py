@@ -45,7 +45,7 @@ from .options import PoseOptions
 from .result import PoseEstimationError, PoseResult
 from .tracking_input import frames_for_views
 from .tracking_options import TrackingOptions
-from .tracking_scratch import scratch_estimator
+from .tracking_scratch import _add_timings, scratch_estimator
 from .tracking_warm import RegionEstimator
 
 __all__ = ["Tracker"]
@@ -378,7 +378,7 @@ class Tracker:
             return self._estimate(frames, T_start)
         if prepared is None:
             prepared = region.prepare(frames, T_start, self.rng, slot)
-        result = self._add_timings(region.finish(prepared, T_start))
+        result = self._count_stage_seconds(region.finish(prepared, T_start))
         if result.verdict.ok or region.rescue_scale is None:
             return result
         # The verdict's statistics read high on the coarse label grid (docs/tracking.md, "Warm
@@ -386,29 +386,24 @@ class Tracker:
         # which costs ten warm updates.
         self.n_rescue_attempts += 1
         rescued = region.prepare_rescue(prepared, self.rng)
-        second = self._add_timings(region.finish(rescued, result.T_carm_transducer))
+        second = self._count_stage_seconds(region.finish(rescued, result.T_carm_transducer))
         self.n_rescued += bool(second.verdict.ok)
         return second
 
-    def _add_timings(self, result: PoseResult) -> PoseResult:
-        for stage, seconds in result.timings_s.items():
-            self.stage_seconds[stage] = self.stage_seconds.get(stage, 0.0) + float(seconds)
+    def _count_stage_seconds(self, result: PoseResult) -> PoseResult:
+        _add_timings(self.stage_seconds, result.timings_s)
         return result
 
-    def _estimate(self, frames: list[Frame], initial_pose, prepared=None, slot: int = 0) -> PoseResult:
-        if initial_pose is not None and self._region is not None:
-            if prepared is None:
-                prepared = self._region.prepare(frames, initial_pose, self.rng, slot)
-            result = self._region.finish(prepared, initial_pose)
-        elif initial_pose is None and self._scratch is not None:
-            result = self._scratch.estimate(frames, self.rng)
-        else:
-            # With ``fast``, a U-Net segments the full frames through FastUNet.segment: its labels
-            # (the checkpoint's upsampled arg-max, computed along the label edges only) in a
-            # fraction of the time.
-            segmenter = self.segmenter if self._region is None else self._region.full_frame_segmenter
-            result = estimate_pose(frames, self.model, segmenter=segmenter, orientation=self.orientation,
-                                   rng=self.rng, initial_pose=initial_pose, options=self._estimate_options)
-        for stage, seconds in result.timings_s.items():
-            self.stage_seconds[stage] = self.stage_seconds.get(stage, 0.0) + float(seconds)
-        return result
+    def _estimate(self, frames: list[Frame], initial_pose) -> PoseResult:
+        """An estimate on the whole frames: from scratch (``initial_pose`` None; at the label scale where
+        there is a :class:`~.tracking_scratch.ScratchEstimator`), or warm from ``initial_pose`` without
+        ``fast`` (:meth:`_warm` runs the fast warm path itself)."""
+        if initial_pose is None and self._scratch is not None:
+            return self._count_stage_seconds(self._scratch.estimate(frames, self.rng))
+        # With ``fast``, a U-Net segments the full frames through FastUNet.segment: its labels
+        # (the checkpoint's upsampled arg-max, computed along the label edges only) in a
+        # fraction of the time.
+        segmenter = self.segmenter if self._region is None else self._region.full_frame_segmenter
+        return self._count_stage_seconds(estimate_pose(frames, self.model, segmenter=segmenter, orientation=self.orientation,
+                                               rng=self.rng, initial_pose=initial_pose,
+                                               options=self._estimate_options))

@@ -58,6 +58,7 @@ from .options import PoseOptions
 from .result import PoseResult
 from .tracking_options import TrackingOptions
 from .tracking_roi import crop_view
+from .tracking_warm import _subset_indices
 
 __all__ = ["ScratchEstimator", "scaled_pose_options", "scratch_estimator"]
 
@@ -243,14 +244,9 @@ class ScratchEstimator:
 
 
 def _add_timings(into: dict, timings: dict) -> None:
+    """Adds each stage's seconds of ``timings`` to ``into`` (a ``PoseResult.timings_s``-like dict)."""
     for stage, seconds in timings.items():
         into[stage] = into.get(stage, 0.0) + float(seconds)
-
-
-def _subset_indices(n_points: int, n: int | None, rng: np.random.Generator) -> np.ndarray:
-    if n is None or n_points <= n:
-        return np.arange(n_points)
-    return np.sort(rng.choice(n_points, size=int(n), replace=False))
 
 
 def scratch_estimator(model: TransducerModel, views: Sequence[View], segmenter, orientation, options: PoseOptions,

@@ -87,10 +87,16 @@ class _RegionFrame:
     view: View
 
 
+def _subset_indices(n_points: int, n: int | None, rng: np.random.Generator) -> np.ndarray:
+    """Sorted indices of ``n`` of ``n_points`` points drawn without replacement (all of them where
+    ``n`` is None or not below ``n_points``; nothing drawn then)."""
+    if n is None or n_points <= n:
+        return np.arange(n_points)
+    return np.sort(rng.choice(n_points, size=int(n), replace=False))
+
+
 def _subset(points: np.ndarray, n: int | None, rng: np.random.Generator) -> np.ndarray:
-    if n is None or len(points) <= n:
-        return points
-    return points[np.sort(rng.choice(len(points), size=int(n), replace=False))]
+    return points if n is None or len(points) <= n else points[_subset_indices(len(points), n, rng)]
 
 
 def _tracking_network(network, segmenter) -> UNetSegmenter:
