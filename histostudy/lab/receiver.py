@@ -26,15 +26,8 @@ The chain, per object:
    (counted as skipped), so the poses follow a stream that outpaces them at most that many pairs
    (and, with ``pipeline``, the one taken ahead) behind.
 
-Each JSON line holds the fields of :func:`histostudy.pose.pose_record` (``T_carm_transducer`` 4x4
-in mm, C-arm/CBCT frame; ``focal_point_mm``; ``cost``; ``accepted`` and the ``verdict``;
-``timings_s`` per stage) and the pair's ``pair_index``, ``planes``, ``instance_uids``,
-``frame_indices``, ``frame_times`` (ISO 8601), ``tracking`` (``from_scratch``, ``warm`` or
-``reacquired``) and ``seconds`` (``decode``; ``queue``, from queued to taken by the tracker;
-``pose``, the worker's time on it since the previous line or since it was taken, whichever is later:
-the lines' ``pose`` seconds sum to the worker's busy time; ``latency`` from the pair's last frame
-received to its line written). A pair whose pose work raised gets a line with ``accepted`` false
-and ``error``. Lines are appended and flushed one by one.
+Each pair's JSON line (:func:`.pose_lines.pose_line`: the pose, or the error its pose work raised,
+and where and when the pair came from) is appended and flushed one by one.
 
 Rejections: the C-STORE failure status of :mod:`.xray_objects` (``0x0122`` not an X-ray image,
 ``0xA900`` unreadable as one, ``0xC000`` unusable; :data:`.xray_objects.REJECTION_STATUSES`), or
@@ -61,17 +54,17 @@ import time
 from pathlib import Path
 from typing import Callable, Sequence
 
-from histostudy.core import to_jsonable
 from histostudy.imaging import View
-from histostudy.pose import Tracker, pose_record
+from histostudy.pose import Tracker
 from histostudy.transducer import TransducerModel
 from .pairing import DEFAULT_FRAME_INTERVAL_S, BiplanePairer, PlaneFrame
+from .pose_lines import pose_line
 from .receiver_counts import ReceiverCounts
 from .sender import check_ae_title, check_count, check_host, check_port, check_positive
 from .xray_objects import (STATUS_OUT_OF_RESOURCES, STATUS_SUCCESS, XRayObjectRejected,
                            decode_c_store, rejection_response)
 
-__all__ = ["FrameReceiver", "listen"]
+__all__ = ["FrameReceiver"]
 
 log = logging.getLogger(__name__)
 
@@ -381,19 +374,9 @@ class FrameReceiver:
         """Write the line of ``entry`` (its result, or the ``error`` its pose raised), count it, call
         ``on_pose``; returns when done."""
         index, frames, queued_at, taken_at = entry
-        t1 = time.perf_counter()
-        ids = [f"{f.instance_uid}[{f.frame_index}]" for f in frames]
-        record = {"pair_index": index, "planes": [f.view.name for f in frames],
-                  "instance_uids": [f.instance_uid for f in frames], "frame_indices": [f.frame_index for f in frames],
-                  "frame_times": [f.acquired.isoformat() for f in frames]}
-        if error is None:
-            record.update({**pose_record(result, ids), "tracking": self.tracker.last_kind})
-        else:
-            record.update({"frames": ids, "accepted": False, "error": f"{type(error).__name__}: {error}",
-                           "tracking": None})
-        record["seconds"] = {"decode": sum(f.decode_s for f in frames), "queue": taken_at - queued_at,
-                             "pose": t1 - max(taken_at, t_free), "latency": t1 - max(f.received_at for f in frames)}
-        record = to_jsonable(record)
+        record = pose_line(index, frames, queued_at, taken_at, result=result, error=error,
+                           tracking=None if error is not None else self.tracker.last_kind, t_free=t_free,
+                           t_written=time.perf_counter())
         try:
             self._out.write(json.dumps(record) + "\n")
             self._out.flush()
@@ -419,27 +402,3 @@ class FrameReceiver:
         with self._cv:
             return self._stats.stats(n_views=len(self.views), pairs_waiting=len(self._queue), port=self.port,
                                      now=time.perf_counter())
-
-
-def listen(views: Sequence[View], *, port: int = 11112, output_path: str | os.PathLike = "poses.jsonl",
-           host: str = "127.0.0.1", ae_title: str = "HISTOSTUDY", max_pairs: int | None = None,
-           timeout_s: float | None = None, model: TransducerModel | None = None, seed=0,
-           on_pose: Callable[[dict], object] | None = None, on_start: Callable[[int], object] | None = None,
-           **receiver_options) -> dict:
-    """Receive live C-arm frames and write a pose per biplane pair until Ctrl-C, ``max_pairs`` lines
-    or ``timeout_s`` seconds (what ``histostudy listen`` runs); returns :meth:`FrameReceiver.stats`.
-
-    ``on_start(port)`` is called once listening (the bound port, useful with ``port=0``); the
-    other arguments are :class:`FrameReceiver`'s.
-    """
-    receiver = FrameReceiver(views, model, output_path=output_path, ae_title=ae_title, port=port, host=host,
-                             seed=seed, on_pose=on_pose, **receiver_options)
-    bound = receiver.start()
-    if on_start is not None:
-        try:
-            on_start(bound)
-        except BaseException:
-            receiver.stop(drain=False)
-            raise
-    return receiver.serve_forever(max_pairs=max_pairs, timeout_s=timeout_s)
-

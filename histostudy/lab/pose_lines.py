@@ -1,0 +1,45 @@
+"""The JSON line the pose receiver (:class:`.receiver.FrameReceiver`, §II-A) writes per biplane pair:
+:func:`pose_line`.
+
+Each JSON line holds the fields of :func:`histostudy.pose.pose_record` (``T_carm_transducer`` 4x4
+in mm, C-arm/CBCT frame; ``focal_point_mm``; ``cost``; ``accepted`` and the ``verdict``;
+``timings_s`` per stage) and the pair's ``pair_index``, ``planes``, ``instance_uids``,
+``frame_indices``, ``frame_times`` (ISO 8601), ``tracking`` (``from_scratch``, ``warm`` or
+``reacquired``) and ``seconds`` (``decode``; ``queue``, from queued to taken by the tracker;
+``pose``, the worker's time on it since the previous line or since it was taken, whichever is later:
+the lines' ``pose`` seconds sum to the worker's busy time; ``latency`` from the pair's last frame
+received to its line written). A pair whose pose work raised gets a line with ``accepted`` false
+and ``error``. Lines are appended and flushed one by one.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+from histostudy.core import to_jsonable
+from histostudy.pose import PoseResult, pose_record
+from .xray_objects import ReceivedFrame
+
+__all__ = ["pose_line"]
+
+
+def pose_line(index: int, frames: Sequence[ReceivedFrame], queued_at: float, taken_at: float, *,
+              result: PoseResult | None, error: BaseException | None, tracking: str | None, t_free: float,
+              t_written: float) -> dict:
+    """The JSON-ready line of pair ``index`` (module docstring): ``result``'s pose, or the ``error``
+    its pose work raised (``result`` then None). ``tracking``: the tracker's ``last_kind`` for the
+    result. Times are ``time.perf_counter`` seconds: ``queued_at`` / ``taken_at`` (the pair queued /
+    taken by the tracker), ``t_free`` (the worker's previous line written), ``t_written`` (now)."""
+    ids = [f"{f.instance_uid}[{f.frame_index}]" for f in frames]
+    record = {"pair_index": index, "planes": [f.view.name for f in frames],
+              "instance_uids": [f.instance_uid for f in frames], "frame_indices": [f.frame_index for f in frames],
+              "frame_times": [f.acquired.isoformat() for f in frames]}
+    if error is None:
+        record.update({**pose_record(result, ids), "tracking": tracking})
+    else:
+        record.update({"frames": ids, "accepted": False, "error": f"{type(error).__name__}: {error}",
+                       "tracking": None})
+    record["seconds"] = {"decode": sum(f.decode_s for f in frames), "queue": taken_at - queued_at,
+                         "pose": t_written - max(taken_at, t_free),
+                         "latency": t_written - max(f.received_at for f in frames)}
+    return to_jsonable(record)
