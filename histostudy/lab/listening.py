@@ -34,4 +34,9 @@ def listen(views: Sequence[View], *, port: int = 11112, output_path: str | os.Pa
         except BaseException:
             receiver.stop(drain=False)
             raise
-    return receiver.serve_forever(max_pairs=max_pairs, timeout_s=timeout_s)
+    try:
+        return receiver.serve_forever(max_pairs=max_pairs, timeout_s=timeout_s)
+    finally:
+        # serve_forever stops the receiver once it serves; a bad max_pairs or timeout_s raises before
+        # that, and the receiver started above must not be left listening with its worker running
+        receiver.stop(drain=False)

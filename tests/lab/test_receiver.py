@@ -14,6 +14,7 @@ import json
 import shutil
 import socket
 import subprocess
+import threading
 import time
 
 import numpy as np
@@ -223,8 +224,11 @@ def test_receiver_arguments_are_checked(views, tmp_path):
         FrameReceiver([views[0], views[0]], output_path=out)
     with pytest.raises(ValueError, match="output_path must be a file path"):
         FrameReceiver(views, output_path=None)
+    workers_before = {t for t in threading.enumerate() if t.name == "histostudy-pose-worker"}
     with pytest.raises(ValueError, match="max_pairs must be None or an integer >= 1"):
         listen(views, port=0, output_path=out, max_pairs=0)
+    # the receiver listen started is stopped again: no worker left waiting, nobody listening
+    assert {t for t in threading.enumerate() if t.name == "histostudy-pose-worker"} <= workers_before
     with pytest.raises(TypeError, match="unexpected keyword argument 'speed'"):
         FrameReceiver(views, output_path=out, speed=1)
     with pytest.raises(ValueError, match="pipeline must be True or False, got 'yes'"):
