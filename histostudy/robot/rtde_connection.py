@@ -12,7 +12,10 @@ What it guards against (observed with ur-rtde 1.6.5):
   watchdog thread (the client releases the GIL while it waits) and the connection is declared lost
   when the watchdog fires or the receive connection drops meanwhile;
 - a dropped interface keeps reconnecting in the background, and would attach to the next
-  controller on the same address: it is disconnected when given up.
+  controller on the same address: it is disconnected when given up;
+- the control interface reconnects on its own receive thread, and if that reconnection throws, the
+  C++ runtime terminates the whole process (SIGABRT; no Python handler runs). Nothing here can
+  catch it: two of about ten full test runs under load aborted so, in the test of a drop mid-move.
 
 Timeouts in seconds.
 """
@@ -134,7 +137,12 @@ class RTDEConnection:
             return  # disconnecting under a blocked call is unsafe; the objects stay referenced
         # A dropped interface keeps reconnecting in the background (it would attach to the next
         # controller on this address): disconnect it. This releases the GIL and takes ~0.5 s, so
-        # both interfaces are disconnected in parallel.
+        # both interfaces are disconnected in parallel. In parallel, not one after the other: after
+        # a drop the control interface's own thread reconnects (ur_rtde 1.6.5), and the later its
+        # disconnect comes, the likelier it races that. Measured on the simulated controller's
+        # drop mid-move: receive then control in turn crashed the process in 5 of 6 runs of
+        # tests/robot/test_robot_rtde.py, control then receive let the old control interface
+        # reconnect and take the arm over in 1 of 6; in parallel 0 of 35.
         workers = [
             threading.Thread(target=_quiet_disconnect, args=(iface,), daemon=True)
             for iface in (control, receive)
