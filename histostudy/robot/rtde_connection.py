@@ -15,7 +15,8 @@ What it guards against (observed with ur-rtde 1.6.5):
   controller on the same address: it is disconnected when given up;
 - the control interface reconnects on its own receive thread, and if that reconnection throws, the
   C++ runtime terminates the whole process (SIGABRT; no Python handler runs). Nothing here can
-  catch it: two of about ten full test runs under load aborted so, in the test of a drop mid-move.
+  catch it. Two of about ten full test runs under load aborted natively in the test of a drop
+  mid-move, while the interfaces were being given up.
 
 Timeouts in seconds.
 """
