@@ -1,7 +1,8 @@
 """The learned stages (§II-B.2 U-Net segmentation, §II-B.4 VGG19 orientation): the networks
 (``nets``), their input transforms (``preprocess``), the hybrid synthetic training images
 (``datasets``); training: its configuration and stages (``training_config``), losses and validation
-metrics (``training_losses``), the loop (``training``) and the export (``training_export``);
+metrics (``training_losses``), a teacher's labels as targets (``training_teacher``), the loop
+(``training``) and the export (``training_export``);
 checkpoints with their provenance (``checkpoints``), the segmenters (``segment``), the U-Net's fast
 CPU inference on a region for tracking (``fast_segment``) and the
 orientation angles and sources (``orientation``). The pose estimation above this layer takes a
@@ -12,7 +13,7 @@ from . import (nets as _nets, checkpoints as _checkpoints, datasets as _datasets
                orientation as _orientation,
                preprocess as _preprocess, segment as _segment, training as _training,
                training_config as _training_config, training_export as _training_export,
-               training_losses as _training_losses)
+               training_losses as _training_losses, training_teacher as _training_teacher)
 from .nets import UNet, VGG19, build_network
 from .checkpoints import (MODELS_DIR, load_checkpoint, load_network, load_shipped, manifest_path, save_checkpoint,
                           sha256_file, shipped_model, training_summary)
@@ -31,9 +32,11 @@ from .training_config import (FineTuneConfig, SEGMENTATION_LOSSES, TRAINING_TABL
                               export_name, run_frame_sets)
 from .training_export import export
 from .training_losses import angle_loss, dice_loss
+from .training_teacher import load_teacher, teacher_labeller
 
 # every public name of the modules above, as each module's __all__ declares it
 __all__ = list(dict.fromkeys([*_nets.__all__, *_checkpoints.__all__, *_datasets.__all__, *_fast_segment.__all__,
                               *_orientation.__all__,
                               *_preprocess.__all__, *_segment.__all__, *_training.__all__, *_training_config.__all__,
-                              *_training_export.__all__, *_training_losses.__all__]))
+                              *_training_export.__all__, *_training_losses.__all__,
+                              *_training_teacher.__all__]))

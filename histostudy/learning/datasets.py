@@ -284,10 +284,14 @@ class HybridImageDataset(Dataset):
             after its first use, so that later epochs skip reading and downscaling the
             full-resolution frame (a third of a CPU orientation step); the items are the same.
             3000 orientation inputs at 310x240 take 0.9 GB.
+        target_labels: segmentation only: a callable from the whole network input ``(h, w)`` to
+            its labels on the same grid (a teacher network's, docs/training.md), used instead of
+            the frame's pooled labels; kept with the input when ``keep_in_memory``.
     """
 
     def __init__(self, task: str, frames: HybridFrames, size: int, *, scale: float, crop: int | None = None,
-                 augment: bool = False, seed: int = 0, repeats: int = 1, keep_in_memory: bool = False):
+                 augment: bool = False, seed: int = 0, repeats: int = 1, keep_in_memory: bool = False,
+                 target_labels=None):
         if task not in TASKS:
             raise ValueError(f"task must be one of {TASKS}, got {task!r}")
         if not isinstance(frames, HybridFrames):
@@ -304,6 +308,10 @@ class HybridImageDataset(Dataset):
         self.repeats = repeats
         self.augment, self.seed, self.epoch = bool(augment), int(seed), 0
         self._kept: dict | None = {} if keep_in_memory else None
+        if target_labels is not None and (task != "segmentation" or not callable(target_labels)):
+            raise ValueError(f"target_labels must be None or a callable (network input -> labels) for a "
+                             f"segmentation dataset, got {target_labels!r} for task {task!r}")
+        self.target_labels = target_labels
 
     def _prepared(self, frame_index: int):
         """The frame's network input and target: pooled labels (segmentation) or true angles."""
@@ -311,7 +319,15 @@ class HybridImageDataset(Dataset):
             return self._kept[frame_index]
         frame = self.frames.frame(frame_index)
         image = prepare_image(frame.image, self.scale)
-        target = pool_labels(frame.labels, self.scale) if self.task == "segmentation" else true_angles(frame)
+        if self.task != "segmentation":
+            target = true_angles(frame)
+        elif self.target_labels is not None:
+            target = np.asarray(self.target_labels(image))
+            if target.shape != image.shape:
+                raise ValueError(f"target_labels gave labels of shape {target.shape} for an input of shape "
+                                 f"{image.shape}; expected the same grid")
+        else:
+            target = pool_labels(frame.labels, self.scale)
         if self._kept is not None:
             image.setflags(write=False)  # crops and flips are views: the kept input must not change
             self._kept[frame_index] = (image, target)

@@ -46,6 +46,7 @@ from .nets import build_network
 from .orientation import N_ORIENTATION_CLASSES, hemisphere_angles
 from .training_config import TrainingConfig, TrainingResult, resolve_device, stage_frames, stage_names, stage_objective
 from .training_losses import stage_loss, validation_metrics
+from .training_teacher import load_teacher, teacher_labeller
 
 __all__ = ["train"]
 
@@ -87,16 +88,17 @@ def _model_tensors(net) -> dict:
 
 
 
-def _loaders(cfg: TrainingConfig, seed: int, cache_dir, stage: str):
+def _loaders(cfg: TrainingConfig, seed: int, cache_dir, stage: str, target_labels=None):
     render, n_train, n_val = stage_frames(cfg, stage)
     frames_kwargs = dict(config=render, cache_dir=cache_dir if cfg.cache else None)
     crop = cfg.crop if cfg.task == "segmentation" else None
     train_ds = HybridImageDataset(cfg.task, HybridFrames("train", seed, **frames_kwargs), n_train,
                                   scale=cfg.scale, crop=crop, augment=cfg.task == "orientation", seed=seed,
                                   repeats=cfg.crops_per_frame if cfg.task == "segmentation" else 1,
-                                  keep_in_memory=True)
+                                  keep_in_memory=True, target_labels=target_labels)
     val_ds = HybridImageDataset(cfg.task, HybridFrames("val", seed, **frames_kwargs), n_val,
-                                scale=cfg.scale, crop=None, augment=False, seed=seed, keep_in_memory=True)
+                                scale=cfg.scale, crop=None, augment=False, seed=seed, keep_in_memory=True,
+                                target_labels=target_labels)
     val_loader = DataLoader(val_ds, batch_size=1 if cfg.task == "segmentation" else cfg.batch_size, shuffle=False)
     return train_ds, val_loader
 
@@ -185,6 +187,9 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
              "learning_rate": cfg.learning_rate}
     if cfg.init_weights:
         net, state["init_weights"] = _warm_start(cfg.init_weights, net)
+    teacher = None
+    if cfg.teacher:
+        teacher, state["teacher"] = load_teacher(cfg.teacher, cfg.scale, device)
     opt = _optimizer(cfg, net)
     if resume and state_path.is_file():
         previous = json.loads(state_path.read_text())
@@ -207,7 +212,8 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
         for stale in [*run_dir.glob("best-*"), *run_dir.glob("last.*"), state_path]:
             stale.unlink(missing_ok=True)
     net.to(device).train()
-    train_ds, val_loader = _loaders(cfg, seed, cache_dir, state["stage"])
+    target_labels = None if teacher is None else teacher_labeller(teacher, device)
+    train_ds, val_loader = _loaders(cfg, seed, cache_dir, state["stage"], target_labels)
     elapsed_before = state["elapsed_s"]
 
     def elapsed_s() -> float:
@@ -250,7 +256,7 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
                 state.update(stage=following, epoch=0, best_loss=None, bad_epochs=0, learning_rate=lr,
                              stage_start_s=elapsed_s())
                 if following == "finetune":
-                    train_ds, val_loader = _loaders(cfg, seed, cache_dir, following)
+                    train_ds, val_loader = _loaders(cfg, seed, cache_dir, following, target_labels)
                 save_checkpoint(run_dir / "last", {**_model_tensors(net), **_optim_tensors(opt)}, net.config)
                 save_state()
                 continue

@@ -151,6 +151,10 @@ class TrainingConfig:
             initialisation (fine-tuning); for an orientation run without classifier stage it may
             be the trained classifier, converted to the regressor (§II-B.4). Recorded with its
             SHA-256 in the exported manifest.
+        teacher: segmentation only: a U-Net checkpoint trained at this ``scale`` whose arg-max labels
+            replace the rendered frames' as targets, in training and validation (distillation,
+            :mod:`~histostudy.learning.training_teacher`). Recorded with its SHA-256 in the
+            exported manifest.
         fine_tune: a last ``finetune`` stage on frames of another rendering (:class:`FineTuneConfig`
             or its table), or None.
     """
@@ -178,6 +182,7 @@ class TrainingConfig:
     class_weights: tuple | None = None
     loss: str = "cross_entropy"
     init_weights: str | None = None
+    teacher: str | None = None
     fine_tune: FineTuneConfig | None = None
 
     def __post_init__(self):
@@ -214,6 +219,10 @@ class TrainingConfig:
         if self.loss not in SEGMENTATION_LOSSES or (self.loss != "cross_entropy" and self.task != "segmentation"):
             raise ValueError(f"loss must be one of {SEGMENTATION_LOSSES} (a segmentation run), got {self.loss!r} "
                              f"for task {self.task!r}")
+        if self.teacher is not None and (self.task != "segmentation" or not isinstance(self.teacher, str)
+                                         or not self.teacher):
+            raise ValueError(f"teacher must be None or the path of a U-Net checkpoint for a segmentation run, "
+                             f"got {self.teacher!r} for task {self.task!r}")
         if isinstance(self.fine_tune, dict):
             object.__setattr__(self, "fine_tune", FineTuneConfig.from_table(self.fine_tune, n_val=self.n_val))
         elif self.fine_tune is not None and not isinstance(self.fine_tune, FineTuneConfig):

@@ -35,6 +35,6 @@ def export(result: TrainingResult, cfg: TrainingConfig, name: str, *, seed: int,
         validation=manifest.get("validation"), validation_split=_validation_split(cfg, manifest.get("stage")),
         stages=state.get("best", {}), stopped=result.stopped, stage_stops=state.get("stage_stops", {}),
         training_minutes=state.get("elapsed_s", 0.0) / 60.0, device=str(resolve_device(cfg.device)),
-        init_weights=state.get("init_weights"),
+        init_weights=state.get("init_weights"), teacher=state.get("teacher"),
         training_config=json.loads(json.dumps(cfg.to_dict())),
     )
