@@ -8,7 +8,7 @@ frames per second, single-frame DICOM XA per plane and frame. Then, for each of 
 the receiver's default, ``Tracker(fast=True)``; ``full``: every pair on the full frames), streams it
 at its frame rate to a :class:`histostudy.lab.FrameReceiver` on loopback with ``--max-queued-pairs``
 (:func:`histostudy.study.moving_cine_live.stream_moving_cine`; ``--pipeline``: the receiver's pipeline
-on) and prints the counts, rates, latency
+on; ``--retries on|off``: the tracker's retries of a refused estimate from scratch) and prints the counts, rates, latency
 and focal error (:func:`~histostudy.study.moving_cine_live.count_table`), the seconds per posed pair
 of each stage, and per kind of update (warm, from scratch, re-acquired) the pose seconds, latency and
 focal error. Writes ``<mode>_frames.csv``, ``<mode>_counts.csv``, ``<mode>_stats.json`` and
@@ -47,7 +47,11 @@ def main() -> None:
     parser.add_argument("--tracker-seed", type=int, default=0, help="the receiver's tracker seed (default 0)")
     parser.add_argument("--pipeline", action="store_true",
                         help="the receiver's pipeline (FrameReceiver(pipeline=True): the next pair segmented ahead)")
+    parser.add_argument("--retries", choices=("default", "on", "off"), default="default",
+                        help="the tracker's retries of a refused estimate from scratch "
+                             "(PoseOptions.retry_hypotheses; default: the receiver's own)")
     args = parser.parse_args()
+    retries = {} if args.retries == "default" else {"retry_hypotheses": args.retries == "on"}
     pd.set_option("display.width", 200)
 
     folder, out = Path(args.folder), Path(args.output)
@@ -69,7 +73,7 @@ def main() -> None:
         t0 = time.perf_counter()
         run = stream_moving_cine(cine, model, args.tracker_seed, output_path=out / f"{mode}_poses.jsonl",
                                  fast=mode == "fast", max_queued_pairs=args.max_queued_pairs,
-                                 pipeline=args.pipeline)
+                                 pipeline=args.pipeline, **retries)
         frames = frame_table(run, cine)
         counts = count_table(run, frames)
         frames.to_csv(out / f"{mode}_frames.csv", index=False)
