@@ -15,8 +15,10 @@ What it guards against (observed with ur-rtde 1.6.5):
   controller on the same address: it is disconnected when given up;
 - the control interface reconnects on its own receive thread, and if that reconnection throws, the
   C++ runtime terminates the whole process (SIGABRT; no Python handler runs). Nothing here can
-  catch it. Two of about ten full test runs under load aborted natively in the test of a drop
-  mid-move, while the interfaces were being given up.
+  catch it. Three of about ten full test runs under load aborted natively in the tests of a drop,
+  while the interfaces were being given up; those tests now run in a child process
+  (tests/robot/test_robot_rtde.py). A lab's script that must survive a dropped robot link can do the
+  same: drive the robot from a process of its own.
 
 Timeouts in seconds.
 """
