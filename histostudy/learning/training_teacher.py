@@ -9,7 +9,7 @@ a pose refined on its labels must match. The validation metrics then measure agr
 teacher, not with the truth.
 
 The teacher is a checkpoint of ``data/models`` (SHA-256, dtypes and config checked by
-:func:`~.checkpoints.load_checkpoint`), read at the run's input scale: its manifest's
+:func:`~.checkpoints.load_network`), read at the run's input scale: its manifest's
 ``input_scale`` must be the run's ``scale``. It runs in eval mode, without gradients, on the
 run's device.
 """
@@ -19,8 +19,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .checkpoints import load_checkpoint
-from .nets import build_network
+from .checkpoints import load_network
 
 __all__ = ["load_teacher", "teacher_labeller"]
 
@@ -29,7 +28,7 @@ def load_teacher(path, scale: float, device) -> tuple[torch.nn.Module, dict]:
     """``(network, record)``: the U-Net of checkpoint ``path`` in eval mode on ``device``, and what
     the exported manifest records of it (path, SHA-256, input scale). ValueError when it is no
     U-Net or was trained at another input scale than ``scale``."""
-    tensors, manifest = load_checkpoint(path)
+    net, manifest = load_network(path)
     config = manifest["config"]
     if config.get("arch") != "unet":
         raise ValueError(f"teacher {str(path)!r} is a {config.get('arch')!r} network; expected a U-Net checkpoint")
@@ -37,9 +36,7 @@ def load_teacher(path, scale: float, device) -> tuple[torch.nn.Module, dict]:
     if teacher_scale is None or abs(float(teacher_scale) - float(scale)) > 1e-12:
         raise ValueError(f"teacher {str(path)!r} reads input scale {teacher_scale!r}, but the run trains at "
                          f"scale {scale!r}; expected a teacher of the run's scale")
-    net = build_network(config)
-    net.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
-    net.to(device).eval()
+    net.to(device)
     for p in net.parameters():
         p.requires_grad_(False)
     return net, {"path": str(path), "sha256": manifest["sha256"], "input_scale": float(teacher_scale)}
