@@ -132,6 +132,10 @@ class Tracker:
             without ``fast``).
     """
 
+    #: The counters above, in the order of :meth:`stats`; :meth:`reset` zeroes them.
+    COUNTERS = ("n_updates", "n_warm", "n_from_scratch", "n_lost", "n_reacquired", "n_accepted", "n_failed",
+                "n_rescue_attempts", "n_rescued", "n_resume_attempts", "n_resumed")
+
     def __init__(self, model: TransducerModel, views: Sequence[View] | View, *, segmenter=None, orientation=None,
                  rng=None, options: PoseOptions | None = None, fast: bool | TrackingOptions = False,
                  **option_overrides):
@@ -179,9 +183,8 @@ class Tracker:
         self._last_pose: np.ndarray | None = None
         self.last_result: PoseResult | None = None
         self.last_kind: str | None = None
-        self.n_updates = self.n_warm = self.n_from_scratch = 0
-        self.n_lost = self.n_reacquired = self.n_accepted = self.n_failed = 0
-        self.n_rescue_attempts = self.n_rescued = self.n_resume_attempts = self.n_resumed = 0
+        for name in self.COUNTERS:
+            setattr(self, name, 0)
         self._refused_pose: np.ndarray | None = None  # the last update's refused pose, for a resumed start
         self.stage_seconds: dict[str, float] = {}
         self.update_seconds = 0.0
@@ -209,11 +212,7 @@ class Tracker:
 
     def stats(self) -> dict:
         """The counters and the summed stage seconds as a plain dict (JSON-ready)."""
-        return {"n_updates": self.n_updates, "n_warm": self.n_warm, "n_from_scratch": self.n_from_scratch,
-                "n_lost": self.n_lost, "n_reacquired": self.n_reacquired, "n_accepted": self.n_accepted,
-                "n_failed": self.n_failed, "n_rescue_attempts": self.n_rescue_attempts, "n_rescued": self.n_rescued,
-                "n_resume_attempts": self.n_resume_attempts, "n_resumed": self.n_resumed,
-                "stage_seconds": dict(self.stage_seconds),
+        return {**{name: getattr(self, name) for name in self.COUNTERS}, "stage_seconds": dict(self.stage_seconds),
                 "update_seconds": self.update_seconds}
 
     # --- the update -----------------------------------------------------------------------------
@@ -404,6 +403,6 @@ class Tracker:
         # (the checkpoint's upsampled arg-max, computed along the label edges only) in a
         # fraction of the time.
         segmenter = self.segmenter if self._region is None else self._region.full_frame_segmenter
-        return self._count_stage_seconds(estimate_pose(frames, self.model, segmenter=segmenter, orientation=self.orientation,
-                                               rng=self.rng, initial_pose=initial_pose,
-                                               options=self._estimate_options))
+        return self._count_stage_seconds(estimate_pose(frames, self.model, segmenter=segmenter,
+                                                       orientation=self.orientation, rng=self.rng,
+                                                       initial_pose=initial_pose, options=self._estimate_options))
