@@ -92,14 +92,31 @@ def view_disagreement_mm(cost: PoseCost, frames: Sequence[Frame], T_carm_transdu
     return out
 
 
+#: Up to this tolerance (px) :func:`unexplained_fraction` dilates by a disk; beyond it the disk's
+#: area makes OpenCV's distance transform the cheaper of the two (both give the same pixels).
+_DILATION_MAX_TOLERANCE_PX = 16.0
+
+
+def _disk(radius_px: float) -> np.ndarray:
+    """The uint8 structuring element of the pixel offsets within ``radius_px`` of the centre, with
+    the distance rounded to float32 as OpenCV's exact distance transform rounds it."""
+    r = int(np.floor(radius_px))
+    dy, dx = np.mgrid[-r:r + 1, -r:r + 1]
+    return (np.sqrt((dx * dx + dy * dy).astype(np.float32)) <= np.float32(radius_px)).astype(np.uint8)
+
+
 def unexplained_fraction(view, labels: np.ndarray, model: TransducerModel, T_carm_transducer,
                          tolerance_px: float, *, points_mm: np.ndarray | None = None) -> float:
     """The fraction of ``labels``' segmented pixels (any class > 0) farther than ``tolerance_px``
     from every point of ``model`` projected at ``T_carm_transducer`` into ``view`` (NaN when none
-    is segmented); the image-to-model counterpart of eq. 3's model-to-image distances.
+    is segmented); the image-to-model counterpart of eq. 3's model-to-image distances. Distances
+    are Euclidean, between pixel centres (each projected point rounded to its pixel).
 
     ``points_mm``: the model's points of every class stacked in its class order (transducer
     frame), when the caller judges many poses of one model and stacks them once."""
+    if not (isinstance(tolerance_px, (int, float, np.floating, np.integer)) and np.isfinite(tolerance_px)
+            and tolerance_px >= 0):
+        raise ValueError(f"tolerance_px must be a finite number >= 0 (pixels), got {tolerance_px!r}")
     labels = np.asarray(labels)
     segmented = labels > 0
     if not segmented.any():
@@ -111,10 +128,17 @@ def unexplained_fraction(view, labels: np.ndarray, model: TransducerModel, T_car
     px = np.round(uvw[front, :2] / uvw[front, 2:3]).astype(np.int64)
     h, w = labels.shape
     on = (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
-    not_model = np.full((h, w), 255, np.uint8)
-    not_model[px[on, 1], px[on, 0]] = 0
-    distance = cv2.distanceTransform(not_model, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    return float(np.mean(distance[segmented] > tolerance_px))
+    if tolerance_px <= _DILATION_MAX_TOLERANCE_PX:
+        # The pixels within the tolerance of a model pixel: a dilation by the disk of that radius
+        # (7-20x cheaper than the distance transform at 5-10 px, docs/tracking.md).
+        near = np.zeros((h, w), np.uint8)
+        near[px[on, 1], px[on, 0]] = 1
+        far = cv2.dilate(near, _disk(tolerance_px), borderType=cv2.BORDER_CONSTANT, borderValue=0) == 0
+    else:
+        not_model = np.full((h, w), 255, np.uint8)
+        not_model[px[on, 1], px[on, 0]] = 0
+        far = cv2.distanceTransform(not_model, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) > tolerance_px
+    return float(np.mean(far[segmented]))
 
 
 def check_unexplained(verdict: PoseVerdict, frames, labels, model, T, limit: float, tolerance_px: float, *,

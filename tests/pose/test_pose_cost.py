@@ -191,6 +191,45 @@ def test_costs_at_translations_equal_one_call_per_pose(cost):
         sub.costs_at_translations(2 * R, translations)
 
 
+@pytest.mark.parametrize("kernel_name", ["normal_serial", "cost_serial"])
+def test_serial_kernels_release_the_gil_while_they_run(cost, kernel_name):
+    # Tracker.track segments the next pair on a worker thread while this one is refined on the
+    # calling thread: a kernel holding the GIL stalls the worker's Python between torch's
+    # operations (docs/tracking.md, "Where it stands"). One long call: the cost's blocks, many times.
+    import threading
+    import time
+
+    from histostudy.pose import cost_kernels
+
+    kernel = getattr(cost_kernels, kernel_name)
+    sub = cost.subset(300, np.random.default_rng(3))
+    M, c = sub._folded(T_TRUE)
+    R = np.ascontiguousarray(T_TRUE[:3, :3])
+    tail = (sub._maps, sub._rows, sub._cols, sub.weights, OUTSIDE_DISTANCE_PX ** 2, np.inf)
+
+    def run(tasks):
+        if kernel_name == "normal_serial":
+            return kernel(sub._pts, tasks, R, M, c, sub._P3, *tail)
+        return kernel(sub._pts, tasks, M, c, *tail)
+
+    run(sub._tasks)  # compiled before timing
+    t = time.perf_counter()
+    run(np.tile(sub._tasks, (200, 1)))
+    per_copy = (time.perf_counter() - t) / 200
+    tasks = np.ascontiguousarray(np.tile(sub._tasks, (max(200, int(0.6 / per_copy)), 1)))
+    worker = threading.Thread(target=run, args=(tasks,))
+    ticks = []
+    t0 = time.perf_counter()
+    worker.start()
+    while worker.is_alive():
+        ticks.append(time.perf_counter())
+    kernel_s = time.perf_counter() - t0
+    gaps = np.diff([t0] + ticks)
+    assert kernel_s > 0.3, kernel_s
+    # held, the GIL would stop this loop for the whole call; released, only the scheduler pauses it
+    assert gaps.max() < 0.5 * kernel_s, (gaps.max(), kernel_s)
+
+
 def test_with_outside_distance_changes_only_the_off_map_constant(cost):
     T = T_TRUE.copy()
     T[:3, 3] += 300.0 * cost.views[0].detector_axes[0]  # most of the model off view A

@@ -32,6 +32,35 @@ def test_unexplained_fraction_counts_the_segmented_pixels_far_from_the_posed_mod
     assert np.isnan(unexplained_fraction(f.view, np.zeros_like(f.labels), models[0], T, 10.0))
 
 
+@pytest.mark.parametrize("tolerance_px", [0.0, 1.0, 1.5, 5.0, 7.3, 10.0, 16.0, 20.0])
+def test_unexplained_fraction_equals_scipys_exact_distance_transform(models, frames, tolerance_px):
+    # Up to 16 px the pixels are found by a dilation with a disk, beyond by OpenCV's distance
+    # transform: both must be scipy's exact Euclidean distance thresholded at the tolerance.
+    from scipy.ndimage import distance_transform_edt
+
+    T = POSES[0]
+    f = frames[0][0]
+    labels = f.labels.copy()
+    labels[:60, :80] = Feature.TRANSDUCER  # segmented pixels at every distance from the model
+    points = np.vstack([p for p in models[0].points.values() if len(p)])
+    uvw = f.view.project_homogeneous(points @ T[:3, :3].T + T[:3, 3])
+    px = np.round(uvw[:, :2] / uvw[:, 2:3]).astype(int)
+    h, w = labels.shape
+    px = px[(px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)]
+    not_model = np.ones((h, w), bool)
+    not_model[px[:, 1], px[:, 0]] = False
+    expected = np.mean(distance_transform_edt(not_model)[labels > 0] > tolerance_px)
+    assert 0.0 < expected < 1.0
+    assert unexplained_fraction(f.view, labels, models[0], T, tolerance_px) == pytest.approx(expected, abs=1e-12)
+
+
+@pytest.mark.parametrize("bad", [-1.0, float("nan"), float("inf"), "5", None])
+def test_unexplained_fraction_refuses_a_bad_tolerance(models, frames, bad):
+    f = frames[0][0]
+    with pytest.raises(ValueError, match="tolerance_px"):
+        unexplained_fraction(f.view, f.labels, models[0], POSES[0], bad)
+
+
 def test_view_disagreement_is_zero_at_the_exact_pose_of_exact_labels(models, frames):
     T = POSES[1]
     maps = [DistanceMaps(f.view, f.labels, occlusion_aware=True) for f in frames[1]]
