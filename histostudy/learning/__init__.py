@@ -4,13 +4,13 @@
 metrics (``training_losses``), a teacher's labels as targets (``training_teacher``), the loop
 (``training``) and the export (``training_export``);
 checkpoints with their provenance (``checkpoints``), the segmenters (``segment``), the U-Net's fast
-CPU inference on a region for tracking (``fast_segment``) and the
+CPU inference on a region for tracking (``fast_segment``, its fused layers ``fused_conv``) and the
 orientation angles and sources (``orientation``). The pose estimation above this layer takes a
 segmenter and an orientation source.
 """
 
 from . import (nets as _nets, checkpoints as _checkpoints, datasets as _datasets, fast_segment as _fast_segment,
-               orientation as _orientation,
+               fused_conv as _fused_conv, orientation as _orientation,
                preprocess as _preprocess, segment as _segment, training as _training,
                training_config as _training_config, training_export as _training_export,
                training_losses as _training_losses, training_teacher as _training_teacher)
@@ -20,6 +20,7 @@ from .checkpoints import (MODELS_DIR, load_checkpoint, load_network, load_shippe
 from .datasets import (HybridFrames, HybridImageDataset, RenderConfig, SPLIT_CODES, default_cache_dir, flip_angles,
                        random_training_pose, true_angles)
 from .fast_segment import FAST_UNET_PRECISIONS, FastUNet, native_bfloat16
+from .fused_conv import ConvReLU, fuse_conv_relu
 from .orientation import (LearnedOrientation, N_ORIENTATION_CLASSES, OracleOrientation, OrientationSource,
                           angles_from_direction, beam_direction_of_pose, default_vgg19, direction_candidates,
                           hemisphere_angles, hemisphere_directions, orientation_angle_error, orientation_class,
@@ -36,7 +37,7 @@ from .training_teacher import load_teacher, teacher_labeller
 
 # every public name of the modules above, as each module's __all__ declares it
 __all__ = list(dict.fromkeys([*_nets.__all__, *_checkpoints.__all__, *_datasets.__all__, *_fast_segment.__all__,
-                              *_orientation.__all__,
+                              *_fused_conv.__all__, *_orientation.__all__,
                               *_preprocess.__all__, *_segment.__all__, *_training.__all__, *_training_config.__all__,
                               *_training_export.__all__, *_training_losses.__all__,
                               *_training_teacher.__all__]))

@@ -98,7 +98,7 @@ def _interpolate(maps, cell, stride, fx, fy, cap):
     return top + fy * (bottom - top), (1.0 - fy) * (d10 - d00) + fy * (d11 - d01), bottom - top
 
 
-@numba.njit(fastmath=False, cache=True, nogil=True)
+@numba.njit(fastmath=False, cache=True, nogil=True, error_model="numpy")
 def _task_cost(ti, pts, tasks, M, c, maps, rows, cols, wt, outside_sq, cap):
     """Eq. 3's contribution of one task (one block of one class in one view)."""
     a, s, base, i0, i1 = tasks[ti, 0], tasks[ti, 1], tasks[ti, 2], tasks[ti, 3], tasks[ti, 4]
@@ -120,7 +120,7 @@ def _task_cost(ti, pts, tasks, M, c, maps, rows, cols, wt, outside_sq, cap):
     return wt[a, s] * (total + n_out * outside_sq)
 
 
-@numba.njit(parallel=True, fastmath=False, cache=True, nogil=True)
+@numba.njit(parallel=True, fastmath=False, cache=True, nogil=True, error_model="numpy")
 def cost_parallel(pts, tasks, M, c, maps, rows, cols, wt, outside_sq, cap):
     partial = np.zeros(tasks.shape[0])
     for ti in numba.prange(tasks.shape[0]):
@@ -131,7 +131,7 @@ def cost_parallel(pts, tasks, M, c, maps, rows, cols, wt, outside_sq, cap):
     return out
 
 
-@numba.njit(fastmath=False, cache=True, nogil=True)
+@numba.njit(fastmath=False, cache=True, nogil=True, error_model="numpy")
 def cost_serial(pts, tasks, M, c, maps, rows, cols, wt, outside_sq, cap):
     out = 0.0
     for ti in range(tasks.shape[0]):
@@ -139,7 +139,7 @@ def cost_serial(pts, tasks, M, c, maps, rows, cols, wt, outside_sq, cap):
     return out
 
 
-@numba.njit(parallel=True, fastmath=False, cache=True, nogil=True)
+@numba.njit(parallel=True, fastmath=False, cache=True, nogil=True, error_model="numpy")
 def costs_batch(pts, tasks, M, c_all, maps, rows, cols, wt, outside_sq, cap):
     """:func:`cost_serial` at each of the translations folded into ``c_all`` (n, A, 3), in parallel
     over them; each is summed in task order, the same bits as one call per pose."""
@@ -186,7 +186,7 @@ def _map_gradient(maps, cell, cols_a, rows_a, fx, fy, u, v, cap):
     return d, gu, gv
 
 
-@numba.njit(fastmath=False, cache=True, nogil=True)
+@numba.njit(fastmath=False, cache=True, nogil=True, error_model="numpy")
 def _task_normal(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq, cap, out):
     """Cost, J^T J (upper triangle, 21) and J^T r (6) of one task into ``out`` (28,)."""
     a, s, base, i0, i1 = tasks[ti, 0], tasks[ti, 1], tasks[ti, 2], tasks[ti, 3], tasks[ti, 4]
@@ -226,7 +226,7 @@ def _task_normal(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq, 
         out[idx] = acc[idx]
 
 
-@numba.njit(parallel=True, fastmath=False, cache=True, nogil=True)
+@numba.njit(parallel=True, fastmath=False, cache=True, nogil=True, error_model="numpy")
 def normal_parallel(pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq, cap):
     """Cost, J^T J and J^T r in one pass; J (n x 6) is never built. Returns the 28 sums."""
     partial = np.zeros((tasks.shape[0], 28))
@@ -239,7 +239,7 @@ def normal_parallel(pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq, c
     return total
 
 
-@numba.njit(fastmath=False, cache=True, nogil=True)
+@numba.njit(fastmath=False, cache=True, nogil=True, error_model="numpy")
 def normal_serial(pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq, cap):
     part = np.zeros(28)
     total = np.zeros(28)
@@ -250,7 +250,7 @@ def normal_serial(pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq, cap
     return total
 
 
-@numba.njit(fastmath=False, cache=True, nogil=True)
+@numba.njit(fastmath=False, cache=True, nogil=True, error_model="numpy")
 def _task_residual(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, cap, r_out, j_out):
     """Residuals and Jacobian rows of one task into ``r_out (A, N)`` and ``j_out (A, N, 6)``."""
     a, s, base, i0, i1 = tasks[ti, 0], tasks[ti, 1], tasks[ti, 2], tasks[ti, 3], tasks[ti, 4]
@@ -278,7 +278,7 @@ def _task_residual(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, c
             j_out[a, i, p] = jrow[p]
 
 
-@numba.njit(parallel=True, fastmath=False, cache=True, nogil=True)
+@numba.njit(parallel=True, fastmath=False, cache=True, nogil=True, error_model="numpy")
 def residual_parallel(pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, cap, r_out, j_out):
     """Residuals and Jacobian rows of the active (view, class) pairs; the caller zeroes both
     outputs beforehand (inactive pairs stay 0)."""
@@ -286,7 +286,7 @@ def residual_parallel(pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, ca
         _task_residual(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, cap, r_out, j_out)
 
 
-@numba.njit(fastmath=False, cache=True, nogil=True)
+@numba.njit(fastmath=False, cache=True, nogil=True, error_model="numpy")
 def residual_serial(pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, cap, r_out, j_out):
     for ti in range(tasks.shape[0]):
         _task_residual(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, cap, r_out, j_out)
