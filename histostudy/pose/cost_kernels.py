@@ -40,7 +40,9 @@ BLOCK_POINTS = 1024
 #   wt (A, K) f8 = lambda_k / n_k; outside_sq = 0.1²; cap f8: distances are capped at it (inf: none).
 #
 # Each block runs in two loops: a branch-free one that projects the points and computes the
-# bilinear cell index and fractions (LLVM vectorises it, divisions included), then the look-ups.
+# bilinear cell index and fractions (LLVM vectorises it, divisions included: it reads the block
+# through a slice, whose indices cannot be negative, and the kernels use numpy's error model, where
+# 1 / 0 is inf rather than a ZeroDivisionError branch; w == 0 is then outside), then the look-ups.
 # Points outside the map are clamped to a valid cell (so every load is in bounds) and weighted 0.
 
 
@@ -54,10 +56,11 @@ def _locate_block(pts, i0, m, M, c, a, base, rows_a, cols_a, cell, fxb, fyb, inb
     c0, c1, c2 = c[a, 0], c[a, 1], c[a, 2]
     u_hi, v_hi = cols_a - 0.5, rows_a - 0.5
     u_cl, v_cl = cols_a - 1.0, rows_a - 1.0
+    block = pts[i0:i0 + m]
     for j in range(m):
-        x = pts[i0 + j, 0]
-        y = pts[i0 + j, 1]
-        z = pts[i0 + j, 2]
+        x = block[j, 0]
+        y = block[j, 1]
+        z = block[j, 2]
         hw = m20 * x + m21 * y + m22 * z + c2
         iw = 1.0 / hw
         u = (m00 * x + m01 * y + m02 * z + c0) * iw
