@@ -19,6 +19,8 @@ the region where the transducer projects. :class:`FastUNet` therefore
 - runs the network on a box of the input (the same :func:`~.preprocess.prepare_image` transform,
   standardised over the whole frame as in training, then cropped), padded as
   :class:`~.nets.unet.UNet` pads;
+- computes the 1x1 head and the arg-max in one pass over the features (:mod:`.head_argmax`), so
+  the six logit channels of a region are never written out;
 - takes the arg-max at the network's resolution: the labels live on the grid of
   ``view.scaled(scale)`` restricted to the box (pixel centres as in
   :meth:`~histostudy.imaging.carm.View.scaled`), not on the frame's.
@@ -45,6 +47,7 @@ import numpy as np
 
 from histostudy.imaging import Frame
 from .fused_conv import fuse_conv_relu
+from .head_argmax import head_argmax
 from .segment import UNetSegmenter
 
 __all__ = ["FAST_UNET_PRECISIONS", "FastUNet", "native_bfloat16"]
@@ -141,6 +144,11 @@ class FastUNet:
         # The last 1x1 convolution stays float32: its logits decide the arg-max, and bfloat16's
         # 8-bit mantissa would turn near-ties into ties.
         self._head = copy.deepcopy(net.head).float()
+        # A 1x1 head runs with the arg-max in one pass over the features (head_argmax.py).
+        self._head_weights = None
+        if isinstance(self._head, torch.nn.Conv2d) and self._head.kernel_size == (1, 1) and self._head.bias is not None:
+            self._head_weights = (self._head.weight.detach()[:, :, 0, 0].numpy().copy(),
+                                  self._head.bias.detach().numpy().copy())
         self._net = net.to(memory_format=torch.channels_last).to(self._dtype)
         # Each Conv2d -> ReLU in one oneDNN call where that gives the same bits (fused_conv.py).
         self._net, self.n_fused_layers = fuse_conv_relu(self._net)
@@ -161,9 +169,10 @@ class FastUNet:
         if isinstance(upsample, bool) or not isinstance(upsample, (int, np.integer)) or not 1 <= upsample <= self.stride_px:
             raise ValueError(f"upsample must be an integer in [1, {self.stride_px}] (labels at most at the frame's "
                              f"resolution), got {upsample!r}")
+        if upsample == 1:
+            return self._labels(frame, box)
         logits = self._logits(frame, box)
-        if upsample > 1:
-            logits = F.interpolate(logits[None], scale_factor=int(upsample), mode="bilinear", align_corners=False)[0]
+        logits = F.interpolate(logits[None], scale_factor=int(upsample), mode="bilinear", align_corners=False)[0]
         return logits.argmax(dim=0).to(torch.uint8).numpy()
 
     def segment(self, frame: Frame, rng: np.random.Generator | None = None) -> np.ndarray:
@@ -198,9 +207,10 @@ class FastUNet:
             out[v, u] = blended.argmax(axis=0)
         return out
 
-    def _logits(self, frame: Frame, box):
-        """float32 logits ``(6, rows, cols)`` (a torch tensor, channels-last strides) of ``box`` at the
-        network's resolution."""
+    def _features(self, frame: Frame, box):
+        """The last decoder block's output on ``box`` at the network's resolution, before the head: a
+        ``(1, channels, rows', cols')`` tensor of the network's dtype, channels-last, padded as
+        :class:`~.nets.unet.UNet` pads; and the box's ``(rows, cols)`` at the network's resolution."""
         import torch
         from torch.nn import functional as F
 
@@ -222,11 +232,34 @@ class FastUNet:
             if pad_r or pad_c:  # as UNet.forward pads
                 mode = "reflect" if min(rows, cols) > max(pad_r, pad_c) else "replicate"
                 t = F.pad(t, (0, pad_c, 0, pad_r), mode=mode)
-            logits = self._forward(t.contiguous(memory_format=torch.channels_last).to(self._dtype))
-            # Kept channels-last (the classes innermost): the arg-max over the classes then reads
-            # contiguous memory, 3.5 ms against 58 ms for a whole frame made NCHW-contiguous first
-            # (docs/tracking.md, "From scratch in under a second").
-            return logits[0, :, :rows, :cols]
+            return self._net.features(t.contiguous(memory_format=torch.channels_last).to(self._dtype)), (rows, cols)
+
+    def _logits(self, frame: Frame, box):
+        """float32 logits ``(6, rows, cols)`` (a torch tensor, channels-last strides) of ``box`` at the
+        network's resolution."""
+        import torch
+
+        features, (rows, cols) = self._features(frame, box)
+        with torch.no_grad():
+            logits = self._head(features.float())
+        # Kept channels-last (the classes innermost): the arg-max over the classes then reads
+        # contiguous memory, 3.5 ms against 58 ms for a whole frame made NCHW-contiguous first
+        # (docs/tracking.md, "From scratch in under a second").
+        return logits[0, :, :rows, :cols]
+
+    def _labels(self, frame: Frame, box) -> np.ndarray:
+        """``uint8`` arg-max labels of ``box`` at the network's resolution: the head and the arg-max in
+        one pass (:func:`~.head_argmax.head_argmax`) where the head is a 1x1 convolution, else the
+        arg-max of :meth:`_logits`."""
+        import torch
+
+        if self._head_weights is None:
+            return self._logits(frame, box).argmax(dim=0).to(torch.uint8).numpy()
+        features, (rows, cols) = self._features(frame, box)
+        # channels-last memory is (1, rows', cols', channels); bfloat16 goes in as its bits
+        hwc = features[0, :, :rows, :cols].permute(1, 2, 0)
+        hwc = hwc.view(torch.uint16) if hwc.dtype == torch.bfloat16 else hwc.float()
+        return head_argmax(hwc.contiguous().numpy(), *self._head_weights)
 
     def _forward(self, x):
         """The U-Net's layers (:meth:`~.nets.unet.UNet.features`, then the float32 head) on ``x`` (of the
