@@ -52,6 +52,11 @@ __all__ = ["OUTSIDE_DISTANCE_PX", "PARALLEL_MIN_PROJECTIONS", "PoseCost"]
 #: The paper's constant distance for points projected outside the distance map (§II-B.3).
 OUTSIDE_DISTANCE_PX = 0.1
 
+# Where the kernels' 21 sums of J^T J (its upper triangle, row by row) go in the symmetric 6x6
+# matrix: computed once, not at each of the ~60 evaluations of a tracking update.
+_UPPER = np.triu_indices(6)
+_LOWER = (_UPPER[1], _UPPER[0])
+
 #: Problems of at least this many point projections (blocks x BLOCK_POINTS) run on numba's threads
 #: when ``PoseCost(parallel=None)``; smaller ones run on the calling thread.
 PARALLEL_MIN_PROJECTIONS = 65536
@@ -374,9 +379,9 @@ class PoseCost:
         kernel = normal_parallel if self._use_threads() else normal_serial
         acc = kernel(self._pts, self._tasks, np.ascontiguousarray(T[:3, :3]), M, c, self._P3, self._maps,
                      self._rows, self._cols, self.weights, self.outside_distance_px ** 2, self._cap)
-        JtJ = np.zeros((6, 6))
-        JtJ[np.triu_indices(6)] = acc[1:22]
-        JtJ = JtJ + np.triu(JtJ, 1).T
+        JtJ = np.empty((6, 6))
+        JtJ[_UPPER] = acc[1:22]
+        JtJ[_LOWER] = acc[1:22]
         return NormalEquations(float(acc[0]), JtJ, acc[22:28].copy())
 
     @property
