@@ -15,6 +15,12 @@ frame:
   holds for every pixel of a region whose diagonal is under 1024 px. Larger regions go through
   :func:`~.distance_maps.euclidean_distance_map`'s float64 rounding. Either way the values equal
   :class:`DistanceMaps`' (tests/pose/test_tracking_maps.py);
+- with a reach (``build(..., reach_px=)``, what :class:`~.tracking_warm.RegionEstimator` passes:
+  the largest cap at which its refinement and verdict read the maps), the transform cut at that
+  reach: the separable exact transform (a column pass, then a row pass over at most ``2 reach + 1``
+  columns, vectorised), exact up to the reach and holding the reach beyond it. A reader capped at
+  the reach or below reads the same bits as on the exact maps; at 15 px on a 432 x 448 px region
+  it takes 0.5 ms a class against 2.1-3.6 ms for OpenCV's;
 - buffers kept per view and class and reused while the region's shape stays the same, so a
   warm update allocates no map (a :class:`~.cost.PoseCost` built on them copies them once into its
   flat buffer).
@@ -25,6 +31,7 @@ Frame: the region view's detector, pixel centres at integers; maps ``(rows, cols
 from __future__ import annotations
 
 import cv2
+import numba
 import numpy as np
 
 from histostudy.imaging import View
@@ -50,6 +57,60 @@ def _lookup_tables(occlusion_aware: bool) -> dict[Feature, np.ndarray]:
     return tables
 
 
+@numba.njit(nogil=True, cache=True, error_model="numpy")
+def _bounded_distance(src, reach_px, out):
+    """The exact Euclidean distance from each pixel to the nearest zero of ``src`` (uint8) where it is
+    at most ``reach_px``, and ``reach_px`` (float32) where it is farther (or there is no zero), into
+    ``out`` (float32, src's shape): the separable transform (a column pass, then a row pass) with
+    every search cut at ``reach_px``, so its cost grows with the reach and not with the image."""
+    rows, cols = src.shape
+    r = int(np.floor(reach_px))
+    far = r + 1  # a column distance past the reach: exact ones up to r are all the row pass needs
+    limit_sq = np.float64(reach_px) * np.float64(reach_px)
+    column = np.empty((rows, cols), np.int32)
+    # Rows and shifted rows are taken as slices: indices that cannot be negative let LLVM vectorise
+    # the loops over a row.
+    first, src_row = column[0], src[0]
+    for x in range(cols):
+        first[x] = 0 if src_row[x] == 0 else far
+    for y in range(1, rows):
+        prev, row, src_row = column[y - 1], column[y], src[y]
+        for x in range(cols):
+            below = prev[x] + 1
+            row[x] = 0 if src_row[x] == 0 else (below if below < far else far)
+    for y in range(rows - 2, -1, -1):
+        nxt, row = column[y + 1], column[y]
+        for x in range(cols):
+            above = nxt[x] + 1
+            row[x] = above if above < row[x] else row[x]
+    squared = np.empty(cols + 2 * r, np.int32)
+    best = np.empty(cols, np.int32)
+    big = np.int32(2 * far * far + 1)
+    centre = squared[r:r + cols]
+    for y in range(rows):
+        # the row's squared column distances, padded with "none within reach" on both sides
+        for x in range(r):
+            squared[x] = big
+            squared[cols + r + x] = big
+        row = column[y]
+        for x in range(cols):
+            centre[x] = row[x] * row[x]
+        for x in range(cols):
+            best[x] = centre[x]
+        for dx in range(1, r + 1):
+            dx2 = np.int32(dx * dx)
+            left_row, right_row = squared[r - dx:r - dx + cols], squared[r + dx:r + dx + cols]
+            for x in range(cols):
+                left = left_row[x] + dx2
+                right = right_row[x] + dx2
+                m = left if left < right else right
+                best[x] = m if m < best[x] else best[x]
+        out_row = out[y]
+        for x in range(cols):
+            b = best[x]
+            out_row[x] = np.sqrt(np.float32(b)) if b <= limit_sq else np.float32(reach_px)
+
+
 class RegionMaps:
     """Builds :class:`DistanceMaps` of label images into buffers that it keeps between calls.
 
@@ -69,8 +130,18 @@ class RegionMaps:
         self._buffers: dict[int, dict] = {}
         self.n_allocations = 0  # buffer sets allocated, for the tests and the benchmark
 
-    def build(self, index: int, view: View, labels: np.ndarray) -> DistanceMaps:
-        """The distance maps of ``labels`` (uint8 :class:`Feature` values of ``view``'s shape) for view ``index``."""
+    def build(self, index: int, view: View, labels: np.ndarray, reach_px: float | None = None) -> DistanceMaps:
+        """The distance maps of ``labels`` (uint8 :class:`Feature` values of ``view``'s shape) for view ``index``.
+
+        ``reach_px``: None, the exact distance everywhere; a number > 0, the exact distance where it is at
+        most ``reach_px`` and ``reach_px`` where it is farther (a transform cut at the reach, 4-7x
+        cheaper at 15 px than OpenCV's on a tracking region: docs/tracking.md). Every reader that caps
+        the distances at ``reach_px`` or less (:meth:`~.cost.PoseCost.capped`, which caps each
+        bilinear corner) then reads the same numbers as on the exact maps."""
+        if reach_px is not None and not (isinstance(reach_px, (int, float, np.integer, np.floating))
+                                         and not isinstance(reach_px, bool) and np.isfinite(reach_px)
+                                         and reach_px > 0):
+            raise ValueError(f"reach_px must be None or a finite number > 0 (pixels), got {reach_px!r}")
         labels = np.asarray(labels)
         if labels.dtype != np.uint8 or labels.shape != view.shape:
             raise ValueError(f"labels must be a uint8 label image of view {view.name!r}'s shape {view.shape}, "
@@ -94,7 +165,9 @@ class RegionMaps:
                 continue
             src = cv2.LUT(labels, self._tables[feature], dst=buffers["src"])
             out = buffers["maps"][feature]
-            if float32_exact:
+            if reach_px is not None:
+                _bounded_distance(src, np.float32(reach_px), out)
+            elif float32_exact:
                 cv2.distanceTransform(src, cv2.DIST_L2, cv2.DIST_MASK_PRECISE, dst=out)
                 np.multiply(out, out, out=out)
                 np.rint(out, out=out)

@@ -198,6 +198,21 @@ class RegionEstimator:
         :meth:`~histostudy.learning.FastUNet.segment`, or the segmenter as given."""
         return self.segmenter if self._full_unet is None else self._full_unet
 
+    def _caps(self, scale: float) -> dict:
+        """The caps (pixels of a region at label scale ``scale``) at which :meth:`finish` reads the
+        distance maps: ``refine`` (the fine stage; None: uncapped), ``search`` (the coarse stage),
+        ``verdict`` (the RMS check; None: uncapped), ``consistency`` (the views' agreement), and
+        ``reach``, the largest of them, up to which the maps must be exact (None where one reads
+        uncapped: the maps are then exact everywhere)."""
+        opts = self.options
+        caps = {"refine": None if opts.refine_truncation_px is None else opts.refine_truncation_px * scale,
+                "search": opts.search_truncation_px * scale,
+                "verdict": None if opts.verdict_truncation_px is None else opts.verdict_truncation_px * scale,
+                "consistency": (1.0 if opts.refine_truncation_px is None else opts.refine_truncation_px) * scale}
+        readers = list(caps.values())
+        caps["reach"] = None if any(c is None for c in readers) else max(readers)
+        return caps
+
     # --- stages ---------------------------------------------------------------------------------
 
     def _labels(self, frame: Frame, region: RegionOfInterest, rng) -> np.ndarray:
@@ -263,7 +278,7 @@ class RegionEstimator:
             t0 = time.perf_counter()
             labels = self._labels(frames[a], regions[a], rng)
             t1 = time.perf_counter()
-            maps = self._maps.build(buffers[a], regions[a].view, labels)
+            maps = self._maps.build(buffers[a], regions[a].view, labels, self._caps(regions[a].scale)["reach"])
             return labels, maps, t1 - t0, time.perf_counter() - t1
 
         if self._pool is not None and self.fast_unet is not None:
@@ -292,11 +307,11 @@ class RegionEstimator:
                                           f"segmentation failed")
 
         t0 = time.perf_counter()
-        cap = None if opts.refine_truncation_px is None else opts.refine_truncation_px * s
+        caps = self._caps(s)
+        cap, tau = caps["refine"], caps["search"]
         outside = opts.outside_distance_px * s
         cost = PoseCost(self._refine_points, maps, class_weights=opts.class_weights, outside_distance_px=outside)
         coarse = cost.subset(opts.init_points_per_class, np.random.default_rng(self._subset_seed))
-        tau = opts.search_truncation_px * s
         polish = coarse.capped(tau, outside_distance_px=tau).with_outside_distance(outside)
         refined = refine_levenberg_marquardt(cost.capped(cap), T_prev, coarse=polish, ftol=1e-6,
                                              xtol_mm=self.tracking.stop_step_mm,
@@ -306,7 +321,7 @@ class RegionEstimator:
         t0 = time.perf_counter()
         region_frames = [_RegionFrame(r.view) for r in regions]
         occlusion_aware = opts.distance_maps == "occlusion_aware"
-        verdict_cap = None if opts.verdict_truncation_px is None else opts.verdict_truncation_px * s
+        verdict_cap = caps["verdict"]
         verdict = judge_fit(coarse.capped(verdict_cap), region_frames, refined.T, opts.search_centre_mm,
                             opts.max_rms_px * s, opts.min_inside_fraction,
                             opts.max_body_rms_px * s if occlusion_aware and opts.max_body_rms_px is not None else None)
@@ -315,7 +330,7 @@ class RegionEstimator:
             check_unexplained(verdict, region_frames, labels, self.model, refined.T, opts.max_unexplained_fraction,
                               tolerance, points_mm=self._unexplained_points)
         if verdict.ok and len(regions) > 1 and opts.max_view_disagreement_mm is not None:
-            consistency = coarse.capped((1.0 if opts.refine_truncation_px is None else opts.refine_truncation_px) * s)
+            consistency = coarse.capped(caps["consistency"])
             check_view_agreement(verdict, consistency, region_frames, refined.T, self.model.focal_point_mm,
                                  opts.max_view_disagreement_mm)
         timings["verdict"] = time.perf_counter() - t0

@@ -73,3 +73,45 @@ def test_bad_input_is_refused_naming_the_argument(labels_and_view):
         DistanceMaps.from_maps(view, {Feature.TRANSDUCER: np.zeros(view.shape)}, occlusion_aware=True)
     with pytest.raises(ValueError, match="unknown class key"):
         DistanceMaps.from_maps(view, {0: np.zeros(view.shape, np.float32)}, occlusion_aware=True)
+
+
+@pytest.mark.parametrize("occlusion_aware", [True, False])
+@pytest.mark.parametrize("reach_px", [0.5, 1.0, 7.3, 15.0, 40.0])
+def test_maps_cut_at_a_reach_are_exact_up_to_it_and_hold_it_beyond(labels_and_view, occlusion_aware, reach_px):
+    labels, view = labels_and_view
+    labels = labels.copy()
+    labels[:40, :60] = int(Feature.SCREWS)  # a far blob: some pixels lie beyond every reach from it
+    reference = DistanceMaps(view, labels, occlusion_aware=occlusion_aware)
+    maps = RegionMaps(occlusion_aware=occlusion_aware).build(0, view, labels, reach_px=reach_px)
+    assert maps.present == reference.present
+    for feature in reference.present:
+        exact = reference.maps[feature]
+        assert (exact > reach_px).any() and (exact <= reach_px).any()
+        np.testing.assert_array_equal(maps.maps[feature], np.minimum(exact, np.float32(reach_px)))
+
+
+def test_costs_capped_within_the_reach_read_the_exact_maps_bits(labels_and_view):
+    from histostudy.pose import PoseCost
+
+    labels, view = labels_and_view
+    model = TransducerModel.build(spacing_mm=0.47)
+    exact = PoseCost(model.points, [DistanceMaps(view, labels, occlusion_aware=True)])
+    cut = PoseCost(model.points, [RegionMaps(occlusion_aware=True).build(0, view, labels, reach_px=15.0)])
+    T = POSES[0].copy()
+    T[:3, 3] += [1.5, -2.0, 0.7]  # off the pose, so that the points meet every distance
+    for cap in (0.5, 5.0, 15.0):
+        a, b = exact.capped(cap), cut.capped(cap)
+        assert a(T) == b(T)
+        ne_a, ne_b = a.normal_equations(T), b.normal_equations(T)
+        assert ne_a.cost == ne_b.cost and np.array_equal(ne_a.JtJ, ne_b.JtJ) and np.array_equal(ne_a.Jtr, ne_b.Jtr)
+    far = POSES[0].copy()
+    far[:3, 3] += [12.0, -9.0, 4.0]  # points 20-40 px off their class: beyond the reach the maps differ
+    assert exact.capped(40.0)(far) != cut.capped(40.0)(far)
+    assert exact.capped(15.0)(far) == cut.capped(15.0)(far)
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("inf"), float("nan"), True, "15"])
+def test_a_bad_reach_is_refused(labels_and_view, bad):
+    labels, view = labels_and_view
+    with pytest.raises(ValueError, match="reach_px"):
+        RegionMaps(occlusion_aware=True).build(0, view, labels, reach_px=bad)

@@ -137,3 +137,21 @@ def test_track_reacquires_after_a_jump_and_stops_on_bad_input(models, views):
     assert (tracker.n_lost, tracker.n_reacquired, tracker.n_warm) == (1, 1, 1)
     with pytest.raises(ValueError, match="frames must hold one frame per view"):
         list(tracker.track([stream[0], stream[0][:1]]))
+
+
+@pytest.mark.parametrize("overrides, reach", [({}, 15.0), ({"search_truncation_px": 20.0, "verdict_truncation_px": 24.0},
+                                                            12.0), ({"refine_truncation_px": None}, None),
+                                              ({"verdict_truncation_px": None}, None)])
+def test_region_maps_are_exact_up_to_the_largest_cap_they_are_read_at(models, views, sequence, overrides, reach):
+    from histostudy.pose import DistanceMaps
+
+    poses, frames = sequence
+    options = PoseOptions(**overrides)
+    estimator = RegionEstimator(models[0], views, OracleSegmenter(), options, TrackingOptions(label_scale=0.5),
+                                np.random.default_rng(0))
+    prepared = estimator.prepare(frames[1], poses[0], np.random.default_rng(1))
+    for region, labels, maps in zip(prepared.regions, prepared.labels, prepared.maps):
+        exact = DistanceMaps(region.view, labels, occlusion_aware=True)
+        for feature in exact.present:
+            expected = exact.maps[feature] if reach is None else np.minimum(exact.maps[feature], np.float32(reach))
+            np.testing.assert_array_equal(maps.maps[feature], expected)
