@@ -245,7 +245,8 @@ class Tracker:
 
         Without ``fast`` this is ``update`` in a loop. With ``fast`` the stages overlap across
         pairs: while a pair is refined and judged on the calling thread, the next pair's regions
-        are segmented and mapped on a worker thread (torch and OpenCV release the GIL), from the
+        are segmented and mapped on a worker thread, one view after the other whatever
+        ``TrackingOptions.parallel_views`` (torch, OpenCV and the cost's kernels release the GIL), from the
         last pose accepted before it (one pair older than :meth:`update` would use; the region's
         margin covers the motion). After a lost track the prepared regions are dropped and the
         next pair is prepared again from the new pose. Counters, :attr:`last_kind` and the
@@ -300,7 +301,9 @@ class Tracker:
                     # from the tracker's on the worker thread.
                     rng = None if self._region.fast_unet is not None else \
                         np.random.default_rng(int(self.rng.integers(2 ** 63)))
-                    pending = worker.submit(self._region.prepare, nxt, self._last_pose.copy(), rng, 1 - slot)
+                    # The views one after the other: the pairs already overlap, and two more threads
+                    # on two cores cost 10-20 % of the pairs per second (docs/tracking.md).
+                    pending = worker.submit(self._region.prepare, nxt, self._last_pose.copy(), rng, 1 - slot, False)
                 t_start = time.perf_counter()
                 prepared = None if prepared_future is None else prepared_future.result()
                 result = self._update(frames, prepared, t_start, slot)

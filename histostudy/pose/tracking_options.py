@@ -56,9 +56,11 @@ class TrackingOptions:
             nothing a user sees), or as :func:`~.refine.refine_levenberg_marquardt` stops otherwise.
         unexplained_points: model points (all classes, drawn once, seeded) projected by the
             verdict's unexplained-segmentation check; None: every point.
-        parallel_views: segment the views and build their maps on two threads at once (torch and
-            OpenCV release the GIL; on two free cores 25-40 % more pairs per second, nothing gained
-            when other processes hold the cores: docs/tracking.md); False: one after the other.
+        parallel_views: in :meth:`~.tracker.Tracker.update`, segment the views and build their maps
+            on two threads at once (torch and OpenCV release the GIL; on two free cores 10-25 % more
+            pairs per second, nothing gained when other processes hold the cores: docs/tracking.md);
+            False: one after the other. :meth:`~.tracker.Tracker.track`, whose worker prepares the next
+            pair while this one is refined, takes the views one after the other either way.
         precision: what a U-Net computes in (:class:`~histostudy.learning.FastUNet`): ``"auto"``
             (bfloat16 on a CPU with native bfloat16, else float32), ``"float32"`` or ``"bfloat16"``.
         network: the U-Net of the warm updates' regions, in place of the tracker's U-Net: None (the

@@ -178,7 +178,7 @@ class RegionEstimator:
         # seed at every update: the same points each time, and nothing drawn while a pair is
         # refined on one thread as the next is prepared on another.
         self._subset_seed = int(rng.integers(2 ** 63))
-        self._pool = ThreadPoolExecutor(max_workers=len(self.views)) if tracking.parallel_views else None
+        self._pool = ThreadPoolExecutor(max_workers=len(self.views))
         self.last_regions: list[RegionOfInterest] = []
 
     def _check_grid(self, name: str, s: float) -> None:
@@ -242,18 +242,23 @@ class RegionEstimator:
         return self.finish(self.prepare(frames, T_prev, rng), T_prev)
 
     def prepare(self, frames: Sequence[Frame], T_roi: np.ndarray, rng: np.random.Generator | None,
-                slot: int = 0) -> PreparedRegions:
+                slot: int = 0, parallel_views: bool | None = None) -> PreparedRegions:
         """Steps 1-3 (module docstring) of ``frames``: the regions where ``T_roi`` projects, their
         labels and distance maps. ``rng``: for a segmenter that draws (not a U-Net). ``slot`` (0 or
         1) picks the map buffers: :meth:`Tracker.track` prepares the next pair in the other slot
-        while this one is refined. Safe to run on another thread than :meth:`finish`."""
+        while this one is refined. ``parallel_views``: the views on two threads (True) or one after
+        the other (False); None: ``TrackingOptions.parallel_views``. Safe to run on another thread
+        than :meth:`finish`."""
         t_start = time.perf_counter()
         if slot not in (0, 1):
             raise ValueError(f"slot must be 0 or 1, got {slot!r}")
+        if parallel_views not in (None, True, False):
+            raise ValueError(f"parallel_views must be None, True or False, got {parallel_views!r}")
         s = self.label_scale
         regions = [region_of_interest(v, self._roi_points, T_roi, margin_px=self.tracking.roi_margin_px,
                                       align_px=self._align_px, scale=s) for v in self.views]
-        return self._segment_and_map(frames, regions, rng, [2 * a + slot for a in range(len(frames))], t_start)
+        return self._segment_and_map(frames, regions, rng, [2 * a + slot for a in range(len(frames))], t_start,
+                                     self.tracking.parallel_views if parallel_views is None else parallel_views)
 
     def prepare_rescue(self, prepared: PreparedRegions, rng: np.random.Generator | None) -> PreparedRegions:
         """The regions of ``prepared`` (same boxes) segmented again and mapped at :attr:`rescue_scale`,
@@ -270,9 +275,10 @@ class RegionEstimator:
         regions = [RegionOfInterest(box=reg.box, scale=r, view=crop_view(v, reg.box, r), frame_shape=reg.frame_shape)
                    for v, reg in zip(self.views, prepared.regions)]
         n = len(self.views)
-        return self._segment_and_map(prepared.frames, regions, rng, [2 * n + a for a in range(n)], t_start)
+        return self._segment_and_map(prepared.frames, regions, rng, [2 * n + a for a in range(n)], t_start,
+                                     self.tracking.parallel_views)
 
-    def _segment_and_map(self, frames, regions, rng, buffers, t_start) -> PreparedRegions:
+    def _segment_and_map(self, frames, regions, rng, buffers, t_start, parallel_views: bool) -> PreparedRegions:
         """Labels and distance maps of each view's region (into the map buffers ``buffers[a]``)."""
         def per_view(a):
             t0 = time.perf_counter()
@@ -281,7 +287,7 @@ class RegionEstimator:
             maps = self._maps.build(buffers[a], regions[a].view, labels, self._caps(regions[a].scale)["reach"])
             return labels, maps, t1 - t0, time.perf_counter() - t1
 
-        if self._pool is not None and self.fast_unet is not None:
+        if parallel_views and self._pool is not None and self.fast_unet is not None:
             outputs = list(self._pool.map(per_view, range(len(frames))))
         else:
             outputs = [per_view(a) for a in range(len(frames))]

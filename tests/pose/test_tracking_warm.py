@@ -155,3 +155,18 @@ def test_region_maps_are_exact_up_to_the_largest_cap_they_are_read_at(models, vi
         for feature in exact.present:
             expected = exact.maps[feature] if reach is None else np.minimum(exact.maps[feature], np.float32(reach))
             np.testing.assert_array_equal(maps.maps[feature], expected)
+
+
+def test_prepare_gives_the_same_regions_with_the_views_in_turn_or_on_two_threads(models, views, sequence):
+    poses, frames = sequence
+    estimator = RegionEstimator(models[0], views, OracleSegmenter(), PoseOptions(), TrackingOptions(label_scale=0.5),
+                                np.random.default_rng(0))
+    both = [estimator.prepare(frames[1], poses[0], np.random.default_rng(1), slot, parallel)
+            for slot, parallel in ((0, True), (1, False))]
+    for a in range(len(views)):
+        assert both[0].regions[a].box == both[1].regions[a].box
+        np.testing.assert_array_equal(both[0].labels[a], both[1].labels[a])
+        for feature in both[0].maps[a].present:
+            np.testing.assert_array_equal(both[0].maps[a].maps[feature], both[1].maps[a].maps[feature])
+    with pytest.raises(ValueError, match="parallel_views"):
+        estimator.prepare(frames[1], poses[0], None, 0, "yes")
