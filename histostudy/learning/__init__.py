@@ -14,7 +14,7 @@ from . import (nets as _nets, checkpoints as _checkpoints, datasets as _datasets
                preprocess as _preprocess, segment as _segment, training as _training,
                training_config as _training_config, training_export as _training_export,
                training_losses as _training_losses, training_teacher as _training_teacher)
-from .nets import UNet, VGG19, build_network
+from .nets import UNet, VGG19, build_network, max_pool_2x2
 from .checkpoints import (MODELS_DIR, load_checkpoint, load_network, load_shipped, manifest_path, save_checkpoint,
                           sha256_file, shipped_model, training_summary)
 from .datasets import (HybridFrames, HybridImageDataset, RenderConfig, SPLIT_CODES, default_cache_dir, flip_angles,

@@ -5,7 +5,7 @@ import pytest
 import torch
 from torch import nn
 
-from histostudy.learning import UNet, VGG19, build_network
+from histostudy.learning import UNet, VGG19, build_network, max_pool_2x2
 
 
 def _unet_params(c_in, n_classes, w, depth):
@@ -174,3 +174,23 @@ def test_vgg19_batch_norm_variant_matches_torchvisions_vgg19_bn_layout():
     assert any(isinstance(m, nn.BatchNorm2d) for m in rebuilt.features)
     with pytest.raises(ValueError, match="batch_norm"):
         VGG19(batch_norm="yes")
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.bfloat16])
+@pytest.mark.parametrize("channels_last", [True, False])
+def test_max_pool_2x2_is_max_pool2d(dtype, channels_last):
+    torch.manual_seed(6)
+    x = torch.randn(2, 5, 12, 18).to(dtype)
+    x[0, 0, :2, :2] = 1.5  # ties inside a window
+    x[1, 2, 4, 6] = float("nan")  # a NaN takes its window, as max_pool2d's
+    if channels_last:
+        x = x.contiguous(memory_format=torch.channels_last)
+    pooled = max_pool_2x2(x)
+    reference = torch.nn.functional.max_pool2d(x, 2)
+    assert pooled.shape == reference.shape and pooled.dtype == dtype
+    assert torch.equal(torch.nan_to_num(pooled, nan=-7.0), torch.nan_to_num(reference, nan=-7.0))
+    assert torch.isnan(pooled[1, 2, 2, 3])
+    net = UNet(base_width=4, depth=2).eval().to(dtype)
+    with torch.no_grad():
+        y = torch.randn(1, 1, 16, 24).to(dtype)
+        assert torch.equal(net.features(y, pool=max_pool_2x2), net.features(y))

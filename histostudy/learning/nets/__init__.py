@@ -9,10 +9,10 @@
 
 from __future__ import annotations
 
-from .unet import UNet
+from .unet import UNet, max_pool_2x2
 from .vgg import VGG19
 
-__all__ = ["UNet", "VGG19", "build_network"]
+__all__ = ["UNet", "VGG19", "build_network", "max_pool_2x2"]
 
 
 def build_network(config: dict):

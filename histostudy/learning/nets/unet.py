@@ -28,7 +28,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-__all__ = ["UNet"]
+__all__ = ["UNet", "max_pool_2x2"]
 
 
 def _block(c_in: int, c_out: int) -> nn.Sequential:
@@ -36,6 +36,15 @@ def _block(c_in: int, c_out: int) -> nn.Sequential:
         nn.Conv2d(c_in, c_out, 3, padding=1, bias=False), nn.BatchNorm2d(c_out), nn.ReLU(inplace=True),
         nn.Conv2d(c_out, c_out, 3, padding=1, bias=False), nn.BatchNorm2d(c_out), nn.ReLU(inplace=True),
     )
+
+
+def max_pool_2x2(x: torch.Tensor) -> torch.Tensor:
+    """``F.max_pool2d(x, 2)`` of an ``(N, C, H, W)`` tensor with even ``H`` and ``W``, as the maximum of
+    its four strided quarters: the same values, 2-3x faster on a CPU for channels-last activations
+    (docs/tracking.md, "Fifteen pairs a second"), channels-last out. For inference: on ties its
+    gradient is not max-pooling's."""
+    return torch.maximum(torch.maximum(x[..., ::2, ::2], x[..., 1::2, ::2]),
+                         torch.maximum(x[..., ::2, 1::2], x[..., 1::2, 1::2]))
 
 
 class UNet(nn.Module):
@@ -93,16 +102,17 @@ class UNet(nn.Module):
             x = F.pad(x, (0, pad_c, 0, pad_r), mode=mode)
         return self.head(self.features(x))[..., :rows, :cols]
 
-    def features(self, x: torch.Tensor) -> torch.Tensor:
+    def features(self, x: torch.Tensor, pool=None) -> torch.Tensor:
         """The stem (if any) and the encoder-decoder before the head, on ``x`` whose rows and columns
         are multiples of :attr:`pad_multiple`: the last decoder block's output (on the first level's
-        grid)."""
+        grid). ``pool``: the 2x2 max-pooling between levels (None: ``F.max_pool2d(x, 2)``; inference
+        may pass an equivalent, e.g. :func:`max_pool_2x2`)."""
         if self.stem is not None:
             x = self.stem(x)
         skips = []
         for i, block in enumerate(self.down):
             if i:
-                x = F.max_pool2d(x, 2)
+                x = F.max_pool2d(x, 2) if pool is None else pool(x)
             x = block(x)
             skips.append(x)
         skips.pop()
