@@ -306,7 +306,9 @@ class Tracker:
                     pending = worker.submit(self._region.prepare, nxt, self._last_pose.copy(), rng, 1 - slot, False)
                 t_start = time.perf_counter()
                 prepared = None if prepared_future is None else prepared_future.result()
-                result = self._update(frames, prepared, t_start, slot)
+                # Serial kernels: the other core segments the next pair meanwhile (numba's threads
+                # would take it from the worker: 16.7-17.5 warm pairs/s against 13.5-17.3, docs/tracking.md).
+                result = self._update(frames, prepared, t_start, slot, parallel=False)
                 if pending is not None and self.last_kind != "warm":
                     pending.result()  # prepared from a pose the track has since left: prepare again
                     pending = None
@@ -317,9 +319,11 @@ class Tracker:
                 pending.cancel()
             worker.shutdown(wait=True)
 
-    def _update(self, frames: list[Frame], prepared, t_start: float, slot: int = 0) -> PoseResult:
+    def _update(self, frames: list[Frame], prepared, t_start: float, slot: int = 0,
+                parallel: bool | None = None) -> PoseResult:
         """One update on checked frames; ``prepared``: their regions made by ``RegionEstimator.prepare``
-        from an earlier pose (fast warm path), or None (then prepared here, in map buffers ``slot``)."""
+        from an earlier pose (fast warm path), or None (then prepared here, in map buffers ``slot``);
+        ``parallel``: the warm refinement's kernels (``RegionEstimator.finish``)."""
         self.n_updates += 1
         was_tracking = self._last_pose is not None
         # A pose refused only for its views' agreement fitted each view: near the limit of a noisy
@@ -333,7 +337,7 @@ class Tracker:
             if T_start is not None:
                 self.n_resume_attempts += resume
                 try:
-                    result = self._warm(frames, T_start, prepared, slot)
+                    result = self._warm(frames, T_start, prepared, slot, parallel)
                 except PoseEstimationError:
                     result = None  # no feature in a view: the from-scratch estimate below says so again
                 if result is not None and result.verdict.ok:
@@ -372,7 +376,7 @@ class Tracker:
                                           result)
         return result
 
-    def _warm(self, frames: list[Frame], T_start: np.ndarray, prepared, slot: int) -> PoseResult:
+    def _warm(self, frames: list[Frame], T_start: np.ndarray, prepared, slot: int, parallel=None) -> PoseResult:
         """The warm start from ``T_start``: :meth:`_estimate`'s; with ``fast``, a refused first attempt
         is tried again on the same regions at the rescue scale from the refused pose (counted)."""
         region = self._region
@@ -380,7 +384,7 @@ class Tracker:
             return self._estimate(frames, T_start)
         if prepared is None:
             prepared = region.prepare(frames, T_start, self.rng, slot)
-        result = self._count_stage_seconds(region.finish(prepared, T_start))
+        result = self._count_stage_seconds(region.finish(prepared, T_start, parallel))
         if result.verdict.ok or region.rescue_scale is None:
             return result
         # The verdict's statistics read high on the coarse label grid (docs/tracking.md, "Warm
@@ -388,7 +392,7 @@ class Tracker:
         # which costs ten warm updates.
         self.n_rescue_attempts += 1
         rescued = region.prepare_rescue(prepared, self.rng)
-        second = self._count_stage_seconds(region.finish(rescued, result.T_carm_transducer))
+        second = self._count_stage_seconds(region.finish(rescued, result.T_carm_transducer, parallel))
         self.n_rescued += bool(second.verdict.ok)
         return second
 

@@ -296,11 +296,14 @@ class RegionEstimator:
         return PreparedRegions(regions=regions, labels=[o[0] for o in outputs], maps=[o[1] for o in outputs],
                                timings_s=timings, seconds=time.perf_counter() - t_start, frames=list(frames))
 
-    def finish(self, prepared: PreparedRegions, T_prev: np.ndarray) -> PoseResult:
+    def finish(self, prepared: PreparedRegions, T_prev: np.ndarray, parallel: bool | None = None) -> PoseResult:
         """Steps 4-5 (module docstring): the refinement from ``T_prev`` on ``prepared``'s maps and
         the verdict, at the regions' scale (pixel thresholds times it); the result's
         ``timings_s["total"]`` adds :meth:`prepare`'s seconds. Draws nothing: the point subsets were
-        drawn when the estimator was made."""
+        drawn when the estimator was made. ``parallel``: the cost's kernels on numba's threads or not,
+        as :class:`~.cost.PoseCost`'s (None: by the problem's size); the same bits either way."""
+        if parallel not in (None, True, False):
+            raise ValueError(f"parallel must be None, True or False, got {parallel!r}")
         t_start = time.perf_counter()
         opts, s = self.options, prepared.regions[0].scale
         regions, labels, maps = prepared.regions, prepared.labels, prepared.maps
@@ -316,7 +319,8 @@ class RegionEstimator:
         caps = self._caps(s)
         cap, tau = caps["refine"], caps["search"]
         outside = opts.outside_distance_px * s
-        cost = PoseCost(self._refine_points, maps, class_weights=opts.class_weights, outside_distance_px=outside)
+        cost = PoseCost(self._refine_points, maps, class_weights=opts.class_weights, outside_distance_px=outside,
+                        parallel=parallel)
         coarse = cost.subset(opts.init_points_per_class, np.random.default_rng(self._subset_seed))
         polish = coarse.capped(tau, outside_distance_px=tau).with_outside_distance(outside)
         refined = refine_levenberg_marquardt(cost.capped(cap), T_prev, coarse=polish, ftol=1e-6,
