@@ -10,7 +10,7 @@ and its default learned stages (``learned_stages``); :class:`Tracker`, which fol
 through a stream of frames, warm-starting each estimate from the last (``tracker``), and its fast
 warm path on the region where the last pose projects: the region and its view (``tracking_roi``),
 its distance maps in reused buffers (``tracking_maps``), the warm estimate (``tracking_warm``), the
-fast from-scratch estimate at the label scale (``tracking_scratch``), its options (``tracking_options``)
+pipeline of :meth:`Tracker.track` (``tracking_pipeline``), the fast from-scratch estimate at the label scale (``tracking_scratch``), its options (``tracking_options``)
 and the frame pairs it accepts (``tracking_input``).
 """
 

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
@@ -45,19 +44,11 @@ from .options import PoseOptions
 from .result import PoseEstimationError, PoseResult
 from .tracking_input import frames_for_views
 from .tracking_options import TrackingOptions
+from .tracking_pipeline import pipelined_updates
 from .tracking_scratch import _add_timings, scratch_estimator
 from .tracking_warm import RegionEstimator
 
 __all__ = ["Tracker"]
-
-_END = object()  # the end of a stream in Tracker.track
-
-
-@dataclasses.dataclass(frozen=True)
-class _BadPair:
-    """A pair of Tracker.track's stream taken ahead whose check failed: raised at its turn."""
-
-    error: ValueError
 
 class Tracker:
     """The transducer's pose, frame pair after frame pair: warm-started :func:`~.estimate.estimate_pose`.
@@ -267,57 +258,7 @@ class Tracker:
             for frames in pairs:
                 yield self.update(frames)
             return
-        source = iter(pairs)
-
-        def take():
-            # the next pair, checked; a bad one is raised when its turn comes, not ahead of it
-            item = next(source, _END)
-            if item is _END:
-                return _END
-            try:
-                return frames_for_views(item, self.views)
-            except ValueError as exc:
-                return _BadPair(exc)
-
-        worker = ThreadPoolExecutor(max_workers=1)
-        pending = None
-        try:
-            nxt = take()
-            slot = 0  # the map buffers of the pair being finished; the next pair is prepared in the other
-            while True:
-                if nxt is None:
-                    nxt = take()
-                if nxt is _END:
-                    break
-                frames, prepared_future = nxt, pending
-                pending = nxt = None
-                if isinstance(frames, _BadPair):
-                    raise frames.error
-                if ready is None or ready():
-                    nxt = take()
-                if nxt is not None and nxt is not _END and not isinstance(nxt, _BadPair) \
-                        and self._last_pose is not None:
-                    # A segmenter that draws gets its own Generator, seeded here: nothing is drawn
-                    # from the tracker's on the worker thread.
-                    rng = None if self._region.fast_unet is not None else \
-                        np.random.default_rng(int(self.rng.integers(2 ** 63)))
-                    # The views one after the other: the pairs already overlap, and two more threads
-                    # on two cores cost 10-20 % of the pairs per second (docs/tracking.md).
-                    pending = worker.submit(self._region.prepare, nxt, self._last_pose.copy(), rng, 1 - slot, False)
-                t_start = time.perf_counter()
-                prepared = None if prepared_future is None else prepared_future.result()
-                # Serial kernels: the other core segments the next pair meanwhile (numba's threads
-                # would take it from the worker: 16.7-17.5 warm pairs/s against 13.5-17.3, docs/tracking.md).
-                result = self._update(frames, prepared, t_start, slot, parallel=False)
-                if pending is not None and self.last_kind != "warm":
-                    pending.result()  # prepared from a pose the track has since left: prepare again
-                    pending = None
-                slot = 1 - slot
-                yield result
-        finally:
-            if pending is not None:
-                pending.cancel()
-            worker.shutdown(wait=True)
+        yield from pipelined_updates(self, pairs, ready)
 
     def _update(self, frames: list[Frame], prepared, t_start: float, slot: int = 0,
                 parallel: bool | None = None) -> PoseResult:
