@@ -78,9 +78,9 @@ def pipelined_updates(tracker, pairs: Iterable, ready: Callable[[], bool] | None
                 pending = worker.submit(tracker._region.prepare, nxt, tracker._last_pose.copy(), rng, 1 - slot, False)
             t_start = time.perf_counter()
             prepared = None if prepared_future is None else prepared_future.result()
-            # Serial kernels: the other core segments the next pair meanwhile (numba's threads
-            # would take it from the worker: 16.7-17.5 warm pairs/s against 13.5-17.3, docs/tracking.md).
-            result = tracker._update(frames, prepared, t_start, slot, parallel=False)
+            # While the worker segments the next pair, serial kernels here: numba's threads would
+            # take its core (16.7-17.5 warm pairs/s against 13.5-17.3, docs/tracking.md).
+            result = tracker._update(frames, prepared, t_start, slot, parallel=False if pending is not None else None)
             if pending is not None and tracker.last_kind != "warm":
                 pending.result()  # prepared from a pose the track has since left: prepare again
                 pending = None
