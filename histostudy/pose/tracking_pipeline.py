@@ -2,7 +2,7 @@
 :func:`pipelined_updates`.
 
 Two stages on two threads: while the calling thread refines and judges a pair
-(:meth:`~.tracking_warm.RegionEstimator.finish`, the cost's kernels serial), one worker thread
+(:meth:`~.tracking_warm.RegionEstimator.finish`, the cost's kernels serial meanwhile), one worker thread
 segments and maps the next pair's regions (:meth:`~.tracking_warm.RegionEstimator.prepare`, its
 views one after the other) from the last pose accepted before it. Torch, OpenCV and the cost's
 kernels release the GIL, so on two cores each stage has one. On the cines of docs/tracking.md this
