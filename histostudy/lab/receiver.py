@@ -91,8 +91,8 @@ class FrameReceiver:
             :class:`~histostudy.pose.PoseOptions` for :class:`~histostudy.pose.Tracker`.
         fast: the tracker's warm path (:class:`~histostudy.pose.Tracker`'s ``fast``): True
             (default) or a :class:`~histostudy.pose.TrackingOptions`: warm updates on the region of
-            the last pose, 5-6 times the pairs per second of the full-frame path within 0.1 mm of its
-            poses, a refused one tried again at the detector's resolution before a re-acquisition
+            the last pose, about 10 times the pairs per second of the full-frame path one pair at a
+            time (16-18 in Tracker.track's pipeline) within 0.1 mm of its poses, a refused one tried again at the detector's resolution before a re-acquisition
             (docs/tracking.md, "Warm starts that hold"); False: every update on the full frames, as
             the study's :func:`~histostudy.pose.estimate_pose`.
         on_pose: called with each record (a dict, as written) on the worker thread; its errors are
