@@ -88,7 +88,9 @@ class FrameReceiver:
         seed: the tracker's random draws (an int or a Generator): the same frames and seed give
             the same poses.
         segmenter, orientation, options, **option_overrides: the pose stages and
-            :class:`~histostudy.pose.PoseOptions` for :class:`~histostudy.pose.Tracker`.
+            :class:`~histostudy.pose.PoseOptions` for :class:`~histostudy.pose.Tracker`. Without
+            ``options``, ``retry_hypotheses`` defaults to False: live, the next pair is 0.13 s away,
+            where a refused estimate's retries held the stream 8-13 s (docs/tracking.md, "Where it stands").
         fast: the tracker's warm path (:class:`~histostudy.pose.Tracker`'s ``fast``): True
             (default) or a :class:`~histostudy.pose.TrackingOptions`: warm updates on the region of
             the last pose, about 10 times the pairs per second of the full-frame path one pair at a
@@ -138,6 +140,8 @@ class FrameReceiver:
             raise TypeError(f"on_pose must be callable (record -> None) or None, got {type(on_pose).__name__}")
         self.views = tuple(views)
         self.model = TransducerModel.build(spacing_mm=0.47) if model is None else model
+        if options is None:
+            option_overrides.setdefault("retry_hypotheses", False)
         self.tracker = Tracker(self.model, self.views, segmenter=segmenter, orientation=orientation, rng=seed,
                                options=options, fast=fast, **option_overrides)
         self.pairer = BiplanePairer(names, tolerance_s=tolerance_s, default_interval_s=default_interval_s)

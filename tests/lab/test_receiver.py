@@ -235,6 +235,16 @@ def test_receiver_arguments_are_checked(views, tmp_path):
         FrameReceiver(views, output_path=out, pipeline="yes")
 
 
+def test_the_receivers_estimates_from_scratch_do_not_retry_unless_asked(views, tmp_path):
+    from histostudy.pose import PoseOptions
+
+    out = tmp_path / "p.jsonl"
+    assert not FrameReceiver(views, output_path=out).tracker.options.retry_hypotheses
+    assert FrameReceiver(views, output_path=out, retry_hypotheses=True).tracker.options.retry_hypotheses
+    given = FrameReceiver(views, output_path=out, options=PoseOptions(), mode="fast").tracker.options
+    assert given.retry_hypotheses and given.mode == "fast"  # options given: taken as they are
+
+
 def test_listen_serves_until_its_timeout_and_answers_c_echo(views, tmp_path):
     from pynetdicom import AE
     from pynetdicom.sop_class import Verification
