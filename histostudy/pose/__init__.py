@@ -35,7 +35,7 @@ from .learned_stages import LEARNED_STAGE_REQUIREMENTS, default_stages, learned_
 from .options import INIT_METHODS, MAP_KINDS, MODES, PoseOptions
 from .perturbation import NormalEquations, apply_left_perturbation
 from .refine import RefineResult, refine_levenberg_marquardt, refine_nelder_mead
-from .result import PoseEstimationError, PoseResult
+from .result import PoseEstimationError, PoseResult, add_timings
 from .silhouette import SILHOUETTE_CELL_PX, segmented_occupancy, silhouette_candidates, silhouette_seed
 from .tracker import Tracker
 from .tracking_input import frames_for_views

@@ -13,7 +13,7 @@ from .init import InitResult
 from .refine import RefineResult
 from .verdict import PoseVerdict
 
-__all__ = ["PoseEstimationError", "PoseResult"]
+__all__ = ["PoseEstimationError", "PoseResult", "add_timings"]
 
 
 class PoseEstimationError(RuntimeError):
@@ -56,3 +56,10 @@ class PoseResult:
     refine: RefineResult
     labels: list = field(repr=False, default_factory=list)
     retries: int = 0
+
+
+def add_timings(into: dict, timings: dict) -> None:
+    """Adds each stage's seconds of ``timings`` (a :attr:`PoseResult.timings_s`) to ``into``, the running
+    sums of a stream of estimates (e.g. :attr:`~.tracker.Tracker.stage_seconds`)."""
+    for stage, seconds in timings.items():
+        into[stage] = into.get(stage, 0.0) + float(seconds)

@@ -41,11 +41,11 @@ from histostudy.transducer import TransducerModel
 from .estimate import estimate_pose
 from .learned_stages import default_stages
 from .options import PoseOptions
-from .result import PoseEstimationError, PoseResult
+from .result import PoseEstimationError, PoseResult, add_timings
 from .tracking_input import frames_for_views
 from .tracking_options import TrackingOptions
 from .tracking_pipeline import pipelined_updates
-from .tracking_scratch import _add_timings, scratch_estimator
+from .tracking_scratch import scratch_estimator
 from .tracking_warm import RegionEstimator
 
 __all__ = ["Tracker"]
@@ -338,7 +338,7 @@ class Tracker:
         return second
 
     def _count_stage_seconds(self, result: PoseResult) -> PoseResult:
-        _add_timings(self.stage_seconds, result.timings_s)
+        add_timings(self.stage_seconds, result.timings_s)
         return result
 
     def _estimate(self, frames: list[Frame], initial_pose) -> PoseResult:

@@ -55,7 +55,7 @@ from histostudy.transducer import TransducerModel, check_label_image
 from .conic_orientation import ConicOrientation
 from .estimate import estimate_pose
 from .options import PoseOptions
-from .result import PoseResult
+from .result import PoseResult, add_timings
 from .tracking_options import TrackingOptions
 from .tracking_roi import crop_view
 from .tracking_warm import _subset_indices
@@ -233,20 +233,14 @@ class ScratchEstimator:
                                    options=dataclasses.replace(self.full_options, raise_on_failure=False))
             result.init, self.last_step = first.init, "full_frame_warm"
             result.evaluations += first.evaluations
-            _add_timings(timings, result.timings_s)
+            add_timings(timings, result.timings_s)
             if not result.verdict.ok:
                 result = estimate_pose(frames, **full, options=self.full_options)
                 self.last_step = "full_frame"
-                _add_timings(timings, result.timings_s)
+                add_timings(timings, result.timings_s)
         timings["total"] = time.perf_counter() - t_start
         result.timings_s = timings
         return result
-
-
-def _add_timings(into: dict, timings: dict) -> None:
-    """Adds each stage's seconds of ``timings`` to ``into`` (a ``PoseResult.timings_s``-like dict)."""
-    for stage, seconds in timings.items():
-        into[stage] = into.get(stage, 0.0) + float(seconds)
 
 
 def scratch_estimator(model: TransducerModel, views: Sequence[View], segmenter, orientation, options: PoseOptions,

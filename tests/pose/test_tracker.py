@@ -146,3 +146,13 @@ def test_bad_input_is_refused_naming_the_argument(models, views):
         Tracker(model, views, mode="quick", **ORACLES)
     with pytest.raises(TypeError, match="rng must be"):
         Tracker(model, views, rng="seed", **ORACLES)
+
+
+def test_add_timings_sums_stage_by_stage_and_takes_new_stages():
+    from histostudy.pose import add_timings
+
+    sums = {}
+    add_timings(sums, {"segmentation": 0.25, "total": 1.0})
+    add_timings(sums, {"segmentation": np.float64(0.5), "retries": 2, "total": 0.5})
+    assert sums == {"segmentation": 0.75, "total": 1.5, "retries": 2.0}
+    assert all(type(v) is float for v in sums.values())
