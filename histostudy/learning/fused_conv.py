@@ -6,7 +6,7 @@ convolution writes them, the ReLU reads and writes them again. oneDNN, torch's C
 library, applies the ReLU to each output as the convolution produces it (a "post-op"), so the
 second pass disappears: on the shipped U-Net at a tracking region (448 x 448 network pixels,
 channels-last bfloat16) its layers took 18.8 ms against 23.0 ms on one thread, and 10.6 against
-12.5 ms on two (docs/tracking.md, "Where it stands").
+12.5 ms on two (docs/tracking.md, "Fifteen pairs a second on two cores").
 
 The result is the same bits: the convolution is the same oneDNN primitive, and a ReLU commutes with
 rounding to bfloat16 or float32 (rounding keeps the sign, and zero stays zero).

@@ -14,7 +14,7 @@ Internal to :class:`~.cost.PoseCost`, which lays out their arguments; nothing he
 Every entry point releases the GIL while it runs (``nogil``): :meth:`histostudy.pose.Tracker.track`
 refines one pair on the calling thread while a worker thread segments the next, whose Python
 between torch's operations would otherwise wait for each kernel call to end (docs/tracking.md,
-"Where it stands": the pipeline's pairs per second rose by a fifth to two fifths).
+"Fifteen pairs a second on two cores": the pipeline's pairs per second rose by about a fifth).
 """
 
 from __future__ import annotations
