@@ -280,14 +280,16 @@ class RegionEstimator:
 
     def _segment_and_map(self, frames, regions, rng, buffers, t_start, parallel_views: bool) -> PreparedRegions:
         """Labels and distance maps of each view's region (into the map buffers ``buffers[a]``)."""
+        reach_px = self._caps(regions[0].scale)["reach"]  # the views' regions share their scale
+
         def per_view(a):
             t0 = time.perf_counter()
             labels = self._labels(frames[a], regions[a], rng)
             t1 = time.perf_counter()
-            maps = self._maps.build(buffers[a], regions[a].view, labels, self._caps(regions[a].scale)["reach"])
+            maps = self._maps.build(buffers[a], regions[a].view, labels, reach_px)
             return labels, maps, t1 - t0, time.perf_counter() - t1
 
-        if parallel_views and self._pool is not None and self.fast_unet is not None:
+        if parallel_views and self.fast_unet is not None:
             outputs = list(self._pool.map(per_view, range(len(frames))))
         else:
             outputs = [per_view(a) for a in range(len(frames))]
