@@ -14,6 +14,8 @@ and ``error``. Lines are appended and flushed one by one.
 
 from __future__ import annotations
 
+import json
+import logging
 from typing import Sequence
 
 from histostudy.core import to_jsonable
@@ -21,6 +23,8 @@ from histostudy.pose import PoseResult, pose_record
 from .xray_objects import ReceivedFrame
 
 __all__ = ["pose_line"]
+
+log = logging.getLogger(__name__)
 
 
 def pose_line(index: int, frames: Sequence[ReceivedFrame], queued_at: float, taken_at: float, *,
@@ -43,3 +47,13 @@ def pose_line(index: int, frames: Sequence[ReceivedFrame], queued_at: float, tak
                          "pose": t_written - max(taken_at, t_free),
                          "latency": t_written - max(f.received_at for f in frames)}
     return to_jsonable(record)
+
+
+def append_pose_line(out, record: dict, path) -> None:
+    """Appends ``record`` (a :func:`pose_line`) to the open text file ``out`` as one JSON line and flushes
+    it; a write that fails (a full disk, a closed file) is logged, naming ``path``, and the stream goes on."""
+    try:
+        out.write(json.dumps(record) + "\n")
+        out.flush()
+    except (OSError, ValueError):
+        log.exception("pair %s: the pose line could not be written to %s", record.get("pair_index"), path)

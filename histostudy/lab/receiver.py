@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import json
 import logging
 import os
 import threading
@@ -58,11 +57,11 @@ from histostudy.imaging import View
 from histostudy.pose import Tracker
 from histostudy.transducer import TransducerModel
 from .pairing import DEFAULT_FRAME_INTERVAL_S, BiplanePairer, PlaneFrame
-from .pose_lines import pose_line
+from .pose_lines import append_pose_line, pose_line
 from .receiver_counts import ReceiverCounts
 from .sender import check_ae_title, check_count, check_host, check_port, check_positive
 from .xray_objects import (STATUS_OUT_OF_RESOURCES, STATUS_SUCCESS, XRayObjectRejected,
-                           decode_c_store, rejection_response)
+                           decode_c_store, rejection_response, storage_application_entity)
 
 __all__ = ["FrameReceiver"]
 
@@ -94,8 +93,9 @@ class FrameReceiver:
         fast: the tracker's warm path (:class:`~histostudy.pose.Tracker`'s ``fast``): True
             (default) or a :class:`~histostudy.pose.TrackingOptions`: warm updates on the region of
             the last pose, about 10 times the pairs per second of the full-frame path one pair at a
-            time (16-18 in Tracker.track's pipeline) within 0.1 mm of its poses, a refused one tried again at the detector's resolution before a re-acquisition
-            (docs/tracking.md, "Warm starts that hold"); False: every update on the full frames, as
+            time (16-18 in Tracker.track's pipeline) within 0.1 mm of its poses, a refused one tried
+            again at the detector's resolution before a re-acquisition (docs/tracking.md, "Warm
+            starts that hold"); False: every update on the full frames, as
             the study's :func:`~histostudy.pose.estimate_pose`.
         on_pose: called with each record (a dict, as written) on the worker thread; its errors are
             logged, not raised.
@@ -164,21 +164,14 @@ class FrameReceiver:
 
     def start(self) -> int:
         """Open the output, start the pose worker and listen (non-blocking); returns the bound port."""
-        from pynetdicom import AE, AllStoragePresentationContexts, evt
-        from pynetdicom.sop_class import Verification
+        from pynetdicom import evt
 
         if self._server is not None or self._stopped:
             raise RuntimeError("this FrameReceiver was started already; make a new one")
         self._out = open(self.output_path, "a", encoding="utf-8")
         self._worker = threading.Thread(target=self._work, name="histostudy-pose-worker", daemon=True)
         self._worker.start()
-        ae = AE(ae_title=self.ae_title)
-        # Every storage SOP class is accepted at negotiation, so that an object that is not an
-        # X-ray image reaches the handler and gets a C-STORE failure status naming why.
-        for context in AllStoragePresentationContexts:
-            ae.add_supported_context(context.abstract_syntax)
-        ae.add_supported_context(Verification)  # C-ECHO: the C-arm's connection test
-        ae.network_timeout = self.network_timeout_s
+        ae = storage_application_entity(self.ae_title, self.network_timeout_s)
         handlers = [(evt.EVT_C_STORE, self._on_c_store), (evt.EVT_CONN_OPEN, self._on_event("connections")),
                     (evt.EVT_ACCEPTED, self._on_event("associations")),
                     (evt.EVT_ABORTED, self._on_event("associations_aborted"))]
@@ -381,11 +374,7 @@ class FrameReceiver:
         record = pose_line(index, frames, queued_at, taken_at, result=result, error=error,
                            tracking=None if error is not None else self.tracker.last_kind, t_free=t_free,
                            t_written=time.perf_counter())
-        try:
-            self._out.write(json.dumps(record) + "\n")
-            self._out.flush()
-        except (OSError, ValueError):
-            log.exception("pair %d: the pose line could not be written to %s", index, self.output_path)
+        append_pose_line(self._out, record, self.output_path)
         now = time.perf_counter()
         with self._cv:
             # a snapshot of the tracker's counters: stats() reads it from other threads

@@ -210,6 +210,22 @@ def rejection_response(status: int, reason: str):
     return response
 
 
+def storage_application_entity(ae_title: str, network_timeout_s: float):
+    """pynetdicom's application entity of a Storage SCP that C-arms send X-ray objects to: every
+    storage SOP class accepted at negotiation, so that an object that is not an X-ray image reaches
+    the C-STORE handler and gets a failure status naming why (:func:`rejection_response`), and
+    Verification (C-ECHO, the C-arm's connection test)."""
+    from pynetdicom import AE, AllStoragePresentationContexts
+    from pynetdicom.sop_class import Verification
+
+    ae = AE(ae_title=ae_title)
+    for context in AllStoragePresentationContexts:
+        ae.add_supported_context(context.abstract_syntax)
+    ae.add_supported_context(Verification)
+    ae.network_timeout = network_timeout_s
+    return ae
+
+
 def _plane_view(ds, views: Sequence[View], frame_index: int | None, tol_mm: float | None) -> View:
     """The view of a frame: named by SeriesDescription (and confirmed by the tags), else matched by
     the geometry the tags record."""
