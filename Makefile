@@ -1,6 +1,8 @@
 # histostudy: two commands set everything up on a fresh machine.
 #   make reproduce   create .venv, install, run the study in the smoke profile -> reports/
 #   make test        create .venv if missing, run the whole test suite (papermill smoke run included)
+#   make test-avx2   the same suite with the libraries held to AVX2, as on a CPU without AVX-512,
+#                    AMX or native bfloat16 (docs/testing.md, "Every CPU")
 #
 # Torch is installed first as a CPU build, so that the package's own `torch` requirement is already
 # satisfied and pip does not pull gigabytes of CUDA packages. Choose another build with, e.g.
@@ -17,7 +19,10 @@ PYTEST_ARGS ?=
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.histostudy-installed
 
-.PHONY: all env reproduce test lab bench clean-reports
+# histostudy.core.machine.AVX2_RESTRICTION: oneDNN, ATen and numba at an AVX2-only CPU's level.
+AVX2_ENV := ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2 NUMBA_CPU_NAME=haswell
+
+.PHONY: all env reproduce test test-avx2 lab bench clean-reports
 
 all: test
 
@@ -36,6 +41,9 @@ reproduce: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
+
+test-avx2: $(STAMP)
+	$(AVX2_ENV) $(BIN)/python -m pytest $(PYTEST_ARGS)
 
 lab: $(STAMP)
 	$(BIN)/jupyter lab --notebook-dir=notebooks

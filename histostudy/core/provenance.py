@@ -10,6 +10,8 @@ from datetime import datetime, timezone
 from importlib import metadata
 from pathlib import Path
 
+from .machine import cpu_model, isa_flags, isa_restriction
+
 __all__ = ["git_commit", "package_versions", "provenance"]
 
 _PACKAGES = ("histostudy", "numpy", "scipy", "torch", "opencv-python-headless", "pyvista", "vtk",
@@ -47,5 +49,6 @@ def provenance() -> dict:
         "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "git_commit": git_commit(),
         "versions": package_versions(),
-        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "executable": sys.executable},
+        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "executable": sys.executable,
+                    "cpu_model": cpu_model(), "isa_flags": isa_flags(), "isa_restriction": isa_restriction()},
     }

@@ -10,8 +10,9 @@ the region where the transducer projects. :class:`FastUNet` therefore
 - folds each batch normalisation into the convolution before it (inference only: the same
   function, one pass over memory less per layer) and keeps activations channels-last, which the
   CPU convolutions run about 1.5-2x faster than NCHW (docs/tracking.md);
-- runs each convolution and the ReLU after it as one oneDNN call (:mod:`.fused_conv`: the same
-  bits, one pass over the activations less; about a fifth of the network's time), and pools as the
+- runs each convolution and the ReLU after it as one oneDNN call (:mod:`.fused_conv`: within
+  float32 rounding of the eager pair, one pass over the activations less; about a fifth of the
+  network's time), and pools as the
   maximum of four strided quarters (:func:`~.nets.unet.max_pool_2x2`: the same values, 2-3x faster
   than ``max_pool2d`` on channels-last activations);
 - on a CPU with native bfloat16 arithmetic (AVX512-BF16 or AMX), runs the convolutions in
@@ -60,12 +61,30 @@ __all__ = ["FAST_UNET_PRECISIONS", "FastUNet", "native_bfloat16"]
 FAST_UNET_PRECISIONS = ("auto", "float32", "bfloat16")
 
 
+#: oneDNN instruction-set levels (``ONEDNN_MAX_CPU_ISA``) at which its convolutions have native
+#: bfloat16 kernels; below them (AVX2, AVX512_CORE without BF16 ...) torch's bfloat16 convolution
+#: is emulated or refused.
+_ONEDNN_BFLOAT16_ISAS = frozenset({"AVX2_VNNI_2", "AVX512_CORE_BF16", "AVX512_CORE_FP16", "AVX512_CORE_AMX",
+                                   "AVX512_CORE_AMX_FP16", "AVX10_1_512", "AVX10_1_512_AMX",
+                                   "AVX10_1_512_AMX_FP16", "AVX10_2_512", "AVX10_2_512_AMX_2", "ALL", "DEFAULT"})
+
+
 def native_bfloat16() -> bool:
-    """True when this CPU computes bfloat16 natively (AVX512-BF16 or AMX tiles), where bfloat16
-    convolutions run faster than float32 ones; elsewhere they are emulated and slower."""
+    """True when this CPU computes bfloat16 natively (AVX512-BF16 or AMX tiles) and torch may use
+    it, where bfloat16 convolutions run faster than float32 ones; elsewhere they are emulated and
+    slower. A restriction of the libraries to a lower instruction set
+    (:data:`histostudy.core.machine.ISA_RESTRICTION_ENV`: ``ATEN_CPU_CAPABILITY`` below avx512,
+    ``ONEDNN_MAX_CPU_ISA`` below AVX512_CORE_BF16) counts as the lower CPU."""
+    import os
+
     import torch
 
+    onednn_isa = os.environ.get("ONEDNN_MAX_CPU_ISA") or os.environ.get("DNNL_MAX_CPU_ISA")
+    if onednn_isa and onednn_isa.strip().upper() not in _ONEDNN_BFLOAT16_ISAS:
+        return False
     try:
+        if torch.backends.cpu.get_cpu_capability() != "AVX512":
+            return False
         return bool(torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported())
     except (AttributeError, RuntimeError):
         return False
@@ -153,7 +172,7 @@ class FastUNet:
             self._head_weights = (self._head.weight.detach()[:, :, 0, 0].numpy().copy(),
                                   self._head.bias.detach().numpy().copy())
         self._net = net.to(memory_format=torch.channels_last).to(self._dtype)
-        # Each Conv2d -> ReLU in one oneDNN call where that gives the same bits (fused_conv.py).
+        # Each Conv2d -> ReLU in one oneDNN call where that keeps float32 rounding's bound (fused_conv.py).
         self._net, self.n_fused_layers = fuse_conv_relu(self._net)
 
     def segment_region(self, frame: Frame, box, upsample: int = 1) -> np.ndarray:

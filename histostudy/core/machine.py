@@ -1,0 +1,87 @@
+"""Which CPU a run had, and which of its instruction sets the numerical libraries were allowed to
+use: the line a benchmark, a test session and CI print first, and part of every result's
+provenance.
+
+The numbers this project computes on CPU depend on the instruction set in two ways (docs/testing.md,
+"Every CPU"): speed (AVX-512 and its bfloat16 instructions or AMX tiles against AVX2 alone), and
+the order in which oneDNN and torch sum a convolution's products, which moves results by float32
+rounding. The libraries can be held to a lower instruction set than the machine has, so that one
+machine reproduces another's case; :data:`ISA_RESTRICTION_ENV` names the variables that do it and
+:data:`AVX2_RESTRICTION` their values for an AVX2-only CPU (``make test-avx2`` sets them).
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+from importlib import metadata
+
+__all__ = ["AVX2_RESTRICTION", "ISA_FLAGS", "ISA_RESTRICTION_ENV", "cpu_model", "isa_flags",
+           "isa_restriction", "machine_summary"]
+
+#: The CPU flags (as Linux's /proc/cpuinfo names them) that decide which kernels run here.
+ISA_FLAGS = ("avx2", "fma", "avx512f", "avx512_bf16", "amx_tile", "amx_bf16")
+
+#: The environment variables that hold the libraries below the CPU's instruction set: oneDNN
+#: (torch's convolutions), ATen (torch's other kernels) and numba (this project's compiled kernels).
+ISA_RESTRICTION_ENV = ("ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY", "NUMBA_CPU_NAME")
+
+#: The restriction that makes any x86-64 machine compute as an AVX2-only CPU (a Haswell) would.
+AVX2_RESTRICTION = {"ONEDNN_MAX_CPU_ISA": "AVX2", "ATEN_CPU_CAPABILITY": "avx2", "NUMBA_CPU_NAME": "haswell"}
+
+_LIBRARIES = ("numpy", "scipy", "numba", "torch", "opencv-python-headless")
+
+
+def _cpuinfo() -> dict[str, str]:
+    """The first processor's entries of /proc/cpuinfo ({} where there is none)."""
+    entries: dict[str, str] = {}
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as handle:
+            for line in handle:
+                if not line.strip():
+                    if entries:
+                        break
+                    continue
+                key, _, value = line.partition(":")
+                entries.setdefault(key.strip(), value.strip())
+    except OSError:
+        pass
+    return entries
+
+
+def cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo``), or the platform's processor string elsewhere."""
+    return _cpuinfo().get("model name") or platform.processor() or platform.machine()
+
+
+def isa_flags() -> dict[str, bool]:
+    """Whether the CPU has each of :data:`ISA_FLAGS` (all False where /proc/cpuinfo is missing)."""
+    flags = set(_cpuinfo().get("flags", "").split())
+    return {name: name in flags for name in ISA_FLAGS}
+
+
+def isa_restriction() -> dict[str, str]:
+    """The variables of :data:`ISA_RESTRICTION_ENV` set in this process, with their values."""
+    return {name: os.environ[name] for name in ISA_RESTRICTION_ENV if os.environ.get(name)}
+
+
+def machine_summary() -> str:
+    """Three lines: the CPU (model, cores, ISA flags), the restriction in force (or "none"), and the
+    numerical libraries' versions with torch's kernel level. Imports torch only if installed."""
+    flags = " ".join(f"{name}={'yes' if present else 'no'}" for name, present in isa_flags().items())
+    restriction = " ".join(f"{k}={v}" for k, v in isa_restriction().items()) or "none"
+    versions = []
+    for name in _LIBRARIES:
+        try:
+            versions.append(f"{name} {metadata.version(name)}")
+        except metadata.PackageNotFoundError:
+            versions.append(f"{name} not installed")
+    try:
+        import torch
+
+        versions.append(f"torch kernels {torch.backends.cpu.get_cpu_capability()}")
+    except ImportError:
+        pass
+    return (f"CPU: {cpu_model()}, {os.cpu_count()} cores; {flags}\n"
+            f"ISA restriction: {restriction}\n"
+            f"libraries: python {platform.python_version()}, {', '.join(versions)}")

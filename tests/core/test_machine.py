@@ -1,0 +1,65 @@
+"""Tests of histostudy.core.machine: the CPU's flags as torch's own detection sees them, the
+restriction read from the environment, and native bfloat16 off under it."""
+
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from histostudy.core import AVX2_RESTRICTION, ISA_RESTRICTION_ENV, isa_flags, isa_restriction, machine_summary
+
+linux = pytest.mark.skipif(not os.path.exists("/proc/cpuinfo"), reason="no /proc/cpuinfo on this system")
+
+
+@linux
+def test_flags_agree_with_torchs_cpu_detection():
+    flags = isa_flags()
+    assert flags["avx512_bf16"] == torch.cpu._is_avx512_bf16_supported()  # torch asks cpuinfo's CPUID itself
+    assert flags["amx_tile"] == torch.cpu._is_amx_tile_supported()
+    assert flags["avx2"] == torch.cpu._is_avx2_supported()
+    assert not flags["avx512_bf16"] or flags["avx512f"]  # BF16 is an AVX-512 extension
+
+
+def test_restriction_is_read_from_the_environment(monkeypatch):
+    for name in ISA_RESTRICTION_ENV:
+        monkeypatch.delenv(name, raising=False)
+    assert isa_restriction() == {}
+    assert "ISA restriction: none" in machine_summary()
+    for name, value in AVX2_RESTRICTION.items():
+        monkeypatch.setenv(name, value)
+    assert isa_restriction() == AVX2_RESTRICTION
+    summary = machine_summary()
+    assert "ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2 NUMBA_CPU_NAME=haswell" in summary
+    assert len(summary.splitlines()) == 3 and "torch 2." in summary
+
+
+def test_the_makefile_restriction_is_the_documented_one():
+    from pathlib import Path
+
+    makefile = (Path(__file__).parents[2] / "Makefile").read_text()
+    assert "AVX2_ENV := " + " ".join(f"{k}={v}" for k, v in AVX2_RESTRICTION.items()) in makefile
+
+
+def _native_bfloat16_in_a_fresh_interpreter(**restriction) -> bool:
+    """native_bfloat16() in a new process with only ``restriction`` set (ATen reads its capability
+    once, at its first dispatch)."""
+    code = "from histostudy.learning import native_bfloat16; print(native_bfloat16())"
+    env = {k: v for k, v in os.environ.items() if k not in ISA_RESTRICTION_ENV} | restriction
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    return {"True": True, "False": False}[out.stdout.strip()]
+
+
+def test_native_bfloat16_follows_the_cpu_and_is_off_below_avx512():
+    expected = torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported()
+    assert _native_bfloat16_in_a_fresh_interpreter() == bool(expected)
+    assert _native_bfloat16_in_a_fresh_interpreter(ATEN_CPU_CAPABILITY="avx2") is False
+
+
+@pytest.mark.parametrize("value", ["AVX2", "avx512_core", "AVX512_CORE_VNNI"])
+def test_native_bfloat16_is_off_when_onednn_is_held_below_its_bfloat16_kernels(monkeypatch, value):
+    from histostudy.learning import native_bfloat16
+
+    monkeypatch.setenv("ONEDNN_MAX_CPU_ISA", value)
+    assert native_bfloat16() is False
