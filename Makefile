@@ -15,12 +15,15 @@ TORCH_PIP_ARGS ?=
 PROFILE ?= smoke
 REPORTS ?= reports
 PYTEST_ARGS ?=
+# pytest-xdist workers of `make test` (0: one process); docs/testing.md
+TEST_WORKERS ?= 2
 
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.histostudy-installed
 
-# histostudy.core.machine.AVX2_RESTRICTION: oneDNN, ATen and numba at an AVX2-only CPU's level.
-AVX2_ENV := ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2 NUMBA_CPU_NAME=haswell
+# oneDNN, ATen, numba and numpy at an AVX2-only CPU's level (histostudy.core.machine.avx2_restriction:
+# ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2 NUMBA_CPU_NAME=haswell, and numpy's AVX-512 loops off)
+AVX2_ENV = $(shell $(BIN)/python -c "from histostudy.core import avx2_env_words; print(avx2_env_words())")
 
 .PHONY: all env reproduce test test-avx2 lab bench clean-reports
 
@@ -39,11 +42,13 @@ $(STAMP): pyproject.toml
 reproduce: $(STAMP)
 	$(BIN)/histostudy reproduce --profile $(PROFILE) --output $(REPORTS)
 
+PYTEST := $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist worksteal
+
 test: $(STAMP)
-	$(BIN)/python -m pytest $(PYTEST_ARGS)
+	$(PYTEST) $(PYTEST_ARGS)
 
 test-avx2: $(STAMP)
-	$(AVX2_ENV) $(BIN)/python -m pytest $(PYTEST_ARGS)
+	$(AVX2_ENV) $(PYTEST) $(PYTEST_ARGS)
 
 lab: $(STAMP)
 	$(BIN)/jupyter lab --notebook-dir=notebooks

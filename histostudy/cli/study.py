@@ -23,6 +23,16 @@ def _profile(value: str):
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def _positive_int(value: str) -> int:
+    try:
+        number = int(value)
+    except ValueError:
+        number = 0
+    if number < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value!r}")
+    return number
+
+
 def add_parsers(sub, parents) -> None:
     """The study's subcommands on the ``histostudy`` parser's ``sub``."""
     rep = sub.add_parser("reproduce", parents=parents,
@@ -34,6 +44,8 @@ def add_parsers(sub, parents) -> None:
     rep.add_argument("--output", default="reports", help="output folder (default: reports)")
     rep.add_argument("--notebooks", default=None, help="notebook folder (default: the repository's notebooks/)")
     rep.add_argument("--no-progress", action="store_true", help="no per-cell progress bar")
+    rep.add_argument("--workers", type=_positive_int, default=1, metavar="N",
+                     help="notebooks run at once, each in its own kernel (default: 1; the numbers do not depend on it)")
     rep.set_defaults(run=_reproduce)
 
     tr = sub.add_parser("train", parents=parents,
@@ -85,7 +97,7 @@ def _reproduce(args) -> int:
 
     try:
         run = run_study(args.profile, args.output, only=args.only, notebooks_dir=args.notebooks,
-                        progress=not args.no_progress)
+                        progress=not args.no_progress and args.workers == 1, workers=args.workers)
     except NotebookFailed as exc:
         print(f"histostudy reproduce: {exc}", file=sys.stderr)
         return 1

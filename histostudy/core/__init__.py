@@ -1,14 +1,14 @@
 """Foundations every layer uses, no paper section of their own: file writes that are atomic and
 honour the umask (``io``), the one seeding policy (``seeding``: every random draw takes a seed or a
 ``numpy.random.Generator``), the provenance recorded beside every result and checkpoint
-(``provenance``, with the CPU and instruction sets of ``machine``), and the Monte-Carlo sweeps run in this process or on ``dask.distributed``
-(``sweeps``, the same numbers either way). See docs/architecture.md, "Seeding and determinism".
+(``provenance``, with the CPU and its instruction sets from ``machine``), and the Monte-Carlo
+sweeps run in this process or on ``dask.distributed`` (``sweeps``, the same numbers either way). See docs/architecture.md, "Seeding and determinism".
 """
 
 from . import io as _io, machine as _machine, provenance as _provenance, seeding as _seeding, sweeps as _sweeps
 from .io import atomic_path, atomic_write_bytes, atomic_write_json, atomic_write_text, process_umask, to_jsonable
-from .machine import (AVX2_RESTRICTION, ISA_FLAGS, ISA_RESTRICTION_ENV, cpu_model, isa_flags, isa_restriction,
-                      machine_summary)
+from .machine import (AVX2_RESTRICTION, ISA_FLAGS, ISA_RESTRICTION_ENV, avx2_env_words, avx2_restriction, cpu_model,
+                      isa_flags, isa_restriction, machine_summary)
 from .provenance import git_commit, package_versions, provenance
 from .seeding import as_generator
 from .sweeps import SCHEDULER_ENV, SweepExecutor, SweepTaskError, resolve_executor, run_sweep

@@ -7,7 +7,8 @@ The numbers this project computes on CPU depend on the instruction set in two wa
 the order in which oneDNN and torch sum a convolution's products, which moves results by float32
 rounding. The libraries can be held to a lower instruction set than the machine has, so that one
 machine reproduces another's case; :data:`ISA_RESTRICTION_ENV` names the variables that do it and
-:data:`AVX2_RESTRICTION` their values for an AVX2-only CPU (``make test-avx2`` sets them).
+:func:`avx2_restriction` their values for an AVX2-only CPU (``make test-avx2`` sets them, printed by
+:func:`avx2_env_words`).
 """
 
 from __future__ import annotations
@@ -16,17 +17,19 @@ import os
 import platform
 from importlib import metadata
 
-__all__ = ["AVX2_RESTRICTION", "ISA_FLAGS", "ISA_RESTRICTION_ENV", "cpu_model", "isa_flags",
-           "isa_restriction", "machine_summary"]
+__all__ = ["AVX2_RESTRICTION", "ISA_FLAGS", "ISA_RESTRICTION_ENV", "avx2_env_words", "avx2_restriction", "cpu_model",
+           "isa_flags", "isa_restriction", "machine_summary"]
 
 #: The CPU flags (as Linux's /proc/cpuinfo names them) that decide which kernels run here.
 ISA_FLAGS = ("avx2", "fma", "avx512f", "avx512_bf16", "amx_tile", "amx_bf16")
 
 #: The environment variables that hold the libraries below the CPU's instruction set: oneDNN
-#: (torch's convolutions), ATen (torch's other kernels) and numba (this project's compiled kernels).
-ISA_RESTRICTION_ENV = ("ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY", "NUMBA_CPU_NAME")
+#: (torch's convolutions), ATen (torch's other kernels), numba (this project's compiled kernels) and
+#: numpy (its run-time dispatched loops).
+ISA_RESTRICTION_ENV = ("ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY", "NUMBA_CPU_NAME", "NPY_DISABLE_CPU_FEATURES")
 
-#: The restriction that makes any x86-64 machine compute as an AVX2-only CPU (a Haswell) would.
+#: The restriction of torch and numba that makes any x86-64 machine compute as an AVX2-only CPU (a
+#: Haswell) would; :func:`avx2_restriction` adds numpy's.
 AVX2_RESTRICTION = {"ONEDNN_MAX_CPU_ISA": "AVX2", "ATEN_CPU_CAPABILITY": "avx2", "NUMBA_CPU_NAME": "haswell"}
 
 _LIBRARIES = ("numpy", "scipy", "numba", "torch", "opencv-python-headless")
@@ -60,6 +63,26 @@ def isa_flags() -> dict[str, bool]:
     return {name: name in flags for name in ISA_FLAGS}
 
 
+def avx2_restriction() -> dict[str, str]:
+    """:data:`AVX2_RESTRICTION` plus ``NPY_DISABLE_CPU_FEATURES``: the installed numpy's dispatch
+    targets beyond AVX2 (their names change between numpy versions, and naming one it lacks makes
+    numpy warn at import)."""
+    try:
+        from numpy._core._multiarray_umath import __cpu_dispatch__
+    except ImportError:  # numpy 1.x
+        from numpy.core._multiarray_umath import __cpu_dispatch__
+    beyond_avx2 = [name for name in __cpu_dispatch__ if "512" in name or name == "X86_V4"]
+    return AVX2_RESTRICTION | ({"NPY_DISABLE_CPU_FEATURES": " ".join(beyond_avx2)} if beyond_avx2 else {})
+
+
+def avx2_env_words() -> str:
+    """:func:`avx2_restriction` as shell words ``VAR=value ...``, as ``make test-avx2`` puts them
+    before its command."""
+    import shlex
+
+    return " ".join(f"{name}={shlex.quote(value)}" for name, value in avx2_restriction().items())
+
+
 def isa_restriction() -> dict[str, str]:
     """The variables of :data:`ISA_RESTRICTION_ENV` set in this process, with their values."""
     return {name: os.environ[name] for name in ISA_RESTRICTION_ENV if os.environ.get(name)}
@@ -85,3 +108,4 @@ def machine_summary() -> str:
     return (f"CPU: {cpu_model()}, {os.cpu_count()} cores; {flags}\n"
             f"ISA restriction: {restriction}\n"
             f"libraries: python {platform.python_version()}, {', '.join(versions)}")
+

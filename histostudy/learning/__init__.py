@@ -20,7 +20,7 @@ from .checkpoints import (MODELS_DIR, load_checkpoint, load_network, load_shippe
 from .datasets import (HybridFrames, HybridImageDataset, RenderConfig, SPLIT_CODES, default_cache_dir, flip_angles,
                        random_training_pose, true_angles)
 from .fast_segment import FAST_UNET_PRECISIONS, FastUNet, native_bfloat16
-from .fused_conv import ConvReLU, fuse_conv_relu
+from .fused_conv import ConvReLU, fuse_conv_relu, reordering_bound
 from .orientation import (LearnedOrientation, N_ORIENTATION_CLASSES, OracleOrientation, OrientationSource,
                           angles_from_direction, beam_direction_of_pose, default_vgg19, direction_candidates,
                           hemisphere_angles, hemisphere_directions, orientation_angle_error, orientation_class,

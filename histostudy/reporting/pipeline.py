@@ -1,4 +1,5 @@
-"""The batch study: run the notebooks in order through papermill, then assemble the report.
+"""The batch study: run the notebooks in order through papermill (``workers`` of them at once),
+then assemble the report.
 
 ``histostudy reproduce`` calls :func:`run_study`. Each notebook ``notebooks/NN_name.ipynb`` runs
 with the profile's parameters plus ``output_dir = <output>/NN_name``, where it records its
@@ -81,8 +82,14 @@ class StudyRun:
 
 def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLike = "reports", *,
               only: Sequence[str] | None = None, notebooks_dir: str | os.PathLike | None = None,
-              progress: bool = True, log: Callable[[str], None] | None = None) -> StudyRun:
+              progress: bool = True, log: Callable[[str], None] | None = None, workers: int = 1) -> StudyRun:
     """Run the study notebooks of ``profile`` into ``output_dir`` and assemble the report.
+
+    ``workers``: how many notebooks run at once, each in its own kernel (1: one after the other).
+    The notebooks are independent (each writes its own section; the frame cache is written
+    atomically), and each takes its seed from the profile, so the numbers do not depend on it;
+    ``run.json`` lists them in their order either way. A failed notebook stops new ones from
+    starting; those already running finish.
 
     Raises ValueError, before executing or writing anything, when the profile does not fit the
     notebooks of ``notebooks_dir`` (:func:`~histostudy.reporting.profiles.validate_profile`).
@@ -92,6 +99,8 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
     ``"interrupted"`` in ``run.json`` and the report, and ``KeyboardInterrupt`` /
     :class:`~histostudy.reporting.interrupts.StudyInterrupted` raised after the report is written.
     """
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be a positive integer (notebooks run at once), got {workers!r}")
     prof = profile if isinstance(profile, Profile) else load_profile(profile)
     found = discover_notebooks(notebooks_dir or DEFAULT_NOTEBOOK_DIR)
     # Against every notebook of the folder, not the --only subset: a table for a notebook left out
@@ -109,40 +118,103 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
         "notebooks": [{"name": p.stem, "status": "pending"} for p in notebooks],
         "failure": None,
     }
-    failure: NotebookFailed | KeyboardInterrupt | StudyInterrupted | None = None
+    tasks = [_NotebookTask(i, len(notebooks), nb_path, entry, prof, out, progress, log)
+             for i, (nb_path, entry) in enumerate(zip(notebooks, record["notebooks"]), start=1)]
     with signals_interrupt(), _running_kernel() as kernel_name:
-        for i, (nb_path, entry) in enumerate(zip(notebooks, record["notebooks"]), start=1):
-            section_dir = out / nb_path.stem
-            params = prof.parameters_for(nb_path.stem) | {"output_dir": str(section_dir)}
-            entry["output_dir"] = str(section_dir)
-            entry["parameters"] = params
-            log(f"[{i}/{len(notebooks)}] {nb_path.stem} (profile {prof.name})")
-            t0 = time.perf_counter()
-            try:
-                _execute(nb_path, out / "notebooks" / nb_path.name, params, kernel_name, progress)
-            except NotebookFailed as exc:
-                entry.update(status="failed", seconds=time.perf_counter() - t0)
-                record["failure"] = {"notebook": exc.notebook, "cell_index": exc.cell_index, "error": exc.error,
-                                     "executed_notebook": str(exc.executed_notebook)}
-                failure = exc
-                break
-            except (KeyboardInterrupt, StudyInterrupted) as exc:
-                signal_name = getattr(exc, "signal_name", "SIGINT")
-                stop_kernels()
-                remove_temporaries(section_dir, out / "notebooks")
-                entry.update(status="interrupted", seconds=time.perf_counter() - t0)
-                record["failure"] = {"notebook": nb_path.stem, "cell_index": None,
-                                     "error": f"interrupted by {signal_name}", "executed_notebook": None}
-                log(f"      interrupted by {signal_name}: kernel stopped, section {nb_path.stem} marked interrupted")
-                failure = exc
-                break
-            entry.update(status="ok", seconds=time.perf_counter() - t0)
-            log(f"      done in {entry['seconds']:.1f} s")
+        failure = _run_tasks(tasks, kernel_name, min(workers, len(tasks)), record, log)
     write_run_record(out, record)
     md, html_path = build_report(out, record)
     if failure is not None:
         raise failure
     return StudyRun(out, md, html_path, record)
+
+
+@dataclass
+class _NotebookTask:
+    """One notebook of a run: its place, its entry of ``run.json`` (updated as it runs) and where
+    its section goes."""
+    index: int
+    count: int
+    nb_path: Path
+    entry: dict
+    profile: Profile
+    out: Path
+    progress: bool
+    log: Callable[[str], None]
+
+    @property
+    def section_dir(self) -> Path:
+        return self.out / self.nb_path.stem
+
+    def run(self, kernel_name: str) -> NotebookFailed | None:
+        """Execute the notebook; its :class:`NotebookFailed` is returned, not raised."""
+        params = self.profile.parameters_for(self.nb_path.stem) | {"output_dir": str(self.section_dir)}
+        self.entry.update(output_dir=str(self.section_dir), parameters=params, status="running")
+        self.log(f"[{self.index}/{self.count}] {self.nb_path.stem} (profile {self.profile.name})")
+        t0 = time.perf_counter()
+        try:
+            _execute(self.nb_path, self.out / "notebooks" / self.nb_path.name, params, kernel_name, self.progress)
+        except NotebookFailed as exc:
+            self.entry.update(status="failed", seconds=time.perf_counter() - t0)
+            return exc
+        finally:
+            self.entry.setdefault("seconds", time.perf_counter() - t0)
+        self.entry.update(status="ok", seconds=time.perf_counter() - t0)
+        self.log(f"      {self.nb_path.stem} done in {self.entry['seconds']:.1f} s")
+        return None
+
+    def interrupted(self, signal_name: str) -> None:
+        """Mark the section interrupted and remove what its killed kernel left half-written."""
+        remove_temporaries(self.section_dir, self.out / "notebooks")
+        self.entry.update(status="interrupted")
+        self.log(f"      interrupted by {signal_name}: kernel stopped, section {self.nb_path.stem} marked interrupted")
+
+
+def _record_failure(record: dict, exc: NotebookFailed) -> None:
+    record["failure"] = {"notebook": exc.notebook, "cell_index": exc.cell_index, "error": exc.error,
+                         "executed_notebook": str(exc.executed_notebook)}
+
+
+def _run_tasks(tasks: list[_NotebookTask], kernel_name: str, workers: int, record: dict, log):
+    """Run ``tasks`` on ``workers`` threads (each drives one kernel), in order of start; returns the
+    first failure (a :class:`NotebookFailed`, or the interruption), None when every notebook ran."""
+    from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+
+    waiting, running = list(tasks), {}
+    failure = None
+    pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="notebook")
+    try:
+        while waiting or running:
+            while waiting and failure is None and len(running) < workers:
+                task = waiting.pop(0)
+                running[pool.submit(task.run, kernel_name)] = task
+            if not running:
+                break
+            # a timeout, so that SIGINT and SIGTERM reach the main thread between waits
+            done, _ = wait(running, timeout=0.5, return_when=FIRST_COMPLETED)
+            for future in done:
+                running.pop(future)
+                result = future.result()
+                if result is not None and failure is None:
+                    _record_failure(record, result)
+                    failure = result
+    except (KeyboardInterrupt, StudyInterrupted) as exc:
+        signal_name = getattr(exc, "signal_name", "SIGINT")
+        stop_kernels()
+        # the threads return once their kernels are gone; what they raise then is the interruption's
+        wait(running, timeout=30)
+        for task in running.values():
+            task.interrupted(signal_name)
+        first = min(running.values(), key=lambda t: t.index, default=None)
+        record["failure"] = {"notebook": first.nb_path.stem if first else None, "cell_index": None,
+                             "error": f"interrupted by {signal_name}", "executed_notebook": None}
+        failure = exc
+    except BaseException:
+        stop_kernels()  # an error of the runner itself: no kernel outlives it
+        raise
+    finally:
+        pool.shutdown(wait=False, cancel_futures=True)
+    return failure
 
 
 def _execute(nb_path: Path, executed_path: Path, params: dict, kernel_name: str, progress: bool) -> None:

@@ -8,7 +8,8 @@ import sys
 import pytest
 import torch
 
-from histostudy.core import AVX2_RESTRICTION, ISA_RESTRICTION_ENV, isa_flags, isa_restriction, machine_summary
+from histostudy.core import (AVX2_RESTRICTION, ISA_RESTRICTION_ENV, avx2_env_words, avx2_restriction, isa_flags,
+                             isa_restriction, machine_summary)
 
 linux = pytest.mark.skipif(not os.path.exists("/proc/cpuinfo"), reason="no /proc/cpuinfo on this system")
 
@@ -27,19 +28,31 @@ def test_restriction_is_read_from_the_environment(monkeypatch):
         monkeypatch.delenv(name, raising=False)
     assert isa_restriction() == {}
     assert "ISA restriction: none" in machine_summary()
-    for name, value in AVX2_RESTRICTION.items():
+    for name, value in avx2_restriction().items():
         monkeypatch.setenv(name, value)
-    assert isa_restriction() == AVX2_RESTRICTION
+    assert isa_restriction() == avx2_restriction()
     summary = machine_summary()
     assert "ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2 NUMBA_CPU_NAME=haswell" in summary
     assert len(summary.splitlines()) == 3 and "torch 2." in summary
 
 
-def test_the_makefile_restriction_is_the_documented_one():
+def test_the_avx2_restriction_turns_numpys_avx512_loops_off_and_make_sets_it(tmp_path):
     from pathlib import Path
 
-    makefile = (Path(__file__).parents[2] / "Makefile").read_text()
-    assert "AVX2_ENV := " + " ".join(f"{k}={v}" for k, v in AVX2_RESTRICTION.items()) in makefile
+    restriction = avx2_restriction()
+    assert restriction.items() >= AVX2_RESTRICTION.items()
+    env = {k: v for k, v in os.environ.items() if k not in ISA_RESTRICTION_ENV} | restriction
+    code = ("import numpy; from numpy._core._multiarray_umath import __cpu_features__ as f; "
+            "print(f.get('X86_V4', False) or f.get('AVX512_ICL', False))")
+    out = subprocess.run([sys.executable, "-W", "error", "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False" and out.stderr == ""
+    # what make puts before the suite (dry run: prints the command, runs nothing)
+    root = Path(__file__).parents[2]
+    if not (root / ".venv" / "bin" / "python").exists():
+        pytest.skip("no .venv here: make's restriction is computed by the project's virtualenv")
+    dry = subprocess.run(["make", "-n", "-o", ".venv/.histostudy-installed", "test-avx2"], cwd=root,
+                         capture_output=True, text=True, check=True).stdout
+    assert avx2_env_words() in dry and "-m pytest" in dry
 
 
 def _native_bfloat16_in_a_fresh_interpreter(**restriction) -> bool:

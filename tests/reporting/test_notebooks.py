@@ -43,9 +43,11 @@ def test_profiles_only_set_parameters_the_notebook_declares(path, profile):
 
 
 @pytest.mark.slow
+@pytest.mark.longest
 def test_smoke_study_runs_every_notebook_and_writes_the_report(tmp_path):
     out = tmp_path / "reports"
-    run = run_study("smoke", out, progress=False, log=lambda m: None)
+    # two notebooks at once, as `histostudy reproduce --workers 2` runs them (the same numbers as one)
+    run = run_study("smoke", out, progress=False, log=lambda m: None, workers=2)
     record = json.loads((out / "run.json").read_text())
     assert [n["name"] for n in record["notebooks"]] == [p.stem for p in NOTEBOOKS]
     assert all(n["status"] == "ok" for n in record["notebooks"])

@@ -191,3 +191,46 @@ def test_a_signal_stops_the_kernel_leaves_no_temporary_file_and_marks_the_sectio
     assert [n["status"] for n in run["notebooks"]] == ["ok", "interrupted"]
     report = (out / "REPORT.md").read_text()
     assert f"interrupted by {signal_name}" in report and "stale" not in report
+
+
+@pytest.mark.slow
+def test_notebooks_run_at_once_give_the_same_sections_in_order_and_a_failure_stops_new_ones(tmp_path, toy_profile):
+    import time
+
+    folder = tmp_path / "notebooks"
+    folder.mkdir()
+    # 01 takes a second: 02 (on the other worker) runs beside it and finishes first
+    _notebook(folder / "01_first.ipynb", ["import time\ntime.sleep(1.0)", WRITE.format(name="01_first")])
+    _notebook(folder / "02_second.ipynb", [WRITE.format(name="02_second")])
+    serial = run_study(toy_profile, tmp_path / "serial", notebooks_dir=folder, progress=False, log=lambda m: None)
+    logged = []
+    t0 = time.perf_counter()
+    both = run_study(toy_profile, tmp_path / "both", notebooks_dir=folder, progress=False, log=logged.append,
+                     workers=2)
+    assert [n["name"] for n in both.record["notebooks"]] == ["01_first", "02_second"]
+    assert [n["status"] for n in both.record["notebooks"]] == ["ok", "ok"]
+    assert logged.index("      02_second done in " + f"{both.record['notebooks'][1]['seconds']:.1f} s") < \
+        logged.index("      01_first done in " + f"{both.record['notebooks'][0]['seconds']:.1f} s")
+    assert time.perf_counter() - t0 < sum(n["seconds"] for n in both.record["notebooks"])  # they overlapped
+    for name in ("01_first", "02_second"):
+        a = json.loads((tmp_path / "serial" / name / "results.json").read_text())
+        b = json.loads((tmp_path / "both" / name / "results.json").read_text())
+        assert (a["values"], a["comparisons"]) == (b["values"], b["comparisons"])
+
+    # 01 fails at once: 02, already running beside it, finishes; 03 never starts
+    _notebook(folder / "01_first.ipynb", ["raise RuntimeError('broken on purpose')"])
+    _notebook(folder / "02_second.ipynb", ["import time\ntime.sleep(1.0)", WRITE.format(name="02_second")])
+    _notebook(folder / "03_third.ipynb", [WRITE.format(name="03_third")])
+    with pytest.raises(NotebookFailed, match="01_first failed at cell 2.*broken on purpose"):
+        run_study(toy_profile, tmp_path / "failed", notebooks_dir=folder, progress=False, log=lambda m: None,
+                  workers=2)
+    record = json.loads((tmp_path / "failed" / "run.json").read_text())
+    assert [n["status"] for n in record["notebooks"]] == ["failed", "ok", "pending"]
+    assert record["failure"]["notebook"] == "01_first"
+
+
+@pytest.mark.parametrize("workers", [0, -1, 1.5, True, "2"])
+def test_workers_must_be_a_positive_integer(toy_notebooks, toy_profile, tmp_path, workers):
+    with pytest.raises(ValueError, match=f"workers must be a positive integer .*got {workers!r}"):
+        run_study(toy_profile, tmp_path / "out", notebooks_dir=toy_notebooks, workers=workers)
+    assert not (tmp_path / "out").exists()
