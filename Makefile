@@ -13,6 +13,8 @@ VENV ?= .venv
 TORCH_SPEC ?= torch==2.13.0
 TORCH_PIP_ARGS ?=
 PROFILE ?= smoke
+# notebooks `make reproduce` runs at once, each in its own kernel (the numbers do not depend on it)
+WORKERS ?= 1
 REPORTS ?= reports
 PYTEST_ARGS ?=
 # pytest-xdist workers of `make test` (0: one process); docs/testing.md
@@ -40,7 +42,7 @@ $(STAMP): pyproject.toml
 	touch $@
 
 reproduce: $(STAMP)
-	$(BIN)/histostudy reproduce --profile $(PROFILE) --output $(REPORTS)
+	$(BIN)/histostudy reproduce --profile $(PROFILE) --output $(REPORTS) --workers $(WORKERS)
 
 PYTEST := $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist worksteal
 

@@ -95,7 +95,7 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
     notebooks of ``notebooks_dir`` (:func:`~histostudy.reporting.profiles.validate_profile`).
     Raises :class:`NotebookFailed` (after writing the report of what ran, with the failure named)
     when a notebook raises; the executed copy of the failed notebook is kept. On SIGINT or SIGTERM
-    the running notebook's kernel is stopped, its temporary files removed, its section marked
+    the running notebooks' kernels are stopped, their temporary files removed, their sections marked
     ``"interrupted"`` in ``run.json`` and the report, and ``KeyboardInterrupt`` /
     :class:`~histostudy.reporting.interrupts.StudyInterrupted` raised after the report is written.
     """
@@ -121,7 +121,7 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
     tasks = [_NotebookTask(i, len(notebooks), nb_path, entry, prof, out, progress, log)
              for i, (nb_path, entry) in enumerate(zip(notebooks, record["notebooks"]), start=1)]
     with signals_interrupt(), _running_kernel() as kernel_name:
-        failure = _run_tasks(tasks, kernel_name, min(workers, len(tasks)), record, log)
+        failure = _run_tasks(tasks, kernel_name, min(workers, len(tasks)), record)
     write_run_record(out, record)
     md, html_path = build_report(out, record)
     if failure is not None:
@@ -175,7 +175,7 @@ def _record_failure(record: dict, exc: NotebookFailed) -> None:
                          "executed_notebook": str(exc.executed_notebook)}
 
 
-def _run_tasks(tasks: list[_NotebookTask], kernel_name: str, workers: int, record: dict, log):
+def _run_tasks(tasks: list[_NotebookTask], kernel_name: str, workers: int, record: dict):
     """Run ``tasks`` on ``workers`` threads (each drives one kernel), in order of start; returns the
     first failure (a :class:`NotebookFailed`, or the interruption), None when every notebook ran."""
     from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
