@@ -83,7 +83,7 @@ def native_bfloat16() -> bool:
     if onednn_isa and onednn_isa.strip().upper() not in _ONEDNN_BFLOAT16_ISAS:
         return False
     try:
-        if torch.backends.cpu.get_cpu_capability() != "AVX512":
+        if not torch.backends.cpu.get_cpu_capability().startswith("AVX512"):
             return False
         return bool(torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported())
     except (AttributeError, RuntimeError):
