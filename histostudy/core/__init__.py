@@ -2,7 +2,8 @@
 honour the umask (``io``), the one seeding policy (``seeding``: every random draw takes a seed or a
 ``numpy.random.Generator``), the provenance recorded beside every result and checkpoint
 (``provenance``, with the CPU and its instruction sets from ``machine``), and the Monte-Carlo
-sweeps run in this process or on ``dask.distributed`` (``sweeps``, the same numbers either way). See docs/architecture.md, "Seeding and determinism".
+sweeps run in this process or on ``dask.distributed`` (``sweeps``, the same numbers either way).
+See docs/architecture.md, "Seeding and determinism".
 """
 
 from . import io as _io, machine as _machine, provenance as _provenance, seeding as _seeding, sweeps as _sweeps

@@ -13,6 +13,7 @@ machine reproduces another's case; :data:`ISA_RESTRICTION_ENV` names the variabl
 
 from __future__ import annotations
 
+import functools
 import os
 import platform
 from importlib import metadata
@@ -35,8 +36,10 @@ AVX2_RESTRICTION = {"ONEDNN_MAX_CPU_ISA": "AVX2", "ATEN_CPU_CAPABILITY": "avx2",
 _LIBRARIES = ("numpy", "scipy", "numba", "torch", "opencv-python-headless")
 
 
+@functools.lru_cache(maxsize=1)
 def _cpuinfo() -> dict[str, str]:
-    """The first processor's entries of /proc/cpuinfo ({} where there is none)."""
+    """The first processor's entries of /proc/cpuinfo ({} where there is none); read once, as the
+    CPU does not change under a running process (callers only read the dict)."""
     entries: dict[str, str] = {}
     try:
         with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as handle:
@@ -93,7 +96,8 @@ def machine_summary() -> str:
     numerical libraries' versions with torch's kernel level. Imports torch only if installed."""
     flags = " ".join(f"{name}={'yes' if present else 'no'}" for name, present in isa_flags().items())
     restriction = " ".join(f"{k}={v}" for k, v in isa_restriction().items()) or "none"
-    versions = []
+    # provenance.package_versions' loop, which cannot be imported here: provenance imports this module
+    versions = [f"python {platform.python_version()}"]
     for name in _LIBRARIES:
         try:
             versions.append(f"{name} {metadata.version(name)}")
@@ -107,5 +111,5 @@ def machine_summary() -> str:
         pass
     return (f"CPU: {cpu_model()}, {os.cpu_count()} cores; {flags}\n"
             f"ISA restriction: {restriction}\n"
-            f"libraries: python {platform.python_version()}, {', '.join(versions)}")
+            f"libraries: {', '.join(versions)}")
 

@@ -12,9 +12,9 @@ the region where the transducer projects. :class:`FastUNet` therefore
   CPU convolutions run about 1.5-2x faster than NCHW (docs/tracking.md);
 - runs each convolution and the ReLU after it as one oneDNN call (:mod:`.fused_conv`: within
   float32 rounding of the eager pair, one pass over the activations less; about a fifth of the
-  network's time), and pools as the
-  maximum of four strided quarters (:func:`~.nets.unet.max_pool_2x2`: the same values, 2-3x faster
-  than ``max_pool2d`` on channels-last activations);
+  network's time), and pools as the maximum of four strided quarters
+  (:func:`~.nets.unet.max_pool_2x2`: the same values, 2-3x faster than ``max_pool2d`` on
+  channels-last activations);
 - on a CPU with native bfloat16 arithmetic (AVX512-BF16 or AMX), runs the convolutions in
   bfloat16 and the final 1x1 convolution in float32 (``precision="auto"``): another 1.7x, with
   99.9 % of the labels unchanged (tests/learning/test_fast_segment.py checks the agreement with

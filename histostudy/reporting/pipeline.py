@@ -152,27 +152,23 @@ class _NotebookTask:
         self.entry.update(output_dir=str(self.section_dir), parameters=params, status="running")
         self.log(f"[{self.index}/{self.count}] {self.nb_path.stem} (profile {self.profile.name})")
         t0 = time.perf_counter()
+        failure = None
         try:
             _execute(self.nb_path, self.out / "notebooks" / self.nb_path.name, params, kernel_name, self.progress)
         except NotebookFailed as exc:
-            self.entry.update(status="failed", seconds=time.perf_counter() - t0)
-            return exc
+            failure = exc
         finally:
-            self.entry.setdefault("seconds", time.perf_counter() - t0)
-        self.entry.update(status="ok", seconds=time.perf_counter() - t0)
-        self.log(f"      {self.nb_path.stem} done in {self.entry['seconds']:.1f} s")
-        return None
+            self.entry["seconds"] = time.perf_counter() - t0
+        self.entry["status"] = "ok" if failure is None else "failed"
+        if failure is None:
+            self.log(f"      {self.nb_path.stem} done in {self.entry['seconds']:.1f} s")
+        return failure
 
     def interrupted(self, signal_name: str) -> None:
         """Mark the section interrupted and remove what its killed kernel left half-written."""
         remove_temporaries(self.section_dir, self.out / "notebooks")
         self.entry.update(status="interrupted")
         self.log(f"      interrupted by {signal_name}: kernel stopped, section {self.nb_path.stem} marked interrupted")
-
-
-def _record_failure(record: dict, exc: NotebookFailed) -> None:
-    record["failure"] = {"notebook": exc.notebook, "cell_index": exc.cell_index, "error": exc.error,
-                         "executed_notebook": str(exc.executed_notebook)}
 
 
 def _run_tasks(tasks: list[_NotebookTask], kernel_name: str, workers: int, record: dict):
@@ -196,7 +192,8 @@ def _run_tasks(tasks: list[_NotebookTask], kernel_name: str, workers: int, recor
                 running.pop(future)
                 result = future.result()
                 if result is not None and failure is None:
-                    _record_failure(record, result)
+                    record["failure"] = {"notebook": result.notebook, "cell_index": result.cell_index,
+                                         "error": result.error, "executed_notebook": str(result.executed_notebook)}
                     failure = result
     except (KeyboardInterrupt, StudyInterrupted) as exc:
         signal_name = getattr(exc, "signal_name", "SIGINT")
