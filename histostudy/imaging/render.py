@@ -29,6 +29,7 @@ from histostudy.geometry import check_rigid
 from histostudy.transducer import FEATURE_CLASSES, LABEL_PRIORITY, TransducerModel
 from .carm import View
 from .frame import Frame
+from .render_device import SEED_BOUND, check_device, splat_compiled, splat_points
 from .render_settings import check_n_splats, check_photons_per_pixel, check_splat_sigma_mm
 
 __all__ = ["add_poisson_noise", "background_line_integrals", "render_frame", "render_labels",
@@ -46,7 +47,7 @@ ZERO_COUNT_CLAMP = 0.5
 
 def render_line_integrals(model: TransducerModel, T_carm_transducer, view: View, *,
                           rng: np.random.Generator, n_splats: int = 16,
-                          splat_sigma_mm: float = 0.5) -> np.ndarray:
+                          splat_sigma_mm: float = 0.5, device=None) -> np.ndarray:
     """Line-integral image ``(rows, cols)`` float32 of ``model`` at pose ``T_carm_transducer``.
 
     Point splatting (§II-B.2): each point with non-zero weight is copied ``n_splats`` times, each
@@ -64,13 +65,38 @@ def render_line_integrals(model: TransducerModel, T_carm_transducer, view: View,
     about 1/sqrt(copies per pixel) — measured ~10-20 % per pixel for the 0.125 mm model with 16
     splats in the biplane set-up, ~40-65 % for the 0.47 mm model, against ~1 % quantum noise at
     5e4 photons. Render images from the 0.125 mm model, as the paper did.
+
+    ``device`` picks the renderer (:mod:`~histostudy.imaging.render_device`): None, this numpy
+    reference; ``"cpu"``, the compiled kernel; ``"cuda"``, torch. The last two take one draw from
+    ``rng`` as their jitter's seed, so their images match this one in distribution, not bits.
     """
     rows, cols = _check_view(view).shape
+    device = check_device(device)
+    if device is not None:
+        return _render_on(device, model, T_carm_transducer, view, rng=rng, n_splats=n_splats,
+                          splat_sigma_mm=splat_sigma_mm)
     image = np.zeros(rows * cols, dtype=np.float64)
     for flat, values in _splat_chunks(model, T_carm_transducer, view, rng=rng, n_splats=n_splats,
                                       splat_sigma_mm=splat_sigma_mm):
         image += np.bincount(flat, weights=values, minlength=rows * cols)
     return image.reshape(rows, cols).astype(np.float32)
+
+
+def _render_on(device: str, model: TransducerModel, T_carm_transducer, view: View, *,
+               rng: np.random.Generator, n_splats: int, splat_sigma_mm: float) -> np.ndarray:
+    """:func:`render_line_integrals` on the compiled kernel (``"cpu"``) or torch (``"cuda…"``)."""
+    _check_model(model, "model")
+    T = check_rigid(T_carm_transducer, "T_carm_transducer")
+    _check_rng(rng)
+    n_splats = check_n_splats(n_splats)
+    sigma = check_splat_sigma_mm(splat_sigma_mm)
+    seed = int(rng.integers(SEED_BOUND))
+    if device == "cpu":
+        return splat_compiled(model, T, view, seed=seed, n_splats=n_splats, splat_sigma_mm=sigma)
+    from .render_torch import TorchSplatter  # torch only for a CUDA render
+
+    splatter = TorchSplatter(model, device, n_splats=n_splats, splat_sigma_mm=sigma)
+    return splatter.line_integrals([T], [view], [seed])[0].cpu().numpy()
 
 
 def _splat_chunks(model: TransducerModel, T_carm_transducer, view: View, *, rng: np.random.Generator,
@@ -87,15 +113,7 @@ def _splat_chunks(model: TransducerModel, T_carm_transducer, view: View, *, rng:
     n_splats = check_n_splats(n_splats)
     sigma = check_splat_sigma_mm(splat_sigma_mm)
     rows, cols = view.shape
-
-    points = np.vstack([model.points[f] for f in FEATURE_CLASSES])
-    weights = np.concatenate([model.weights[f] for f in FEATURE_CLASSES])
-    keep = weights > 0
-    world = points[keep] @ T[:3, :3].T + T[:3, 3]
-    uvw = view.project_homogeneous(world)
-    in_front = uvw[:, 2] > 0
-    world, uvw, weights = world[in_front], uvw[in_front], weights[keep][in_front]
-    values = weights / (n_splats * view.pixel_footprint_mm2(world))
+    uvw, values = splat_points(model, T, view, n_splats)
 
     # float32 is ample for the jittered projection (u w ~ 1e6, relative error 1e-7 -> 1e-4 px).
     M = view.P[:, :3].astype(np.float32)
@@ -136,7 +154,7 @@ def _nearest_pixel(uw: np.ndarray, vw: np.ndarray, w: np.ndarray, rows: int,
 # --- labels ---------------------------------------------------------------------------------
 
 
-def render_labels(model: TransducerModel, T_carm_transducer, view: View) -> np.ndarray:
+def render_labels(model: TransducerModel, T_carm_transducer, view: View, *, device=None) -> np.ndarray:
     """Reference label image ``(rows, cols)`` uint8 (values of :class:`~histostudy.transducer.Feature`).
 
     Each class's points are projected without jitter to their nearest pixel; classes are painted
@@ -152,27 +170,52 @@ def render_labels(model: TransducerModel, T_carm_transducer, view: View) -> np.n
     closing the union of all classes and take the highest-priority class among their neighbours.
     For the 0.125 mm model this is a 3x3 closing at most; coarse models (0.47 mm) get up to ~9x9,
     which also fills concavities narrower than the kernel.
+
+    ``device`` None projects in numpy; any other device of :func:`render_frame` projects with the
+    compiled kernel (:func:`.splat_kernels.mark_nearest_pixels`, the same float64 arithmetic in
+    another order: a point within rounding of a pixel edge may fall on its other side).
     """
     _check_model(model, "model")
     T = check_rigid(T_carm_transducer, "T_carm_transducer")
     rows, cols = _check_view(view).shape
+    marker = _numpy_marker if check_device(device) is None else _compiled_marker
     labels = np.zeros((rows, cols), dtype=np.uint8)
     largest_step_px = 0.0
     for feature in reversed(LABEL_PRIORITY):
         pts = model.points[feature]
         if len(pts) == 0:
             continue
-        world = pts @ T[:3, :3].T + T[:3, 3]
-        uvw = view.project_homogeneous(world)
-        flat, ok = _nearest_pixel(uvw[:, 0], uvw[:, 1], uvw[:, 2], rows, cols)
-        if flat.size == 0:
+        mask, smallest_footprint = marker(pts, T, view)
+        if not np.isfinite(smallest_footprint):
             continue
-        mask = np.zeros(rows * cols, dtype=np.uint8)
-        mask[flat] = 1
-        step_px = model.grid_step_mm[feature] / math.sqrt(view.pixel_footprint_mm2(world[ok]).min())
+        step_px = model.grid_step_mm[feature] / math.sqrt(smallest_footprint)
         largest_step_px = max(largest_step_px, step_px)
         labels[_close_holes(mask.reshape(rows, cols), step_px) > 0] = int(feature)
     return _fill_seams(labels, largest_step_px)
+
+
+def _numpy_marker(points: np.ndarray, T: np.ndarray, view: View) -> tuple[np.ndarray, float]:
+    """The flat uint8 mask of the pixels ``points`` land in, and their smallest footprint (inf: none)."""
+    rows, cols = view.shape
+    world = points @ T[:3, :3].T + T[:3, 3]
+    uvw = view.project_homogeneous(world)
+    flat, ok = _nearest_pixel(uvw[:, 0], uvw[:, 1], uvw[:, 2], rows, cols)
+    mask = np.zeros(rows * cols, dtype=np.uint8)
+    if flat.size == 0:
+        return mask, math.inf
+    mask[flat] = 1
+    return mask, float(view.pixel_footprint_mm2(world[ok]).min())
+
+
+def _compiled_marker(points: np.ndarray, T: np.ndarray, view: View) -> tuple[np.ndarray, float]:
+    from .splat_kernels import mark_nearest_pixels  # numba compiles on first use
+
+    rows, cols = view.shape
+    mask = np.zeros(rows * cols, dtype=np.uint8)
+    smallest = mark_nearest_pixels(mask, np.ascontiguousarray(points, dtype=np.float64),
+                                   np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]), view.P,
+                                   view.source_mm, abs(float(np.linalg.det(view.P[:, :3]))), rows, cols)
+    return mask, float(smallest)
 
 
 def _fill_seams(labels: np.ndarray, step_px: float) -> np.ndarray:
@@ -244,7 +287,7 @@ def add_poisson_noise(line_integrals, photons_per_pixel: float, rng: np.random.G
 def render_frame(model: TransducerModel, T_carm_transducer, view: View, *, rng: np.random.Generator,
                  physical: TransducerModel | None = None, background=None,
                  photons_per_pixel: float | None = 5e4, n_splats: int = 16, splat_sigma_mm: float = 0.5,
-                 labels_from: str = "digital") -> Frame:
+                 labels_from: str = "digital", device=None) -> Frame:
     """A synthetic fluoroscopic frame: hybrid image, reference labels and the true pose (§II-B.2).
 
     Args:
@@ -263,6 +306,8 @@ def render_frame(model: TransducerModel, T_carm_transducer, view: View, *, rng: 
         n_splats, splat_sigma_mm: splatting parameters (paper: 16 and 0.5 mm).
         labels_from: ``"digital"`` (labels from ``model``) or ``"physical"`` (from the model that
             made the image: ``physical`` if given, else ``model``).
+        device: where the splatting runs (:func:`render_line_integrals`): None, the numpy
+            reference (the study's renders); ``"cpu"``, compiled; ``"cuda"``, torch.
     """
     _check_model(model, "model")
     if physical is not None:
@@ -272,16 +317,18 @@ def render_frame(model: TransducerModel, T_carm_transducer, view: View, *, rng: 
     T = check_rigid(T_carm_transducer, "T_carm_transducer")
     _check_view(view)
     _check_rng(rng)
+    device = check_device(device)
     imaging = model if physical is None else physical
     back = background_line_integrals(background, view)
 
     image = back + render_line_integrals(imaging, T, view, rng=rng, n_splats=n_splats,
-                                         splat_sigma_mm=splat_sigma_mm).astype(np.float64)
+                                         splat_sigma_mm=splat_sigma_mm, device=device).astype(np.float64)
     if photons_per_pixel is not None:
         image = add_poisson_noise(image, photons_per_pixel, rng)
-    labels = render_labels(model if labels_from == "digital" else imaging, T, view)
+    labels = render_labels(model if labels_from == "digital" else imaging, T, view, device=device)
     meta = {
         "renderer": "point splatting (§II-B.2)",
+        "splat_device": "numpy" if device is None else str(device),
         "n_splats": int(n_splats),
         "splat_sigma_mm": float(splat_sigma_mm),
         "photons_per_pixel": None if photons_per_pixel is None else float(photons_per_pixel),
