@@ -93,10 +93,23 @@ def _render_on(device: str, model: TransducerModel, T_carm_transducer, view: Vie
     seed = int(rng.integers(SEED_BOUND))
     if device == "cpu":
         return splat_compiled(model, T, view, seed=seed, n_splats=n_splats, splat_sigma_mm=sigma)
+    return _torch_splatter(model, device, n_splats, sigma).line_integrals([T], [view], [seed])[0].cpu().numpy()
+
+
+def _torch_splatter(model: TransducerModel, device: str, n_splats: int, sigma: float):
+    """The :class:`~.render_torch.TorchSplatter` of the last call's model, device and splatting,
+    kept so that a run of frames moves the model's points to the GPU once."""
     from .render_torch import TorchSplatter  # torch only for a CUDA render
 
-    splatter = TorchSplatter(model, device, n_splats=n_splats, splat_sigma_mm=sigma)
-    return splatter.line_integrals([T], [view], [seed])[0].cpu().numpy()
+    global _LAST_SPLATTER
+    last = _LAST_SPLATTER
+    if (last is None or last.model is not model or str(last.device) != str(TorchSplatter.device_of(device))
+            or last.n_splats != n_splats or last.splat_sigma_mm != sigma):
+        _LAST_SPLATTER = last = TorchSplatter(model, device, n_splats=n_splats, splat_sigma_mm=sigma)
+    return last
+
+
+_LAST_SPLATTER = None
 
 
 def _splat_chunks(model: TransducerModel, T_carm_transducer, view: View, *, rng: np.random.Generator,

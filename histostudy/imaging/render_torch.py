@@ -52,9 +52,9 @@ class TorchSplatter:
         if not isinstance(model, TransducerModel):
             raise TypeError(f"model must be a histostudy.transducer.TransducerModel, got {type(model).__name__}")
         torch = _torch()
-        self.device = torch.device(device)
-        if self.device.type == "cuda" and not torch.cuda.is_available():
+        if torch.device(device).type == "cuda" and not torch.cuda.is_available():
             raise ValueError(f"device {device!r} asked for, but torch sees no CUDA device")
+        self.device = self.device_of(device)
         self.model = model
         self.n_splats = check_n_splats(n_splats)
         self.splat_sigma_mm = check_splat_sigma_mm(splat_sigma_mm)
@@ -63,6 +63,15 @@ class TorchSplatter:
         keep = weights > 0
         self._points = torch.as_tensor(points[keep], dtype=torch.float64, device=self.device)
         self._weights = torch.as_tensor(weights[keep], dtype=torch.float64, device=self.device)
+
+    @staticmethod
+    def device_of(device) -> "torch.device":
+        """``device`` as the ``torch.device`` a splatter made with it holds (``"cuda"`` -> ``cuda:0``)."""
+        torch = _torch()
+        device = torch.device(device)
+        if device.type == "cuda" and device.index is None:
+            return torch.device("cuda", torch.cuda.current_device())
+        return device
 
     def line_integrals(self, T_carm_transducer: Sequence, views: Sequence[View], seeds: Sequence[int]) -> "torch.Tensor":
         """``(B, rows, cols)`` float32 line integrals on the device, frame ``b`` at pose ``T[b]`` in ``views[b]``.

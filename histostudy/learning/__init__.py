@@ -17,8 +17,8 @@ from . import (nets as _nets, checkpoints as _checkpoints, datasets as _datasets
 from .nets import UNet, VGG19, build_network, max_pool_2x2
 from .checkpoints import (MODELS_DIR, load_checkpoint, load_network, load_shipped, manifest_path, save_checkpoint,
                           sha256_file, shipped_model, training_summary)
-from .datasets import (HybridFrames, HybridImageDataset, RenderConfig, SPLIT_CODES, default_cache_dir, flip_angles,
-                       random_training_pose, true_angles)
+from .datasets import (HybridFrames, HybridImageDataset, RenderConfig, SPLAT_DEVICES, SPLIT_CODES, default_cache_dir,
+                       flip_angles, random_training_pose, true_angles)
 from .fast_segment import FAST_UNET_PRECISIONS, FastUNet, native_bfloat16
 from .fused_conv import ConvReLU, fuse_conv_relu, reordering_bound
 from .orientation import (LearnedOrientation, N_ORIENTATION_CLASSES, OracleOrientation, OrientationSource,

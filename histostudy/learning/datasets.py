@@ -25,7 +25,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -46,11 +46,15 @@ __all__ = [
     "HybridFrames",
     "HybridImageDataset",
     "RenderConfig",
+    "SPLAT_DEVICES",
     "default_cache_dir",
     "flip_angles",
     "random_training_pose",
     "true_angles",
 ]
+
+#: The renderers a :class:`RenderConfig` may name (``splat_device``).
+SPLAT_DEVICES = (None, "cpu", "cuda", "auto")
 
 #: Seed-sequence codes of the splits; distinct codes keep the splits' seeds disjoint.
 SPLIT_CODES = {"train": 1, "val": 2, "eval": 3}
@@ -76,6 +80,10 @@ class RenderConfig(RenderSettings):
         translation_range_mm: focal-point translation range per axis (100 mm = 10 cm).
         primary_range_deg: range of the views' primary (LAO/RAO) angle, uniform.
         detector: ``(rows, cols)`` of the full-resolution detector.
+        splat_device: where the splatting runs (:func:`histostudy.imaging.render_frame`'s
+            ``device``): None, the numpy reference; ``"cpu"``, compiled; ``"cuda"``, torch on the
+            GPU; ``"auto"``, CUDA when torch sees it, else compiled. The renderers draw the same
+            distribution but not the same numbers, so a frame cache belongs to one resolved device.
     """
 
     background: str = "mixed"
@@ -85,6 +93,7 @@ class RenderConfig(RenderSettings):
     translation_range_mm: float = 100.0
     primary_range_deg: tuple = (-90.0, 90.0)
     detector: tuple = (960, 1240)
+    splat_device: str | None = None
 
     def __post_init__(self):
         super().__post_init__()
@@ -101,10 +110,22 @@ class RenderConfig(RenderSettings):
             raise ValueError(f"primary_range_deg must be (low, high) degrees with low <= high, got {self.primary_range_deg!r}")
         object.__setattr__(self, "primary_range_deg", (lo, hi))
         object.__setattr__(self, "detector", tuple(int(v) for v in self.detector))
+        if self.splat_device not in SPLAT_DEVICES:
+            raise ValueError(f"splat_device must be one of {SPLAT_DEVICES}, got {self.splat_device!r}")
+
+    def resolved(self) -> "RenderConfig":
+        """This configuration with ``splat_device="auto"`` replaced by the device it means here."""
+        if self.splat_device != "auto":
+            return self
+        return replace(self, splat_device="cuda" if torch.cuda.is_available() else "cpu")
 
     def key(self) -> str:
-        """A short hash of the configuration (names the cache folder)."""
-        return hashlib.sha256(json.dumps(asdict(self), sort_keys=True).encode()).hexdigest()[:12]
+        """A short hash of the configuration (names the cache folder); the reference renderer's
+        key leaves ``splat_device`` out, so caches made before the field existed stay valid."""
+        fields_ = asdict(self.resolved())
+        if fields_["splat_device"] is None:
+            del fields_["splat_device"]
+        return hashlib.sha256(json.dumps(fields_, sort_keys=True).encode()).hexdigest()[:12]
 
 
 @lru_cache(maxsize=4)
@@ -154,9 +175,10 @@ class HybridFrames:
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
         self.split, self.seed = split, int(seed)
-        self.config = RenderConfig() if config is None else config
-        if not isinstance(self.config, RenderConfig):
-            raise TypeError(f"config must be a RenderConfig, got {type(self.config).__name__}")
+        config = RenderConfig() if config is None else config
+        if not isinstance(config, RenderConfig):
+            raise TypeError(f"config must be a RenderConfig, got {type(config).__name__}")
+        self.config = config.resolved()
         self.cache_dir = None if cache_dir is None else Path(cache_dir) / f"frames-{self.config.key()}"
 
     def seed_sequence(self, index: int) -> np.random.SeedSequence:
@@ -224,7 +246,7 @@ class HybridFrames:
         anatomy = random_background(rng, cfg.background)
         digital, physical = _models(cfg.render_spacing_mm, cfg.label_spacing_mm, cfg.physical_seed)
         frame = render_frame(digital, T, view, rng=rng, physical=physical, background=anatomy,
-                             **cfg.frame_kwargs())
+                             device=cfg.splat_device, **cfg.frame_kwargs())
         if path is not None:
             with atomic_path(path) as tmp:
                 np.savez(tmp, image=frame.image.astype(np.float16), labels=frame.labels, T=frame.T_carm_transducer)
@@ -237,8 +259,11 @@ class HybridFrames:
 
 def _single_threaded_worker() -> None:
     """One thread per pre-rendering process: the processes are the parallelism."""
+    import numba
+
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
+    numba.set_num_threads(1)
 
 
 def _render_into_cache(frames: HybridFrames, index: int) -> None:

@@ -196,3 +196,25 @@ def test_render_config_shares_the_render_settings_and_keeps_its_cache_key():
         RenderConfig(n_splats=0)
     with pytest.raises(ValueError, match="background"):
         RenderConfig(background="none")
+
+
+def test_a_splat_device_renders_the_frames_elsewhere_in_a_cache_of_its_own(tmp_path):
+    cfg = RenderConfig(render_spacing_mm=0.47, label_spacing_mm=0.47, detector=(120, 160))
+    compiled = RenderConfig(render_spacing_mm=0.47, label_spacing_mm=0.47, detector=(120, 160), splat_device="cpu")
+    # the reference keeps its key; another renderer's frames (another draw of the jitter) get their own
+    assert RenderConfig().key() == "0bdcc2e82d45" and RenderConfig(splat_device="cpu").key() != RenderConfig().key()
+    auto = HybridFrames("val", 2, RenderConfig(splat_device="auto"))
+    assert auto.config.splat_device == ("cuda" if torch.cuda.is_available() else "cpu")
+    assert auto.config.key() == RenderConfig(splat_device=auto.config.splat_device).key()
+
+    frames = HybridFrames("val", 2, compiled, cache_dir=tmp_path)
+    reference = HybridFrames("val", 2, cfg, cache_dir=tmp_path)
+    assert frames.prerender(2, workers=2) == 2
+    assert not reference.cached(0)
+    a, b = frames.frame(1), reference.frame(1)
+    np.testing.assert_array_equal(a.labels, b.labels)          # same pose and view, same labels
+    np.testing.assert_array_equal(a.T_carm_transducer, b.T_carm_transducer)
+    assert not np.array_equal(a.image, b.image)                 # another draw of the splat jitter
+    assert abs(float(a.image.mean()) - float(b.image.mean())) < 0.01 * float(b.image.mean()) + 0.01
+    with pytest.raises(ValueError, match="splat_device must be one of"):
+        RenderConfig(splat_device="gpu")
