@@ -11,7 +11,8 @@ import sys
 from histostudy.reporting import PROFILE_NAMES, load_profile
 
 #: The ``[training.<table>]`` tables ``histostudy train`` runs (histostudy.learning.TRAINING_TABLES).
-TRAINING_TABLE_NAMES = ("segmentation", "orientation", "segmentation_tracking", "segmentation_tracking_fine")
+TRAINING_TABLE_NAMES = ("segmentation", "orientation", "segmentation_tracking", "segmentation_tracking_fine",
+                        "segmentation_gpu", "orientation_gpu")
 
 __all__ = ["add_parsers"]
 
@@ -54,7 +55,8 @@ def add_parsers(sub, parents) -> None:
                     help="the profile's [training.<task>] table: segmentation (U-Net), orientation (VGG19) or "
                          "segmentation_tracking (the U-Net of Tracker(fast=True) at input scale 0.25, exported as "
                          "unet_tracking) or segmentation_tracking_fine (the U-Net that reads 0.5 and runs its levels "
-                         "at 0.25, exported as unet_tracking_fine)")
+                         "at 0.25, exported as unet_tracking_fine) or segmentation_gpu / orientation_gpu (the study's "
+                         "networks as the prepared GPU run trains them, scripts/gpu_training_run.py)")
     tr.add_argument("--profile", type=_profile, default="standard",
                     help=f"one of {', '.join(PROFILE_NAMES)} or a .toml file with [training.<task>] (default: standard)")
     tr.add_argument("--run-dir", default=None,

@@ -31,7 +31,7 @@ from .segment import (OracleSegmenter, SegmentationDegradation, Segmenter, UNetS
 from .training import train
 from .training_config import (FineTuneConfig, SEGMENTATION_LOSSES, TRAINING_TABLES, TrainingConfig, TrainingResult,
                               export_name, run_frame_sets)
-from .training_export import export
+from .training_export import export, full_precision_copy, half_precision_copy
 from .training_losses import angle_loss, dice_loss
 from .training_teacher import load_teacher, teacher_labeller
 

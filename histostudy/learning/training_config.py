@@ -30,11 +30,13 @@ SEGMENTATION_LOSSES = ("cross_entropy", "cross_entropy+dice")
 #: A profile's ``[training.<table>]`` tables that ``histostudy train <table>`` runs: the table's
 #: name -> ``(task, variant)``. The variant names what the network is for beyond its task
 #: (``"tracking"``: the U-Net of ``pose.Tracker``'s fast warm path at input scale 0.25;
-#: ``"tracking_fine"``: the U-Net that reads 0.5 and runs its levels at 0.25, docs/tracking.md) and its
-#: exported name (:func:`export_name`); ``""`` for the study's networks.
+#: ``"tracking_fine"``: the U-Net that reads 0.5 and runs its levels at 0.25, docs/tracking.md;
+#: ``"gpu"``: the study's network trained by the prepared GPU run, scripts/gpu_training_run.py) and
+#: its exported name (:func:`export_name`); ``""`` for the study's networks.
 TRAINING_TABLES = {"segmentation": ("segmentation", ""), "orientation": ("orientation", ""),
                    "segmentation_tracking": ("segmentation", "tracking"),
-                   "segmentation_tracking_fine": ("segmentation", "tracking_fine")}
+                   "segmentation_tracking_fine": ("segmentation", "tracking_fine"),
+                   "segmentation_gpu": ("segmentation", "gpu"), "orientation_gpu": ("orientation", "gpu")}
 
 
 def export_name(table: str, arch: str, profile: str) -> str:
