@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from .pose_config import PoseSectionParameters, PoseStudyConfig, StudyStages, study_stages
 from .pose_experiments import PoseExperiment, draw_experiments, experiment_setups, run_pose_study
-from .pose_geometry import (DIRECTIONS, MARGINS, axial_symmetric_rotation_error_deg, bubble_cloud_centre_mm,
+from .pose_geometry import (DIRECTIONS, MARGINS, axial_symmetric_rotation_error_deg, rotation_error_modulo_symmetry_deg, bubble_cloud_centre_mm,
                             experiment_pose, margin_positions, random_pose_in_views, sweep_visible_points,
                             transducer_axes)
 from .pose_metrics import (experiment_metrics, mean_sd, reference_error_summary, stage_timing, table2,
@@ -51,6 +51,7 @@ __all__ = [
     "PoseStudyConfig",
     "StudyStages",
     "axial_symmetric_rotation_error_deg",
+    "rotation_error_modulo_symmetry_deg",
     "bubble_cloud_centre_mm",
     "cbct_reference",
     "degradation_sweep",

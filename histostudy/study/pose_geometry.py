@@ -15,12 +15,13 @@ import numpy as np
 
 from histostudy.geometry import make_transform, matrix_from_euler, rotation_angle
 from histostudy.imaging import View
-from histostudy.transducer import Feature, TransducerModel, pose_facing
+from histostudy.transducer import HALF_TURN, Feature, TransducerModel, pose_facing
 
 __all__ = [
     "DIRECTIONS",
     "MARGINS",
     "axial_symmetric_rotation_error_deg",
+    "rotation_error_modulo_symmetry_deg",
     "bubble_cloud_centre_mm",
     "experiment_pose",
     "margin_positions",
@@ -88,9 +89,20 @@ def axial_symmetric_rotation_error_deg(T_estimate, T_true) -> float:
     """
     R_est = np.asarray(T_estimate, dtype=np.float64)[:3, :3]
     R_true = np.asarray(T_true, dtype=np.float64)[:3, :3]
-    flip = np.diag([-1.0, -1.0, 1.0])  # half turn about the transducer's z axis
     return float(min(np.rad2deg(rotation_angle(R_est.T @ R_true)),
-                     np.rad2deg(rotation_angle((R_est @ flip).T @ R_true))))
+                     np.rad2deg(rotation_angle((R_est @ HALF_TURN).T @ R_true))))
+
+
+def rotation_error_modulo_symmetry_deg(T_estimate, T_true, *, half_turn: bool) -> tuple[float, bool]:
+    """``(error_deg, half_turned)``: the rotation error between two poses (deg) and whether the
+    estimate is nearer the half-turned truth. With ``half_turn`` (the model looks the same after a
+    half turn about its axis, :func:`histostudy.transducer.half_turn_symmetric`) the error is taken
+    up to that turn (:func:`axial_symmetric_rotation_error_deg`); without it, plainly."""
+    R_est = np.asarray(T_estimate, dtype=np.float64)[:3, :3]
+    R_true = np.asarray(T_true, dtype=np.float64)[:3, :3]
+    plain = float(np.rad2deg(rotation_angle(R_est.T @ R_true)))
+    turned = float(np.rad2deg(rotation_angle((R_est @ HALF_TURN).T @ R_true)))
+    return (min(plain, turned) if half_turn else plain), turned < plain
 
 
 def random_pose_in_views(rng: np.random.Generator, views: Sequence[View], *, translation_mm: float = 100.0,

@@ -19,9 +19,10 @@ from histostudy.core import SweepExecutor, run_sweep
 from histostudy.imaging import View, random_background, render_frame
 from histostudy.learning import OracleOrientation, OrientationSource, Segmenter
 from histostudy.pose import PoseEstimationError, estimate_pose
-from histostudy.transducer import Feature, TransducerModel
+from histostudy.transducer import Feature, TransducerModel, half_turn_symmetric
 from .pose_config import PoseStudyConfig
-from .pose_geometry import bubble_cloud_centre_mm, random_pose_in_views, sweep_visible_points
+from .pose_geometry import (bubble_cloud_centre_mm, random_pose_in_views, rotation_error_modulo_symmetry_deg,
+                            sweep_visible_points)
 
 __all__ = ["robustness_summary", "robustness_sweep"]
 
@@ -46,7 +47,10 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
     :class:`~histostudy.core.SweepExecutor`, or None: ``$HISTOSTUDY_SCHEDULER``, else sequential.
     ``workers`` > 1 is the older spelling of ``executor="local:<workers>"``; 1 runs in this process.
     Every pose draws from its own child of ``SeedSequence(seed)``, so the rows are the same
-    whatever runs them (but ``seconds``). Each row also records the verdict's reasons (``failure``)
+    whatever runs them (but ``seconds``). Each row also records the rotation error (deg,
+    ``rotation_error_deg``: up to a half turn about the axis where ``pose_model`` looks the same after
+    one, :func:`~histostudy.transducer.half_turn_symmetric`; ``half_turned`` when the estimate is
+    nearer the half-turned truth), the verdict's reasons (``failure``)
     and, per view, its statistics (``rms_<view>``, ``body_rms_<view>``, ``unexplained_<view>``,
     ``disagreement_mm_<view>``; NaN where not reached).
     """
@@ -60,13 +64,13 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
     orientation = OracleOrientation() if orientation is None else orientation
     shared = dict(pose_model=pose_model, render_model=render_model, physical=physical, views=list(views),
                   config=config, inits=tuple(inits), mode=mode, success_mm=success_mm, segmenter=segmenter,
-                  orientation=orientation)
+                  orientation=orientation, half_turn=half_turn_symmetric(pose_model))
     per_pose = run_sweep(_sweep_pose, range(n_poses), seed=seed, executor=executor, shared=shared)
     return pd.DataFrame([row for rows in per_pose for row in rows])
 
 
 def _sweep_pose(i: int, seq: np.random.SeedSequence, *, pose_model, render_model, physical, views, config, inits,
-                mode, success_mm, segmenter, orientation) -> list[dict]:
+                mode, success_mm, segmenter, orientation, half_turn) -> list[dict]:
     rng_pose, rng_scene, rng_render, rng_est = (np.random.default_rng(s) for s in seq.spawn(4))
     T = random_pose_in_views(rng_pose, views, visible_points_mm=sweep_visible_points(pose_model))
     scene = random_background(rng_scene, "mixed")
@@ -85,8 +89,11 @@ def _sweep_pose(i: int, seq: np.random.SeedSequence, *, pose_model, render_model
             row.update(error_mm=np.nan, verdict_ok=False, success=False, failure=str(exc)[:120])
         else:
             err = float(np.linalg.norm(res.focal_point_mm - truth))
+            rotation_deg, half_turned = rotation_error_modulo_symmetry_deg(
+                res.T_carm_transducer, T, half_turn=half_turn)
             v = res.verdict
-            row.update(error_mm=err, verdict_ok=v.ok, success=v.ok and err < success_mm,
+            row.update(error_mm=err, rotation_error_deg=rotation_deg, half_turned=half_turned,
+                       verdict_ok=v.ok, success=v.ok and err < success_mm,
                        failure="" if v.ok else ("implausible pose: " + "; ".join(v.reasons))[:200])
             for view in views:
                 name = view.name

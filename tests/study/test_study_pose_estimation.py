@@ -13,6 +13,7 @@ from histostudy.study import pose_estimation as study
 HOMES = {
     "DIRECTIONS": "pose_geometry", "MARGINS": "pose_geometry", "transducer_axes": "pose_geometry",
     "margin_positions": "pose_geometry", "axial_symmetric_rotation_error_deg": "pose_geometry",
+    "rotation_error_modulo_symmetry_deg": "pose_geometry",
     "random_pose_in_views": "pose_geometry", "sweep_visible_points": "pose_geometry",
     "PoseStudyConfig": "pose_config", "StudyStages": "pose_config", "study_stages": "pose_config",
     "PoseExperiment": "pose_experiments", "experiment_setups": "pose_experiments", "run_pose_study": "pose_experiments",

@@ -40,6 +40,15 @@ def test_axial_symmetric_rotation_error_ignores_the_half_turn_only():
     assert study.axial_symmetric_rotation_error_deg(T_CENTRE @ quarter, T_CENTRE) == pytest.approx(90.0)
 
 
+def test_rotation_error_modulo_symmetry_takes_the_half_turn_only_where_the_model_allows_it():
+    half_turn = make_transform(np.diag([-1.0, -1.0, 1.0]))
+    tilt = make_transform(matrix_from_rotvec([np.deg2rad(4.0), 0.0, 0.0]))
+    estimate = T_CENTRE @ half_turn @ tilt
+    assert study.rotation_error_modulo_symmetry_deg(estimate, T_CENTRE, half_turn=True) == (pytest.approx(4.0), True)
+    assert study.rotation_error_modulo_symmetry_deg(estimate, T_CENTRE, half_turn=False) == (pytest.approx(180.0, abs=4.1), True)
+    assert study.rotation_error_modulo_symmetry_deg(T_CENTRE @ tilt, T_CENTRE, half_turn=True) == (pytest.approx(4.0), False)
+
+
 def test_random_poses_keep_the_given_points_in_every_view():
     views = default_biplane()
     rng = np.random.default_rng(0)

@@ -30,6 +30,8 @@ def test_robustness_sweep_runs_the_stages_it_is_given():
                                    inits=("robust",), segmenter=segmenter, orientation=OracleOrientation())
     assert segmenter.calls == 2 and list(table["init"]) == ["robust"]
     assert table["success"].all() and table["error_mm"].iloc[0] < 1.0
+    # the digital model looks the same after a half turn: the rotation error is taken up to it
+    assert table["rotation_error_deg"].iloc[0] < 2.0 and table["half_turned"].dtype == bool
 
 
 def test_robustness_summary_counts_refusals_and_wrong_accepted_poses():
