@@ -210,6 +210,11 @@ class UNetSegmenter:
     arg-max class of each pixel is returned, so labels always have the frame's shape. ``rng`` is
     accepted for the protocol and unused (inference is deterministic).
 
+    With ``test_time_flips`` the logits are the mean of the network's on the image and on its three
+    mirror images (left-right, up-down, both), each flipped back: the labels then mirror exactly as
+    the frame does. It costs four passes for a few points of IoU on the thin classes
+    (docs/learned-stages.md, "The learned stages at a new seed"), so it is offered, not the default.
+
     Build it with :meth:`load` from a checkpoint (:mod:`histostudy.learning.checkpoints`), or get the
     shipped one from :func:`default_segmenter`.
     """
@@ -217,16 +222,22 @@ class UNetSegmenter:
     network: object = field(repr=False)
     scale: float = 0.5
     manifest: dict | None = field(default=None, repr=False)
+    test_time_flips: bool = False
+
+    def __post_init__(self):
+        if not isinstance(self.test_time_flips, bool):
+            raise TypeError(f"test_time_flips must be True or False, got {self.test_time_flips!r}")
 
     @classmethod
-    def load(cls, path) -> "UNetSegmenter":
+    def load(cls, path, *, test_time_flips: bool = False) -> "UNetSegmenter":
         """From a U-Net checkpoint (hash and configuration checked)."""
         from .checkpoints import load_network
 
         net, manifest = load_network(path)
         if net.config.get("arch") != "unet" or net.config.get("n_classes") != len(Feature):
             raise ValueError(f"checkpoint {str(path)!r} holds {net.config}, expected a U-Net with {len(Feature)} classes")
-        return cls(network=net, scale=float(manifest.get("input_scale", 0.5)), manifest=manifest)
+        return cls(network=net, scale=float(manifest.get("input_scale", 0.5)), manifest=manifest,
+                   test_time_flips=test_time_flips)
 
     def segment(self, frame: Frame, rng: np.random.Generator | None = None) -> np.ndarray:
         import torch
@@ -243,7 +254,12 @@ class UNetSegmenter:
                              f"segmented at scale {self.scale}: {exc}") from None
         self.network.eval()
         with torch.no_grad():
-            logits = self.network(torch.from_numpy(x)[None, None])
+            x = torch.from_numpy(x)[None, None]
+            logits = self.network(x)
+            if self.test_time_flips:
+                for dims in ((-1,), (-2,), (-2, -1)):
+                    logits = logits + torch.flip(self.network(torch.flip(x, dims)), dims)
+                logits = logits / 4.0
             if logits.shape[-2:] != frame.image.shape:
                 logits = F.interpolate(logits, size=frame.image.shape, mode="bilinear", align_corners=False)
             return logits[0].argmax(dim=0).to(torch.uint8).numpy()

@@ -122,6 +122,27 @@ def test_unet_segmenter_keeps_geometry_at_full_resolution():
     assert np.all(out[:, :39] == 1) and np.all(out[:, 41:] == 0)
 
 
+def test_test_time_flips_make_the_labels_mirror_with_the_frame():
+    """The mean over the four mirror images is the same set of terms for a frame and for its mirror
+    image, so the labels mirror exactly (but near ties, where the sums' rounding may decide)."""
+    torch.manual_seed(3)
+    net = torch.nn.Conv2d(1, len(Feature), 5, padding=2).eval()  # random, lopsided kernels: labels that vary
+    rng = np.random.default_rng(0)
+    view = View.from_gantry(0.0, 0.0, shape=(64, 96))
+    image = rng.normal(0.0, 1.0, (64, 96)).astype(np.float32)
+    plain, flips = UNetSegmenter(net, scale=0.5), UNetSegmenter(net, scale=0.5, test_time_flips=True)
+    labels = flips.segment(Frame(image, view))
+    for axis in (0, 1):
+        mirrored = flips.segment(Frame(np.ascontiguousarray(np.flip(image, axis)), view))
+        assert np.mean(mirrored != np.flip(labels, axis)) < 1e-3
+    assert len(np.unique(labels)) >= 4
+    # without the flips a random network is far from mirror-equivariant
+    assert np.mean(plain.segment(Frame(np.ascontiguousarray(np.flip(image, 1)), view))
+                   != np.flip(plain.segment(Frame(image, view)), 1)) > 0.05
+    with pytest.raises(TypeError, match="test_time_flips"):
+        UNetSegmenter(net, test_time_flips="yes")
+
+
 def test_unet_segmenter_rejects_bad_frames():
     seg = UNetSegmenter(_ThresholdNet(), scale=0.5)
     with pytest.raises(ValueError, match="scale 0.5"):
