@@ -20,6 +20,7 @@ in mm² one pixel covers at the point perpendicular to the ray
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from typing import Iterator
 
 import cv2
@@ -332,10 +333,18 @@ def render_frame(model: TransducerModel, T_carm_transducer, view: View, *, rng: 
     _check_rng(rng)
     device = check_device(device)
     imaging = model if physical is None else physical
-    back = background_line_integrals(background, view)
-
-    image = back + render_line_integrals(imaging, T, view, rng=rng, n_splats=n_splats,
-                                         splat_sigma_mm=splat_sigma_mm, device=device).astype(np.float64)
+    if device is None:
+        back = background_line_integrals(background, view)
+        splat = render_line_integrals(imaging, T, view, rng=rng, n_splats=n_splats, splat_sigma_mm=splat_sigma_mm)
+    else:
+        # The compiled and CUDA splats run without the GIL: the scene's line integrals (numpy, one
+        # thread) fill a core meanwhile. Nothing random is drawn there, so the frame is the same.
+        with ThreadPoolExecutor(max_workers=1) as pool:
+            pending = pool.submit(background_line_integrals, background, view)
+            splat = render_line_integrals(imaging, T, view, rng=rng, n_splats=n_splats,
+                                          splat_sigma_mm=splat_sigma_mm, device=device)
+            back = pending.result()
+    image = back + splat.astype(np.float64)
     if photons_per_pixel is not None:
         image = add_poisson_noise(image, photons_per_pixel, rng)
     labels = render_labels(model if labels_from == "digital" else imaging, T, view, device=device)
