@@ -8,10 +8,14 @@ learned stages at a new seed").
   an ellipse) and the VGG19 alone; azimuth and elevation MAE of the nearer candidate (notebook
   03's statistics, ``study.candidate_errors``), its median and 90th percentile, and how often the
   conic fell back.
+- With ``--robustness-poses N``: ``study.robustness_sweep`` over N random poses of the paper's
+  range (seed ``--seed`` + 1) with these stages: how many within 2 mm, refused by the verdict, and
+  accepted although 2 mm or more off; the rotation error up to the transducer's half turn.
 
 Usage::
 
-    python scripts/evaluate_learned_stages.py --seed 20261126 --frames 40 [--weights PATH] [--vgg19 PATH]
+    python scripts/evaluate_learned_stages.py --seed 20261126 --frames 40 [--weights PATH] [--vgg19 PATH] \
+        [--robustness-poses 100]
 
 Frames: split ``eval`` of ``HybridFrames`` at ``--seed`` (the study's reference renderer, 0.125 mm
 models, mixed backgrounds), cached in the frame cache. Prints a Markdown table.
@@ -37,6 +41,8 @@ def main(argv=None) -> int:
     parser.add_argument("--weights", default="", help="U-Net checkpoint (default: the shipped unet_standard)")
     parser.add_argument("--vgg19", default="", help="VGG19 checkpoint (default: the shipped vgg19_standard)")
     parser.add_argument("--workers", type=int, default=2, help="rendering processes (default 2)")
+    parser.add_argument("--robustness-poses", type=int, default=0,
+                        help="also run the robustness sweep over this many random poses (default 0: not)")
     args = parser.parse_args(argv)
 
     import numpy as np
@@ -82,7 +88,34 @@ def main(argv=None) -> int:
     sources = {"conic (pipeline)": ConicOrientation(segmenter=unet, fallback=vgg), "VGG19 alone": vgg}
     errors = candidate_errors(sources, (frames.frame(i) for i in range(args.frames)), np.random.default_rng(args.seed))
     print(candidate_error_summary(errors).to_markdown(index=False, floatfmt=".2f"))
+    if args.robustness_poses > 0:
+        robustness(args, unet, sources["conic (pipeline)"])
     return 0
+
+
+def robustness(args, segmenter, orientation) -> None:
+    """The robustness sweep with these stages (module docstring), printed."""
+    import numpy as np
+
+    from histostudy.imaging import default_biplane
+    from histostudy.study.pose_config import PoseStudyConfig
+    from histostudy.study.pose_robustness import robustness_summary, robustness_sweep
+    from histostudy.transducer import TransducerModel
+
+    seed = args.seed + 1
+    table = robustness_sweep(
+        args.robustness_poses, pose_model=TransducerModel.build(spacing_mm=0.47),
+        render_model=TransducerModel.build(spacing_mm=0.125),
+        physical=TransducerModel.build_physical(spacing_mm=0.125, rng=np.random.default_rng(seed)),
+        views=default_biplane(), seed=seed, config=PoseStudyConfig(), inits=("robust",), segmenter=segmenter,
+        orientation=orientation, executor=f"local:{args.workers}" if args.workers > 1 else "sequential")
+    accepted = table["verdict_ok"].astype(bool)
+    wrong = table[accepted & ~table["success"].astype(bool)]
+    print(f"\nrobustness sweep, {args.robustness_poses} random poses, seed {seed}:")
+    print(robustness_summary(table).to_markdown(index=False, floatfmt=".3f"))
+    print(f"accepted 2 mm or more off: {len(wrong)} ({', '.join(f'{e:.2f}' for e in sorted(wrong['error_mm']))} mm); "
+          f"rotation error up to the half turn: median {table['rotation_error_deg'].median():.2f} deg, "
+          f"{int(table['half_turned'].sum())} estimates half turned")
 
 
 if __name__ == "__main__":
