@@ -34,7 +34,7 @@ from .dicom_xa import XA_SOP_CLASS_UID, detector_counts, write_xa, xa_dataset
 from .frame import Frame, line_integrals_from_pixels, load_frame
 from .nifti_io import save_volume_nifti
 from .render import add_poisson_noise, background_line_integrals, render_frame, render_labels, render_line_integrals
-from .render_device import check_device, splat_compiled, splat_points
+from .render_device import check_device, mark_nearest_pixels_compiled, splat_compiled, splat_points, splat_torch
 from .render_settings import BACKGROUNDS, RenderSettings
 from .render_torch import TorchSplatter, poisson_noise_torch
 from .rtk_projector import forward_project, render_frame_rtk, rtk_available, rtk_geometry, voxelise_model

@@ -30,7 +30,8 @@ from histostudy.geometry import check_rigid
 from histostudy.transducer import FEATURE_CLASSES, LABEL_PRIORITY, TransducerModel
 from .carm import View
 from .frame import Frame
-from .render_device import SEED_BOUND, check_device, splat_compiled, splat_points
+from .render_device import (SEED_BOUND, check_device, mark_nearest_pixels_compiled, splat_compiled, splat_points,
+                            splat_torch)
 from .render_settings import check_n_splats, check_photons_per_pixel, check_splat_sigma_mm
 
 __all__ = ["add_poisson_noise", "background_line_integrals", "render_frame", "render_labels",
@@ -94,23 +95,7 @@ def _render_on(device: str, model: TransducerModel, T_carm_transducer, view: Vie
     seed = int(rng.integers(SEED_BOUND))
     if device == "cpu":
         return splat_compiled(model, T, view, seed=seed, n_splats=n_splats, splat_sigma_mm=sigma)
-    return _torch_splatter(model, device, n_splats, sigma).line_integrals([T], [view], [seed])[0].cpu().numpy()
-
-
-def _torch_splatter(model: TransducerModel, device: str, n_splats: int, sigma: float):
-    """The :class:`~.render_torch.TorchSplatter` of the last call's model, device and splatting,
-    kept so that a run of frames moves the model's points to the GPU once."""
-    from .render_torch import TorchSplatter  # torch only for a CUDA render
-
-    global _LAST_SPLATTER
-    last = _LAST_SPLATTER
-    if (last is None or last.model is not model or str(last.device) != str(TorchSplatter.device_of(device))
-            or last.n_splats != n_splats or last.splat_sigma_mm != sigma):
-        _LAST_SPLATTER = last = TorchSplatter(model, device, n_splats=n_splats, splat_sigma_mm=sigma)
-    return last
-
-
-_LAST_SPLATTER = None
+    return splat_torch(model, T, view, device=device, seed=seed, n_splats=n_splats, splat_sigma_mm=sigma)
 
 
 def _splat_chunks(model: TransducerModel, T_carm_transducer, view: View, *, rng: np.random.Generator,
@@ -192,7 +177,7 @@ def render_labels(model: TransducerModel, T_carm_transducer, view: View, *, devi
     _check_model(model, "model")
     T = check_rigid(T_carm_transducer, "T_carm_transducer")
     rows, cols = _check_view(view).shape
-    marker = _numpy_marker if check_device(device) is None else _compiled_marker
+    marker = _numpy_marker if check_device(device) is None else mark_nearest_pixels_compiled
     labels = np.zeros((rows, cols), dtype=np.uint8)
     largest_step_px = 0.0
     for feature in reversed(LABEL_PRIORITY):
@@ -219,17 +204,6 @@ def _numpy_marker(points: np.ndarray, T: np.ndarray, view: View) -> tuple[np.nda
         return mask, math.inf
     mask[flat] = 1
     return mask, float(view.pixel_footprint_mm2(world[ok]).min())
-
-
-def _compiled_marker(points: np.ndarray, T: np.ndarray, view: View) -> tuple[np.ndarray, float]:
-    from .splat_kernels import mark_nearest_pixels  # numba compiles on first use
-
-    rows, cols = view.shape
-    mask = np.zeros(rows * cols, dtype=np.uint8)
-    smallest = mark_nearest_pixels(mask, np.ascontiguousarray(points, dtype=np.float64),
-                                   np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]), view.P,
-                                   view.source_mm, abs(float(np.linalg.det(view.P[:, :3]))), rows, cols)
-    return mask, float(smallest)
 
 
 def _fill_seams(labels: np.ndarray, step_px: float) -> np.ndarray:

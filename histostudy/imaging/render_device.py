@@ -22,7 +22,7 @@ import numpy as np
 from histostudy.transducer import FEATURE_CLASSES, TransducerModel
 from .carm import View
 
-__all__ = ["check_device", "splat_compiled", "splat_points"]
+__all__ = ["check_device", "mark_nearest_pixels_compiled", "splat_compiled", "splat_points", "splat_torch"]
 
 #: A splat stream's seed is one draw in [0, 2**63) from the caller's Generator.
 SEED_BOUND = 2**63
@@ -96,3 +96,39 @@ def splat_compiled(model: TransducerModel, T_carm_transducer: np.ndarray, view: 
                        int(n_splats), np.uint64(seed), rows, cols)
         first += len(points)
     return partial.sum(axis=0).reshape(rows, cols).astype(np.float32)
+
+
+def splat_torch(model: TransducerModel, T_carm_transducer: np.ndarray, view: View, *, device: str, seed: int,
+                n_splats: int, splat_sigma_mm: float) -> np.ndarray:
+    """The ``view.shape`` float32 line integrals of one frame by torch on ``device`` (arguments checked).
+
+    The :class:`~.render_torch.TorchSplatter` of the last call is kept while the model, device and
+    splatting stay the same, so that a run of frames moves the model's points to the GPU once.
+    """
+    from .render_torch import TorchSplatter  # torch only for a torch render
+
+    global _LAST_SPLATTER
+    last = _LAST_SPLATTER
+    if (last is None or last.model is not model or str(last.device) != str(TorchSplatter.device_of(device))
+            or last.n_splats != n_splats or last.splat_sigma_mm != splat_sigma_mm):
+        _LAST_SPLATTER = last = TorchSplatter(model, device, n_splats=n_splats, splat_sigma_mm=splat_sigma_mm)
+    return last.line_integrals([T_carm_transducer], [view], [seed])[0].cpu().numpy()
+
+
+_LAST_SPLATTER = None
+
+
+def mark_nearest_pixels_compiled(points: np.ndarray, T_carm_transducer: np.ndarray,
+                                 view: View) -> tuple[np.ndarray, float]:
+    """The flat ``(rows * cols,)`` uint8 mask of the pixels ``points`` (mm, transducer frame) land in
+    at ``T_carm_transducer``, and their smallest pixel footprint in mm² (inf: none lands), by the
+    compiled kernel (:func:`.splat_kernels.mark_nearest_pixels`)."""
+    from .splat_kernels import mark_nearest_pixels  # numba compiles on first use
+
+    rows, cols = view.shape
+    T = np.asarray(T_carm_transducer, dtype=np.float64)
+    mask = np.zeros(rows * cols, dtype=np.uint8)
+    smallest = mark_nearest_pixels(mask, np.ascontiguousarray(points, dtype=np.float64),
+                                   np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]), view.P,
+                                   view.source_mm, abs(float(np.linalg.det(view.P[:, :3]))), rows, cols)
+    return mask, float(smallest)
