@@ -54,9 +54,7 @@ def test_the_tracking_unet_loads_at_quarter_scale_with_its_hash_checked(networks
     assert tracking.network.config == shipped.network.config
     manifest = tracking.manifest
     assert manifest["sha256"] == sha256_file(MODELS_DIR / "unet_tracking.safetensors")
-    # started from the shipped U-Net, or from the weights the shipped one was trained on from
-    lineage = {shipped.manifest["sha256"], (shipped.manifest.get("init_weights") or {}).get("sha256")}
-    assert manifest["init_weights"]["sha256"] in lineage
+    assert manifest["init_weights"]["sha256"] == shipped.manifest["sha256"]  # started from the shipped U-Net
     assert manifest["device"] == "cuda" and manifest["validation"]["pixel_accuracy"] > 0.97
 
 
