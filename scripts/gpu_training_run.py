@@ -140,6 +140,9 @@ def main(argv=None) -> int:
             return 2
         cfg = TrainingConfig.from_table(TRAINING_TABLES[name][0], profile.training[name])
         cfg = _toy(cfg) if args.toy else cfg
+        if cfg.init_weights and not Path(cfg.init_weights).is_absolute():
+            # a profile's paths are the repository's, wherever the run was started
+            cfg = dataclasses.replace(cfg, init_weights=str(REPO / cfg.init_weights))
         if _half_bytes(cfg) > MAX_FILE_BYTES:
             print(f"gpu_training_run: [training.{name}]'s network is {_half_bytes(cfg) / 2**20:.1f} MiB in float16, "
                   f"more than a {MAX_FILE_BYTES // 2**20} MiB file can bring back", file=sys.stderr)

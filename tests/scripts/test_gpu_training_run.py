@@ -21,7 +21,7 @@ def test_the_gpu_run_renders_trains_exports_and_evaluates_at_toy_size(tmp_path):
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     done = subprocess.run([sys.executable, str(SCRIPT), "--out", str(out), "--eval-seed", "777", "--toy",
                            "--render-workers", "2", "--cache-dir", str(cache)],
-                          capture_output=True, text=True, timeout=600, env=env)
+                          capture_output=True, text=True, timeout=600, env=env, cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-3000:]
     files = sorted(p.name for p in out.iterdir())
     assert files == ["run.json", "unet_gpu.json", "unet_gpu.safetensors", "vgg19_gpu.json", "vgg19_gpu.safetensors"]
