@@ -59,8 +59,7 @@ def splat_points(model: TransducerModel, T_carm_transducer: np.ndarray, view: Vi
     ``weight / (n_splats * footprint)`` (footprint in mm², :meth:`View.pixel_footprint_mm2`).
     The arguments are the caller's, already checked.
     """
-    points = np.vstack([model.points[f] for f in FEATURE_CLASSES])
-    weights = np.concatenate([model.weights[f] for f in FEATURE_CLASSES])
+    points, weights = model.all_points()[0], model.all_weights()
     keep = weights > 0
     world = points[keep] @ T_carm_transducer[:3, :3].T + T_carm_transducer[:3, 3]
     uvw = view.project_homogeneous(world)

@@ -20,7 +20,7 @@ from typing import Sequence
 import numpy as np
 
 from histostudy.geometry import check_rigid
-from histostudy.transducer import FEATURE_CLASSES, TransducerModel
+from histostudy.transducer import TransducerModel
 from .carm import View
 from .render_settings import check_n_splats, check_photons_per_pixel, check_splat_sigma_mm
 
@@ -58,8 +58,7 @@ class TorchSplatter:
         self.model = model
         self.n_splats = check_n_splats(n_splats)
         self.splat_sigma_mm = check_splat_sigma_mm(splat_sigma_mm)
-        points = np.vstack([model.points[f] for f in FEATURE_CLASSES])
-        weights = np.concatenate([model.weights[f] for f in FEATURE_CLASSES])
+        points, weights = model.all_points()[0], model.all_weights()
         keep = weights > 0
         self._points = torch.as_tensor(points[keep], dtype=torch.float64, device=self.device)
         self._weights = torch.as_tensor(weights[keep], dtype=torch.float64, device=self.device)
