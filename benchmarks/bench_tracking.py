@@ -54,7 +54,7 @@ import torch
 from histostudy.geometry import transform_from_params
 from histostudy.imaging import Frame, default_biplane, random_background, render_frame
 from histostudy.pose import Tracker, TrackingOptions, default_stages
-from histostudy.study.pose_estimation import PoseStudyConfig, experiment_pose
+from histostudy.study.pose import PoseStudyConfig, experiment_pose
 from histostudy.transducer import TransducerModel
 
 STAGES = ("segmentation", "distance_maps", "refinement", "verdict", "total")

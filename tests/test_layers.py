@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 import histostudy
+from histostudy.core import MOVED_MODULES, MOVED_MODULES_REMOVED_IN
 
 PACKAGE = Path(histostudy.__file__).parent
 REPO = PACKAGE.parent
@@ -33,18 +34,12 @@ LAYERS = {
     "cli": 11,
 }
 
-#: The old flat module paths kept importable for users' scripts, with where each moved.
-MOVED = {
-    "histostudy.carm": "histostudy.imaging",
-    "histostudy.frame": "histostudy.imaging",
-    "histostudy.render": "histostudy.imaging",
-    "histostudy.anatomy": "histostudy.imaging",
-    "histostudy.volume_io": "histostudy.imaging",
-    "histostudy.segment": "histostudy.learning",
-    "histostudy.orientation": "histostudy.learning",
-    "histostudy.handeye": "histostudy.calibration",
-    "histostudy.stats": "histostudy.study.stats",
-}
+#: The flat module paths deprecated in 0.1.0 and removed in 0.2.0 (CHANGELOG.md).
+REMOVED = ("histostudy.carm", "histostudy.frame", "histostudy.render", "histostudy.anatomy", "histostudy.volume_io",
+           "histostudy.segment", "histostudy.orientation", "histostudy.handeye", "histostudy.stats")
+
+#: Old module paths of families that became sub-packages: importable, deprecated (CHANGELOG.md).
+MOVED = MOVED_MODULES
 
 
 def _modules() -> dict[str, Path]:
@@ -53,9 +48,7 @@ def _modules() -> dict[str, Path]:
         parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
         if parts[-1] == "__init__":
             parts = parts[:-1]
-        name = ".".join(parts)
-        if name not in MOVED:
-            out[name] = path
+        out[".".join(parts)] = path
     return out
 
 
@@ -142,9 +135,6 @@ def _project_sources():
 def test_the_project_itself_uses_no_deprecated_module_path():
     users = []
     for path, source in _project_sources():
-        name = ".".join(path.relative_to(REPO).with_suffix("").parts)
-        if name in MOVED:
-            continue
         tree = ast.parse(source)
         for node in ast.walk(tree):
             if isinstance(node, ast.ImportFrom) and node.module:
@@ -153,23 +143,28 @@ def test_the_project_itself_uses_no_deprecated_module_path():
                 targets = {a.name for a in node.names}
             else:
                 continue
-            users += [f"{path.relative_to(REPO)}: {t}" for t in targets & set(MOVED)]
+            users += [f"{path.relative_to(REPO)}: {t}" for t in targets & (set(MOVED) | set(REMOVED))]
     assert users == []
 
 
+@pytest.mark.parametrize("old", REMOVED)
+def test_the_removed_module_paths_no_longer_import(old):
+    with pytest.raises(ModuleNotFoundError):
+        importlib.import_module(old)
+
+
 @pytest.mark.parametrize("old, new", sorted(MOVED.items()))
-def test_old_module_paths_still_import_the_same_objects_with_a_deprecation_warning(old, new):
+def test_moved_module_paths_import_the_same_module_with_a_deprecation_warning(old, new):
     import sys
 
     sys.modules.pop(old, None)
-    with pytest.warns(DeprecationWarning, match=new.replace(".", r"\.")):
-        shim = importlib.import_module(old)
-    assert shim.__all__, f"{old} re-exports nothing"
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        for name in shim.__all__:
-            home = importlib.import_module(new if hasattr(importlib.import_module(new), name) else "histostudy.pose")
-            assert getattr(shim, name) is getattr(home, name), f"{old}.{name}"
+    public = ".".join(p for p in new.split(".") if not p.startswith("_"))
+    with pytest.warns(DeprecationWarning, match=rf"{old.replace('.', '[.]')} is deprecated and goes in histostudy "
+                                                 rf"{MOVED_MODULES_REMOVED_IN.replace('.', '[.]')}: import from "
+                                                 rf"{public.replace('.', '[.]')} instead"):
+        alias = importlib.import_module(old)
+    assert alias is importlib.import_module(new)
+    assert old not in MODULES, f"{old} is both moved and still a file"
 
 
 @pytest.mark.parametrize("subpackage", sorted(set(LAYERS) - {"study", "cli"}))

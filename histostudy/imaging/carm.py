@@ -190,7 +190,7 @@ class View:
         Unequal row and column spacings give unequal focal lengths; ``pixel_mm`` is the column
         spacing. A missing attribute raises a ValueError naming it and its tag.
         """
-        from .dicom_geometry import gantry_from_dicom
+        from .io._geometry import gantry_from_dicom
 
         source = "the DICOM object"
         if isinstance(dataset, (str, os.PathLike)):

@@ -1,13 +1,13 @@
 """An independent projector: RTK's Joseph ray caster in place of §II-B.2's virtual projections.
 
-The study's virtual projections (paper §II-B.2) come from :mod:`histostudy.imaging.render`, which splats
+The study's virtual projections (paper §II-B.2) come from :mod:`histostudy.imaging.render._reference`, which splats
 the model's points. This module makes the same line-integral images an unrelated way, to check it:
 the posed point model is voxelised into a world grid of linear attenuation (numpy), and the grid
 is ray cast by ``JosephForwardProjectionImageFilter`` of RTK (``itk-rtk``) in a cone-beam geometry
 rebuilt from each :class:`~histostudy.imaging.carm.View`'s ``P``. It shares no code with
-:mod:`histostudy.imaging.render`'s projection; a frame takes only its reference labels
-(:func:`~histostudy.imaging.render.render_labels`), its background and quantum noise (:func:`~histostudy.imaging.render.add_poisson_noise`)
-from there, so it differs from :func:`~histostudy.imaging.render.render_frame`'s in the projector alone.
+:mod:`histostudy.imaging.render._reference`'s projection; a frame takes only its reference labels
+(:func:`~histostudy.imaging.render._reference.render_labels`), its background and quantum noise (:func:`~histostudy.imaging.render._reference.add_poisson_noise`)
+from there, so it differs from :func:`~histostudy.imaging.render._reference.render_frame`'s in the projector alone.
 itk-rtk is optional (``pip install 'histostudy[rtk]'``, ~1.8 GB) and imported lazily (~30 s of CPU).
 
 RTK conventions used here (RTK 2.7, ITK 5.4):
@@ -39,7 +39,7 @@ from histostudy.geometry import check_rigid
 from histostudy.transducer import FEATURE_CLASSES, TransducerModel
 from .carm import View
 from .frame import Frame
-from .render import add_poisson_noise, background_line_integrals, render_labels
+from .render._reference import add_poisson_noise, background_line_integrals, render_labels
 
 __all__ = ["forward_project", "render_frame_rtk", "rtk_available", "rtk_geometry", "voxelise_model"]
 
@@ -227,7 +227,7 @@ def forward_project(volume, views, *, n_threads: int | None = None) -> list[np.n
 def render_frame_rtk(digital: TransducerModel, physical: TransducerModel, T_carm_transducer, view: View, *,
                      rng: np.random.Generator, background=None, photons_per_pixel: float | None = 5e4,
                      voxel_mm: float = 0.5, n_threads: int | None = None) -> Frame:
-    """A synthetic frame as :func:`~histostudy.imaging.render.render_frame` makes it, projected by RTK.
+    """A synthetic frame as :func:`~histostudy.imaging.render._reference.render_frame` makes it, projected by RTK.
 
     Image: ``background`` (None: zeros; a ``view.shape`` array of line integrals; or an object with
     ``line_integrals(view)``) plus the Joseph projection of ``physical`` voxelised at

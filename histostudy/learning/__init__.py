@@ -10,10 +10,8 @@ segmenter and an orientation source.
 """
 
 from . import (nets as _nets, checkpoints as _checkpoints, datasets as _datasets, fast_segment as _fast_segment,
-               fused_conv as _fused_conv, orientation as _orientation,
-               preprocess as _preprocess, segment as _segment, training as _training,
-               training_config as _training_config, training_export as _training_export,
-               training_losses as _training_losses, training_teacher as _training_teacher)
+               fused_conv as _fused_conv, orientation as _orientation, preprocess as _preprocess,
+               segment as _segment, training as _training)
 from .nets import UNet, VGG19, build_network, max_pool_2x2
 from .checkpoints import (MODELS_DIR, load_checkpoint, load_network, load_shipped, manifest_path, save_checkpoint,
                           sha256_file, shipped_model, training_summary)
@@ -28,16 +26,11 @@ from .orientation import (LearnedOrientation, N_ORIENTATION_CLASSES, OracleOrien
 from .preprocess import pool_labels, prepare_image
 from .segment import (OracleSegmenter, SegmentationDegradation, Segmenter, UNetSegmenter, default_segmenter,
                       keep_largest_component, masks_from_labels, tracking_segmenter)
-from .training import train
-from .training_config import (FineTuneConfig, SEGMENTATION_LOSSES, TRAINING_TABLES, TrainingConfig, TrainingResult,
-                              export_name, run_frame_sets)
-from .training_export import export, full_precision_copy, half_precision_copy
-from .training_losses import angle_loss, dice_loss
-from .training_teacher import load_teacher, teacher_labeller
+from .training import (FineTuneConfig, SEGMENTATION_LOSSES, TRAINING_TABLES, TrainingConfig, TrainingResult, angle_loss,
+                       dice_loss, export, export_name, full_precision_copy, half_precision_copy, load_teacher,
+                       run_frame_sets, teacher_labeller, train)
 
 # every public name of the modules above, as each module's __all__ declares it
 __all__ = list(dict.fromkeys([*_nets.__all__, *_checkpoints.__all__, *_datasets.__all__, *_fast_segment.__all__,
                               *_fused_conv.__all__, *_orientation.__all__,
-                              *_preprocess.__all__, *_segment.__all__, *_training.__all__, *_training_config.__all__,
-                              *_training_export.__all__, *_training_losses.__all__,
-                              *_training_teacher.__all__]))
+                              *_preprocess.__all__, *_segment.__all__, *_training.__all__]))

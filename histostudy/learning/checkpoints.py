@@ -18,7 +18,7 @@ files are written atomically (temporary file, then rename), weights first, so a 
 names weights that are not completely on disk.
 
 Resumable training state uses the same format: the optimiser's tensors go into the same file
-under the ``optim.`` prefix (see :mod:`histostudy.learning.training`).
+under the ``optim.`` prefix (see :mod:`histostudy.learning.training._loop`).
 """
 
 from __future__ import annotations

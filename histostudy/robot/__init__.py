@@ -28,20 +28,19 @@ non-rigid or non-finite pose, a speed outside (0, 3000] mm/s) raise ``ValueError
 
 Modules: ``base`` (protocol, errors, Workspace, motion-time model), ``kinematics`` (UR5e DH
 forward and analytic inverse kinematics), ``sim`` (:class:`SimulatedUR5e`, :class:`FaultPlan`),
-``rtde_units`` (the metre/axis-angle boundary: :func:`pose_from_transform`,
-:func:`transform_from_pose`), ``rtde_connection`` (ur_rtde's interfaces under watchdogs),
-``rtde`` (:class:`RTDERobot`). The simulated UR controller, not imported here: ``controller`` (its
-command line and :class:`~histostudy.robot.controller.ControllerProcess`), ``controller_server``
-(the dashboard, RTDE and script servers), ``controller_program`` (the register handshake and the
-commands), ``controller_arm`` (the arm's moves in wall-clock time, injected faults) and
-``controller_protocol`` (ports, command numbers, RTDE recipes and framing).
+the sub-package ``rtde`` (:class:`RTDERobot`, ur_rtde's interfaces under watchdogs, the
+metre/axis-angle boundary :func:`pose_from_transform`, :func:`transform_from_pose`). The simulated
+UR controller, not imported here: the sub-package ``controller`` (its command line and
+:class:`~histostudy.robot.controller.ControllerProcess`, the dashboard, RTDE and script servers, the
+register handshake and commands, the arm's moves in wall-clock time with injected faults, and the
+ports, command numbers, RTDE recipes and framing).
 """
 
 from .base import (ProtectiveStopError, Robot, RobotConnectionError, RobotError, RobotState, RobotTimeout,
                    UnreachablePoseError, Workspace, WorkspaceViolation)
 from .kinematics import UR5E, forward_kinematics, inverse_kinematics, inverse_kinematics_closest
 from .rtde import RTDERobot
-from .rtde_units import pose_from_transform, transform_from_pose
+from .rtde import pose_from_transform, transform_from_pose
 from .sim import FaultPlan, HOME_JOINTS_RAD, SimulatedUR5e
 
 __all__ = [

@@ -9,7 +9,7 @@ Everything here is in millimetres, radians and 4x4 rigid transforms ``T_<to>_<fr
 - ``T_base_tcp = T_base_flange @ T_flange_tcp``.
 
 Conversion to metres and axis-angle vectors happens only at the ``ur_rtde`` boundary
-(:mod:`histostudy.robot.rtde` and the simulated controller).
+(:mod:`histostudy.robot.rtde._robot` and the simulated controller).
 """
 
 from __future__ import annotations
@@ -240,7 +240,7 @@ class Robot(Protocol):
     """What the calibration and targeting code (§II-C, §II-D) needs from an arm.
 
     Implemented by :class:`~histostudy.robot.sim.SimulatedUR5e` (in process) and
-    :class:`~histostudy.robot.rtde.RTDERobot` (a real UR5e, or the simulated controller, through
+    :class:`~histostudy.robot.rtde._robot.RTDERobot` (a real UR5e, or the simulated controller, through
     ur_rtde). Poses are 4x4 transforms in mm in the robot base frame; joints in rad.
     """
 

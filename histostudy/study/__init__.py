@@ -83,7 +83,7 @@ __all__ = ["LabErrorModel"]
 
 def __getattr__(name: str):
     if name == "LabErrorModel":
-        from .lab_errors import LabErrorModel
+        from .budget._sources import LabErrorModel
 
         return LabErrorModel
     raise AttributeError(f"module 'histostudy.study' has no attribute {name!r}")

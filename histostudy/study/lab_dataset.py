@@ -40,9 +40,9 @@ from histostudy.imaging import (PhantomSpec, View, add_poisson_noise, background
                                 render_line_integrals, save_views, save_volume_nifti, simulate_cbct, write_xa)
 from histostudy.robot import forward_kinematics, pose_from_transform
 from histostudy.transducer import TransducerModel, export_meshes
-from .targeting_calibration import calibration_poses
-from .targeting_setup import TargetingStudyConfig, draw_ground_truth, start_joints
-from .targeting_treatment import phantom_for
+from .targeting._calibration import calibration_poses
+from .targeting._setup import TargetingStudyConfig, draw_ground_truth, start_joints
+from .targeting._treatment import phantom_for
 
 __all__ = ["LabDataset", "LabScene", "write_lab_dataset"]
 

@@ -40,8 +40,8 @@ from histostudy.geometry import invert_transform
 from histostudy.imaging import View, default_biplane, detector_counts, save_views, write_xa
 from histostudy.robot import forward_kinematics
 from .lab_dataset import LabScene
-from .pose_geometry import margin_positions
-from .targeting_setup import TargetingStudyConfig, draw_ground_truth, start_joints
+from .pose._geometry import margin_positions
+from .targeting._setup import TargetingStudyConfig, draw_ground_truth, start_joints
 
 __all__ = ["MARGIN_TOUR", "MovingCine", "RobotPath", "load_moving_cine", "robot_path", "write_moving_cine"]
 

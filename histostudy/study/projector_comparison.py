@@ -20,9 +20,9 @@ import pandas as pd
 from histostudy.imaging import View, random_background, render_frame
 from histostudy.pose import PoseEstimationError, estimate_pose
 from histostudy.transducer import TransducerModel
-from .pose_config import PoseStudyConfig
-from .pose_experiments import experiment_setups
-from .pose_geometry import bubble_cloud_centre_mm, random_pose_in_views, sweep_visible_points
+from .pose._config import PoseStudyConfig
+from .pose._experiments import experiment_setups
+from .pose._geometry import bubble_cloud_centre_mm, random_pose_in_views, sweep_visible_points
 
 __all__ = ["PROJECTORS", "comparison_poses", "projector_comparison", "projector_summary"]
 
@@ -33,7 +33,7 @@ PROJECTORS = ("splatting", "rtk-joseph")
 def comparison_poses(config: PoseStudyConfig, seed: int, *, n_study: int, n_random: int, views: Sequence[View],
                      pose_model: TransducerModel) -> list[dict]:
     """The poses of the comparison: the centre poses of the first ``n_study`` experiments of the
-    pose study (:func:`~histostudy.study.pose_experiments.experiment_setups`, their phantom scenes),
+    pose study (:func:`~histostudy.study.pose._experiments.experiment_setups`, their phantom scenes),
     then ``n_random`` random poses in the paper's training ranges with the transducer centre and
     focal point in every view (mixed backgrounds), as the robustness sweep draws them. Each item:
     ``{"kind", "index", "T", "scene"}``."""

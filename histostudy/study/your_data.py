@@ -24,8 +24,8 @@ from histostudy.lab import TargetingPlan, accepted_stations, calibrate_from_pose
 from histostudy.pose import Tracker, frames_from_files, pose_from_files, pose_record
 from histostudy.transducer import TransducerModel
 from .lab_dataset import write_lab_dataset
-from .targeting_figures import plot_target_slices
-from .targeting_setup import TargetingStudyConfig
+from .targeting._figures import plot_target_slices
+from .targeting._setup import TargetingStudyConfig
 
 __all__ = ["LabInputs", "SECTION_TITLE", "accepted_focal_errors", "calibration_table", "cine_frame_count", "lab_inputs", "plan_table",
            "plot_cbct_target", "station_poses", "target_plan", "track_cine", "transducer_model"]

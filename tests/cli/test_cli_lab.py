@@ -9,7 +9,7 @@ import pytest
 
 from histostudy.cli import main
 from histostudy.robot import forward_kinematics
-from histostudy.robot.controller import ControllerProcess
+from histostudy.robot.controller._process import ControllerProcess
 from histostudy.study.lab_dataset import write_lab_dataset
 
 

@@ -12,8 +12,8 @@ from histostudy.imaging import Volume
 from histostudy.lab import (TargetingPlan, calibrate_from_poses, execute_targeting, load_flange_poses,
                             load_pose_record, plan_targeting)
 from histostudy.robot import SimulatedUR5e, UnreachablePoseError, Workspace, WorkspaceViolation, pose_from_transform
-from histostudy.study.targeting_calibration import calibration_poses
-from histostudy.study.targeting_setup import TargetingStudyConfig, draw_ground_truth, start_joints
+from histostudy.study.targeting._calibration import calibration_poses
+from histostudy.study.targeting._setup import TargetingStudyConfig, draw_ground_truth, start_joints
 
 
 @pytest.fixture(scope="module")

@@ -74,7 +74,7 @@ def test_bad_arguments_are_refused_before_anything_is_written(tmp_path):
 def test_the_lab_scene_renders_render_frames_images_with_the_same_draws():
     from histostudy.imaging import random_background, render_frame
     from histostudy.study.lab_dataset import LabScene
-    from histostudy.study.targeting_setup import TargetingStudyConfig
+    from histostudy.study.targeting._setup import TargetingStudyConfig
     from histostudy.transducer import pose_facing
 
     config, views = TargetingStudyConfig(n_experiments=1, background="phantom"), _small_views()

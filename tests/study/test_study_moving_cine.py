@@ -13,7 +13,7 @@ import pytest
 from histostudy.imaging import default_biplane, load_views
 from histostudy.lab import decode_xray_object, frame_times, posix_seconds
 from histostudy.study.moving_cine import MARGIN_TOUR, T0, load_moving_cine, robot_path, write_moving_cine
-from histostudy.study.pose_geometry import margin_positions
+from histostudy.study.pose._geometry import margin_positions
 from histostudy.transducer import pose_facing
 
 SMALL = dict(views=default_biplane(shape=(96, 124), pixel_mm=3.08), render_spacing_mm=0.5)

@@ -6,7 +6,7 @@ import pytest
 
 from histostudy.imaging import default_biplane
 from histostudy.learning import OracleOrientation, OracleSegmenter
-from histostudy.study.pose_estimation import PoseStudyConfig
+from histostudy.study.pose._study import PoseStudyConfig
 from histostudy.study.projector_comparison import comparison_poses, projector_comparison, projector_summary
 from histostudy.transducer import TransducerModel
 

@@ -1,0 +1,75 @@
+"""How a synthetic fluoroscopic frame is rendered: dose, splatting and the scene behind (§II-B.2).
+
+One :class:`RenderSettings` is shared by every configuration that renders frames (the pose
+study's, the targeting study's and the hybrid training images'), so the settings, their defaults
+and their checks are declared once. Defaults are the paper's rendering: 5e4 unattenuated photons
+per pixel (Poisson noise at a fluoroscopic dose), 16 splats per point with a 0.5 mm Gaussian
+jitter, and the agarose phantom behind the transducer (the paper's pose studies).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import dataclass
+
+__all__ = ["BACKGROUNDS", "RenderSettings"]
+
+#: Scenes behind the transducer: the phantom set-up, a procedural abdomen, the paper's mix of the
+#: two (156:56, :func:`~histostudy.imaging.anatomy._random.random_background`), or nothing.
+BACKGROUNDS = ("phantom", "abdomen", "mixed", "none")
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """Rendering of a synthetic frame (§II-B.2); see :func:`~histostudy.imaging.render._reference.render_frame`.
+
+    Attributes:
+        photons_per_pixel: unattenuated photons per pixel for the Poisson noise; None for none.
+        n_splats: splats per model point (paper: 16).
+        splat_sigma_mm: standard deviation of the splat jitter, mm (paper: 0.5 mm).
+        background: the scene behind the transducer, one of :data:`BACKGROUNDS`.
+    """
+
+    photons_per_pixel: float | None = 5e4
+    n_splats: int = 16
+    splat_sigma_mm: float = 0.5
+    background: str = "phantom"
+
+    def __post_init__(self):
+        check_photons_per_pixel(self.photons_per_pixel, allow_none=True)
+        check_n_splats(self.n_splats)
+        check_splat_sigma_mm(self.splat_sigma_mm)
+        if self.background not in BACKGROUNDS:
+            raise ValueError(f"background must be one of {BACKGROUNDS}, got {self.background!r}")
+
+    def frame_kwargs(self) -> dict:
+        """The keyword arguments of :func:`~histostudy.imaging.render._reference.render_frame` these settings fix."""
+        return {"photons_per_pixel": self.photons_per_pixel, "n_splats": self.n_splats,
+                "splat_sigma_mm": self.splat_sigma_mm}
+
+
+# The checks of each setting, here once; render_frame and add_poisson_noise call them too.
+
+def check_photons_per_pixel(value, *, allow_none: bool) -> float | None:
+    """``value`` as unattenuated photons per pixel (finite, > 0; None for no noise where allowed)."""
+    if value is None and allow_none:
+        return None
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value <= 0:
+        expected = "a finite number > 0 or None" if allow_none else "a finite number > 0"
+        raise ValueError(f"photons_per_pixel must be {expected} (photons per pixel), got {value!r}")
+    return float(value)
+
+
+def check_n_splats(value) -> int:
+    """``value`` as a number of splats per model point (an integer >= 1)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+        raise ValueError(f"n_splats must be an integer >= 1, got {value!r}")
+    return int(value)
+
+
+def check_splat_sigma_mm(value) -> float:
+    """``value`` as the splat jitter's standard deviation (finite, >= 0, mm)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value < 0:
+        raise ValueError(f"splat_sigma_mm must be a finite number >= 0 (mm), got {value!r}")
+    return float(value)

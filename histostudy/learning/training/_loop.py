@@ -1,0 +1,312 @@
+"""The training loop of both learned stages (paper §II-B.2 and §II-B.4).
+
+SGD with momentum 0.9, learning rate 0.001, mini-batches of 5 (the paper's values, profile
+defaults), an epoch being one pass over the training frames; after each epoch the validation loss
+is computed on a held-out split (its own seeds) and training stops when it has not improved for
+``patience`` (3) epochs, when ``max_epochs`` is reached or when the wall-time budget
+``max_minutes`` is spent. The best network (lowest validation loss) is kept.
+
+- segmentation: the U-Net on random ``crop x crop`` patches of the frames downscaled by ``scale``
+  (paper: 512x512 at full resolution), pixel-wise cross-entropy over the six classes.
+- orientation: two stages (§II-B.4). ``classify``: VGG19 as a 36-class classifier of the nearest
+  hemisphere orientation; then its best weights become the regressor
+  (:meth:`~histostudy.learning.nets.vgg.VGG19.to_regressor`) and ``regress`` trains azimuth and
+  elevation (rad). The losses are in :mod:`histostudy.learning.training._losses`.
+
+An optional last stage, ``finetune`` (:class:`~histostudy.learning.training._config.FineTuneConfig`),
+goes on training the best network of the stage before it, with that stage's loss, on frames of
+another rendering (e.g. the 0.125 mm model of the held-out frames, after a long run on cheaper
+0.47 mm frames), with its own training and validation frames, learning rate and budget. The
+configuration and the stages are in :mod:`histostudy.learning.training._config`.
+
+Checkpoints (:mod:`histostudy.learning.checkpoints`): after every epoch ``last.safetensors`` (network and
+optimiser momentum, with ``state.json``: stage, epoch, steps, best loss, history) and, on a new
+best, ``best-<stage>.safetensors`` — all written atomically, so an interrupted run resumes from
+its last completed epoch with :func:`train` (``resume=True``), bit for bit: every epoch's batch
+order and dropout draw from seeds of (seed, task, stage, epoch). :func:`export
+<histostudy.learning.training._export.export>` copies the best network with its manifest to
+``data/models``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+
+from histostudy.core import atomic_write_json
+from ..checkpoints import load_checkpoint, save_checkpoint
+from ..datasets import HybridFrames, HybridImageDataset, TASKS, default_cache_dir
+from ..nets import build_network
+from ..orientation import N_ORIENTATION_CLASSES, hemisphere_angles
+from ._config import TrainingConfig, TrainingResult, resolve_device, stage_frames, stage_names, stage_objective
+from ._losses import stage_loss, validation_metrics
+from ._teacher import load_teacher, teacher_labeller
+
+__all__ = ["train"]
+
+
+def _optimizer(cfg: TrainingConfig, net) -> torch.optim.Optimizer:
+    if cfg.optimizer == "adam":
+        return torch.optim.Adam(net.parameters(), lr=cfg.learning_rate)
+    return torch.optim.SGD(net.parameters(), lr=cfg.learning_rate, momentum=cfg.momentum)
+
+
+def _set_learning_rate(opt: torch.optim.Optimizer, lr: float) -> None:
+    for group in opt.param_groups:
+        group["lr"] = lr
+
+
+def _optim_tensors(opt: torch.optim.Optimizer) -> dict:
+    """The optimiser's per-parameter state as tensors (SGD's momentum; Adam's moments and step)."""
+    out = {}
+    for i, state in opt.state_dict()["state"].items():
+        for name, value in state.items():
+            if value is not None:
+                out[f"optim.{i}.{name}"] = torch.as_tensor(value)
+    return out
+
+
+def _load_optim(opt: torch.optim.Optimizer, tensors: dict) -> None:
+    sd = opt.state_dict()
+    state = {}
+    for key, value in tensors.items():
+        if key.startswith("optim."):
+            _, i, name = key.split(".", 2)
+            state.setdefault(int(i), {})[name] = value
+    sd["state"] = state
+    opt.load_state_dict(sd)
+
+
+def _model_tensors(net) -> dict:
+    return {f"model.{k}": v for k, v in net.state_dict().items()}
+
+
+
+def _loaders(cfg: TrainingConfig, seed: int, cache_dir, stage: str, target_labels=None):
+    render, n_train, n_val = stage_frames(cfg, stage)
+    frames_kwargs = dict(config=render, cache_dir=cache_dir if cfg.cache else None)
+    crop = cfg.crop if cfg.task == "segmentation" else None
+    train_ds = HybridImageDataset(cfg.task, HybridFrames("train", seed, **frames_kwargs), n_train,
+                                  scale=cfg.scale, crop=crop, augment=cfg.task == "orientation", seed=seed,
+                                  repeats=cfg.crops_per_frame if cfg.task == "segmentation" else 1,
+                                  keep_in_memory=True, target_labels=target_labels)
+    val_ds = HybridImageDataset(cfg.task, HybridFrames("val", seed, **frames_kwargs), n_val,
+                                scale=cfg.scale, crop=None, augment=False, seed=seed, keep_in_memory=True,
+                                target_labels=target_labels)
+    val_loader = DataLoader(val_ds, batch_size=1 if cfg.task == "segmentation" else cfg.batch_size, shuffle=False)
+    return train_ds, val_loader
+
+
+#: Settings that control a run but not what it computes: a run may resume with other values. The
+#: stopping rules are among them: a run stopped by its budget, epoch cap or patience goes on when
+#: resumed with a larger one, along the same trajectory as a run started with it.
+_RUN_CONTROLS = ("max_minutes", "threads", "device", "patience", "max_epochs")
+
+
+def _identity(cfg_dict: dict) -> dict:
+    identity = {k: v for k, v in cfg_dict.items() if k not in _RUN_CONTROLS}
+    if identity.get("fine_tune"):
+        identity["fine_tune"] = {k: v for k, v in identity["fine_tune"].items() if k not in _RUN_CONTROLS}
+    return identity
+
+
+
+def _warm_start(init_weights, net):
+    """``(network, record)``: ``net`` with the weights of the checkpoint ``init_weights`` (same
+    config, or for a regressor a trained classifier converted as in §II-B.4), and what the exported
+    manifest records of that checkpoint."""
+    tensors, init_manifest = load_checkpoint(init_weights)
+    init_config = init_manifest["config"]
+    model = {k[6:]: v for k, v in tensors.items() if k.startswith("model.")}
+
+    # a classifier's angle encoding is only what its regressor will be: any classifier will do
+    def without_encoding(config):
+        return {k: v for k, v in config.items() if k != "angle_encoding"}
+
+    if without_encoding(init_config) == without_encoding({**net.config, "head": "classifier"}) \
+            and net.config.get("head") == "regressor":
+        # a trained 36-class classifier starting the regression: the conversion of §II-B.4
+        net = build_network({**net.config, "head": "classifier"})
+        net.load_state_dict(model)
+        net.to_regressor(hemisphere_angles(net.config["n_classes"]))
+    elif init_config == net.config:
+        net.load_state_dict(model)
+    else:
+        raise ValueError(f"init_weights {str(init_weights)!r} has config {init_config}, expected {net.config} "
+                         f"(or its classifier for a regression run)")
+    record = {"path": str(init_weights), "sha256": init_manifest["sha256"],
+              "training_steps": init_manifest.get("training_steps"), "validation": init_manifest.get("validation")}
+    return net, record
+
+
+def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume: bool = True,
+          progress: bool = True, log: Callable[[str], None] = print, cache_dir=None) -> TrainingResult:
+    """Train (or resume) the network of ``cfg`` in ``run_dir``; see the module docstring.
+
+    Args:
+        cfg: the :class:`TrainingConfig`.
+        run_dir: the run's folder (checkpoints and ``state.json``).
+        seed: the study seed: frames, initial weights and batch order derive from it.
+        profile: the profile name (recorded).
+        resume: continue from ``run_dir``'s last checkpoint when there is one (its configuration
+            must be the same, except the run controls ``max_minutes``, ``threads``, ``device``,
+            ``patience`` and ``max_epochs``: a finished run goes on when they allow more); False
+            starts afresh.
+        progress: show a tqdm progress bar per epoch.
+        cache_dir: folder of the rendered-frame cache (default :func:`default_cache_dir`).
+    """
+    from tqdm.auto import tqdm
+
+    if not isinstance(cfg, TrainingConfig):
+        raise TypeError(f"cfg must be a TrainingConfig, got {type(cfg).__name__}")
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    cache_dir = default_cache_dir() if cache_dir is None else Path(cache_dir)
+    if cfg.threads:
+        torch.set_num_threads(int(cfg.threads))
+    device = resolve_device(cfg.device)
+    t_start = time.monotonic()
+    stages = stage_names(cfg)
+    state_path = run_dir / "state.json"
+    cfg_dict = json.loads(json.dumps(cfg.to_dict()))
+
+    torch.manual_seed(seed)
+    net_config = dict(cfg.network)
+    if cfg.task == "orientation":
+        net_config.setdefault("n_classes", N_ORIENTATION_CLASSES)
+        net_config["head"] = "classifier" if stages[0] == "classify" else "regressor"
+    net = build_network(net_config)
+    state = {"stage": stages[0], "epoch": 0, "steps": 0, "best_loss": None, "bad_epochs": 0,
+             "history": [], "finished": False, "stopped": "", "elapsed_s": 0.0, "best": {},
+             "learning_rate": cfg.learning_rate}
+    if cfg.init_weights:
+        net, state["init_weights"] = _warm_start(cfg.init_weights, net)
+    teacher = None
+    if cfg.teacher:
+        teacher, state["teacher"] = load_teacher(cfg.teacher, cfg.scale, device)
+    opt = _optimizer(cfg, net)
+    if resume and state_path.is_file():
+        previous = json.loads(state_path.read_text())
+        if _identity(previous.get("config", {})) != _identity(cfg_dict) or previous.get("seed") != seed:
+            raise ValueError(f"run folder {str(run_dir)!r} holds a run with another configuration or seed; "
+                             f"use another folder or resume=False")
+        state = previous["state"]
+        # the stopping rules are checked again below, with this call's values
+        state["finished"] = False
+        tensors, manifest = load_checkpoint(run_dir / "last.safetensors")
+        net = build_network(manifest["config"])
+        net.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
+        opt = _optimizer(cfg, net)
+        _load_optim(opt, tensors)
+        _set_learning_rate(opt, state.get("learning_rate", cfg.learning_rate))
+        log(f"resumed {cfg.task} from {run_dir} at stage {state['stage']}, epoch {state['epoch']}, "
+            f"step {state['steps']}")
+    else:
+        # a fresh run: checkpoints of an earlier run in this folder must not be taken for this one's
+        for stale in [*run_dir.glob("best-*"), *run_dir.glob("last.*"), state_path]:
+            stale.unlink(missing_ok=True)
+    net.to(device).train()
+    target_labels = None if teacher is None else teacher_labeller(teacher, device)
+    train_ds, val_loader = _loaders(cfg, seed, cache_dir, state["stage"], target_labels)
+    elapsed_before = state["elapsed_s"]
+
+    def elapsed_s() -> float:
+        return elapsed_before + time.monotonic() - t_start
+
+    def save_state():
+        state["elapsed_s"] = elapsed_s()
+        atomic_write_json(state_path, {"config": cfg_dict, "seed": seed, "profile": profile, "state": state})
+
+    while not state["finished"]:
+        stage = state["stage"]
+        if stage == "finetune":
+            cap, budget = cfg.fine_tune.max_epochs, cfg.fine_tune.max_minutes
+            spent_s = elapsed_s() - state.get("stage_start_s", 0.0)
+        else:
+            cap = cfg.classification_epochs if stage == "classify" else cfg.max_epochs
+            budget, spent_s = cfg.max_minutes, elapsed_s()
+        stop = ""
+        if state["bad_epochs"] >= cfg.patience:
+            stop = f"no lower validation loss for {cfg.patience} epochs"
+        elif state["epoch"] >= cap:
+            stop = f"reached {cap} epochs"
+        elif budget is not None and spent_s > 60 * budget:
+            stop = f"spent the {budget} min budget"
+        if stop:
+            log(f"{cfg.task}/{stage}: stopped after epoch {state['epoch']}: {stop}")
+            state.setdefault("stage_stops", {})[stage] = stop
+            following = stages[stages.index(stage) + 1] if stage != stages[-1] else None
+            best_path = run_dir / f"best-{stage}.safetensors"
+            # the run's budget ends the stages it covers; the fine-tune has a budget of its own
+            if following is not None and best_path.is_file() and ("budget" not in stop or following == "finetune"):
+                tensors, _ = load_checkpoint(best_path)
+                net.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
+                if stage == "classify":
+                    net.cpu().to_regressor(hemisphere_angles(net.config["n_classes"]))
+                net.to(device).train()
+                lr = cfg.fine_tune.learning_rate if following == "finetune" else cfg.learning_rate
+                opt = _optimizer(cfg, net)
+                _set_learning_rate(opt, lr)
+                state.update(stage=following, epoch=0, best_loss=None, bad_epochs=0, learning_rate=lr,
+                             stage_start_s=elapsed_s())
+                if following == "finetune":
+                    train_ds, val_loader = _loaders(cfg, seed, cache_dir, following, target_labels)
+                save_checkpoint(run_dir / "last", {**_model_tensors(net), **_optim_tensors(opt)}, net.config)
+                save_state()
+                continue
+            state.update(finished=True, stopped=stop)
+            save_state()
+            break
+        epoch = state["epoch"]
+        train_ds.set_epoch(epoch + 1000 * stages.index(stage))
+        order_seed, dropout_seed = np.random.SeedSequence(
+            [seed, TASKS.index(cfg.task), stages.index(stage), epoch]).generate_state(2)
+        gen = torch.Generator().manual_seed(int(order_seed))
+        # dropout draws from torch's global generator: seeded per epoch, a resumed run draws what an
+        # uninterrupted one would have
+        torch.manual_seed(int(dropout_seed))
+        loader = DataLoader(train_ds, batch_size=cfg.batch_size, shuffle=True, drop_last=True, generator=gen)
+        running = 0.0
+        bar = tqdm(loader, desc=f"{cfg.task}/{stage} epoch {epoch + 1}", disable=not progress, leave=False)
+        for i, batch in enumerate(bar):
+            loss, _ = stage_loss(stage_objective(cfg, stage), net, batch, device, cfg.class_weights, cfg.loss)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            state["steps"] += 1
+            running += loss.item()
+            bar.set_postfix(loss=f"{running / (i + 1):.4f}")
+        bar.close()
+        metrics = validation_metrics(stage_objective(cfg, stage), net, val_loader, device, cfg.class_weights, cfg.loss)
+        metrics.update(train_loss=running / max(len(loader), 1), stage=stage, epoch=epoch + 1, steps=state["steps"],
+                       learning_rate=opt.param_groups[0]["lr"])
+        state["history"].append(metrics)
+        state["epoch"] = epoch + 1
+        improved = state["best_loss"] is None or metrics["loss"] < state["best_loss"]
+        if improved:
+            state.update(best_loss=metrics["loss"], bad_epochs=0)
+            state["best"][stage] = metrics
+            save_checkpoint(run_dir / f"best-{stage}", _model_tensors(net), net.config, stage=stage,
+                            training_steps=state["steps"], validation=metrics, seed=seed, profile=profile)
+        else:
+            state["bad_epochs"] += 1
+            if cfg.lr_decay < 1:
+                state["learning_rate"] = state.get("learning_rate", cfg.learning_rate) * cfg.lr_decay
+                _set_learning_rate(opt, state["learning_rate"])
+        save_checkpoint(run_dir / "last", {**_model_tensors(net), **_optim_tensors(opt)}, net.config)
+        save_state()
+        log(f"{cfg.task}/{stage} epoch {epoch + 1}: " + ", ".join(
+            f"{k} {v:.4g}" for k, v in metrics.items() if isinstance(v, float)) + (" *" if improved else ""))
+
+    # the last stage that kept a network (a stage stopped by a budget before its first epoch has none)
+    final_stage = next((st for st in reversed(stages) if (run_dir / f"best-{st}.safetensors").is_file()), stages[0])
+    best = run_dir / f"best-{final_stage}.safetensors"
+    return TrainingResult(run_dir=run_dir, best=best, steps=state["steps"], epochs=state["epoch"],
+                          validation=state["best"].get(final_stage, {}), stopped=state["stopped"],
+                          history=state["history"])

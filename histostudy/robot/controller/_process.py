@@ -1,0 +1,178 @@
+"""A simulated UR controller on loopback that the unmodified ``ur_rtde`` client (1.6.5) drives (§II-C
+robot layer): its command line and the child process that runs it.
+
+Run it in its own process (ur_rtde's constructors hold the GIL, so a server thread in the client's
+process deadlocks)::
+
+    python -m histostudy.robot.controller --host 127.0.0.1 [--seed 0] [--repeatability-mm 0.03]
+
+or from Python as :class:`ControllerProcess`. It serves what ``rtde_control.RTDEControlInterface``
+and ``rtde_receive.RTDEReceiveInterface`` need from a UR e-Series controller, backed by
+:class:`~histostudy.robot.sim.SimulatedUR5e` (lengths in mm inside, metres and axis-angle on the
+wire). The parts, one job each:
+
+- ``controller_protocol``: ports, status codes, command numbers, RTDE field types, recipes, framing;
+- ``controller_arm``: the arm whose moves take wall-clock time, and the injected faults;
+- ``controller_program``: the register handshake and what each command does;
+- ``controller_server``: :class:`SimulatedController`, the dashboard, RTDE and script servers.
+
+Faults (``--disconnect-after-moves K``, ``--disconnect-during-move K``,
+``--protective-stop-during-move K``, ``--command-delay-s S``) follow
+:class:`~histostudy.robot.sim.FaultPlan`. Only loopback addresses (127.0.0.0/8) are served. The
+process exits on SIGTERM, after ``--max-lifetime-s``, or when ``--parent-pid`` is gone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ipaddress
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+
+from ..base import Workspace
+from ._protocol import DASHBOARD_PORT, RTDE_PORT, SCRIPT_PORT, Command
+from ._server import SimulatedController
+from ..sim import FaultPlan, HOME_JOINTS_RAD, SimulatedUR5e
+
+__all__ = ["Command", "ControllerProcess", "SimulatedController", "main", "DASHBOARD_PORT", "RTDE_PORT", "SCRIPT_PORT"]
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python -m histostudy.robot.controller",
+        description="Simulated UR5e controller (dashboard 29999, RTDE 30004, script 30003) on a loopback address.",
+    )
+    p.add_argument("--host", default="127.0.0.1", help="loopback address to serve on (127.0.0.0/8)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the repeatability noise")
+    p.add_argument("--repeatability-mm", type=float, default=0.03, help="landing noise radius in mm (0: none)")
+    p.add_argument("--time-scale", type=float, default=0.0, help="wall seconds per simulated second of motion")
+    p.add_argument("--initial-joints", type=float, nargs=6, default=list(HOME_JOINTS_RAD), metavar="Q_RAD",
+                   help="start configuration in rad")
+    p.add_argument("--workspace-box", type=float, nargs=6, default=None, metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
+                   help="safety box of the TCP in the base frame, mm (the controller's safety limits)")
+    p.add_argument("--disconnect-after-moves", type=_positive_int, default=None, metavar="K",
+                   help="drop every connection after move K (at the next command)")
+    p.add_argument("--disconnect-during-move", type=_positive_int, default=None, metavar="K",
+                   help="drop every connection halfway through move K")
+    p.add_argument("--protective-stop-during-move", type=_positive_int, default=None, metavar="K",
+                   help="protective stop halfway through move K")
+    p.add_argument("--command-delay-s", type=float, default=0.0, help="answer every command this late (slow controller)")
+    p.add_argument("--max-lifetime-s", type=float, default=3600.0, help="exit after this many seconds")
+    p.add_argument("--parent-pid", type=int, default=None, help="exit when this process is gone")
+    p.add_argument("--verbose", action="store_true")
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        workspace = Workspace()
+        if args.workspace_box is not None:
+            workspace = Workspace(lower_mm=tuple(args.workspace_box[:3]), upper_mm=tuple(args.workspace_box[3:]))
+        faults = FaultPlan(
+            disconnect_after_moves=args.disconnect_after_moves,
+            disconnect_during_move=args.disconnect_during_move,
+            protective_stop_during_move=args.protective_stop_during_move,
+            command_delay_s=args.command_delay_s,
+        )
+        sim = SimulatedUR5e(
+            args.seed,
+            repeatability_mm=args.repeatability_mm,
+            initial_joints_rad=args.initial_joints,
+            workspace=workspace,
+        )
+        ctrl = SimulatedController(args.host, sim, faults, time_scale=args.time_scale, verbose=args.verbose)
+        ctrl.start()
+    except (ValueError, OSError) as exc:
+        print(f"simulated UR controller: cannot serve on {args.host!r}: {exc}", file=sys.stderr)
+        return 2
+    signal.signal(signal.SIGTERM, lambda *_: ctrl.shutdown.set())
+    print(f"simulated UR controller ready on {args.host} (ports {DASHBOARD_PORT}, {RTDE_PORT}, {SCRIPT_PORT})", flush=True)
+    try:
+        ctrl.serve_forever(args.max_lifetime_s, args.parent_pid)
+    except KeyboardInterrupt:
+        ctrl.close()
+    return 0
+
+
+class ControllerProcess:
+    """The simulated controller in a child process (for tests, benchmarks and notebooks).
+
+    ``ControllerProcess("127.0.0.2", "--repeatability-mm", "0")`` starts
+    ``python -m histostudy.robot.controller --host 127.0.0.2 ...`` and waits (at most
+    ``start_timeout_s``) until its three ports accept connections. Use as a context manager or
+    call :meth:`stop`; :meth:`kill` simulates a crashed controller (SIGKILL).
+    """
+
+    def __init__(self, host: str, *args: str, start_timeout_s: float = 20.0, max_lifetime_s: float = 600.0):
+        if not ipaddress.ip_address(host).is_loopback:
+            raise ValueError(f"host must be a loopback address (127.0.0.0/8), got {host!r}")
+        self.host = host
+        cmd = [
+            sys.executable, "-m", "histostudy.robot.controller", "--host", host,
+            "--max-lifetime-s", str(max_lifetime_s), "--parent-pid", str(os.getpid()), *map(str, args),
+        ]
+        # A file, not a pipe, for the log: a full pipe would block the controller.
+        self.log = tempfile.TemporaryFile(mode="w+t")
+        self.proc = subprocess.Popen(cmd, stdout=self.log, stderr=subprocess.STDOUT, text=True)
+        deadline = time.monotonic() + start_timeout_s
+        pending = [DASHBOARD_PORT, RTDE_PORT, SCRIPT_PORT]
+        while pending:
+            if self.proc.poll() is not None:
+                raise RuntimeError(
+                    f"simulated controller on {host} exited with status {self.proc.returncode}: {self.output().strip()}"
+                )
+            if time.monotonic() > deadline:
+                self.kill()
+                raise TimeoutError(f"simulated controller on {host} did not open ports {pending} within {start_timeout_s} s")
+            try:
+                with socket.create_connection((host, pending[0]), timeout=0.2):
+                    pass
+            except OSError:
+                time.sleep(0.05)
+                continue
+            pending.pop(0)
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Terminate (SIGTERM), escalating to SIGKILL after ``timeout_s``; idempotent."""
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(timeout=timeout_s)
+
+    def kill(self) -> None:
+        """SIGKILL: the controller vanishes without closing anything itself (a crash, a pulled cable)."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(timeout=5.0)
+
+    def output(self) -> str:
+        """What the controller printed so far (its log with --verbose)."""
+        self.log.flush()
+        self.log.seek(0)
+        return self.log.read()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.stop()
+

@@ -1,0 +1,229 @@
+"""The error budget (§III, §IV): Table II and the targeting study run under a lab's error sources,
+all on, each alone and all but one, on the same draws.
+
+A lab (:func:`~histostudy.study.budget._sources.draw_lab`) is drawn once; every configuration of
+:func:`budget_configurations` is a sub-model of it, so the configurations differ only in which
+sources are on (common random numbers). The work is shared where the physics allows:
+
+- the frames and the estimates depend only on the transducer (``manufacturing``), the views
+  (``projection``, ``gantry_sag``) and the robot's noise (``robot``): each combination of those
+  that a configuration needs runs once per experiment;
+- the post-treatment CBCT reference of Table II depends on the transducer, the bubble offset and
+  the robot; the targeting treatment on all of these;
+- ``registration``, ``annotation`` and ``phantom_motion`` act on what the lab reads from its
+  CBCTs (:class:`~histostudy.study.budget._sources.ExperimentDraw`): applied to the reference and to
+  the treated zone, no re-run needed.
+
+One task per (study, experiment) runs through :func:`histostudy.core.run_sweep`, so the budget
+runs sequentially, on local processes or on a dask cluster with the same numbers. C-arm frame,
+mm; errors along depth/TB/LR as §II-E.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from histostudy.calibration import CalibrationError
+from histostudy.core import SweepExecutor, run_sweep
+from histostudy.transducer import TransducerModel
+from ._sources import LAB_SOURCES, ExperimentDraw, LabDraw, LabErrorModel
+from ..pose._config import PoseStudyConfig
+from ..pose._experiments import run_pose_study
+from ..pose._geometry import DIRECTIONS
+from ..pose._metrics import experiment_metrics
+from ..pose._reference import cbct_reference
+from ..targeting._experiment import run_targeting_experiment
+from ..targeting._robots import sim_robot
+from ..targeting._setup import TargetingError, TargetingStudyConfig
+
+__all__ = ["BudgetSetup", "ESTIMATE_SOURCES", "budget_configurations", "measured_reference", "measured_zone",
+           "run_error_budget"]
+
+#: The sources that change the frames or what the estimator is told (everything else acts after).
+ESTIMATE_SOURCES = ("manufacturing", "projection", "gantry_sag", "robot")
+
+
+def budget_configurations(model: LabErrorModel) -> list[tuple[str, LabErrorModel]]:
+    """``(label, sub-model)``: ``"baseline"`` (every source off: the studies as notebooks 04 and 05
+    run them), ``"lab"`` (``model``), ``"only <source>"`` and ``"without <source>"`` for each
+    source ``model`` has on."""
+    if not isinstance(model, LabErrorModel):
+        raise TypeError(f"model must be a LabErrorModel, got {type(model).__name__}")
+    out = [("baseline", model.off()), ("lab", model)]
+    out += [(f"only {name}", model.only(name)) for name in model.enabled]
+    out += [(f"without {name}", model.without(name)) for name in model.enabled]
+    return out
+
+
+def _key(model: LabErrorModel, names: Sequence[str]) -> tuple[bool, ...]:
+    return tuple(getattr(model, n) is not None for n in names)
+
+
+@dataclass(frozen=True, eq=False)
+class BudgetSetup:
+    """What the budget runs with: the lab drawn, the two studies' configurations (their
+    ``n_experiments`` are the budget's), the digital and rendering models, and the stages.
+
+    ``pose_config.bubble_offset_mm`` and ``targeting_config.bubble_offset_mm`` must be zeros (the
+    lab's offset replaces them); the budget predicts without a bias correction, as the paper did.
+    """
+
+    lab: LabDraw
+    pose_config: PoseStudyConfig
+    targeting_config: TargetingStudyConfig
+    pose_model: TransducerModel
+    render_model: TransducerModel
+    segmenter: object = None
+    orientation: object = None
+
+    def __post_init__(self):
+        if not isinstance(self.lab, LabDraw):
+            raise TypeError(f"lab must be a LabDraw (draw_lab), got {type(self.lab).__name__}")
+        for name in ("pose_config", "targeting_config"):
+            if np.any(np.asarray(getattr(self, name).bubble_offset_mm, float) != 0):
+                raise ValueError(f"{name}.bubble_offset_mm must be zeros: the lab model's bubble_offset replaces it, "
+                                 f"got {getattr(self, name).bubble_offset_mm!r}")
+
+
+def measured_reference(reference: pd.DataFrame, draw: ExperimentDraw) -> pd.DataFrame:
+    """The CBCT reference of one experiment as the lab reads it: centroid and fitted sphere moved
+    with the phantom, read through the registration and annotated (centre and radii)."""
+    out = reference.copy()
+    for i in out.index:
+        for prefix in ("centroid", "sphere"):
+            cols = [f"{prefix}_{a}" for a in "xyz"]
+            out.loc[i, cols] = draw.measured_point(out.loc[i, cols].to_numpy(float))
+        for d, err in zip(DIRECTIONS, draw.annotation_radius_mm):
+            out.loc[i, f"ref_radius_{d}"] = float(out.loc[i, f"ref_radius_{d}"]) + float(err)
+        out.loc[i, "sphere_radius_mm"] = float(out.loc[i, "sphere_radius_mm"]) + float(np.mean(draw.annotation_radius_mm))
+    return out
+
+
+def measured_zone(row: dict, draw: ExperimentDraw) -> dict:
+    """A targeting row's zone errors as the lab measures them (mm along the commanded axes).
+
+    The robot is commanded to the target's coordinates as read from the pre-treatment CBCT
+    (through the registration), so the zone lands shifted by the reading's error (the
+    calibration's error is the same a millimetre away); its centroid is then read from the
+    post-treatment CBCT (moved with the phantom, through the registration, annotated)."""
+    target = np.array([row[f"target_{a}"] for a in "xyz"])
+    centroid = np.array([row[f"centroid_{a}"] for a in "xyz"])
+    target_read = draw.read_target(target)
+    err = draw.measured_point(centroid + (target_read - target)) - target_read
+    out = {}
+    for d in DIRECTIONS:
+        axis = np.array([row[f"axis_{d}_{a}"] for a in "xyz"])
+        out[f"err_{d}"] = float(err @ axis)
+    out["err_euclidean"] = float(np.linalg.norm(err))
+    out["radius_err_mm"] = float(row["radius_err_mm"] + np.mean(draw.annotation_radius_mm))
+    return out
+
+
+def _pose_task(setup: BudgetSetup, seed: int, experiment: int,
+               configurations: list[tuple[str, LabErrorModel]]) -> pd.DataFrame:
+    """Table II's per-experiment metrics under every configuration, for one pose experiment."""
+    lab, base = setup.lab, setup.pose_config
+    records, references, rows = {}, {}, []
+    for label, model in configurations:
+        sub = lab.variant(model)
+        draw = sub.experiment(experiment)
+        config = dataclasses.replace(base, robot_repeatability_mm=sub.robot_repeatability_mm(base.robot_repeatability_mm),
+                                     bubble_offset_mm=tuple(float(v) for v in sub.bubble_offset_mm),
+                                     assumed_bubble_offset_mm=(0.0, 0.0, 0.0))
+        key = _key(model, ESTIMATE_SOURCES)
+        if key not in records:
+            records[key] = run_pose_study(config, pose_model=setup.pose_model, render_model=setup.render_model,
+                                          physical=sub.physical, views=sub.frame_views,
+                                          estimator_views=sub.estimator_views, seed=seed,
+                                          segmenter=setup.segmenter, orientation=setup.orientation,
+                                          experiments=[experiment])
+        ref_key = _key(model, ("manufacturing", "bubble_offset", "robot"))
+        if ref_key not in references:
+            references[ref_key] = cbct_reference(config, physical=sub.physical, seed=seed, experiments=[experiment])
+        rec, ref = records[key], references[ref_key]
+        n_failed = int((~rec["ok"].astype(bool)).sum())
+        if not bool(ref["ok"].iloc[0]):
+            rows.append({"configuration": label, "experiment": experiment, "n_failed": n_failed,
+                         "failure": f"no CBCT reference: {ref['failure'].iloc[0]}"})
+            continue
+        metrics = experiment_metrics(rec, reference=measured_reference(ref, draw))
+        for _, m in metrics.iterrows():
+            rows.append({"configuration": label, **m.to_dict(), "n_failed": n_failed,
+                         "failure": "; ".join(rec.loc[~rec["ok"].astype(bool), "failure"].astype(str))})
+    return pd.DataFrame(rows)
+
+
+def _targeting_task(setup: BudgetSetup, seed: int, experiment: int,
+                    configurations: list[tuple[str, LabErrorModel]]) -> pd.DataFrame:
+    """The targeting errors under every configuration, for one targeting experiment."""
+    lab, base = setup.lab, setup.targeting_config
+    seq = np.random.SeedSequence(seed).spawn(base.n_experiments)[experiment]
+    runs, rows = {}, []
+    for label, model in configurations:
+        sub = lab.variant(model)
+        draw = sub.experiment(10_000 + experiment)  # the targeting study's own experiments
+        key = _key(model, (*ESTIMATE_SOURCES, "bubble_offset"))
+        if key not in runs:
+            config = dataclasses.replace(
+                base, bias_correction=False,
+                robot_repeatability_mm=sub.robot_repeatability_mm(base.robot_repeatability_mm),
+                bubble_offset_mm=tuple(float(v) for v in sub.bubble_offset_mm))
+            try:
+                runs[key] = run_targeting_experiment(
+                    config, seq, pose_model=setup.pose_model, render_model=setup.render_model, physical=sub.physical,
+                    views=sub.frame_views, estimator_views=sub.estimator_views, robot_factory=sim_robot(config),
+                    experiment=experiment, segmenter=setup.segmenter, orientation=setup.orientation)
+            except (TargetingError, CalibrationError) as exc:  # the lab would redo the calibration
+                runs[key] = {"failure": str(exc)}
+        run = runs[key]
+        if "failure" in run:
+            rows.append({"configuration": label, "experiment": experiment, "ok": False, "failure": run["failure"]})
+            continue
+        rows.append({"configuration": label, "experiment": experiment, "ok": True, "failure": "",
+                     "diameter_mm": run["diameter_mm"], "cal_error_at_target_mm": run["cal_error_at_target_mm"],
+                     **measured_zone(run, draw)})
+    return pd.DataFrame(rows)
+
+
+def _run_task(task: tuple, *, setup: BudgetSetup, configurations: list) -> pd.DataFrame:
+    study, seed, experiment = task
+    frame = (_pose_task if study == "pose" else _targeting_task)(setup, seed, experiment, configurations)
+    frame.insert(0, "study", study)
+    return frame
+
+
+def run_error_budget(setup: BudgetSetup, *, seed: int, configurations: list[tuple[str, LabErrorModel]] | None = None,
+                     executor: SweepExecutor | str | None = None, progress: bool = False,
+                     studies: Sequence[str] = ("pose", "targeting")) -> pd.DataFrame:
+    """Run every configuration (default :func:`budget_configurations` of the lab's model) on the
+    pose experiments and the targeting experiments of ``setup``'s configurations.
+
+    One row per (study, configuration, experiment): for ``study == "pose"`` the columns of
+    :func:`~histostudy.study.pose._metrics.experiment_metrics` against the lab's reading of the
+    CBCT reference (``centre_err_<d>``, ``centre_err_euclidean``, ``radius_err_<d>``, ...) and
+    ``n_failed`` (estimates refused by the verdict); for ``"targeting"`` the measured zone's
+    ``err_<d>``, ``err_euclidean``, ``radius_err_mm``, ``cal_error_at_target_mm``, and ``ok`` /
+    ``failure`` (a calibration refused by its bound or a failed estimate). ``executor``: see
+    :func:`histostudy.core.run_sweep` (the numbers do not depend on it); ``progress``: a
+    progress bar per task; ``studies``: ``"pose"`` and/or ``"targeting"``.
+    """
+    if not isinstance(setup, BudgetSetup):
+        raise TypeError(f"setup must be a BudgetSetup, got {type(setup).__name__}")
+    studies = tuple(studies)
+    if not studies or any(s not in ("pose", "targeting") for s in studies):
+        raise ValueError(f"studies must name 'pose' and/or 'targeting', got {studies!r}")
+    configurations = budget_configurations(setup.lab.model) if configurations is None else list(configurations)
+    labels = [label for label, _ in configurations]
+    if "baseline" not in labels or len(set(labels)) != len(labels):
+        raise ValueError(f"configurations must have unique labels including 'baseline', got {labels}")
+    tasks = [("pose", int(seed), e) for e in range(setup.pose_config.n_experiments) if "pose" in studies]
+    tasks += [("targeting", int(seed), e) for e in range(setup.targeting_config.n_experiments)
+              if "targeting" in studies]
+    frames = run_sweep(_run_task, tasks, executor=executor, shared={"setup": setup, "configurations": configurations},
+                       chunk_size=1, progress=progress)
+    return pd.concat(frames, ignore_index=True)

@@ -1,0 +1,193 @@
+"""The error budget's figures (§III, §IV): each configuration's Table II and targeting numbers, the
+sources' shares of the error, the waterfall, and the "lab" row beside the paper.
+
+The shares decompose the mean squared Euclidean error (MSE, mm²) over the experiments, which adds
+up where sources are independent: MSE(lab) = MSE(baseline) + Σ (first-order increments) +
+interactions. For source ``i``:
+
+- **alone** (first order): ``MSE(only i) - MSE(baseline)``;
+- **total**: ``MSE(lab) - MSE(lab without i)``, its first-order part plus every interaction it
+  takes part in;
+
+each also as a share of the lab's increment ``MSE(lab) - MSE(baseline)``. Both are the
+"one-at-a-time" and "all-but-one" designs of a toggle (radial) sensitivity analysis on common
+random numbers; for the two levels of a switch they are the first-order and total Sobol indices
+of the squared error when the sources act independently, without a Saltelli sample's
+``N (2 d + 2)`` pipeline runs (docs/architecture.md, study layer). Only experiments with a finite
+error in every configuration enter (paired differences); the rest are counted. Biases: the mean
+signed error per direction (depth/TB/LR, mm).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from ._sources import LAB_SOURCES
+from ..pose._geometry import DIRECTIONS
+from ..pose._metrics import mean_sd
+
+__all__ = ["STUDY_COLUMNS", "budget_comparisons", "configuration_table", "dominant_sources", "paired_errors",
+           "source_shares", "waterfall_figure"]
+
+#: Per study: the prefix of its signed error columns and its radius-error column.
+STUDY_COLUMNS = {"pose": ("centre_err_", "radius_err_overall"), "targeting": ("err_", "radius_err_mm")}
+
+
+def _study(records: pd.DataFrame, study: str) -> pd.DataFrame:
+    if study not in STUDY_COLUMNS:
+        raise ValueError(f"study must be one of {tuple(STUDY_COLUMNS)}, got {study!r}")
+    if not isinstance(records, pd.DataFrame) or "configuration" not in records.columns:
+        raise ValueError("records must be run_error_budget()'s DataFrame (a 'configuration' column)")
+    return records[records["study"] == study]
+
+
+def paired_errors(records: pd.DataFrame, study: str) -> tuple[pd.DataFrame, int]:
+    """The rows of ``study`` whose experiment has a finite Euclidean error in every configuration,
+    and the number of experiments left out (a refused estimate or calibration somewhere)."""
+    rows = _study(records, study)
+    prefix = STUDY_COLUMNS[study][0]
+    col = f"{prefix}euclidean"
+    if col not in rows.columns:
+        return rows.iloc[0:0], int(rows["experiment"].nunique())
+    finite = rows.assign(_ok=np.isfinite(rows[col].astype(float)))
+    complete = finite.groupby("experiment")["_ok"].all()
+    keep = complete.index[complete]
+    return rows[rows["experiment"].isin(keep)], int((~complete).sum())
+
+
+def configuration_table(records: pd.DataFrame, study: str) -> pd.DataFrame:
+    """One row per configuration, in run order: experiments with an error (``n``) and refused,
+    the Euclidean error (mean, SD, RMS), the bias and MAE per direction and the radius MAE (mm)."""
+    rows = _study(records, study)
+    prefix, radius_col = STUDY_COLUMNS[study]
+    out = []
+    for label in dict.fromkeys(rows["configuration"]):
+        g = rows[rows["configuration"] == label]
+        eu = g[f"{prefix}euclidean"].astype(float) if f"{prefix}euclidean" in g else pd.Series(dtype=float)
+        ok = eu[np.isfinite(eu)]
+        mean, sd = mean_sd(ok)
+        row = {"configuration": label, "n": int(len(ok)), "refused": int(len(g) - len(ok)),
+               "euclidean_mean_mm": mean, "euclidean_sd_mm": sd,
+               "euclidean_rms_mm": float(np.sqrt(np.mean(ok ** 2))) if len(ok) else np.nan}
+        for d in DIRECTIONS:
+            v = g[f"{prefix}{d}"].astype(float) if f"{prefix}{d}" in g else pd.Series(dtype=float)
+            v = v[np.isfinite(v)]
+            row[f"bias_{d}_mm"] = float(v.mean()) if len(v) else np.nan
+            row[f"mae_{d}_mm"] = float(v.abs().mean()) if len(v) else np.nan
+        r = g[radius_col].astype(float).abs() if radius_col in g else pd.Series(dtype=float)
+        row["radius_mae_mm"] = float(r[np.isfinite(r)].mean()) if np.isfinite(r).any() else np.nan
+        out.append(row)
+    return pd.DataFrame(out)
+
+
+def source_shares(records: pd.DataFrame, study: str) -> pd.DataFrame:
+    """The sources' shares of the lab's MSE increment (module docstring), one row per source that
+    was toggled, plus ``"interactions"`` (the lab's increment less the first-order ones). Columns:
+    ``alone_mse_mm2``, ``total_mse_mm2``, ``alone_share``, ``total_share`` (fractions of the
+    increment), ``alone_bias_<d>_mm`` (the bias the source adds alone), ``n_experiments`` and
+    ``n_left_out``. Empty when no experiment has an error in every configuration."""
+    rows, left_out = paired_errors(records, study)
+    prefix = STUDY_COLUMNS[study][0]
+    if rows.empty:
+        return pd.DataFrame()
+    by = {label: g.set_index("experiment").sort_index() for label, g in rows.groupby("configuration", sort=False)}
+
+    def mse(label):
+        return float(np.mean(by[label][f"{prefix}euclidean"].astype(float) ** 2))
+
+    def bias(label, d):
+        return float(by[label][f"{prefix}{d}"].astype(float).mean())
+
+    base, lab = mse("baseline"), mse("lab")
+    increment = lab - base
+    out = []
+    for name in LAB_SOURCES:
+        if f"only {name}" not in by:
+            continue
+        alone = mse(f"only {name}") - base
+        total = lab - mse(f"without {name}")
+        out.append({"source": name, "alone_mse_mm2": alone, "total_mse_mm2": total,
+                    "alone_share": alone / increment if increment else np.nan,
+                    "total_share": total / increment if increment else np.nan,
+                    **{f"alone_bias_{d}_mm": bias(f"only {name}", d) - bias("baseline", d) for d in DIRECTIONS}})
+    first_order = sum(r["alone_mse_mm2"] for r in out)
+    out.append({"source": "interactions", "alone_mse_mm2": increment - first_order, "total_mse_mm2": np.nan,
+                "alone_share": (increment - first_order) / increment if increment else np.nan, "total_share": np.nan,
+                **{f"alone_bias_{d}_mm": np.nan for d in DIRECTIONS}})
+    frame = pd.DataFrame(out)
+    frame["n_experiments"] = int(rows["experiment"].nunique())
+    frame["n_left_out"] = left_out
+    frame.attrs.update(baseline_mse_mm2=base, lab_mse_mm2=lab)
+    return frame
+
+
+def dominant_sources(shares: pd.DataFrame) -> dict:
+    """The source with the largest first-order MSE increment, and the one adding the largest
+    |bias| along each direction (``{"mse": name, "bias_<d>": name}``); empty for empty shares."""
+    sources = shares[shares["source"] != "interactions"] if len(shares) else shares
+    if sources.empty:
+        return {}
+    out = {"mse": str(sources.loc[sources["alone_mse_mm2"].idxmax(), "source"])}
+    for d in DIRECTIONS:
+        out[f"bias_{d}"] = str(sources.loc[sources[f"alone_bias_{d}_mm"].abs().idxmax(), "source"])
+    return out
+
+
+def waterfall_figure(shares: pd.DataFrame, study: str, title: str = ""):
+    """A waterfall of the MSE (mm²): the baseline, each source's first-order increment, the
+    interactions, and the lab's total; the RMS (mm) at the ends."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 4))
+    if shares.empty:
+        ax.text(0.5, 0.5, "no experiment with an error in every configuration", ha="center", transform=ax.transAxes)
+        ax.set_axis_off()
+        return fig
+    base, lab = shares.attrs["baseline_mse_mm2"], shares.attrs["lab_mse_mm2"]
+    labels = ["baseline", *shares["source"].str.replace("_", " "), "lab"]
+    steps = [base, *shares["alone_mse_mm2"], lab]
+    level = base
+    for i, (label, step) in enumerate(zip(labels, steps)):
+        if i == 0 or i == len(steps) - 1:
+            ax.bar(i, step, color="0.45")
+            ax.text(i, step, f"RMS {np.sqrt(step):.2f} mm", ha="center", va="bottom", fontsize=8)
+            continue
+        ax.bar(i, step, bottom=level, color="tab:red" if step >= 0 else "tab:green")
+        level += step
+    ax.set_xticks(range(len(labels)), labels, rotation=35, ha="right")
+    ax.set_ylabel("mean squared error (mm²)")
+    ax.set_title(title or f"{study}: where the lab's error comes from (first-order increments)")
+    ax.axhline(0, color="k", lw=0.6)
+    fig.tight_layout()
+    return fig
+
+
+def budget_comparisons(records: pd.DataFrame) -> list[dict]:
+    """``SectionWriter.compare`` keyword arguments: the "lab" and "baseline" configurations'
+    Table II centre error, LR bias and radius MAE, and targeting error and LR bias, each beside
+    the paper's value (Table II's keys and §III's targeting keys)."""
+    out = []
+    for label in ("lab", "baseline"):
+        note = "lab error model, all sources on" if label == "lab" else "every lab source off (the studies as run)"
+        for study, keys in (("pose", (("center_mae.overall", "euclidean", "Table II centre error, Euclidean"),
+                                      ("center_bias.lr", "bias_lr", "Table II centre bias, LR"),
+                                      ("radius_mae.overall", "radius", "Table II radius MAE"))),
+                            ("targeting", (("euclidean", "euclidean", "Targeting error, Euclidean"),
+                                           ("bias.lr", "bias_lr", "Targeting bias, LR")))):
+            rows = _study(records, study)
+            g = rows[rows["configuration"] == label]
+            if g.empty:
+                continue
+            prefix, radius_col = STUDY_COLUMNS[study]
+            for key, what, text in keys:
+                column = {"euclidean": f"{prefix}euclidean", "bias_lr": f"{prefix}lr", "radius": radius_col}[what]
+                values = g[column].astype(float).abs() if what == "radius" else g[column].astype(float)
+                values = values[np.isfinite(values)]
+                if values.empty:
+                    continue
+                ours = float(values.mean()) if what == "bias_lr" else mean_sd(values)
+                paper_key = f"table2.{key}" if study == "pose" else f"targeting.{key}"
+                out.append(dict(key=f"budget.{label}.{study}.{key}", label=f"{text} ({label})", ours=ours, unit="mm",
+                                paper_key=paper_key, note=f"{note}; {len(values)} experiment(s)"))
+    return out

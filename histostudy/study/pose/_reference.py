@@ -1,0 +1,231 @@
+"""The paper's reference of Table II: the treated zone in a post-treatment CBCT (§II-D, §II-E.3).
+
+After the fluoroscopy of each experiment (:mod:`~histostudy.study.pose._experiments`) the paper
+treated a sphere of radius ``r`` about the centre position, acquired a CBCT and segmented the
+treated zone by hand; the predicted centre was compared with the zone's centroid, the margin
+points with its surface, the radius with its radii along depth/TB/LR. Here the treatment is
+simulated about the true centre pose (:func:`histostudy.treatment.plan_treatment`, bubble clouds at
+the physical transducer's focal point), the layered phantom mixed there, a CBCT simulated and
+the zone segmented automatically (:func:`histostudy.treatment.scan_treated_zone`). The difference
+between this reference and the ground truth is the error of the reference itself.
+C-arm (CBCT) frame, mm; CBCT intensities in HU.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Callable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from histostudy.geometry import make_transform, rotation_about_axis
+from histostudy.imaging import Anatomy, PhantomSpec, phantom_mask, phantom_volume
+from histostudy.transducer import TransducerModel
+from histostudy.treatment import (STUDY_PLAN_INSET_MM, STUDY_PLAN_SPACING_MM, TreatmentZone, plan_treatment,
+                                  scan_treated_zone)
+from ._config import PoseStudyConfig
+from ._experiments import PoseExperiment, draw_experiments
+from ._geometry import DIRECTIONS, bubble_cloud_centre_mm, transducer_axes
+
+__all__ = ["REFERENCE_COLUMNS", "cbct_reference", "phantom_placement", "reference_by_experiment"]
+
+#: Columns :func:`experiment_metrics` reads from a reference table (:func:`cbct_reference`).
+REFERENCE_COLUMNS = ("experiment", "centroid_x", "centroid_y", "centroid_z", "sphere_x", "sphere_y", "sphere_z",
+                     "sphere_radius_mm", *(f"ref_radius_{d}" for d in DIRECTIONS),
+                     *(f"axis_{d}_{a}" for d in DIRECTIONS for a in "xyz"))
+
+
+def phantom_placement(scene: Anatomy, centre_mm=(0.0, 0.0, 0.0)) -> tuple[PhantomSpec, np.ndarray]:
+    """The layered phantom of a scene as :mod:`histostudy.imaging.cbct` models it (§II-D.1):
+    ``(PhantomSpec, T_carm_phantom)``.
+
+    A phantom scene (:func:`histostudy.imaging.anatomy.random_phantom_setup`) records its cube's edge,
+    centre, yaw about the vertical axis and layer thickness; its layers are stacked vertically as
+    poured, so the phantom frame's +z (the stacking axis of :class:`PhantomSpec`) is world ``-y``
+    (up). The layers' phase is :class:`PhantomSpec`'s (from the bottom face), not the scene's: the
+    fluoroscopy never sees it and the CBCT reference does not depend on it. A scene without a
+    phantom (abdomen) gets the default 5 cm phantom at ``centre_mm`` (world mm), layers horizontal.
+    """
+    if not isinstance(scene, Anatomy):
+        raise TypeError(f"scene must be a histostudy.imaging.anatomy.Anatomy, got {type(scene).__name__}")
+    meta = scene.meta
+    up = rotation_about_axis([1.0, 0.0, 0.0], np.pi / 2)  # phantom z -> world -y
+    if "phantom_center_mm" not in meta:
+        return PhantomSpec(), make_transform(up, np.asarray(centre_mm, dtype=np.float64))
+    spec = PhantomSpec(size_mm=float(meta.get("phantom_edge_mm", PhantomSpec.size_mm)),
+                       layer_thickness_mm=float(meta.get("layer_mm", PhantomSpec.layer_thickness_mm)))
+    yaw = rotation_about_axis([0.0, 1.0, 0.0], np.deg2rad(float(meta.get("phantom_yaw_deg", 0.0))))
+    return spec, make_transform(yaw @ up, np.asarray(meta["phantom_center_mm"], dtype=np.float64))
+
+
+def _positive(value, name: str, allow_zero: bool = False):
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.size == 0 or not np.all(np.isfinite(arr)) or np.any(arr < 0) or (not allow_zero and np.any(arr == 0)):
+        raise ValueError(f"{name} must be finite and {'>= 0' if allow_zero else '> 0'} (mm or HU), got {value!r}")
+    return value
+
+
+def _treat_and_scan(exp: PoseExperiment, spec: PhantomSpec, T_carm_phantom: np.ndarray, *, physical: TransducerModel,
+                    config: PoseStudyConfig, rng: np.random.Generator, phantom_voxel_mm, cbct_voxel_mm,
+                    cbct_blur_mm: float, cbct_noise_hu: float, treatment_spacing_mm, treatment_inset_mm):
+    """The paper's treatment of one pose experiment and its post-treatment CBCT, segmented.
+
+    The sphere of radius ``r`` is planned about the centre pose's TCP (the geometric focal point)
+    on the centre pose's axes; the robot translates the transducer through the plan without
+    turning it (its repeatability noise added); the bubble clouds sit at the physical
+    transducer's focal point plus ``config.bubble_offset_mm`` for each reached pose.
+    """
+    T_c = exp.T_true["centre"]
+    R = T_c[:3, :3]
+    plan = plan_treatment(TreatmentZone(T_c[:3, 3], 2.0 * exp.radius_mm), treatment_spacing_mm, axes=R,
+                          inset_mm=treatment_inset_mm)
+    reached = np.repeat(T_c[None], len(plan), axis=0)
+    reached[:, :3, 3] = plan.points_mm + rng.normal(0.0, config.robot_repeatability_mm, plan.points_mm.shape)
+    phantom = phantom_volume(spec, T_carm_phantom, spacing_mm=phantom_voxel_mm)
+    roi = phantom_mask(phantom, spec, T_carm_phantom)
+    seg, post = scan_treated_zone(phantom, roi, reached, physical.focal_point_mm, config.bubble_offset_mm, spec=spec,
+                                  T_carm_phantom=T_carm_phantom, rng=rng, blur_sigma_mm=cbct_blur_mm,
+                                  noise_sd_hu=cbct_noise_hu, voxel_mm=cbct_voxel_mm)
+    return seg, post, len(plan)
+
+
+def cbct_reference(config: PoseStudyConfig, *, physical: TransducerModel, seed: int,
+                   records: pd.DataFrame | None = None, phantom_voxel_mm=0.5, cbct_voxel_mm=1.0,
+                   cbct_blur_mm: float = 0.5, cbct_noise_hu: float = 20.0,
+                   treatment_spacing_mm=STUDY_PLAN_SPACING_MM, treatment_inset_mm=STUDY_PLAN_INSET_MM,
+                   keep_volumes: bool = False, progress: Callable[[str], None] | None = None,
+                   experiments: Sequence[int] | None = None) -> pd.DataFrame:
+    """The paper's reference of Table II (§II-D, §II-E.3): the treated zone in a post-treatment CBCT.
+
+    For each experiment of :func:`run_pose_study` with the same ``config`` and ``seed`` (the
+    set-ups are redrawn by :func:`experiment_setups`; no rendering), as the paper did after the
+    fluoroscopy: a sphere of radius ``r`` treated about the true centre pose (the transducer
+    translated through :func:`histostudy.treatment.plan_treatment`'s focal points on the centre
+    pose's axes; bubble clouds at the physical focal point plus ``config.bubble_offset_mm``), the
+    layered phantom of the experiment's scene (:func:`phantom_placement`) mixed there, a
+    post-treatment CBCT simulated (:func:`histostudy.imaging.cbct.simulate_cbct`: ``cbct_blur_mm``,
+    ``cbct_noise_hu``, voxels of ``cbct_voxel_mm``; the true phantom on ``phantom_voxel_mm``) and
+    the zone segmented (:func:`histostudy.treatment.zone.segment_treatment_zone`, the automatic stand-in for
+    the paper's manual annotation). Defaults: notebook 05's (0.5 mm phantom, 1 mm CBCT, 0.5 mm
+    blur, 20 HU noise, the studies' plan: spacing (2, 2, 3) mm, inset (1.25, 1.25, 2.25) mm).
+
+    ``records``: :func:`run_pose_study`'s rows; when given, only its experiments are treated and
+    each one's true centre is checked against the redrawn set-up (a different config or seed is
+    refused). One row per experiment, C-arm frame, mm:
+
+    - ``experiment``, ``radius_mm`` (``r``), ``true_x/y/z``: the true bubble-cloud centre at the
+      centre pose (the ground-truth reference);
+    - ``centroid_x/y/z``: the segmented zone's centroid (the reference centre, §II-E.3);
+      ``sphere_x/y/z``, ``sphere_radius_mm``: its least-squares sphere (the surface the margin
+      points are measured to);
+    - ``ref_radius_depth/tb/lr``: the zone's radius along the centre pose's depth/TB/LR axes
+      (through the centroid, :meth:`~histostudy.treatment.zone.ZoneSegmentation.radii_along`), and those
+      axes as world unit vectors ``axis_<d>_x/y/z``;
+    - the error of the reference against the ground truth: ``ref_err_<d>`` and
+      ``ref_err_euclidean`` (centroid minus true centre), ``ref_radius_err_<d>`` and
+      ``sphere_radius_err_mm`` (minus ``r``);
+    - ``clearance_mm``: least distance of the nominal sphere to the phantom's faces (the
+      segmentation keeps to half a window, 4 mm, inside them: below that the zone is clipped);
+      ``n_points`` (plan), ``volume_mm3``, ``seconds``; ``ok`` and ``failure``: a segmentation
+      that finds no zone leaves the experiment without a reference (NaN, skipped by Table II's
+      means) instead of stopping the study; with ``keep_volumes``, ``_volumes`` (the
+      post-treatment CBCT and the segmentation).
+
+    ``experiments``: treat only these experiment indices (as ``records`` does, without records).
+
+    Pass the table to :func:`experiment_metrics` (``reference=``) for Table II against it.
+    """
+    if not isinstance(physical, TransducerModel):
+        raise TypeError(f"physical must be a histostudy.transducer.TransducerModel, got {type(physical).__name__}")
+    _positive(phantom_voxel_mm, "phantom_voxel_mm")
+    _positive(cbct_voxel_mm, "cbct_voxel_mm")
+    _positive(cbct_blur_mm, "cbct_blur_mm", allow_zero=True)
+    _positive(cbct_noise_hu, "cbct_noise_hu", allow_zero=True)
+    wanted = None
+    if records is not None:
+        need = {"experiment", "position", "radius_mm", "true_x", "true_y", "true_z"}
+        if not isinstance(records, pd.DataFrame) or not need <= set(records.columns):
+            raise ValueError(f"records must be run_pose_study's rows with columns {sorted(need)}")
+        centres = records[records["position"] == "centre"].groupby("experiment").first()
+        wanted = set(int(e) for e in records["experiment"].unique())
+        beyond = sorted(e for e in wanted if not 0 <= e < config.n_experiments)
+        if beyond:
+            raise ValueError(f"records hold experiments {beyond} beyond config.n_experiments={config.n_experiments}: "
+                             "pass the config and seed the records were made with")
+    if experiments is not None:
+        chosen = {int(e) for e in experiments}
+        wanted = chosen if wanted is None else wanted & chosen
+    rows = []
+    for exp, _, _, rng_cbct in draw_experiments(config, seed):
+        if wanted is not None and exp.experiment not in wanted:
+            continue
+        truth = bubble_cloud_centre_mm(physical, exp.T_true["centre"], config.bubble_offset_mm)
+        if records is not None:
+            got = centres.loc[exp.experiment, ["true_x", "true_y", "true_z"]].to_numpy(float) \
+                if exp.experiment in centres.index else None
+            if got is None or not np.allclose(got, truth, atol=1e-6) \
+                    or float(centres.loc[exp.experiment, "radius_mm"]) != exp.radius_mm:
+                raise ValueError(f"experiment {exp.experiment}: the records' true centre {got} and radius do not "
+                                 f"match the set-up redrawn from this config and seed (true centre "
+                                 f"{truth.round(3).tolist()}, r = {exp.radius_mm} mm): pass the config, seed and "
+                                 "physical transducer the records were made with")
+        t0 = time.perf_counter()
+        spec, T_cp = phantom_placement(exp.scene)
+        axes = transducer_axes(exp.T_true["centre"])
+        R = exp.T_true["centre"][:3, :3]
+        local = np.linalg.solve(T_cp[:3, :3], truth - T_cp[:3, 3])
+        clearance = float(0.5 * spec.size_mm - np.abs(local).max() - exp.radius_mm)
+        try:
+            seg, post, n_points = _treat_and_scan(exp, spec, T_cp, physical=physical, config=config, rng=rng_cbct,
+                                                  phantom_voxel_mm=phantom_voxel_mm, cbct_voxel_mm=cbct_voxel_mm,
+                                                  cbct_blur_mm=cbct_blur_mm, cbct_noise_hu=cbct_noise_hu,
+                                                  treatment_spacing_mm=treatment_spacing_mm,
+                                                  treatment_inset_mm=treatment_inset_mm)
+        except ValueError as exc:  # nothing segmented: the experiment has no reference (NaN), as a lost CBCT
+            nan = float("nan")
+            rows.append({"experiment": exp.experiment, "radius_mm": exp.radius_mm,
+                         **{f"true_{a}": v for a, v in zip("xyz", truth)},
+                         **{c: nan for c in REFERENCE_COLUMNS[1:]},
+                         **{f"ref_err_{d}": nan for d in (*DIRECTIONS, "euclidean")},
+                         **{f"ref_radius_err_{d}": nan for d in DIRECTIONS}, "sphere_radius_err_mm": nan,
+                         "clearance_mm": clearance, "n_points": 0, "volume_mm3": nan,
+                         "ok": False, "failure": str(exc), "seconds": time.perf_counter() - t0})
+            continue
+        radii = dict(zip(("lr", "tb", "depth"), seg.radii_along(R)))  # columns of R: LR, TB, -depth
+        err = seg.centroid_mm - truth
+        row = {"experiment": exp.experiment, "radius_mm": exp.radius_mm,
+               **{f"true_{a}": v for a, v in zip("xyz", truth)},
+               **{f"centroid_{a}": v for a, v in zip("xyz", seg.centroid_mm)},
+               **{f"sphere_{a}": v for a, v in zip("xyz", seg.sphere_centre_mm)},
+               "sphere_radius_mm": seg.sphere_radius_mm,
+               **{f"ref_radius_{d}": float(radii[d]) for d in DIRECTIONS},
+               **{f"axis_{d}_{a}": float(v) for d in DIRECTIONS for a, v in zip("xyz", axes[d])},
+               **{f"ref_err_{d}": float(err @ axes[d]) for d in DIRECTIONS},
+               "ref_err_euclidean": float(np.linalg.norm(err)),
+               **{f"ref_radius_err_{d}": float(radii[d] - exp.radius_mm) for d in DIRECTIONS},
+               "sphere_radius_err_mm": float(seg.sphere_radius_mm - exp.radius_mm),
+               "clearance_mm": clearance, "n_points": n_points, "volume_mm3": seg.volume_mm3,
+               "ok": True, "failure": "", "seconds": time.perf_counter() - t0}
+        if keep_volumes:
+            row["_volumes"] = {"post": post, "segmentation": seg, "T_carm_phantom": T_cp}
+        rows.append(row)
+        if progress:
+            progress(f"CBCT reference {exp.experiment + 1}/{config.n_experiments}: centroid "
+                     f"{row['ref_err_euclidean']:.2f} mm from the true centre")
+    return pd.DataFrame(rows)
+
+
+def reference_by_experiment(reference) -> dict:
+    """``{experiment: row}`` of :func:`cbct_reference`'s table, after checking its columns and that
+    each experiment has one row."""
+    if not isinstance(reference, pd.DataFrame):
+        raise TypeError(f"reference must be cbct_reference()'s DataFrame (or None for the ground truth), "
+                        f"got {type(reference).__name__}")
+    missing = [c for c in REFERENCE_COLUMNS if c not in reference.columns]
+    if missing:
+        raise ValueError(f"reference lacks the columns {missing}: pass the table cbct_reference() returns")
+    if reference["experiment"].duplicated().any():
+        raise ValueError("reference holds an experiment twice: one row per experiment expected")
+    return {int(r["experiment"]): r for _, r in reference.iterrows()}
+

@@ -1,0 +1,192 @@
+"""One targeting experiment and the study of several (§II-C, §II-D, §II-E.4, §III).
+
+One experiment, as in the lab, in four stages:
+
+1. **Ground truth set-up** (:func:`~.targeting_setup.draw_ground_truth`).
+2. **Calibration** (§II-C, :func:`~.targeting_calibration.calibrate_robot`), checked against its
+   bound.
+3. **Pre-treatment CBCT** of the layered phantom; a target picked inside it with the whole zone
+   (20 or 25 mm) and the segmentation window inside the phantom.
+4. **Automatic positioning and treatment** (:func:`~.targeting_treatment.treat_zone`), once as
+   the paper did and, with the bias correction, after a calibration treatment
+   (:func:`~.targeting_treatment.learn_bubble_bias`) with the corrected TCP: two identical
+   phantoms, the same pre-treatment CBCT and target.
+
+Errors (§II-E.4), mm: Euclidean distance between the intended target and the segmented zone's
+centroid; its components along depth/TB/LR (the commanded transducer axes at the target); the
+segmented sphere radius against the planned radius; and the calibration against the ground
+truth (rotation in degrees and translation of ``T_flange_transducer`` and ``T_carm_base``, and
+the calibration's error at the target: where the true chain puts the focal point for the
+commanded flange pose). Points are in the C-arm frame (LPS, mm).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from histostudy.calibration import HandEyeCalibration
+from histostudy.geometry import invert_transform, make_transform, rotation_angle
+from histostudy.imaging import PhantomSpec, View, check_target, random_target, simulate_cbct
+from histostudy.transducer import TransducerModel
+from histostudy.treatment import TreatmentZone, ZoneSegmentation
+from ..pose._study import DIRECTIONS, transducer_axes
+from ._calibration import calibrate_robot
+from ._positioning import target_orientation, tcp_for_target
+from ._robots import robot_seed, rtde_robot, sim_robot
+from ._setup import GroundTruth, TargetingStudyConfig, draw_ground_truth, start_joints
+from ._treatment import learn_bubble_bias, phantom_for, treat_zone
+
+__all__ = ["calibration_errors", "run_targeting_experiment", "run_targeting_study", "zone_errors"]
+
+
+def zone_errors(prefix: str, seg: ZoneSegmentation, target: np.ndarray, R_des: np.ndarray, radius: float) -> dict:
+    """The row entries of one treated zone (mm), keys prefixed by ``prefix``: the centroid's error
+    along the commanded transducer axes ``R_des`` (``err_depth``/``err_tb``/``err_lr``), its
+    Euclidean error, the segmented sphere radius and its error, and the centroid (C-arm frame)."""
+    err = seg.centroid_mm - target
+    axes = transducer_axes(make_transform(R_des))
+    row = {f"{prefix}err_{d}": float(err @ axes[d]) for d in DIRECTIONS}
+    row[f"{prefix}err_euclidean"] = float(np.linalg.norm(err))
+    row[f"{prefix}radius_mm"] = float(seg.sphere_radius_mm)
+    row[f"{prefix}radius_err_mm"] = float(seg.sphere_radius_mm - radius)
+    row.update({f"{prefix}centroid_{a}": v for a, v in zip("xyz", seg.centroid_mm)})
+    return row
+
+
+def calibration_errors(calibration: HandEyeCalibration, calibration_rows: pd.DataFrame, truth: GroundTruth) -> dict:
+    """The row entries of the calibration (``cal_*``): its residuals (mm, deg), the mean
+    pose-estimation error of its poses (mm), and its errors against the ground truth: rotation
+    (deg) and translation (mm) of X = ``T_flange_transducer`` and Y = ``T_carm_base``."""
+    cal, cal_rows, X = calibration, calibration_rows, calibration.T_flange_transducer
+    return dict(cal_rms_focal_residual_mm=cal.rms_focal_residual_mm,
+                cal_max_rotation_residual_deg=cal.max_rotation_residual_deg,
+                cal_pose_error_mm=float(cal_rows["pose_error_mm"].mean()),
+                cal_X_rotation_deg=float(np.degrees(rotation_angle(X[:3, :3].T @ truth.T_flange_transducer[:3, :3]))),
+                cal_X_translation_mm=float(np.linalg.norm(X[:3, 3] - truth.T_flange_transducer[:3, 3])),
+                cal_Y_rotation_deg=float(np.degrees(rotation_angle(cal.T_carm_base[:3, :3].T @ truth.T_carm_base[:3, :3]))),
+                cal_Y_translation_mm=float(np.linalg.norm(cal.T_carm_base[:3, 3] - truth.T_carm_base[:3, 3])))
+
+
+def run_targeting_experiment(config: TargetingStudyConfig, seq: np.random.SeedSequence, *,
+                             pose_model: TransducerModel, render_model: TransducerModel, physical: TransducerModel,
+                             views: Sequence[View], robot_factory=None, keep_volumes: bool = False,
+                             experiment: int = 0, segmenter=None, orientation=None,
+                             estimator_views: Sequence[View] | None = None) -> dict:
+    """One experiment (module docstring) from the seed sequence ``seq``; returns one flat row.
+
+    ``segmenter`` / ``orientation``: the calibration's pose-estimation stages (see
+    :func:`calibrate_robot`; None: the oracles). ``estimator_views``: the views the estimator is
+    told, when they differ from the ``views`` that make the frames (a lab's calibration).
+
+    ``robot_factory(seed, initial_joints_rad) -> context manager yielding a Robot`` (default
+    :func:`sim_robot`); the robot starts where the operator jogged it, the flange pointing down
+    with the designed focal point over the phantom.
+    With ``keep_volumes`` the row also holds (under ``"_volumes"``) the pre/post-treatment CBCTs
+    and the segmentation, for figures.
+    """
+    robot_factory = sim_robot(config) if robot_factory is None else robot_factory
+    if not isinstance(seq, np.random.SeedSequence):
+        raise TypeError(f"seq must be a numpy.random.SeedSequence, got {type(seq).__name__}")
+    # SeedSequence.spawn is stateful: spawn from a copy, so the same seq always gives the same
+    # experiment (the "both" robots run one seq twice).
+    fresh = np.random.SeedSequence(seq.entropy, spawn_key=seq.spawn_key, pool_size=seq.pool_size)
+    (s_truth, s_pose, s_scene, s_render, s_est, s_robot, s_target, s_cbct) = fresh.spawn(8)
+    rng_truth = np.random.default_rng(s_truth)
+    truth = draw_ground_truth(rng_truth, config)
+    rng_target = np.random.default_rng(s_target)
+    rng_cbct = np.random.default_rng(s_cbct)
+    diameter = float(rng_target.choice(np.asarray(config.zone_diameters_mm, float)))
+    radius = 0.5 * diameter
+    phantom, roi = phantom_for(truth, config)
+    pre = simulate_cbct(phantom, rng_cbct, blur_sigma_mm=config.cbct_blur_mm, noise_sd_hu=config.cbct_noise_hu,
+                        voxel_mm=config.cbct_voxel_mm)
+    border = radius + 4.0  # the zone and half the segmentation window inside the phantom
+    target = check_target(random_target(rng_target, PhantomSpec(), truth.T_carm_phantom, border_mm=border),
+                          PhantomSpec(), truth.T_carm_phantom, volume=pre, margin_mm=radius)
+    zone = TreatmentZone(target, diameter)
+    row = {"experiment": experiment, "diameter_mm": diameter, **{f"target_{a}": v for a, v in zip("xyz", target)}}
+    # The operator jogged the flange pointing down over the phantom: the robot starts there.
+    q_start = start_joints(truth)
+    with robot_factory(robot_seed(s_robot), q_start) as robot, tempfile.TemporaryDirectory(prefix="histostudy-target-") as tmp:
+        cal, cal_rows = calibrate_robot(robot, truth, config, pose_model=pose_model, render_model=render_model,
+                                        physical=physical, views=views, rng_pose=np.random.default_rng(s_pose),
+                                        rng_scene=np.random.default_rng(s_scene),
+                                        rng_render=np.random.default_rng(s_render), rng_est=np.random.default_rng(s_est),
+                                        segmenter=segmenter, orientation=orientation,
+                                        estimator_views=estimator_views)
+        R_des = target_orientation(cal)
+        axes = transducer_axes(make_transform(R_des))
+        row.update({f"axis_{d}_{a}": float(v) for d in DIRECTIONS for a, v in zip("xyz", axes[d])})
+        X = cal.T_flange_transducer
+        row.update(calibration_errors(cal, cal_rows, truth))
+        F_cmd = tcp_for_target(cal, target, R_des) @ invert_transform(X)
+        row["cal_error_at_target_mm"] = float(np.linalg.norm(truth.T_carm_transducer(F_cmd)[:3, 3] - target))
+
+        bias_local = np.zeros(3)
+        if config.bias_correction:
+            bias_local = learn_bubble_bias(robot, truth, cal, config, R_des, X, phantom, roi, physical, rng_target,
+                                           rng_cbct, Path(tmp) / "calibration_treatment.json")
+        row.update({f"bias_learnt_{a}": v for a, v in zip(("lr", "tb", "depth"), (bias_local[0], bias_local[1], -bias_local[2]))})
+
+        seg, post, info = treat_zone(robot, truth, cal, config, zone, R_des, X, phantom, roi, physical, rng_cbct,
+                                     Path(tmp) / "treatment.json")
+        row.update(zone_errors("", seg, target, R_des, radius))
+        row["n_points"] = info["n_points"]
+        row["cloud_err_euclidean"] = float(np.linalg.norm(info["cloud_centroid_mm"] - target))
+        if config.bias_correction:
+            X_corr = X @ make_transform(None, bias_local)
+            seg_c, post_c, info_c = treat_zone(robot, truth, cal, config, zone, R_des, X_corr, phantom, roi, physical,
+                                               rng_cbct, Path(tmp) / "treatment_corrected.json")
+            row.update(zone_errors("corr_", seg_c, target, R_des, radius))
+            row["corr_cloud_err_euclidean"] = float(np.linalg.norm(info_c["cloud_centroid_mm"] - target))
+        row["moves"] = robot.state().moves_completed
+        row["robot_final_tcp_mm"] = robot.tcp_pose()[:3, 3].tolist()
+    row["physical_focal_offset_mm"] = float(np.linalg.norm(physical.focal_point_mm))
+    if keep_volumes:
+        row["_volumes"] = {"pre": pre, "post": post, "segmentation": seg, "R_des": R_des, "target": target,
+                           "calibration": cal, "calibration_rows": cal_rows, "truth": truth}
+    return row
+
+
+def run_targeting_study(config: TargetingStudyConfig, *, pose_model: TransducerModel, render_model: TransducerModel,
+                        physical: TransducerModel, views: Sequence[View], seed: int, robot: str = "sim",
+                        keep_volumes: bool = False, progress: Callable[[str], None] | None = None,
+                        segmenter=None, orientation=None, estimator_views: Sequence[View] | None = None,
+                        experiments: Sequence[int] | None = None) -> pd.DataFrame:
+    """Run ``config.n_experiments`` experiments; one row per (experiment, robot).
+
+    ``segmenter`` / ``orientation``: the calibration's pose-estimation stages, e.g. the learned
+    ones of :func:`histostudy.study.pose._study.study_stages` (None: the config's oracles).
+
+    ``robot``: ``"sim"`` (:class:`SimulatedUR5e`), ``"rtde"`` (the simulated controller through
+    ur_rtde) or ``"both"`` (each experiment on both, from the same seeds). Columns: experiment,
+    robot, diameter_mm, target_*, the errors (``err_depth``, ``err_tb``, ``err_lr``,
+    ``err_euclidean``, ``radius_err_mm``; ``corr_*`` with the bias correction), the learnt bias
+    (``bias_learnt_*``, depth/TB/LR), the calibration's residuals and errors against the truth
+    (``cal_*``), the moves made, and the commanded axes at the target (``axis_<d>_<x|y|z>``).
+    ``estimator_views``: see :func:`run_targeting_experiment`; ``experiments``: run only these
+    experiment indices (each keeps its seeds).
+    """
+    robots = {"sim": ("sim",), "rtde": ("rtde",), "both": ("sim", "rtde")}.get(robot)
+    if robots is None:
+        raise ValueError(f"robot must be 'sim', 'rtde' or 'both', got {robot!r}")
+    factories = {"sim": sim_robot(config), "rtde": rtde_robot(config)}
+    rows = []
+    wanted = None if experiments is None else {int(e) for e in experiments}
+    for e, seq in enumerate(np.random.SeedSequence(seed).spawn(config.n_experiments)):
+        if wanted is not None and e not in wanted:
+            continue
+        for name in robots:
+            row = run_targeting_experiment(config, seq, pose_model=pose_model, render_model=render_model,
+                                           physical=physical, views=views, robot_factory=factories[name],
+                                           keep_volumes=keep_volumes, experiment=e, segmenter=segmenter,
+                                           orientation=orientation, estimator_views=estimator_views)
+            rows.append({"robot": name, **row})
+            if progress:
+                progress(f"experiment {e + 1}/{config.n_experiments} ({name}): {row['err_euclidean']:.2f} mm")
+    return pd.DataFrame(rows)
