@@ -43,7 +43,10 @@ from .dual_quaternion import dual_quaternions_from_transforms, invert_transforms
 
 __all__ = ["CalibrationError", "HandEyeCalibration", "calibrate", "flange_pose_for_target", "motion_pairs"]
 
-SCHEMA = "histostudy.handeye/1"
+#: The schema tag a saved calibration carries, named after the package that writes it.
+SCHEMA = "histostudy.calibration/1"
+#: Tags of files written by earlier versions that still load (the same fields; 0.1.0 named the module).
+LEGACY_SCHEMAS = ("histostudy.handeye/1",)
 
 
 class CalibrationError(RuntimeError):
@@ -215,8 +218,9 @@ class HandEyeCalibration:
     def from_dict(cls, d: dict) -> "HandEyeCalibration":
         if not isinstance(d, dict):
             raise TypeError(f"d must be a dict from HandEyeCalibration.to_dict, got {type(d).__name__}")
-        if d.get("schema") != SCHEMA:
-            raise ValueError(f"d['schema'] must be {SCHEMA!r}, got {d.get('schema')!r}")
+        if d.get("schema") not in (SCHEMA, *LEGACY_SCHEMAS):
+            raise ValueError(f"d['schema'] must be {SCHEMA!r} (or an earlier {', '.join(map(repr, LEGACY_SCHEMAS))}), "
+                             f"got {d.get('schema')!r}")
         missing = [k for k in ("T_flange_transducer", "T_carm_base", "rotation_residuals_deg",
                                "translation_residuals_mm", "focal_residuals_mm") if k not in d]
         if missing:

@@ -1,4 +1,5 @@
-"""Foundations every layer uses, no paper section of their own: file writes that are atomic and
+"""Foundations every layer uses, no paper section of their own: the argument checks every
+configuration validates through (``checks``), file writes that are atomic and
 honour the umask (``io``), the one seeding policy (``seeding``: every random draw takes a seed or a
 ``numpy.random.Generator``), the provenance recorded beside every result and checkpoint
 (``provenance``, with the CPU and its instruction sets from ``machine``), and the Monte-Carlo
@@ -7,8 +8,9 @@ the old module paths of families that became sub-packages (``moved_modules``).
 See docs/architecture.md, "Seeding and determinism".
 """
 
-from . import (io as _io, machine as _machine, moved_modules as _moved_modules, provenance as _provenance, seeding as _seeding,
-               sweeps as _sweeps)
+from . import (checks as _checks, io as _io, machine as _machine, moved_modules as _moved_modules,
+               provenance as _provenance, seeding as _seeding, sweeps as _sweeps)
+from .checks import check_count, check_positive, check_unit_fraction, is_finite_real, is_real
 from .io import atomic_path, atomic_write_bytes, atomic_write_json, atomic_write_text, process_umask, to_jsonable
 from .machine import (AVX2_RESTRICTION, ISA_FLAGS, ISA_RESTRICTION_ENV, avx2_env_words, avx2_restriction, cpu_model,
                       isa_flags, isa_restriction, machine_summary)
@@ -18,4 +20,5 @@ from .seeding import as_generator
 from .sweeps import SCHEDULER_ENV, SweepExecutor, SweepTaskError, resolve_executor, run_sweep
 
 # every public name of the modules above, as each module's __all__ declares it
-__all__ = list(dict.fromkeys([*_io.__all__, *_machine.__all__, *_moved_modules.__all__, *_provenance.__all__, *_seeding.__all__, *_sweeps.__all__]))
+__all__ = list(dict.fromkeys([*_checks.__all__, *_io.__all__, *_machine.__all__, *_moved_modules.__all__,
+                              *_provenance.__all__, *_seeding.__all__, *_sweeps.__all__]))

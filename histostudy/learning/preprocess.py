@@ -12,21 +12,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from histostudy.core import check_unit_fraction
 from histostudy.transducer import LABEL_PRIORITY, Feature
 
 __all__ = ["pool_labels", "prepare_image"]
-
-
-def _check_scale(scale) -> int:
-    """The integer reduction ``1 / scale`` (scale must be 1, 1/2, 1/4, ...)."""
-    try:
-        scale = float(scale)
-    except (TypeError, ValueError):
-        raise ValueError(f"scale must be 1/k for an integer k >= 1 (e.g. 0.5, 0.25), got {scale!r}") from None
-    k = int(round(1.0 / scale)) if scale > 0 else 0
-    if k < 1 or abs(k * scale - 1.0) > 1e-9:
-        raise ValueError(f"scale must be 1/k for an integer k >= 1 (e.g. 0.5, 0.25), got {scale!r}")
-    return k
 
 
 def prepare_image(image, scale: float) -> np.ndarray:
@@ -39,7 +28,7 @@ def prepare_image(image, scale: float) -> np.ndarray:
     img = np.asarray(image)
     if img.ndim != 2 or not np.issubdtype(img.dtype, np.number):
         raise ValueError(f"image must be a 2-D numeric array, got shape {img.shape} dtype {img.dtype}")
-    k = _check_scale(scale)
+    k = check_unit_fraction(scale)
     img = img.astype(np.float32)
     if k > 1:
         rows, cols = img.shape
@@ -62,7 +51,7 @@ def pool_labels(labels, scale: float) -> np.ndarray:
     lab = np.asarray(labels)
     if lab.ndim != 2:
         raise ValueError(f"labels must be a 2-D label image, got shape {lab.shape}")
-    k = _check_scale(scale)
+    k = check_unit_fraction(scale)
     if k == 1:
         return lab.astype(np.uint8)
     rows, cols = lab.shape

@@ -13,11 +13,10 @@ SD says how variable the run was, not how far it is from the paper.
 
 from __future__ import annotations
 
-import math
-import numbers
 import re
 from dataclasses import dataclass
 
+from histostudy.core import is_finite_real
 from .paper import PaperValue
 
 __all__ = ["AGREES", "DIFFERS", "FAR_OFF", "FAR_OFF_SD", "NOT_JUDGED", "Agreement", "judge"]
@@ -85,10 +84,10 @@ def judge(comparison: dict, paper: PaperValue, *, twin: PaperValue | None = None
     ours, theirs = comparison.get("ours"), paper.mean
     if isinstance(theirs, str):
         return _judge_text(ours, theirs)
-    if not _is_number(ours):
+    if not is_finite_real(ours):
         why = "no reproduced number" if ours is None else f"the reproduced value is text ({ours!r})"
         return Agreement(NOT_JUDGED, basis=why)
-    if not _is_number(theirs):
+    if not is_finite_real(theirs):
         return Agreement(NOT_JUDGED, basis=f"the paper's value is text ({theirs!r})")
     unit_ours, unit_paper = _unit(comparison.get("unit", "")), _unit(paper.unit)
     if unit_ours and unit_paper and unit_ours != unit_paper:
@@ -123,7 +122,7 @@ def _judge_text(ours, theirs: str) -> Agreement:
         if max(lo1, lo2) <= min(hi1, hi2):
             return Agreement(AGREES, basis="the intervals overlap")
         return Agreement(DIFFERS, basis="the intervals are disjoint")
-    value = ours if _is_number(ours) else _parse_float(ours)
+    value = ours if is_finite_real(ours) else _parse_float(ours)
     if paper_bound and value is not None:
         op, bound = paper_bound.group(1), _float(paper_bound.group(2))
         holds = {"<": value < bound, "<=": value <= bound, ">": value > bound, ">=": value >= bound}[op]
@@ -138,10 +137,6 @@ def _parse_float(text) -> float | None:
     if not isinstance(text, str) or not re.fullmatch(_FLOAT, text.strip()):
         return None
     return _float(text.strip())
-
-
-def _is_number(x) -> bool:
-    return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(float(x))
 
 
 def _float(text: str) -> float:

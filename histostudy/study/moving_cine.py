@@ -35,7 +35,7 @@ from typing import Callable
 
 import numpy as np
 
-from histostudy.core import atomic_write_json, to_jsonable
+from histostudy.core import atomic_write_json, check_positive, to_jsonable
 from histostudy.geometry import invert_transform
 from histostudy.imaging import View, default_biplane, detector_counts, save_views, write_xa
 from histostudy.robot import forward_kinematics
@@ -97,22 +97,15 @@ class RobotPath:
         return out
 
 
-def _check_positive(name: str, value, what: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
-            or not math.isfinite(value) or value <= 0:
-        raise ValueError(f"{name} must be {what}, got {value!r}")
-    return float(value)
-
-
 def robot_path(T_centre, duration_s: float, *, radius_mm: float = 12.5, max_speed_mm_s: float = 10.0,
                dwell_s: float = 1.0) -> RobotPath:
     """The robot's tour of the zone of ``radius_mm`` about ``T_centre`` (4x4 ``T_carm_transducer``,
     mm) that lasts at least ``duration_s`` (s): the module docstring's order and profile, each leg
     of length ``d`` taking ``1.875 d / max_speed_mm_s`` seconds (peak speed ``max_speed_mm_s``,
     mm/s), each waypoint held ``dwell_s`` (s, >= 0) first."""
-    duration_s = _check_positive("duration_s", duration_s, "a finite duration > 0 s")
-    radius_mm = _check_positive("radius_mm", radius_mm, "a finite zone radius > 0 mm (the study's: 10 or 12.5)")
-    max_speed_mm_s = _check_positive("max_speed_mm_s", max_speed_mm_s, "a finite speed > 0 mm/s")
+    duration_s = check_positive(duration_s, "duration_s", unit="s")
+    radius_mm = check_positive(radius_mm, "radius_mm", unit="mm")
+    max_speed_mm_s = check_positive(max_speed_mm_s, "max_speed_mm_s", unit="mm/s")
     if isinstance(dwell_s, bool) or not isinstance(dwell_s, (int, float)) or not (math.isfinite(dwell_s)
                                                                                   and dwell_s >= 0):
         raise ValueError(f"dwell_s must be a finite pause >= 0 s, got {dwell_s!r}")
@@ -189,8 +182,8 @@ def write_moving_cine(folder: str | os.PathLike, *, seed: int, duration_s: float
     """
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
-    fps = _check_positive("fps", fps, "a finite frame rate > 0 frames/s (e.g. 7.5 or 15)")
-    duration_s = _check_positive("duration_s", duration_s, "a finite duration > 0 s")
+    fps = check_positive(fps, "fps", unit="frames/s")
+    duration_s = check_positive(duration_s, "duration_s", unit="s")
     n = int(round(duration_s * fps))
     if n < 1:
         raise ValueError(f"duration_s * fps must give at least one frame, got duration_s={duration_s!r}, fps={fps!r}")

@@ -159,7 +159,7 @@ def test_save_load_round_trip(tmp_path):
     cal, _, _ = _noisy_calibration()
     path = cal.save(tmp_path / "sub" / "handeye.json")
     data = json.loads(path.read_text())
-    assert data["schema"] == "histostudy.handeye/1" and data["summary"]["n_poses"] == 6
+    assert data["schema"] == "histostudy.calibration/1" and data["summary"]["n_poses"] == 6
     back = he.HandEyeCalibration.load(path)
     assert np.array_equal(back.T_flange_transducer, cal.T_flange_transducer)
     assert np.array_equal(back.T_carm_base, cal.T_carm_base)
@@ -169,6 +169,9 @@ def test_save_load_round_trip(tmp_path):
     assert not list(tmp_path.glob("sub/*.tmp*"))  # atomic: no temporary left behind
     with pytest.raises(ValueError, match="schema"):
         he.HandEyeCalibration.from_dict({**data, "schema": "other"})
+    # a file written by 0.1.0, whose tag named the old module, loads to the same calibration
+    legacy = he.HandEyeCalibration.from_dict({**data, "schema": "histostudy.handeye/1"})
+    assert np.array_equal(legacy.T_carm_base, cal.T_carm_base) and legacy.summary() == cal.summary()
     bad = {**data, "T_carm_base": (2 * np.eye(4)).tolist()}
     with pytest.raises(ValueError, match="T_carm_base"):
         he.HandEyeCalibration.from_dict(bad)

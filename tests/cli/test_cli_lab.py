@@ -34,7 +34,7 @@ def calibration_file(lab, tmp_path_factory):
 @pytest.mark.slow
 def test_calibrate_on_the_stations_recovers_the_true_chain_at_the_target(calibration_file, lab, truth):
     cal = json.loads(calibration_file.read_text())
-    assert cal["schema"] == "histostudy.handeye/1" and len(cal["stations"]) == 4
+    assert cal["schema"] == "histostudy.calibration/1" and len(cal["stations"]) == 4
     # Where the calibrated and the true chain put a point at the target: the calibration's error there.
     D = truth["T_carm_base"] @ np.linalg.inv(np.asarray(cal["T_carm_base"]))
     error = np.linalg.norm(D[:3, :3] @ lab.target_mm + D[:3, 3] - lab.target_mm)

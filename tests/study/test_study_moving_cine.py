@@ -50,9 +50,9 @@ def test_the_tour_visits_the_margins_smoothly_within_the_speed_limit(path):
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    ({"duration_s": 0}, "duration_s must be a finite duration > 0 s, got 0"),
-    ({"radius_mm": -1.0}, "radius_mm must be a finite zone radius > 0 mm"),
-    ({"max_speed_mm_s": float("nan")}, "max_speed_mm_s must be a finite speed > 0 mm/s"),
+    ({"duration_s": 0}, "duration_s must be a finite number > 0 s, got 0"),
+    ({"radius_mm": -1.0}, "radius_mm must be a finite number > 0 mm"),
+    ({"max_speed_mm_s": float("nan")}, "max_speed_mm_s must be a finite number > 0 mm/s"),
     ({"dwell_s": -0.5}, r"dwell_s must be a finite pause >= 0 s, got -0.5"),
 ])
 def test_robot_path_refuses_bad_arguments_by_name(kwargs, message):
@@ -62,7 +62,7 @@ def test_robot_path_refuses_bad_arguments_by_name(kwargs, message):
 
 
 def test_write_moving_cine_refuses_bad_arguments_by_name(tmp_path):
-    with pytest.raises(ValueError, match="fps must be a finite frame rate > 0 frames/s"):
+    with pytest.raises(ValueError, match="fps must be a finite number > 0 frames/s"):
         write_moving_cine(tmp_path, seed=1, fps=0.0)
     with pytest.raises(ValueError, match="seed must be an integer >= 0, got -1"):
         write_moving_cine(tmp_path, seed=-1)

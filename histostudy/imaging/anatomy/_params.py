@@ -16,19 +16,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from histostudy.core import is_real
+
 __all__ = [
     "AbdomenParams",
     "PhantomParams",
 ]
 
 
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
-
-
 def _range(name: str, value, integer: bool = False) -> tuple:
     """``value`` as a ``(low, high)`` range of finite floats; a bare number ``v`` is ``(v, v)``."""
-    if _is_number(value):
+    if is_real(value):
         value = (value, value)
     try:
         lo, hi = (float(v) for v in value)
@@ -48,7 +46,7 @@ def _normalise_params(params) -> None:
     for f in dataclasses.fields(params):
         value = getattr(params, f.name)
         if f.name.endswith("_probability"):
-            if not (_is_number(value) and 0.0 <= float(value) <= 1.0):
+            if not (is_real(value) and 0.0 <= float(value) <= 1.0):
                 raise ValueError(f"{f.name} must be a probability in [0, 1], got {value!r}")
             norm = float(value)
         elif isinstance(f.default, tuple) and f.default and isinstance(f.default[0], tuple):
