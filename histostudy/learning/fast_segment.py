@@ -9,14 +9,14 @@ the region where the transducer projects. :class:`FastUNet` therefore
 
 - folds each batch normalisation into the convolution before it (inference only: the same
   function, one pass over memory less per layer) and keeps activations channels-last, which the
-  CPU convolutions run about 1.5-2x faster than NCHW (docs/tracking.md);
+  CPU convolutions run faster than NCHW (docs/tracking-alternatives.md, "The network's inference path");
 - runs each convolution and the ReLU after it as one oneDNN call (:mod:`.fused_conv`: within
   float32 rounding of the eager pair, one pass over the activations less; about a fifth of the
   network's time), and pools as the maximum of four strided quarters
-  (:func:`~.nets.unet.max_pool_2x2`: the same values, 2-3x faster than ``max_pool2d`` on
+  (:func:`~.nets.unet.max_pool_2x2`: the same values, faster than ``max_pool2d`` on
   channels-last activations);
 - on a CPU with native bfloat16 arithmetic (AVX512-BF16 or AMX), runs the convolutions in
-  bfloat16 and the final 1x1 convolution in float32 (``precision="auto"``): another 1.7x, with
+  bfloat16 and the final 1x1 convolution in float32 (``precision="auto"``): faster again, with
   99.9 % of the labels unchanged (tests/learning/test_fast_segment.py checks the agreement with
   the checkpoint run eagerly in float32);
 - runs the network on a box of the input (the same :func:`~.preprocess.prepare_image` transform,
@@ -36,9 +36,10 @@ only the pixels where they differ, along the label edges, are interpolated.
 
 Boxes are ``(row0, row1, col0, col1)`` in full-frame pixels, half-open, with all four multiples
 of :attr:`FastUNet.stride_px` (one network-input pixel for every ``1 / scale`` frame pixels,
-``histostudy.pose.tracking_roi`` aligns them to a whole U-Net stride). Measured alternatives that
+``histostudy.pose.tracking._roi`` aligns them to a whole U-Net stride). Measured alternatives that
 did not pay off (TorchScript freezing, ``torch.compile``, batching the two views, int8 static
-quantisation, ONNX Runtime, the shipped network on a quarter-scale input) are in docs/tracking.md,
+quantisation, ONNX Runtime, the shipped network on a quarter-scale input) are in
+docs/tracking-alternatives.md,
 with the U-Net trained at 0.25 for tracking (``data/models/unet_tracking``).
 """
 
@@ -266,8 +267,8 @@ class FastUNet:
         with torch.no_grad():
             logits = self._head(features.float())
         # Kept channels-last (the classes innermost): the arg-max over the classes then reads
-        # contiguous memory, 3.5 ms against 58 ms for a whole frame made NCHW-contiguous first
-        # (docs/tracking.md, "From scratch in under a second").
+        # contiguous memory, an order of magnitude faster than making a whole frame NCHW-contiguous
+        # first (docs/tracking.md, "From scratch in under a second").
         return logits[0, :, :rows, :cols]
 
     def _labels(self, frame: Frame, box) -> np.ndarray:

@@ -2,10 +2,10 @@
 :meth:`~.fast_segment.FastUNet.segment_region`: :func:`head_argmax`.
 
 Torch runs the head as a convolution that writes six float32 logit channels per pixel, then reads
-them again for the arg-max: about 2 ms and 1.8 ms on one core for a tracking region's 448 x 448
-network pixels (docs/tracking.md, "Fifteen pairs a second on two cores"). Here the features are
-read once, block by block of pixels (copied into channel planes, so that the loops over a block's
-pixels vectorise), and only the labels are written: 1.4 ms.
+them again for the arg-max: two passes over memory on a tracking region (docs/tracking.md,
+"Fifteen pairs a second on two cores", has the figures). Here the features are read once, block by
+block of pixels (copied into channel planes, so that the loops over a block's pixels vectorise),
+and only the labels are written.
 
 The logits are summed as oneDNN's convolution sums them on the machines this was written on: the
 products in channel order, each added to the float32 accumulator by a fused multiply-add (LLVM

@@ -40,7 +40,7 @@ def _block(c_in: int, c_out: int) -> nn.Sequential:
 
 def max_pool_2x2(x: torch.Tensor) -> torch.Tensor:
     """``F.max_pool2d(x, 2)`` of an ``(N, C, H, W)`` tensor with even ``H`` and ``W``, as the maximum of
-    its four strided quarters: the same values, 2-3x faster on a CPU for channels-last activations
+    its four strided quarters: the same values, faster on a CPU for channels-last activations
     (docs/tracking.md, "Fifteen pairs a second"), channels-last out. For inference: on ties its
     gradient is not max-pooling's."""
     return torch.maximum(torch.maximum(x[..., ::2, ::2], x[..., 1::2, ::2]),
