@@ -187,3 +187,53 @@ def test_each_subpackage_exports_every_public_name_of_its_modules(subpackage):
         assert set(package.__all__) == declared
     missing = [n for n in package.__all__ if not hasattr(package, n)]
     assert missing == [], f"histostudy.{subpackage}.__all__ names what it does not import: {missing}"
+
+
+#: Rank of each unit (module or sub-package) of ``histostudy.study``: a unit imports only units of a
+#: lower rank. Statistics first; the learned stages' studies; pose, then targeting on it; the
+#: error budget and the lab's data on both; the moving cine on the lab's data; notebook 06 on all.
+STUDY_LAYERS = {
+    "stats": 0,
+    "segmentation": 1, "transducer_projections": 1,
+    "orientation_regression": 2,
+    "pose": 3,
+    "targeting": 4,
+    "lab_dataset": 5, "budget": 5,
+    "moving_cine": 6,
+    "moving_cine_live": 7,
+    "your_data": 8,
+    "your_data_live": 9,
+}
+
+
+def _unit(module: str, package: str) -> str | None:
+    rest = module[len(package) + 1:].split(".") if module.startswith(package + ".") else None
+    return rest[0] if rest else None
+
+
+@pytest.mark.parametrize("package, ranks", [("histostudy.study", STUDY_LAYERS)])
+def test_imports_go_one_way_inside_a_package(package, ranks):
+    units = {_unit(m, package) for m in MODULES} - {None}
+    assert units == set(ranks), f"units of {package} without a rank, or ranks without a unit"
+    wrong = []
+    for module, targets in GRAPH.items():
+        unit = _unit(module, package)
+        for target in targets:
+            other = _unit(target, package)
+            if unit and other and other != unit and ranks[other] >= ranks[unit]:
+                wrong.append(f"{module} -> {target}")
+    assert wrong == [], f"imports against {package}'s layering:\n" + "\n".join(sorted(wrong))
+
+
+def test_no_name_prefix_is_shared_by_three_modules_of_one_package():
+    """A family of modules shares a prefix; three or more make a sub-package (docs/architecture.md)."""
+    crowded = []
+    for folder in [PACKAGE, *(p for p in PACKAGE.rglob("*") if p.is_dir() and (p / "__init__.py").exists())]:
+        names = [p.stem for p in folder.glob("*.py") if p.name not in ("__init__.py", "__main__.py")]
+        names += [p.name for p in folder.iterdir() if p.is_dir() and (p / "__init__.py").exists()]
+        prefixes = {}
+        for name in names:
+            prefixes.setdefault(name.lstrip("_").split("_")[0], []).append(name)
+        crowded += [f"{folder.relative_to(PACKAGE.parent)}: {sorted(group)}" for group in prefixes.values()
+                    if len(group) >= 3]
+    assert crowded == []

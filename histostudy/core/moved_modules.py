@@ -33,6 +33,7 @@ MOVED_MODULES: dict[str, str] = {
     "histostudy.study.pose_robustness": "histostudy.study.pose._robustness",
     "histostudy.study.pose_section": "histostudy.study.pose._section",
     "histostudy.study.pose_sweeps": "histostudy.study.pose._sweeps",
+    "histostudy.study.projector_comparison": "histostudy.study.pose._projectors",
     "histostudy.study.targeting_calibration": "histostudy.study.targeting._calibration",
     "histostudy.study.targeting_experiment": "histostudy.study.targeting._experiment",
     "histostudy.study.targeting_figures": "histostudy.study.targeting._figures",

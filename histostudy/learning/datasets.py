@@ -34,12 +34,12 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from histostudy.core import atomic_path
+from histostudy.core import atomic_path, check_unit_fraction
 from histostudy.geometry import make_transform, matrix_from_euler
 from histostudy.imaging import RenderSettings, View, random_background, render_frame
 from histostudy.transducer import TransducerModel
 from .orientation import angles_from_direction, beam_direction_of_pose, orientation_class, wrap_angle
-from .preprocess import _check_scale, pool_labels, prepare_image
+from .preprocess import pool_labels, prepare_image
 
 __all__ = [
     "SPLIT_CODES",
@@ -323,7 +323,7 @@ class HybridImageDataset(Dataset):
             raise TypeError(f"frames must be HybridFrames, got {type(frames).__name__}")
         if isinstance(size, bool) or not isinstance(size, int) or size < 1:
             raise ValueError(f"size must be an integer >= 1, got {size!r}")
-        _check_scale(scale)
+        check_unit_fraction(scale)
         rows, cols = (s * scale for s in frames.config.detector)
         if crop is not None and (isinstance(crop, bool) or not isinstance(crop, int) or not 1 <= crop <= min(rows, cols)):
             raise ValueError(f"crop must be None or an integer in [1, {int(min(rows, cols))}] px, got {crop!r}")

@@ -3,11 +3,12 @@ papermill pipeline (``pipeline``), stopped cleanly by SIGINT or SIGTERM (``inter
 that sets each measured value beside the paper's (``report``, with the paper's values in ``paper``,
 the agreement rule in ``agreement``, every paper result's twin in ``twins``, the first screen in
 ``headline``, Markdown escaping in ``markdown`` and the self-contained page in ``report_html``) and
-the notebooks' figures and 3-D scenes (``viz``). The top layer: nothing below imports it.
+the notebooks' figures and 3-D scenes (``viz``, the targeting scene's parts in ``_targeting_parts``).
+The top layer: nothing below imports it.
 """
 
-from . import (agreement as _agreement, headline as _headline, interrupts as _interrupts, markdown as _markdown,
-               paper as _paper, pipeline as _pipeline, profiles as _profiles, report as _report,
+from . import (_targeting_parts, agreement as _agreement, headline as _headline, interrupts as _interrupts,
+               markdown as _markdown, paper as _paper, pipeline as _pipeline, profiles as _profiles, report as _report,
                report_html as _report_html, twins as _twins, viz as _viz)
 from .agreement import AGREES, DIFFERS, FAR_OFF, FAR_OFF_SD, NOT_JUDGED, Agreement, judge
 from .headline import (CONTENTS_ANCHOR, HEADLINE_ANCHOR, HEADLINE_KEYS, SOFTWARE_ANCHOR, contents_markdown,
@@ -24,6 +25,7 @@ from .twins import (RESULT_KEYS, TWINS_ANCHOR, TWINS_HEADING, results_coverage, 
 from .viz import FEATURE_COLOURS, label_rgb, model_scene, plot_frames_with_labels, plot_pose_overlay, targeting_scene
 
 # every public name of the modules above, as each module's __all__ declares it
-__all__ = list(dict.fromkeys([*_agreement.__all__, *_headline.__all__, *_interrupts.__all__, *_markdown.__all__,
-                              *_paper.__all__, *_pipeline.__all__, *_profiles.__all__, *_report.__all__,
-                              *_report_html.__all__, *_twins.__all__, *_viz.__all__]))
+__all__ = list(dict.fromkeys([*_targeting_parts.__all__, *_agreement.__all__, *_headline.__all__,
+                              *_interrupts.__all__, *_markdown.__all__, *_paper.__all__, *_pipeline.__all__,
+                              *_profiles.__all__, *_report.__all__, *_report_html.__all__, *_twins.__all__,
+                              *_viz.__all__]))

@@ -3,7 +3,8 @@
 Matplotlib figures are returned, never shown or saved here; the notebook records them through
 :class:`histostudy.reporting.report.SectionWriter`. 3-D scenes render off-screen: on a machine without a
 display VTK renders through EGL (``VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow``), set here
-before VTK loads when no ``DISPLAY`` is present.
+before VTK loads when no ``DISPLAY`` is present. The targeting scene's checks, content and drawing
+are in :mod:`histostudy.reporting._targeting_parts`.
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ from typing import Sequence
 import numpy as np
 
 from histostudy.transducer import FEATURE_CLASSES, Feature
+from ._targeting_parts import (_check_pairs, _checked_points, _checked_render_options, _checked_transforms,
+                               _half_phantom, _render, _TargetingScene, _transducer_points)
 
 __all__ = ["FEATURE_COLOURS", "label_rgb", "model_scene", "plot_frames_with_labels", "plot_pose_overlay",
            "targeting_scene"]
@@ -174,30 +177,6 @@ def model_scene(model, *, rng: np.random.Generator, max_points_per_class: int = 
     return np.asarray(image, dtype=np.uint8)
 
 
-#: Colours of the C-arm planes in :func:`targeting_scene` (plane A, plane B, further views).
-VIEW_COLOURS = ((0.85, 0.15, 0.15), (0.15, 0.35, 0.9), (0.2, 0.65, 0.3), (0.6, 0.3, 0.7))
-
-
-def _optional_point(value, name: str) -> np.ndarray | None:
-    if value is None:
-        return None
-    p = np.asarray(value, dtype=np.float64).reshape(-1)
-    if p.shape != (3,) or not np.all(np.isfinite(p)):
-        raise ValueError(f"{name} must be 3 finite coordinates (C-arm frame, mm), got {value!r}")
-    return p
-
-
-def _detector_corners(view) -> np.ndarray:
-    """``(4, 3)`` world corners of a view's detector (pixel edges), on the plane at the focal
-    length ``K[0, 0] * pixel_mm`` from the source along the beam axis."""
-    K, R, source = view.decomposition
-    rows, cols = view.shape
-    pixels = np.array([[-0.5, -0.5], [cols - 0.5, -0.5], [cols - 0.5, rows - 0.5], [-0.5, rows - 0.5]])
-    rays = view.ray_directions(pixels)
-    sdd = float(K[0, 0]) * view.pixel_mm
-    return source + rays * (sdd / (rays @ R[2]))[:, None]
-
-
 def targeting_scene(views, *, T_carm_base=None, joints_rad=None, model=None, T_carm_transducer=None,
                     rng: np.random.Generator | None = None, phantom_spec=None, T_carm_phantom=None,
                     target_mm=None, zone_centre_mm=None, zone_radius_mm=None,
@@ -235,146 +214,20 @@ def targeting_scene(views, *, T_carm_base=None, joints_rad=None, model=None, T_c
     rigid, not 6 joint angles, a point that is not 3 finite numbers, half of a pair given).
     """
     from histostudy.imaging.carm import views_from_sequence
-    from histostudy.geometry import check_rigid
 
     seq = views_from_sequence(views)
-    if (T_carm_base is None) != (joints_rad is None):
-        raise ValueError("T_carm_base and joints_rad go together (the robot is drawn with both, or not at all); "
-                         f"got T_carm_base={'None' if T_carm_base is None else 'given'}, "
-                         f"joints_rad={'None' if joints_rad is None else 'given'}")
-    if (model is None) != (T_carm_transducer is None):
-        raise ValueError("model and T_carm_transducer go together (the transducer is drawn with both, or not at all)")
-    if model is not None and rng is None:
-        raise ValueError("rng (numpy.random.Generator) is required to subsample the transducer model's points")
-    if (zone_centre_mm is None) != (zone_radius_mm is None):
-        raise ValueError("zone_centre_mm and zone_radius_mm go together")
-    if phantom_spec is not None and T_carm_phantom is None:
-        raise ValueError("phantom_spec needs T_carm_phantom (where the phantom is)")
-    frames = None
-    if T_carm_base is not None:
-        from histostudy.robot.kinematics import check_joints, joint_frames
-
-        T_cb = check_rigid(T_carm_base, "T_carm_base")
-        frames = T_cb @ joint_frames(check_joints(joints_rad, "joints_rad"))
-    T_ct = None if T_carm_transducer is None else check_rigid(T_carm_transducer, "T_carm_transducer")
-    T_cp = None if T_carm_phantom is None else check_rigid(T_carm_phantom, "T_carm_phantom")
-    target = _optional_point(target_mm, "target_mm")
-    zone_centre = _optional_point(zone_centre_mm, "zone_centre_mm")
-    if zone_radius_mm is not None and not (np.isfinite(zone_radius_mm) and zone_radius_mm > 0):
-        raise ValueError(f"zone_radius_mm must be a finite radius > 0 in mm, got {zone_radius_mm!r}")
-    try:
-        width, height = (int(v) for v in window_size)
-    except (TypeError, ValueError):
-        raise ValueError(f"window_size must be (width, height) in pixels, got {window_size!r}") from None
-    if width < 16 or height < 16:
-        raise ValueError(f"window_size must be at least (16, 16) pixels, got {window_size!r}")
-    direction = np.asarray(camera_direction, dtype=np.float64).reshape(-1)
-    if direction.shape != (3,) or not np.all(np.isfinite(direction)) or np.linalg.norm(direction) == 0:
-        raise ValueError(f"camera_direction must be a non-zero 3-vector, got {camera_direction!r}")
-    if int(max_points_per_class) < 1:
-        raise ValueError(f"max_points_per_class must be >= 1, got {max_points_per_class!r}")
+    _check_pairs(T_carm_base=T_carm_base, joints_rad=joints_rad, model=model, T_carm_transducer=T_carm_transducer,
+                 rng=rng, zone_centre_mm=zone_centre_mm, zone_radius_mm=zone_radius_mm, phantom_spec=phantom_spec,
+                 T_carm_phantom=T_carm_phantom)
+    frames, T_ct, T_cp = _checked_transforms(T_carm_base, joints_rad, T_carm_transducer, T_carm_phantom)
+    target, zone_centre = _checked_points(target_mm, zone_centre_mm, zone_radius_mm)
+    width, height, direction = _checked_render_options(window_size, camera_direction, max_points_per_class)
 
     _prepare_offscreen()
-    import pyvista as pv
-
-    half_phantom = None
-    if T_cp is not None:
-        from histostudy.imaging import PhantomSpec
-
-        half_phantom = 0.5 * float((phantom_spec or PhantomSpec()).size_mm)
-    transducer_pts = {}
-    if T_ct is not None:
-        R, t = T_ct[:3, :3], T_ct[:3, 3]
-        for k in FEATURE_CLASSES:
-            pts = np.asarray(model.points[k])
-            if len(pts) == 0:
-                continue
-            if len(pts) > max_points_per_class:
-                pts = pts[rng.choice(len(pts), int(max_points_per_class), replace=False)]
-            transducer_pts[k] = pts @ R.T + t
-
-    def draw(plotter, legend: bool) -> None:
-        label = (lambda text: text) if legend else (lambda text: None)
-        for i, view in enumerate(seq):
-            colour = VIEW_COLOURS[i % len(VIEW_COLOURS)]
-            source = view.source_mm
-            corners = _detector_corners(view)
-            name = f"plane {view.name}" if view.name else f"view {i}"
-            plotter.add_mesh(pv.Sphere(radius=25.0, center=source), color=colour,
-                             label=label(f"{name}: source, detector, beam"))
-            plotter.add_mesh(pv.PolyData(corners, faces=np.array([4, 0, 1, 2, 3])), color=colour, opacity=0.45)
-            plotter.add_mesh(pv.lines_from_points(np.vstack([corners, corners[:1]])), color=colour, line_width=3)
-            apex = len(corners)
-            frustum = pv.PolyData(np.vstack([corners, source]),
-                                  faces=np.hstack([[3, apex, k, (k + 1) % 4] for k in range(4)]))
-            plotter.add_mesh(frustum, color=colour, opacity=0.07)
-            for c in corners:
-                plotter.add_mesh(pv.Line(source, c), color=colour, line_width=1.5, opacity=0.6)
-        if frames is not None:
-            joints = frames[:, :3, 3]
-            plotter.add_mesh(pv.lines_from_points(joints).tube(radius=32.0, n_sides=20), color=(0.55, 0.58, 0.62),
-                             label=label("UR5e (DH link chain)"))
-            for p in joints[1:]:
-                plotter.add_mesh(pv.Sphere(radius=42.0, center=p), color=(0.3, 0.45, 0.65))
-            z_base = frames[0, :3, 2]
-            plotter.add_mesh(pv.Cylinder(center=joints[0] + 10.0 * z_base, direction=z_base, radius=90.0,
-                                         height=20.0), color=(0.25, 0.25, 0.3))
-        if T_ct is not None:
-            R, t = T_ct[:3, :3], T_ct[:3, 3]
-            for k, pts in transducer_pts.items():
-                plotter.add_points(pts, color=np.array(FEATURE_COLOURS[k]) / 255, point_size=point_size,
-                                   render_points_as_spheres=False,
-                                   label=label("transducer") if k == Feature.TRANSDUCER else None)
-            focal = R @ np.asarray(getattr(model, "focal_point_mm", np.zeros(3)), float) + t
-            plotter.add_mesh(pv.Sphere(radius=3.0, center=focal), color="red", label=label("focal point"))
-            apex = R @ np.array([0.0, 0.0, model.spec.radius_mm]) + t
-            plotter.add_mesh(pv.Line(focal, apex), color="red", line_width=2)
-            if frames is not None:
-                plotter.add_mesh(pv.Tube(pointa=frames[-1, :3, 3], pointb=apex, radius=12.0), color=(0.4, 0.4, 0.4))
-        if T_cp is not None:
-            h = half_phantom
-            box = pv.Box(bounds=(-h, h, -h, h, -h, h)).transform(T_cp, inplace=False)
-            plotter.add_mesh(box, color=(0.85, 0.7, 0.45), opacity=0.35, label=label("phantom"))
-            plotter.add_mesh(box.extract_feature_edges(), color=(0.55, 0.4, 0.2), line_width=2)
-        if zone_centre is not None:
-            plotter.add_mesh(pv.Sphere(radius=float(zone_radius_mm), center=zone_centre), color=(0.0, 0.75, 0.8),
-                             opacity=0.5, label=label("treated zone"))
-        if target is not None:
-            plotter.add_mesh(pv.Sphere(radius=2.0, center=target), color=(0.1, 0.8, 0.1), label=label("target"))
-
-    def aim(plotter, bounds=None) -> None:
-        plotter.reset_camera(bounds=bounds)
-        focus = np.asarray(plotter.camera.focal_point)
-        distance = plotter.camera.distance
-        plotter.camera.position = tuple(focus + distance * direction / np.linalg.norm(direction))
-        plotter.camera.focal_point = tuple(focus)
-        plotter.camera.up = (0.0, -1.0, 0.0)
-        plotter.reset_camera(bounds=bounds)
-
-    # The close-up: the transducer, the phantom and the target (what lies near the focal point).
-    near = [np.atleast_2d(v) for v in (target, zone_centre) if v is not None]
-    if T_cp is not None:
-        near.append(T_cp[:3, 3][None] + np.array([[-1.0], [1.0]]) * half_phantom)
-    if T_ct is not None:
-        near.append(np.vstack(list(transducer_pts.values()) or [T_ct[:3, 3][None]]))
-    panels = 2 if close_up and near else 1
-    plotter = pv.Plotter(off_screen=True, window_size=[width, height], shape=(1, panels), border=False)
-    plotter.set_background("white")
-    plotter.subplot(0, 0)
-    draw(plotter, legend=True)
-    plotter.add_legend(bcolor="white", face="circle", size=(0.3 if panels == 2 else 0.24, 0.26), loc="lower right")
-    plotter.add_axes(xlabel="x (L)", ylabel="y (P)", zlabel="z (S)")
-    aim(plotter)
-    if zoom != 1.0:
-        plotter.camera.zoom(float(zoom))
-    if panels == 2:
-        plotter.subplot(0, 1)
-        draw(plotter, legend=False)
-        pts = np.vstack(near)
-        lo, hi = pts.min(axis=0) - 10.0, pts.max(axis=0) + 10.0
-        aim(plotter, bounds=(lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]))
-        plotter.camera.zoom(1.2)
-        plotter.add_text("close-up: transducer, phantom, target", position="upper_left", font_size=10, color="black")
-    image = plotter.screenshot(return_img=True)
-    plotter.close()
-    return np.asarray(image, dtype=np.uint8)
+    transducer_pts = _transducer_points(model, T_ct, rng, max_points_per_class)
+    scene = _TargetingScene(views=seq, frames=frames, T_ct=T_ct, model=model, transducer_pts=transducer_pts,
+                            colours={k: np.array(FEATURE_COLOURS[k]) / 255 for k in transducer_pts}, T_cp=T_cp,
+                            half_phantom=_half_phantom(T_cp, phantom_spec), target=target, zone_centre=zone_centre,
+                            zone_radius_mm=zone_radius_mm)
+    return _render(scene, width=width, height=height, direction=direction, zoom=zoom, close_up=close_up,
+                   point_size=point_size)

@@ -17,10 +17,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
 from histostudy.geometry import as_points, check_rotation, fit_sphere
 from histostudy.imaging import Volume, check_mask, check_volume
+from ._zone_stages import _boundary_stage, _check_windows, _coarse_stage, _homogeneous_variance, _local_variance, \
+    _phantom_interior
 
 __all__ = ["PAPER_ZONE_DIAMETERS_MM", "TreatmentZone", "ZoneSegmentation", "segment_treatment_zone"]
 
@@ -165,31 +166,6 @@ def _boundary_faces(mask: np.ndarray, volume: Volume) -> np.ndarray:
     return volume.voxel_to_world(ijk) if len(ijk) else np.zeros((0, 3))
 
 
-def _odd_box(length_mm: float, spacing_zyx: np.ndarray) -> np.ndarray:
-    """Box size in voxels per array axis, odd (so that the box is centred), about ``length_mm``."""
-    return np.maximum(1, 2 * np.round(0.5 * length_mm / spacing_zyx).astype(int) + 1)
-
-
-def _largest_component(candidates: np.ndarray, what: str) -> np.ndarray:
-    """The largest 6-connected component of ``candidates`` with its holes filled."""
-    labels, n = ndimage.label(candidates)
-    if n == 0:
-        raise ValueError(f"no treated (homogeneous) zone found inside the phantom ({what})")
-    counts = np.bincount(labels.ravel())
-    counts[0] = 0
-    return ndimage.binary_fill_holes(labels == int(np.argmax(counts)))
-
-
-def _boundary_window_fraction(mask: np.ndarray, size: np.ndarray) -> float:
-    """Mean fraction of a ``size`` box that ``mask`` fills, taken on the voxels either side of its
-    boundary: the box filter's level on the mask's own surface (1/2 on a flat one, less on a
-    convex one)."""
-    box = ndimage.uniform_filter(mask.astype(np.float64), size=size, mode="nearest")
-    inner = mask & ~ndimage.binary_erosion(mask)
-    outer = ndimage.binary_dilation(mask) & ~mask
-    return 0.5 * (float(box[inner].mean()) + float(box[outer].mean()))
-
-
 def segment_treatment_zone(
     volume: Volume,
     roi_mask,
@@ -242,102 +218,22 @@ def segment_treatment_zone(
     """
     volume = check_volume(volume)
     roi = check_mask(roi_mask, volume, "roi_mask")
-    for name, value in (("window_mm", window_mm), ("boundary_window_mm", boundary_window_mm)):
-        if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be finite and > 0 (about one layer period / one layer), got {value!r}")
-    if not (math.isfinite(smoothing_sigma_mm) and smoothing_sigma_mm >= 0):
-        raise ValueError(f"smoothing_sigma_mm must be finite and >= 0, got {smoothing_sigma_mm!r}")
-    if isinstance(n_refinements, bool) or not isinstance(n_refinements, (int, np.integer)) or n_refinements < 0:
-        raise ValueError(f"n_refinements must be an integer >= 0, got {n_refinements!r}")
-    sp_zyx = volume.spacing_mm[::-1]
-    data = volume.data.astype(np.float64)
-    if smoothing_sigma_mm > 0:
-        data = ndimage.gaussian_filter(data, sigma=smoothing_sigma_mm / sp_zyx, mode="nearest")
-    size = _odd_box(window_mm, sp_zyx)
-    mean = ndimage.uniform_filter(data, size=size, mode="nearest")
-    var = np.maximum(ndimage.uniform_filter(data * data, size=size, mode="nearest") - mean * mean, 0.0)
+    _check_windows(window_mm, boundary_window_mm, smoothing_sigma_mm, n_refinements)
+    data, size, var = _local_variance(volume, window_mm, smoothing_sigma_mm)
+    interior = _phantom_interior(roi, size, window_mm)
+    v_h = _homogeneous_variance(var, roi, size, noise_variance)
+    mask, untreated, v_l = _coarse_stage(var, interior, size, v_h)
+    mask, mu, e_l, e_h, treated_fraction = _boundary_stage(volume, data, roi, mask, untreated, boundary_window_mm,
+                                                           n_refinements)
+    return _measure_zone(mask, volume, v_l=v_l, v_h=v_h, mu=mu, e_l=e_l, e_h=e_h, treated_fraction=treated_fraction)
 
-    # Away from the phantom's faces by half a window: there the water/phantom step dominates.
-    # (Box erosions/dilations as separable min/max filters: fast for large windows.)
-    interior = ~ndimage.maximum_filter(~roi, size=size, mode="constant", cval=True)
-    if interior.sum() < 10:
-        raise ValueError(
-            f"roi_mask leaves {int(interior.sum())} voxels once eroded by half of window_mm={window_mm}: "
-            "the phantom region is too small for the segmentation window"
-        )
-    if noise_variance is not None:
-        if not (math.isfinite(noise_variance) and noise_variance >= 0):
-            raise ValueError(f"noise_variance must be finite and >= 0 (HU^2), got {noise_variance!r}")
-        v_h = float(noise_variance)
-    else:
-        # Water at least a whole window from the phantom, so that neither the window nor the
-        # scanner's blur of the phantom's faces reaches into what is measured as pure noise.
-        water = ~ndimage.maximum_filter(roi, size=2 * size + 1, mode="nearest")
-        if water.sum() < 100:
-            raise ValueError(
-                f"the volume holds only {int(water.sum())} water voxels a window away from roi_mask, too few "
-                "to measure the homogeneous (noise) variance: give a volume with water around the phantom "
-                "or pass noise_variance"
-            )
-        v_h = float(np.median(var[water]))
 
-    def coarse(v_l: float) -> np.ndarray:
-        if not v_l > v_h:
-            raise ValueError(
-                f"no layer texture: the phantom's local variance ({v_l:.3g} HU^2) does not exceed that of "
-                f"homogeneous material ({v_h:.3g} HU^2)"
-            )
-        return _largest_component((var < 0.5 * (v_l + v_h)) & interior, "local variance")
-
-    # Two passes: the median over the whole interior is pulled down by the zone and by the shell
-    # where windows straddle its boundary; the second pass takes the median over the interior
-    # without the first zone grown by a window (+ a voxel for blur), i.e. over untreated phantom.
-    mask = coarse(float(np.median(var[interior])))
-    untreated = interior & ~ndimage.maximum_filter(mask, size=size + 2, mode="constant", cval=False)
-    if untreated.sum() >= 0.1 * interior.sum():
-        v_l = float(np.median(var[untreated]))
-        mask = coarse(v_l)
-        untreated = interior & ~ndimage.maximum_filter(mask, size=size + 2, mode="constant", cval=False)
-    else:  # the zone leaves too little untreated phantom to measure: keep the first pass
-        v_l = float(np.median(var[interior]))
-    thr = 0.5 * (v_l + v_h)
-
-    # Boundary stage (see the docstring).
-    small = _odd_box(boundary_window_mm, sp_zyx)
-    core = ~ndimage.maximum_filter(~mask, size=small, mode="constant", cval=True)
-    if core.sum() < 10 or untreated.sum() < 10:
-        raise ValueError(
-            f"the coarse zone ({int(mask.sum())} voxels) leaves {int(core.sum())} voxels once eroded by "
-            f"boundary_window_mm={boundary_window_mm} and {int(untreated.sum())} untreated phantom voxels: "
-            "too few to measure the boundary stage's levels"
-        )
-    mu = float(np.median(data[core]))
-    # Each material's own distance from the mixed level: a zone that cut the layers unevenly
-    # mixes to a level nearer one of them, and the raw deviation would then see the boundary
-    # earlier in a layer of the other material.
-    low, high = data[untreated & (data < mu)], data[untreated & (data >= mu)]
-    if len(low) < 10 or len(high) < 10:
-        raise ValueError(
-            f"the untreated phantom does not hold both layer materials on either side of the zone's level "
-            f"({mu:.4g} HU): {len(low)} voxels below, {len(high)} above"
-        )
-    low_level, high_level = float(np.median(low)), float(np.median(high))
-    untreated_fraction = np.where(data < mu, (mu - data) / (mu - low_level), (data - mu) / (high_level - mu))
-    deviation = ndimage.uniform_filter(untreated_fraction, size=small, mode="nearest")
-    e_l, e_h = float(np.median(deviation[untreated])), float(np.median(deviation[core]))
-    if not e_l > e_h:
-        raise ValueError(
-            f"no layer texture around the zone: the phantom's mean deviation from the zone's level "
-            f"({e_l:.3g}, in units of each material's distance from it) does not exceed the zone's own ({e_h:.3g})"
-        )
-    inside_phantom = ~ndimage.maximum_filter(~roi, size=small, mode="constant", cval=True)
-    treated_fraction = 0.5
-    for step in range(n_refinements + 1):
-        if step:
-            treated_fraction = _boundary_window_fraction(mask, small)
-        mask = _largest_component((deviation < e_h + (1.0 - treated_fraction) * (e_l - e_h)) & inside_phantom,
-                                  "deviation from the zone's level")
-
+def _measure_zone(mask: np.ndarray, volume: Volume, *, v_l: float, v_h: float, mu: float, e_l: float, e_h: float,
+                  treated_fraction: float) -> ZoneSegmentation:
+    """The :class:`ZoneSegmentation` of the segmented ``mask`` (§II-E.3-4): its centroid (world
+    mm, the paper's reference point), volume (mm^3), equivalent radius and least-squares sphere
+    through its boundary faces (mm), with the levels the segmentation used (HU^2, HU, units of
+    the layer materials' distance from the mixed level)."""
     idx = np.argwhere(mask)[:, ::-1].astype(np.float64)  # (x, y, z) voxel coordinates
     centroid = volume.voxel_to_world(idx.mean(axis=0))[0]
     vol_mm3 = float(len(idx)) * volume.voxel_volume_mm3
@@ -355,7 +251,7 @@ def segment_treatment_zone(
         volume_mm3=vol_mm3,
         layered_variance=v_l,
         homogeneous_variance=v_h,
-        threshold_variance=thr,
+        threshold_variance=0.5 * (v_l + v_h),
         spacing_mm=volume.spacing_mm.copy(),
         origin_mm=volume.origin_mm.copy(),
         zone_level_hu=mu,

@@ -68,7 +68,7 @@ def _scene_inputs():
 
 def test_detector_corners_lie_on_the_detector_at_the_image_corners():
     from histostudy.imaging import default_biplane
-    from histostudy.reporting.viz import _detector_corners
+    from histostudy.reporting._targeting_parts import _detector_corners
 
     for view in default_biplane():
         corners = _detector_corners(view)

@@ -22,16 +22,14 @@ isocentre.
 
 from __future__ import annotations
 
-import dataclasses
-import math
-
 import numpy as np
 
-from histostudy.geometry import rotation_about_axis
-from ._csg import Difference, Intersection
+from ._abdomen_parts import _body_layers, _bowel_gas, _organs, _place_body, _ribs, _rot_y_deg, _stomach_gas, \
+    _vertebral_column
+from ._csg import Difference
 from ._params import AbdomenParams, PhantomParams, _Draw, _with_overrides
 from ._scene import Anatomy
-from ._shapes import Box, Ellipsoid, EllipticCylinder, Primitive
+from ._shapes import Box, Primitive
 
 __all__ = [
     "MIXED_ABDOMEN_PROBABILITY",
@@ -45,33 +43,9 @@ __all__ = [
 MIXED_ABDOMEN_PROBABILITY = 156.0 / (156.0 + 56.0)
 
 
-def _rot_x_rad(rad: float) -> np.ndarray:
-    return rotation_about_axis([1.0, 0.0, 0.0], rad)
-
-
-def _rot_y_deg(deg: float) -> np.ndarray:
-    return rotation_about_axis([0.0, 1.0, 0.0], np.deg2rad(deg))
-
-
-def _rot_z_deg(deg: float) -> np.ndarray:
-    return rotation_about_axis([0.0, 0.0, 1.0], np.deg2rad(deg))
-
-
-def _rot_z_rad(rad: float) -> np.ndarray:
-    return rotation_about_axis([0.0, 0.0, 1.0], rad)
-
-
-def _frame_from_axis(axis, up_hint) -> np.ndarray:
-    """Rotation whose local z is ``axis`` and local y is as close to ``up_hint`` as possible."""
-    z = np.asarray(axis, float) / np.linalg.norm(axis)
-    y = np.asarray(up_hint, float) - z * (z @ up_hint)
-    if np.linalg.norm(y) < 1e-9:
-        y = np.cross(z, [1.0, 0.0, 0.0])
-    y /= np.linalg.norm(y)
-    return np.column_stack([np.cross(y, z), y, z])
-
-
 def _table(draw: _Draw, table_top_y: float, center_x: float) -> Box:
+    """The carbon-fibre patient table (§II-D, Fig. 4A) as a slab whose top lies at world
+    ``table_top_y`` (mm, +y down), centred at ``center_x``; thickness, width, mu [1/mm] drawn."""
     thick = draw("table_thickness_mm")
     return Box([center_x, table_top_y + thick / 2.0, 0.0], [draw("table_width_mm") / 2.0, thick / 2.0, 1000.0],
                mu_per_mm=draw("table_mu_per_mm"), name="table")
@@ -95,180 +69,34 @@ def random_abdomen(rng: np.random.Generator, params: AbdomenParams | None = None
     """
     p = _with_overrides(AbdomenParams, params, overrides)
     draw = _Draw(rng, p)
-    prims: list[Primitive] = []
-
-    # --- body frame: origin at the body centre, axis along z; world = R_body @ x + t_body -------
-    A, B = draw("body_width_mm") / 2.0, draw("body_depth_mm") / 2.0
-    half_len = draw("body_length_mm") / 2.0
-    flat = draw("back_flattening_mm")
-    sx, sz = draw("body_shift_x_mm"), draw("body_shift_z_mm")
-    R_body = _rot_y_deg(draw("body_yaw_deg"))
-    depth = draw("target_depth_mm")
-    # The vertical line through the isocentre stays vertical in the body frame (yaw is about y);
-    # place the body so that the skin on that line is `depth` anterior of the isocentre.
-    xb = (R_body.T @ np.array([-sx, 0.0, -sz]))[0]
-    if abs(xb) >= 0.8 * A:
-        raise ValueError(f"body_shift_x_mm {sx:.1f} puts the isocentre outside the body (half width {A:.1f} mm)")
-    cy = -depth + B * math.sqrt(1.0 - (xb / A) ** 2)
-    t_body = np.array([sx, cy, sz])
-    T_body = np.eye(4)
-    T_body[:3, :3], T_body[:3, 3] = R_body, t_body
-    target_b = R_body.T @ (-t_body)             # the isocentre in body coordinates
-    back_y = B - flat                           # flat back face, body frame
-
-    def body_shape(inset: float) -> Intersection:
-        cyl = EllipticCylinder([0, 0, 0], [A - inset, B - inset], half_len - inset)
-        cut = Box([0.0, (back_y - inset - B - 10.0) / 2.0, 0.0],
-                  [A + 10.0, (back_y - inset + B + 10.0) / 2.0, half_len + 10.0])
-        return Intersection((cyl, cut))
-
-    mu_fat, mu_soft = draw("mu_fat_per_mm"), draw("mu_soft_tissue_per_mm")
-    fat = draw("fat_mm")
-    Ai, Bi = A - fat, B - fat                  # inner (sub-fat) semi-axes
-    local: list[Primitive] = [
-        dataclasses.replace(body_shape(0.0), mu_per_mm=mu_fat, name="body (fat)"),
-        dataclasses.replace(body_shape(fat), mu_per_mm=mu_soft - mu_fat, name="body (soft tissue)"),
-    ]
-    tz = target_b[2]
-
-    # --- organs --------------------------------------------------------------------------------
-    u = draw.uniform
-    theta = np.linspace(0.0, 2.0 * np.pi, 721)
-    ring = np.stack([Ai * np.cos(theta), Bi * np.sin(theta)], axis=1)   # inner outline, body frame
-
-    def clearance(c) -> float:
-        """Radius of the largest ball around ``c`` inside the soft tissue (2 mm margin)."""
-        radial = float(np.min(np.hypot(ring[:, 0] - c[0], ring[:, 1] - c[1])))
-        inside = (c[0] / Ai) ** 2 + (c[1] / Bi) ** 2 < 1.0
-        r = min(radial, back_y - fat - c[1], half_len - fat - abs(c[2])) if inside else 0.0
-        return r - 2.0
-
-    def organ(center, axes, R, mu, name) -> Ellipsoid:
-        # Shrink an organ that would reach into the fat, so organs stay inside the soft tissue.
-        axes = np.asarray(axes, float)
-        axes = axes * min(1.0, max(0.3, clearance(center) / axes.max()))
-        return Ellipsoid(center, axes, R, mu, name)
-
-    def tilt():
-        return _rot_z_deg(draw("organ_tilt_deg")) @ _rot_y_deg(draw("organ_tilt_deg"))
-
-    def at(frac_name: str, z_name: str) -> np.ndarray:
-        fx, fy = draw(frac_name)
-        return np.array([fx * Ai, fy * Bi, tz + draw(z_name)])
-
-    local.append(organ(at("liver_center_frac", "liver_z_offset_mm"), draw("liver_semi_axes_mm"), tilt(),
-                       draw("liver_delta_mu"), "liver"))
-    spine_y = back_y - draw("spine_depth_mm")
-    spine_x = draw("spine_shift_x_mm")
-    kd = draw("kidney_delta_mu")
-    for side in (-1.0, 1.0):
-        c = np.array([spine_x + side * draw("kidney_lateral_frac") * Ai, spine_y - draw("kidney_anterior_mm"),
-                      tz + draw("kidney_z_offset_mm")])
-        local.append(organ(c, draw("kidney_semi_axes_mm"), tilt(), kd, "kidney"))
-    local.append(organ(at("spleen_center_frac", "spleen_z_offset_mm"), draw("spleen_semi_axes_mm"), tilt(),
-                       draw("spleen_delta_mu"), "spleen"))
-    stomach = organ(at("stomach_center_frac", "stomach_z_offset_mm"), draw("stomach_semi_axes_mm"), tilt(),
-                    draw("stomach_delta_mu"), "stomach")
-    local.append(stomach)
+    body = _place_body(draw)
+    local, tissue = _body_layers(draw, body)
+    organs, stomach, spine_x, spine_y = _organs(draw, tissue)
+    local += organs
     # Bounding balls of the negative primitives and of what they must not overlap: gas may only
     # replace tissue that is there, so that no line integral (or attenuation) becomes negative.
     gas_balls: list[tuple[np.ndarray, float]] = []
     avoid: list[tuple[np.ndarray, float]] = [(stomach.center_mm, float(stomach.semi_axes_mm.max()))]
-    if rng.random() < p.stomach_gas_probability:
-        s_min = float(stomach.semi_axes_mm.min())
-        r_gas = draw("stomach_gas_radius_frac") * s_min
-        # Supine: gas rises to the anterior (-y) side. A ball with |c' - c| + r <= the smallest
-        # semi-axis lies inside the stomach.
-        c_gas = stomach.center_mm + np.array([0.0, -(s_min - r_gas) * u(0.5, 0.95), 0.0])
-        local.append(Ellipsoid(c_gas, [r_gas, r_gas * u(0.5, 0.9), r_gas],
-                               mu_per_mm=-(mu_soft + stomach.mu_per_mm), name="stomach gas"))
-        gas_balls.append((c_gas, r_gas))
+    stomach_gas = _stomach_gas(draw, p, stomach, tissue.mu_soft)
+    if stomach_gas is not None:
+        local.append(stomach_gas[0])
+        gas_balls.append(stomach_gas[1])
+    column, b_vb = _vertebral_column(draw, tissue, spine_x, spine_y)
+    local += column
+    local += _ribs(draw, tissue, body, spine_x, spine_y, b_vb)
+    local += _bowel_gas(draw, p, tissue, gas_balls, avoid)
 
-    # --- vertebral column --------------------------------------------------------------------
-    vb_w = draw("vertebral_body_width_mm")
-    vb_h = draw("vertebral_body_height_mm")
-    disc = draw("disc_mm")
-    mu_vb, mu_post = draw("vertebra_delta_mu"), draw("posterior_elements_delta_mu")
-    extent = draw("spine_half_extent_mm")
-    pitch = vb_h + disc
-    z_lo, z_hi = max(tz - extent, -half_len + 20), min(tz + extent, half_len - 20)
-    phase = u(0.0, pitch)
-    a_vb, b_vb = vb_w / 2.0, vb_w * draw("vertebral_body_depth_frac")
-    for zc in np.arange(z_lo + phase, z_hi, pitch):
-        y_canal = spine_y + b_vb + 9.0            # centre of the spinal canal
-        local += [
-            EllipticCylinder([spine_x, spine_y, zc], [a_vb, b_vb], vb_h / 2.0, mu_per_mm=mu_vb, name="vertebral body"),
-            Box([spine_x, y_canal + 12.0, zc], [12.0, 3.5, vb_h * 0.38], mu_per_mm=mu_post, name="lamina"),
-            Box([spine_x, y_canal + 28.0, zc - 4.0], [3.0, 14.0, vb_h * 0.25], _rot_x_rad(-0.35),
-                mu_per_mm=mu_post, name="spinous process"),
-        ]
-        for side in (-1.0, 1.0):
-            local += [
-                Ellipsoid([spine_x + side * 11.0, y_canal, zc], [4.0, 8.5, 6.5], mu_per_mm=mu_post, name="pedicle"),
-                Ellipsoid([spine_x + side * 30.0, y_canal + 4.0, zc], [14.0, 4.0, 5.0], _rot_z_rad(side * 0.25),
-                          mu_per_mm=mu_post, name="transverse process"),
-            ]
-
-    # --- ribs: arcs of short elliptic cylinders just inside the fat -------------------------------
-    n_ribs = draw.integer("rib_pairs")
-    z_rib = draw("rib_lowest_z_mm") - t_body[2]      # body frame (yaw ignored: a few degrees)
-    spacing = draw("rib_spacing_mm")
-    rib_t, rib_h = draw("rib_thickness_mm"), draw("rib_height_mm")
-    drop, mu_rib = draw("rib_drop_mm"), draw("rib_delta_mu")
-    inset = draw("rib_inset_mm")
-    span_lowest, span_max = draw("rib_span_lowest_deg"), draw("rib_span_max_deg")
-    Ar, Br = Ai - inset, Bi - inset
-    for k in range(n_ribs):
-        z0 = z_rib + k * spacing
-        if not (-half_len + 30 < z0 < half_len - 30):
-            continue
-        # Lowest (floating) ribs are short; the ones above reach round to the front.
-        span = np.deg2rad(min(span_lowest + 28.0 * k, span_max))
-        for side in (-1.0, 1.0):                          # -1: patient's right (x < 0), +1: left
-            start_x = draw("rib_start_x_mm")
-            phi0 = math.acos(min(0.99, start_x / Ar))       # posterior end at |x| = start_x, y > 0
-            # From the back round the side (|x| = Ar at phi = pi) towards the front (y < 0).
-            phis = math.pi - phi0 + np.linspace(0.0, span, max(4, int(span * (Ar + Br) / 2 / 40.0) + 1))
-            pts = np.stack([-side * Ar * np.cos(phis), Br * np.sin(phis), z0 - drop * (phis - phis[0]) / span], axis=1)
-            # A short neck from the transverse process to the posterior angle of the rib.
-            neck = np.array([[spine_x + side * 46.0, spine_y + b_vb + 12.0, z0 + 4.0]])
-            pts = np.vstack([neck, pts])
-            for a, b in zip(pts[:-1], pts[1:]):
-                seg = b - a
-                length = float(np.linalg.norm(seg))
-                R = _frame_from_axis(seg, [0.0, 0.0, 1.0])
-                # Cross-section: thickness along the radial direction (local x), height ~ z (local y).
-                local.append(EllipticCylinder((a + b) / 2.0, [rib_t / 2.0, rib_h / 2.0], length / 2.0 + 0.3, R,
-                                              mu_rib, "rib"))
-
-    # --- bowel gas ------------------------------------------------------------------------------
-    n_gas = draw.integer("gas_pockets")
-    lo_r, hi_r = p.gas_semi_axis_mm
-    gz = p.gas_z_extent_mm[1]
-    for _ in range(n_gas):
-        for _attempt in range(50):
-            axes = u(lo_r, hi_r, size=3)
-            r = float(axes.max())
-            fx, fy = draw("gas_region_frac")
-            c = np.array([fx * Ai, fy * Bi, tz + u(-gz, gz)])
-            R_gas = _rot_z_rad(u(0, np.pi)) @ _rot_y_deg(u(-90, 90))
-            if clearance(c) >= r and all(np.linalg.norm(c - c2) >= r + r2 + 1.0 for c2, r2 in gas_balls + avoid):
-                local.append(Ellipsoid(c, axes, R_gas, -mu_soft, "bowel gas"))
-                gas_balls.append((c, r))
-                break
-
-    prims += [q.transformed(T_body) for q in local]
+    prims: list[Primitive] = [q.transformed(body.T) for q in local]
     body_outer = prims[0]
-
     # --- table and water bath (world frame, horizontal) -----------------------------------------------
-    table_top = cy + back_y
-    prims.append(_table(draw, table_top, sx + draw("table_shift_x_mm")))
-    skin_y = -depth
+    table_top = body.cy + body.back_y
+    prims.append(_table(draw, table_top, body.t[0] + draw("table_shift_x_mm")))
+    skin_y = -body.depth
     meta = {}
     if rng.random() < p.bath_probability:
         prims += _water_bath(draw, body_outer, skin_y, meta)
     meta.update(draw.drawn)
-    meta.update(anterior_skin_y_mm=skin_y, table_top_y_mm=table_top, body_center_mm=t_body.tolist(),
+    meta.update(anterior_skin_y_mm=skin_y, table_top_y_mm=table_top, body_center_mm=body.t.tolist(),
                 body_yaw_rad=float(np.deg2rad(draw.drawn["body_yaw_deg"])), n_primitives=len(prims))
     return Anatomy(tuple(prims), name="random abdomen", kind="abdomen", meta=meta)
 

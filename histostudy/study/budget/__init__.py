@@ -4,15 +4,18 @@ with all of them on, each alone and all but one, on the same draws.
 Its modules, one job each: the lab's error sources and one lab's draws of them (``_sources``), the
 runs under every configuration on :func:`histostudy.core.run_sweep` (``_run``), the figures, shares
 and comparisons with the paper (``_summary``), the notebook's parameters, set-up, seeds and prose
-(``_notebook``), and the notebook's namespace (``_study``).
+(``_notebook``).
 """
 
-from . import _notebook, _run, _sources, _summary, _study
-from ._notebook import (BudgetSeeds, RECORDED_PARAMETERS, SECTION_TITLE, SOURCE_PROVENANCE, budget_seeds, closing_text, lab_model_from_parameters, prepare_budget, sources_table, stand_ins)
-from ._run import (BudgetSetup, ESTIMATE_SOURCES, budget_configurations, measured_reference, measured_zone, run_error_budget)
-from ._sources import (AnnotationError, BubbleOffset, ExperimentDraw, GantrySag, LAB_SOURCES, LabDraw, LabErrorModel, PhantomMotion, ProjectionError, RegistrationError, RobotRepeatability, draw_lab)
-from ._summary import (STUDY_COLUMNS, budget_comparisons, configuration_table, dominant_sources, paired_errors, source_shares, waterfall_figure)
-from ._study import (ESTIMATE_SOURCES, LAB_SOURCES, RECORDED_PARAMETERS, SECTION_TITLE, SOURCE_PROVENANCE, STUDY_COLUMNS, AnnotationError, BubbleOffset, BudgetSeeds, BudgetSetup, ExperimentDraw, GantrySag, LabDraw, LabErrorModel, PhantomMotion, ProjectionError, RegistrationError, RobotRepeatability, budget_comparisons, budget_configurations, budget_seeds, closing_text, configuration_table, dominant_sources, draw_lab, lab_model_from_parameters, measured_reference, measured_zone, paired_errors, prepare_budget, run_error_budget, source_shares, sources_table, stand_ins, waterfall_figure)
+from . import (_notebook, _run, _sources, _summary)
+from ._notebook import (BudgetSeeds, RECORDED_PARAMETERS, SECTION_TITLE, SOURCE_PROVENANCE, budget_seeds,
+                        closing_text, lab_model_from_parameters, prepare_budget, sources_table, stand_ins)
+from ._run import (BudgetSetup, ESTIMATE_SOURCES, budget_configurations, measured_reference, measured_zone,
+                   run_error_budget)
+from ._sources import (AnnotationError, BubbleOffset, ExperimentDraw, GantrySag, LAB_SOURCES, LabDraw, LabErrorModel,
+                       PhantomMotion, ProjectionError, RegistrationError, RobotRepeatability, draw_lab)
+from ._summary import (STUDY_COLUMNS, budget_comparisons, configuration_table, dominant_sources, paired_errors,
+                       source_shares, waterfall_figure)
 
 # every public name of the modules above, as each module's __all__ declares it
-__all__ = list(dict.fromkeys([*_notebook.__all__, *_run.__all__, *_sources.__all__, *_summary.__all__, *_study.__all__]))
+__all__ = list(dict.fromkeys([*_notebook.__all__, *_run.__all__, *_sources.__all__, *_summary.__all__]))

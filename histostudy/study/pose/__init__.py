@@ -2,23 +2,30 @@
 
 Its modules, one job each: the study's configuration and the frames of an experiment (``_config``),
 the experiments run on them (``_experiments``), pose errors and their frames (``_geometry``), the
-per-experiment metrics (``_metrics``), the CBCT reference of the transducer (``_reference``),
+per-experiment metrics (``_metrics``), the pipeline on frames of
+RTK's projector beside ours (``_projectors``), the CBCT reference of the transducer (``_reference``),
 Table II and its companions (``_report_tables``), initialisation over random poses
-(``_robustness``), the notebook's section (``_section``), the sweeps (``_sweeps``), and the
-notebook's namespace (``_study``).
+(``_robustness``), the notebook's section (``_section``), the sweeps (``_sweeps``).
 """
 
-from . import _config, _experiments, _geometry, _metrics, _reference, _report_tables, _robustness, _section, _sweeps, _study
+from . import (_config, _experiments, _geometry, _metrics, _projectors, _reference, _report_tables, _robustness,
+               _section, _sweeps)
 from ._config import (PoseSectionParameters, PoseStudyConfig, StudyStages, study_stages)
 from ._experiments import (PoseExperiment, draw_experiments, experiment_setups, run_pose_study)
-from ._geometry import (DIRECTIONS, MARGINS, axial_symmetric_rotation_error_deg, rotation_error_modulo_symmetry_deg, bubble_cloud_centre_mm, experiment_pose, margin_positions, random_pose_in_views, sweep_visible_points, transducer_axes)
-from ._metrics import (experiment_metrics, mean_sd, reference_error_summary, stage_timing, table2, tracking_summary, variant_summary)
+from ._geometry import (DIRECTIONS, MARGINS, axial_symmetric_rotation_error_deg, rotation_error_modulo_symmetry_deg,
+                        bubble_cloud_centre_mm, experiment_pose, margin_positions, random_pose_in_views,
+                        sweep_visible_points, transducer_axes)
+from ._metrics import (experiment_metrics, mean_sd, reference_error_summary, stage_timing, table2, tracking_summary,
+                       variant_summary)
+from ._projectors import (PROJECTORS, comparison_poses, projector_comparison, projector_summary)
 from ._reference import (REFERENCE_COLUMNS, cbct_reference, phantom_placement, reference_by_experiment)
-from ._report_tables import (failed_estimates, focal_error_per_dose, focal_error_per_level, init_success_comparisons, stages_comparison_table, table2_beside_paper, table2_both_references, table2_comparisons)
+from ._report_tables import (failed_estimates, focal_error_per_dose, focal_error_per_level, init_success_comparisons,
+                             stages_comparison_table, table2_beside_paper, table2_both_references, table2_comparisons)
 from ._robustness import (robustness_summary, robustness_sweep)
 from ._section import (PoseOverlay, PoseSection)
 from ._sweeps import (degradation_sweep, noise_sweep)
-from ._study import (DIRECTIONS, MARGINS, REFERENCE_COLUMNS, PoseExperiment, PoseOverlay, PoseSection, PoseSectionParameters, PoseStudyConfig, StudyStages, axial_symmetric_rotation_error_deg, rotation_error_modulo_symmetry_deg, bubble_cloud_centre_mm, cbct_reference, degradation_sweep, draw_experiments, experiment_metrics, experiment_pose, experiment_setups, failed_estimates, focal_error_per_dose, focal_error_per_level, init_success_comparisons, margin_positions, mean_sd, noise_sweep, phantom_placement, random_pose_in_views, reference_by_experiment, reference_error_summary, robustness_summary, robustness_sweep, run_pose_study, stage_timing, stages_comparison_table, study_stages, sweep_visible_points, table2, table2_beside_paper, table2_both_references, table2_comparisons, tracking_summary, transducer_axes, variant_summary)
 
 # every public name of the modules above, as each module's __all__ declares it
-__all__ = list(dict.fromkeys([*_config.__all__, *_experiments.__all__, *_geometry.__all__, *_metrics.__all__, *_reference.__all__, *_report_tables.__all__, *_robustness.__all__, *_section.__all__, *_sweeps.__all__, *_study.__all__]))
+__all__ = list(dict.fromkeys([*_config.__all__, *_experiments.__all__, *_geometry.__all__, *_metrics.__all__,
+                              *_projectors.__all__, *_reference.__all__, *_report_tables.__all__, *_robustness.__all__, *_section.__all__,
+                              *_sweeps.__all__]))

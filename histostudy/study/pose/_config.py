@@ -112,7 +112,7 @@ class StudyStages:
 def study_stages(config, learned: bool = True, *, segmenter=None, orientation=None) -> StudyStages:
     """The stages of a study's pose estimates: learned by default, the oracles where the learned ones
     fall short. ``config``: a :class:`PoseStudyConfig` or any study config with a ``segmenter()``
-    giving its oracle (notebook 05's :class:`~histostudy.study.targeting._study.TargetingStudyConfig`).
+    giving its oracle (notebook 05's :class:`~histostudy.study.targeting.TargetingStudyConfig`).
 
     With ``learned``, the shipped U-Net and VGG19 (:func:`histostudy.learning.segment.default_segmenter`,
     :func:`histostudy.pose.conic_orientation.default_orientation`, or the ``segmenter`` / ``orientation``

@@ -136,13 +136,45 @@ def cbct_reference(config: PoseStudyConfig, *, physical: TransducerModel, seed: 
 
     Pass the table to :func:`experiment_metrics` (``reference=``) for Table II against it.
     """
+    _check_reference_inputs(physical, phantom_voxel_mm, cbct_voxel_mm, cbct_blur_mm, cbct_noise_hu)
+    wanted, centres = _wanted_experiments(config, records, experiments)
+    rows = []
+    for exp, _, _, rng_cbct in draw_experiments(config, seed):
+        if wanted is not None and exp.experiment not in wanted:
+            continue
+        truth = bubble_cloud_centre_mm(physical, exp.T_true["centre"], config.bubble_offset_mm)
+        if records is not None:
+            _check_records_match(exp, truth, centres)
+        row = _experiment_reference(exp, truth, physical=physical, config=config, rng=rng_cbct,
+                                    phantom_voxel_mm=phantom_voxel_mm, cbct_voxel_mm=cbct_voxel_mm,
+                                    cbct_blur_mm=cbct_blur_mm, cbct_noise_hu=cbct_noise_hu,
+                                    treatment_spacing_mm=treatment_spacing_mm, treatment_inset_mm=treatment_inset_mm,
+                                    keep_volumes=keep_volumes)
+        rows.append(row)
+        if row["ok"] and progress:
+            progress(f"CBCT reference {exp.experiment + 1}/{config.n_experiments}: centroid "
+                     f"{row['ref_err_euclidean']:.2f} mm from the true centre")
+    return pd.DataFrame(rows)
+
+
+def _check_reference_inputs(physical, phantom_voxel_mm, cbct_voxel_mm, cbct_blur_mm, cbct_noise_hu) -> None:
+    """Raise unless ``physical`` is a :class:`TransducerModel`, the voxel sizes (mm) are > 0 and
+    the CBCT's blur (mm) and noise (HU) are >= 0 (:func:`cbct_reference`'s arguments)."""
     if not isinstance(physical, TransducerModel):
         raise TypeError(f"physical must be a histostudy.transducer.TransducerModel, got {type(physical).__name__}")
     _positive(phantom_voxel_mm, "phantom_voxel_mm")
     _positive(cbct_voxel_mm, "cbct_voxel_mm")
     _positive(cbct_blur_mm, "cbct_blur_mm", allow_zero=True)
     _positive(cbct_noise_hu, "cbct_noise_hu", allow_zero=True)
-    wanted = None
+
+
+def _wanted_experiments(config: PoseStudyConfig, records: pd.DataFrame | None,
+                        experiments: Sequence[int] | None) -> tuple[set[int] | None, pd.DataFrame | None]:
+    """``(wanted, centres)``: the experiment indices to treat (None: all of ``config``), those of
+    ``records`` and/or ``experiments``, and the records' centre-pose rows by experiment (their true
+    bubble-cloud centres, C-arm mm, and radii ``r``, mm; None without records), after checking
+    the records' columns and that their experiments lie within ``config.n_experiments``."""
+    wanted = centres = None
     if records is not None:
         need = {"experiment", "position", "radius_mm", "true_x", "true_y", "true_z"}
         if not isinstance(records, pd.DataFrame) or not need <= set(records.columns):
@@ -156,64 +188,84 @@ def cbct_reference(config: PoseStudyConfig, *, physical: TransducerModel, seed: 
     if experiments is not None:
         chosen = {int(e) for e in experiments}
         wanted = chosen if wanted is None else wanted & chosen
-    rows = []
-    for exp, _, _, rng_cbct in draw_experiments(config, seed):
-        if wanted is not None and exp.experiment not in wanted:
-            continue
-        truth = bubble_cloud_centre_mm(physical, exp.T_true["centre"], config.bubble_offset_mm)
-        if records is not None:
-            got = centres.loc[exp.experiment, ["true_x", "true_y", "true_z"]].to_numpy(float) \
-                if exp.experiment in centres.index else None
-            if got is None or not np.allclose(got, truth, atol=1e-6) \
-                    or float(centres.loc[exp.experiment, "radius_mm"]) != exp.radius_mm:
-                raise ValueError(f"experiment {exp.experiment}: the records' true centre {got} and radius do not "
-                                 f"match the set-up redrawn from this config and seed (true centre "
-                                 f"{truth.round(3).tolist()}, r = {exp.radius_mm} mm): pass the config, seed and "
-                                 "physical transducer the records were made with")
-        t0 = time.perf_counter()
-        spec, T_cp = phantom_placement(exp.scene)
-        axes = transducer_axes(exp.T_true["centre"])
-        R = exp.T_true["centre"][:3, :3]
-        local = np.linalg.solve(T_cp[:3, :3], truth - T_cp[:3, 3])
-        clearance = float(0.5 * spec.size_mm - np.abs(local).max() - exp.radius_mm)
-        try:
-            seg, post, n_points = _treat_and_scan(exp, spec, T_cp, physical=physical, config=config, rng=rng_cbct,
-                                                  phantom_voxel_mm=phantom_voxel_mm, cbct_voxel_mm=cbct_voxel_mm,
-                                                  cbct_blur_mm=cbct_blur_mm, cbct_noise_hu=cbct_noise_hu,
-                                                  treatment_spacing_mm=treatment_spacing_mm,
-                                                  treatment_inset_mm=treatment_inset_mm)
-        except ValueError as exc:  # nothing segmented: the experiment has no reference (NaN), as a lost CBCT
-            nan = float("nan")
-            rows.append({"experiment": exp.experiment, "radius_mm": exp.radius_mm,
-                         **{f"true_{a}": v for a, v in zip("xyz", truth)},
-                         **{c: nan for c in REFERENCE_COLUMNS[1:]},
-                         **{f"ref_err_{d}": nan for d in (*DIRECTIONS, "euclidean")},
-                         **{f"ref_radius_err_{d}": nan for d in DIRECTIONS}, "sphere_radius_err_mm": nan,
-                         "clearance_mm": clearance, "n_points": 0, "volume_mm3": nan,
-                         "ok": False, "failure": str(exc), "seconds": time.perf_counter() - t0})
-            continue
-        radii = dict(zip(("lr", "tb", "depth"), seg.radii_along(R)))  # columns of R: LR, TB, -depth
-        err = seg.centroid_mm - truth
-        row = {"experiment": exp.experiment, "radius_mm": exp.radius_mm,
-               **{f"true_{a}": v for a, v in zip("xyz", truth)},
-               **{f"centroid_{a}": v for a, v in zip("xyz", seg.centroid_mm)},
-               **{f"sphere_{a}": v for a, v in zip("xyz", seg.sphere_centre_mm)},
-               "sphere_radius_mm": seg.sphere_radius_mm,
-               **{f"ref_radius_{d}": float(radii[d]) for d in DIRECTIONS},
-               **{f"axis_{d}_{a}": float(v) for d in DIRECTIONS for a, v in zip("xyz", axes[d])},
-               **{f"ref_err_{d}": float(err @ axes[d]) for d in DIRECTIONS},
-               "ref_err_euclidean": float(np.linalg.norm(err)),
-               **{f"ref_radius_err_{d}": float(radii[d] - exp.radius_mm) for d in DIRECTIONS},
-               "sphere_radius_err_mm": float(seg.sphere_radius_mm - exp.radius_mm),
-               "clearance_mm": clearance, "n_points": n_points, "volume_mm3": seg.volume_mm3,
-               "ok": True, "failure": "", "seconds": time.perf_counter() - t0}
-        if keep_volumes:
-            row["_volumes"] = {"post": post, "segmentation": seg, "T_carm_phantom": T_cp}
-        rows.append(row)
-        if progress:
-            progress(f"CBCT reference {exp.experiment + 1}/{config.n_experiments}: centroid "
-                     f"{row['ref_err_euclidean']:.2f} mm from the true centre")
-    return pd.DataFrame(rows)
+    return wanted, centres
+
+
+def _check_records_match(exp: PoseExperiment, truth: np.ndarray, centres: pd.DataFrame) -> None:
+    """Raise unless the records' true centre (C-arm mm, within 1e-6) and radius ``r`` (mm) of
+    ``exp`` are those of the set-up redrawn from the config and seed (``truth``)."""
+    got = centres.loc[exp.experiment, ["true_x", "true_y", "true_z"]].to_numpy(float) \
+        if exp.experiment in centres.index else None
+    if got is None or not np.allclose(got, truth, atol=1e-6) \
+            or float(centres.loc[exp.experiment, "radius_mm"]) != exp.radius_mm:
+        raise ValueError(f"experiment {exp.experiment}: the records' true centre {got} and radius do not "
+                         f"match the set-up redrawn from this config and seed (true centre "
+                         f"{truth.round(3).tolist()}, r = {exp.radius_mm} mm): pass the config, seed and "
+                         "physical transducer the records were made with")
+
+
+def _experiment_reference(exp: PoseExperiment, truth: np.ndarray, *, physical: TransducerModel,
+                          config: PoseStudyConfig, rng: np.random.Generator, phantom_voxel_mm, cbct_voxel_mm,
+                          cbct_blur_mm: float, cbct_noise_hu: float, treatment_spacing_mm, treatment_inset_mm,
+                          keep_volumes: bool) -> dict:
+    """One row of :func:`cbct_reference`'s table (§II-D, §II-E.3): ``exp`` treated about its true
+    centre pose, its post-treatment CBCT simulated and segmented (``rng``: the experiment's CBCT
+    draws) and the zone measured against ``truth`` (the true bubble-cloud centre, C-arm mm); a
+    NaN row with ``ok`` False and the ``failure`` when nothing is segmented."""
+    t0 = time.perf_counter()
+    spec, T_cp = phantom_placement(exp.scene)
+    axes = transducer_axes(exp.T_true["centre"])
+    R = exp.T_true["centre"][:3, :3]
+    local = np.linalg.solve(T_cp[:3, :3], truth - T_cp[:3, 3])
+    clearance = float(0.5 * spec.size_mm - np.abs(local).max() - exp.radius_mm)
+    try:
+        seg, post, n_points = _treat_and_scan(exp, spec, T_cp, physical=physical, config=config, rng=rng,
+                                              phantom_voxel_mm=phantom_voxel_mm, cbct_voxel_mm=cbct_voxel_mm,
+                                              cbct_blur_mm=cbct_blur_mm, cbct_noise_hu=cbct_noise_hu,
+                                              treatment_spacing_mm=treatment_spacing_mm,
+                                              treatment_inset_mm=treatment_inset_mm)
+    except ValueError as exc:  # nothing segmented: the experiment has no reference (NaN), as a lost CBCT
+        return _failed_row(exp, truth, clearance, str(exc), t0)
+    row = _reference_row(exp, truth, seg, axes, R, clearance=clearance, n_points=n_points, t0=t0)
+    if keep_volumes:
+        row["_volumes"] = {"post": post, "segmentation": seg, "T_carm_phantom": T_cp}
+    return row
+
+
+def _failed_row(exp: PoseExperiment, truth: np.ndarray, clearance: float, failure: str, t0: float) -> dict:
+    """The row of an experiment whose segmentation found no zone: its set-up (true centre, C-arm
+    mm; ``r``, clearance, mm), NaN for every measured column, ``ok`` False and the ``failure``;
+    ``seconds`` since ``t0`` (:func:`time.perf_counter`)."""
+    nan = float("nan")
+    return {"experiment": exp.experiment, "radius_mm": exp.radius_mm,
+            **{f"true_{a}": v for a, v in zip("xyz", truth)},
+            **{c: nan for c in REFERENCE_COLUMNS[1:]},
+            **{f"ref_err_{d}": nan for d in (*DIRECTIONS, "euclidean")},
+            **{f"ref_radius_err_{d}": nan for d in DIRECTIONS}, "sphere_radius_err_mm": nan,
+            "clearance_mm": clearance, "n_points": 0, "volume_mm3": nan,
+            "ok": False, "failure": failure, "seconds": time.perf_counter() - t0}
+
+
+def _reference_row(exp: PoseExperiment, truth: np.ndarray, seg, axes: dict, R: np.ndarray, *, clearance: float,
+                   n_points: int, t0: float) -> dict:
+    """The row of an experiment with a segmented zone ``seg`` (§II-E.3, C-arm mm): its centroid,
+    fitted sphere and radii along the centre pose's depth/TB/LR ``axes`` (``R``'s columns: LR,
+    TB, -depth), and their errors against ``truth`` and ``r``; ``seconds`` since ``t0``."""
+    radii = dict(zip(("lr", "tb", "depth"), seg.radii_along(R)))  # columns of R: LR, TB, -depth
+    err = seg.centroid_mm - truth
+    return {"experiment": exp.experiment, "radius_mm": exp.radius_mm,
+            **{f"true_{a}": v for a, v in zip("xyz", truth)},
+            **{f"centroid_{a}": v for a, v in zip("xyz", seg.centroid_mm)},
+            **{f"sphere_{a}": v for a, v in zip("xyz", seg.sphere_centre_mm)},
+            "sphere_radius_mm": seg.sphere_radius_mm,
+            **{f"ref_radius_{d}": float(radii[d]) for d in DIRECTIONS},
+            **{f"axis_{d}_{a}": float(v) for d in DIRECTIONS for a, v in zip("xyz", axes[d])},
+            **{f"ref_err_{d}": float(err @ axes[d]) for d in DIRECTIONS},
+            "ref_err_euclidean": float(np.linalg.norm(err)),
+            **{f"ref_radius_err_{d}": float(radii[d] - exp.radius_mm) for d in DIRECTIONS},
+            "sphere_radius_err_mm": float(seg.sphere_radius_mm - exp.radius_mm),
+            "clearance_mm": clearance, "n_points": n_points, "volume_mm3": seg.volume_mm3,
+            "ok": True, "failure": "", "seconds": time.perf_counter() - t0}
 
 
 def reference_by_experiment(reference) -> dict:

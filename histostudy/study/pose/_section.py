@@ -11,6 +11,7 @@ reporting layer); :mod:`~histostudy.study.pose._report_tables` shapes its tables
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
 from typing import Mapping
 
@@ -21,7 +22,7 @@ from histostudy.imaging import default_biplane, random_background, render_frame,
 from histostudy.learning import OracleOrientation
 from histostudy.pose import estimate_pose
 from histostudy.transducer import TransducerModel, TransducerSpec
-from .. import projector_comparison as projectors
+from . import _projectors as projectors
 from ._config import PoseSectionParameters, StudyStages, study_stages
 from ._experiments import run_pose_study
 from ._geometry import experiment_pose
@@ -51,11 +52,23 @@ class PoseOverlay:
     rng: np.random.Generator
 
 
+def _written_once(part):
+    """A :class:`PoseSection` part that runs once: a second call returns the first call's result."""
+    @functools.wraps(part)
+    def once(self):
+        if part.__name__ not in self._written:
+            self._written[part.__name__] = part(self)
+        return self._written[part.__name__]
+    return once
+
+
 class PoseSection:
     """Notebook 04's section: builds the models and the study set-up, then writes one part per call.
 
-    Call the parts in the notebook's order: :meth:`run_experiments` first (every later part reads
-    its records), then any of the others; each returns the table the notebook shows. ``writer``:
+    Each part returns the table the notebook shows, in any order: a part that reads the
+    experiments' records (or the CBCT reference) runs :meth:`run_experiments` (or
+    :meth:`write_cbct_reference`) first where it has not run yet, and a part called twice returns
+    what it wrote the first time without writing it again. ``writer``:
     a :class:`histostudy.reporting.SectionWriter`; ``paper``: :data:`histostudy.reporting.PAPER`.
     ``stages``: the segmenter and orientation source (default :func:`study_stages` of the
     parameters' ``learned_stages``). Seeds: six children of ``SeedSequence(seed)`` — the physical
@@ -78,6 +91,7 @@ class PoseSection:
         self.stages = study_stages(self.config, parameters.learned_stages) if stages is None else stages
         self.study_seed = int(self.seed_study.generate_state(1)[0])
         self.records = self.metrics = self.reference = self.metrics_cbct = None
+        self._written: dict[str, object] = {}  # part -> what it returned, so that each part writes once
 
     @property
     def main_maps(self) -> str:
@@ -95,9 +109,10 @@ class PoseSection:
 
     def _require_records(self) -> pd.DataFrame:
         if self.records is None:
-            raise RuntimeError("run_experiments() first: this part reads the experiments' records")
+            self.run_experiments()
         return self.records
 
+    @_written_once
     def run_experiments(self) -> pd.DataFrame:
         """The experiments of Table II (:func:`run_pose_study`) and their metrics against the ground
         truth; records the stages, every estimate and the failures. Returns the failures."""
@@ -116,6 +131,7 @@ class PoseSection:
         writer.value("failed_estimates", failed.to_dict("records"))
         return failed
 
+    @_written_once
     def write_cbct_reference(self) -> pd.DataFrame | None:
         """The post-treatment CBCT reference (:func:`cbct_reference`) and Table II's metrics against
         it; returns the reference's own error (None where the profile disables it)."""
@@ -149,6 +165,7 @@ class PoseSection:
             writer.value("failed_cbct_reference", failed_reference[["experiment", "failure"]].to_dict("records"))
         return reference_errors
 
+    @_written_once
     def write_table2(self) -> pd.DataFrame:
         """Table II of :attr:`table_mode` and :attr:`main_maps` beside the paper's values: against the
         CBCT reference under the paper's keys ``table2.*`` and against the ground truth under
@@ -156,6 +173,7 @@ class PoseSection:
         the table shown: both references and the paper in one."""
         writer, p, paper = self.writer, self.parameters, self.paper
         self._require_records()
+        self.write_cbct_reference()
         table_mode, main_maps = self.table_mode, self.main_maps
         table_truth, values_truth = table2(self.metrics, table_mode, main_maps)
         caption = (f"Table II (mm, mean ± SD over {p.n_experiments} experiments): {table_mode} mode, "
@@ -190,6 +208,7 @@ class PoseSection:
         writer.compare("pose.n_studies", "Pose-estimation experiments", p.n_experiments)
         return shown
 
+    @_written_once
     def write_variants(self) -> pd.DataFrame:
         """Beyond the paper: the refinement modes and distance maps side by side, time per stage and
         warm-start tracking. Returns the median seconds per stage."""
@@ -234,6 +253,7 @@ class PoseSection:
                    f"(focal error {focal_error:.2f} mm{verdict})")
         return PoseOverlay(frames, T_true, result.T_carm_transducer, float(focal_error), caption, rng_fig)
 
+    @_written_once
     def write_robustness(self) -> pd.DataFrame:
         """Beyond the paper: initialisation success over random poses (:func:`robustness_sweep`), with
         the oracle stages (both initialisations) and, where the study runs on them, the learned ones
@@ -259,6 +279,7 @@ class PoseSection:
             writer.compare(**comparison)
         return rates
 
+    @_written_once
     def write_degradation(self) -> pd.DataFrame:
         """Beyond the paper: focal error vs segmentation degradation (:func:`degradation_sweep`)."""
         writer, p = self.writer, self.parameters
@@ -270,6 +291,7 @@ class PoseSection:
         writer.table("degradation", per_level, "Focal error vs segmentation degradation (fast mode)")
         return per_level
 
+    @_written_once
     def write_learned_stages(self) -> pd.DataFrame | None:
         """The shipped learned stages beside the oracles on the same frames of the first
         ``learned_experiments`` experiments (whichever the study did not run is run here), and the
@@ -306,9 +328,10 @@ class PoseSection:
                      "mode)")
         return both
 
+    @_written_once
     def write_projector_comparison(self) -> pd.DataFrame | None:
         """Beyond the paper: the same poses from the splatting renderer and RTK's Joseph projector
-        (:mod:`~histostudy.study.projector_comparison`), where the profile asks and RTK is installed."""
+        (:func:`~histostudy.study.pose.projector_comparison`), where the profile asks and RTK is installed."""
         writer, p, stages = self.writer, self.parameters, self.stages
         if not p.independent_projector:
             writer.text("The independent projector was not run (independent_projector = False in this profile).")
@@ -335,6 +358,7 @@ class PoseSection:
                            unit="mm", digits=3, paper_key="", note=f"{stages.why.split(':')[0]}; target within ± 0.1 mm")
         return summary
 
+    @_written_once
     def write_stand_ins(self) -> None:
         """What stands in for the lab's treatment, CBCT, networks and robot, and the closing paragraph."""
         writer, p, records = self.writer, self.parameters, self._require_records()

@@ -65,7 +65,7 @@ def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConf
     biplane pair rendered from the true pose at each, calibrate, check the residuals.
 
     ``segmenter`` / ``orientation``: the pose estimate's stages (e.g. the shipped U-Net and VGG19
-    from :func:`histostudy.study.pose._study.study_stages`); None: the config's oracle
+    from :func:`histostudy.study.pose.study_stages`); None: the config's oracle
     segmenter and the oracle orientation.
 
     ``views`` make the frames (the C-arm's true geometry); ``estimator_views``, when given, are

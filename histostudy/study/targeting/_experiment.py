@@ -34,7 +34,7 @@ from histostudy.geometry import invert_transform, make_transform, rotation_angle
 from histostudy.imaging import PhantomSpec, View, check_target, random_target, simulate_cbct
 from histostudy.transducer import TransducerModel
 from histostudy.treatment import TreatmentZone, ZoneSegmentation
-from ..pose._study import DIRECTIONS, transducer_axes
+from ..pose import DIRECTIONS, transducer_axes
 from ._calibration import calibrate_robot
 from ._positioning import target_orientation, tcp_for_target
 from ._robots import robot_seed, rtde_robot, sim_robot
@@ -161,7 +161,7 @@ def run_targeting_study(config: TargetingStudyConfig, *, pose_model: TransducerM
     """Run ``config.n_experiments`` experiments; one row per (experiment, robot).
 
     ``segmenter`` / ``orientation``: the calibration's pose-estimation stages, e.g. the learned
-    ones of :func:`histostudy.study.pose._study.study_stages` (None: the config's oracles).
+    ones of :func:`histostudy.study.pose.study_stages` (None: the config's oracles).
 
     ``robot``: ``"sim"`` (:class:`SimulatedUR5e`), ``"rtde"`` (the simulated controller through
     ur_rtde) or ``"both"`` (each experiment on both, from the same seeds). Columns: experiment,

@@ -18,7 +18,7 @@ import pandas as pd
 
 from histostudy.imaging import View, default_biplane
 from histostudy.transducer import TransducerModel, TransducerSpec
-from ..pose._study import StudyStages, study_stages
+from ..pose import StudyStages, study_stages
 from ._experiment import run_targeting_study
 from ._setup import TargetingStudyConfig
 

@@ -1,8 +1,9 @@
-"""Tests of histostudy.study.pose._study: the one namespace of notebook 04's study keeps every name
-it exported before the split (notebook 05 and histostudy.study.targeting._study import from it), each the
-object of the module that now holds it, and the old private names alias the public ones."""
+"""Tests of histostudy.study.pose: the one namespace of notebook 04's study keeps every name it
+exported before the split (notebook 05 imports from it), each the object of the module that now
+holds it, and the old front module's path still gives the package."""
 
 import importlib
+import sys
 
 import numpy as np
 import pytest
@@ -11,30 +12,31 @@ from histostudy.study import pose as study
 
 #: What the module exported before its split by job, and the module of the split that holds each.
 HOMES = {
-    "DIRECTIONS": "pose_geometry", "MARGINS": "pose_geometry", "transducer_axes": "pose_geometry",
-    "margin_positions": "pose_geometry", "axial_symmetric_rotation_error_deg": "pose_geometry",
-    "rotation_error_modulo_symmetry_deg": "pose_geometry",
-    "random_pose_in_views": "pose_geometry", "sweep_visible_points": "pose_geometry",
-    "PoseStudyConfig": "pose_config", "StudyStages": "pose_config", "study_stages": "pose_config",
-    "PoseExperiment": "pose_experiments", "experiment_setups": "pose_experiments", "run_pose_study": "pose_experiments",
-    "REFERENCE_COLUMNS": "pose_reference", "cbct_reference": "pose_reference", "phantom_placement": "pose_reference",
-    "experiment_metrics": "pose_metrics", "table2": "pose_metrics", "variant_summary": "pose_metrics",
-    "stage_timing": "pose_metrics", "tracking_summary": "pose_metrics", "reference_error_summary": "pose_metrics",
-    "robustness_sweep": "pose_robustness", "robustness_summary": "pose_robustness",
-    "degradation_sweep": "pose_sweeps", "noise_sweep": "pose_sweeps",
+    "DIRECTIONS": "_geometry", "MARGINS": "_geometry", "transducer_axes": "_geometry",
+    "margin_positions": "_geometry", "axial_symmetric_rotation_error_deg": "_geometry",
+    "rotation_error_modulo_symmetry_deg": "_geometry",
+    "random_pose_in_views": "_geometry", "sweep_visible_points": "_geometry",
+    "PoseStudyConfig": "_config", "StudyStages": "_config", "study_stages": "_config",
+    "PoseExperiment": "_experiments", "experiment_setups": "_experiments", "run_pose_study": "_experiments",
+    "REFERENCE_COLUMNS": "_reference", "cbct_reference": "_reference", "phantom_placement": "_reference",
+    "experiment_metrics": "_metrics", "table2": "_metrics", "variant_summary": "_metrics",
+    "stage_timing": "_metrics", "tracking_summary": "_metrics", "reference_error_summary": "_metrics",
+    "robustness_sweep": "_robustness", "robustness_summary": "_robustness",
+    "degradation_sweep": "_sweeps", "noise_sweep": "_sweeps",
 }
 
 
 @pytest.mark.parametrize("name, home", sorted(HOMES.items()))
 def test_every_name_exported_before_the_split_is_the_object_of_its_new_module(name, home):
-    module = importlib.import_module(f"histostudy.study.{home}")
+    module = importlib.import_module(f"histostudy.study.pose.{home}")
     assert getattr(study, name) is getattr(module, name)
 
 
-def test_the_old_private_names_alias_the_public_ones():
-    assert study._mean_sd is study.mean_sd
-    assert study._experiment_pose is study.experiment_pose
-    assert study._bubble_centre is study.bubble_cloud_centre_mm
+def test_the_old_front_module_path_gives_the_package():
+    sys.modules.pop("histostudy.study.pose_estimation", None)
+    with pytest.warns(DeprecationWarning, match="histostudy.study.pose_estimation is deprecated"):
+        old = importlib.import_module("histostudy.study.pose_estimation")
+    assert old is study
 
 
 def test_all_names_every_public_name_once_and_each_resolves():

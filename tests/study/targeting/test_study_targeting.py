@@ -8,7 +8,7 @@ bubble-cloud offset, so the uncorrected targeting must show it and the bias corr
 import numpy as np
 import pytest
 
-from histostudy.calibration import calibrate
+from histostudy.calibration import R_BASE_FLANGE_DOWN, calibrate
 from histostudy.geometry import make_transform
 from histostudy.imaging import default_biplane
 from histostudy.learning import OracleOrientation
@@ -103,7 +103,7 @@ def _exact_calibration(rng):
 def test_target_out_of_reach_raises_before_any_move():
     rng = np.random.default_rng(5)
     truth, cal = _exact_calibration(rng)
-    start = make_transform(T.R_BASE_FLANGE_DOWN, truth.start_focal_base_mm - T.R_BASE_FLANGE_DOWN
+    start = make_transform(R_BASE_FLANGE_DOWN, truth.start_focal_base_mm - R_BASE_FLANGE_DOWN
                            @ truth.T_flange_transducer_nominal[:3, 3])
     robot = SimulatedUR5e(0, initial_joints_rad=inverse_kinematics_closest(start, HOME_JOINTS_RAD))
     R = T.target_orientation(cal)

@@ -10,7 +10,7 @@ import pytest
 
 from histostudy.calibration import calibrate, calibration_sensitivity
 from histostudy.study import targeting as T
-from histostudy.study.pose._study import DIRECTIONS
+from histostudy.study.pose import DIRECTIONS
 from histostudy.study.targeting._summary import SENSITIVITY_METRICS
 
 ERR = ("err_depth", "err_tb", "err_lr", "err_euclidean", "radius_err_mm")

@@ -20,9 +20,9 @@ import pandas as pd
 from histostudy.imaging import View, random_background, render_frame
 from histostudy.pose import PoseEstimationError, estimate_pose
 from histostudy.transducer import TransducerModel
-from .pose._config import PoseStudyConfig
-from .pose._experiments import experiment_setups
-from .pose._geometry import bubble_cloud_centre_mm, random_pose_in_views, sweep_visible_points
+from ._config import PoseStudyConfig
+from ._experiments import experiment_setups
+from ._geometry import bubble_cloud_centre_mm, random_pose_in_views, sweep_visible_points
 
 __all__ = ["PROJECTORS", "comparison_poses", "projector_comparison", "projector_summary"]
 
