@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from histostudy.calibration import calibrate, solve_axxb
-from histostudy.imaging import (Frame, RenderSettings, View, Volume, default_biplane, load_volume, render_frame,
+from histostudy.imaging import (Frame, FrameRenderConfig, View, Volume, default_biplane, load_volume, render_frame,
                                 simulate_cbct)
 from histostudy.pose import PoseOptions, estimate_pose
 from histostudy.robot import SimulatedUR5e
@@ -67,8 +67,8 @@ CASES = [
     ("render rng int", lambda m, v, t: render_frame(m, pose_facing(), v, rng=3), (TypeError, ValueError), "rng"),
     ("render labels_from", lambda m, v, t: render_frame(m, pose_facing(), v, rng=np.random.default_rng(0),
                                                         labels_from="both"), ValueError, "labels_from"),
-    ("settings background", lambda m, v, t: RenderSettings(background="water"), ValueError, "background"),
-    ("settings photons bool", lambda m, v, t: RenderSettings(photons_per_pixel=True), ValueError,
+    ("settings background", lambda m, v, t: FrameRenderConfig(background="water"), ValueError, "background"),
+    ("settings photons bool", lambda m, v, t: FrameRenderConfig(photons_per_pixel=True), ValueError,
      "photons_per_pixel"),
     ("model spacing 0", lambda m, v, t: TransducerModel.build(spacing_mm=0.0), ValueError, "spacing_mm"),
     ("model spacing nan", lambda m, v, t: TransducerModel.build(spacing_mm=NAN), ValueError, "spacing_mm"),

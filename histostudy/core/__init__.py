@@ -14,7 +14,7 @@ from .checks import check_count, check_positive, check_unit_fraction, is_finite_
 from .io import atomic_path, atomic_write_bytes, atomic_write_json, atomic_write_text, process_umask, to_jsonable
 from .machine import (AVX2_RESTRICTION, ISA_FLAGS, ISA_RESTRICTION_ENV, avx2_env_words, avx2_restriction, cpu_model,
                       isa_flags, isa_restriction, machine_summary)
-from .moved_modules import MOVED_MODULES, MOVED_MODULES_REMOVED_IN, install
+from .moved_modules import MOVED_MODULES, MOVED_MODULES_REMOVED_IN, install, renamed_attributes
 from .provenance import git_commit, package_versions, provenance
 from .seeding import as_generator
 from .sweeps import SCHEDULER_ENV, SweepExecutor, SweepTaskError, resolve_executor, run_sweep

@@ -1,6 +1,9 @@
 """Old module paths that still import, with a DeprecationWarning, after a family of modules became a
 sub-package (docs/architecture.md, "Where modules moved"; CHANGELOG.md names the version they go).
 
+Renamed classes go the same way: :func:`renamed_attributes` gives a module the ``__getattr__`` that
+returns the new class for its old name, with the same warning.
+
 One table, :data:`MOVED_MODULES` (old dotted path -> new dotted path), and one import hook that
 :func:`install` puts on ``sys.meta_path`` when ``histostudy`` is imported: ``import
 histostudy.study.targeting_setup`` returns the very module object of
@@ -16,7 +19,7 @@ import importlib.util
 import sys
 import warnings
 
-__all__ = ["MOVED_MODULES", "MOVED_MODULES_REMOVED_IN", "install"]
+__all__ = ["MOVED_MODULES", "MOVED_MODULES_REMOVED_IN", "install", "renamed_attributes"]
 
 #: The version whose release removes the old paths of :data:`MOVED_MODULES`.
 MOVED_MODULES_REMOVED_IN = "0.3.0"
@@ -112,3 +115,19 @@ def install() -> None:
     """Put the hook for :data:`MOVED_MODULES` on ``sys.meta_path`` (once; idempotent)."""
     if not any(isinstance(finder, _MovedModuleFinder) for finder in sys.meta_path):
         sys.meta_path.append(_MovedModuleFinder())
+
+
+def renamed_attributes(namespace: dict, renamed: dict[str, str]):
+    """A module ``__getattr__`` for the names of ``renamed`` (old name -> new name, both in the
+    module's ``namespace``, its ``globals()``): the old name returns the new object and warns that
+    it goes in :data:`MOVED_MODULES_REMOVED_IN`; any other missing name raises AttributeError."""
+    module = namespace["__name__"]
+
+    def __getattr__(name: str):
+        if name in renamed:
+            warnings.warn(f"{module}.{name} is deprecated and goes in histostudy {MOVED_MODULES_REMOVED_IN}: use "
+                          f"{renamed[name]} instead", DeprecationWarning, stacklevel=2)
+            return namespace[renamed[name]]
+        raise AttributeError(f"module {module!r} has no attribute {name!r}")
+
+    return __getattr__

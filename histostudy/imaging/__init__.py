@@ -13,11 +13,12 @@ simulated CBCT (``cbct``); and volume files (``volume_io``, which hands NIfTI to
 DICOM to ``dicom_io``, both laid onto the Volume grid by ``volume_io_grid``).
 """
 
+from histostudy.core import renamed_attributes
 from . import (anatomy as _anatomy, carm as _carm, carm_errors as _carm_errors, cbct as _cbct, frame as _frame,
                io as _io, render as _render, rtk_projector as _rtk_projector, volume as _volume)
 from .anatomy import MIXED_ABDOMEN_PROBABILITY, random_abdomen, random_background, random_phantom_setup
 from .anatomy import Difference, Intersection
-from .anatomy import AbdomenParams, PhantomParams
+from .anatomy import AbdomenSpec, PhantomSceneSpec
 from .anatomy import Anatomy, Background, StaticBackground
 from .anatomy import Box, Ellipsoid, EllipticCylinder, Primitive
 from .carm import View, default_biplane, load_views, save_views
@@ -30,7 +31,7 @@ from .frame import Frame, line_integrals_from_pixels, load_frame
 from .io import save_volume_nifti
 from .render import add_poisson_noise, background_line_integrals, render_frame, render_labels, render_line_integrals
 from .render import check_device, mark_nearest_pixels_compiled, splat_compiled, splat_points, splat_torch
-from .render import BACKGROUNDS, RenderSettings
+from .render import BACKGROUNDS, FrameRenderConfig
 from .render import TorchSplatter, poisson_noise_torch
 from .rtk_projector import forward_project, render_frame_rtk, rtk_available, rtk_geometry, voxelise_model
 from .volume import Volume, check_mask, check_volume, vector3_mm
@@ -41,3 +42,6 @@ from .io import AXIS_TOLERANCE
 __all__ = list(dict.fromkeys([*_anatomy.__all__, *_carm.__all__, *_carm_errors.__all__, *_cbct.__all__,
                               *_frame.__all__, *_io.__all__, *_render.__all__, *_rtk_projector.__all__,
                               *_volume.__all__]))
+
+# the 0.1.0 name, deprecated (CHANGELOG.md)
+__getattr__ = renamed_attributes(globals(), {'RenderSettings': 'FrameRenderConfig', 'AbdomenParams': 'AbdomenSpec', 'PhantomParams': 'PhantomSceneSpec'})

@@ -36,7 +36,7 @@ from torch.utils.data import Dataset
 
 from histostudy.core import atomic_path, check_unit_fraction
 from histostudy.geometry import make_transform, matrix_from_euler
-from histostudy.imaging import RenderSettings, View, random_background, render_frame
+from histostudy.imaging import FrameRenderConfig, View, random_background, render_frame
 from histostudy.transducer import TransducerModel
 from .orientation import angles_from_direction, beam_direction_of_pose, orientation_class, wrap_angle
 from .preprocess import pool_labels, prepare_image
@@ -66,10 +66,10 @@ TASKS = ("segmentation", "orientation")
 
 
 @dataclass(frozen=True)
-class RenderConfig(RenderSettings):
+class RenderConfig(FrameRenderConfig):
     """How hybrid frames are made (defaults: the paper's rendering, §II-B.2).
 
-    The dose, splatting and scene are the shared :class:`~histostudy.imaging.RenderSettings`
+    The dose, splatting and scene are the shared :class:`~histostudy.imaging.FrameRenderConfig`
     (its checks included), here with the paper's ``"mixed"`` training backgrounds (156 abdomen :
     56 phantom images); ``"none"`` is not a training background.
 

@@ -185,12 +185,12 @@ def test_kept_inputs_give_the_same_items_without_reading_the_frame_again(tmp_pat
 
 
 def test_render_config_shares_the_render_settings_and_keeps_its_cache_key():
-    from histostudy.imaging import RenderSettings
+    from histostudy.imaging import FrameRenderConfig
 
     cfg = RenderConfig(render_spacing_mm=0.47, label_spacing_mm=0.47, detector=(240, 320))
-    assert isinstance(cfg, RenderSettings) and cfg.background == "mixed"  # the paper's training mix
-    assert cfg.frame_kwargs() == RenderSettings().frame_kwargs()
-    # the cache folder's name (frames-<key>) predates RenderSettings: existing caches stay valid
+    assert isinstance(cfg, FrameRenderConfig) and cfg.background == "mixed"  # the paper's training mix
+    assert cfg.frame_kwargs() == FrameRenderConfig().frame_kwargs()
+    # the cache folder's name (frames-<key>) predates FrameRenderConfig: existing caches stay valid
     assert RenderConfig().key() == "0bdcc2e82d45" and cfg.key() == "cce851b71071"
     with pytest.raises(ValueError, match="n_splats"):
         RenderConfig(n_splats=0)

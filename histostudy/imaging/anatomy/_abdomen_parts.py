@@ -24,7 +24,7 @@ import numpy as np
 
 from histostudy.geometry import rotation_about_axis
 from ._csg import Intersection
-from ._params import AbdomenParams, _Draw
+from ._params import AbdomenSpec, _Draw
 from ._shapes import Box, Ellipsoid, EllipticCylinder, Primitive
 
 __all__: list[str] = []
@@ -189,7 +189,7 @@ def _organs(draw: _Draw, tissue: _Tissue) -> tuple[list[Ellipsoid], Ellipsoid, f
     return out, stomach, spine_x, spine_y
 
 
-def _stomach_gas(draw: _Draw, p: AbdomenParams, stomach: Ellipsoid,
+def _stomach_gas(draw: _Draw, p: AbdomenSpec, stomach: Ellipsoid,
                  mu_soft: float) -> tuple[Ellipsoid, tuple[np.ndarray, float]] | None:
     """With probability ``stomach_gas_probability``, a gas cap at the anterior (upper, supine)
     side of the stomach (body frame, mm; ``mu`` cancels tissue and stomach) and its bounding ball
@@ -296,7 +296,7 @@ def _ribs(draw: _Draw, tissue: _Tissue, body: _Body, spine_x: float, spine_y: fl
     return out
 
 
-def _bowel_gas(draw: _Draw, p: AbdomenParams, tissue: _Tissue, gas_balls: list, avoid: list) -> list[Ellipsoid]:
+def _bowel_gas(draw: _Draw, p: AbdomenSpec, tissue: _Tissue, gas_balls: list, avoid: list) -> list[Ellipsoid]:
     """Draw ``gas_pockets`` bowel-gas ellipsoids in the soft tissue (body frame, mm; ``mu``
     cancels the soft tissue), each placed in up to 50 tries clear of the fat and, by 1 mm, of the
     bounding balls in ``gas_balls`` and ``avoid``; ``gas_balls`` grows by each pocket placed."""

@@ -1,7 +1,7 @@
 """The ranges the random abdomen and phantom scenes draw from, and the draws themselves.
 
-:class:`AbdomenParams` (a porcine/human abdomen, standing in for the 12 porcine studies of
-§II-B.2) and :class:`PhantomParams` (the phantom set-up of §II-D, Fig. 4) hold one uniform range
+:class:`AbdomenSpec` (a porcine/human abdomen, standing in for the 12 porcine studies of
+§II-B.2) and :class:`PhantomSceneSpec` (the phantom set-up of §II-D, Fig. 4) hold one uniform range
 ``(low, high)`` per named quantity; lengths in mm, attenuations ``mu`` in 1/mm, angles in degrees
 (``*_deg``), probabilities in [0, 1]. A bare number fixes a range; a field with one range per
 component (e.g. three semi-axes) takes one range or number per component. ``_Draw`` draws from
@@ -16,11 +16,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from histostudy.core import renamed_attributes
 from histostudy.core import is_real
 
 __all__ = [
-    "AbdomenParams",
-    "PhantomParams",
+    "AbdomenSpec",
+    "PhantomSceneSpec",
 ]
 
 
@@ -102,7 +103,7 @@ class _Draw:
 
 
 @dataclass(frozen=True)
-class AbdomenParams:
+class AbdomenSpec:
     """Ranges ``(low, high)`` the random abdomen draws from (uniform); lengths mm, mu in 1/mm.
 
     Effective attenuation at ~70 keV: water/soft tissue 0.019-0.021 /mm, fat ~0.017, cortical
@@ -196,7 +197,7 @@ class AbdomenParams:
 
 
 @dataclass(frozen=True)
-class PhantomParams:
+class PhantomSceneSpec:
     """Ranges for the phantom studies' scene (§II-D, Fig. 4): a 5x5x5 cm agarose phantom on a
     plastic stand in a degassed water tank on the table. Lengths mm, mu in 1/mm."""
 
@@ -223,3 +224,6 @@ class PhantomParams:
 
     def __post_init__(self):
         _normalise_params(self)
+
+# the 0.1.0 name, deprecated (CHANGELOG.md)
+__getattr__ = renamed_attributes(globals(), {'AbdomenParams': 'AbdomenSpec', 'PhantomParams': 'PhantomSceneSpec'})

@@ -27,7 +27,7 @@ import numpy as np
 from ._abdomen_parts import _body_layers, _bowel_gas, _organs, _place_body, _ribs, _rot_y_deg, _stomach_gas, \
     _vertebral_column
 from ._csg import Difference
-from ._params import AbdomenParams, PhantomParams, _Draw, _with_overrides
+from ._params import AbdomenSpec, PhantomSceneSpec, _Draw, _with_overrides
 from ._scene import Anatomy
 from ._shapes import Box, Primitive
 
@@ -51,7 +51,7 @@ def _table(draw: _Draw, table_top_y: float, center_x: float) -> Box:
                mu_per_mm=draw("table_mu_per_mm"), name="table")
 
 
-def random_abdomen(rng: np.random.Generator, params: AbdomenParams | None = None, **overrides) -> Anatomy:
+def random_abdomen(rng: np.random.Generator, params: AbdomenSpec | None = None, **overrides) -> Anatomy:
     """A random porcine/human-like abdomen on the table with a water bath on its anterior side.
 
     Stands in for the 12 porcine studies whose projections the paper's hybrid training images
@@ -64,10 +64,10 @@ def random_abdomen(rng: np.random.Generator, params: AbdomenParams | None = None
 
     Args:
         rng: the Generator every random draw comes from (same seed -> identical scene).
-        params: the ranges to draw from; default :class:`AbdomenParams`.
-        **overrides: fields of :class:`AbdomenParams` to replace, a range ``(lo, hi)`` or a number.
+        params: the ranges to draw from; default :class:`AbdomenSpec`.
+        **overrides: fields of :class:`AbdomenSpec` to replace, a range ``(lo, hi)`` or a number.
     """
-    p = _with_overrides(AbdomenParams, params, overrides)
+    p = _with_overrides(AbdomenSpec, params, overrides)
     draw = _Draw(rng, p)
     body = _place_body(draw)
     local, tissue = _body_layers(draw, body)
@@ -122,7 +122,7 @@ def _water_bath(draw: _Draw, body_outer: Primitive, skin_y: float, meta: dict) -
     return out
 
 
-def random_phantom_setup(rng: np.random.Generator, params: PhantomParams | None = None, **overrides) -> Anatomy:
+def random_phantom_setup(rng: np.random.Generator, params: PhantomSceneSpec | None = None, **overrides) -> Anatomy:
     """The phantom studies' scene (§II-D, Fig. 4A): an agarose phantom in a water tank on the table.
 
     A ``phantom_edge_mm`` (5 cm) agarose cube, layered with barium when drawn (§II-D.1,
@@ -133,10 +133,10 @@ def random_phantom_setup(rng: np.random.Generator, params: PhantomParams | None 
 
     Args:
         rng: the Generator every random draw comes from.
-        params: the ranges to draw from; default :class:`PhantomParams`.
-        **overrides: fields of :class:`PhantomParams` to replace, a range or a number.
+        params: the ranges to draw from; default :class:`PhantomSceneSpec`.
+        **overrides: fields of :class:`PhantomSceneSpec` to replace, a range or a number.
     """
-    p = _with_overrides(PhantomParams, params, overrides)
+    p = _with_overrides(PhantomSceneSpec, params, overrides)
     draw = _Draw(rng, p)
     edge = draw("phantom_edge_mm")
     pc = draw("phantom_offset_mm")

@@ -5,11 +5,15 @@ device: compiled CPU kernels (``_splat_kernels``), the torch/CUDA splatter (``_t
 points that choose between them (``_device``).
 """
 
+from histostudy.core import renamed_attributes
 from . import _device, _reference, _settings, _torch
 from ._device import (check_device, mark_nearest_pixels_compiled, splat_compiled, splat_points, splat_torch)
 from ._reference import (add_poisson_noise, background_line_integrals, render_frame, render_labels, render_line_integrals)
-from ._settings import (BACKGROUNDS, RenderSettings)
+from ._settings import (BACKGROUNDS, FrameRenderConfig)
 from ._torch import (TorchSplatter, poisson_noise_torch)
 
 # every public name of the modules above, as each module's __all__ declares it
 __all__ = list(dict.fromkeys([*_device.__all__, *_reference.__all__, *_settings.__all__, *_torch.__all__]))
+
+# the 0.1.0 name, deprecated (CHANGELOG.md)
+__getattr__ = renamed_attributes(globals(), {'RenderSettings': 'FrameRenderConfig'})

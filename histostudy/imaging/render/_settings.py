@@ -1,6 +1,6 @@
 """How a synthetic fluoroscopic frame is rendered: dose, splatting and the scene behind (§II-B.2).
 
-One :class:`RenderSettings` is shared by every configuration that renders frames (the pose
+One :class:`FrameRenderConfig` is shared by every configuration that renders frames (the pose
 study's, the targeting study's and the hybrid training images'), so the settings, their defaults
 and their checks are declared once. Defaults are the paper's rendering: 5e4 unattenuated photons
 per pixel (Poisson noise at a fluoroscopic dose), 16 splats per point with a 0.5 mm Gaussian
@@ -13,7 +13,9 @@ import math
 import numbers
 from dataclasses import dataclass
 
-__all__ = ["BACKGROUNDS", "RenderSettings"]
+from histostudy.core import renamed_attributes
+
+__all__ = ["BACKGROUNDS", "FrameRenderConfig"]
 
 #: Scenes behind the transducer: the phantom set-up, a procedural abdomen, the paper's mix of the
 #: two (156:56, :func:`~histostudy.imaging.anatomy._random.random_background`), or nothing.
@@ -21,7 +23,7 @@ BACKGROUNDS = ("phantom", "abdomen", "mixed", "none")
 
 
 @dataclass(frozen=True)
-class RenderSettings:
+class FrameRenderConfig:
     """Rendering of a synthetic frame (§II-B.2); see :func:`~histostudy.imaging.render._reference.render_frame`.
 
     Attributes:
@@ -73,3 +75,6 @@ def check_splat_sigma_mm(value) -> float:
     if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value < 0:
         raise ValueError(f"splat_sigma_mm must be a finite number >= 0 (mm), got {value!r}")
     return float(value)
+
+# the 0.1.0 name, deprecated (CHANGELOG.md)
+__getattr__ = renamed_attributes(globals(), {'RenderSettings': 'FrameRenderConfig'})

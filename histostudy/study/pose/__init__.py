@@ -8,9 +8,10 @@ Table II and its companions (``_report_tables``), initialisation over random pos
 (``_robustness``), the notebook's section (``_section``), the sweeps (``_sweeps``).
 """
 
+from histostudy.core import renamed_attributes
 from . import (_config, _experiments, _geometry, _metrics, _projectors, _reference, _report_tables, _robustness,
                _section, _sweeps)
-from ._config import (PoseSectionParameters, PoseStudyConfig, StudyStages, study_stages)
+from ._config import (PoseSectionConfig, PoseStudyConfig, StudyStages, study_stages)
 from ._experiments import (PoseExperiment, draw_experiments, experiment_setups, run_pose_study)
 from ._geometry import (DIRECTIONS, MARGINS, axial_symmetric_rotation_error_deg, rotation_error_modulo_symmetry_deg,
                         bubble_cloud_centre_mm, experiment_pose, margin_positions, random_pose_in_views,
@@ -29,3 +30,6 @@ from ._sweeps import (degradation_sweep, noise_sweep)
 __all__ = list(dict.fromkeys([*_config.__all__, *_experiments.__all__, *_geometry.__all__, *_metrics.__all__,
                               *_projectors.__all__, *_reference.__all__, *_report_tables.__all__, *_robustness.__all__, *_section.__all__,
                               *_sweeps.__all__]))
+
+# the 0.1.0 name, deprecated (CHANGELOG.md)
+__getattr__ = renamed_attributes(globals(), {'PoseSectionParameters': 'PoseSectionConfig'})

@@ -1,6 +1,6 @@
 """What notebook 04's pose-estimation study runs: its parameters and its segmentation/orientation stages.
 
-:class:`PoseSectionParameters` holds the notebook's parameters as the profiles name them;
+:class:`PoseSectionConfig` holds the notebook's parameters as the profiles name them;
 :class:`PoseStudyConfig`, the experiment's parameters (§II-D: the number of phantom
 experiments, the treatment radii ``r`` in mm, the rendering of §II-B.2, the refinement modes of
 §II-B.3 and the distance maps of eq. 3); :func:`study_stages` picks the segmenter (§II-B.2) and the
@@ -15,20 +15,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from histostudy.imaging import RenderSettings
+from histostudy.core import renamed_attributes
+from histostudy.imaging import FrameRenderConfig
 from histostudy.learning import OracleOrientation, OracleSegmenter, OrientationSource, Segmenter
 from histostudy.pose import MAP_KINDS, learned_stage_shortfalls
 
-__all__ = ["PoseSectionParameters", "PoseStudyConfig", "StudyStages", "study_stages"]
+__all__ = ["PoseSectionConfig", "PoseStudyConfig", "StudyStages", "study_stages"]
 
 
 @dataclass(frozen=True)
-class PoseStudyConfig(RenderSettings):
+class PoseStudyConfig(FrameRenderConfig):
     """Parameters of the pose-estimation study (defaults: the standard profile's).
 
     The rendering (``photons_per_pixel``, ``n_splats``, ``splat_sigma_mm``, §II-B.2, and the
     ``background`` behind the transducer, the paper's pose studies: agarose phantoms) is the
-    shared :class:`~histostudy.imaging.RenderSettings`, checks included.
+    shared :class:`~histostudy.imaging.FrameRenderConfig`, checks included.
 
     Attributes:
         n_experiments: phantom experiments (paper: 10).
@@ -146,7 +147,7 @@ def study_stages(config, learned: bool = True, *, segmenter=None, orientation=No
 
 
 @dataclass(frozen=True)
-class PoseSectionParameters:
+class PoseSectionConfig:
     """Notebook 04's parameters, as the profiles (``histostudy/reporting/profiles/*.toml``) name them.
 
     Rendering: ``photons_per_pixel``, ``n_splats``, ``splat_sigma_mm``; model grids
@@ -193,3 +194,6 @@ class PoseSectionParameters:
             n_experiments=self.n_experiments, margin_mm=tuple(self.margin_mm), background=self.background,
             photons_per_pixel=self.photons_per_pixel, n_splats=self.n_splats, splat_sigma_mm=self.splat_sigma_mm,
             degradation=self.degradation, modes=tuple(self.modes), distance_maps=tuple(self.distance_maps))
+
+# the 0.1.0 name, deprecated (CHANGELOG.md)
+__getattr__ = renamed_attributes(globals(), {'PoseSectionParameters': 'PoseSectionConfig'})

@@ -23,7 +23,7 @@ from histostudy.learning import OracleOrientation
 from histostudy.pose import estimate_pose
 from histostudy.transducer import TransducerModel, TransducerSpec
 from . import _projectors as projectors
-from ._config import PoseSectionParameters, StudyStages, study_stages
+from ._config import PoseSectionConfig, StudyStages, study_stages
 from ._experiments import run_pose_study
 from ._geometry import experiment_pose
 from ._metrics import (experiment_metrics, mean_sd, reference_error_summary, stage_timing, table2,
@@ -75,7 +75,7 @@ class PoseSection:
     transducer, the study, the robustness sweep, the degradation sweep, Fig. 6, the noise sweep.
     """
 
-    def __init__(self, writer, parameters: PoseSectionParameters, seed: int, *, paper: Mapping,
+    def __init__(self, writer, parameters: PoseSectionConfig, seed: int, *, paper: Mapping,
                  stages: StudyStages | None = None):
         self.writer, self.parameters, self.paper = writer, parameters, paper
         (seed_physical, self.seed_study, self.seed_robust, self.seed_degrade, self.seed_figure,

@@ -15,7 +15,7 @@ import numpy as np
 
 from histostudy.calibration import R_BASE_FLANGE_DOWN
 from histostudy.geometry import invert_transform, make_transform, matrix_from_rotvec, rotation_about_axis
-from histostudy.imaging import RenderSettings
+from histostudy.imaging import FrameRenderConfig
 from histostudy.learning import OracleSegmenter
 from histostudy.robot import HOME_JOINTS_RAD, inverse_kinematics_closest
 from histostudy.treatment import STUDY_PLAN_INSET_MM, STUDY_PLAN_SPACING_MM
@@ -28,11 +28,11 @@ class TargetingError(RuntimeError):
 
 
 @dataclass(frozen=True)
-class TargetingStudyConfig(RenderSettings):
+class TargetingStudyConfig(FrameRenderConfig):
     """Parameters of the targeting study (defaults: the standard profile's, the paper's set-up).
 
     The fluoroscopy rendering (``photons_per_pixel``, ``n_splats``, ``splat_sigma_mm``,
-    ``background``, §II-B.2) is the shared :class:`~histostudy.imaging.RenderSettings`, checks
+    ``background``, §II-B.2) is the shared :class:`~histostudy.imaging.FrameRenderConfig`, checks
     included; ``background`` is the scene behind the transducer at calibration (``"phantom"``: the
     water bath and phantom; ``"none"``: no scene, for fast tests).
 

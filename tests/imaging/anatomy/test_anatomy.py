@@ -4,7 +4,7 @@ set-up scenes, their seeding, landmarks, overrides and plausible line integrals.
 import numpy as np
 import pytest
 
-from histostudy.imaging import (AbdomenParams, Anatomy, MIXED_ABDOMEN_PROBABILITY, View, default_biplane,
+from histostudy.imaging import (AbdomenSpec, Anatomy, MIXED_ABDOMEN_PROBABILITY, View, default_biplane,
                                 random_abdomen, random_background, random_phantom_setup)
 
 SMALL = dict(shape=(96, 124), pixel_mm=3.08)     # a 1240x960 detector binned 10x
@@ -74,7 +74,7 @@ def test_abdomen_landmarks_and_overrides():
 
 
 def test_params_are_named_ranges_that_overrides_replace():
-    params = AbdomenParams(fat_mm=12.0, liver_semi_axes_mm=(40.0, (30.0, 35.0), 60.0))
+    params = AbdomenSpec(fat_mm=12.0, liver_semi_axes_mm=(40.0, (30.0, 35.0), 60.0))
     assert params.fat_mm == (12.0, 12.0)
     assert params.liver_semi_axes_mm == ((40.0, 40.0), (30.0, 35.0), (60.0, 60.0))
     anatomy = random_abdomen(np.random.default_rng(3), params, rib_pairs=0, gas_pockets=0,
@@ -84,11 +84,11 @@ def test_params_are_named_ranges_that_overrides_replace():
     assert not any(p.name in ("rib", "bowel gas", "stomach gas") for p in anatomy.primitives)
     assert anatomy.meta["fat_mm"] == 12.0
     with pytest.raises(ValueError, match="liver_semi_axes_mm must be 3 ranges"):
-        AbdomenParams(liver_semi_axes_mm=(40.0, 50.0))
+        AbdomenSpec(liver_semi_axes_mm=(40.0, 50.0))
     with pytest.raises(ValueError, match="rib_pairs must be a range of non-negative integers"):
-        AbdomenParams(rib_pairs=(2.5, 4))
+        AbdomenSpec(rib_pairs=(2.5, 4))
     with pytest.raises(ValueError, match="bath_probability must be a probability"):
-        AbdomenParams(bath_probability=1.5)
+        AbdomenSpec(bath_probability=1.5)
 
 
 def test_phantom_setup_has_a_layered_cube_near_the_isocentre():
@@ -127,7 +127,7 @@ def test_bad_input_errors_name_the_argument():
         random_background(np.random.default_rng(0), "pig")
     with pytest.raises(TypeError, match="rng"):
         random_abdomen(42)
-    with pytest.raises(ValueError, match="unknown AbdomenParams field"):
+    with pytest.raises(ValueError, match="unknown AbdomenSpec field"):
         random_abdomen(np.random.default_rng(0), body_widht_mm=(300, 350))
     with pytest.raises(ValueError, match="fat_mm"):
-        AbdomenParams(fat_mm=(30.0, 10.0))
+        AbdomenSpec(fat_mm=(30.0, 10.0))

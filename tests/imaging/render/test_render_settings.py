@@ -5,27 +5,27 @@ import inspect
 import numpy as np
 import pytest
 
-from histostudy.imaging import RenderSettings, default_biplane, render_frame
+from histostudy.imaging import FrameRenderConfig, default_biplane, render_frame
 from histostudy.transducer import TransducerModel, pose_facing
 
 
 def test_defaults_are_render_frames_and_the_papers():
     defaults = {k: p.default for k, p in inspect.signature(render_frame).parameters.items()}
-    for name, value in RenderSettings().frame_kwargs().items():
+    for name, value in FrameRenderConfig().frame_kwargs().items():
         assert defaults[name] == value, name
-    assert RenderSettings() == RenderSettings(5e4, 16, 0.5, "phantom")  # §II-B.2: 16 splats, 0.5 mm
+    assert FrameRenderConfig() == FrameRenderConfig(5e4, 16, 0.5, "phantom")  # §II-B.2: 16 splats, 0.5 mm
 
 
 def test_frame_kwargs_render_the_same_frame_as_the_explicit_arguments():
     model = TransducerModel.build(spacing_mm=0.94)
     view = default_biplane()[0]
-    settings = RenderSettings(photons_per_pixel=2e4, n_splats=3, splat_sigma_mm=0.3, background="none")
+    settings = FrameRenderConfig(photons_per_pixel=2e4, n_splats=3, splat_sigma_mm=0.3, background="none")
     via_settings = render_frame(model, pose_facing(), view, rng=np.random.default_rng(4), **settings.frame_kwargs())
     explicit = render_frame(model, pose_facing(), view, rng=np.random.default_rng(4), photons_per_pixel=2e4,
                             n_splats=3, splat_sigma_mm=0.3)
     np.testing.assert_array_equal(via_settings.image, explicit.image)
     noiseless = render_frame(model, pose_facing(), view, rng=np.random.default_rng(4),
-                             **RenderSettings(photons_per_pixel=None, n_splats=3, splat_sigma_mm=0.3).frame_kwargs())
+                             **FrameRenderConfig(photons_per_pixel=None, n_splats=3, splat_sigma_mm=0.3).frame_kwargs())
     assert not np.array_equal(noiseless.image, explicit.image)
 
 
@@ -35,11 +35,11 @@ def test_frame_kwargs_render_the_same_frame_as_the_explicit_arguments():
                                           ("background", "water")])
 def test_bad_settings_name_the_field_and_value(field, value):
     with pytest.raises(ValueError, match=field if field != "background" else "background must be one of"):
-        RenderSettings(**{field: value})
+        FrameRenderConfig(**{field: value})
 
 
 def test_settings_are_frozen_and_hashable():
-    settings = RenderSettings()
+    settings = FrameRenderConfig()
     with pytest.raises(AttributeError):
         settings.n_splats = 4
-    assert len({settings, RenderSettings()}) == 1
+    assert len({settings, FrameRenderConfig()}) == 1

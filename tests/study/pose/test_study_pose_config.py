@@ -45,11 +45,11 @@ def test_study_stages_are_learned_when_they_meet_the_requirements_else_the_oracl
 
 
 def test_the_config_renders_with_the_shared_render_settings():
-    from histostudy.imaging import RenderSettings
+    from histostudy.imaging import FrameRenderConfig
     from histostudy.study.pose._config import PoseStudyConfig
 
     config = PoseStudyConfig(photons_per_pixel=1e4, n_splats=8)
-    assert isinstance(config, RenderSettings) and config.background == "phantom"  # §II-D: agarose phantoms
+    assert isinstance(config, FrameRenderConfig) and config.background == "phantom"  # §II-D: agarose phantoms
     assert config.frame_kwargs() == {"photons_per_pixel": 1e4, "n_splats": 8, "splat_sigma_mm": 0.5}
     with pytest.raises(ValueError, match="n_splats"):
         PoseStudyConfig(n_splats=0)

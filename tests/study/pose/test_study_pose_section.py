@@ -18,18 +18,18 @@ TINY = dict(photons_per_pixel=5e4, n_splats=2, splat_sigma_mm=0.5, pose_spacing_
 
 
 def test_parameters_make_the_study_config_and_refuse_unknown_names():
-    params = study.PoseSectionParameters(**TINY)
+    params = study.PoseSectionConfig(**TINY)
     config = params.study_config()
     assert config.margin_mm == (10.0,) and config.modes == ("fast",) and config.n_splats == 2
     assert config.distance_maps == ("occlusion_aware",) and config.track  # the config's own default
     with pytest.raises(TypeError, match="n_poses"):
-        study.PoseSectionParameters(**TINY, n_poses=3)
+        study.PoseSectionConfig(**TINY, n_poses=3)
 
 
 @pytest.mark.slow
 def test_the_section_records_the_studys_own_numbers(tmp_path):
     writer = SectionWriter(tmp_path, "04_pose_estimation", "04", profile="test", seed=5, parameters=TINY)
-    section = study.PoseSection(writer, study.PoseSectionParameters(**TINY), 5, paper=PAPER)
+    section = study.PoseSection(writer, study.PoseSectionConfig(**TINY), 5, paper=PAPER)
     assert not section.stages.learned and (section.table_mode, section.main_maps) == ("fast", "occlusion_aware")
     # out of the notebook's order: Table II first runs the experiments and the CBCT reference it reads
     shown = section.write_table2()

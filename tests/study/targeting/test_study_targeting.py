@@ -258,10 +258,10 @@ def test_the_calibration_runs_on_the_stages_it_is_given(models):
 
 
 def test_the_config_renders_with_the_shared_render_settings():
-    from histostudy.imaging import RenderSettings
+    from histostudy.imaging import FrameRenderConfig
 
     config = T.TargetingStudyConfig(n_splats=4, background="none")
-    assert isinstance(config, RenderSettings)
+    assert isinstance(config, FrameRenderConfig)
     assert config.frame_kwargs() == {"photons_per_pixel": 5e4, "n_splats": 4, "splat_sigma_mm": 0.5}
     with pytest.raises(ValueError, match="background must be one of"):
         T.TargetingStudyConfig(background="water")
