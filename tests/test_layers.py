@@ -202,7 +202,6 @@ STUDY_LAYERS = {
     "moving_cine": 6,
     "moving_cine_live": 7,
     "your_data": 8,
-    "your_data_live": 9,
 }
 
 

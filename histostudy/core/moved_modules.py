@@ -46,6 +46,7 @@ MOVED_MODULES: dict[str, str] = {
     "histostudy.study.targeting_setup": "histostudy.study.targeting._setup",
     "histostudy.study.targeting_summary": "histostudy.study.targeting._summary",
     "histostudy.study.targeting_treatment": "histostudy.study.targeting._treatment",
+    "histostudy.study.your_data_live": "histostudy.study.your_data._live",
     "histostudy.study.error_budget": "histostudy.study.budget._run",
     "histostudy.study.error_budget_notebook": "histostudy.study.budget._notebook",
     "histostudy.study.error_budget_summary": "histostudy.study.budget._summary",

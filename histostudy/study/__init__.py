@@ -20,43 +20,20 @@ Notebook 01, 02, 03:
   statistics (§II-E.1, §II-E.2).
 
 Notebook 04, the pose-estimation experiments and Table II (§II-B.3, §II-B.4, §II-D, §II-E.3,
-§III), gathered by the front module :mod:`.pose_estimation`:
-
-- :mod:`.pose_config` — the study's configuration, the notebook's parameters and the stages it
-  runs on (learned, or the oracles).
-- :mod:`.pose_geometry` — error directions (depth, TB, LR), margin and random poses, the
-  bubble-cloud centre, the rotation error modulo the half turn.
-- :mod:`.pose_experiments` — Table II's experiments drawn, rendered and estimated.
-- :mod:`.pose_reference` — the post-treatment CBCT reference of the focal point.
-- :mod:`.pose_metrics` — Table II and the other summaries (mean ± SD, per variant, per stage).
-- :mod:`.pose_robustness` — initialisation success over random poses, on spawned workers.
-- :mod:`.pose_sweeps` — the focal error against segmentation degradation and against dose.
-- :mod:`.pose_report_tables` — the report's tables and comparison rows.
-- :mod:`.pose_section` — notebook 04's report section, part by part.
-- :mod:`.projector_comparison` — beyond the paper: the pose pipeline on frames of RTK's
-  independent projector (§II-B.2).
+§III): the sub-package :mod:`.pose` — its configuration and the stages it runs on, error
+directions and poses, the experiments, the CBCT reference, Table II and the other summaries,
+initialisation over random poses, the sweeps, RTK's projector beside ours, and the report section.
 
 Notebook 05, calibration, targeting and treatment of the phantom (§II-C, §II-D, §II-E.4, §III,
-Fig. 7), gathered by the front module :mod:`.targeting`:
-
-- :mod:`.targeting_setup` — the study's configuration and the ground truth an experiment draws.
-- :mod:`.targeting_robots` — the in-process ``SimulatedUR5e``, and the simulated controller
-  driven through ``ur_rtde``.
-- :mod:`.targeting_calibration` — the hand-eye calibration phase (§II-C).
-- :mod:`.targeting_positioning` — the TCP on a CBCT target, and the true set-up there (§II-D).
-- :mod:`.targeting_treatment` — treating a zone, and the bias-correcting calibration treatment
-  (§II-D, §IV).
-- :mod:`.targeting_experiment` — one targeting experiment and the study of several.
-- :mod:`.targeting_summary` — §III's targeting figures, tables and comparisons with the paper.
-- :mod:`.targeting_figures` — Fig. 7's cuts through the target, the 3-D scene's inputs.
-- :mod:`.targeting_notebook` — notebook 05's parameters, set-up, seeds, stand-ins and text.
+Fig. 7): the sub-package :mod:`.targeting` — the set-up and ground truth, the robots, the hand-eye
+calibration, positioning, treatment, one experiment and the study, §III's summaries, Fig. 7's
+figures, and the notebook's parameters and set-up.
 
 Notebook 06, the lab's own data end to end (§II-B to §II-D on a lab's files):
 
-- :mod:`.your_data` — the notebook's inputs, the poses of the stations and the cine, the
-  calibration and the planned move, each as a table.
-- :mod:`.your_data_live` — the cine streamed over DICOM to the receiver on loopback, a live
-  figure of the received poses, and the received poses beside the tracked ones.
+- :mod:`.your_data` — the notebook's parameters, inputs, the poses of the stations and the cine,
+  the calibration and the planned (or executed) move, each as a table, and the cine streamed over
+  DICOM to the receiver on loopback.
 - :mod:`.lab_dataset` — the lab-like dataset it generates when no lab files are given (DICOM XA,
   NIfTI CBCT, STL meshes, flange poses, and the synthetic truth beside them).
 - :mod:`.moving_cine` — a biplane cine of the robot carrying the transducer between the study's
@@ -64,15 +41,9 @@ Notebook 06, the lab's own data end to end (§II-B to §II-D on a lab's files):
 - :mod:`.moving_cine_live` — that cine streamed at its frame rate through the receiver: a row per
   frame (posed, dropped, refused; focal error; latency), the counts and the figure.
 
-Notebook 07, the error budget (§III, §IV), gathered by the front module :mod:`.budget`:
-
-- :mod:`.lab_errors` — :class:`LabErrorModel`: the lab's error sources, each documented and
-  switchable, and one lab's draws of them.
-- :mod:`.error_budget` — both studies run under every configuration (all on, each alone, all but
-  one) on the same draws, on :func:`histostudy.core.run_sweep`.
-- :mod:`.error_budget_summary` — the configurations' figures, the sources' shares, the waterfall
-  and the comparisons with the paper.
-- :mod:`.error_budget_notebook` — the notebook's parameters, set-up, seeds and prose.
+Notebook 07, the error budget (§III, §IV): the sub-package :mod:`.budget` — the lab's error
+sources (:class:`LabErrorModel`), the runs under every configuration, the summaries and the
+notebook's parameters.
 
 ``histostudy.study.LabErrorModel`` is the one name this package gives itself, imported on first
 use so that importing a notebook's module costs no more than that module.

@@ -19,7 +19,7 @@ robot base in the C-arm frame, the transducer's mount, the phantom) and writes:
   workflow.
 
 The frames are rendered from the *physical* transducer (quadrants moved, §IV) over the phantom
-scene, with the study's dose and splatting (:class:`~histostudy.imaging.RenderSettings`), and
+scene, with the study's dose and splatting (:class:`~histostudy.imaging.FrameRenderConfig`), and
 stored as 12-bit detector counts. Every draw comes from ``seed`` through one
 ``numpy.random.SeedSequence``: the same seed writes the same files.
 """
@@ -54,7 +54,7 @@ class LabScene:
     """What the lab-like frames are rendered from: the physical transducer (quadrants moved, §IV)
     splatted over the phantom scene's exact line integrals (``backgrounds``, one ``(rows, cols)``
     array per view, computed once: the scene does not move), on ``views``, with the study's dose
-    and splatting (``settings``: :class:`~histostudy.imaging.RenderSettings`, e.g. a
+    and splatting (``settings``: :class:`~histostudy.imaging.FrameRenderConfig`, e.g. a
     :class:`.targeting_setup.TargetingStudyConfig`).
 
     :meth:`draw` makes one from two Generators; :meth:`render_pair` renders the biplane images of a
@@ -135,7 +135,7 @@ def write_lab_dataset(folder: str | os.PathLike, *, seed: int = 20231125, n_cine
     """Write the lab-like dataset described in the module docstring into ``folder``; returns its
     paths. ``config``: the set-up's parameters (default: the targeting study's standard ones with 4
     calibration stations); ``render_spacing_mm``: the rendered transducer's point spacing (the
-    study renders at 0.125 mm; 0.25 mm is 4x faster and enough for 0.3 mm pixels at the
+    study renders at 0.125 mm; 0.25 mm draws fewer points and is enough for 0.3 mm pixels at the
     isocentre); ``views``: the biplane (default :func:`default_biplane`)."""
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")

@@ -1,11 +1,7 @@
-"""Notebook 06, the lab's own data end to end (§II-B to §II-D on a lab's files): its transducer from
-CAD meshes, the pose at each calibration station, the hand-eye calibration, the pose tracked over a
-cine, a target in the CBCT and the planned (or executed) robot move.
-
-Without a lab, :func:`lab_inputs` generates the lab-like dataset of :mod:`.lab_dataset` (DICOM XA
-with geometry tags, a NIfTI CBCT, STL meshes, flange poses) and the tables carry the errors
-against its synthetic truth; with a lab's files there is no truth and those columns are absent.
-Lengths in mm, 4x4 ``T_<to>_<from>`` (docs/architecture.md, "Frames and units").
+"""Notebook 06's inputs and their tables: the lab's files (or the lab-like dataset), the transducer
+from CAD meshes, the pose at each calibration station, the hand-eye calibration, the pose tracked
+over a cine, a target in the CBCT and the planned move. Lengths in mm, 4x4 ``T_<to>_<from>``
+(docs/architecture.md, "Frames and units").
 """
 
 from __future__ import annotations
@@ -23,14 +19,11 @@ from histostudy.imaging import Volume, load_views
 from histostudy.lab import TargetingPlan, accepted_stations, calibrate_from_poses, load_flange_poses, plan_targeting
 from histostudy.pose import Tracker, frames_from_files, pose_from_files, pose_record
 from histostudy.transducer import TransducerModel
-from .lab_dataset import write_lab_dataset
-from .targeting._figures import plot_target_slices
-from .targeting._setup import TargetingStudyConfig
+from ..lab_dataset import write_lab_dataset
+from ..targeting._figures import plot_target_slices
+from ..targeting._setup import TargetingStudyConfig
 
-__all__ = ["LabInputs", "SECTION_TITLE", "accepted_focal_errors", "calibration_table", "cine_frame_count", "lab_inputs", "plan_table",
-           "plot_cbct_target", "station_poses", "target_plan", "track_cine", "transducer_model"]
-
-SECTION_TITLE = "Your own data: frames, calibration, target and robot (§II-B to §II-D on a lab's files)"
+__all__ = ["LabInputs", "accepted_focal_errors", "calibration_table", "cine_frame_count", "lab_inputs", "plan_table", "plot_cbct_target", "station_poses", "target_plan", "track_cine", "transducer_model"]
 
 _FRAME_SUFFIXES = (".dcm", ".dicom", ".npy", ".png", ".tif", ".tiff")
 
@@ -57,7 +50,7 @@ def lab_inputs(data_dir: str | os.PathLike | None, *, output_dir: str | os.PathL
     ``cbct.nii.gz`` or ``cbct/``, ``transducer/``), or, with ``data_dir`` None, the lab-like dataset
     generated into ``output_dir/lab_data`` from ``seed``. ``target_mm``: the target (C-arm mm);
     default the dataset's suggested one. ``render``: the generated frames' dose and splatting
-    (:class:`~histostudy.imaging.RenderSettings` fields; default the study's)."""
+    (:class:`~histostudy.imaging.FrameRenderConfig` fields; default the study's)."""
     if data_dir is None:
         config = TargetingStudyConfig(n_experiments=1, background="phantom", **(render or {}))
         ds = write_lab_dataset(Path(output_dir) / "lab_data", seed=seed, n_cine_frames=n_cine_frames, config=config)
@@ -195,9 +188,6 @@ def target_plan(calibration: HandEyeCalibration, inputs: LabInputs, volume: Volu
     if start_joints_rad is None and inputs.truth is not None:
         start_joints_rad = inputs.truth["cine_start_joints_rad"]
     return plan_targeting(calibration, inputs.target_mm, volume=volume, start_joints_rad=start_joints_rad)
-
-
-
 
 
 def accepted_focal_errors(stations: pd.DataFrame, cine: pd.DataFrame) -> tuple[float, float] | None:

@@ -1,4 +1,4 @@
-"""histostudy.study.your_data_live: notebook 06's live section — the received poses beside the tracked
+"""histostudy.study.your_data (its live part, _live): notebook 06's live section — the received poses beside the tracked
 ones, the receiver's throughput, the live figure — on synthetic records (the stream itself runs in
 notebook 06 and in tests/cli/test_cli_listen.py)."""
 
@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from histostudy.study.your_data_live import LiveFocalFigure, compare_with_tracked, throughput_table
+from histostudy.study.your_data import LiveFocalFigure, compare_with_tracked, throughput_table
 
 
 def record(pair, focal, *, frame=None, accepted=True, tracking="warm"):

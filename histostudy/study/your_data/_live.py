@@ -6,16 +6,19 @@ the cine's objects to it with :func:`histostudy.lab.send_frames` and waits for a
 pair; :class:`LiveFocalFigure` is an ``on_pose`` callback drawing each pair's focal point as it
 comes (a live figure in JupyterLab through an ``IPython.display`` handle); :func:`compare_with_tracked`
 sets each received pose beside the one :func:`.your_data.track_cine` found on the same frames given
-as arrays, and :func:`throughput_table` gives the receiver's speed (:meth:`FrameReceiver.stats`).
+as arrays, and :func:`throughput_table` gives the receiver's speed (:meth:`FrameReceiver.stats`);
+:func:`live_section` does all of it for the notebook.
 Lengths in mm, the C-arm frame; times in seconds (docs/architecture.md, "Frames and units").
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -25,9 +28,10 @@ import pandas as pd
 from histostudy.lab import FrameReceiver, send_frames
 from histostudy.pose import frames_from_files
 from histostudy.transducer import TransducerModel
-from .your_data import LabInputs, cine_frame_count
+from ._inputs import LabInputs, cine_frame_count
+from ._section import SectionPart, Timer, YourDataSetup
 
-__all__ = ["LiveFocalFigure", "compare_with_tracked", "stream_cine", "throughput_table"]
+__all__ = ["LiveFocalFigure", "LiveSection", "compare_with_tracked", "live_section", "stream_cine", "throughput_table"]
 
 _AXES = "xyz"
 
@@ -191,3 +195,41 @@ def throughput_table(stats: dict) -> pd.DataFrame:
     rows += [{"quantity": f"seconds per pair: {stage}", "value": seconds}
              for stage, seconds in stats["seconds_per_pair"].items()]
     return pd.DataFrame(rows)
+
+
+@dataclass(frozen=True, eq=False)
+class LiveSection:
+    """The cine streamed through the receiver (:func:`live_section`): the receiver's ``records`` and
+    ``stats``, the received poses beside the tracked ones (``received_vs_tracked``,
+    :func:`compare_with_tracked`), the ``throughput`` (:func:`throughput_table`) and the report's
+    ``part`` (the live figure, both tables, the stats and the largest focal difference, mm)."""
+
+    records: list
+    stats: dict
+    received_vs_tracked: pd.DataFrame
+    throughput: pd.DataFrame
+    part: SectionPart
+
+
+def live_section(setup: YourDataSetup, tracked: pd.DataFrame, *, show: bool = True,
+                 timer: Timer | None = None) -> LiveSection:
+    """Notebook 06's live section: as many pairs of the cine as ``tracked`` has rows
+    (:func:`.your_data.track_cine`'s table) streamed to the receiver (:func:`stream_cine`, timed as
+    ``"live stream"`` by ``timer``; poses to ``output_dir/live_poses.jsonl``) while a
+    :class:`LiveFocalFigure` draws them over the tracked points (``show``: live in IPython), then
+    set beside the tracked poses."""
+    figure = LiveFocalFigure(len(tracked), reference=tracked, show=show)
+    with (timer or (lambda name: contextlib.nullcontext()))("live stream"):
+        records, stats = stream_cine(setup.inputs, setup.model, setup.seed,
+                                     output_path=setup.output_dir / "live_poses.jsonl", max_pairs=len(tracked),
+                                     on_pose=figure)
+    compared, throughput = compare_with_tracked(records, tracked), throughput_table(stats)
+    part = SectionPart(
+        figures={"live_focal_points": (figure.figure, "The focal point of each pair as the DICOM receiver posed it "
+                                       "(crosses: tracked from arrays).")},
+        tables={"live_poses": (compared, "Each pose received over DICOM beside the one tracked from the same frames "
+                               "as arrays (mm)."),
+                "receiver_throughput": (throughput, "The DICOM receiver's throughput on the cine.")},
+        values={"receiver_stats": stats,
+                "live_max_focal_difference_mm": float(compared["focal_difference_mm"].max())})
+    return LiveSection(records, stats, compared, throughput, part)

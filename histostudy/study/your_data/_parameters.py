@@ -1,0 +1,118 @@
+"""Notebook 06's parameters, checked (§II-B to §II-D on a lab's files): :class:`YourDataParameters`
+and the parameters the report records.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from histostudy.core import check_count, check_positive, is_finite_real
+
+__all__ = ["RECORDED_PARAMETERS", "SECTION_TITLE", "YourDataParameters"]
+
+SECTION_TITLE = "Your own data: frames, calibration, target and robot (§II-B to §II-D on a lab's files)"
+
+#: The notebook parameters the report records, in the order it records them.
+RECORDED_PARAMETERS = ("data_dir", "target_mm", "pose_spacing_mm", "robot_host", "dry_run", "stream_cine",
+                       "moving_cine_s", "moving_cine_fps", "moving_cine_speed_mm_s", "max_queued_pairs")
+
+
+def _check_bool(value, name: str) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
+def _check_optional_count(value, name: str) -> int | None:
+    if value is None:
+        return None
+    try:
+        return check_count(value, name)
+    except ValueError:
+        raise ValueError(f"{name} must be None or an integer >= 1, got {value!r}") from None
+
+
+@dataclass(frozen=True)
+class YourDataParameters:
+    """Notebook 06's parameters (its ``parameters`` cell names and documents each), checked.
+
+    The lab's files: ``data_dir`` (None: the lab-like dataset is generated), ``target_mm`` (3
+    numbers, C-arm mm; None: the dataset's suggested target), ``n_cine_frames`` (of the generated
+    cine) and ``max_tracked_frames`` (None: all). The live sections: ``stream_cine``,
+    ``moving_cine_s`` (s, 0 skips it), ``moving_cine_fps`` (frames/s), ``moving_cine_speed_mm_s``,
+    ``max_queued_pairs`` (None: keep all). The generated frames: ``photons_per_pixel``, ``n_splats``,
+    ``splat_sigma_mm``; the model grid ``pose_spacing_mm``. The robot: ``robot_host`` (None: none),
+    ``dry_run``, ``speed_mm_s``.
+
+    A bad value raises ValueError naming the parameter, its value and what it must be. Numbers are
+    kept as floats and ints, ``target_mm`` as a tuple of 3 floats.
+    """
+
+    data_dir: str | os.PathLike | None
+    target_mm: tuple | None
+    n_cine_frames: int
+    max_tracked_frames: int | None
+    stream_cine: bool
+    moving_cine_s: float
+    moving_cine_fps: float
+    moving_cine_speed_mm_s: float
+    max_queued_pairs: int | None
+    photons_per_pixel: float
+    n_splats: int
+    splat_sigma_mm: float
+    pose_spacing_mm: float
+    robot_host: str | None
+    dry_run: bool
+    speed_mm_s: float
+
+    def __post_init__(self):
+        def put(name, value):
+            object.__setattr__(self, name, value)
+
+        if self.data_dir is not None and not isinstance(self.data_dir, (str, os.PathLike)):
+            raise ValueError(f"data_dir must be None or a folder path, got {self.data_dir!r}")
+        if self.target_mm is not None:
+            target = self.target_mm
+            if isinstance(target, (str, bytes)) or np.ndim(target) != 1 or len(target) != 3 \
+                    or not all(is_finite_real(v) for v in target):
+                raise ValueError(f"target_mm must be None or 3 finite numbers (x, y, z in the CBCT's world frame, "
+                                 f"mm), got {target!r}")
+            put("target_mm", tuple(float(v) for v in target))
+        put("n_cine_frames", check_count(self.n_cine_frames, "n_cine_frames"))
+        for name in ("max_tracked_frames", "max_queued_pairs"):
+            put(name, _check_optional_count(getattr(self, name), name))
+        for name in ("stream_cine", "dry_run"):
+            put(name, _check_bool(getattr(self, name), name))
+        put("moving_cine_s", check_positive(self.moving_cine_s, "moving_cine_s", allow_zero=True, unit="s"))
+        for name, unit in (("moving_cine_fps", "frames/s"), ("moving_cine_speed_mm_s", "mm/s"),
+                           ("photons_per_pixel", "photons per pixel"), ("splat_sigma_mm", "mm"),
+                           ("pose_spacing_mm", "mm"), ("speed_mm_s", "mm/s")):
+            put(name, check_positive(getattr(self, name), name, unit=unit))
+        put("n_splats", check_count(self.n_splats, "n_splats"))
+        if self.robot_host is not None and (not isinstance(self.robot_host, str) or not self.robot_host.strip()):
+            raise ValueError(f"robot_host must be None or the UR controller's host name or address, "
+                             f"got {self.robot_host!r}")
+
+    @classmethod
+    def from_parameters(cls, parameters: Mapping) -> YourDataParameters:
+        """The parameters of ``parameters`` (the notebook's ``globals()``, or any mapping naming every
+        field; other entries are ignored)."""
+        names = [f.name for f in dataclasses.fields(cls)]
+        missing = [name for name in names if name not in parameters]
+        if missing:
+            raise ValueError(f"parameters lack {missing} (notebook 06's parameters cell names each)")
+        return cls(**{name: parameters[name] for name in names})
+
+    def recorded(self) -> dict:
+        """The parameters the report records (:data:`RECORDED_PARAMETERS`, in that order)."""
+        return {name: getattr(self, name) for name in RECORDED_PARAMETERS}
+
+    def render(self) -> dict:
+        """The generated frames' dose and splatting (:class:`~histostudy.imaging.FrameRenderConfig` fields)."""
+        return {"photons_per_pixel": self.photons_per_pixel, "n_splats": self.n_splats,
+                "splat_sigma_mm": self.splat_sigma_mm}

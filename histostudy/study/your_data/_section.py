@@ -1,0 +1,304 @@
+"""Notebook 06's section: its set-up (:func:`prepare`), one part per heading returning tables and
+figures, :func:`record` that writes a part, and :func:`drive_robot`, the one call that plans the
+move and makes it only when asked (the dry-run guard).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Mapping
+
+import numpy as np
+import pandas as pd
+
+from histostudy.calibration import HandEyeCalibration
+from histostudy.core import check_positive
+from histostudy.imaging import Volume
+from histostudy.lab import TargetingPlan, execute_targeting
+from histostudy.pose import frames_from_files
+from histostudy.robot import Robot
+from histostudy.transducer import TransducerModel
+from ..moving_cine import write_moving_cine
+from ..moving_cine_live import MovingCineRun, count_table, frame_table, plot_focal_error, stream_moving_cine
+from ..targeting._setup import TargetingStudyConfig
+from ._inputs import (LabInputs, _station_frames, calibration_table, lab_inputs, plan_table, plot_cbct_target,
+                      station_poses, target_plan, track_cine, transducer_model)
+from ._parameters import YourDataParameters, _check_bool
+
+__all__ = ["CalibrationSection", "MovingCineSection", "STATION_OVERLAY_CAPTION", "SectionPart", "StationsSection",
+           "Timer", "TrackingSection", "YourDataSetup", "calibration_section", "drive_robot", "focal_error_part",
+           "moving_cine_section", "plot_cine_focal_error", "prepare", "record", "stand_ins", "station_overlay",
+           "stations_section", "tracking_section"]
+
+
+
+# --- The notebook's section: its set-up, then one part per heading ---------------------------------
+
+
+@dataclass(frozen=True)
+class YourDataSetup:
+    """What notebook 06 runs on: its ``params``, the lab's ``inputs`` (:func:`lab_inputs`), the
+    transducer ``model`` (:func:`transducer_model`), the ``seed`` and the section's ``output_dir``."""
+
+    params: YourDataParameters
+    inputs: LabInputs
+    model: TransducerModel
+    seed: int
+    output_dir: Path
+
+
+Timer = Callable[[str], contextlib.AbstractContextManager]
+
+
+def _timer(timer: Timer | None) -> Timer:
+    return timer or (lambda name: contextlib.nullcontext())
+
+
+def prepare(params: YourDataParameters | Mapping, seed: int, output_dir: str | os.PathLike, *,
+            timer: Timer | None = None) -> YourDataSetup:
+    """The section's set-up: the lab's files in ``params.data_dir`` (or the lab-like dataset generated
+    into ``output_dir/lab_data`` from ``seed``) and the transducer model on ``params.pose_spacing_mm``.
+    ``params``: a :class:`YourDataParameters` or a mapping of them. ``timer(name)``: a context manager
+    timing the set-up under ``"inputs"`` (e.g. ``SectionWriter.timer``)."""
+    if not isinstance(params, YourDataParameters):
+        params = YourDataParameters.from_parameters(params)
+    with _timer(timer)("inputs"):
+        inputs = lab_inputs(params.data_dir, output_dir=output_dir, seed=seed, target_mm=params.target_mm,
+                            n_cine_frames=params.n_cine_frames, render=params.render())
+        model = transducer_model(inputs, params.pose_spacing_mm)
+    return YourDataSetup(params, inputs, model, seed, Path(output_dir))
+
+
+@dataclass(frozen=True, eq=False)
+class SectionPart:
+    """What one part of the section reports, as its function made it: ``tables`` (name ->
+    ``(DataFrame, caption)``), ``figures`` (name -> ``(Figure, caption)``), ``values`` (key ->
+    JSON-able) and ``comparisons`` with the paper (``SectionWriter.compare`` arguments). Written by
+    :func:`record`, in that order."""
+
+    tables: dict = dataclasses.field(default_factory=dict)
+    figures: dict = dataclasses.field(default_factory=dict)
+    values: dict = dataclasses.field(default_factory=dict)
+    comparisons: tuple = ()
+
+
+def record(writer, *parts) -> None:
+    """Write each of ``parts`` (a :class:`SectionPart`, or a section result holding one as ``part``)
+    through ``writer`` (a :class:`histostudy.reporting.SectionWriter`): its tables, figures, values
+    and comparisons."""
+    for part in parts:
+        part = getattr(part, "part", part)
+        if not isinstance(part, SectionPart):
+            raise TypeError(f"parts must be SectionPart objects or hold one as .part, got {type(part).__name__}")
+        for name, (table, caption) in part.tables.items():
+            writer.table(name, table, caption)
+        for name, (figure, caption) in part.figures.items():
+            writer.figure(name, figure, caption)
+        for key, value in part.values.items():
+            writer.value(key, value)
+        for comparison in part.comparisons:
+            writer.compare(**comparison)
+
+
+@dataclass(frozen=True, eq=False)
+class StationsSection:
+    """The pose at each calibration station (:func:`stations_section`): the pose ``records``
+    (:func:`histostudy.pose.pose_record`), the ``table`` and the report's ``part``."""
+
+    records: list
+    table: pd.DataFrame
+    part: SectionPart
+
+
+def stations_section(setup: YourDataSetup, *, timer: Timer | None = None) -> StationsSection:
+    """:func:`station_poses` on the set-up, timed as ``"station poses"``."""
+    with _timer(timer)("station poses"):
+        records, table = station_poses(setup.inputs, setup.model, setup.seed)
+    return StationsSection(records, table, SectionPart(tables={"station_poses": (
+        table, "The pose estimate at each calibration station (C-arm frame, mm).")}))
+
+
+def station_overlay(setup: YourDataSetup, stations: StationsSection, station: int = 0) -> dict:
+    """The arguments of :func:`histostudy.reporting.plot_pose_overlay` for calibration station
+    ``station``: its frames (as its pose was estimated from), the model, the estimated pose and a
+    generator seeded with the section's seed (the points drawn)."""
+    frames = frames_from_files(_station_frames(setup.inputs.stations[station]), setup.inputs.views)
+    return dict(frames=frames, model=setup.model, T_carm_transducer=stations.records[station]["T_carm_transducer"],
+                rng=np.random.default_rng(setup.seed))
+
+
+#: The caption of the station overlay figure (``station_0_overlay``).
+STATION_OVERLAY_CAPTION = "Station 0: the frames and the model in the estimated pose."
+
+
+@dataclass(frozen=True, eq=False)
+class CalibrationSection:
+    """The hand-eye calibration (:func:`calibration_section`): the checked ``calibration``, its
+    residual ``table`` (:func:`calibration_table`) and the report's ``part``."""
+
+    calibration: HandEyeCalibration
+    table: pd.DataFrame
+    part: SectionPart
+
+
+def calibration_section(setup: YourDataSetup, stations: StationsSection) -> CalibrationSection:
+    """:func:`calibration_table` on the stations' pose records."""
+    calibration, table = calibration_table(stations.records, setup.inputs)
+    return CalibrationSection(calibration, table, SectionPart(
+        tables={"calibration": (table, "Residuals of the hand-eye calibration per station.")},
+        values={"calibration_max_focal_residual_mm": calibration.max_focal_residual_mm}))
+
+
+@dataclass(frozen=True, eq=False)
+class TrackingSection:
+    """The pose tracked over the cine (:func:`tracking_section`): the tracker's ``results``, the
+    ``table`` (:func:`track_cine`) and the report's ``part`` (with a truth, the focal errors and
+    their figure)."""
+
+    results: list
+    table: pd.DataFrame
+    part: SectionPart
+
+
+def plot_cine_focal_error(cine: pd.DataFrame):
+    """The tracked focal error against the truth per cine frame (:func:`track_cine`'s table, with a
+    truth); a pyplot figure."""
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(6, 3))
+    plt.plot(cine["frame"], cine["focal_error_mm"], "o-")
+    plt.xlabel("cine frame")
+    plt.ylabel("focal error (mm)")
+    plt.title("Tracked focal error against the truth")
+    return fig
+
+
+def tracking_section(setup: YourDataSetup, *, timer: Timer | None = None) -> TrackingSection:
+    """:func:`track_cine` over ``params.max_tracked_frames`` frames, timed as ``"tracking"``."""
+    with _timer(timer)("tracking"):
+        results, table = track_cine(setup.inputs, setup.model, setup.seed, setup.params.max_tracked_frames)
+    part = SectionPart(tables={"cine_poses": (table, "The tracked pose per cine frame (C-arm frame, mm).")})
+    if "focal_error_mm" in table:
+        part = SectionPart(tables=part.tables, values={"cine_focal_error_mm": table["focal_error_mm"].tolist()},
+                           figures={"cine_focal_error": (plot_cine_focal_error(table),
+                                                         "Focal error of the tracked pose per cine frame.")})
+    return TrackingSection(results, table, part)
+
+
+@dataclass(frozen=True, eq=False)
+class MovingCineSection:
+    """The moving cine streamed through the receiver (:func:`moving_cine_section`): the ``run``, a
+    row per ``frames`` (:func:`.moving_cine_live.frame_table`), the ``counts`` and the report's
+    ``part`` (the tables, the figure, the receiver's stats and, with 2 or more accepted poses, the
+    comparison with Table II)."""
+
+    run: MovingCineRun
+    frames: pd.DataFrame
+    counts: pd.DataFrame
+    part: SectionPart
+
+
+def moving_cine_section(setup: YourDataSetup, *, timer: Timer | None = None) -> MovingCineSection:
+    """The moving cine of ``setup.params`` (``moving_cine_s`` at ``moving_cine_fps``, the robot at up to
+    ``moving_cine_speed_mm_s``; rendered as the generated frames are) written into
+    ``output_dir/moving_cine`` (timed as ``"moving cine: rendering"``) and streamed at its frame
+    rate through the receiver, ``max_queued_pairs`` waiting at most (``"moving cine: streamed"``;
+    poses to ``output_dir/moving_cine_poses.jsonl``)."""
+    p, timer = setup.params, _timer(timer)
+    render = TargetingStudyConfig(n_experiments=1, background="phantom", **p.render())
+    with timer("moving cine: rendering"):
+        cine = write_moving_cine(setup.output_dir / "moving_cine", seed=setup.seed, duration_s=p.moving_cine_s,
+                                 fps=p.moving_cine_fps, max_speed_mm_s=p.moving_cine_speed_mm_s, config=render)
+    with timer("moving cine: streamed"):
+        run = stream_moving_cine(cine, setup.model, setup.seed, max_queued_pairs=p.max_queued_pairs,
+                                 output_path=setup.output_dir / "moving_cine_poses.jsonl")
+    frames = frame_table(run, cine)
+    counts = count_table(run, frames)
+    accepted = frames.loc[frames["accepted"], "focal_error_mm"]
+    comparisons = () if len(accepted) <= 1 else (dict(
+        key="lab.moving_cine_focal_error", label=f"focal error while the robot moves, {p.moving_cine_fps:g} "
+        "frames/s streamed through the receiver", ours=(float(accepted.mean()), float(accepted.std())),
+        unit="mm", paper_key="table2.center_mae.overall",
+        note="beyond the paper: its poses were of a transducer at rest; here the accepted poses of the pairs "
+             "the fast tracker kept up with"),)
+    part = SectionPart(
+        tables={"moving_cine_frames": (frames, "Each frame of the moving cine: posed, dropped or refused; how it "
+                                       "was tracked; focal error against the truth (mm); latency (s)."),
+                "moving_cine_counts": (counts, "The moving cine through the receiver: counts, rates, latency (s) "
+                                       "and focal error of the accepted poses (mm).")},
+        figures={"moving_cine_focal_error": (plot_focal_error(frames), f"Focal error per frame of a "
+                                             f"{p.moving_cine_s:g} s cine at {p.moving_cine_fps:g} frames/s streamed "
+                                             "through the receiver; ticks: frames dropped; rings: estimates from "
+                                             "scratch.")},
+        values={"moving_cine_stats": run.stats}, comparisons=comparisons)
+    return MovingCineSection(run, frames, counts, part)
+
+
+def focal_error_part(errors: tuple[float, float] | None) -> SectionPart:
+    """The comparison of the accepted poses' focal error (:func:`accepted_focal_errors`) with Table
+    II's overall centre error; none without a truth."""
+    if errors is None:
+        return SectionPart()
+    return SectionPart(comparisons=(dict(
+        key="lab.focal_error", label="focal error on the lab-like DICOM files (stations and cine)", ours=errors,
+        unit="mm", paper_key="table2.center_mae.overall",
+        note="the whole lab path: DICOM XA tags, mesh model, learned stages, tracking"),))
+
+
+def drive_robot(calibration: HandEyeCalibration, inputs: LabInputs, volume: Volume, *,
+                robot: str | Robot | None = None, dry_run: bool = True,
+                speed_mm_s: float = 50.0) -> tuple[TargetingPlan, dict | None]:
+    """Plan the move of the calibrated focal point onto the inputs' target and, unless ``dry_run``,
+    make it: the notebook's one call that drives the robot (§II-D, Fig. 2 step 3).
+
+    ``robot``: None (no robot: the plan starts from the generated dataset's start joints, or home,
+    and nothing moves), a UR controller's host (an :class:`~histostudy.robot.RTDERobot` opened here
+    and closed after) or a connected :class:`~histostudy.robot.Robot` (left open).
+
+    The guard, as ``histostudy target``'s: the plan is made from the robot's present joints and
+    checked (:func:`histostudy.lab.plan_targeting`: the target inside the CBCT, the inverse
+    kinematics, the workspace) before anything moves; with ``dry_run`` nothing moves; otherwise
+    :func:`histostudy.lab.execute_targeting` makes the one checked linear move at ``speed_mm_s``,
+    refusing (ValueError, nothing moved) a robot no longer where the plan started.
+
+    Returns the plan and what the move reached (:func:`~histostudy.lab.execute_targeting`'s
+    record), None when nothing moved.
+    """
+    dry_run = _check_bool(dry_run, "dry_run")
+    speed_mm_s = check_positive(speed_mm_s, "speed_mm_s", unit="mm/s")
+    if robot is not None and not isinstance(robot, (str, Robot)):
+        raise TypeError(f"robot must be None, a UR controller's host or a histostudy.robot.Robot, got "
+                        f"{type(robot).__name__}")
+    opened = isinstance(robot, str)
+    if opened:
+        from histostudy.robot import RTDERobot
+
+        robot = RTDERobot(robot)
+    try:
+        plan = target_plan(calibration, inputs, volume, None if robot is None else robot.joints())
+        executed = None if robot is None or dry_run else execute_targeting(plan, robot, speed_mm_s=speed_mm_s)
+    finally:
+        if opened:
+            robot.close()
+    return plan, executed
+
+
+def target_part(volume: Volume, plan: TargetingPlan, executed: dict | None) -> SectionPart:
+    """The target and the move: the CBCT through the target (:func:`plot_cbct_target`), the plan's
+    table and record and, when the robot moved, what it reached (:func:`drive_robot`'s)."""
+    values = {"plan": plan.to_dict(), **({} if executed is None else {"executed": executed})}
+    return SectionPart(tables={"plan": (plan_table(plan), "The planned move of the focal point onto the target.")},
+                       figures={"cbct_target": (plot_cbct_target(volume, plan.target_mm),
+                                                "The CBCT through the target (green).")}, values=values)
+
+
+def stand_ins(inputs: LabInputs) -> list[tuple[str, str]]:
+    """``(lab, synthetic)``: what stands in for the lab's equipment (nothing, with its own files)."""
+    return [("the lab's C-arm frames, CBCT, transducer CAD and UR5e",
+             "the lab-like dataset of histostudy.study.lab_dataset (synthetic XA frames of the physical transducer "
+             "model, a simulated CBCT, STL meshes exported from the parametric model); a dry run of the robot"
+             if inputs.generated else "the lab's own files")]
