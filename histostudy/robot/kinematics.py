@@ -18,11 +18,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from histostudy.core import renamed_attributes
 from histostudy.geometry import check_rigid, invert_transform, matrix_from_rotvec, rotvec_from_matrix
 from .base import REACH_MM, UnreachablePoseError
 
 __all__ = [
-    "DHParameters",
+    "DHSpec",
     "JOINT_LIMIT_RAD",
     "REACH_MM",
     "UR5E",
@@ -42,7 +43,7 @@ _WRIST_SINGULAR = 1e-10
 
 
 @dataclass(frozen=True)
-class DHParameters:
+class DHSpec:
     """Standard DH parameters of a 6-axis UR arm: ``d_mm``, ``a_mm`` (mm) and ``alpha_rad`` (rad)."""
 
     d_mm: tuple[float, ...]
@@ -58,7 +59,7 @@ class DHParameters:
 
 
 #: Nominal UR5e parameters (Universal Robots' published DH table).
-UR5E = DHParameters(
+UR5E = DHSpec(
     d_mm=(162.5, 0.0, 0.0, 133.3, 99.7, 99.6),
     a_mm=(0.0, -425.0, -392.2, 0.0, 0.0, 0.0),
     alpha_rad=(math.pi / 2, 0.0, 0.0, math.pi / 2, -math.pi / 2, 0.0),
@@ -96,7 +97,7 @@ def _inv(T: np.ndarray) -> np.ndarray:
     return out
 
 
-def forward_kinematics(q_rad, dh: DHParameters = UR5E) -> np.ndarray:
+def forward_kinematics(q_rad, dh: DHSpec = UR5E) -> np.ndarray:
     """``T_base_flange`` (mm) for joint angles ``q_rad`` (rad, shape (6,))."""
     q = np.asarray(q_rad, dtype=np.float64).reshape(-1)
     if q.shape != (6,) or not np.all(np.isfinite(q)):
@@ -107,7 +108,7 @@ def forward_kinematics(q_rad, dh: DHParameters = UR5E) -> np.ndarray:
     return T
 
 
-def joint_frames(q_rad, dh: DHParameters = UR5E) -> np.ndarray:
+def joint_frames(q_rad, dh: DHSpec = UR5E) -> np.ndarray:
     """The arm's link chain: ``(7, 4, 4)`` frames in the base frame (mm) for joint angles ``q_rad``
     (rad, shape (6,)).
 
@@ -130,7 +131,7 @@ def _wrap(angle: float) -> float:
     return math.pi - (math.pi - angle) % (2.0 * math.pi)
 
 
-def inverse_kinematics(T_base_flange, dh: DHParameters = UR5E, theta6_free: float = 0.0) -> np.ndarray:
+def inverse_kinematics(T_base_flange, dh: DHSpec = UR5E, theta6_free: float = 0.0) -> np.ndarray:
     """All joint solutions reaching ``T_base_flange`` (mm): an ``(n, 6)`` array, n in 0..8, angles in (-pi, pi].
 
     ``theta6_free`` is used for the last joint where the wrist is singular (sin theta5 = 0), where
@@ -213,7 +214,7 @@ def _unwrap_towards(q: np.ndarray, q_ref: np.ndarray, limit_rad: float) -> np.nd
 
 
 def inverse_kinematics_closest(
-    T_base_flange, q_near_rad, dh: DHParameters = UR5E, limit_rad: float = JOINT_LIMIT_RAD
+    T_base_flange, q_near_rad, dh: DHSpec = UR5E, limit_rad: float = JOINT_LIMIT_RAD
 ) -> np.ndarray:
     """The joint solution reaching ``T_base_flange`` closest (Euclidean, rad) to ``q_near_rad``.
 
@@ -255,7 +256,7 @@ def linear_path_joints(
     T_base_tcp_end,
     T_flange_tcp,
     q_start_rad,
-    dh: DHParameters = UR5E,
+    dh: DHSpec = UR5E,
     step_mm: float = 20.0,
     step_rad: float = 0.1,
     max_joint_step_rad: float = 0.5,
@@ -294,3 +295,6 @@ def linear_path_joints(
         rows.append(q_next)
         q = q_next
     return fractions, np.array(rows)
+
+# the 0.1.0 name, deprecated (CHANGELOG.md)
+__getattr__ = renamed_attributes(globals(), {'DHParameters': 'DHSpec'})

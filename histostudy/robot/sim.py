@@ -32,7 +32,7 @@ from histostudy.geometry import check_rigid, invert_transform, rotation_angle
 from .base import (ProtectiveStopError, ROTATION_ACCELERATION_RAD_S2, ROTATION_SPEED_RAD_S, RobotConnectionError,
                    RobotState, RobotTimeout, UnreachablePoseError, Workspace, check_motion_parameters,
                    linear_motion_time_s, trapezoid_fraction, trapezoid_time_s)
-from .kinematics import (DHParameters, JOINT_LIMIT_RAD, UR5E, check_joints, forward_kinematics,
+from .kinematics import (DHSpec, JOINT_LIMIT_RAD, UR5E, check_joints, forward_kinematics,
                          inverse_kinematics_closest, linear_path_joints)
 
 __all__ = ["HOME_JOINTS_RAD", "FaultPlan", "LinearPlan", "SimulatedUR5e"]
@@ -140,7 +140,7 @@ class SimulatedUR5e:
         faults: FaultPlan | None = None,
         command_timeout_s: float = 10.0,
         time_scale: float = 0.0,
-        dh: DHParameters = UR5E,
+        dh: DHSpec = UR5E,
         sleep: Callable[[float], None] = time.sleep,
     ):
         self._rng = as_generator(rng)

@@ -20,6 +20,7 @@ RENAMED = [
     ("histostudy.imaging.anatomy_params", "AbdomenParams", "AbdomenSpec"),
     ("histostudy.study.pose", "PoseSectionParameters", "PoseSectionConfig"),
     ("histostudy.study.pose_config", "PoseSectionParameters", "PoseSectionConfig"),
+    ("histostudy.robot.kinematics", "DHParameters", "DHSpec"),
 ]
 
 

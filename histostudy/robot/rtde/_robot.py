@@ -31,7 +31,7 @@ import numpy as np
 from histostudy.geometry import check_rigid, invert_transform, rotation_angle
 from ..base import (ProtectiveStopError, RobotError, RobotState, RobotTimeout, UnreachablePoseError, Workspace,
                    WorkspaceViolation, check_motion_parameters, linear_motion_time_s)
-from ..kinematics import DHParameters, UR5E, forward_kinematics, inverse_kinematics_closest, linear_path_joints
+from ..kinematics import DHSpec, UR5E, forward_kinematics, inverse_kinematics_closest, linear_path_joints
 from ._connection import DASHBOARD_PORT, RTDEConnection, probe_port
 from ._units import pose_from_transform, transform_from_pose
 
@@ -75,7 +75,7 @@ class RTDERobot(RTDEConnection):
         settle_tolerance_mm: float = 0.5,
         settle_tolerance_rad: float = 1e-3,
         frequency_hz: float = -1.0,
-        dh: DHParameters = UR5E,
+        dh: DHSpec = UR5E,
         connect: bool = True,
     ):
         if not isinstance(host, str) or not host:

@@ -7,7 +7,7 @@ with geometry tags, a NIfTI CBCT, STL meshes, flange poses) and the tables carry
 against its synthetic truth; with a lab's files there is no truth and those columns are absent.
 Lengths in mm, 4x4 ``T_<to>_<from>`` (docs/architecture.md, "Frames and units").
 
-The section's interface, as notebooks 05 and 07 have theirs: :class:`YourDataParameters` (the
+The section's interface, as notebooks 05 and 07 have theirs: :class:`YourDataConfig` (the
 notebook's parameters, checked), :func:`prepare` (the inputs and the transducer model, in a
 :class:`YourDataSetup`), then functions returning tables and figures; :func:`drive_robot` is the
 one call that plans the move and makes it only when asked (the dry-run guard); :func:`live_section`
@@ -21,7 +21,7 @@ from . import _inputs, _live, _parameters, _section
 from ._inputs import (LabInputs, accepted_focal_errors, calibration_table, cine_frame_count, lab_inputs, plan_table,
                       plot_cbct_target, station_poses, target_plan, track_cine, transducer_model)
 from ._live import (LiveFocalFigure, LiveSection, compare_with_tracked, live_section, stream_cine, throughput_table)
-from ._parameters import (RECORDED_PARAMETERS, SECTION_TITLE, YourDataParameters)
+from ._parameters import (RECORDED_PARAMETERS, SECTION_TITLE, YourDataConfig)
 from ._section import (CalibrationSection, MovingCineSection, STATION_OVERLAY_CAPTION, SectionPart, StationsSection,
                        Timer, TrackingSection, YourDataSetup, calibration_section, drive_robot, focal_error_part,
                        moving_cine_section, plot_cine_focal_error, prepare, record, stand_ins, station_overlay,

@@ -1,4 +1,4 @@
-"""Notebook 06's parameters, checked (§II-B to §II-D on a lab's files): :class:`YourDataParameters`
+"""Notebook 06's parameters, checked (§II-B to §II-D on a lab's files): :class:`YourDataConfig`
 and the parameters the report records.
 """
 
@@ -13,7 +13,7 @@ import numpy as np
 
 from histostudy.core import check_count, check_positive, is_finite_real
 
-__all__ = ["RECORDED_PARAMETERS", "SECTION_TITLE", "YourDataParameters"]
+__all__ = ["RECORDED_PARAMETERS", "SECTION_TITLE", "YourDataConfig"]
 
 SECTION_TITLE = "Your own data: frames, calibration, target and robot (§II-B to §II-D on a lab's files)"
 
@@ -38,7 +38,7 @@ def _check_optional_count(value, name: str) -> int | None:
 
 
 @dataclass(frozen=True)
-class YourDataParameters:
+class YourDataConfig:
     """Notebook 06's parameters (its ``parameters`` cell names and documents each), checked.
 
     The lab's files: ``data_dir`` (None: the lab-like dataset is generated), ``target_mm`` (3
@@ -99,7 +99,7 @@ class YourDataParameters:
                              f"got {self.robot_host!r}")
 
     @classmethod
-    def from_parameters(cls, parameters: Mapping) -> YourDataParameters:
+    def from_parameters(cls, parameters: Mapping) -> YourDataConfig:
         """The parameters of ``parameters`` (the notebook's ``globals()``, or any mapping naming every
         field; other entries are ignored)."""
         names = [f.name for f in dataclasses.fields(cls)]

@@ -27,7 +27,7 @@ from ..moving_cine_live import MovingCineRun, count_table, frame_table, plot_foc
 from ..targeting._setup import TargetingStudyConfig
 from ._inputs import (LabInputs, _station_frames, calibration_table, lab_inputs, plan_table, plot_cbct_target,
                       station_poses, target_plan, track_cine, transducer_model)
-from ._parameters import YourDataParameters, _check_bool
+from ._parameters import YourDataConfig, _check_bool
 
 __all__ = ["CalibrationSection", "MovingCineSection", "STATION_OVERLAY_CAPTION", "SectionPart", "StationsSection",
            "Timer", "TrackingSection", "YourDataSetup", "calibration_section", "drive_robot", "focal_error_part",
@@ -44,7 +44,7 @@ class YourDataSetup:
     """What notebook 06 runs on: its ``params``, the lab's ``inputs`` (:func:`lab_inputs`), the
     transducer ``model`` (:func:`transducer_model`), the ``seed`` and the section's ``output_dir``."""
 
-    params: YourDataParameters
+    params: YourDataConfig
     inputs: LabInputs
     model: TransducerModel
     seed: int
@@ -58,14 +58,14 @@ def _timer(timer: Timer | None) -> Timer:
     return timer or (lambda name: contextlib.nullcontext())
 
 
-def prepare(params: YourDataParameters | Mapping, seed: int, output_dir: str | os.PathLike, *,
+def prepare(params: YourDataConfig | Mapping, seed: int, output_dir: str | os.PathLike, *,
             timer: Timer | None = None) -> YourDataSetup:
     """The section's set-up: the lab's files in ``params.data_dir`` (or the lab-like dataset generated
     into ``output_dir/lab_data`` from ``seed``) and the transducer model on ``params.pose_spacing_mm``.
-    ``params``: a :class:`YourDataParameters` or a mapping of them. ``timer(name)``: a context manager
+    ``params``: a :class:`YourDataConfig` or a mapping of them. ``timer(name)``: a context manager
     timing the set-up under ``"inputs"`` (e.g. ``SectionWriter.timer``)."""
-    if not isinstance(params, YourDataParameters):
-        params = YourDataParameters.from_parameters(params)
+    if not isinstance(params, YourDataConfig):
+        params = YourDataConfig.from_parameters(params)
     with _timer(timer)("inputs"):
         inputs = lab_inputs(params.data_dir, output_dir=output_dir, seed=seed, target_mm=params.target_mm,
                             n_cine_frames=params.n_cine_frames, render=params.render())

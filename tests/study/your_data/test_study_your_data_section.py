@@ -36,7 +36,7 @@ def _notebook_parameters() -> dict:
 
 def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones():
     cell = _notebook_parameters()
-    params = study.YourDataParameters.from_parameters(cell)
+    params = study.YourDataConfig.from_parameters(cell)
     assert {k: getattr(params, k) for k in DEFAULTS} == DEFAULTS
     assert set(cell) - set(DEFAULTS) == {"profile", "seed", "output_dir"}
     assert list(params.recorded()) == list(study.RECORDED_PARAMETERS)
@@ -44,7 +44,7 @@ def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones()
     assert params.render() == {"photons_per_pixel": 50000.0, "n_splats": 16, "splat_sigma_mm": 0.5}
     with pytest.raises(AttributeError):
         params.dry_run = False  # frozen
-    given = study.YourDataParameters(**{**DEFAULTS, "target_mm": [1, 2, 3], "moving_cine_s": 0})
+    given = study.YourDataConfig(**{**DEFAULTS, "target_mm": [1, 2, 3], "moving_cine_s": 0})
     assert given.target_mm == (1.0, 2.0, 3.0) and given.moving_cine_s == 0.0
 
 
@@ -72,14 +72,14 @@ def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones()
 ])
 def test_a_bad_parameter_is_refused_naming_it_its_value_and_what_it_must_be(name, value, expected):
     with pytest.raises(ValueError) as info:
-        study.YourDataParameters(**{**DEFAULTS, name: value})
+        study.YourDataConfig(**{**DEFAULTS, name: value})
     message = str(info.value)
     assert message.startswith(f"{name} must be") and expected in message and repr(value) in message
 
 
 def test_missing_parameters_are_named():
     with pytest.raises(ValueError, match=r"parameters lack \['dry_run', 'speed_mm_s'\]"):
-        study.YourDataParameters.from_parameters({k: v for k, v in DEFAULTS.items()
+        study.YourDataConfig.from_parameters({k: v for k, v in DEFAULTS.items()
                                                   if k not in ("dry_run", "speed_mm_s")})
 
 
