@@ -155,7 +155,7 @@ class DistanceMaps:
     @classmethod
     def from_maps(cls, view: View, maps: Mapping, *, occlusion_aware: bool) -> "DistanceMaps":
         """Distance maps made elsewhere, wrapped for :class:`~.cost.PoseCost` without recomputing them
-        (e.g. :class:`~.tracking_maps.RegionMaps`, which writes a tracking region's maps into reused
+        (e.g. :class:`~histostudy.pose.tracking.RegionMaps`, which writes a tracking region's maps into reused
         buffers). ``maps``: ``{Feature: (rows, cols) float32}`` distances in pixels of ``view``, one
         per class present (as :attr:`maps`); ``occlusion_aware`` says how they were made. The
         arrays are kept, not copied."""

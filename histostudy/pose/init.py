@@ -189,96 +189,139 @@ def initialise_pose(direction, views: Sequence[View], view_costs: Sequence[CostF
     if not seeds:
         raise ValueError("axial_seeds_deg must hold at least one angle")
     centre = np.asarray(centre_mm, dtype=np.float64).reshape(3)
-    n_eval, stages = 0, {}
-
-    def grids(R, point, spec, label, costs=view_costs):
-        nonlocal n_eval
-        for i, (view, cost) in enumerate(zip(views, costs)):
-            point, c, n = grid_search(cost, R, point, view, spec)
-            n_eval += n
-            stages[f"{label}_{view.name or i}"] = {"point_mm": point.copy(), "cost": c}
-        return point
-
     scorings = [(list(view_costs), joint_cost)] if coarse_scorings is None else [
         (list(v), j) for v, j in coarse_scorings]
     for v, _ in scorings:
         if len(v) != len(views):
             raise ValueError(f"each coarse scoring must hold one cost per view ({len(views)}), got {len(v)}")
-    # Coarse stage, per scoring and axial seed: the first view's grid keeps its
-    # ``coarse_candidates`` best points, each followed through the other views' grids and scored
-    # jointly; each scoring's best chains go on.
-    chains = []
-    for s_index, (coarse_view_costs, coarse_joint_cost) in enumerate(scorings):
-        scored = []
-        for seed in seeds:
-            R = rotation_from_direction(direction, np.deg2rad(seed))
-            firsts = centre + grid_offsets(views[0], coarse)
-            scores = translation_costs(coarse_view_costs[0], R, firsts)
-            n_eval += len(firsts)
-            order = np.argsort(scores, kind="stable")[:max(1, coarse_candidates)]
-            stages[f"coarse_grid_s{s_index}_seed{seed:g}_{views[0].name or 0}"] = {
-                "point_mm": firsts[order[0]].copy(), "cost": float(scores[order[0]])}
-            for rank, j in enumerate(order):
-                point = firsts[j]
-                for i in range(1, len(views)):
-                    point, c, n = grid_search(coarse_view_costs[i], R, point, views[i], coarse)
-                    n_eval += n
-                scored.append((float(coarse_joint_cost(make_transform(R, point))), seed, f"s{s_index}_r{rank}", R, point))
-                n_eval += 1
-        scored.sort(key=lambda c: c[0])
-        chains.extend(scored[:max(1, coarse_candidates)])
+    search = _Search(views, list(view_costs), joint_cost)
+    chains = search.coarse_chains(direction, scorings, seeds, centre, coarse, coarse_candidates)
     if seeded is not None:
+        chains += search.seeded_chains(direction, seeded)
+    hypotheses = []
+    for index, chain in enumerate(search.carried_chains(chains, medium, fine)):
+        suffix = "" if index == 0 else f"_{chain[2]}"
+        if len(views) == 1:
+            chain = search.depth_search(chain, depth_search_mm, suffix)
+        hypotheses += search.axial_hypotheses(direction, chain[4], suffix, n_axial, n_hypotheses,
+                                              fine if fine_after_axial else None, polish)
+    T, c, angle = min(hypotheses, key=lambda h: h[1])
+    search.stages["axial"] = {"angle_rad": angle, "cost": c}
+    return InitResult(T, np.asarray(direction, float), angle, c, search.n_eval, search.stages,
+                      hypotheses=[(h[0], h[1]) for h in hypotheses])
+
+
+#: A chain of the search: ``(joint cost, axial seed (deg), rank label, R, focal point (mm))``.
+_Chain = tuple
+
+
+class _Search:
+    """The searches of one :func:`initialise_pose` call on its views and costs, counting the cost
+    evaluations (:attr:`n_eval`) and recording each stage's optimum (:attr:`stages`)."""
+
+    def __init__(self, views: list, view_costs: list, joint_cost: CostFn):
+        self.views, self.view_costs, self.joint_cost = views, view_costs, joint_cost
+        self.n_eval, self.stages = 0, {}
+
+    def grids(self, R, point, spec: GridSpec, label: str) -> np.ndarray:
+        """Each view's grid search in turn, the next centred on the last's optimum."""
+        for i, (view, cost) in enumerate(zip(self.views, self.view_costs)):
+            point, c, n = grid_search(cost, R, point, view, spec)
+            self.n_eval += n
+            self.stages[f"{label}_{view.name or i}"] = {"point_mm": point.copy(), "cost": c}
+        return point
+
+    def coarse_chains(self, direction, scorings, seeds, centre, coarse: GridSpec, n_candidates: int) -> list[_Chain]:
+        """Coarse stage, per scoring and axial seed: the first view's grid keeps its ``n_candidates``
+        best points, each followed through the other views' grids and scored jointly; each
+        scoring's best chains go on."""
+        views, chains = self.views, []
+        for s_index, (coarse_view_costs, coarse_joint_cost) in enumerate(scorings):
+            scored = []
+            for seed in seeds:
+                R = rotation_from_direction(direction, np.deg2rad(seed))
+                firsts = centre + grid_offsets(views[0], coarse)
+                scores = translation_costs(coarse_view_costs[0], R, firsts)
+                self.n_eval += len(firsts)
+                order = np.argsort(scores, kind="stable")[:max(1, n_candidates)]
+                self.stages[f"coarse_grid_s{s_index}_seed{seed:g}_{views[0].name or 0}"] = {
+                    "point_mm": firsts[order[0]].copy(), "cost": float(scores[order[0]])}
+                for rank, j in enumerate(order):
+                    point = firsts[j]
+                    for i in range(1, len(views)):
+                        point, c, n = grid_search(coarse_view_costs[i], R, point, views[i], coarse)
+                        self.n_eval += n
+                    scored.append((float(coarse_joint_cost(make_transform(R, point))), seed, f"s{s_index}_r{rank}", R,
+                                   point))
+                    self.n_eval += 1
+            scored.sort(key=lambda c: c[0])
+            chains.extend(scored[:max(1, n_candidates)])
+        return chains
+
+    def seeded_chains(self, direction, seeded) -> list[_Chain]:
+        """The chains that start at the poses ``seeded(direction)`` proposes."""
+        chains = []
         for rank, (angle, point) in enumerate(seeded(direction)):
             R = rotation_from_direction(direction, np.deg2rad(angle))
             point = np.asarray(point, dtype=np.float64).reshape(3)
-            stages[f"seeded_{rank}"] = {"axial_deg": float(angle), "point_mm": point.copy()}
-            chains.append((float(joint_cost(make_transform(R, point))), float(angle), f"seeded{rank}", R, point))
-            n_eval += 1
-    # Medium and fine grids for the best chains; the lowest joint cost after them goes on, with
-    # the best seeded chain beside it: at the fine grid's end the truncated cost still compares
-    # poses a centimetre and an axial angle away from their optimum, and a wrong region can win
-    # there that loses after the axial search and the polish (measured on notebook 04's
-    # robustness failures).
-    finished = []
-    for score, seed, rank, R, point in chains:
-        label = f"seed{seed:g}_{rank}"
-        if medium is not None:
-            point = grids(R, point, medium, f"medium_grid_{label}")
-        point = grids(R, point, fine, f"fine_grid_{label}")
-        finished.append((float(joint_cost(make_transform(R, point))), seed, rank, R, point))
-        n_eval += 1
-    finished.sort(key=lambda f: f[0])
-    carried = [finished[0]]
-    seeded_chains = [f for f in finished if f[2].startswith("seeded")]
-    if seeded_chains and all(np.linalg.norm(seeded_chains[0][4] - f[4]) > fine.step_mm for f in carried):
-        carried.append(seeded_chains[0])
-    stages["axial_seed_deg"] = carried[0][1]
-    hypotheses = []
-    for index, (_, seed, rank, R, point) in enumerate(carried):
-        suffix = "" if index == 0 else f"_{rank}"
-        if len(views) == 1:
-            beam = views[0].detector_axes[2]
-            for step in (10.0, 2.0):
-                span = depth_search_mm if step == 10.0 else 10.0
-                offsets = np.arange(-span, span + step / 2, step)
-                costs = translation_costs(view_costs[0], R, point + offsets[:, None] * beam)
-                point = point + offsets[int(np.argmin(costs))] * beam
-                n_eval += len(offsets)
-            stages["depth_search" + suffix] = {"point_mm": point.copy()}
-        minima, n = axial_minima(joint_cost, direction, point, n_angles=n_axial, count=n_hypotheses)
-        n_eval += n
-        stages["axial_minima" + suffix] = [{"angle_rad": a, "cost": c} for a, c in minima]
+            self.stages[f"seeded_{rank}"] = {"axial_deg": float(angle), "point_mm": point.copy()}
+            chains.append((float(self.joint_cost(make_transform(R, point))), float(angle), f"seeded{rank}", R, point))
+            self.n_eval += 1
+        return chains
+
+    def carried_chains(self, chains: list[_Chain], medium: GridSpec | None, fine: GridSpec) -> list[_Chain]:
+        """Medium and fine grids for the chains; the lowest joint cost after them goes on, with the
+        best seeded chain beside it where that lies more than a fine step away."""
+        # At the fine grid's end the truncated cost still compares poses a centimetre and an axial
+        # angle away from their optimum, and a wrong region can win there that loses after the
+        # axial search and the polish (measured on notebook 04's robustness failures).
+        finished = []
+        for score, seed, rank, R, point in chains:
+            label = f"seed{seed:g}_{rank}"
+            if medium is not None:
+                point = self.grids(R, point, medium, f"medium_grid_{label}")
+            point = self.grids(R, point, fine, f"fine_grid_{label}")
+            finished.append((float(self.joint_cost(make_transform(R, point))), seed, rank, R, point))
+            self.n_eval += 1
+        finished.sort(key=lambda f: f[0])
+        carried = [finished[0]]
+        seeded_chains = [f for f in finished if f[2].startswith("seeded")]
+        if seeded_chains and all(np.linalg.norm(seeded_chains[0][4] - f[4]) > fine.step_mm for f in carried):
+            carried.append(seeded_chains[0])
+        self.stages["axial_seed_deg"] = carried[0][1]
+        return carried
+
+    def depth_search(self, chain: _Chain, depth_search_mm: float, suffix: str) -> _Chain:
+        """With a single view: the line search along its beam (10 mm, then 2 mm steps) that the
+        grid does not see, scored by the magnification."""
+        score, seed, rank, R, point = chain
+        beam = self.views[0].detector_axes[2]
+        for step in (10.0, 2.0):
+            span = depth_search_mm if step == 10.0 else 10.0
+            offsets = np.arange(-span, span + step / 2, step)
+            costs = translation_costs(self.view_costs[0], R, point + offsets[:, None] * beam)
+            point = point + offsets[int(np.argmin(costs))] * beam
+            self.n_eval += len(offsets)
+        self.stages["depth_search" + suffix] = {"point_mm": point.copy()}
+        return score, seed, rank, R, point
+
+    def axial_hypotheses(self, direction, point, suffix: str, n_axial: int, n_hypotheses: int,
+                         fine_after: GridSpec | None, polish) -> list[tuple[np.ndarray, float, float]]:
+        """``(T, cost, angle_rad)`` of each of the ``n_hypotheses`` lowest axial minima at ``point``,
+        after the fine grids again (``fine_after``) and ``polish`` where given."""
+        minima, n = axial_minima(self.joint_cost, direction, point, n_angles=n_axial, count=n_hypotheses)
+        self.n_eval += n
+        self.stages["axial_minima" + suffix] = [{"angle_rad": a, "cost": c} for a, c in minima]
+        hypotheses = []
         for angle, c in minima:
             R = rotation_from_direction(direction, angle)
-            p = grids(R, point, fine, f"fine_grid_after_axial_{np.rad2deg(angle):.1f}{suffix}") if fine_after_axial else point
+            p = point if fine_after is None else self.grids(
+                R, point, fine_after, f"fine_grid_after_axial_{np.rad2deg(angle):.1f}{suffix}")
             T = make_transform(R, p)
-            if fine_after_axial or polish is not None:
-                c = float(joint_cost(T))
-                n_eval += 1
+            if fine_after is not None or polish is not None:
+                c = float(self.joint_cost(T))
+                self.n_eval += 1
             if polish is not None:
                 T, c = polish(T)
             hypotheses.append((T, float(c), angle))
-    T, c, angle = min(hypotheses, key=lambda h: h[1])
-    stages["axial"] = {"angle_rad": angle, "cost": c}
-    return InitResult(T, np.asarray(direction, float), angle, c, n_eval, stages,
-                      hypotheses=[(h[0], h[1]) for h in hypotheses])
+        return hypotheses

@@ -1,4 +1,5 @@
-"""The options of :func:`~.estimate.estimate_pose` (§II-B.3-4): one frozen, validated record.
+"""The options of :func:`~.estimate.estimate_pose` (§II-B.3-4): one frozen, validated record; and
+the seeding rule of every pose entry point (:func:`pose_generator`).
 
 Units are in the names: ``_px`` detector pixels, ``_mm`` millimetres in the C-arm (CBCT) frame,
 ``_deg`` degrees, ``_fraction`` a fraction in [0, 1]. The defaults are the paper's where it gives
@@ -15,10 +16,23 @@ from typing import Mapping
 
 import numpy as np
 
+from histostudy.core import as_generator
 from .cost import OUTSIDE_DISTANCE_PX
 from .distance_maps import feature_class
 
-__all__ = ["INIT_METHODS", "MAP_KINDS", "MODES", "PoseOptions"]
+__all__ = ["DEFAULT_SEED", "INIT_METHODS", "MAP_KINDS", "MODES", "PoseOptions", "pose_generator"]
+
+#: The seed of the Generator that :func:`~.estimate.estimate_pose`, :func:`~.from_labels.estimate_pose_from_labels`
+#: and :class:`~histostudy.pose.tracking.Tracker` draw from when given ``rng=None``.
+DEFAULT_SEED = 0
+
+
+def pose_generator(rng) -> np.random.Generator:
+    """The Generator of a pose entry point's ``rng``: a Generator as given, an int seed's
+    ``numpy.random.default_rng(seed)``, None ``numpy.random.default_rng(DEFAULT_SEED)`` (so that
+    the same inputs give the same pose; docs/architecture.md, "Seeding and determinism").
+    Anything else raises TypeError naming ``rng``."""
+    return np.random.default_rng(DEFAULT_SEED) if rng is None else as_generator(rng)
 
 MODES = ("paper", "fast")
 INIT_METHODS = ("robust", "paper")

@@ -53,7 +53,7 @@ def _matrix_from_rotvec(x: float, y: float, z: float) -> np.ndarray:
     """:func:`~histostudy.geometry.matrix_from_rotvec` of the rotation vector ``(x, y, z)`` (rad) in
     scalar arithmetic: SciPy's own route (the unit quaternion of the rotation vector, with its series
     for angles <= 1e-3 rad, then the quaternion's matrix), equal to it up to float rounding, without
-    the ~20 µs SciPy spends per call on its checks and array set-up (one call per Levenberg-Marquardt
+    the time SciPy spends per call on its checks and array set-up (one call per Levenberg-Marquardt
     step; docs/tracking.md)."""
     angle = math.sqrt(x * x + y * y + z * z)
     if angle <= 1e-3:

@@ -11,6 +11,9 @@ Both search over a perturbation of the current pose: ``R' = exp([w]x) R``, ``t' 
 (:func:`~histostudy.pose.perturbation.apply_left_perturbation`) — a rotation about the transducer
 origin, i.e. the focal point, in world axes, then a translation. Rotation and translation then do not
 mix: a step in ``v`` moves the focal point by exactly ``v``.
+
+:func:`refine_pose` is the refinement stage of :func:`~histostudy.pose.estimate_pose_from_labels`
+and of the tracker's warm path: the mode's optimiser on the stage's capped costs.
 """
 
 from __future__ import annotations
@@ -25,8 +28,9 @@ import scipy.optimize
 from histostudy.geometry import check_rigid
 from .cost import PoseCost
 from .perturbation import apply_left_perturbation
+from .truncations import PoseCosts
 
-__all__ = ["RefineResult", "refine_levenberg_marquardt", "refine_nelder_mead"]
+__all__ = ["RefineResult", "refine_levenberg_marquardt", "refine_nelder_mead", "refine_pose"]
 
 
 @dataclass
@@ -216,3 +220,21 @@ def refine_levenberg_marquardt(cost: PoseCost, T_init, *, max_iter: int = 50, ft
     return RefineResult(T=T, cost=c, iterations=iterations + it, evaluations=evaluations + ev,
                         seconds=time.perf_counter() - start, converged=ok, message=msg,
                         method="levenberg-marquardt", info=info)
+
+
+def refine_pose(costs: PoseCosts, T_init, mode: str, *, xtol_mm: float = 1e-4, xtol_rad: float = 1e-6) -> RefineResult:
+    """The refinement stage: eq. 3 (``costs.refine``, distances capped at ``refine_truncation_px``
+    unless None) minimised from ``T_init`` (4x4 ``T_carm_transducer``).
+
+    ``mode="paper"``: :func:`refine_nelder_mead`. ``mode="fast"``: :func:`refine_levenberg_marquardt`
+    coarse to fine, ``costs.polish`` (the point subset, truncated) first, then ``costs.refine``,
+    stopping at a relative decrease below 1e-6 or a step below ``xtol_mm`` / ``xtol_rad``."""
+    if mode == "paper":
+        return refine_nelder_mead(costs.refine, T_init)
+    # Coarse to fine: the truncated point subset is robust to missed and spurious features and
+    # much cheaper per pass. The capped cost of a learned segmentation has long, nearly flat
+    # valleys: stopped at a 1e-3 relative decrease, the focal point sat 0.63 mm (median) from the
+    # truth where the same refinement run on to 1e-6 reached 0.46 mm (92 random poses, shipped
+    # U-Net), for a little more time per estimate.
+    return refine_levenberg_marquardt(costs.refine, T_init, coarse=costs.polish, ftol=1e-6, xtol_mm=xtol_mm,
+                                      xtol_rad=xtol_rad, max_iter=50)

@@ -13,7 +13,7 @@ from .init import InitResult
 from .refine import RefineResult
 from .verdict import PoseVerdict
 
-__all__ = ["PoseEstimationError", "PoseResult", "add_timings"]
+__all__ = ["PoseEstimationError", "PoseResult", "add_timings", "refused", "result_of_refinement"]
 
 
 class PoseEstimationError(RuntimeError):
@@ -60,6 +60,24 @@ class PoseResult:
 
 def add_timings(into: dict, timings: dict) -> None:
     """Adds each stage's seconds of ``timings`` (a :attr:`PoseResult.timings_s`) to ``into``, the running
-    sums of a stream of estimates (e.g. :attr:`~.tracker.Tracker.stage_seconds`)."""
+    sums of a stream of estimates (e.g. :attr:`~histostudy.pose.tracking.Tracker.stage_seconds`)."""
     for stage, seconds in timings.items():
         into[stage] = into.get(stage, 0.0) + float(seconds)
+
+
+def result_of_refinement(refined: RefineResult, verdict: PoseVerdict, focal_point_local_mm, *, mode: str,
+                         timings_s: dict, labels: list, init: InitResult | None = None,
+                         n_init_evaluations: int = 0, retries: int = 0) -> PoseResult:
+    """The :class:`PoseResult` of a refined pose: its focal point in the C-arm frame (eq. 5,
+    ``f_c = hTc f_h`` with ``focal_point_local_mm`` in the transducer frame) and its records;
+    ``evaluations`` counts the refinement's and ``n_init_evaluations``."""
+    T = refined.T
+    focal = T[:3, :3] @ np.asarray(focal_point_local_mm, dtype=np.float64) + T[:3, 3]
+    return PoseResult(T_carm_transducer=T, focal_point_mm=focal, cost=refined.cost, iterations=refined.iterations,
+                      evaluations=refined.evaluations + n_init_evaluations, timings_s=timings_s, verdict=verdict,
+                      mode=mode, init=init, refine=refined, labels=labels, retries=retries)
+
+
+def refused(result: PoseResult) -> PoseEstimationError:
+    """The error that reports ``result``'s failed verdict (its reasons, the verdict and the result)."""
+    return PoseEstimationError("implausible pose: " + "; ".join(result.verdict.reasons), result.verdict, result)

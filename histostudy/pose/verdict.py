@@ -10,6 +10,10 @@ refuse a right pose and its confusions do not pass a wrong one (docs/learned-sta
 - :func:`unexplained_fraction`: the segmented pixels the posed model leaves unexplained;
 - :func:`view_disagreement_mm`: how far each view's evidence alone would move the focal point
   across its ray: views that each fit a different pose disagree.
+
+:class:`PoseJudge` runs them in turn: the verdict stage of
+:func:`~histostudy.pose.estimate_pose_from_labels` and of the tracker's warm path. Each check takes
+the views as :class:`~histostudy.imaging.View` objects or as frames taken with them.
 """
 
 from __future__ import annotations
@@ -21,19 +25,26 @@ import cv2
 import numba
 import numpy as np
 
-from histostudy.imaging import Frame
+from histostudy.imaging import Frame, View
 from histostudy.transducer import Feature, TransducerModel
 from .cost import PoseCost
 from .init import COARSE_GRID
+from .options import PoseOptions
 from .refine import refine_levenberg_marquardt
+from .truncations import PoseCosts
 
-__all__ = ["PoseVerdict", "check_unexplained", "check_view_agreement", "judge_fit", "unexplained_fraction",
-           "view_disagreement_mm"]
+__all__ = ["PoseJudge", "PoseVerdict", "check_unexplained", "check_view_agreement", "judge_fit",
+           "unexplained_fraction", "view_disagreement_mm"]
 
 
-def _view_label(frame: Frame, index: int) -> str:
+def _view_of(view_or_frame) -> View:
+    """The view of a :class:`~histostudy.imaging.Frame` (or of anything with a ``view``), or the view itself."""
+    return view_or_frame if isinstance(view_or_frame, View) else view_or_frame.view
+
+
+def _view_label(view_or_frame, index: int) -> str:
     """The key of a view in the verdict's per-view figures: its name, else its index."""
-    return frame.view.name or str(index)
+    return _view_of(view_or_frame).name or str(index)
 
 
 @dataclass
@@ -71,7 +82,7 @@ class PoseVerdict:
     unexplained_fraction: dict = field(default_factory=dict)
 
 
-def view_disagreement_mm(cost: PoseCost, frames: Sequence[Frame], T_carm_transducer, focal_point_mm,
+def view_disagreement_mm(cost: PoseCost, frames: Sequence[Frame | View], T_carm_transducer, focal_point_mm,
                          *, max_iter: int = 30) -> dict:
     """Per view, how far that view's evidence alone moves the focal point across its ray (mm).
 
@@ -88,7 +99,8 @@ def view_disagreement_mm(cost: PoseCost, frames: Sequence[Frame], T_carm_transdu
     for a, f in enumerate(frames):
         relaxed = refine_levenberg_marquardt(cost.select_views(a), T, max_iter=max_iter).T
         move = relaxed[:3, :3] @ focal_local + relaxed[:3, 3] - focal
-        ray = f.view.ray_directions(f.view.project(focal[None]))[0]
+        view = _view_of(f)
+        ray = view.ray_directions(view.project(focal[None]))[0]
         out[_view_label(f, a)] = float(np.linalg.norm(move - (move @ ray) * ray))
     return out
 
@@ -143,7 +155,7 @@ def unexplained_fraction(view, labels: np.ndarray, model: TransducerModel, T_car
     _mark_pixels(uvw, near)
     if tolerance_px <= _DILATION_MAX_TOLERANCE_PX:
         # The pixels within the tolerance of a model pixel: a dilation by the disk of that radius
-        # (7-20x cheaper than the distance transform at 5-10 px, docs/tracking.md).
+        # (much cheaper than the distance transform at such tolerances, docs/tracking.md).
         far = cv2.dilate(near, _disk(tolerance_px), borderType=cv2.BORDER_CONSTANT, borderValue=0) == 0
     else:
         far = cv2.distanceTransform(1 - near, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) > tolerance_px
@@ -155,7 +167,7 @@ def check_unexplained(verdict: PoseVerdict, frames, labels, model, T, limit: flo
     """Adds each view's :func:`unexplained_fraction` to ``verdict``; fails it where one exceeds ``limit``."""
     for a, (f, lab) in enumerate(zip(frames, labels)):
         name = _view_label(f, a)
-        fraction = unexplained_fraction(f.view, lab, model, T, tolerance_px, points_mm=points_mm)
+        fraction = unexplained_fraction(_view_of(f), lab, model, T, tolerance_px, points_mm=points_mm)
         verdict.unexplained_fraction[name] = fraction
         if np.isfinite(fraction) and fraction > limit:
             verdict.reasons.append(f"view {name!r}: {100 * fraction:.0f}% of the segmented transducer lies over "
@@ -173,7 +185,7 @@ def check_view_agreement(verdict: PoseVerdict, cost: PoseCost, frames, T, focal_
     verdict.ok = not verdict.reasons
 
 
-def judge_fit(cost: PoseCost, frames: Sequence[Frame], T, centre, max_rms_px: float, min_inside: float,
+def judge_fit(cost: PoseCost, frames: Sequence[Frame | View], T, centre, max_rms_px: float, min_inside: float,
               max_body_rms_px: float | None = None) -> PoseVerdict:
     """The verdict's first checks of pose ``T`` (see :func:`~histostudy.pose.estimate_pose`):
     per view the RMS distance over the active classes (``cost``'s capped distances), the element
@@ -197,10 +209,11 @@ def judge_fit(cost: PoseCost, frames: Sequence[Frame], T, centre, max_rms_px: fl
         body = class_rms[name].get(Feature.TRANSDUCER.name.lower(), float("nan"))
         if max_body_rms_px is not None and np.isfinite(body) and body > max_body_rms_px:
             reasons.append(f"view {name!r}: the element body's RMS distance {body:.2f} px > {max_body_rms_px} px")
-        uvw = f.view.project_homogeneous(world)
+        view = _view_of(f)
+        uvw = view.project_homogeneous(world)
         with np.errstate(divide="ignore", invalid="ignore"):
             px = uvw[:, :2] / uvw[:, 2:3]
-        inside[name] = float(np.mean((uvw[:, 2] > 0) & f.view.in_image(px)))
+        inside[name] = float(np.mean((uvw[:, 2] > 0) & view.in_image(px)))
         if not np.isfinite(rms[name]) or rms[name] > max_rms_px:
             reasons.append(f"view {name!r}: RMS distance {rms[name]:.2f} px > {max_rms_px} px")
         if inside[name] < min_inside:
@@ -211,3 +224,48 @@ def judge_fit(cost: PoseCost, frames: Sequence[Frame], T, centre, max_rms_px: fl
         reasons.append(f"focal point {offset:.0f} mm from the search centre, beyond the search region ({reach:.0f} mm)")
     return PoseVerdict(ok=not reasons, reasons=reasons, rms_distance_px=rms, inside_fraction=inside,
                        focal_offset_mm=offset, class_rms_distance_px=class_rms)
+
+
+class PoseJudge:
+    """The verdict stage: ``judge(T) -> PoseVerdict`` of a pose ``T`` (4x4 ``T_carm_transducer``).
+
+    :func:`judge_fit` on ``costs.verdict`` (the point subset: the thresholds are coarse, pixels
+    and percent, and it judges as well as the whole model for a fraction of the time), then
+    :func:`check_unexplained` where ``max_unexplained_fraction`` is set, then, for a pose that
+    passed and two or more views, :func:`check_view_agreement` on ``costs.consistency``.
+
+    Args:
+        costs: the estimate's :class:`~.truncations.PoseCosts`.
+        views: the views of the labels (or frames taken with them).
+        labels: each view's label image (what the unexplained-segmentation check reads).
+        model: the digital model (its focal point, and its points for that check).
+        options: the thresholds, pixel ones in the labels' pixels.
+        label_scale: label pixels per detector pixel; scales only the fixed 10 px tolerance of the
+            unexplained check used where ``verdict_truncation_px`` is None.
+        unexplained_points_mm: the model points that check projects (default: all of them).
+    """
+
+    def __init__(self, costs: PoseCosts, views: Sequence[View | Frame], labels: Sequence[np.ndarray],
+                 model: TransducerModel, options: PoseOptions, *, label_scale: float = 1.0,
+                 unexplained_points_mm: np.ndarray | None = None):
+        self.costs, self.views, self.labels, self.model, self.options = costs, list(views), list(labels), model, options
+        self.label_scale = label_scale
+        self.check_agreement = len(self.views) > 1 and options.max_view_disagreement_mm is not None
+        if unexplained_points_mm is None and options.max_unexplained_fraction is not None:
+            # Stacked once here: every verdict projects all of the model's points.
+            unexplained_points_mm = np.vstack([p for p in model.points.values() if len(p)])
+        self.unexplained_points_mm = unexplained_points_mm
+
+    def __call__(self, T: np.ndarray) -> PoseVerdict:
+        opts = self.options
+        occlusion_aware = opts.distance_maps == "occlusion_aware"
+        verdict = judge_fit(self.costs.verdict, self.views, T, opts.search_centre_mm, opts.max_rms_px,
+                            opts.min_inside_fraction, opts.max_body_rms_px if occlusion_aware else None)
+        if opts.max_unexplained_fraction is not None:
+            tolerance = 10.0 * self.label_scale if opts.verdict_truncation_px is None else opts.verdict_truncation_px
+            check_unexplained(verdict, self.views, self.labels, self.model, T, opts.max_unexplained_fraction,
+                              tolerance, points_mm=self.unexplained_points_mm)
+        if verdict.ok and self.check_agreement:
+            check_view_agreement(verdict, self.costs.consistency, self.views, T, self.model.focal_point_mm,
+                                 opts.max_view_disagreement_mm)
+        return verdict

@@ -37,7 +37,7 @@ __all__ = [
 #: 3x3x6 mm clouds on this lattice as large as the prescribed sphere, as a clinical planner is
 #: calibrated to do: insetting by the cloud's half axes (1.5, 1.5, 3) puts the cloud tips on the
 #: sphere, but the scalloped surface between them leaves the segmented zone small (measured with
-#: ``histostudy.study.pose_estimation.cbct_reference``, 6 experiments of 20-25 mm: radius along
+#: ``histostudy.study.pose.cbct_reference``, 6 experiments of 20-25 mm: radius along
 #: depth/TB/LR -1.02/-0.27/-0.45 mm, fitted sphere -0.27 mm); (1, 1, 2) leaves it large
 #: (+0.12/+0.23/+0.26, sphere +0.38); (1.25, 1.25, 2.25) gives -0.13/-0.06/-0.23, sphere +0.13.
 #: Another spacing or cloud size needs its own inset.

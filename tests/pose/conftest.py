@@ -1,4 +1,6 @@
-"""Fixtures the tracking tests share (tests/pose/test_tracker.py, test_tracking_*.py)."""
+"""Fixtures the tracking tests share (tests/pose/tracking/). Loading this file puts tests/pose on
+sys.path (pytest's default "prepend" import mode), so the tests of the sub-folders import
+pose_frames.py too."""
 
 import pytest
 

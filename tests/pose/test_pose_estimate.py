@@ -96,7 +96,7 @@ def test_the_capped_refinement_is_not_pulled_by_a_missed_stretch_of_a_class(mode
 
 @pytest.mark.parametrize("which", [0, 1])
 def test_the_silhouette_seed_finds_a_mostly_hidden_transducer(models, which, monkeypatch):
-    import histostudy.pose.estimate as pose_module
+    import histostudy.pose.start as pose_module
 
     T = HALF_HIDDEN_POSES[which]
     frames = frames_of(models[0], T)
@@ -338,8 +338,8 @@ def test_bad_arguments_raise(models, frames):
         estimate_pose(frames[0], models[0], init="random", **ORACLES)
     with pytest.raises(ValueError, match="distance_maps must be one of"):
         estimate_pose(frames[0], models[0], distance_maps="chamfer", **ORACLES)
-    with pytest.raises(TypeError, match="rng must be a numpy.random.Generator"):
-        estimate_pose(frames[0], models[0], rng=3, **ORACLES)
+    with pytest.raises(TypeError, match="rng must be a numpy.random.Generator or an int seed"):
+        estimate_pose(frames[0], models[0], rng="3", **ORACLES)
     with pytest.raises(ValueError, match="direction_spread_limit_deg must be a number in"):
         estimate_pose(frames[0], models[0], direction_spread_limit_deg=0, **ORACLES)
 

@@ -15,7 +15,7 @@ label scale ``s``: with the box's top-left frame pixel ``(u0, v0)``,
 so ``u' = s (u - u0) + (s - 1) / 2``: the pixel-centre convention of
 :meth:`~histostudy.imaging.carm.View.scaled` (centres at integers, docs/architecture.md "Frames
 and units"), shifted to the box. Pixel ``(i, j)`` of a label image of the box at scale ``s`` is
-pixel ``(i, j)`` of the cropped view, and the eq. 3 cost (:class:`~.cost.PoseCost`) on maps of
+pixel ``(i, j)`` of the cropped view, and the eq. 3 cost (:class:`~histostudy.pose.cost.PoseCost`) on maps of
 the box is the cost on maps of the frame up to that change of pixel units.
 
 Boxes are ``(row0, row1, col0, col1)``, half-open, in full-frame pixels; poses are 4x4

@@ -7,7 +7,7 @@
     \\qquad \\hat p_i^{(k)} = H(P_a (R p_i^{(k)} + t))
 
 :class:`PoseCost` evaluates eq. 3 by bilinear interpolation of each view's
-:class:`~.distance_maps.DistanceMaps` (the ``min_j``) at the projected model points (the paper's
+:class:`~histostudy.pose.distance_maps.DistanceMaps` (the ``min_j``) at the projected model points (the paper's
 "distance map texture"), squaring the interpolated distance. A point that projects outside the
 map, or lies behind the X-ray source, gets the paper's constant distance of 0.1 px (0.01 px²
 before normalisation). Classes not segmented in a view contribute nothing in that view (see
@@ -20,14 +20,14 @@ distances in pixels. "Inside the map" is :meth:`histostudy.imaging.carm.View.in_
 in the half-pixel rim outside the outermost pixel centres the interpolation clamps to the edge
 (the rim belongs to the edge pixels).
 
-Two back-ends compute the same numbers: the fused numba kernels of :mod:`.cost_kernels` (the
-default) and the plain numpy float64 reference of :mod:`.cost_reference` (``backend="numpy"``,
+Two back-ends compute the same numbers: the fused numba kernels of :mod:`._kernels` (the
+default) and the plain numpy float64 reference of :mod:`._reference` (``backend="numpy"``,
 :meth:`PoseCost.reference_cost`), which the tests compare against. Sums run over fixed blocks of
 points, so a result does not depend on the number of threads (nor on ``parallel``).
 
-Jacobian (for Levenberg-Marquardt, :mod:`.refine`): with respect to the left perturbation about the
-focal point of :mod:`.perturbation`. The map gradient is the exact gradient of the bilinear
-interpolant inside the pixel cell (not interpolated central differences), so the Jacobian is the
+Jacobian (for Levenberg-Marquardt, :mod:`histostudy.pose.refine`): with respect to the left
+perturbation about the focal point of :mod:`histostudy.pose.perturbation`. The map gradient is the
+exact gradient of the bilinear interpolant inside the pixel cell (not interpolated central differences), so the Jacobian is the
 true derivative of the residual wherever that is differentiable (finite differences agree, see
 the tests). Outside points have a constant residual and a zero Jacobian row.
 """
@@ -41,11 +41,11 @@ import numpy as np
 
 from histostudy.geometry import check_rigid, check_rotation, make_transform, transform_from_params
 from histostudy.transducer import FEATURE_CLASSES, Feature
-from .cost_kernels import (BLOCK_POINTS, cost_parallel, cost_serial, costs_batch, normal_parallel, normal_serial,
+from ._kernels import (BLOCK_POINTS, cost_parallel, cost_serial, costs_batch, normal_parallel, normal_serial,
                            residual_parallel, residual_serial)
-from .cost_reference import reference_distances, reference_sum_of_squares
-from .distance_maps import DistanceMaps, feature_class
-from .perturbation import NormalEquations
+from ._reference import reference_distances, reference_sum_of_squares
+from ..distance_maps import DistanceMaps, feature_class
+from ..perturbation import NormalEquations
 
 __all__ = ["OUTSIDE_DISTANCE_PX", "PARALLEL_MIN_PROJECTIONS", "PoseCost"]
 
@@ -80,9 +80,9 @@ class PoseCost:
         backend: ``"numba"`` (fused kernels, the default) or ``"numpy"`` (the float64 reference).
         parallel: run the numba kernels on numba's threads (True), on the calling thread (False),
             or decide by size (None: threads from :data:`PARALLEL_MIN_PROJECTIONS` projections on).
-            Both give the same bits. Threads pay a start-up per call (tens of µs on an idle
-            machine, but a scheduler time slice, ~5-8 ms, when another process holds a core), so
-            small costs (subsets, grid searches) run serially; force False on a shared machine.
+            Both give the same bits. Threads pay a start-up per call (small on an idle machine,
+            but a whole scheduler time slice when another process holds a core), so small costs
+            (subsets, grid searches) run serially; force False on a shared machine.
 
     Attributes:
         classes: the classes with points, in enum order (the "slots" of :attr:`weights`).
@@ -370,8 +370,8 @@ class PoseCost:
 
     def _normal_equations(self, T: np.ndarray) -> NormalEquations:
         """:meth:`normal_equations` at a pose already checked: a float64 4x4 rigid ``T`` (the
-        Levenberg-Marquardt loop's steps, :func:`~.perturbation.apply_left_perturbation` of a checked
-        pose, which skip the ~25 µs of :func:`~histostudy.geometry.check_rigid` per step)."""
+        Levenberg-Marquardt loop's steps, :func:`~histostudy.pose.perturbation.apply_left_perturbation`
+        of a checked pose, which skip the :func:`~histostudy.geometry.check_rigid` of every step)."""
         if self.backend == "numpy":
             r, J = self.reference_residuals_and_jacobian(T)
             return NormalEquations(float(r @ r), J.T @ J, J.T @ r)

@@ -1,31 +1,31 @@
-"""The fast warm update of :class:`~.tracker.Tracker` (``fast=True``; §II-B.2-3, docs/tracking.md):
+"""The fast warm update of :class:`~._tracker.Tracker` (``fast=True``; §II-B.2-3, docs/tracking.md):
 :class:`RegionEstimator`.
 
-What :func:`~.estimate.estimate_pose` does with ``initial_pose=`` (segmentation, distance maps, the
-eq. 3 refinement from the last pose, the verdict), restricted to where it matters:
+What :func:`~histostudy.pose.estimate_pose` does with ``initial_pose=`` (segmentation, distance
+maps, the eq. 3 refinement from the last pose, the verdict), restricted to where it matters:
 
 1. each view's region of interest, the box of the model projected at the last accepted pose plus
-   a margin (:func:`~.tracking_roi.region_of_interest`), and its view at the label scale
-   (:func:`~.tracking_roi.crop_view`);
+   a margin (:func:`~._roi.region_of_interest`), and its view at the label scale
+   (:func:`~._roi.crop_view`);
 2. the region's labels: a U-Net through :class:`~histostudy.learning.FastUNet` (arg-max at the
    network's resolution, folded batch norms, channels-last); any other segmenter on the whole
    frame, its labels cut to the region (and pooled by priority below scale 1);
-3. the region's distance maps into reused buffers (:class:`~.tracking_maps.RegionMaps`);
-4. Levenberg-Marquardt from the last pose, coarse to fine as in ``estimate_pose``'s fast mode
-   (the point subset with distances capped at ``search_truncation_px``, then the fine subset capped at
-   ``refine_truncation_px``), stopping once a step moves the pose less than the noise
-   (:class:`~.tracking_options.TrackingOptions`);
-5. the verdict of ``estimate_pose`` on the region (:func:`~.verdict.judge_fit`,
-   :func:`~.verdict.check_unexplained`, :func:`~.verdict.check_view_agreement`).
+3. the region's distance maps into reused buffers (:class:`~._maps.RegionMaps`);
+4. ``estimate_pose``'s costs and fast refinement (:func:`~histostudy.pose.truncations.pose_costs`,
+   :func:`~histostudy.pose.refine.refine_pose`): Levenberg-Marquardt from the last pose, coarse to
+   fine (the point subset with distances capped at ``search_truncation_px``, then the fine subset
+   capped at ``refine_truncation_px``), stopping once a step moves the pose less than the noise
+   (:class:`~._options.TrackingOptions`);
+5. ``estimate_pose``'s verdict on the region (:class:`~histostudy.pose.verdict.PoseJudge`).
 
 A refused warm start gets one more chance before the tracker re-acquires
-(:attr:`~.tracking_options.TrackingOptions.rescue_scale`): :meth:`RegionEstimator.prepare_rescue`
+(:attr:`~._options.TrackingOptions.rescue_scale`): :meth:`RegionEstimator.prepare_rescue`
 segments the same regions again at the rescue scale (1: the detector's pixels, where
 ``estimate_pose`` judges), and :meth:`RegionEstimator.finish` refines from the refused pose there and
 judges again (docs/tracking.md, "Warm starts that hold").
 
-Pixel thresholds of :class:`~.options.PoseOptions` are multiplied by the label scale (their length on
-the detector is kept). Poses are 4x4 ``T_carm_transducer`` (mm, C-arm frame); random draws (the
+Pixel thresholds of :class:`~histostudy.pose.options.PoseOptions` are multiplied by the label scale
+(:func:`~._options.scaled_pose_options`: their length on the detector is kept). Poses are 4x4 ``T_carm_transducer`` (mm, C-arm frame); random draws (the
 point subsets, drawn once) come from the tracker's Generator (docs/architecture.md, "Seeding and
 determinism").
 """
@@ -42,14 +42,14 @@ import numpy as np
 from histostudy.imaging import Frame, View
 from histostudy.learning import FastUNet, UNetSegmenter, keep_largest_component, pool_labels
 from histostudy.transducer import TransducerModel, check_label_image
-from .cost import PoseCost
-from .options import PoseOptions
-from .refine import refine_levenberg_marquardt
-from .result import PoseEstimationError, PoseResult
-from .tracking_maps import RegionMaps
-from .tracking_options import TrackingOptions
-from .tracking_roi import RegionOfInterest, crop_view, region_of_interest
-from .verdict import check_unexplained, check_view_agreement, judge_fit
+from ..options import PoseOptions
+from ..refine import refine_pose
+from ..result import PoseEstimationError, PoseResult, result_of_refinement
+from ..truncations import pose_costs
+from ..verdict import PoseJudge
+from ._maps import RegionMaps
+from ._options import TrackingOptions, scaled_pose_options
+from ._roi import RegionOfInterest, crop_view, region_of_interest
 
 __all__ = ["PreparedRegions", "RegionEstimator"]
 
@@ -63,9 +63,9 @@ class PreparedRegions:
     """What :meth:`RegionEstimator.prepare` made of a frame pair (steps 1-3 of the module docstring).
 
     Attributes:
-        regions: each view's :class:`~.tracking_roi.RegionOfInterest`.
+        regions: each view's :class:`~._roi.RegionOfInterest`.
         labels: each region's ``uint8`` labels at the label scale.
-        maps: each region's :class:`~.distance_maps.DistanceMaps` (in the estimator's buffers of the slot).
+        maps: each region's :class:`~histostudy.pose.distance_maps.DistanceMaps` (in the estimator's buffers of the slot).
         timings_s: ``segmentation`` and ``distance_maps`` seconds (summed over views).
         seconds: wall seconds of the preparation.
         frames: the frames the regions were cut from (:meth:`RegionEstimator.prepare_rescue`
@@ -78,13 +78,6 @@ class PreparedRegions:
     timings_s: dict
     seconds: float
     frames: list | None = None
-
-
-@dataclass(frozen=True)
-class _RegionFrame:
-    """What the verdict reads of a frame: its view (here a region's)."""
-
-    view: View
 
 
 def _subset_indices(n_points: int, n: int | None, rng: np.random.Generator) -> np.ndarray:
@@ -133,7 +126,7 @@ class RegionEstimator:
         label_scale: label pixels per frame pixel of the regions.
         rescue_scale: the label scale of :meth:`prepare_rescue` (``TrackingOptions.rescue_scale``),
             None where there is no second attempt (not set, or not above ``label_scale``).
-        last_regions: the :class:`~.tracking_roi.RegionOfInterest` of each view at the last call.
+        last_regions: the :class:`~._roi.RegionOfInterest` of each view at the last call.
     """
 
     def __init__(self, model: TransducerModel, views: Sequence[View], segmenter, options: PoseOptions,
@@ -169,6 +162,7 @@ class RegionEstimator:
             if v.shape[0] % k or v.shape[1] % k:
                 raise ValueError(f"views[{i}] shape {v.shape} is not divisible by 1/label_scale = {k}")
         self._maps = RegionMaps(occlusion_aware=options.distance_maps == "occlusion_aware")
+        self._options_at: dict[float, PoseOptions] = {}
         self._roi_points = np.vstack([p[::ROI_POINT_STRIDE] for p in model.points.values() if len(p)])
         self._refine_points = {k: _subset(np.asarray(p, dtype=np.float64), tracking.refine_points_per_class, rng)
                                for k, p in model.points.items() if len(p)}
@@ -191,6 +185,12 @@ class RegionEstimator:
         if abs(ratio - round(ratio)) > 1e-9:
             raise ValueError(f"{name} {s!r} must be the U-Net's input scale {net_scale} times or divided by an "
                              f"integer (labels are pooled or the logits upsampled)")
+
+    def _scaled_options(self, scale: float) -> PoseOptions:
+        """:attr:`options` with their pixel thresholds at label scale ``scale`` (made once per scale)."""
+        if scale not in self._options_at:
+            self._options_at[scale] = scaled_pose_options(self.options, scale)
+        return self._options_at[scale]
 
     @property
     def full_frame_segmenter(self):
@@ -237,7 +237,7 @@ class RegionEstimator:
         """The pose in ``frames`` refined from ``T_prev`` on the regions of ``T_prev`` (module
         docstring): :meth:`finish` of :meth:`prepare`.
 
-        Raises :class:`~.result.PoseEstimationError` when a region shows no transducer feature.
+        Raises :class:`~histostudy.pose.result.PoseEstimationError` when a region shows no transducer feature.
         ``result.labels`` are the regions' labels (:attr:`last_regions` says where they lie)."""
         return self.finish(self.prepare(frames, T_prev, rng), T_prev)
 
@@ -303,11 +303,12 @@ class RegionEstimator:
         the verdict, at the regions' scale (pixel thresholds times it); the result's
         ``timings_s["total"]`` adds :meth:`prepare`'s seconds. Draws nothing: the point subsets were
         drawn when the estimator was made. ``parallel``: the cost's kernels on numba's threads or not,
-        as :class:`~.cost.PoseCost`'s (None: by the problem's size); the same bits either way."""
+        as :class:`~histostudy.pose.cost.PoseCost`'s (None: by the problem's size); the same bits
+        either way."""
         if parallel not in (None, True, False):
             raise ValueError(f"parallel must be None, True or False, got {parallel!r}")
         t_start = time.perf_counter()
-        opts, s = self.options, prepared.regions[0].scale
+        s = prepared.regions[0].scale
         regions, labels, maps = prepared.regions, prepared.labels, prepared.maps
         self.last_regions = list(regions)
         timings = dict(prepared.timings_s)
@@ -318,38 +319,19 @@ class RegionEstimator:
                                           f"segmentation failed")
 
         t0 = time.perf_counter()
-        caps = self._caps(s)
-        cap, tau = caps["refine"], caps["search"]
-        outside = opts.outside_distance_px * s
-        cost = PoseCost(self._refine_points, maps, class_weights=opts.class_weights, outside_distance_px=outside,
-                        parallel=parallel)
-        coarse = cost.subset(opts.init_points_per_class, np.random.default_rng(self._subset_seed))
-        polish = coarse.capped(tau, outside_distance_px=tau).with_outside_distance(outside)
-        refined = refine_levenberg_marquardt(cost.capped(cap), T_prev, coarse=polish, ftol=1e-6,
-                                             xtol_mm=self.tracking.stop_step_mm,
-                                             xtol_rad=np.deg2rad(self.tracking.stop_step_deg), max_iter=50)
+        opts = self._scaled_options(s)
+        costs = pose_costs(self._refine_points, maps, opts, np.random.default_rng(self._subset_seed), label_scale=s,
+                           truncated_search=True, parallel=parallel)
+        refined = refine_pose(costs, T_prev, "fast", xtol_mm=self.tracking.stop_step_mm,
+                              xtol_rad=np.deg2rad(self.tracking.stop_step_deg))
         timings["refinement"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
-        region_frames = [_RegionFrame(r.view) for r in regions]
-        occlusion_aware = opts.distance_maps == "occlusion_aware"
-        verdict_cap = caps["verdict"]
-        verdict = judge_fit(coarse.capped(verdict_cap), region_frames, refined.T, opts.search_centre_mm,
-                            opts.max_rms_px * s, opts.min_inside_fraction,
-                            opts.max_body_rms_px * s if occlusion_aware and opts.max_body_rms_px is not None else None)
-        if opts.max_unexplained_fraction is not None:
-            tolerance = (10.0 if opts.verdict_truncation_px is None else opts.verdict_truncation_px) * s
-            check_unexplained(verdict, region_frames, labels, self.model, refined.T, opts.max_unexplained_fraction,
-                              tolerance, points_mm=self._unexplained_points)
-        if verdict.ok and len(regions) > 1 and opts.max_view_disagreement_mm is not None:
-            consistency = coarse.capped(caps["consistency"])
-            check_view_agreement(verdict, consistency, region_frames, refined.T, self.model.focal_point_mm,
-                                 opts.max_view_disagreement_mm)
+        judge = PoseJudge(costs, [r.view for r in regions], labels, self.model, opts, label_scale=s,
+                          unexplained_points_mm=self._unexplained_points)
+        verdict = judge(refined.T)
         timings["verdict"] = time.perf_counter() - t0
         timings["retries"] = 0.0
         timings["total"] = time.perf_counter() - t_start + prepared.seconds
-        T = refined.T
-        focal = T[:3, :3] @ np.asarray(self.model.focal_point_mm, dtype=np.float64) + T[:3, 3]
-        return PoseResult(T_carm_transducer=T, focal_point_mm=focal, cost=refined.cost, iterations=refined.iterations,
-                          evaluations=refined.evaluations, timings_s=timings, verdict=verdict, mode="fast",
-                          init=None, refine=refined, labels=labels, retries=0)
+        return result_of_refinement(refined, verdict, self.model.focal_point_mm, mode="fast", timings_s=timings,
+                                    labels=labels)

@@ -1,4 +1,4 @@
-"""Tests of the tracker's fast warm path (histostudy.pose.tracking_warm, Tracker(fast=...)).
+"""Tests of the tracker's fast warm path (histostudy.pose.tracking._warm, Tracker(fast=...)).
 
 Geometry first: with the oracle stages (exact labels) on the half-resolution biplane views, the
 fast path's poses must stay within 0.1 mm of the full-frame path's on a small moving sequence, at

@@ -1,28 +1,28 @@
 """Distance maps of a tracking region (§II-B.3), written into buffers reused frame after frame:
 :class:`RegionMaps`.
 
-The same maps as :class:`~.distance_maps.DistanceMaps` (the exact Euclidean distance in pixels
+The same maps as :class:`~histostudy.pose.distance_maps.DistanceMaps` (the exact Euclidean distance in pixels
 from every pixel of a label image to the nearest pixel of each class, or of a class of higher
 overlap priority with ``occlusion_aware``; OpenCV's Felzenszwalb-Huttenlocher transform), built
-for a stream of label images of a region (``histostudy.pose.tracking_roi``) rather than once per
+for a stream of label images of a region (``histostudy.pose.tracking._roi``) rather than once per
 frame:
 
 - one pass per class over the labels, through a look-up table that gives OpenCV's input (0 on the
   class, and on the classes that hide it with ``occlusion_aware``; 1 elsewhere) directly;
 - the transform and the rounding of ``d²`` to its integer (see
-  :func:`~.distance_maps.euclidean_distance_map`) done in float32 in place: exact wherever
+  :func:`~histostudy.pose.distance_maps.euclidean_distance_map`) done in float32 in place: exact wherever
   ``d² < 2**20`` (the float32 square of OpenCV's value is then within 0.25 of the integer), which
   holds for every pixel of a region whose diagonal is under 1024 px. Larger regions go through
-  :func:`~.distance_maps.euclidean_distance_map`'s float64 rounding. Either way the values equal
-  :class:`DistanceMaps`' (tests/pose/test_tracking_maps.py);
-- with a reach (``build(..., reach_px=)``, what :class:`~.tracking_warm.RegionEstimator` passes:
+  :func:`~histostudy.pose.distance_maps.euclidean_distance_map`'s float64 rounding. Either way the values equal
+  :class:`DistanceMaps`' (tests/pose/tracking/test_tracking_maps.py);
+- with a reach (``build(..., reach_px=)``, what :class:`~._warm.RegionEstimator` passes:
   the largest cap at which its refinement and verdict read the maps), the transform cut at that
   reach: the separable exact transform (a column pass, then a row pass over at most ``2 reach + 1``
   columns, vectorised), exact up to the reach and holding the reach beyond it. A reader capped at
-  the reach or below reads the same bits as on the exact maps; at 15 px on a 432 x 448 px region
-  it takes 0.5 ms a class against 2.1-3.6 ms for OpenCV's;
+  the reach or below reads the same bits as on the exact maps, and on a tracking region it is
+  several times faster than OpenCV's transform (docs/tracking.md);
 - buffers kept per view and class and reused while the region's shape stays the same, so a
-  warm update allocates no map (a :class:`~.cost.PoseCost` built on them copies them once into its
+  warm update allocates no map (a :class:`~histostudy.pose.cost.PoseCost` built on them copies them once into its
   flat buffer).
 
 Frame: the region view's detector, pixel centres at integers; maps ``(rows, cols)`` float32, pixels.
@@ -36,7 +36,7 @@ import numpy as np
 
 from histostudy.imaging import View
 from histostudy.transducer import FEATURE_CLASSES, LABEL_PRIORITY, Feature
-from .distance_maps import DistanceMaps, euclidean_distance_map
+from ..distance_maps import DistanceMaps, euclidean_distance_map
 
 __all__ = ["RegionMaps"]
 
@@ -134,9 +134,9 @@ class RegionMaps:
         """The distance maps of ``labels`` (uint8 :class:`Feature` values of ``view``'s shape) for view ``index``.
 
         ``reach_px``: None, the exact distance everywhere; a number > 0, the exact distance where it is at
-        most ``reach_px`` and ``reach_px`` where it is farther (a transform cut at the reach, 4-7x
-        cheaper at 15 px than OpenCV's on a tracking region: docs/tracking.md). Every reader that caps
-        the distances at ``reach_px`` or less (:meth:`~.cost.PoseCost.capped`, which caps each
+        most ``reach_px`` and ``reach_px`` where it is farther (a transform cut at the reach, several
+        times cheaper than OpenCV's on a tracking region: docs/tracking.md). Every reader that caps
+        the distances at ``reach_px`` or less (:meth:`~histostudy.pose.cost.PoseCost.capped`, which caps each
         bilinear corner) then reads the same numbers as on the exact maps."""
         if reach_px is not None and not (isinstance(reach_px, (int, float, np.integer, np.floating))
                                          and not isinstance(reach_px, bool) and np.isfinite(reach_px)

@@ -2,21 +2,21 @@
 re-acquisitions after a lost track; §II-B.2-4, docs/tracking.md "From scratch in under a second"):
 :class:`ScratchEstimator`.
 
-:func:`~.estimate.estimate_pose` itself, run on the frames at the label scale ``s`` (0.5: the
-shipped U-Net's own resolution) instead of the detector's:
+The stages of :func:`~histostudy.pose.estimate_pose` after the segmentation
+(:func:`~histostudy.pose.estimate_pose_from_labels`), run on labels at the label scale ``s`` (0.5:
+the shipped U-Net's own resolution) instead of the detector's:
 
 1. **labels**: the U-Net's arg-max at its input scale over the whole frame
    (:meth:`~histostudy.learning.FastUNet.segment_region`; no upsampling of the six logit channels
    to 960 x 1240), pooled by priority below it; any other segmenter's full-resolution labels pooled
    to ``s`` (:func:`~histostudy.learning.pool_labels`). The two views are segmented on two threads
    with ``TrackingOptions.parallel_views``.
-2. **views**: each view cropped to the whole detector at ``s`` (:func:`~.tracking_roi.crop_view`,
-   ``u' = s u + (s - 1) / 2``, the pixel-centre convention of ``View.scaled``), with the frame's
-   image averaged over ``1/s x 1/s`` blocks, so that each scaled frame is a consistent frame of its
-   view. Pixel ``(i, j)`` of the labels is pixel ``(i, j)`` of the scaled view.
-3. **options**: every pixel threshold of :class:`~.options.PoseOptions` multiplied by ``s``
+2. **views**: each view cropped to the whole detector at ``s`` (:func:`~._roi.crop_view`,
+   ``u' = s u + (s - 1) / 2``, the pixel-centre convention of ``View.scaled``): pixel ``(i, j)``
+   of the labels is pixel ``(i, j)`` of the scaled view.
+3. **options**: every pixel threshold of :class:`~histostudy.pose.options.PoseOptions` multiplied by ``s``
    (:func:`scaled_pose_options`), so it keeps its length on the detector, as
-   :class:`~.tracking_warm.RegionEstimator` does for the warm regions.
+   :class:`~._warm.RegionEstimator` does for the warm regions.
 4. **points**: the digital model cut to ``TrackingOptions.refine_points_per_class`` points per
    class (drawn once, seeded, when the estimator is made; the warm refinement's count): the
    refinement and the verdict's unexplained-segmentation check run on it (41 000 points of the
@@ -24,16 +24,16 @@ shipped U-Net's own resolution) instead of the detector's:
    times ``s`` points per class (750 at 0.5): a class's features span ``s`` times the label pixels,
    and the same points per label pixel rank the grid nodes alike (36 of 36 rendered pairs accepted
    at the first step, focal errors as the full frames': docs/tracking.md).
-5. **orientation**: :class:`~.conic_orientation.ConicOrientation` reads the ellipse in the scaled
+5. **orientation** (the direction stage of ``estimate_pose_from_labels``):
+   :class:`~histostudy.pose.conic_orientation.ConicOrientation` reads the ellipse in the scaled
    labels, with its pixel thresholds scaled (RANSAC tolerance, fewest pixels, thinnest ellipse);
    where a view shows no usable ellipse its fallback (the VGG19) reads the full-resolution frame as
    it was trained to. Another orientation source reads the full frame.
 
 Distance maps, orientation, searches, refinement and verdict then work on a quarter of the pixels.
-The stages and their order are ``estimate_pose``'s. A pose its verdict refuses is refined and judged
-again on the full frames, and only then estimated there from scratch, with ``estimate_pose``'s
-retries (:meth:`ScratchEstimator.estimate`). :func:`~.estimate.estimate_pose` itself is unchanged,
-so the study's numbers do not move. Poses are 4x4
+The stages and their order are ``estimate_pose``'s, the very functions. A pose its verdict refuses
+is refined and judged again on the full frames, and only then estimated there from scratch, with
+``estimate_pose``'s retries (:meth:`ScratchEstimator.estimate`). Poses are 4x4
 ``T_carm_transducer`` (mm, C-arm frame); random draws come from the tracker's Generator
 (docs/architecture.md, "Seeding and determinism").
 """
@@ -46,69 +46,44 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from typing import Sequence
 
-import cv2
 import numpy as np
 
 from histostudy.imaging import Frame, View
 from histostudy.learning import FastUNet, direction_candidates, pool_labels
 from histostudy.transducer import TransducerModel, check_label_image
-from .conic_orientation import ConicOrientation
-from .estimate import estimate_pose
-from .options import PoseOptions
-from .result import PoseResult, add_timings
-from .tracking_options import TrackingOptions
-from .tracking_roi import crop_view
-from .tracking_warm import _subset_indices
+from ..conic_orientation import ConicOrientation
+from ..directions import unit_direction_pair
+from ..estimate import estimate_pose
+from ..from_labels import estimate_pose_from_labels
+from ..options import PoseOptions
+from ..result import PoseResult, add_timings
+from ._options import PIXEL_OPTIONS, TrackingOptions, scaled_pose_options  # noqa: F401 (PIXEL_OPTIONS: the old path's name)
+from ._roi import crop_view
+from ._warm import _subset_indices
 
-__all__ = ["ScratchEstimator", "scaled_pose_options", "scratch_estimator"]
+__all__ = ["ScratchEstimator", "scratch_estimator"]
 
-#: The :class:`PoseOptions` fields that are lengths in detector pixels, multiplied by the label scale
-#: by :func:`scaled_pose_options`.
-PIXEL_OPTIONS = ("outside_distance_px", "search_truncation_px", "coarse_truncation_px", "max_rms_px",
-                 "refine_truncation_px", "verdict_truncation_px", "max_body_rms_px")
+class _ScaledDirections:
+    """The direction stage on the scaled labels (module docstring, 5): for view ``a``, the conic with
+    scaled thresholds on its labels, or the fallback (any other source) on the full frame."""
 
+    def __init__(self, orientation, conics: Sequence[ConicOrientation | None], views: Sequence[View],
+                 frames: Sequence[Frame]):
+        self.orientation, self.conics, self.views, self.frames = orientation, conics, views, frames
 
-def scaled_pose_options(options: PoseOptions, scale: float) -> PoseOptions:
-    """``options`` with every pixel threshold (:data:`PIXEL_OPTIONS`, those not None) multiplied by
-    ``scale`` (label pixels per frame pixel), so that each keeps its length on the detector."""
-    if not isinstance(options, PoseOptions):
-        raise TypeError(f"options must be a histostudy.pose.PoseOptions, got {type(options).__name__}")
-    s = float(scale) if not isinstance(scale, bool) else float("nan")
-    if not (np.isfinite(s) and 0 < s <= 1):
-        raise ValueError(f"scale must be a number in (0, 1] (label pixels per frame pixel), got {scale!r}")
-    return dataclasses.replace(options, **{name: getattr(options, name) * s for name in PIXEL_OPTIONS
-                                           if getattr(options, name) is not None})
-
-
-class _Labels:
-    """A segmenter that returns labels made beforehand, for the scaled frames they belong to."""
-
-    def __init__(self, by_frame: dict):
-        self._by_frame = by_frame
-
-    def segment(self, frame: Frame, rng=None) -> np.ndarray:
-        return self._by_frame[id(frame)]
-
-
-class _ScaledOrientation:
-    """An orientation source for the scaled frames (module docstring, 5): per scaled frame, the
-    conic with scaled thresholds on its labels, or the fallback (any other source) on the full frame."""
-
-    def __init__(self, orientation, by_frame: dict):
-        self.orientation, self._by_frame = orientation, by_frame  # id(scaled frame) -> (full frame, conic)
-
-    def direction_candidates_from_labels(self, frame: Frame, labels, rng: np.random.Generator, maps=None) -> np.ndarray:
-        full, conic = self._by_frame[id(frame)]
-        source = self.orientation
+    def __call__(self, a: int, labels: np.ndarray, maps, rng: np.random.Generator) -> np.ndarray:
+        conic, full, source = self.conics[a], self.frames[a], self.orientation
         if conic is not None:
-            fit = conic.fit(labels, frame.view, rng, maps)
+            fit = conic.fit(labels, self.views[a], rng, maps)
             if fit is not None:
-                return fit.directions
+                # normalised as estimate_pose normalises a source's pair read from labels
+                return unit_direction_pair(fit.directions, "ConicOrientation.fit")
             source = conic.fallback
             if source is None:
-                raise ValueError(f"view {frame.view.name!r}: no usable inner-boundary ellipse and no fallback "
+                raise ValueError(f"view {self.views[a].name!r}: no usable inner-boundary ellipse and no fallback "
                                  f"orientation source")
-        return direction_candidates(*source.estimate(full, rng), full.view)
+        pair = direction_candidates(*source.estimate(full, rng), full.view)
+        return unit_direction_pair(pair, f"{type(source).__name__}.estimate")
 
 
 def _scaled_conic(conic: ConicOrientation, full_view: View, scale: float) -> ConicOrientation:
@@ -131,7 +106,7 @@ class ScratchEstimator:
             multiples of ``1 / scale``.
         segmenter: a :class:`~histostudy.learning.FastUNet` (its arg-max at its input scale) or any
             segmenter (``segment(frame, rng)``, full-resolution labels).
-        orientation: the orientation source of :func:`~.estimate.estimate_pose`.
+        orientation: the orientation source of :func:`~histostudy.pose.estimate.estimate_pose`.
         options: the :class:`PoseOptions` of the estimates, in frame pixels (scaled here).
         tracking: the :class:`TrackingOptions` (``parallel_views``, ``refine_points_per_class``).
         scale: label pixels per frame pixel (1/k < 1); with a U-Net, its input scale divided by an
@@ -190,17 +165,13 @@ class ScratchEstimator:
             ratio = self.scale
         return np.ascontiguousarray(pool_labels(labels, ratio) if ratio != 1.0 else labels, dtype=np.uint8)
 
-    def _scaled_frame(self, frame: Frame, view: View) -> Frame:
-        # INTER_AREA on an integer factor is the mean of each k x k block
-        image = cv2.resize(frame.image, (view.shape[1], view.shape[0]), interpolation=cv2.INTER_AREA)
-        return Frame(image, view)
-
     def estimate(self, frames: Sequence[Frame], rng: np.random.Generator) -> PoseResult:
         """The pose in ``frames`` (one per view, in order) from scratch (module docstring), in up to
         three steps, each run only when the verdict refused the one before (:attr:`last_step` says
         which gave the result):
 
-        1. ``"scaled"``: :func:`~.estimate.estimate_pose` at the label scale, without its retries;
+        1. ``"scaled"``: :func:`~histostudy.pose.estimate_pose_from_labels` at the label scale,
+           without its retries;
         2. ``"full_frame_warm"``: ``estimate_pose`` on the full frames from that pose
            (``initial_pose=``; the tracker's full-frame warm start). On the 0.5 grid the verdict's
            view agreement reads higher than on the detector's pixels, and refused 2 of 24 poses of
@@ -218,12 +189,10 @@ class ScratchEstimator:
             labels = list(self._pool.map(lambda f: self._labels(f, rng), frames))
         else:
             labels = [self._labels(f, rng) for f in frames]
-        scaled = [self._scaled_frame(f, v) for f, v in zip(frames, self.views)]
         seconds = time.perf_counter() - t_start
-        result = estimate_pose(scaled, self.model, segmenter=_Labels({id(f): lab for f, lab in zip(scaled, labels)}),
-                               orientation=_ScaledOrientation(self.orientation, {
-                                   id(f): (full, conic) for f, full, conic in zip(scaled, frames, self._conics)}),
-                               rng=rng, options=self.options)
+        directions = _ScaledDirections(self.orientation, self._conics, self.views, frames)
+        result = estimate_pose_from_labels(labels, self.views, self.model, orientation=directions, rng=rng,
+                                           options=self.options)
         result.timings_s["segmentation"] += seconds
         self.last_step, timings = "scaled", dict(result.timings_s)
         if not result.verdict.ok:
@@ -246,7 +215,8 @@ class ScratchEstimator:
 def scratch_estimator(model: TransducerModel, views: Sequence[View], segmenter, orientation, options: PoseOptions,
                       tracking: TrackingOptions, rng: np.random.Generator) -> ScratchEstimator | None:
     """The :class:`ScratchEstimator` of a fast tracker at ``tracking.scratch_label_scale``, or None
-    where that scale is 1 (the tracker then runs :func:`~.estimate.estimate_pose` on the full frames).
+    where that scale is 1 (the tracker then runs :func:`~histostudy.pose.estimate_pose` on the full
+    frames).
 
     ``segmenter``: what the tracker segments full frames with (a
     :class:`~histostudy.learning.FastUNet` for a U-Net). None as the scale: the U-Net's input scale,

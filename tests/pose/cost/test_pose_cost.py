@@ -1,4 +1,4 @@
-"""Tests of histostudy.pose.cost (with its kernels, cost_kernels, and its reference, cost_reference):
+"""Tests of histostudy.pose.cost (with its kernels, cost._kernels, and its reference, cost._reference):
 eq. 3 (numba against the numpy reference), the outside constant, absent classes, the analytic
 Jacobian with the left perturbation of histostudy.pose.perturbation, and input validation."""
 
@@ -199,7 +199,7 @@ def test_serial_kernels_release_the_gil_while_they_run(cost, kernel_name):
     import threading
     import time
 
-    from histostudy.pose import cost_kernels
+    from histostudy.pose.cost import _kernels as cost_kernels
 
     kernel = getattr(cost_kernels, kernel_name)
     sub = cost.subset(300, np.random.default_rng(3))

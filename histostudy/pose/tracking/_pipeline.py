@@ -1,14 +1,14 @@
-"""The pipeline of :meth:`~.tracker.Tracker.track` with ``fast`` (docs/tracking.md):
+"""The pipeline of :meth:`~._tracker.Tracker.track` with ``fast`` (docs/tracking.md):
 :func:`pipelined_updates`.
 
 Two stages on two threads: while the calling thread refines and judges a pair
-(:meth:`~.tracking_warm.RegionEstimator.finish`, the cost's kernels serial meanwhile), one worker thread
-segments and maps the next pair's regions (:meth:`~.tracking_warm.RegionEstimator.prepare`, its
+(:meth:`~._warm.RegionEstimator.finish`, the cost's kernels serial meanwhile), one worker thread
+segments and maps the next pair's regions (:meth:`~._warm.RegionEstimator.prepare`, its
 views one after the other) from the last pose accepted before it. Torch, OpenCV and the cost's
 kernels release the GIL, so on two cores each stage has one. On the cines of docs/tracking.md this
-gives 15-17.5 warm pairs per second, where the same stages one after the other give 11-13.
+gives more warm pairs per second than the same stages one after the other (the figures are there).
 
-Implementation of :class:`~.tracker.Tracker`'s method: it reads and updates the tracker's state
+Implementation of :class:`~._tracker.Tracker`'s method: it reads and updates the tracker's state
 (its last pose, its Generator, its counters through ``Tracker._update``).
 """
 
@@ -21,8 +21,8 @@ from typing import Callable, Iterable, Iterator
 
 import numpy as np
 
-from .result import PoseResult
-from .tracking_input import frames_for_views
+from ..result import PoseResult
+from ._input import frames_for_views
 
 __all__ = []  # Tracker.track is the public entry point
 
@@ -37,7 +37,7 @@ class _BadPair:
 
 
 def pipelined_updates(tracker, pairs: Iterable, ready: Callable[[], bool] | None) -> Iterator[PoseResult]:
-    """:meth:`~.tracker.Tracker.track`'s results for a tracker with ``fast`` (its docstring says what
+    """:meth:`~._tracker.Tracker.track`'s results for a tracker with ``fast`` (its docstring says what
     they are; the module docstring how they are made)."""
     source = iter(pairs)
 
@@ -74,7 +74,7 @@ def pipelined_updates(tracker, pairs: Iterable, ready: Callable[[], bool] | None
                 rng = None if tracker._region.fast_unet is not None else \
                     np.random.default_rng(int(tracker.rng.integers(2 ** 63)))
                 # The views one after the other: the pairs already overlap, and two more threads
-                # on two cores cost 10-20 % of the pairs per second (docs/tracking.md).
+                # on two cores cost pairs per second (docs/tracking.md).
                 pending = worker.submit(tracker._region.prepare, nxt, tracker._last_pose.copy(), rng, 1 - slot, False)
             t_start = time.perf_counter()
             prepared = None if prepared_future is None else prepared_future.result()

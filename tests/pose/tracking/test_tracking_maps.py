@@ -1,4 +1,4 @@
-"""Tests of histostudy.pose.tracking_maps.RegionMaps: the same distance maps as DistanceMaps, in
+"""Tests of histostudy.pose.tracking.RegionMaps (tracking/_maps.py): the same distance maps as DistanceMaps, in
 buffers reused frame after frame; and of DistanceMaps.from_maps, which wraps them."""
 
 import numpy as np

@@ -3,7 +3,7 @@
 The paper's workstation received live X-ray frames from the C-arm over Ethernet (§II-A) and
 estimated the transducer's pose from each biplane pair. A :class:`Tracker` holds what one
 estimate tells the next: the first update (and any update after the track was lost) runs
-:func:`~.estimate.estimate_pose` from scratch — segmentation, orientation, the §II-B.4 searches,
+:func:`~histostudy.pose.estimate.estimate_pose` from scratch — segmentation, orientation, the §II-B.4 searches,
 the eq. 3 refinement — and every later update starts the refinement from the last accepted pose
 (``initial_pose=``, no orientation or search), which is several times cheaper while the
 transducer moves little between frames. A warm start whose verdict fails (the transducer moved
@@ -11,10 +11,10 @@ too far, or the refinement slid into a wrong basin) loses the track: the same fr
 estimated from scratch (a re-acquisition), and both events are counted.
 
 With ``fast=True`` (or ``fast=TrackingOptions(...)``) a warm update runs
-:class:`~.tracking_warm.RegionEstimator` instead: the same stages on the region where the last pose
+:class:`~._warm.RegionEstimator` instead: the same stages on the region where the last pose
 projects, at the segmenter's own resolution (docs/tracking.md: where the time goes, and the
-figures). From-scratch estimates and re-acquisitions run :func:`~.estimate.estimate_pose` on the
-whole frames at the U-Net's label scale (:class:`~.tracking_scratch.ScratchEstimator`; the full
+figures). From-scratch estimates and re-acquisitions run :func:`~histostudy.pose.estimate.estimate_pose` on the
+whole frames at the U-Net's label scale (:class:`~._scratch.ScratchEstimator`; the full
 frames when its verdict refuses: docs/tracking.md, "From scratch in under a second"). A fast warm
 start the verdict refuses is tried once more on the same regions at the detector's resolution
 (``TrackingOptions.rescue_scale``) before the track is lost: on the 0.5 label grid the verdict's
@@ -23,7 +23,8 @@ full-resolution grid accepts (docs/tracking.md, "Warm starts that hold").
 
 Poses are 4x4 ``T_carm_transducer`` (mm, C-arm/CBCT frame, docs/architecture.md "Frames and
 units"); frames are line integrals (``-log(I / I0)``, dimensionless). Determinism: the tracker
-draws every random number from one Generator (``rng``), so the same frames in the same order with
+draws every random number from one Generator (``rng``: an int seed or a Generator; None is the fixed
+seed 0, as for :func:`~histostudy.pose.estimate_pose`), so the same frames in the same order with
 the same seed give the same poses (docs/architecture.md, "Seeding and determinism").
 """
 
@@ -35,56 +36,57 @@ from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
-from histostudy.core import as_generator
 from histostudy.imaging import Frame, View
 from histostudy.transducer import TransducerModel
-from .estimate import estimate_pose
-from .learned_stages import default_stages
-from .options import PoseOptions
-from .result import PoseEstimationError, PoseResult, add_timings
-from .tracking_input import frames_for_views
-from .tracking_options import TrackingOptions
-from .tracking_pipeline import pipelined_updates
-from .tracking_scratch import scratch_estimator
-from .tracking_warm import RegionEstimator
+from ..estimate import estimate_pose
+from ..learned_stages import default_stages
+from ..options import PoseOptions, pose_generator
+from ..result import PoseEstimationError, PoseResult, add_timings, refused
+from ._input import frames_for_views
+from ._options import TrackingOptions
+from ._pipeline import pipelined_updates
+from ._scratch import scratch_estimator
+from ._warm import RegionEstimator
 
 __all__ = ["Tracker"]
 
 class Tracker:
-    """The transducer's pose, frame pair after frame pair: warm-started :func:`~.estimate.estimate_pose`.
+    """The transducer's pose, frame pair after frame pair: warm-started :func:`~histostudy.pose.estimate.estimate_pose`.
 
-    ``Tracker(model, views).update(frames)`` returns a :class:`~.result.PoseResult` per call.
+    ``Tracker(model, views).update(frames)`` returns a :class:`~histostudy.pose.result.PoseResult` per call.
 
     Args:
         model: the digital model whose points enter eq. 3 (the paper: the 0.47 mm model).
         views: the C-arm views the frames are taken with, in the order ``update`` receives them
             (the paper: planes A and B, §II-D); one view or a non-empty sequence of :class:`View`.
-        segmenter, orientation: the learned stages; None: those :func:`~.estimate.estimate_pose`
-            picks (:func:`~.learned_stages.default_stages`: the shipped U-Net and conic/VGG19
+        segmenter, orientation: the learned stages; None: those :func:`~histostudy.pose.estimate.estimate_pose`
+            picks (:func:`~histostudy.pose.learned_stages.default_stages`: the shipped U-Net and conic/VGG19
             orientation, else the oracles with a warning), chosen once here.
         rng: a ``numpy.random.Generator`` or an int seed for every random draw of the estimates;
-            None: a fresh, unseeded Generator (poses then vary slightly from run to run — pass a
-            seed for reproducible ones).
-        options, **option_overrides: :class:`~.options.PoseOptions` and keyword overrides of its
-            fields, as for :func:`~.estimate.estimate_pose`. Unlike there, ``raise_on_failure``
+            None: ``numpy.random.default_rng(0)``, the fixed seed of every pose entry point
+            (:data:`~histostudy.pose.options.DEFAULT_SEED`,
+            :func:`~histostudy.pose.options.pose_generator`): the same frames in the same order
+            give the same poses, with or without a seed.
+        options, **option_overrides: :class:`~histostudy.pose.options.PoseOptions` and keyword overrides of its
+            fields, as for :func:`~histostudy.pose.estimate.estimate_pose`. Unlike there, ``raise_on_failure``
             defaults to False when no ``options`` are given: a tracker reports a failed verdict in
             the result (``result.verdict.ok``) rather than stopping the stream.
-        fast: False (default): every warm update is :func:`~.estimate.estimate_pose` from the last
-            pose on the full frames. True or a :class:`~.tracking_options.TrackingOptions`: warm
+        fast: False (default): every warm update is :func:`~histostudy.pose.estimate.estimate_pose` from the last
+            pose on the full frames. True or a :class:`~._options.TrackingOptions`: warm
             updates run on the regions where the last pose projects
-            (:class:`~.tracking_warm.RegionEstimator`: Levenberg-Marquardt whatever ``mode``, which
+            (:class:`~._warm.RegionEstimator`: Levenberg-Marquardt whatever ``mode``, which
             then applies to the from-scratch estimates only); ``result.labels`` are then the regions'
             labels at the label scale, and :attr:`last_regions` says where they lie. From-scratch
             estimates then run at ``TrackingOptions.scratch_label_scale`` (default: a U-Net's input
-            scale, 0.5; :class:`~.tracking_scratch.ScratchEstimator`): ``estimate_pose`` on the
-            U-Net's arg-max at its own resolution, every pixel threshold scaled (0.65 s per pair
-            against 1.5 s on the full frames at a load of 5: docs/tracking.md); a pose its verdict refuses is refined and judged
-            again on the full frames (``result.labels`` are then full-resolution). With scale 1, or
+            scale, 0.5; :class:`~._scratch.ScratchEstimator`): ``estimate_pose`` on the
+            U-Net's arg-max at its own resolution, every pixel threshold scaled (several times
+            faster than on the full frames: docs/tracking.md); a pose its verdict refuses is
+            refined and judged again on the full frames (``result.labels`` are then full-resolution). With scale 1, or
             another segmenter, they segment the full frames (a U-Net through
             :meth:`~histostudy.learning.FastUNet.segment`: 99.9 % the checkpoint's labels, 100 % in
             float32).
             ``TrackingOptions(network="unet_tracking")`` runs the warm regions through the U-Net
-            trained at input scale 0.25 instead (about 2x the warm pairs per second, focal errors
+            trained at input scale 0.25 instead (more warm pairs per second, focal errors
             about 0.2 mm above the full-frame path's: docs/tracking.md, "A network trained for
             tracking"); the from-scratch estimates keep the tracker's U-Net. A refused fast warm
             start is tried again at ``TrackingOptions.rescue_scale`` (default 1: the detector's
@@ -114,12 +116,12 @@ class Tracker:
         n_reacquired: of those, the updates whose from-scratch estimate on the same frames was
             accepted.
         n_accepted, n_failed: updates that ended with an accepted pose / without one (a failed
-            verdict, or :class:`~.result.PoseEstimationError` raised).
+            verdict, or :class:`~histostudy.pose.result.PoseEstimationError` raised).
         stage_seconds: seconds per stage (the keys of ``PoseResult.timings_s``: segmentation,
             distance_maps, orientation, initialisation, refinement, verdict, retries, total), summed
             over every estimate run, a lost warm start's included.
         update_seconds: wall seconds spent in :meth:`update`, input checks included.
-        tracking_options: the :class:`~.tracking_options.TrackingOptions` of the fast warm path (None
+        tracking_options: the :class:`~._options.TrackingOptions` of the fast warm path (None
             without ``fast``).
     """
 
@@ -153,7 +155,7 @@ class Tracker:
             segmenter = default_segmenter if segmenter is None else segmenter
             orientation = default_orientation if orientation is None else orientation
         self.segmenter, self.orientation = segmenter, orientation
-        self.rng = np.random.default_rng() if rng is None else as_generator(rng)
+        self.rng = pose_generator(rng)
         if fast is True:
             fast = TrackingOptions()
         elif fast is not False and not isinstance(fast, TrackingOptions):
@@ -190,7 +192,7 @@ class Tracker:
 
     @property
     def last_regions(self) -> list | None:
-        """With ``fast``: each view's :class:`~.tracking_roi.RegionOfInterest` of the last warm
+        """With ``fast``: each view's :class:`~._roi.RegionOfInterest` of the last warm
         update that ran (None before one, and without ``fast``)."""
         if self._region is None or not self._region.last_regions:
             return None
@@ -218,7 +220,7 @@ class Tracker:
                 its n_views images.
 
         Returns:
-            The :class:`~.result.PoseResult`; ``result.init`` is None for an accepted warm start.
+            The :class:`~histostudy.pose.result.PoseResult`; ``result.init`` is None for an accepted warm start.
             :attr:`last_kind` says how it was found (``"from_scratch"``, ``"warm"`` or
             ``"reacquired"`` after a lost warm start).
 
@@ -250,7 +252,7 @@ class Tracker:
         that pair, and no result held back waiting for the stream). None: the next pair is always
         taken ahead.
 
-        An error (bad input, :class:`~.result.PoseEstimationError`) ends the iteration at the pair
+        An error (bad input, :class:`~histostudy.pose.result.PoseEstimationError`) ends the iteration at the pair
         that caused it, after the results of every pair before it: a pair taken ahead is checked
         when its turn comes.
         """
@@ -313,8 +315,7 @@ class Tracker:
                     and result.verdict.view_disagreement_mm:
                 self._refused_pose = np.array(result.T_carm_transducer, dtype=np.float64)
             if self.options.raise_on_failure:
-                raise PoseEstimationError("implausible pose: " + "; ".join(result.verdict.reasons), result.verdict,
-                                          result)
+                raise refused(result)
         return result
 
     def _warm(self, frames: list[Frame], T_start: np.ndarray, prepared, slot: int, parallel=None) -> PoseResult:
@@ -343,7 +344,7 @@ class Tracker:
 
     def _estimate(self, frames: list[Frame], initial_pose) -> PoseResult:
         """An estimate on the whole frames: from scratch (``initial_pose`` None; at the label scale where
-        there is a :class:`~.tracking_scratch.ScratchEstimator`), or warm from ``initial_pose`` without
+        there is a :class:`~._scratch.ScratchEstimator`), or warm from ``initial_pose`` without
         ``fast`` (:meth:`_warm` runs the fast warm path itself)."""
         if initial_pose is None and self._scratch is not None:
             return self._count_stage_seconds(self._scratch.estimate(frames, self.rng))

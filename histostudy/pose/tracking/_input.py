@@ -1,4 +1,4 @@
-"""The frame pairs a :class:`~.tracker.Tracker` accepts (§II-A: the C-arm's biplane frames, one per
+"""The frame pairs a :class:`~._tracker.Tracker` accepts (§II-A: the C-arm's biplane frames, one per
 view): :func:`frames_for_views` checks them against the tracker's views and wraps arrays as
 :class:`~histostudy.imaging.Frame`. Frames are line integrals (``-log(I / I0)``, dimensionless) on each
 view's detector grid (docs/architecture.md, "Frames and units").
@@ -17,7 +17,7 @@ __all__ = ["frames_for_views"]
 
 def frames_for_views(frames, views: Sequence[View]) -> list[Frame]:
     """``frames`` as one :class:`~histostudy.imaging.Frame` per view of ``views``, in order, or a
-    ValueError naming the bad one: what :meth:`~.tracker.Tracker.update` accepts (Frames taken with
+    ValueError naming the bad one: what :meth:`~._tracker.Tracker.update` accepts (Frames taken with
     those views, 2-D arrays of line integrals of each view's shape, or a ``(n_views, rows, cols)``
     array)."""
     names = ", ".join(repr(v.name) for v in views)

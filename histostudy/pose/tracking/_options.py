@@ -1,5 +1,7 @@
-"""How :class:`~.tracker.Tracker`'s fast warm path runs (``Tracker(..., fast=True)``; §II-B.3,
-docs/tracking.md): one frozen, validated record, :class:`TrackingOptions`.
+"""How :class:`~._tracker.Tracker`'s fast warm path runs (``Tracker(..., fast=True)``; §II-B.3,
+docs/tracking.md): one frozen, validated record, :class:`TrackingOptions`; and
+:func:`scaled_pose_options`, the :class:`~histostudy.pose.options.PoseOptions` of labels at a scale
+of the detector.
 
 Units are in the names: ``_px`` full-frame detector pixels, ``_mm`` millimetres in the C-arm frame,
 ``_deg`` degrees. The defaults are the choices measured in docs/tracking.md (beyond the paper,
@@ -8,14 +10,33 @@ which tracked nothing).
 
 from __future__ import annotations
 
+import dataclasses
 import numbers
 from dataclasses import dataclass, fields
 
 import numpy as np
 
 from histostudy.learning import FAST_UNET_PRECISIONS, UNetSegmenter
+from ..options import PoseOptions
 
-__all__ = ["TrackingOptions"]
+__all__ = ["TrackingOptions", "scaled_pose_options"]
+
+#: The :class:`PoseOptions` fields that are lengths in detector pixels, multiplied by the label scale
+#: by :func:`scaled_pose_options`.
+PIXEL_OPTIONS = ("outside_distance_px", "search_truncation_px", "coarse_truncation_px", "max_rms_px",
+                 "refine_truncation_px", "verdict_truncation_px", "max_body_rms_px")
+
+
+def scaled_pose_options(options: PoseOptions, scale: float) -> PoseOptions:
+    """``options`` with every pixel threshold (:data:`PIXEL_OPTIONS`, those not None) multiplied by
+    ``scale`` (label pixels per frame pixel), so that each keeps its length on the detector."""
+    if not isinstance(options, PoseOptions):
+        raise TypeError(f"options must be a histostudy.pose.PoseOptions, got {type(options).__name__}")
+    s = float(scale) if not isinstance(scale, bool) else float("nan")
+    if not (np.isfinite(s) and 0 < s <= 1):
+        raise ValueError(f"scale must be a number in (0, 1] (label pixels per frame pixel), got {scale!r}")
+    return dataclasses.replace(options, **{name: getattr(options, name) * s for name in PIXEL_OPTIONS
+                                           if getattr(options, name) is not None})
 
 
 def _is_number(value) -> bool:
@@ -24,15 +45,15 @@ def _is_number(value) -> bool:
 
 @dataclass(frozen=True)
 class TrackingOptions:
-    """The fast warm path of :class:`~.tracker.Tracker` (``fast=True`` or ``fast=TrackingOptions(...)``).
+    """The fast warm path of :class:`~._tracker.Tracker` (``fast=True`` or ``fast=TrackingOptions(...)``).
 
     A warm update segments only the region where the last accepted pose projects
-    (:func:`~.tracking_roi.region_of_interest`), at the segmenter's own resolution, builds the
-    region's distance maps into reused buffers (:class:`~.tracking_maps.RegionMaps`), refines the
+    (:func:`~._roi.region_of_interest`), at the segmenter's own resolution, builds the
+    region's distance maps into reused buffers (:class:`~._maps.RegionMaps`), refines the
     last pose by Levenberg-Marquardt, coarse to fine, and judges it with the verdict of
-    :func:`~.estimate.estimate_pose` on the region (:mod:`.tracking_warm`). From-scratch estimates
-    (the first update, re-acquisitions) run :func:`~.estimate.estimate_pose` on the whole frames at
-    ``scratch_label_scale`` (:mod:`.tracking_scratch`).
+    :func:`~histostudy.pose.estimate.estimate_pose` on the region (:mod:`._warm`). From-scratch estimates
+    (the first update, re-acquisitions) run :func:`~histostudy.pose.estimate.estimate_pose` on the whole frames at
+    ``scratch_label_scale`` (:mod:`._scratch`).
 
     Attributes:
         roi_margin_px: frame pixels added on each side of the box of the model projected at the last
@@ -46,20 +67,20 @@ class TrackingOptions:
             (:func:`~histostudy.learning.preprocess.pool_labels`); a scale k times the U-Net's
             upsamples its logits bilinearly before the arg-max (the tracking U-Net at 0.25
             labelling at 0.5: docs/tracking.md, "A network trained for tracking"). Every pixel threshold of
-            :class:`~.options.PoseOptions` is multiplied by it, so that it keeps its length on the
+            :class:`~histostudy.pose.options.PoseOptions` is multiplied by it, so that it keeps its length on the
             detector.
         refine_points_per_class: model points per class of the fine refinement stage (drawn once,
             seeded, when the tracker is made); None: every point, as :func:`estimate_pose`.
         stop_step_mm, stop_step_deg: the refinement stops when an accepted step moves the focal point
             less than ``stop_step_mm`` and turns the transducer less than ``stop_step_deg`` (the
             noise of the estimate is tenths of a millimetre: a step a hundred times smaller changes
-            nothing a user sees), or as :func:`~.refine.refine_levenberg_marquardt` stops otherwise.
+            nothing a user sees), or as :func:`~histostudy.pose.refine.refine_levenberg_marquardt` stops otherwise.
         unexplained_points: model points (all classes, drawn once, seeded) projected by the
             verdict's unexplained-segmentation check; None: every point.
-        parallel_views: in :meth:`~.tracker.Tracker.update`, segment the views and build their maps
-            on two threads at once (torch and OpenCV release the GIL; on two free cores 10-25 % more
-            pairs per second, nothing gained when other processes hold the cores: docs/tracking.md);
-            False: one after the other. :meth:`~.tracker.Tracker.track`, whose worker prepares the next
+        parallel_views: in :meth:`~._tracker.Tracker.update`, segment the views and build their maps
+            on two threads at once (torch and OpenCV release the GIL; more pairs per second on two
+            free cores, nothing gained when other processes hold the cores: docs/tracking.md);
+            False: one after the other. :meth:`~._tracker.Tracker.track`, whose worker prepares the next
             pair while this one is refined, takes the views one after the other either way.
         precision: what a U-Net computes in (:class:`~histostudy.learning.FastUNet`): ``"auto"``
             (bfloat16 on a CPU with native bfloat16, else float32), ``"float32"`` or ``"bfloat16"``.
@@ -71,7 +92,7 @@ class TrackingOptions:
             (the first update, re-acquisitions) keep the tracker's segmenter on the whole frames. It
             replaces a U-Net only: with another segmenter (an oracle) the tracker refuses it.
         rescue_scale: the label scale of a second warm attempt after a refused first one (1, 1/2,
-            ...; 1: the detector's pixels, the grid of :func:`~.estimate.estimate_pose`'s verdict),
+            ...; 1: the detector's pixels, the grid of :func:`~histostudy.pose.estimate.estimate_pose`'s verdict),
             before the track is given up and the frames are estimated from scratch. The same regions
             are segmented again at this scale (a U-Net's logits upsampled bilinearly, or another
             segmenter's labels cut at it), and the refinement restarts from the refused pose. It
@@ -81,15 +102,16 @@ class TrackingOptions:
             same starts held 20 times in 23 (docs/tracking.md, "Warm starts that hold"). None: no
             second attempt.
         resume_refused: after an update whose pose the verdict refused only for its views' agreement
-            (its fit checks passed: :attr:`~.verdict.PoseVerdict.view_disagreement_mm` measured), the
+            (its fit checks passed: :attr:`~histostudy.pose.verdict.PoseVerdict.view_disagreement_mm` measured), the
             next update first tries a warm start from that pose, and estimates from scratch only if
             that is refused too. Such poses lay within about 1 mm of the truth on the physical
-            transducer, where a refused estimate from scratch costs 3-14 s; False: from scratch at once.
+            transducer, where a refused estimate from scratch costs many warm updates; False: from
+            scratch at once.
         scratch_label_scale: label pixels per frame pixel of the from-scratch estimates (the first
-            update, re-acquisitions after a lost track): :func:`~.estimate.estimate_pose` on the
+            update, re-acquisitions after a lost track): :func:`~histostudy.pose.estimate.estimate_pose` on the
             whole frames at this scale, every pixel threshold scaled, the searches on
             ``init_points_per_class`` times the scale points per class and the rest on a model of
-            ``refine_points_per_class`` points per class (:class:`~.tracking_scratch.ScratchEstimator`);
+            ``refine_points_per_class`` points per class (:class:`~._scratch.ScratchEstimator`);
             a pose its verdict refuses is refined and judged again on the full frames, then estimated
             from scratch there. None (default): a U-Net's input scale (0.5 for the shipped one: its
             arg-max at the network's resolution; 0.4 of the seconds of the full frames, with the same

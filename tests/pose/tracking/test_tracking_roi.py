@@ -1,4 +1,4 @@
-"""Tests of histostudy.pose.tracking_roi: the tracking region and the view of its pixels.
+"""Tests of histostudy.pose.tracking._roi: the tracking region and the view of its pixels.
 
 The cropped view is checked by projecting points: a point's pixel in the region's view must be its
 pixel in the full view, shifted by the box's corner and rescaled with View.scaled's pixel-centre

@@ -1,4 +1,4 @@
-"""Tests of the tracker's fast from-scratch estimate at the label scale (histostudy.pose.tracking_scratch,
+"""Tests of the tracker's fast from-scratch estimate at the label scale (histostudy.pose.tracking._scratch,
 ``TrackingOptions.scratch_label_scale``; docs/tracking.md "From scratch in under a second").
 
 Geometry first, with the oracle stages (reference labels pooled by priority) on the half-resolution
@@ -15,7 +15,7 @@ from histostudy.imaging import default_biplane, random_background, render_frame
 from histostudy.learning import FastUNet, OracleOrientation, OracleSegmenter, default_segmenter
 from histostudy.pose import (PoseOptions, ScratchEstimator, Tracker, TrackingOptions, default_stages,
                              scaled_pose_options)
-from histostudy.pose.tracking_scratch import PIXEL_OPTIONS
+from histostudy.pose.tracking._options import PIXEL_OPTIONS
 
 from pose_frames import POSES, focal_error, frames_of
 
