@@ -12,7 +12,7 @@ import pytest
 from histostudy.calibration import calibrate, solve_axxb
 from histostudy.imaging import (Frame, FrameRenderConfig, View, Volume, default_biplane, load_volume, render_frame,
                                 simulate_cbct)
-from histostudy.pose import PoseOptions, estimate_pose
+from histostudy.pose import PoseConfig, estimate_pose
 from histostudy.robot import SimulatedUR5e
 from histostudy.transducer import TransducerModel, check_label_image, pose_facing
 from histostudy.treatment import TreatmentZone, execute_treatment, plan_treatment, segment_treatment_zone
@@ -73,11 +73,11 @@ CASES = [
     ("model spacing 0", lambda m, v, t: TransducerModel.build(spacing_mm=0.0), ValueError, "spacing_mm"),
     ("model spacing nan", lambda m, v, t: TransducerModel.build(spacing_mm=NAN), ValueError, "spacing_mm"),
     # pose estimation: checked at the call, nothing computed first
-    ("pose max_rms nan", lambda m, v, t: PoseOptions(max_rms_px=NAN), ValueError, "max_rms_px"),
-    ("pose search centre 2-D", lambda m, v, t: PoseOptions(search_centre_mm=(0, 0)), ValueError,
+    ("pose max_rms nan", lambda m, v, t: PoseConfig(max_rms_px=NAN), ValueError, "max_rms_px"),
+    ("pose search centre 2-D", lambda m, v, t: PoseConfig(search_centre_mm=(0, 0)), ValueError,
      "search_centre_mm"),
-    ("pose mode", lambda m, v, t: PoseOptions(mode="quick"), ValueError, "mode"),
-    ("pose maps", lambda m, v, t: PoseOptions(distance_maps="chamfer"), ValueError, "distance_maps"),
+    ("pose mode", lambda m, v, t: PoseConfig(mode="quick"), ValueError, "mode"),
+    ("pose maps", lambda m, v, t: PoseConfig(distance_maps="chamfer"), ValueError, "distance_maps"),
     ("pose unknown keyword", lambda m, v, t: estimate_pose([Frame(np.zeros(v.shape), v)], m, max_rms=3), TypeError,
      "max_rms"),
     ("pose no frames", lambda m, v, t: estimate_pose([], m), ValueError, "frames"),

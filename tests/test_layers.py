@@ -1,5 +1,6 @@
-"""The package's layering (docs/architecture.md, "Layers"): imports go one way, there are no import
-cycles, and nothing in the project itself goes through the deprecated module paths."""
+"""The package's layering (docs/architecture.md, "Layers"): imports go one way, between subpackages
+and inside ``study`` and ``pose``, there are no import cycles, no name prefix is shared by three
+modules, and nothing in the project itself goes through the deprecated module paths."""
 
 from __future__ import annotations
 
@@ -205,12 +206,30 @@ STUDY_LAYERS = {
 }
 
 
+#: The same for ``histostudy.pose``: eq. 3's ingredients, the cost, the options, the truncated costs
+#: and the refinement, the initialisation and verdict on them, then the stages' composition
+#: (``from_labels``, ``estimate``) and what is built on it (the pose from files, the tracker).
+POSE_LAYERS = {
+    "distance_maps": 0, "perturbation": 0, "conic": 0, "init": 0,
+    "cost": 1, "silhouette": 1, "directions": 1,
+    "options": 2,
+    "truncations": 3,
+    "refine": 4,
+    "conic_orientation": 5, "start": 5, "verdict": 5,
+    "result": 6, "retries": 6, "learned_stages": 6,
+    "labels": 7,
+    "from_labels": 8,
+    "estimate": 9,
+    "from_files": 10, "tracking": 10,
+}
+
+
 def _unit(module: str, package: str) -> str | None:
     rest = module[len(package) + 1:].split(".") if module.startswith(package + ".") else None
     return rest[0] if rest else None
 
 
-@pytest.mark.parametrize("package, ranks", [("histostudy.study", STUDY_LAYERS)])
+@pytest.mark.parametrize("package, ranks", [("histostudy.study", STUDY_LAYERS), ("histostudy.pose", POSE_LAYERS)])
 def test_imports_go_one_way_inside_a_package(package, ranks):
     units = {_unit(m, package) for m in MODULES} - {None}
     assert units == set(ranks), f"units of {package} without a rank, or ranks without a unit"

@@ -87,11 +87,11 @@ class FrameReceiver:
         seed: the tracker's random draws (an int or a Generator): the same frames and seed give
             the same poses.
         segmenter, orientation, options, **option_overrides: the pose stages and
-            :class:`~histostudy.pose.PoseOptions` for :class:`~histostudy.pose.Tracker`. Without
+            :class:`~histostudy.pose.PoseConfig` for :class:`~histostudy.pose.Tracker`. Without
             ``options``, ``retry_hypotheses`` defaults to False: live, the next pair is 0.13 s away,
             where a refused estimate's retries held the stream 8-13 s (docs/tracking.md, "Where it stands").
         fast: the tracker's warm path (:class:`~histostudy.pose.Tracker`'s ``fast``): True
-            (default) or a :class:`~histostudy.pose.TrackingOptions`: warm updates on the region of
+            (default) or a :class:`~histostudy.pose.TrackingConfig`: warm updates on the region of
             the last pose, about 10 times the pairs per second of the full-frame path one pair at a
             time (16-18 in Tracker.track's pipeline) within 0.1 mm of its poses, a refused one tried
             again at the detector's resolution before a re-acquisition (docs/tracking.md, "Warm

@@ -17,6 +17,7 @@ and seeding rule (``options``), its result (``result``) and its default learned 
 Poses are 4x4 ``T_carm_transducer`` (mm, C-arm/CBCT frame; docs/architecture.md).
 """
 
+from histostudy.core import renamed_attributes
 from . import (conic as _conic, conic_orientation as _conic_orientation, cost as _cost, directions as _directions,
                distance_maps as _distance_maps, estimate as _estimate, from_files as _from_files,
                from_labels as _from_labels, init as _init, labels as _labels, learned_stages as _learned_stages,
@@ -37,7 +38,7 @@ from .init import (COARSE_GRID, FINE_GRID, GridSpec, InitResult, MEDIUM_GRID, PA
                    rotation_from_direction, translation_costs)
 from .labels import clean_labels, segment_frames, view_distance_maps
 from .learned_stages import LEARNED_STAGE_REQUIREMENTS, default_stages, learned_stage_shortfalls
-from .options import DEFAULT_SEED, INIT_METHODS, MAP_KINDS, MODES, PoseOptions, pose_generator
+from .options import DEFAULT_SEED, INIT_METHODS, MAP_KINDS, MODES, PoseConfig, pose_generator
 from .perturbation import NormalEquations, apply_left_perturbation
 from .refine import RefineResult, refine_levenberg_marquardt, refine_nelder_mead, refine_pose
 from .result import PoseEstimationError, PoseResult, add_timings, refused, result_of_refinement
@@ -45,7 +46,7 @@ from .retries import Refined, refine_with_retries
 from .silhouette import SILHOUETTE_CELL_PX, segmented_occupancy, silhouette_candidates, silhouette_seed
 from .start import SILHOUETTE_POINTS, Initialisation, coarse_scorings, directions_to_try, initialise
 from .tracking import (PreparedRegions, RegionEstimator, RegionMaps, RegionOfInterest, ScratchEstimator, Tracker,
-                       TrackingOptions, crop_view, frames_for_views, region_of_interest, scaled_pose_options,
+                       TrackingConfig, crop_view, frames_for_views, region_of_interest, scaled_pose_options,
                        scratch_estimator)
 from .truncations import PoseCosts, pose_costs
 from .verdict import (PoseJudge, PoseVerdict, check_unexplained, check_view_agreement, judge_fit,
@@ -58,3 +59,6 @@ __all__ = list(dict.fromkeys([*_conic.__all__, *_conic_orientation.__all__, *_co
                               *_perturbation.__all__, *_refine.__all__, *_result.__all__, *_retries.__all__,
                               *_silhouette.__all__, *_start.__all__, *_tracking.__all__, *_truncations.__all__,
                               *_verdict.__all__]))
+
+# the 0.1.0 names, deprecated (CHANGELOG.md)
+__getattr__ = renamed_attributes(globals(), {'PoseOptions': 'PoseConfig', 'TrackingOptions': 'TrackingConfig'})

@@ -12,7 +12,7 @@ Levenberg-Marquardt in the fast mode, with its verdict and retries (:mod:`.retri
 the data do not support — no features in a view, a final cost too high, a model pushed out of the
 views or off the search region — raises :class:`~.result.PoseEstimationError` (or comes back with
 a failed verdict, :mod:`.verdict`) instead of a confident garbage pose. How it runs is a
-:class:`~.options.PoseOptions`.
+:class:`~.options.PoseConfig`.
 
 Any number of views >= 1 is accepted: a biplane pair as in the paper, or a single-plane C-arm
 moved to several angles (§II-B). With one view the mirror ambiguity of eq. 4 is resolved by
@@ -35,7 +35,7 @@ from .directions import SourceDirections
 from .from_labels import estimate_pose_from_labels
 from .labels import segment_frames
 from .learned_stages import default_stages
-from .options import PoseOptions, pose_generator
+from .options import PoseConfig, pose_generator
 from .result import PoseResult, refused
 
 __all__ = ["estimate_pose"]
@@ -43,7 +43,7 @@ __all__ = ["estimate_pose"]
 
 def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter: Segmenter | None = None,
                   orientation: OrientationSource | None = None, rng: int | np.random.Generator | None = None,
-                  initial_pose=None, options: PoseOptions | None = None, **option_overrides) -> PoseResult:
+                  initial_pose=None, options: PoseConfig | None = None, **option_overrides) -> PoseResult:
     """Estimate ``T_carm_transducer`` from one or more frames (§II-B.3-4).
 
     Args:
@@ -66,8 +66,8 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
         initial_pose: a 4x4 pose to start the refinement from (tracking warm start); skips the
             initialisation.
         options: how to run: mode, initialisation, distance maps, truncations, verdict
-            thresholds (:class:`~.options.PoseOptions`; default ``PoseOptions()``).
-        **option_overrides: any field of :class:`~.options.PoseOptions` as a keyword
+            thresholds (:class:`~.options.PoseConfig`; default ``PoseConfig()``).
+        **option_overrides: any field of :class:`~.options.PoseConfig` as a keyword
             (``mode="fast"``, ``refine_truncation_px=None``, ...); each overrides that field of
             ``options``. An unknown keyword raises TypeError.
 
@@ -110,7 +110,7 @@ def _check_frames(frames) -> list[Frame]:
     return frames
 
 
-def _resolve_options(options, overrides: dict) -> PoseOptions:
-    """``options`` (default ``PoseOptions()``) with the keyword ``overrides`` of its fields applied."""
-    return PoseOptions.resolve(options, overrides, caller="estimate_pose",
+def _resolve_options(options, overrides: dict) -> PoseConfig:
+    """``options`` (default ``PoseConfig()``) with the keyword ``overrides`` of its fields applied."""
+    return PoseConfig.resolve(options, overrides, caller="estimate_pose",
                                keywords="segmenter, orientation, rng, initial_pose, options")

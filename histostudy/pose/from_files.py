@@ -62,7 +62,7 @@ def pose_from_files(frame_paths: Sequence[str | os.PathLike], views_path: str | 
     """:func:`~.estimate.estimate_pose` on the frames of :func:`frames_from_files`, with ``model``
     (e.g. the lab's transducer from its CAD meshes, :meth:`TransducerModel.from_meshes`; default the
     digital model at ``model_spacing_mm``, the paper's 0.47 mm), the shipped learned stages and
-    ``numpy.random.default_rng(seed)``; ``options``: :class:`~.options.PoseOptions` fields. A
+    ``numpy.random.default_rng(seed)``; ``options``: :class:`~.options.PoseConfig` fields. A
     refused fit comes back with its verdict (``raise_on_failure=False`` unless given)."""
     frames = frames_from_files(frame_paths, views_path, frame_index=frame_index, line_integrals=line_integrals,
                                resample=resample)

@@ -25,7 +25,7 @@ from histostudy.imaging import View
 from histostudy.transducer import TransducerModel
 from .directions import DirectionStage, check_direction_pair
 from .labels import clean_labels, view_distance_maps
-from .options import PoseOptions, pose_generator
+from .options import PoseConfig, pose_generator
 from .result import PoseResult, refused, result_of_refinement
 from .retries import refine_with_retries
 from .start import coarse_scorings, initialise
@@ -37,7 +37,7 @@ __all__ = ["estimate_pose_from_labels"]
 
 def estimate_pose_from_labels(labels_per_view: Sequence, views: Sequence[View] | View, model: TransducerModel, *,
                               orientation: DirectionStage | None = None,
-                              rng: int | np.random.Generator | None = None, options: PoseOptions | None = None,
+                              rng: int | np.random.Generator | None = None, options: PoseConfig | None = None,
                               initial_pose=None, **option_overrides) -> PoseResult:
     """Estimate ``T_carm_transducer`` from each view's labels (module docstring).
 
@@ -53,7 +53,7 @@ def estimate_pose_from_labels(labels_per_view: Sequence, views: Sequence[View] |
         rng: an int seed or a Generator for the point subsets, the orientation's draws and the
             silhouette seed; None: the fixed seed :data:`~.options.DEFAULT_SEED`
             (:func:`~.options.pose_generator`).
-        options, **option_overrides: :class:`~.options.PoseOptions` and keyword overrides of its
+        options, **option_overrides: :class:`~.options.PoseConfig` and keyword overrides of its
             fields, as for :func:`~histostudy.pose.estimate_pose`.
         initial_pose: a 4x4 pose to start the refinement from (warm start): no orientation, no
             initialisation, no retries.
@@ -67,7 +67,7 @@ def estimate_pose_from_labels(labels_per_view: Sequence, views: Sequence[View] |
     views = _check_views(views)
     if not isinstance(model, TransducerModel):
         raise TypeError(f"model must be a TransducerModel, got {type(model).__name__}")
-    options = PoseOptions.resolve(options, option_overrides, caller="estimate_pose_from_labels",
+    options = PoseConfig.resolve(options, option_overrides, caller="estimate_pose_from_labels",
                                   keywords="orientation, rng, options, initial_pose")
     rng = pose_generator(rng)
     if orientation is None and initial_pose is None:

@@ -34,7 +34,7 @@ def segment_frames(frames: Sequence[Frame], segmenter, rng: np.random.Generator)
 
 def clean_labels(labels_per_view: Sequence, views: Sequence[View], *, largest_component: bool) -> list[np.ndarray]:
     """Each view's labels as a checked ``uint8`` label image of its view's shape, reduced to their
-    largest connected component when ``largest_component`` (:class:`~.options.PoseOptions`: a
+    largest connected component when ``largest_component`` (:class:`~.options.PoseConfig`: a
     segmentation's separate false positives would pull the search and fail the verdict).
 
     Raises ValueError naming the view whose labels have the wrong shape or values outside the

@@ -9,18 +9,17 @@ and otherwise the measured choices documented beside each field (beyond the pape
 
 from __future__ import annotations
 
-import numbers
 from dataclasses import dataclass, fields, replace
 from types import MappingProxyType
 from typing import Mapping
 
 import numpy as np
 
-from histostudy.core import as_generator
+from histostudy.core import as_generator, is_real, renamed_attributes
 from .cost import OUTSIDE_DISTANCE_PX
 from .distance_maps import feature_class
 
-__all__ = ["DEFAULT_SEED", "INIT_METHODS", "MAP_KINDS", "MODES", "PoseOptions", "pose_generator"]
+__all__ = ["DEFAULT_SEED", "INIT_METHODS", "MAP_KINDS", "MODES", "PoseConfig", "pose_generator"]
 
 #: The seed of the Generator that :func:`~.estimate.estimate_pose`, :func:`~.from_labels.estimate_pose_from_labels`
 #: and :class:`~histostudy.pose.tracking.Tracker` draw from when given ``rng=None``.
@@ -39,15 +38,11 @@ INIT_METHODS = ("robust", "paper")
 MAP_KINDS = ("occlusion_aware", "per_class")
 
 
-def _is_number(value) -> bool:
-    return isinstance(value, numbers.Real) and not isinstance(value, bool)
-
-
 @dataclass(frozen=True)
-class PoseOptions:
+class PoseConfig:
     """How :func:`~.estimate.estimate_pose` runs: its search, refinement and verdict settings.
 
-    ``estimate_pose(frames, model, options=PoseOptions(mode="fast"))``; a keyword argument of
+    ``estimate_pose(frames, model, options=PoseConfig(mode="fast"))``; a keyword argument of
     :func:`~.estimate.estimate_pose` named as a field overrides that field of ``options``. Every
     field is checked when the record is made: a bad value raises a ValueError naming the field,
     the value and what was expected.
@@ -181,40 +176,40 @@ class PoseOptions:
                                  f"got {self.class_weights!r}")
             for key, value in self.class_weights.items():
                 feature = feature_class(key, "class_weights")
-                if not (_is_number(value) and np.isfinite(value) and value >= 0):
+                if not (is_real(value) and np.isfinite(value) and value >= 0):
                     raise ValueError(f"class_weights[{feature.name}] must be finite and >= 0, got {value!r}")
             # Read-only, so that a frozen record cannot change under a caller's later edits.
             object.__setattr__(self, "class_weights", MappingProxyType(dict(self.class_weights)))
-        if not (_is_number(self.outside_distance_px) and np.isfinite(self.outside_distance_px)
+        if not (is_real(self.outside_distance_px) and np.isfinite(self.outside_distance_px)
                 and self.outside_distance_px >= 0):
             raise ValueError(f"outside_distance_px must be a finite number >= 0 (pixels), "
                              f"got {self.outside_distance_px!r}")
         for name in ("search_truncation_px", "coarse_truncation_px"):
             value = getattr(self, name)
-            if not (_is_number(value) and np.isfinite(value) and value > 0):
+            if not (is_real(value) and np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0 (pixels), got {value!r}")
         n = self.init_points_per_class
-        if not (_is_number(n) and np.isfinite(n) and n == int(n) and n >= 1):
+        if not (is_real(n) and np.isfinite(n) and n == int(n) and n >= 1):
             raise ValueError(f"init_points_per_class must be a positive integer, got {n!r}")
         centre = np.asarray(self.search_centre_mm, dtype=object).reshape(-1)
-        if centre.shape != (3,) or not all(_is_number(c) and np.isfinite(c) for c in centre):
+        if centre.shape != (3,) or not all(is_real(c) and np.isfinite(c) for c in centre):
             raise ValueError(f"search_centre_mm must be 3 finite numbers (x, y, z in mm, C-arm frame), "
                              f"got {self.search_centre_mm!r}")
         object.__setattr__(self, "search_centre_mm", tuple(float(c) for c in centre))
-        if not (_is_number(self.max_rms_px) and self.max_rms_px > 0):
+        if not (is_real(self.max_rms_px) and self.max_rms_px > 0):
             raise ValueError(f"max_rms_px must be a number > 0 (pixels; inf: no limit), got {self.max_rms_px!r}")
-        if not (_is_number(self.min_inside_fraction) and 0 <= self.min_inside_fraction <= 1):
+        if not (is_real(self.min_inside_fraction) and 0 <= self.min_inside_fraction <= 1):
             raise ValueError(f"min_inside_fraction must be a number in [0, 1], got {self.min_inside_fraction!r}")
         for name in ("raise_on_failure", "retry_hypotheses", "largest_component"):
             if getattr(self, name) not in (True, False):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
         spread = self.direction_spread_limit_deg
-        if not (_is_number(spread) and 0 < spread <= 180):
+        if not (is_real(spread) and 0 < spread <= 180):
             raise ValueError(f"direction_spread_limit_deg must be a number in (0, 180], got {spread!r}")
         for name in ("refine_truncation_px", "verdict_truncation_px", "max_view_disagreement_mm", "max_body_rms_px",
                      "max_unexplained_fraction"):
             value = getattr(self, name)
-            if value is not None and not (_is_number(value) and np.isfinite(value) and value > 0):
+            if value is not None and not (is_real(value) and np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be None or a finite number > 0, got {value!r}")
 
     @classmethod
@@ -223,16 +218,19 @@ class PoseOptions:
         return tuple(f.name for f in fields(cls))
 
     @classmethod
-    def resolve(cls, options, overrides: dict, *, caller: str, keywords: str) -> "PoseOptions":
-        """``options`` (default ``PoseOptions()``) with the keyword ``overrides`` of its fields
+    def resolve(cls, options, overrides: dict, *, caller: str, keywords: str) -> "PoseConfig":
+        """``options`` (default ``PoseConfig()``) with the keyword ``overrides`` of its fields
         applied, for a ``caller`` whose own keywords are ``keywords``: an unknown keyword raises
         TypeError naming it, the caller's keywords and the fields."""
         if options is None:
             options = cls()
         elif not isinstance(options, cls):
-            raise TypeError(f"options must be a histostudy.pose.PoseOptions, got {type(options).__name__}")
+            raise TypeError(f"options must be a histostudy.pose.PoseConfig, got {type(options).__name__}")
         unknown = sorted(set(overrides) - set(cls.field_names()))
         if unknown:
             raise TypeError(f"{caller}() got an unexpected keyword argument {unknown[0]!r}; its keywords are "
-                            f"{keywords} and the fields of PoseOptions: {', '.join(cls.field_names())}")
+                            f"{keywords} and the fields of PoseConfig: {', '.join(cls.field_names())}")
         return replace(options, **overrides) if overrides else options
+
+# the 0.1.0 name, deprecated (CHANGELOG.md)
+__getattr__ = renamed_attributes(globals(), {'PoseOptions': 'PoseConfig'})

@@ -25,6 +25,7 @@ from typing import Callable
 import numpy as np
 import scipy.optimize
 
+from histostudy.core import check_count, check_positive
 from histostudy.geometry import check_rigid
 from .cost import PoseCost
 from .perturbation import apply_left_perturbation
@@ -65,19 +66,6 @@ class RefineResult:
         return self.T[:3, 3].copy()
 
 
-def _check_positive(value, name: str) -> float:
-    v = float(value)
-    if not np.isfinite(v) or v <= 0:
-        raise ValueError(f"{name} must be finite and > 0, got {value!r}")
-    return v
-
-
-def _check_count(value, name: str) -> int:
-    if not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
-
-
 def refine_nelder_mead(cost: Callable[[np.ndarray], float], T_init, *,
                        initial_step=(np.deg2rad(2.0), 2.0), max_iter: int = 1000,
                        xatol: float = 0.01, fatol: float = 0.01) -> RefineResult:
@@ -105,9 +93,9 @@ def refine_nelder_mead(cost: Callable[[np.ndarray], float], T_init, *,
     step = np.asarray(initial_step, dtype=np.float64).reshape(-1)
     if step.shape != (2,) or not np.all(np.isfinite(step)) or np.any(step <= 0):
         raise ValueError(f"initial_step must be (rotation rad > 0, translation mm > 0), got {initial_step!r}")
-    max_iter = _check_count(max_iter, "max_iter")
-    xatol = _check_positive(xatol, "xatol")
-    fatol = _check_positive(fatol, "fatol")
+    max_iter = check_count(max_iter, "max_iter")
+    xatol = check_positive(xatol, "xatol")
+    fatol = check_positive(fatol, "fatol")
     if not callable(cost):
         raise TypeError(f"cost must be callable T -> float, got {type(cost).__name__}")
 
@@ -199,12 +187,12 @@ def refine_levenberg_marquardt(cost: PoseCost, T_init, *, max_iter: int = 50, ft
                             f"got {type(c).__name__}")
     if cost is None:
         raise TypeError("cost must be a PoseCost, got None")
-    max_iter = _check_count(max_iter, "max_iter")
-    coarse_max_iter = _check_count(coarse_max_iter, "coarse_max_iter")
-    ftol = _check_positive(ftol, "ftol")
-    xtol_rad = _check_positive(xtol_rad, "xtol_rad")
-    xtol_mm = _check_positive(xtol_mm, "xtol_mm")
-    damping = _check_positive(damping, "damping")
+    max_iter = check_count(max_iter, "max_iter")
+    coarse_max_iter = check_count(coarse_max_iter, "coarse_max_iter")
+    ftol = check_positive(ftol, "ftol")
+    xtol_rad = check_positive(xtol_rad, "xtol_rad")
+    xtol_mm = check_positive(xtol_mm, "xtol_mm")
+    damping = check_positive(damping, "damping")
 
     start = time.perf_counter()
     info, iterations, evaluations = {}, 0, 0

@@ -3,7 +3,7 @@ from the initial pose, its verdict, and the retries after a refused verdict
 (:func:`refine_with_retries`).
 
 Beyond the paper, which reports no plausibility check: when the pose refined from the best initial
-hypothesis fails the verdict (:class:`~.verdict.PoseJudge`) and ``PoseOptions.retry_hypotheses`` is
+hypothesis fails the verdict (:class:`~.verdict.PoseJudge`) and ``PoseConfig.retry_hypotheses`` is
 set, the initialisation's other hypotheses are refined; then, where the views agreed on a direction,
 the searches start again from each view's own two candidates; in the fast mode the best hypothesis
 is last refined by Nelder-Mead. The plausible pose of lowest cost wins. Poses are 4x4
@@ -18,7 +18,7 @@ from typing import Callable
 
 import numpy as np
 
-from .options import PoseOptions
+from .options import PoseConfig
 from .refine import RefineResult, refine_pose
 from .start import Initialisation
 from .truncations import PoseCosts
@@ -38,7 +38,7 @@ class Refined:
 
 
 def refine_with_retries(costs: PoseCosts, judge: Callable[[np.ndarray], PoseVerdict], T_init: np.ndarray,
-                        initialisation: Initialisation | None, options: PoseOptions, timings: dict) -> Refined:
+                        initialisation: Initialisation | None, options: PoseConfig, timings: dict) -> Refined:
     """``T_init`` refined (:func:`~.refine.refine_pose` in ``options.mode``) and judged, then
     retried as the module docstring says where the verdict refuses it and ``initialisation`` (None
     for a warm start: no retries) offers alternatives.
@@ -58,7 +58,7 @@ def refine_with_retries(costs: PoseCosts, judge: Callable[[np.ndarray], PoseVerd
     return out
 
 
-def _retry(out: Refined, costs: PoseCosts, judge, initialisation: Initialisation, options: PoseOptions) -> None:
+def _retry(out: Refined, costs: PoseCosts, judge, initialisation: Initialisation, options: PoseConfig) -> None:
     """The retries of :func:`refine_with_retries`, each keeping its candidate in ``out`` when it wins."""
 
     def attempt(T, mode=options.mode, only_if_better=False):

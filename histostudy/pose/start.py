@@ -8,7 +8,7 @@ axial search of :func:`~.init.initialise_pose`, keeping the lowest cost. ``init=
 them as the paper does; ``init="robust"`` (beyond the paper) scores the coarse grids with wider
 truncations (:func:`coarse_scorings`), seeds them at four axial angles, adds a silhouette seed with
 two or more views (:func:`~.silhouette.silhouette_candidates`) and polishes three axial minima by a
-short Levenberg-Marquardt (:class:`~.options.PoseOptions` says what each does).
+short Levenberg-Marquardt (:class:`~.options.PoseConfig` says what each does).
 
 Poses are 4x4 ``T_carm_transducer`` (mm, C-arm frame); directions are unit vectors in the C-arm
 frame; costs in squared pixels of the label images.
@@ -25,7 +25,7 @@ from histostudy.imaging import View
 from histostudy.learning import select_direction
 from histostudy.transducer import Feature, TransducerModel
 from .init import MEDIUM_GRID, PAPER_AXIAL_SEEDS_DEG, ROBUST_AXIAL_SEEDS_DEG, InitResult, initialise_pose
-from .options import PoseOptions
+from .options import PoseConfig
 from .refine import refine_levenberg_marquardt
 from .silhouette import silhouette_candidates
 from .truncations import PoseCosts
@@ -37,7 +37,7 @@ __all__ = ["SILHOUETTE_POINTS", "Initialisation", "coarse_scorings", "directions
 SILHOUETTE_POINTS = 4000
 
 
-def coarse_scorings(costs: PoseCosts, options: PoseOptions, n_views: int, rng: np.random.Generator) -> list | None:
+def coarse_scorings(costs: PoseCosts, options: PoseConfig, n_views: int, rng: np.random.Generator) -> list | None:
     """The robust initialisation's scorings of the coarse grids, ``[(per-view costs, joint cost)]``
     (:func:`~.init.initialise_pose`'s ``coarse_scorings``); None with ``init="paper"``.
 
@@ -56,7 +56,7 @@ def coarse_scorings(costs: PoseCosts, options: PoseOptions, n_views: int, rng: n
     return [([c.select_views(i) for i in range(n_views)], c) for c in (full, full.with_outside_distance(0.5 * tau_coarse))]
 
 
-def directions_to_try(candidates: Sequence[np.ndarray], options: PoseOptions) -> tuple[list, list, float | None]:
+def directions_to_try(candidates: Sequence[np.ndarray], options: PoseConfig) -> tuple[list, list, float | None]:
     """``(directions to start from, directions deferred to a retry, spread_rad)`` of the views'
     ``(2, 3)`` candidate pairs.
 
@@ -107,7 +107,7 @@ class Initialisation:
 
 
 def initialise(candidates: Sequence[np.ndarray], views: Sequence[View], labels: Sequence[np.ndarray],
-               model: TransducerModel, costs: PoseCosts, scorings: list | None, options: PoseOptions,
+               model: TransducerModel, costs: PoseCosts, scorings: list | None, options: PoseConfig,
                rng: np.random.Generator) -> Initialisation:
     """The initialisation from each view's ``(2, 3)`` direction ``candidates`` (module docstring).
 
@@ -130,7 +130,7 @@ def initialise(candidates: Sequence[np.ndarray], views: Sequence[View], labels: 
     return Initialisation(result, n_eval, deferred, search)
 
 
-def _search_options(views, labels, model, costs: PoseCosts, scorings, options: PoseOptions, rng) -> dict:
+def _search_options(views, labels, model, costs: PoseCosts, scorings, options: PoseConfig, rng) -> dict:
     """:func:`~.init.initialise_pose`'s keywords for ``options.init``."""
     if options.init != "robust":
         return dict(axial_seeds_deg=PAPER_AXIAL_SEEDS_DEG, fine_after_axial=False, n_hypotheses=1)

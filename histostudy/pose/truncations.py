@@ -16,7 +16,7 @@ import numpy as np
 
 from .cost import PoseCost
 from .distance_maps import DistanceMaps
-from .options import PoseOptions
+from .options import PoseConfig
 
 __all__ = ["PoseCosts", "pose_costs"]
 
@@ -54,7 +54,7 @@ class PoseCosts:
         return self.coarse.capped(self.consistency_cap_px)
 
 
-def pose_costs(points: Mapping, maps: Sequence[DistanceMaps], options: PoseOptions, rng: np.random.Generator, *,
+def pose_costs(points: Mapping, maps: Sequence[DistanceMaps], options: PoseConfig, rng: np.random.Generator, *,
                label_scale: float = 1.0, truncated_search: bool | None = None,
                parallel: bool | None = None) -> PoseCosts:
     """The :class:`PoseCosts` of ``points`` (per class, mm, transducer frame) on ``maps``.

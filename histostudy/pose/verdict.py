@@ -29,7 +29,7 @@ from histostudy.imaging import Frame, View
 from histostudy.transducer import Feature, TransducerModel
 from .cost import PoseCost
 from .init import COARSE_GRID
-from .options import PoseOptions
+from .options import PoseConfig
 from .refine import refine_levenberg_marquardt
 from .truncations import PoseCosts
 
@@ -246,7 +246,7 @@ class PoseJudge:
     """
 
     def __init__(self, costs: PoseCosts, views: Sequence[View | Frame], labels: Sequence[np.ndarray],
-                 model: TransducerModel, options: PoseOptions, *, label_scale: float = 1.0,
+                 model: TransducerModel, options: PoseConfig, *, label_scale: float = 1.0,
                  unexplained_points_mm: np.ndarray | None = None):
         self.costs, self.views, self.labels, self.model, self.options = costs, list(views), list(labels), model, options
         self.label_scale = label_scale

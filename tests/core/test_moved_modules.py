@@ -21,6 +21,11 @@ RENAMED = [
     ("histostudy.study.pose", "PoseSectionParameters", "PoseSectionConfig"),
     ("histostudy.study.pose_config", "PoseSectionParameters", "PoseSectionConfig"),
     ("histostudy.robot.kinematics", "DHParameters", "DHSpec"),
+    ("histostudy.pose", "PoseOptions", "PoseConfig"),
+    ("histostudy.pose.options", "PoseOptions", "PoseConfig"),
+    ("histostudy.pose", "TrackingOptions", "TrackingConfig"),
+    ("histostudy.pose.tracking", "TrackingOptions", "TrackingConfig"),
+    ("histostudy.pose.tracking_options", "TrackingOptions", "TrackingConfig"),
 ]
 
 

@@ -236,12 +236,12 @@ def test_receiver_arguments_are_checked(views, tmp_path):
 
 
 def test_the_receivers_estimates_from_scratch_do_not_retry_unless_asked(views, tmp_path):
-    from histostudy.pose import PoseOptions
+    from histostudy.pose import PoseConfig
 
     out = tmp_path / "p.jsonl"
     assert not FrameReceiver(views, output_path=out).tracker.options.retry_hypotheses
     assert FrameReceiver(views, output_path=out, retry_hypotheses=True).tracker.options.retry_hypotheses
-    given = FrameReceiver(views, output_path=out, options=PoseOptions(), mode="fast").tracker.options
+    given = FrameReceiver(views, output_path=out, options=PoseConfig(), mode="fast").tracker.options
     assert given.retry_hypotheses and given.mode == "fast"  # options given: taken as they are
 
 

@@ -1,4 +1,4 @@
-"""Tests of histostudy.pose.options: PoseOptions holds estimate_pose's options with today's defaults,
+"""Tests of histostudy.pose.options: PoseConfig holds estimate_pose's options with today's defaults,
 validates each field, and gives the same pose as the keyword arguments it stands for."""
 
 import dataclasses
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from histostudy.learning import OracleOrientation, OracleSegmenter
-from histostudy.pose import PoseOptions, apply_left_perturbation, estimate_pose
+from histostudy.pose import PoseConfig, apply_left_perturbation, estimate_pose
 from histostudy.transducer import Feature, TransducerModel
 
 from pose_frames import POSES, frames_of
@@ -28,7 +28,7 @@ def warm_start(model):
 
 
 def test_defaults_are_those_of_the_keyword_arguments():
-    o = PoseOptions()
+    o = PoseConfig()
     assert (o.mode, o.init, o.distance_maps) == ("paper", "robust", "occlusion_aware")
     assert o.class_weights is None and o.outside_distance_px == 0.1  # the paper's constant (§II-B.3)
     assert (o.search_truncation_px, o.coarse_truncation_px, o.init_points_per_class) == (30.0, 150.0, 1500)
@@ -46,10 +46,10 @@ def test_options_and_keywords_give_the_same_pose(model, warm_start):
     common = dict(rng=np.random.default_rng(3), initial_pose=start, **ORACLES)
     by_keywords = estimate_pose(frames, model, mode="fast", refine_truncation_px=3.0, **common)
     common["rng"] = np.random.default_rng(3)
-    by_options = estimate_pose(frames, model, options=PoseOptions(mode="fast", refine_truncation_px=3.0), **common)
+    by_options = estimate_pose(frames, model, options=PoseConfig(mode="fast", refine_truncation_px=3.0), **common)
     common["rng"] = np.random.default_rng(3)
     # A keyword overrides the corresponding field of ``options``.
-    overridden = estimate_pose(frames, model, options=PoseOptions(mode="paper", refine_truncation_px=3.0),
+    overridden = estimate_pose(frames, model, options=PoseConfig(mode="paper", refine_truncation_px=3.0),
                                mode="fast", **common)
     for other in (by_options, overridden):
         np.testing.assert_array_equal(other.T_carm_transducer, by_keywords.T_carm_transducer)
@@ -69,22 +69,22 @@ def test_options_and_keywords_give_the_same_pose(model, warm_start):
 ])
 def test_a_bad_value_raises_a_value_error_naming_the_field(field, value):
     with pytest.raises(ValueError, match=field):
-        PoseOptions(**{field: value})
+        PoseConfig(**{field: value})
 
 
 def test_bad_keywords_and_options_raise_before_any_work(model, warm_start):
     frames, _ = warm_start
     with pytest.raises(TypeError, match="unexpected keyword argument 'refine_truncation'"):
         estimate_pose(frames, model, refine_truncation=1.0, **ORACLES)
-    with pytest.raises(TypeError, match="options must be a histostudy.pose.PoseOptions"):
+    with pytest.raises(TypeError, match="options must be a histostudy.pose.PoseConfig"):
         estimate_pose(frames, model, options={"mode": "fast"}, **ORACLES)
     with pytest.raises(ValueError, match="max_rms_px must be a number > 0"):
-        estimate_pose(frames, model, options=PoseOptions(mode="fast"), max_rms_px=-1.0, **ORACLES)
+        estimate_pose(frames, model, options=PoseConfig(mode="fast"), max_rms_px=-1.0, **ORACLES)
 
 
 def test_values_are_normalised_without_changing_them():
     weights = {Feature.GAPS: 2.0}
-    o = PoseOptions(search_centre_mm=np.array([1, 2, 3]), class_weights=weights)
+    o = PoseConfig(search_centre_mm=np.array([1, 2, 3]), class_weights=weights)
     assert o.search_centre_mm == (1.0, 2.0, 3.0)
     weights[Feature.GAPS] = 5.0  # a later edit of the caller's dict does not reach the frozen record
     assert dict(o.class_weights) == {Feature.GAPS: 2.0}

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from histostudy.learning import OracleOrientation, OracleSegmenter, pool_labels
-from histostudy.pose import (PoseJudge, PoseOptions, SourceDirections, Tracker, TrackingOptions, apply_left_perturbation,
+from histostudy.pose import (PoseJudge, PoseConfig, SourceDirections, Tracker, TrackingConfig, apply_left_perturbation,
                              clean_labels, coarse_scorings, estimate_pose, estimate_pose_from_labels, initialise,
                              pose_costs, refine_pose, refine_with_retries, result_of_refinement, segment_frames,
                              view_distance_maps)
@@ -80,7 +80,7 @@ def test_estimate_pose_is_its_stages_bit_for_bit(models, views, overrides, warm)
     from_labels = estimate_pose_from_labels(labels, views, model, orientation=SourceDirections(OracleOrientation(), frames),
                                             **{**kwargs, "rng": rng})
     _same(whole, from_labels)
-    _same(whole, _by_hand(frames, views, model, PoseOptions(raise_on_failure=False, **overrides), 11, start))
+    _same(whole, _by_hand(frames, views, model, PoseConfig(raise_on_failure=False, **overrides), 11, start))
 
 
 def test_the_seed_rule_is_one_for_every_entry_point(models, views):
@@ -114,7 +114,7 @@ def test_the_fast_warm_update_is_the_costs_refine_and_verdict_stages(models, vie
     model, fine = models
     pairs = [frames_of(fine, T, views) for T in (POSES[0], moved(POSES[0], STEP))]
     tracker = Tracker(model, views, rng=3, mode="fast", segmenter=OracleSegmenter(), orientation=OracleOrientation(),
-                      fast=TrackingOptions(label_scale=0.5))
+                      fast=TrackingConfig(label_scale=0.5))
     T_prev = tracker.update(pairs[0]).T_carm_transducer
     region = tracker._region
     prepared = region.prepare(pairs[1], T_prev, tracker.rng)
@@ -138,7 +138,7 @@ def test_the_fast_from_scratch_estimate_is_estimate_pose_from_labels_on_pooled_l
     model, fine = models
     frames = frames_of(fine, POSES[0], views)
     tracker = Tracker(model, views, rng=3, mode="fast", segmenter=OracleSegmenter(), orientation=OracleOrientation(),
-                      fast=TrackingOptions(scratch_label_scale=0.5))
+                      fast=TrackingConfig(scratch_label_scale=0.5))
     scratch = tracker._scratch
     rng = np.random.default_rng(8)
     result = scratch.estimate(frames, np.random.default_rng(8))

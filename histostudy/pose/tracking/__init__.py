@@ -7,10 +7,11 @@ scale (``_scratch``), its options (``_options``) and the frame pairs it accepts 
 Poses are 4x4 ``T_carm_transducer`` (mm, C-arm frame; docs/tracking.md).
 """
 
+from histostudy.core import renamed_attributes
 from . import _input, _maps, _options, _pipeline, _roi, _scratch, _tracker, _warm
 from ._input import frames_for_views
 from ._maps import RegionMaps
-from ._options import TrackingOptions
+from ._options import TrackingConfig
 from ._roi import RegionOfInterest, crop_view, region_of_interest
 from ._scratch import ScratchEstimator, scaled_pose_options, scratch_estimator
 from ._tracker import Tracker
@@ -19,3 +20,6 @@ from ._warm import PreparedRegions, RegionEstimator
 # every public name of the modules above, as each module's __all__ declares it
 __all__ = list(dict.fromkeys([*_tracker.__all__, *_input.__all__, *_maps.__all__, *_options.__all__,
                               *_pipeline.__all__, *_roi.__all__, *_scratch.__all__, *_warm.__all__]))
+
+# the 0.1.0 names, deprecated (CHANGELOG.md)
+__getattr__ = renamed_attributes(globals(), {'TrackingOptions': 'TrackingConfig'})

@@ -115,7 +115,7 @@ class RegionMaps:
     """Builds :class:`DistanceMaps` of label images into buffers that it keeps between calls.
 
     Args:
-        occlusion_aware: as :class:`DistanceMaps` (``PoseOptions.distance_maps == "occlusion_aware"``).
+        occlusion_aware: as :class:`DistanceMaps` (``PoseConfig.distance_maps == "occlusion_aware"``).
 
     One instance serves a stream: :meth:`build` for view ``index`` reuses that view's buffers
     while the region's shape is unchanged. The maps it returns are overwritten by the next

@@ -1,6 +1,6 @@
 """How :class:`~._tracker.Tracker`'s fast warm path runs (``Tracker(..., fast=True)``; §II-B.3,
-docs/tracking.md): one frozen, validated record, :class:`TrackingOptions`; and
-:func:`scaled_pose_options`, the :class:`~histostudy.pose.options.PoseOptions` of labels at a scale
+docs/tracking.md): one frozen, validated record, :class:`TrackingConfig`; and
+:func:`scaled_pose_options`, the :class:`~histostudy.pose.options.PoseConfig` of labels at a scale
 of the detector.
 
 Units are in the names: ``_px`` full-frame detector pixels, ``_mm`` millimetres in the C-arm frame,
@@ -11,27 +11,27 @@ which tracked nothing).
 from __future__ import annotations
 
 import dataclasses
-import numbers
 from dataclasses import dataclass, fields
 
 import numpy as np
 
+from histostudy.core import is_real, renamed_attributes
 from histostudy.learning import FAST_UNET_PRECISIONS, UNetSegmenter
-from ..options import PoseOptions
+from ..options import PoseConfig
 
-__all__ = ["TrackingOptions", "scaled_pose_options"]
+__all__ = ["TrackingConfig", "scaled_pose_options"]
 
-#: The :class:`PoseOptions` fields that are lengths in detector pixels, multiplied by the label scale
+#: The :class:`PoseConfig` fields that are lengths in detector pixels, multiplied by the label scale
 #: by :func:`scaled_pose_options`.
 PIXEL_OPTIONS = ("outside_distance_px", "search_truncation_px", "coarse_truncation_px", "max_rms_px",
                  "refine_truncation_px", "verdict_truncation_px", "max_body_rms_px")
 
 
-def scaled_pose_options(options: PoseOptions, scale: float) -> PoseOptions:
+def scaled_pose_options(options: PoseConfig, scale: float) -> PoseConfig:
     """``options`` with every pixel threshold (:data:`PIXEL_OPTIONS`, those not None) multiplied by
     ``scale`` (label pixels per frame pixel), so that each keeps its length on the detector."""
-    if not isinstance(options, PoseOptions):
-        raise TypeError(f"options must be a histostudy.pose.PoseOptions, got {type(options).__name__}")
+    if not isinstance(options, PoseConfig):
+        raise TypeError(f"options must be a histostudy.pose.PoseConfig, got {type(options).__name__}")
     s = float(scale) if not isinstance(scale, bool) else float("nan")
     if not (np.isfinite(s) and 0 < s <= 1):
         raise ValueError(f"scale must be a number in (0, 1] (label pixels per frame pixel), got {scale!r}")
@@ -39,13 +39,9 @@ def scaled_pose_options(options: PoseOptions, scale: float) -> PoseOptions:
                                            if getattr(options, name) is not None})
 
 
-def _is_number(value) -> bool:
-    return isinstance(value, numbers.Real) and not isinstance(value, bool)
-
-
 @dataclass(frozen=True)
-class TrackingOptions:
-    """The fast warm path of :class:`~._tracker.Tracker` (``fast=True`` or ``fast=TrackingOptions(...)``).
+class TrackingConfig:
+    """The fast warm path of :class:`~._tracker.Tracker` (``fast=True`` or ``fast=TrackingConfig(...)``).
 
     A warm update segments only the region where the last accepted pose projects
     (:func:`~._roi.region_of_interest`), at the segmenter's own resolution, builds the
@@ -67,7 +63,7 @@ class TrackingOptions:
             (:func:`~histostudy.learning.preprocess.pool_labels`); a scale k times the U-Net's
             upsamples its logits bilinearly before the arg-max (the tracking U-Net at 0.25
             labelling at 0.5: docs/tracking.md, "A network trained for tracking"). Every pixel threshold of
-            :class:`~histostudy.pose.options.PoseOptions` is multiplied by it, so that it keeps its length on the
+            :class:`~histostudy.pose.options.PoseConfig` is multiplied by it, so that it keeps its length on the
             detector.
         refine_points_per_class: model points per class of the fine refinement stage (drawn once,
             seeded, when the tracker is made); None: every point, as :func:`estimate_pose`.
@@ -134,23 +130,23 @@ class TrackingOptions:
     scratch_label_scale: float | None = None
 
     def __post_init__(self):
-        if not (_is_number(self.roi_margin_px) and np.isfinite(self.roi_margin_px) and self.roi_margin_px >= 0):
+        if not (is_real(self.roi_margin_px) and np.isfinite(self.roi_margin_px) and self.roi_margin_px >= 0):
             raise ValueError(f"roi_margin_px must be a finite number >= 0 (frame pixels), got {self.roi_margin_px!r}")
         for name in ("label_scale", "rescue_scale", "scratch_label_scale"):
             s = getattr(self, name)
             if s is None:
                 continue
-            k = int(round(1.0 / s)) if _is_number(s) and np.isfinite(s) and s > 0 else 0
+            k = int(round(1.0 / s)) if is_real(s) and np.isfinite(s) and s > 0 else 0
             if k < 1 or abs(k * s - 1.0) > 1e-9:
                 raise ValueError(f"{name} must be None or 1/k for an integer k >= 1 (1, 0.5, 0.25, ...), "
                                  f"got {s!r}")
         for name in ("refine_points_per_class", "unexplained_points"):
             n = getattr(self, name)
-            if n is not None and not (_is_number(n) and n == int(n) and n >= 1):
+            if n is not None and not (is_real(n) and n == int(n) and n >= 1):
                 raise ValueError(f"{name} must be None or a positive integer, got {n!r}")
         for name in ("stop_step_mm", "stop_step_deg"):
             value = getattr(self, name)
-            if not (_is_number(value) and np.isfinite(value) and value > 0):
+            if not (is_real(value) and np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
         for name in ("parallel_views", "resume_refused"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
@@ -166,3 +162,6 @@ class TrackingOptions:
     def field_names(cls) -> tuple[str, ...]:
         """The names of the options, in declaration order."""
         return tuple(f.name for f in fields(cls))
+
+# the 0.1.0 name, deprecated (CHANGELOG.md)
+__getattr__ = renamed_attributes(globals(), {'TrackingOptions': 'TrackingConfig'})

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from histostudy.core import check_unit_fraction
 from histostudy.imaging import View
 
 __all__ = ["RegionOfInterest", "crop_view", "region_of_interest"]
@@ -61,17 +62,6 @@ class RegionOfInterest:
         return (r1 - r0) * (c1 - c0) / float(self.frame_shape[0] * self.frame_shape[1])
 
 
-def _check_scale(scale) -> float:
-    try:
-        s = float(scale)
-    except (TypeError, ValueError):
-        s = float("nan")
-    k = int(round(1.0 / s)) if np.isfinite(s) and s > 0 else 0
-    if k < 1 or abs(k * s - 1.0) > 1e-9:
-        raise ValueError(f"scale must be 1/k for an integer k >= 1 (1, 0.5, 0.25, ...), got {scale!r}")
-    return s
-
-
 def crop_view(view: View, box, scale: float = 1.0) -> View:
     """The view of ``box`` of ``view``'s detector resampled by ``scale`` (module docstring: ``P' = A P``).
 
@@ -79,7 +69,8 @@ def crop_view(view: View, box, scale: float = 1.0) -> View:
     label pixels. The pixel size grows to ``view.pixel_mm / scale``; the name is kept."""
     if not isinstance(view, View):
         raise TypeError(f"view must be a histostudy.imaging.View, got {type(view).__name__}")
-    s = _check_scale(scale)
+    check_unit_fraction(scale)
+    s = float(scale)
     r0, r1, c0, c1 = _check_box(box, view.shape)
     k = int(round(1.0 / s))
     if any(b % k for b in (r0, r1, c0, c1)):
@@ -118,7 +109,8 @@ def region_of_interest(view: View, points_mm, T_carm_transducer, *, margin_px: f
     """
     if not isinstance(view, View):
         raise TypeError(f"view must be a histostudy.imaging.View, got {type(view).__name__}")
-    s = _check_scale(scale)
+    check_unit_fraction(scale)
+    s = float(scale)
     k = int(round(1.0 / s))
     if isinstance(align_px, bool) or not isinstance(align_px, (int, np.integer)) or align_px < 1 or align_px % k:
         raise ValueError(f"align_px must be a positive integer multiple of 1/scale = {k}, got {align_px!r}")

@@ -10,14 +10,14 @@ the shipped U-Net's own resolution) instead of the detector's:
    (:meth:`~histostudy.learning.FastUNet.segment_region`; no upsampling of the six logit channels
    to 960 x 1240), pooled by priority below it; any other segmenter's full-resolution labels pooled
    to ``s`` (:func:`~histostudy.learning.pool_labels`). The two views are segmented on two threads
-   with ``TrackingOptions.parallel_views``.
+   with ``TrackingConfig.parallel_views``.
 2. **views**: each view cropped to the whole detector at ``s`` (:func:`~._roi.crop_view`,
    ``u' = s u + (s - 1) / 2``, the pixel-centre convention of ``View.scaled``): pixel ``(i, j)``
    of the labels is pixel ``(i, j)`` of the scaled view.
-3. **options**: every pixel threshold of :class:`~histostudy.pose.options.PoseOptions` multiplied by ``s``
+3. **options**: every pixel threshold of :class:`~histostudy.pose.options.PoseConfig` multiplied by ``s``
    (:func:`scaled_pose_options`), so it keeps its length on the detector, as
    :class:`~._warm.RegionEstimator` does for the warm regions.
-4. **points**: the digital model cut to ``TrackingOptions.refine_points_per_class`` points per
+4. **points**: the digital model cut to ``TrackingConfig.refine_points_per_class`` points per
    class (drawn once, seeded, when the estimator is made; the warm refinement's count): the
    refinement and the verdict's unexplained-segmentation check run on it (41 000 points of the
    0.47 mm model instead of 166 000). The grid and axial searches use ``init_points_per_class``
@@ -55,9 +55,9 @@ from ..conic_orientation import ConicOrientation
 from ..directions import unit_direction_pair
 from ..estimate import estimate_pose
 from ..from_labels import estimate_pose_from_labels
-from ..options import PoseOptions
+from ..options import PoseConfig
 from ..result import PoseResult, add_timings
-from ._options import PIXEL_OPTIONS, TrackingOptions, scaled_pose_options  # noqa: F401 (PIXEL_OPTIONS: the old path's name)
+from ._options import PIXEL_OPTIONS, TrackingConfig, scaled_pose_options  # noqa: F401 (PIXEL_OPTIONS: the old path's name)
 from ._roi import crop_view
 from ._warm import _subset_indices
 
@@ -107,8 +107,8 @@ class ScratchEstimator:
         segmenter: a :class:`~histostudy.learning.FastUNet` (its arg-max at its input scale) or any
             segmenter (``segment(frame, rng)``, full-resolution labels).
         orientation: the orientation source of :func:`~histostudy.pose.estimate.estimate_pose`.
-        options: the :class:`PoseOptions` of the estimates, in frame pixels (scaled here).
-        tracking: the :class:`TrackingOptions` (``parallel_views``, ``refine_points_per_class``).
+        options: the :class:`PoseConfig` of the estimates, in frame pixels (scaled here).
+        tracking: the :class:`TrackingConfig` (``parallel_views``, ``refine_points_per_class``).
         scale: label pixels per frame pixel (1/k < 1); with a U-Net, its input scale divided by an
             integer.
         rng: draws the model's point subset once, here.
@@ -118,8 +118,8 @@ class ScratchEstimator:
         last_step: which step of :meth:`estimate` gave its last result (None before one).
     """
 
-    def __init__(self, model: TransducerModel, views: Sequence[View], segmenter, orientation, options: PoseOptions,
-                 tracking: TrackingOptions, scale: float, rng: np.random.Generator):
+    def __init__(self, model: TransducerModel, views: Sequence[View], segmenter, orientation, options: PoseConfig,
+                 tracking: TrackingConfig, scale: float, rng: np.random.Generator):
         s = float(scale)
         k = int(round(1.0 / s)) if np.isfinite(s) and s > 0 else 0
         if k < 2 or abs(k * s - 1.0) > 1e-9:
@@ -212,8 +212,8 @@ class ScratchEstimator:
         return result
 
 
-def scratch_estimator(model: TransducerModel, views: Sequence[View], segmenter, orientation, options: PoseOptions,
-                      tracking: TrackingOptions, rng: np.random.Generator) -> ScratchEstimator | None:
+def scratch_estimator(model: TransducerModel, views: Sequence[View], segmenter, orientation, options: PoseConfig,
+                      tracking: TrackingConfig, rng: np.random.Generator) -> ScratchEstimator | None:
     """The :class:`ScratchEstimator` of a fast tracker at ``tracking.scratch_label_scale``, or None
     where that scale is 1 (the tracker then runs :func:`~histostudy.pose.estimate_pose` on the full
     frames).

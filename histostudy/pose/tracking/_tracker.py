@@ -10,14 +10,14 @@ transducer moves little between frames. A warm start whose verdict fails (the tr
 too far, or the refinement slid into a wrong basin) loses the track: the same frames are then
 estimated from scratch (a re-acquisition), and both events are counted.
 
-With ``fast=True`` (or ``fast=TrackingOptions(...)``) a warm update runs
+With ``fast=True`` (or ``fast=TrackingConfig(...)``) a warm update runs
 :class:`~._warm.RegionEstimator` instead: the same stages on the region where the last pose
 projects, at the segmenter's own resolution (docs/tracking.md: where the time goes, and the
 figures). From-scratch estimates and re-acquisitions run :func:`~histostudy.pose.estimate.estimate_pose` on the
 whole frames at the U-Net's label scale (:class:`~._scratch.ScratchEstimator`; the full
 frames when its verdict refuses: docs/tracking.md, "From scratch in under a second"). A fast warm
 start the verdict refuses is tried once more on the same regions at the detector's resolution
-(``TrackingOptions.rescue_scale``) before the track is lost: on the 0.5 label grid the verdict's
+(``TrackingConfig.rescue_scale``) before the track is lost: on the 0.5 label grid the verdict's
 view agreement reads high and refused half the warm starts of a moving cine that the
 full-resolution grid accepts (docs/tracking.md, "Warm starts that hold").
 
@@ -40,10 +40,10 @@ from histostudy.imaging import Frame, View
 from histostudy.transducer import TransducerModel
 from ..estimate import estimate_pose
 from ..learned_stages import default_stages
-from ..options import PoseOptions, pose_generator
+from ..options import PoseConfig, pose_generator
 from ..result import PoseEstimationError, PoseResult, add_timings, refused
 from ._input import frames_for_views
-from ._options import TrackingOptions
+from ._options import TrackingConfig
 from ._pipeline import pipelined_updates
 from ._scratch import scratch_estimator
 from ._warm import RegionEstimator
@@ -67,17 +67,17 @@ class Tracker:
             (:data:`~histostudy.pose.options.DEFAULT_SEED`,
             :func:`~histostudy.pose.options.pose_generator`): the same frames in the same order
             give the same poses, with or without a seed.
-        options, **option_overrides: :class:`~histostudy.pose.options.PoseOptions` and keyword overrides of its
+        options, **option_overrides: :class:`~histostudy.pose.options.PoseConfig` and keyword overrides of its
             fields, as for :func:`~histostudy.pose.estimate.estimate_pose`. Unlike there, ``raise_on_failure``
             defaults to False when no ``options`` are given: a tracker reports a failed verdict in
             the result (``result.verdict.ok``) rather than stopping the stream.
         fast: False (default): every warm update is :func:`~histostudy.pose.estimate.estimate_pose` from the last
-            pose on the full frames. True or a :class:`~._options.TrackingOptions`: warm
+            pose on the full frames. True or a :class:`~._options.TrackingConfig`: warm
             updates run on the regions where the last pose projects
             (:class:`~._warm.RegionEstimator`: Levenberg-Marquardt whatever ``mode``, which
             then applies to the from-scratch estimates only); ``result.labels`` are then the regions'
             labels at the label scale, and :attr:`last_regions` says where they lie. From-scratch
-            estimates then run at ``TrackingOptions.scratch_label_scale`` (default: a U-Net's input
+            estimates then run at ``TrackingConfig.scratch_label_scale`` (default: a U-Net's input
             scale, 0.5; :class:`~._scratch.ScratchEstimator`): ``estimate_pose`` on the
             U-Net's arg-max at its own resolution, every pixel threshold scaled (several times
             faster than on the full frames: docs/tracking.md); a pose its verdict refuses is
@@ -85,16 +85,16 @@ class Tracker:
             another segmenter, they segment the full frames (a U-Net through
             :meth:`~histostudy.learning.FastUNet.segment`: 99.9 % the checkpoint's labels, 100 % in
             float32).
-            ``TrackingOptions(network="unet_tracking")`` runs the warm regions through the U-Net
+            ``TrackingConfig(network="unet_tracking")`` runs the warm regions through the U-Net
             trained at input scale 0.25 instead (more warm pairs per second, focal errors
             about 0.2 mm above the full-frame path's: docs/tracking.md, "A network trained for
             tracking"); the from-scratch estimates keep the tracker's U-Net. A refused fast warm
-            start is tried again at ``TrackingOptions.rescue_scale`` (default 1: the detector's
+            start is tried again at ``TrackingConfig.rescue_scale`` (default 1: the detector's
             pixels) from the refused pose, on the same regions, before the track is lost; an
             accepted second attempt is a warm update (its labels at that scale), counted in
             ``n_rescued``. After a pose the verdict refused only for its views' agreement (the fit
             checks passed), the next update first tries a warm start from it
-            (``TrackingOptions.resume_refused``; counted in ``n_resume_attempts`` / ``n_resumed``)
+            (``TrackingConfig.resume_refused``; counted in ``n_resume_attempts`` / ``n_resumed``)
             before estimating from scratch.
 
     Attributes (read them, do not set them):
@@ -102,7 +102,7 @@ class Tracker:
         n_warm: updates whose warm start was accepted (at the first attempt or, with ``fast``, the
             second).
         n_rescue_attempts: with ``fast``, refused warm starts tried a second time at
-            ``TrackingOptions.rescue_scale``.
+            ``TrackingConfig.rescue_scale``.
         n_rescued: of those, the second attempts the verdict accepted (counted in ``n_warm`` too, not
             in ``n_lost``).
         n_from_scratch: estimates run from scratch (first updates, updates after a failure, and
@@ -110,7 +110,7 @@ class Tracker:
         n_lost: warm starts whose verdict failed (both attempts, with ``fast``) or that found no
             feature: the track was lost.
         n_resume_attempts: with ``fast``, updates after a refused pose that first tried a warm start
-            from it (``TrackingOptions.resume_refused``).
+            from it (``TrackingConfig.resume_refused``).
         n_resumed: of those, the warm starts accepted (counted in ``n_warm`` too). Every update ends
             warm or from scratch: ``n_updates = n_warm + n_from_scratch`` (+ updates that raised).
         n_reacquired: of those, the updates whose from-scratch estimate on the same frames was
@@ -121,7 +121,7 @@ class Tracker:
             distance_maps, orientation, initialisation, refinement, verdict, retries, total), summed
             over every estimate run, a lost warm start's included.
         update_seconds: wall seconds spent in :meth:`update`, input checks included.
-        tracking_options: the :class:`~._options.TrackingOptions` of the fast warm path (None
+        tracking_options: the :class:`~._options.TrackingConfig` of the fast warm path (None
             without ``fast``).
     """
 
@@ -130,7 +130,7 @@ class Tracker:
                 "n_rescue_attempts", "n_rescued", "n_resume_attempts", "n_resumed")
 
     def __init__(self, model: TransducerModel, views: Sequence[View] | View, *, segmenter=None, orientation=None,
-                 rng=None, options: PoseOptions | None = None, fast: bool | TrackingOptions = False,
+                 rng=None, options: PoseConfig | None = None, fast: bool | TrackingConfig = False,
                  **option_overrides):
         if not isinstance(model, TransducerModel):
             raise TypeError(f"model must be a histostudy.transducer.TransducerModel, got {type(model).__name__}")
@@ -144,7 +144,7 @@ class Tracker:
         self.views = tuple(views)
         if options is None:
             option_overrides.setdefault("raise_on_failure", False)
-        self.options = PoseOptions.resolve(options, option_overrides, caller="Tracker",
+        self.options = PoseConfig.resolve(options, option_overrides, caller="Tracker",
                                            keywords="segmenter, orientation, rng, options, fast")
         # Every estimate runs without raising on a failed verdict: a failed warm start is the
         # tracker's cue to re-acquire, not an error. ``options.raise_on_failure`` applies to the
@@ -157,13 +157,13 @@ class Tracker:
         self.segmenter, self.orientation = segmenter, orientation
         self.rng = pose_generator(rng)
         if fast is True:
-            fast = TrackingOptions()
-        elif fast is not False and not isinstance(fast, TrackingOptions):
-            raise TypeError(f"fast must be True, False or a histostudy.pose.TrackingOptions, got {fast!r}")
+            fast = TrackingConfig()
+        elif fast is not False and not isinstance(fast, TrackingConfig):
+            raise TypeError(f"fast must be True, False or a histostudy.pose.TrackingConfig, got {fast!r}")
         self.tracking_options = fast or None
         self._region = None if self.tracking_options is None else RegionEstimator(
             model, self.views, segmenter, self._estimate_options, self.tracking_options, self.rng)
-        # From scratch at the label scale (TrackingOptions.scratch_label_scale); None: full frames.
+        # From scratch at the label scale (TrackingConfig.scratch_label_scale); None: full frames.
         self._scratch = None if self._region is None else scratch_estimator(
             model, self.views, self._region.full_frame_segmenter, orientation, self._estimate_options,
             self.tracking_options, self.rng)
@@ -239,7 +239,7 @@ class Tracker:
         Without ``fast`` this is ``update`` in a loop. With ``fast`` the stages overlap across
         pairs: while a pair is refined and judged on the calling thread, the next pair's regions
         are segmented and mapped on a worker thread, one view after the other whatever
-        ``TrackingOptions.parallel_views`` (torch, OpenCV and the cost's kernels release the GIL), from the
+        ``TrackingConfig.parallel_views`` (torch, OpenCV and the cost's kernels release the GIL), from the
         last pose accepted before it (one pair older than :meth:`update` would use; the region's
         margin covers the motion). After a lost track the prepared regions are dropped and the
         next pair is prepared again from the new pose. Counters, :attr:`last_kind` and the

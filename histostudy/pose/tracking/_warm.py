@@ -15,16 +15,16 @@ maps, the eq. 3 refinement from the last pose, the verdict), restricted to where
    :func:`~histostudy.pose.refine.refine_pose`): Levenberg-Marquardt from the last pose, coarse to
    fine (the point subset with distances capped at ``search_truncation_px``, then the fine subset
    capped at ``refine_truncation_px``), stopping once a step moves the pose less than the noise
-   (:class:`~._options.TrackingOptions`);
+   (:class:`~._options.TrackingConfig`);
 5. ``estimate_pose``'s verdict on the region (:class:`~histostudy.pose.verdict.PoseJudge`).
 
 A refused warm start gets one more chance before the tracker re-acquires
-(:attr:`~._options.TrackingOptions.rescue_scale`): :meth:`RegionEstimator.prepare_rescue`
+(:attr:`~._options.TrackingConfig.rescue_scale`): :meth:`RegionEstimator.prepare_rescue`
 segments the same regions again at the rescue scale (1: the detector's pixels, where
 ``estimate_pose`` judges), and :meth:`RegionEstimator.finish` refines from the refused pose there and
 judges again (docs/tracking.md, "Warm starts that hold").
 
-Pixel thresholds of :class:`~histostudy.pose.options.PoseOptions` are multiplied by the label scale
+Pixel thresholds of :class:`~histostudy.pose.options.PoseConfig` are multiplied by the label scale
 (:func:`~._options.scaled_pose_options`: their length on the detector is kept). Poses are 4x4 ``T_carm_transducer`` (mm, C-arm frame); random draws (the
 point subsets, drawn once) come from the tracker's Generator (docs/architecture.md, "Seeding and
 determinism").
@@ -42,13 +42,13 @@ import numpy as np
 from histostudy.imaging import Frame, View
 from histostudy.learning import FastUNet, UNetSegmenter, keep_largest_component, pool_labels
 from histostudy.transducer import TransducerModel, check_label_image
-from ..options import PoseOptions
+from ..options import PoseConfig
 from ..refine import refine_pose
 from ..result import PoseEstimationError, PoseResult, result_of_refinement
 from ..truncations import pose_costs
 from ..verdict import PoseJudge
 from ._maps import RegionMaps
-from ._options import TrackingOptions, scaled_pose_options
+from ._options import TrackingConfig, scaled_pose_options
 from ._roi import RegionOfInterest, crop_view, region_of_interest
 
 __all__ = ["PreparedRegions", "RegionEstimator"]
@@ -93,12 +93,12 @@ def _subset(points: np.ndarray, n: int | None, rng: np.random.Generator) -> np.n
 
 
 def _tracking_network(network, segmenter) -> UNetSegmenter:
-    """The :class:`UNetSegmenter` of :attr:`TrackingOptions.network` (a shipped name is loaded, its
+    """The :class:`UNetSegmenter` of :attr:`TrackingConfig.network` (a shipped name is loaded, its
     SHA-256 checked); ValueError when it cannot be loaded or the tracker's segmenter is no U-Net."""
     from histostudy.learning import MODELS_DIR
 
     if not isinstance(segmenter, UNetSegmenter):
-        raise ValueError(f"TrackingOptions.network {network!r} replaces the tracker's U-Net in the warm updates, "
+        raise ValueError(f"TrackingConfig.network {network!r} replaces the tracker's U-Net in the warm updates, "
                          f"but the tracker's segmenter is {type(segmenter).__name__}: pass network=None with it")
     if isinstance(network, UNetSegmenter):
         return network
@@ -106,7 +106,7 @@ def _tracking_network(network, segmenter) -> UNetSegmenter:
     try:
         return UNetSegmenter.load(path)
     except ValueError as exc:
-        raise ValueError(f"TrackingOptions.network {network!r}: the weights {str(path)!r} cannot be used ({exc}); "
+        raise ValueError(f"TrackingConfig.network {network!r}: the weights {str(path)!r} cannot be used ({exc}); "
                          f"expected a U-Net checkpoint in data/models (histostudy train segmentation_tracking)") from None
 
 
@@ -118,25 +118,25 @@ class RegionEstimator:
         views: the full-frame views, in the order of the frames.
         segmenter: a :class:`~histostudy.learning.UNetSegmenter` (run through
             :class:`~histostudy.learning.FastUNet`) or any segmenter (``segment(frame, rng)``).
-        options: the :class:`PoseOptions` of the estimates (distance maps, caps, verdict).
-        tracking: the :class:`TrackingOptions`.
+        options: the :class:`PoseConfig` of the estimates (distance maps, caps, verdict).
+        tracking: the :class:`TrackingConfig`.
         rng: draws the fixed point subsets once, here.
 
     Attributes:
         label_scale: label pixels per frame pixel of the regions.
-        rescue_scale: the label scale of :meth:`prepare_rescue` (``TrackingOptions.rescue_scale``),
+        rescue_scale: the label scale of :meth:`prepare_rescue` (``TrackingConfig.rescue_scale``),
             None where there is no second attempt (not set, or not above ``label_scale``).
         last_regions: the :class:`~._roi.RegionOfInterest` of each view at the last call.
     """
 
-    def __init__(self, model: TransducerModel, views: Sequence[View], segmenter, options: PoseOptions,
-                 tracking: TrackingOptions, rng: np.random.Generator):
+    def __init__(self, model: TransducerModel, views: Sequence[View], segmenter, options: PoseConfig,
+                 tracking: TrackingConfig, rng: np.random.Generator):
         self.model, self.views, self.segmenter = model, tuple(views), segmenter
         self.options, self.tracking = options, tracking
         self.fast_unet = (FastUNet(segmenter, precision=tracking.precision) if isinstance(segmenter, UNetSegmenter)
                           else None)
         # The full frames' network (from-scratch estimates) and the regions' (warm updates), which
-        # TrackingOptions.network may replace by one trained for tracking.
+        # TrackingConfig.network may replace by one trained for tracking.
         self._full_unet = self.fast_unet
         if tracking.network is not None:
             self.fast_unet = FastUNet(_tracking_network(tracking.network, segmenter), precision=tracking.precision)
@@ -162,7 +162,7 @@ class RegionEstimator:
             if v.shape[0] % k or v.shape[1] % k:
                 raise ValueError(f"views[{i}] shape {v.shape} is not divisible by 1/label_scale = {k}")
         self._maps = RegionMaps(occlusion_aware=options.distance_maps == "occlusion_aware")
-        self._options_at: dict[float, PoseOptions] = {}
+        self._options_at: dict[float, PoseConfig] = {}
         self._roi_points = np.vstack([p[::ROI_POINT_STRIDE] for p in model.points.values() if len(p)])
         self._refine_points = {k: _subset(np.asarray(p, dtype=np.float64), tracking.refine_points_per_class, rng)
                                for k, p in model.points.items() if len(p)}
@@ -186,7 +186,7 @@ class RegionEstimator:
             raise ValueError(f"{name} {s!r} must be the U-Net's input scale {net_scale} times or divided by an "
                              f"integer (labels are pooled or the logits upsampled)")
 
-    def _scaled_options(self, scale: float) -> PoseOptions:
+    def _scaled_options(self, scale: float) -> PoseConfig:
         """:attr:`options` with their pixel thresholds at label scale ``scale`` (made once per scale)."""
         if scale not in self._options_at:
             self._options_at[scale] = scaled_pose_options(self.options, scale)
@@ -247,7 +247,7 @@ class RegionEstimator:
         labels and distance maps. ``rng``: for a segmenter that draws (not a U-Net). ``slot`` (0 or
         1) picks the map buffers: :meth:`Tracker.track` prepares the next pair in the other slot
         while this one is refined. ``parallel_views``: the views on two threads (True) or one after
-        the other (False); None: ``TrackingOptions.parallel_views``. Safe to run on another thread
+        the other (False); None: ``TrackingConfig.parallel_views``. Safe to run on another thread
         than :meth:`finish`."""
         t_start = time.perf_counter()
         if slot not in (0, 1):
@@ -267,7 +267,7 @@ class RegionEstimator:
         in either slot is kept. ValueError when there is no second attempt (``rescue_scale`` None)."""
         t_start = time.perf_counter()
         if self.rescue_scale is None:
-            raise ValueError("rescue_scale is None: this estimator makes no second attempt (TrackingOptions."
+            raise ValueError("rescue_scale is None: this estimator makes no second attempt (TrackingConfig."
                              "rescue_scale must be above the label scale)")
         if prepared.frames is None:
             raise ValueError("prepared holds no frames: pass regions made by RegionEstimator.prepare")

@@ -1,5 +1,5 @@
 """Tests of the tracker's warm path with the U-Net trained for tracking
-(``TrackingOptions(network="unet_tracking")``, docs/tracking.md "A network trained for tracking"),
+(``TrackingConfig(network="unet_tracking")``, docs/tracking.md "A network trained for tracking"),
 and of the Levenberg-Marquardt step's scalar rotation (histostudy.pose.perturbation)."""
 
 import numpy as np
@@ -8,7 +8,7 @@ import pytest
 from histostudy.geometry import matrix_from_rotvec, transform_from_params
 from histostudy.imaging import default_biplane, random_background, render_frame
 from histostudy.learning import OracleOrientation, OracleSegmenter, default_segmenter, tracking_segmenter
-from histostudy.pose import Tracker, TrackingOptions, apply_left_perturbation
+from histostudy.pose import Tracker, TrackingConfig, apply_left_perturbation
 
 from pose_frames import POSES, moved
 
@@ -33,7 +33,7 @@ def cine(models):
 
 def test_the_tracking_network_follows_a_short_cine(models, cine):
     views, poses, frames = cine
-    tracker = Tracker(models[0], views, rng=4, mode="fast", fast=TrackingOptions(network="unet_tracking"),
+    tracker = Tracker(models[0], views, rng=4, mode="fast", fast=TrackingConfig(network="unet_tracking"),
                       orientation=OracleOrientation())
     # from scratch on the full frames with the tracker's own U-Net (0.5); warm regions at 0.25
     assert tracker._region.full_frame_segmenter.scale == 0.5 and tracker._region.fast_unet.scale == 0.25
@@ -53,20 +53,20 @@ def test_the_tracking_network_follows_a_short_cine(models, cine):
     assert (tracker.n_warm, tracker.n_lost) == (2, 0)
     # labels at 0.5 from the same network (its logits upsampled) are an option too
     half = Tracker(models[0], views, rng=4, mode="fast", orientation=OracleOrientation(),
-                   fast=TrackingOptions(network=tracking_segmenter(), label_scale=0.5))
+                   fast=TrackingConfig(network=tracking_segmenter(), label_scale=0.5))
     assert half._region.label_scale == 0.5 and half._region.fast_unet.scale == 0.25  # logits upsampled 2x
 
 
 def test_bad_tracking_networks_are_refused_naming_the_argument(models):
     views = default_biplane()
     with pytest.raises(ValueError, match="network must be None, the name of shipped U-Net weights"):
-        TrackingOptions(network=3)
+        TrackingConfig(network=3)
     with pytest.raises(ValueError, match="network must be None"):
-        TrackingOptions(network="../unet_tracking")
-    with pytest.raises(ValueError, match="TrackingOptions.network 'no_such_net': the weights .*no_such_net"):
-        Tracker(models[0], views, rng=0, fast=TrackingOptions(network="no_such_net"), orientation=OracleOrientation())
+        TrackingConfig(network="../unet_tracking")
+    with pytest.raises(ValueError, match="TrackingConfig.network 'no_such_net': the weights .*no_such_net"):
+        Tracker(models[0], views, rng=0, fast=TrackingConfig(network="no_such_net"), orientation=OracleOrientation())
     with pytest.raises(ValueError, match="replaces the tracker's U-Net .* OracleSegmenter"):
-        Tracker(models[0], views, rng=0, fast=TrackingOptions(network="unet_tracking"),
+        Tracker(models[0], views, rng=0, fast=TrackingConfig(network="unet_tracking"),
                 segmenter=OracleSegmenter(), orientation=OracleOrientation())
 
 

@@ -1,5 +1,5 @@
-"""Tests of the fast tracker's second warm attempt (TrackingOptions.rescue_scale), of the warm start
-resumed from a pose refused for its views' agreement (TrackingOptions.resume_refused), and of
+"""Tests of the fast tracker's second warm attempt (TrackingConfig.rescue_scale), of the warm start
+resumed from a pose refused for its views' agreement (TrackingConfig.resume_refused), and of
 Tracker.track's ``ready`` (a live source whose next pair may not have arrived).
 
 The frames are the blank-image frames with reference labels of tests/pose/pose_frames.py on the
@@ -13,7 +13,7 @@ import pytest
 
 from histostudy.geometry import transform_from_params
 from histostudy.learning import OracleOrientation, OracleSegmenter
-from histostudy.pose import PoseOptions, RegionEstimator, Tracker, TrackingOptions
+from histostudy.pose import PoseConfig, RegionEstimator, Tracker, TrackingConfig
 
 from pose_frames import POSES, focal_error, frames_of, moved
 
@@ -56,7 +56,7 @@ def test_a_refused_warm_start_is_tried_again_at_the_detector_resolution_before_t
     poses, frames, spoilt = stream
     segmenter = SpoiltOnce(spoilt)
     tracker = Tracker(models[0], views, rng=3, mode="fast", segmenter=segmenter, orientation=OracleOrientation(),
-                      fast=TrackingOptions(label_scale=0.5, rescue_scale=rescue_scale))
+                      fast=TrackingConfig(label_scale=0.5, rescue_scale=rescue_scale))
     for pair in frames[:2]:
         assert tracker.update(pair).verdict.ok
     assert tracker.last_kind == "warm" and tracker.n_rescue_attempts == 0
@@ -87,7 +87,7 @@ def test_a_second_attempt_the_verdict_refuses_too_loses_the_track(models, views,
     poses, frames, spoilt = stream
     segmenter = SpoiltOnce(spoilt)
     tracker = Tracker(models[0], views, rng=3, mode="fast", segmenter=segmenter, orientation=OracleOrientation(),
-                      fast=TrackingOptions(label_scale=0.5))
+                      fast=TrackingConfig(label_scale=0.5))
     tracker.update(frames[1])
     segmenter.n_spoilt = 2
     result = tracker.update(frames[2])
@@ -105,7 +105,7 @@ def test_a_pose_refused_for_its_views_agreement_is_resumed_warm_on_the_next_pair
     segmenter.n_spoilt = 1
     tracker = Tracker(models[0], views, rng=3, mode="fast", segmenter=segmenter, orientation=OracleOrientation(),
                       max_view_disagreement_mm=0.5, retry_hypotheses=False,
-                      fast=TrackingOptions(label_scale=0.5, resume_refused=resume))
+                      fast=TrackingConfig(label_scale=0.5, resume_refused=resume))
     first = tracker.update(frames[1])
     assert not first.verdict.ok and first.verdict.view_disagreement_mm
     assert all("the views disagree" in reason for reason in first.verdict.reasons)
@@ -123,11 +123,11 @@ def test_a_pose_refused_for_its_views_agreement_is_resumed_warm_on_the_next_pair
 
 
 def test_no_second_attempt_where_the_labels_are_at_the_detector_resolution_already(models, views):
-    estimator = RegionEstimator(models[0], views, OracleSegmenter(), PoseOptions(mode="fast"), TrackingOptions(),
+    estimator = RegionEstimator(models[0], views, OracleSegmenter(), PoseConfig(mode="fast"), TrackingConfig(),
                                 np.random.default_rng(0))
     assert estimator.label_scale == 1.0 and estimator.rescue_scale is None
-    half = RegionEstimator(models[0], views, OracleSegmenter(), PoseOptions(mode="fast"),
-                           TrackingOptions(label_scale=0.25, rescue_scale=0.5), np.random.default_rng(0))
+    half = RegionEstimator(models[0], views, OracleSegmenter(), PoseConfig(mode="fast"),
+                           TrackingConfig(label_scale=0.25, rescue_scale=0.5), np.random.default_rng(0))
     assert half.rescue_scale == 0.5
     with pytest.raises(ValueError, match="rescue_scale is None: this estimator makes no second attempt"):
         estimator.prepare_rescue(None, None)
@@ -136,14 +136,14 @@ def test_no_second_attempt_where_the_labels_are_at_the_detector_resolution_alrea
 def test_bad_rescue_options_are_refused_naming_the_argument(models, views):
     for bad in (1, None, "yes"):
         with pytest.raises(ValueError, match="resume_refused must be True or False"):
-            TrackingOptions(resume_refused=bad)
+            TrackingConfig(resume_refused=bad)
     for bad in (0.3, 2.0, 0.0, -0.5, float("nan"), "1", True):
         with pytest.raises(ValueError, match=r"rescue_scale must be None or 1/k for an integer k >= 1"):
-            TrackingOptions(rescue_scale=bad)
+            TrackingConfig(rescue_scale=bad)
     # label pixels of a third of a frame pixel: boxes on multiples of 3 px hold no whole 2 px pixel
     with pytest.raises(ValueError, match=r"rescue_scale 0.5: the regions' corners lie on multiples of 3"):
-        RegionEstimator(models[0], views, OracleSegmenter(), PoseOptions(mode="fast"),
-                        TrackingOptions(label_scale=1 / 3, rescue_scale=0.5), np.random.default_rng(0))
+        RegionEstimator(models[0], views, OracleSegmenter(), PoseConfig(mode="fast"),
+                        TrackingConfig(label_scale=1 / 3, rescue_scale=0.5), np.random.default_rng(0))
 
 
 def test_track_with_ready_takes_no_pair_ahead_and_raises_a_bad_pair_at_its_turn(models, views, stream):

@@ -1,5 +1,5 @@
 """Tests of the tracker's fast from-scratch estimate at the label scale (histostudy.pose.tracking._scratch,
-``TrackingOptions.scratch_label_scale``; docs/tracking.md "From scratch in under a second").
+``TrackingConfig.scratch_label_scale``; docs/tracking.md "From scratch in under a second").
 
 Geometry first, with the oracle stages (reference labels pooled by priority) on the half-resolution
 views; then the shipped U-Net and conic/VGG19 orientation on a rendered full-size pair, against the
@@ -13,7 +13,7 @@ import pytest
 
 from histostudy.imaging import default_biplane, random_background, render_frame
 from histostudy.learning import FastUNet, OracleOrientation, OracleSegmenter, default_segmenter
-from histostudy.pose import (PoseOptions, ScratchEstimator, Tracker, TrackingOptions, default_stages,
+from histostudy.pose import (PoseConfig, ScratchEstimator, Tracker, TrackingConfig, default_stages,
                              scaled_pose_options)
 from histostudy.pose.tracking._options import PIXEL_OPTIONS
 
@@ -28,7 +28,7 @@ def test_oracle_labels_at_half_scale_give_the_full_frame_pose(models, views):
     full = Tracker(model, views, rng=3, mode="fast", fast=True, **ORACLES)  # scale 1 for an oracle segmenter
     assert full._scratch is None
     reference = full.update(frames)
-    tracker = Tracker(model, views, rng=3, mode="fast", fast=TrackingOptions(scratch_label_scale=0.5), **ORACLES)
+    tracker = Tracker(model, views, rng=3, mode="fast", fast=TrackingConfig(scratch_label_scale=0.5), **ORACLES)
     result = tracker.update(frames)
     assert tracker.last_kind == "from_scratch" and result.verdict.ok, result.verdict.reasons
     assert result.init is not None and [lab.shape for lab in result.labels] == [(240, 310)] * 2
@@ -42,7 +42,7 @@ def test_oracle_labels_at_half_scale_give_the_full_frame_pose(models, views):
 def test_a_pose_refused_at_the_label_scale_is_judged_again_on_the_full_frames(models, views):
     model, fine = models
     frames = frames_of(fine, POSES[1], views)
-    tracker = Tracker(model, views, rng=4, mode="fast", fast=TrackingOptions(scratch_label_scale=0.5), **ORACLES)
+    tracker = Tracker(model, views, rng=4, mode="fast", fast=TrackingConfig(scratch_label_scale=0.5), **ORACLES)
     estimator = tracker._scratch
     # an RMS limit no pose meets at the label scale: step 1 is refused, step 2 (full frames, from its pose) holds
     estimator.options = dataclasses.replace(estimator.options, max_rms_px=1e-9)
@@ -60,9 +60,9 @@ def test_a_pose_refused_at_the_label_scale_is_judged_again_on_the_full_frames(mo
 
 
 def test_pixel_options_are_scaled_and_the_rest_kept():
-    options = PoseOptions(mode="fast", max_body_rms_px=None)
+    options = PoseConfig(mode="fast", max_body_rms_px=None)
     scaled = scaled_pose_options(options, 0.5)
-    for field in PoseOptions.field_names():
+    for field in PoseConfig.field_names():
         before, after = getattr(options, field), getattr(scaled, field)
         if field in PIXEL_OPTIONS and before is not None:
             assert after == pytest.approx(0.5 * before), field
@@ -76,7 +76,7 @@ def test_pixel_options_are_scaled_and_the_rest_kept():
 @pytest.mark.parametrize("value", [0.3, 0.0, -0.5, 2.0, "half", True])
 def test_bad_scratch_label_scales_are_refused_naming_the_field(value):
     with pytest.raises(ValueError, match="scratch_label_scale must be None or 1/k"):
-        TrackingOptions(scratch_label_scale=value)
+        TrackingConfig(scratch_label_scale=value)
 
 
 def test_a_scale_the_unet_cannot_give_is_refused(models):
@@ -85,11 +85,11 @@ def test_a_scale_the_unet_cannot_give_is_refused(models):
         pytest.skip("the shipped U-Net (data/models/unet_standard) is not available")
     views = default_biplane()
     with pytest.raises(ValueError, match="scratch_label_scale 0.333.* U-Net's input scale 0.5"):
-        Tracker(models[0], views, rng=0, fast=TrackingOptions(scratch_label_scale=1 / 3), segmenter=segmenter,
+        Tracker(models[0], views, rng=0, fast=TrackingConfig(scratch_label_scale=1 / 3), segmenter=segmenter,
                 orientation=OracleOrientation())
     odd = [dataclasses.replace(v, shape=(v.shape[0] - 1, v.shape[1])) for v in views]
     with pytest.raises(ValueError, match=r"views\[0\] shape \(959, 1240\) is not divisible"):
-        ScratchEstimator(models[0], odd, FastUNet(segmenter), OracleOrientation(), PoseOptions(), TrackingOptions(),
+        ScratchEstimator(models[0], odd, FastUNet(segmenter), OracleOrientation(), PoseConfig(), TrackingConfig(),
                          0.5, np.random.default_rng(0))
 
 
@@ -108,7 +108,7 @@ def rendered_pair(models):
 
 def test_the_shipped_stages_at_half_scale_match_the_truth_and_the_full_frames(models, rendered_pair):
     views, T, frames, orientation = rendered_pair
-    full = Tracker(models[0], views, rng=7, mode="fast", fast=TrackingOptions(scratch_label_scale=1),
+    full = Tracker(models[0], views, rng=7, mode="fast", fast=TrackingConfig(scratch_label_scale=1),
                    orientation=orientation)
     reference = full.update(frames)
     tracker = Tracker(models[0], views, rng=7, mode="fast", fast=True, orientation=orientation)

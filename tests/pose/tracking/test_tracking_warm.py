@@ -11,7 +11,7 @@ import pytest
 from histostudy.geometry import transform_from_params
 from histostudy.imaging import Frame
 from histostudy.learning import OracleOrientation, OracleSegmenter
-from histostudy.pose import PoseEstimationError, PoseOptions, RegionEstimator, Tracker, TrackingOptions
+from histostudy.pose import PoseEstimationError, PoseConfig, RegionEstimator, Tracker, TrackingConfig
 
 from pose_frames import POSES, focal_error, frames_of, moved
 
@@ -41,7 +41,7 @@ def full_frame_poses(models, views, sequence):
 def test_fast_warm_path_stays_within_0_1_mm_of_the_full_frame_path(models, views, sequence, full_frame_poses,
                                                                     label_scale):
     poses, frames = sequence
-    tracker = Tracker(models[0], views, rng=3, mode="fast", fast=TrackingOptions(label_scale=label_scale), **ORACLES)
+    tracker = Tracker(models[0], views, rng=3, mode="fast", fast=TrackingConfig(label_scale=label_scale), **ORACLES)
     for i, (pair, T_true, T_full) in enumerate(zip(frames, poses, full_frame_poses)):
         result = tracker.update(pair)
         assert result.verdict.ok, result.verdict.reasons
@@ -77,7 +77,7 @@ def test_a_jump_loses_the_fast_track_and_is_reacquired_and_counted(models, views
 
 def test_a_region_without_features_raises_for_the_tracker_to_reacquire(models, views):
     model, fine = models
-    estimator = RegionEstimator(model, views, OracleSegmenter(), PoseOptions(mode="fast"), TrackingOptions(),
+    estimator = RegionEstimator(model, views, OracleSegmenter(), PoseConfig(mode="fast"), TrackingConfig(),
                                 np.random.default_rng(0))
     blank = [Frame(np.zeros(v.shape, np.float32), v, labels=np.zeros(v.shape, np.uint8)) for v in views]
     with pytest.raises(PoseEstimationError, match="no transducer feature was segmented in the tracking region"):
@@ -93,20 +93,20 @@ def test_the_same_seed_gives_the_same_fast_track(models, views, sequence):
 
 
 def test_bad_fast_options_are_refused_naming_the_argument(models, views):
-    with pytest.raises(TypeError, match="fast must be True, False or a histostudy.pose.TrackingOptions"):
+    with pytest.raises(TypeError, match="fast must be True, False or a histostudy.pose.TrackingConfig"):
         Tracker(models[0], views, fast="yes", **ORACLES)
     with pytest.raises(ValueError, match="roi_margin_px must be"):
-        TrackingOptions(roi_margin_px=-5)
+        TrackingConfig(roi_margin_px=-5)
     with pytest.raises(ValueError, match="label_scale must be None or 1/k"):
-        TrackingOptions(label_scale=0.4)
+        TrackingConfig(label_scale=0.4)
     with pytest.raises(ValueError, match="refine_points_per_class must be None or a positive integer"):
-        TrackingOptions(refine_points_per_class=0)
+        TrackingConfig(refine_points_per_class=0)
     with pytest.raises(ValueError, match="stop_step_mm must be"):
-        TrackingOptions(stop_step_mm=0)
+        TrackingConfig(stop_step_mm=0)
     with pytest.raises(ValueError, match="parallel_views must be True or False"):
-        TrackingOptions(parallel_views=1)
+        TrackingConfig(parallel_views=1)
     with pytest.raises(ValueError, match="precision must be one of"):
-        TrackingOptions(precision="int8")
+        TrackingConfig(precision="int8")
 
 
 def test_track_overlaps_the_stages_and_gives_the_poses_of_update(models, views, sequence):
@@ -146,8 +146,8 @@ def test_region_maps_are_exact_up_to_the_largest_cap_they_are_read_at(models, vi
     from histostudy.pose import DistanceMaps
 
     poses, frames = sequence
-    options = PoseOptions(**overrides)
-    estimator = RegionEstimator(models[0], views, OracleSegmenter(), options, TrackingOptions(label_scale=0.5),
+    options = PoseConfig(**overrides)
+    estimator = RegionEstimator(models[0], views, OracleSegmenter(), options, TrackingConfig(label_scale=0.5),
                                 np.random.default_rng(0))
     prepared = estimator.prepare(frames[1], poses[0], np.random.default_rng(1))
     for region, labels, maps in zip(prepared.regions, prepared.labels, prepared.maps):
@@ -159,7 +159,7 @@ def test_region_maps_are_exact_up_to_the_largest_cap_they_are_read_at(models, vi
 
 def test_prepare_gives_the_same_regions_with_the_views_in_turn_or_on_two_threads(models, views, sequence):
     poses, frames = sequence
-    estimator = RegionEstimator(models[0], views, OracleSegmenter(), PoseOptions(), TrackingOptions(label_scale=0.5),
+    estimator = RegionEstimator(models[0], views, OracleSegmenter(), PoseConfig(), TrackingConfig(label_scale=0.5),
                                 np.random.default_rng(0))
     both = [estimator.prepare(frames[1], poses[0], np.random.default_rng(1), slot, parallel)
             for slot, parallel in ((0, True), (1, False))]
