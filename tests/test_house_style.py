@@ -1,0 +1,55 @@
+"""The house's measurable rules (docs/architecture.md, "Layers"): modules of one job, functions that
+fit on a screen, docs that describe what is, and no timing figure outside benchmarks/ and the docs'
+tables (machines differ; a figure in a docstring goes stale without anyone rerunning it)."""
+
+import ast
+import re
+from pathlib import Path
+
+import histostudy
+
+PACKAGE = Path(histostudy.__file__).parent
+REPO = PACKAGE.parent
+
+#: A duration in milli- or microseconds, or a speed-up factor: what a docstring must not carry.
+#: DICOM's FrameTime (ms) is a unit, not a measurement, and stays allowed.
+TIMING = re.compile(r"\d\s?(ms|µs)\b|\d\s?[x×]\s(faster|slower)|core-ms")
+
+
+def _sources():
+    return sorted(PACKAGE.rglob("*.py"))
+
+
+def test_no_module_over_400_lines():
+    long = [f"{p.relative_to(REPO)}: {n}" for p in _sources() if (n := len(p.read_text().splitlines())) > 400]
+    assert long == []
+
+
+def test_no_function_over_100_lines():
+    long = []
+    for path in _sources():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                length = node.end_lineno - node.lineno + 1
+                if length > 100:
+                    long.append(f"{path.relative_to(REPO)}:{node.lineno} {node.name} ({length} lines)")
+    assert long == []
+
+
+def test_no_timing_figure_in_a_docstring_or_comment():
+    found = []
+    for path in _sources():
+        source = path.read_text()
+        texts = []
+        for node in ast.walk(ast.parse(source)):
+            if isinstance(node, (ast.Module, ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                texts += (ast.get_docstring(node) or "").splitlines()
+        texts += [line.split("#", 1)[1] for line in source.splitlines() if "#" in line]
+        found += [f"{path.relative_to(REPO)}: {t.strip()}" for t in texts
+                  if TIMING.search(t) and "FrameTime" not in t and "frame_time" not in t]
+    assert found == []
+
+
+def test_no_doc_over_400_lines():
+    long = [f"{p.name}: {n}" for p in sorted((REPO / "docs").glob("*.md")) if (n := len(p.read_text().splitlines())) > 400]
+    assert long == []
