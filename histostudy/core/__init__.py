@@ -10,7 +10,7 @@ See docs/architecture.md, "Seeding and determinism".
 
 from . import (checks as _checks, io as _io, machine as _machine, moved_modules as _moved_modules,
                provenance as _provenance, seeding as _seeding, sweeps as _sweeps)
-from .checks import check_count, check_positive, check_unit_fraction, is_finite_real, is_real
+from .checks import check_count, check_items, check_positive, check_unit_fraction, is_finite_real, is_real
 from .io import atomic_path, atomic_write_bytes, atomic_write_json, atomic_write_text, process_umask, to_jsonable
 from .machine import (AVX2_RESTRICTION, ISA_FLAGS, ISA_RESTRICTION_ENV, avx2_env_words, avx2_restriction, cpu_model,
                       isa_flags, isa_restriction, machine_summary)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import numbers
 
-__all__ = ["check_count", "check_positive", "check_unit_fraction", "is_finite_real", "is_real"]
+__all__ = ["check_count", "check_items", "check_positive", "check_unit_fraction", "is_finite_real", "is_real"]
 
 
 def is_real(value) -> bool:
@@ -52,3 +52,17 @@ def check_unit_fraction(value, name: str = "scale") -> int:
     if isinstance(value, bool) or k < 1 or abs(k * scale - 1.0) > 1e-9:
         raise ValueError(f"{name} must be 1/k for an integer k >= 1 (1, 0.5, 0.25, ...), got {value!r}")
     return k
+
+
+def check_items(values, name: str, item_type: type, *, type_name: str | None = None) -> list:
+    """``values`` — one ``item_type`` or an iterable of them — as a non-empty list; an empty one
+    raises ValueError, an item of another type TypeError naming its index (``type_name``: how the
+    message names ``item_type``, default its qualified name)."""
+    shown = type_name or f"{item_type.__module__}.{item_type.__qualname__}"
+    items = [values] if isinstance(values, item_type) else list(values)
+    if not items:
+        raise ValueError(f"{name} must hold at least one {item_type.__name__}, got none")
+    for i, item in enumerate(items):
+        if not isinstance(item, item_type):
+            raise TypeError(f"{name}[{i}] must be a {shown}, got {type(item).__name__}: {item!r:.80}")
+    return items

@@ -28,6 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
+from histostudy.core import check_items
 from histostudy.imaging import Frame
 from histostudy.learning import OrientationSource, Segmenter
 from histostudy.transducer import TransducerModel
@@ -76,7 +77,7 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
         shows no feature, or on a failed verdict when ``options.raise_on_failure``.
     """
     t_start = time.perf_counter()
-    frames = _check_frames(frames)
+    frames = check_items(frames, "frames", Frame, type_name="histostudy.imaging.frame.Frame")
     if not isinstance(model, TransducerModel):
         raise TypeError(f"model must be a TransducerModel, got {type(model).__name__}")
     options = _resolve_options(options, option_overrides)
@@ -96,18 +97,6 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
     if not result.verdict.ok and options.raise_on_failure:
         raise refused(result)
     return result
-
-
-def _check_frames(frames) -> list[Frame]:
-    if isinstance(frames, Frame):
-        frames = [frames]
-    frames = list(frames)
-    if not frames:
-        raise ValueError("frames must hold at least one Frame, got none")
-    for i, f in enumerate(frames):
-        if not isinstance(f, Frame):
-            raise TypeError(f"frames[{i}] must be a histostudy.imaging.frame.Frame, got {type(f).__name__}")
-    return frames
 
 
 def _resolve_options(options, overrides: dict) -> PoseConfig:

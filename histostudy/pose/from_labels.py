@@ -21,6 +21,7 @@ from typing import Sequence
 
 import numpy as np
 
+from histostudy.core import check_items
 from histostudy.imaging import View
 from histostudy.transducer import TransducerModel
 from .directions import DirectionStage, check_direction_pair
@@ -64,7 +65,7 @@ def estimate_pose_from_labels(labels_per_view: Sequence, views: Sequence[View] |
         verdict when ``options.raise_on_failure``.
     """
     t_start = time.perf_counter()
-    views = _check_views(views)
+    views = check_items(views, "views", View, type_name="histostudy.imaging.View")
     if not isinstance(model, TransducerModel):
         raise TypeError(f"model must be a TransducerModel, got {type(model).__name__}")
     options = PoseConfig.resolve(options, option_overrides, caller="estimate_pose_from_labels",
@@ -106,13 +107,3 @@ def estimate_pose_from_labels(labels_per_view: Sequence, views: Sequence[View] |
     if not out.verdict.ok and options.raise_on_failure:
         raise refused(result)
     return result
-
-
-def _check_views(views) -> list[View]:
-    views = [views] if isinstance(views, View) else list(views)
-    if not views:
-        raise ValueError("views must hold at least one View, got none")
-    for i, v in enumerate(views):
-        if not isinstance(v, View):
-            raise TypeError(f"views[{i}] must be a histostudy.imaging.View, got {type(v).__name__}")
-    return views

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from histostudy.core import check_count, check_positive, check_unit_fraction, is_finite_real, is_real
+from histostudy.core import check_count, check_items, check_positive, check_unit_fraction, is_finite_real, is_real
 
 
 @pytest.mark.parametrize("value, real, finite", [
@@ -43,3 +43,13 @@ def test_unit_fractions_give_their_reduction(scale, k):
 def test_other_scales_are_refused_by_name(scale):
     with pytest.raises(ValueError, match=r"label_scale must be 1/k for an integer k >= 1"):
         check_unit_fraction(scale, "label_scale")
+
+
+def test_check_items_takes_one_item_or_many_and_names_the_bad_index():
+    assert check_items(3, "counts", int) == [3] and check_items((1, 2), "counts", int) == [1, 2]
+    with pytest.raises(ValueError, match=r"^counts must hold at least one int, got none$"):
+        check_items([], "counts", int)
+    with pytest.raises(TypeError, match=r"^counts\[1\] must be a an integer, got str: 'x'$"):
+        check_items([1, "x"], "counts", int, type_name="an integer")
+    with pytest.raises(TypeError, match=r"counts\[0\] must be a builtins.int, got float"):
+        check_items([1.5], "counts", int)

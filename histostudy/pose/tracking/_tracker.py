@@ -36,6 +36,7 @@ from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
+from histostudy.core import check_items
 from histostudy.imaging import Frame, View
 from histostudy.transducer import TransducerModel
 from ..estimate import estimate_pose
@@ -134,12 +135,7 @@ class Tracker:
                  **option_overrides):
         if not isinstance(model, TransducerModel):
             raise TypeError(f"model must be a histostudy.transducer.TransducerModel, got {type(model).__name__}")
-        views = [views] if isinstance(views, View) else list(views)
-        if not views:
-            raise ValueError("views must hold at least one View, got none")
-        for i, v in enumerate(views):
-            if not isinstance(v, View):
-                raise TypeError(f"views[{i}] must be a histostudy.imaging.View, got {type(v).__name__}: {v!r}")
+        views = check_items(views, "views", View, type_name="histostudy.imaging.View")
         self.model = model
         self.views = tuple(views)
         if options is None:
