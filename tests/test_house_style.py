@@ -53,3 +53,21 @@ def test_no_timing_figure_in_a_docstring_or_comment():
 def test_no_doc_over_400_lines():
     long = [f"{p.name}: {n}" for p in sorted((REPO / "docs").glob("*.md")) if (n := len(p.read_text().splitlines())) > 400]
     assert long == []
+
+
+def test_notebooks_call_only_public_names_their_modules_export():
+    """A notebook's ``from histostudy... import x as alias`` then ``alias.name``: each name is public
+    (no leading underscore) and in the module's ``__all__``, so a split of the module cannot drop it."""
+    import importlib
+    import json
+
+    missing = []
+    for path in sorted((REPO / "notebooks").glob("*.ipynb")):
+        cells = json.loads(path.read_text())["cells"]
+        code = "\n".join("".join(c["source"]) for c in cells if c["cell_type"] == "code")
+        for package, name, alias in re.findall(r"from (histostudy[\w.]*) import (\w+) as (\w+)", code):
+            module = importlib.import_module(f"{package}.{name}")
+            for used in sorted(set(re.findall(rf"\b{alias}\.(\w+)", code))):
+                if used.startswith("_") or used not in getattr(module, "__all__", ()):
+                    missing.append(f"{path.name}: {alias}.{used} ({module.__name__})")
+    assert missing == []

@@ -25,7 +25,7 @@ from ._parameters import (RECORDED_PARAMETERS, SECTION_TITLE, YourDataConfig)
 from ._section import (CalibrationSection, MovingCineSection, STATION_OVERLAY_CAPTION, SectionPart, StationsSection,
                        Timer, TrackingSection, YourDataSetup, calibration_section, drive_robot, focal_error_part,
                        moving_cine_section, plot_cine_focal_error, prepare, record, stand_ins, station_overlay,
-                       stations_section, tracking_section)
+                       stations_section, target_part, tracking_section)
 
 # every public name of the modules above, as each module's __all__ declares it
 __all__ = list(dict.fromkeys([*_inputs.__all__, *_live.__all__, *_parameters.__all__, *_section.__all__]))

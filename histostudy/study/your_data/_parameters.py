@@ -4,7 +4,6 @@ and the parameters the report records.
 
 from __future__ import annotations
 
-import dataclasses
 import os
 from dataclasses import dataclass
 from typing import Mapping
@@ -12,6 +11,8 @@ from typing import Mapping
 import numpy as np
 
 from histostudy.core import check_count, check_positive, is_finite_real
+from ..section import check_bool as _check_bool
+from ..section import config_from_parameters
 
 __all__ = ["RECORDED_PARAMETERS", "SECTION_TITLE", "YourDataConfig"]
 
@@ -20,12 +21,6 @@ SECTION_TITLE = "Your own data: frames, calibration, target and robot (§II-B to
 #: The notebook parameters the report records, in the order it records them.
 RECORDED_PARAMETERS = ("data_dir", "target_mm", "pose_spacing_mm", "robot_host", "dry_run", "stream_cine",
                        "moving_cine_s", "moving_cine_fps", "moving_cine_speed_mm_s", "max_queued_pairs")
-
-
-def _check_bool(value, name: str) -> bool:
-    if not isinstance(value, (bool, np.bool_)):
-        raise ValueError(f"{name} must be True or False, got {value!r}")
-    return bool(value)
 
 
 def _check_optional_count(value, name: str) -> int | None:
@@ -102,11 +97,7 @@ class YourDataConfig:
     def from_parameters(cls, parameters: Mapping) -> YourDataConfig:
         """The parameters of ``parameters`` (the notebook's ``globals()``, or any mapping naming every
         field; other entries are ignored)."""
-        names = [f.name for f in dataclasses.fields(cls)]
-        missing = [name for name in names if name not in parameters]
-        if missing:
-            raise ValueError(f"parameters lack {missing} (notebook 06's parameters cell names each)")
-        return cls(**{name: parameters[name] for name in names})
+        return config_from_parameters(cls, parameters, "06")
 
     def recorded(self) -> dict:
         """The parameters the report records (:data:`RECORDED_PARAMETERS`, in that order)."""

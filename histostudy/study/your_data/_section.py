@@ -5,12 +5,10 @@ move and makes it only when asked (the dry-run guard).
 
 from __future__ import annotations
 
-import contextlib
-import dataclasses
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Mapping
+from typing import Mapping
 
 import numpy as np
 import pandas as pd
@@ -24,6 +22,8 @@ from histostudy.robot import Robot
 from histostudy.transducer import TransducerModel
 from ..moving_cine import write_moving_cine
 from ..moving_cine_live import MovingCineRun, count_table, frame_table, plot_focal_error, stream_moving_cine
+from ..section import SectionPart, Timer, record
+from ..section import timer_or_untimed as _timer
 from ..targeting._setup import TargetingStudyConfig
 from ._inputs import (LabInputs, _station_frames, calibration_table, lab_inputs, plan_table, plot_cbct_target,
                       station_poses, target_plan, track_cine, transducer_model)
@@ -32,8 +32,7 @@ from ._parameters import YourDataConfig, _check_bool
 __all__ = ["CalibrationSection", "MovingCineSection", "STATION_OVERLAY_CAPTION", "SectionPart", "StationsSection",
            "Timer", "TrackingSection", "YourDataSetup", "calibration_section", "drive_robot", "focal_error_part",
            "moving_cine_section", "plot_cine_focal_error", "prepare", "record", "stand_ins", "station_overlay",
-           "stations_section", "tracking_section"]
-
+           "stations_section", "target_part", "tracking_section"]
 
 
 # --- The notebook's section: its set-up, then one part per heading ---------------------------------
@@ -51,13 +50,6 @@ class YourDataSetup:
     output_dir: Path
 
 
-Timer = Callable[[str], contextlib.AbstractContextManager]
-
-
-def _timer(timer: Timer | None) -> Timer:
-    return timer or (lambda name: contextlib.nullcontext())
-
-
 def prepare(params: YourDataConfig | Mapping, seed: int, output_dir: str | os.PathLike, *,
             timer: Timer | None = None) -> YourDataSetup:
     """The section's set-up: the lab's files in ``params.data_dir`` (or the lab-like dataset generated
@@ -71,37 +63,6 @@ def prepare(params: YourDataConfig | Mapping, seed: int, output_dir: str | os.Pa
                             n_cine_frames=params.n_cine_frames, render=params.render())
         model = transducer_model(inputs, params.pose_spacing_mm)
     return YourDataSetup(params, inputs, model, seed, Path(output_dir))
-
-
-@dataclass(frozen=True, eq=False)
-class SectionPart:
-    """What one part of the section reports, as its function made it: ``tables`` (name ->
-    ``(DataFrame, caption)``), ``figures`` (name -> ``(Figure, caption)``), ``values`` (key ->
-    JSON-able) and ``comparisons`` with the paper (``SectionWriter.compare`` arguments). Written by
-    :func:`record`, in that order."""
-
-    tables: dict = dataclasses.field(default_factory=dict)
-    figures: dict = dataclasses.field(default_factory=dict)
-    values: dict = dataclasses.field(default_factory=dict)
-    comparisons: tuple = ()
-
-
-def record(writer, *parts) -> None:
-    """Write each of ``parts`` (a :class:`SectionPart`, or a section result holding one as ``part``)
-    through ``writer`` (a :class:`histostudy.reporting.SectionWriter`): its tables, figures, values
-    and comparisons."""
-    for part in parts:
-        part = getattr(part, "part", part)
-        if not isinstance(part, SectionPart):
-            raise TypeError(f"parts must be SectionPart objects or hold one as .part, got {type(part).__name__}")
-        for name, (table, caption) in part.tables.items():
-            writer.table(name, table, caption)
-        for name, (figure, caption) in part.figures.items():
-            writer.figure(name, figure, caption)
-        for key, value in part.values.items():
-            writer.value(key, value)
-        for comparison in part.comparisons:
-            writer.compare(**comparison)
 
 
 @dataclass(frozen=True, eq=False)
