@@ -9,11 +9,9 @@ jitter, and the agarose phantom behind the transducer (the paper's pose studies)
 
 from __future__ import annotations
 
-import math
-import numbers
 from dataclasses import dataclass
 
-from histostudy.core import renamed_attributes
+from histostudy.core import check_count, check_positive, is_finite_real, renamed_attributes
 
 __all__ = ["BACKGROUNDS", "FrameRenderConfig"]
 
@@ -57,7 +55,7 @@ def check_photons_per_pixel(value, *, allow_none: bool) -> float | None:
     """``value`` as unattenuated photons per pixel (finite, > 0; None for no noise where allowed)."""
     if value is None and allow_none:
         return None
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value <= 0:
+    if not is_finite_real(value) or value <= 0:
         expected = "a finite number > 0 or None" if allow_none else "a finite number > 0"
         raise ValueError(f"photons_per_pixel must be {expected} (photons per pixel), got {value!r}")
     return float(value)
@@ -65,16 +63,13 @@ def check_photons_per_pixel(value, *, allow_none: bool) -> float | None:
 
 def check_n_splats(value) -> int:
     """``value`` as a number of splats per model point (an integer >= 1)."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
-        raise ValueError(f"n_splats must be an integer >= 1, got {value!r}")
-    return int(value)
+    return check_count(value, "n_splats")
 
 
 def check_splat_sigma_mm(value) -> float:
     """``value`` as the splat jitter's standard deviation (finite, >= 0, mm)."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value) or value < 0:
-        raise ValueError(f"splat_sigma_mm must be a finite number >= 0 (mm), got {value!r}")
-    return float(value)
+    return check_positive(value, "splat_sigma_mm", allow_zero=True, unit="mm")
+
 
 # the 0.1.0 name, deprecated (CHANGELOG.md)
 __getattr__ = renamed_attributes(globals(), {'RenderSettings': 'FrameRenderConfig'})
