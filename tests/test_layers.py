@@ -194,7 +194,7 @@ def test_each_subpackage_exports_every_public_name_of_its_modules(subpackage):
 #: lower rank. Statistics first; the learned stages' studies; pose, then targeting on it; the
 #: error budget and the lab's data on both; the moving cine on the lab's data; notebook 06 on all.
 STUDY_LAYERS = {
-    "stats": 0,
+    "section": 0, "stats": 0,
     "segmentation": 1, "transducer_projections": 1,
     "orientation_regression": 2,
     "pose": 3,
