@@ -67,7 +67,7 @@ def test_notebooks_call_only_public_names_their_modules_export():
         code = "\n".join("".join(c["source"]) for c in cells if c["cell_type"] == "code")
         for package, name, alias in re.findall(r"from (histostudy[\w.]*) import (\w+) as (\w+)", code):
             module = importlib.import_module(f"{package}.{name}")
-            for used in sorted(set(re.findall(rf"\b{alias}\.(\w+)", code))):
+            for used in sorted(set(re.findall(rf"(?<![\w.]){alias}\.(\w+)", code))):
                 if used.startswith("_") or used not in getattr(module, "__all__", ()):
                     missing.append(f"{path.name}: {alias}.{used} ({module.__name__})")
     assert missing == []
