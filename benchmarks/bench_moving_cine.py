@@ -49,7 +49,7 @@ def main() -> None:
                         help="the receiver's pipeline (FrameReceiver(pipeline=True): the next pair segmented ahead)")
     parser.add_argument("--retries", choices=("default", "on", "off"), default="default",
                         help="the tracker's retries of a refused estimate from scratch "
-                             "(PoseOptions.retry_hypotheses; default: the receiver's own)")
+                             "(PoseConfig.retry_hypotheses; default: the receiver's own)")
     args = parser.parse_args()
     retries = {} if args.retries == "default" else {"retry_hypotheses": args.retries == "on"}
     pd.set_option("display.width", 200)

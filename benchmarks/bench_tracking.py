@@ -7,7 +7,7 @@ default ``fast``: the same Levenberg-Marquardt refinement as the fast path, so t
 compare the regions and resolution alone). Against it: ``fast``, ``Tracker(..., fast=True)`` (the
 region of the last pose at the U-Net's resolution, the two views' segmentation and maps on two
 threads), and ``fast-in-turn``, the same with ``parallel_views=False``. These update on the
-same frames, and ``net-<name>``, ``fast`` with ``TrackingOptions(network=--network)`` (default
+same frames, and ``net-<name>``, ``fast`` with ``TrackingConfig(network=--network)`` (default
 ``unet_tracking``: the U-Net trained at input scale 0.25 for the warm regions; docs/tracking.md, "A
 network trained for tracking"), in an order that rotates frame by frame so that a slow spell of the machine does not
 fall on one of them only. Then, each alone (its worker thread would run on while the others are
@@ -22,7 +22,7 @@ Truth: the physical transducer's focal point. Every tracker first runs two untim
 kernels, torch's convolution primitives) and is reset; its first timed update is then from scratch
 (timed apart), and from-scratch seconds are also timed on ``--scratch`` later frames (``reset()``
 then ``update``), interleaved with ``fast-full``, the fast tracker with
-``TrackingOptions(scratch_label_scale=1)``: its from-scratch path before docs/tracking.md "From
+``TrackingConfig(scratch_label_scale=1)``: its from-scratch path before docs/tracking.md "From
 scratch in under a second" (FastUNet.segment on the full frames, then ``estimate_pose``), against
 ``fast``'s default (``estimate_pose`` at the U-Net's label scale 0.5); with ``--scratch-poses N``
 also on one pair each of N independent poses (notebook 04's distribution, each with its own
@@ -53,7 +53,7 @@ import torch
 
 from histostudy.geometry import transform_from_params
 from histostudy.imaging import Frame, default_biplane, random_background, render_frame
-from histostudy.pose import Tracker, TrackingOptions, default_stages
+from histostudy.pose import Tracker, TrackingConfig, default_stages
 from histostudy.study.pose import PoseStudyConfig, experiment_pose
 from histostudy.transducer import TransducerModel
 
@@ -143,7 +143,7 @@ def main() -> None:
                         help="also time from scratch one pair each of this many independent poses")
     parser.add_argument("--baseline-mode", choices=("fast", "paper"), default="fast")
     parser.add_argument("--network", default="unet_tracking",
-                        help="also track with TrackingOptions(network=NAME), the shipped U-Net trained for tracking "
+                        help="also track with TrackingConfig(network=NAME), the shipped U-Net trained for tracking "
                              "(warm regions at its input scale; '' leaves it out)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads if args.torch_threads is None else args.torch_threads)
@@ -158,7 +158,7 @@ def main() -> None:
     model = TransducerModel.build(spacing_mm=0.47)
     segmenter, orientation = default_stages()
     stages = dict(segmenter=segmenter, orientation=orientation)
-    in_turn = TrackingOptions(parallel_views=False)
+    in_turn = TrackingConfig(parallel_views=False)
     trackers = {
         "baseline": Tracker(model, views, rng=args.seed, mode=args.baseline_mode, **stages),
         "fast-in-turn": Tracker(model, views, rng=args.seed, mode="fast", fast=in_turn, **stages),
@@ -166,7 +166,7 @@ def main() -> None:
     }
     if args.network:
         trackers["net-" + args.network[-8:]] = Tracker(model, views, rng=args.seed, mode="fast",
-                                                       fast=TrackingOptions(network=args.network), **stages)
+                                                       fast=TrackingConfig(network=args.network), **stages)
     names = list(trackers)
     # Warm-up, untimed: numba's kernels, torch's convolution primitives for these frames' regions.
     for tracker in trackers.values():
@@ -186,9 +186,9 @@ def main() -> None:
             log[name].append((tracker.last_kind, seconds, dict(result.timings_s), error))
     # Tracker.track overlaps a pair's refinement with the next pair's segmentation on a worker
     # thread, which would run on while the other trackers are timed: it runs alone, after them.
-    piped = [("fast+pipeline", TrackingOptions())]
+    piped = [("fast+pipeline", TrackingConfig())]
     if args.network:
-        piped.append(("net+pipeline", TrackingOptions(network=args.network)))
+        piped.append(("net+pipeline", TrackingConfig(network=args.network)))
     for name, options in piped:
         tracker = Tracker(model, views, rng=args.seed, mode="fast", fast=options, **stages)
         list(tracker.track(frames[:2]))
@@ -210,7 +210,7 @@ def main() -> None:
     # tracker's default (estimate_pose at the U-Net's label scale).
     scratch_trackers = {"baseline": trackers["baseline"],
                         "fast-full": Tracker(model, views, rng=args.seed, mode="fast",
-                                             fast=TrackingOptions(scratch_label_scale=1), **stages),
+                                             fast=TrackingConfig(scratch_label_scale=1), **stages),
                         "fast": trackers["fast"]}
     scratch_trackers["fast-full"].update(frames[0])  # warm-up, untimed
     scratch_frames = [0] + [k * (args.frames - 1) // max(args.scratch, 1)

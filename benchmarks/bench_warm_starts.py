@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from histostudy.imaging import View, load_frame, load_views
-from histostudy.pose import PoseCost, RegionEstimator, Tracker, TrackingOptions
+from histostudy.pose import PoseCost, RegionEstimator, Tracker, TrackingConfig
 from histostudy.pose.distance_maps import DistanceMaps
 from histostudy.pose.verdict import view_disagreement_mm
 from histostudy.study.moving_cine import load_moving_cine
@@ -63,13 +63,13 @@ def main() -> None:
     model = TransducerModel.build(spacing_mm=0.47)
     ks = list(range(args.start, args.start + args.frames * args.stride, args.stride))
     pairs = [[load_frame(p, v, line_integrals=False) for p, v in zip(cine.frames[k], views)] for k in ks]
-    extra = {"scratch_label_scale": 1.0} if "scratch_label_scale" in TrackingOptions.field_names() else {}
+    extra = {"scratch_label_scale": 1.0} if "scratch_label_scale" in TrackingConfig.field_names() else {}
     print(f"frames {ks[0]}..{ks[-1]} stride {args.stride}; load average {os.getloadavg()}", flush=True)
 
     if args.statistic:
-        probe = Tracker(model, views, rng=0, fast=TrackingOptions(**extra))
+        probe = Tracker(model, views, rng=0, fast=TrackingConfig(**extra))
         opts, seeds = probe.options, range(args.draws)
-        grids = {s: RegionEstimator(model, views, probe.segmenter, opts, TrackingOptions(label_scale=s),
+        grids = {s: RegionEstimator(model, views, probe.segmenter, opts, TrackingConfig(label_scale=s),
                                     np.random.default_rng(0)) for s in (0.5, 1.0)}
         full = grids[0.5].full_frame_segmenter  # FastUNet.segment: estimate_pose's labels
         values = {"region 0.5": [], "region 1": [], "full frames": []}
@@ -90,7 +90,7 @@ def main() -> None:
     variants = {"before": dict(rescue_scale=None, resume_refused=False), "rescue": dict(resume_refused=False),
                 "default": {}}
     for name, options in variants.items():
-        tracker = Tracker(model, views, rng=0, fast=TrackingOptions(**options, **extra))
+        tracker = Tracker(model, views, rng=0, fast=TrackingConfig(**options, **extra))
         errors, warm_s, t0 = [], [], time.perf_counter()
         for k, frames in zip(ks, pairs):
             t = time.perf_counter()

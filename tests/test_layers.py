@@ -195,8 +195,8 @@ def test_each_subpackage_exports_every_public_name_of_its_modules(subpackage):
 #: error budget and the lab's data on both; the moving cine on the lab's data; notebook 06 on all.
 STUDY_LAYERS = {
     "section": 0, "stats": 0,
-    "segmentation": 1, "transducer_projections": 1,
-    "orientation_regression": 2,
+    "held_out": 1, "transducer_projections": 1,
+    "segmentation": 2, "orientation_regression": 2,
     "pose": 3,
     "targeting": 4,
     "lab_dataset": 5, "budget": 5,

@@ -1,8 +1,10 @@
 """The study: one module (or one front module over a few) per notebook and paper result; each
 returns pandas tables and plain values and never prints.
 
-Its ``record_*`` functions and section objects write a report section through the
-``SectionWriter`` a notebook passes in; this layer sits below ``reporting`` and does not import
+Each notebook's section has one interface (:mod:`.section`): a ``<Section>Config`` of the notebook's
+parameters, checked; a ``prepare`` that makes its ``<Section>Setup``; functions returning tables
+and figures as :class:`~.section.SectionPart` objects that :func:`~.section.record` writes through
+the ``SectionWriter`` a notebook passes in; this layer sits below ``reporting`` and does not import
 it. Nothing is imported here: a notebook imports its module
 (``from histostudy.study import segmentation as study``).
 
@@ -11,11 +13,14 @@ Notebook 01, 02, 03:
 - :mod:`.transducer_projections` — notebook 01: the digital and physical models, a synthetic
   biplane pair, render timing (§II-A eq. 1-2, §II-B.1, §II-B.2).
 - :mod:`.segmentation` — notebook 02: the U-Net on held-out hybrid frames, Table I, ANOVA and
-  Tukey HSD (§II-B.2, §II-E.1, §III); its shipped-weights and held-out-frame helpers serve
-  notebook 03 too.
+  Tukey HSD (§II-B.2, §II-E.1, §III).
+- :mod:`.held_out` — notebooks 02 and 03: the parameters they share, the held-out hybrid frames
+  and the shipped checkpoints they evaluate.
 - :mod:`.orientation_regression` — notebook 03: VGG19 azimuth and elevation against the true
   pose, MAE, Pearson, Moore-Penrose fit; the conic initialiser beside it (§II-B.4 eq. 4, §II-E.2,
   §III).
+- :mod:`.section` — every notebook: the section interface (parameters checked by name, the
+  parts of a section and :func:`~.section.record`).
 - :mod:`.stats` — notebooks 02 and 03: segmentation metrics, one-way ANOVA, Tukey HSD, angle
   statistics (§II-E.1, §II-E.2).
 

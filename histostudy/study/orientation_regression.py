@@ -12,46 +12,63 @@ candidate directions (eq. 4's mirror pair, or a source's own pair) that the pose
 starts from, for the VGG19 and for the inner-boundary conic initialiser
 (:class:`~histostudy.pose.ConicOrientation`).
 
-The ``record_*`` functions write a section through ``writer``, a
-:class:`histostudy.reporting.SectionWriter` (this layer sits below ``reporting`` and does not
-import it), and return what the notebook shows.
+The section's interface (:mod:`.section`): :class:`OrientationConfig` (the notebook's parameters,
+checked), :func:`prepare` (the VGG19 and the held-out frames of :mod:`.held_out`, in an
+:class:`OrientationSetup`), then functions returning each heading's tables, values and comparisons
+as a :class:`~.section.SectionPart` (or a result holding one as ``part``) that
+:func:`~.section.record` writes through a :class:`histostudy.reporting.SectionWriter` (this layer
+sits below ``reporting`` and does not import it).
 """
 
 from __future__ import annotations
 
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable
+from typing import Iterable, Mapping
 
 import numpy as np
 import pandas as pd
 
 from histostudy.core import as_generator
-from histostudy.learning import (LearnedOrientation, OracleSegmenter, angles_from_direction, beam_direction_of_pose,
-                                 direction_candidates, orientation_angle_error, training_summary, wrap_angle)
+from histostudy.learning import (HybridFrames, LearnedOrientation, OracleSegmenter, angles_from_direction,
+                                 beam_direction_of_pose, direction_candidates, orientation_angle_error,
+                                 training_summary, wrap_angle)
 from histostudy.pose import ConicOrientation
-from .segmentation import resolve_weights
+from .held_out import (RECORDED_PARAMETERS, HeldOutConfig, held_out_frames, resolve_weights, weights_part,
+                       weights_summary)
+from .section import SectionPart, Timer, check_bool, record, timer_or_untimed
 from .stats import angle_statistics
 
 __all__ = [
     "INITIALISER_RNG_SEED",
+    "RECORDED_PARAMETERS",
     "SECTION",
     "TITLE",
+    "AngleEvaluation",
+    "InitialiserComparison",
+    "OrientationConfig",
+    "OrientationSetup",
+    "angle_statistics_part",
     "angle_table",
     "candidate_error_summary",
     "candidate_errors",
+    "direction_error_part",
     "direction_error_summary",
     "evaluate_orientation",
+    "evaluation_section",
+    "held_out_frames",
+    "initialiser_comparison_section",
     "initialiser_key",
     "load_vgg19",
     "orientation_initialisers",
-    "record_angle_statistics",
-    "record_direction_error",
-    "record_evaluation",
-    "record_initialiser_comparison",
-    "record_stand_ins",
+    "prepare",
+    "record",
     "scatter_figure",
+    "stand_ins_part",
+    "weights_part",
+    "weights_summary",
 ]
 
 SECTION = "03_orientation"
@@ -63,11 +80,48 @@ TITLE = "03 · Orientation regression with VGG19: azimuth and elevation (§II-B.
 INITIALISER_RNG_SEED = 0
 
 
+@dataclass(frozen=True)
+class OrientationConfig(HeldOutConfig):
+    """Notebook 03's parameters, checked: :class:`~.held_out.HeldOutConfig`'s fields and whether to
+    evaluate the conic initialiser beside the VGG19 on the same frames (``geometric_initialiser``)."""
+
+    geometric_initialiser: bool
+
+    NOTEBOOK = "03"
+
+    def __post_init__(self):
+        super().__post_init__()
+        object.__setattr__(self, "geometric_initialiser", check_bool(self.geometric_initialiser,
+                                                                     "geometric_initialiser"))
+
+
 def load_vgg19(weights: str | os.PathLike = "") -> tuple[LearnedOrientation, Path]:
     """The VGG19 regressor of ``weights`` (default: the shipped ``vgg19_standard``) and its
     checkpoint path."""
     path = resolve_weights(weights, "vgg19_standard", "VGG19", "orientation")
     return LearnedOrientation.load(path), path
+
+
+@dataclass(frozen=True)
+class OrientationSetup:
+    """What notebook 03 runs on: its ``params``, the ``seed``, the VGG19 ``source``
+    (:func:`load_vgg19`) and its ``weights_path``, and the held-out ``frames``
+    (:func:`~.held_out.held_out_frames`)."""
+
+    params: OrientationConfig
+    seed: int
+    source: LearnedOrientation
+    weights_path: Path
+    frames: HybridFrames
+
+
+def prepare(params: OrientationConfig | Mapping, seed: int, *, timer: Timer | None = None) -> OrientationSetup:
+    """The section's set-up: the VGG19 of ``params.weights`` and the held-out frames of ``seed``
+    (``timer`` times their pre-rendering, with ``render_workers`` > 1)."""
+    if not isinstance(params, OrientationConfig):
+        params = OrientationConfig.from_parameters(params)
+    source, weights_path = load_vgg19(params.weights)
+    return OrientationSetup(params, seed, source, weights_path, params.frames(seed, timer=timer))
 
 
 def evaluate_orientation(source, frames: Iterable, rng: np.random.Generator | None = None) -> pd.DataFrame:
@@ -218,45 +272,56 @@ def scatter_figure(results: pd.DataFrame, table: pd.DataFrame | None = None):
     return fig
 
 
-def record_evaluation(writer, source, frames, n_images: int) -> pd.DataFrame:
+@dataclass(frozen=True, eq=False)
+class AngleEvaluation:
+    """The held-out frames' angles (:func:`evaluation_section`): the per-frame ``results``
+    (:func:`evaluate_orientation`) and the report's ``part``."""
+
+    results: pd.DataFrame
+    part: SectionPart
+
+
+def evaluation_section(source, frames, n_images: int, *, timer: Timer | None = None) -> AngleEvaluation:
     """Regress the angles of frames ``0 .. n_images-1`` of ``frames`` (anything with ``frame(i)``,
-    e.g. :class:`~histostudy.learning.HybridFrames`; :func:`evaluate_orientation`, timed), record
-    the per-frame table and the median regression time (s); returns the per-frame table."""
-    with writer.timer(f"render and regress {n_images} frames"):
+    e.g. :class:`~histostudy.learning.HybridFrames`; :func:`evaluate_orientation`, timed as
+    ``"render and regress <n> frames"``); its part: the per-frame table and the median regression
+    time (s)."""
+    with timer_or_untimed(timer)(f"render and regress {n_images} frames"):
         results = evaluate_orientation(source, (frames.frame(i) for i in range(n_images)))
-    writer.table("angles_per_frame", results, "Reference and predicted angles per held-out frame (deg)", digits=2)
-    writer.value("regression_seconds_median", float(results["seconds"].median()))
-    return results
+    return AngleEvaluation(results, SectionPart(
+        tables={"angles_per_frame": (results, "Reference and predicted angles per held-out frame (deg)",
+                                     {"digits": 2})},
+        values={"regression_seconds_median": float(results["seconds"].median())}))
 
 
-def record_angle_statistics(writer, results: pd.DataFrame) -> pd.DataFrame:
-    """Record :func:`angle_table` of ``results`` and each statistic beside the paper's (§III);
-    returns the table."""
+def angle_statistics_part(results: pd.DataFrame) -> SectionPart:
+    """:func:`angle_table` of ``results`` (table ``angle_statistics``) and each statistic beside the
+    paper's (§III)."""
     table = angle_table(results)
-    writer.table("angle_statistics", table, f"Angle regression statistics over {len(results)} held-out frames",
-                 digits=3)
+    comparisons = []
     for row in table.itertuples():
         a = row.angle
-        writer.compare(f"angles.{a}.mae", f"{a}: mean absolute error", (row.mae_deg, row.sd_deg), unit="deg",
-                       digits=2)
-        writer.compare(f"angles.{a}.pearson", f"{a}: Pearson correlation", row.pearson_percent, unit="%", digits=1,
-                       note=f"p = {row.pearson_p:.2g}")
-        writer.compare(f"angles.{a}.slope", f"{a}: slope (Moore–Penrose)", row.slope, digits=3)
-        writer.compare(f"angles.{a}.intercept", f"{a}: intercept", row.intercept_deg, unit="deg", digits=3)
-        writer.compare(f"angles.{a}.r2", f"{a}: R²", row.r2, digits=3)
-    return table
+        comparisons += [
+            dict(key=f"angles.{a}.mae", label=f"{a}: mean absolute error", ours=(row.mae_deg, row.sd_deg), unit="deg",
+                 digits=2),
+            dict(key=f"angles.{a}.pearson", label=f"{a}: Pearson correlation", ours=row.pearson_percent, unit="%",
+                 digits=1, note=f"p = {row.pearson_p:.2g}"),
+            dict(key=f"angles.{a}.slope", label=f"{a}: slope (Moore–Penrose)", ours=row.slope, digits=3),
+            dict(key=f"angles.{a}.intercept", label=f"{a}: intercept", ours=row.intercept_deg, unit="deg", digits=3),
+            dict(key=f"angles.{a}.r2", label=f"{a}: R²", ours=row.r2, digits=3)]
+    return SectionPart(tables={"angle_statistics": (table, f"Angle regression statistics over {len(results)} "
+                                                           "held-out frames", {"digits": 3})},
+                       comparisons=tuple(comparisons))
 
 
-def record_direction_error(writer, results: pd.DataFrame) -> dict:
-    """Record :func:`direction_error_summary` of ``results`` (beyond the paper); returns it."""
+def direction_error_part(results: pd.DataFrame) -> SectionPart:
+    """:func:`direction_error_summary` of ``results`` (value ``direction_error``, beyond the paper)."""
     direction = direction_error_summary(results)
-    writer.value("direction_error", direction)
-    writer.compare("angles.direction.mae", "direction: mean angle between predicted and reference axis",
-                   (direction["mean_deg"], direction["sd_deg"]), unit="deg", digits=2, paper_key="",
-                   note=f"median {direction['median_deg']:.1f}°, 90th percentile {direction['p90_deg']:.1f}°; "
-                        f"{100 * direction['misread_fraction']:.0f} % of frames off by > "
-                        f"{direction['misread_deg']:.0f}°")
-    return direction
+    return SectionPart(values={"direction_error": direction}, comparisons=(dict(
+        key="angles.direction.mae", label="direction: mean angle between predicted and reference axis",
+        ours=(direction["mean_deg"], direction["sd_deg"]), unit="deg", digits=2, paper_key="",
+        note=f"median {direction['median_deg']:.1f}°, 90th percentile {direction['p90_deg']:.1f}°; "
+             f"{100 * direction['misread_fraction']:.0f} % of frames off by > {direction['misread_deg']:.0f}°"),))
 
 
 def orientation_initialisers(vgg19, unet=None) -> dict:
@@ -277,38 +342,52 @@ def initialiser_key(name: str) -> str:
     return "vgg19" if name.startswith("VGG19") else name.replace("conic, ", "conic_").split()[0]
 
 
-def record_initialiser_comparison(writer, initialisers: dict, frames: list, *, rng) -> pd.DataFrame:
-    """Record :func:`candidate_errors` of ``initialisers`` on ``frames`` (timed), its
+@dataclass(frozen=True, eq=False)
+class InitialiserComparison:
+    """The initialisers on the held-out frames (:func:`initialiser_comparison_section`): the
+    ``per_frame`` rows (:func:`candidate_errors`), their ``summary``
+    (:func:`candidate_error_summary`) and the report's ``part``."""
+
+    per_frame: pd.DataFrame
+    summary: pd.DataFrame
+    part: SectionPart
+
+
+def initialiser_comparison_section(initialisers: dict, frames: list, *, rng,
+                                   timer: Timer | None = None) -> InitialiserComparison:
+    """:func:`candidate_errors` of ``initialisers`` on ``frames`` (timed), its
     :func:`candidate_error_summary` and each initialiser's median nearer-candidate angle (beyond
-    the paper); returns the summary. ``rng``: a seed or a Generator (:data:`INITIALISER_RNG_SEED`
-    in the notebook)."""
-    with writer.timer(f"candidate directions of {len(initialisers)} initialisers on {len(frames)} frames"):
+    the paper). ``rng``: a seed or a Generator (:data:`INITIALISER_RNG_SEED` in the notebook)."""
+    with timer_or_untimed(timer)(f"candidate directions of {len(initialisers)} initialisers on {len(frames)} frames"):
         per_frame = candidate_errors(initialisers, frames, rng)
-    writer.table("initialiser_candidates", per_frame, "Nearer candidate direction per frame and initialiser (deg)",
-                 digits=2)
     summary = candidate_error_summary(per_frame)
-    writer.table("initialiser_summary", summary, "Initialisers on the held-out frames: nearer candidate's angle to "
-                 "the true axis (deg), its azimuth and elevation MAE (deg), fallbacks to the VGG19, seconds", digits=3)
-    for row in summary.itertuples():
-        writer.compare(f"initialiser.{initialiser_key(row.source)}.direction",
-                       f"{row.source}: nearer candidate's angle to the axis", row.median_deg, unit="deg", digits=2,
-                       paper_key="", note=f"median; 90th percentile {row.p90_deg:.1f}°; azimuth / elevation MAE "
-                                          f"{row.azimuth_mae_deg:.2f}° / {row.elevation_mae_deg:.2f}°; "
-                                          f"{100 * row.fallback_fraction:.0f} % fell back to the VGG19")
-    return summary
+    comparisons = tuple(dict(
+        key=f"initialiser.{initialiser_key(row.source)}.direction", label=f"{row.source}: nearer candidate's angle "
+        "to the axis", ours=row.median_deg, unit="deg", digits=2, paper_key="",
+        note=f"median; 90th percentile {row.p90_deg:.1f}°; azimuth / elevation MAE {row.azimuth_mae_deg:.2f}° / "
+             f"{row.elevation_mae_deg:.2f}°; {100 * row.fallback_fraction:.0f} % fell back to the VGG19")
+        for row in summary.itertuples())
+    return InitialiserComparison(per_frame, summary, SectionPart(
+        tables={"initialiser_candidates": (per_frame, "Nearer candidate direction per frame and initialiser (deg)",
+                                           {"digits": 2}),
+                "initialiser_summary": (summary, "Initialisers on the held-out frames: nearer candidate's angle to "
+                                        "the true axis (deg), its azimuth and elevation MAE (deg), fallbacks to the "
+                                        "VGG19, seconds", {"digits": 3})},
+        comparisons=comparisons))
 
 
-def record_stand_ins(writer, vgg19, weights_path: Path, n_images: int) -> None:
-    """Record what stands in for the annotated frames and the GPU-trained VGG19, and the note on
-    how the azimuth statistics treat wrapping and elevations near 0."""
+def stand_ins_part(vgg19, weights_path: Path, n_images: int) -> SectionPart:
+    """What stands in for the annotated frames and the GPU-trained VGG19, and the note on how the
+    azimuth statistics treat wrapping and elevations near 0."""
     manifest = vgg19.manifest
-    writer.stand_in("manually annotated porcine and phantom fluoroscopy frames",
-                    f"{n_images} held-out synthetic hybrid frames with the true pose as the reference")
-    writer.stand_in("VGG19 trained on GPU for 400,000 iterations",
-                    f"the shipped CPU-trained VGG19 {manifest['config']}: {training_summary(manifest)} "
-                    f"(manifest {weights_path.with_suffix('.json').name})")
-    writer.text("Azimuth errors are wrapped to (−180°, 180°] and the azimuth statistics use each prediction on the "
-                "branch nearest its reference. Near elevation 0 (transducer axis along the beam) the azimuth is "
-                "ill-defined, so large azimuth errors there cost little in direction: the direction error "
-                "(the angle between the predicted and the reference axis, beyond the paper) is what the pose "
-                "initialisation sees.")
+    return SectionPart(stand_ins=(
+        ("manually annotated porcine and phantom fluoroscopy frames",
+         f"{n_images} held-out synthetic hybrid frames with the true pose as the reference"),
+        ("VGG19 trained on GPU for 400,000 iterations",
+         f"the shipped CPU-trained VGG19 {manifest['config']}: {training_summary(manifest)} "
+         f"(manifest {weights_path.with_suffix('.json').name})")),
+        texts=("Azimuth errors are wrapped to (−180°, 180°] and the azimuth statistics use each prediction on the "
+               "branch nearest its reference. Near elevation 0 (transducer axis along the beam) the azimuth is "
+               "ill-defined, so large azimuth errors there cost little in direction: the direction error "
+               "(the angle between the predicted and the reference axis, beyond the paper) is what the pose "
+               "initialisation sees.",))

@@ -6,47 +6,60 @@ pixel (:func:`histostudy.study.stats.segmentation_metrics`); Table I is the mean
 of each class's precision, recall, IoU and pixel accuracy (percent). The precision of the six
 classes is compared by one-way ANOVA and Tukey's HSD, as the paper does.
 
-The shipped networks and the held-out frames serve notebook 03 as well (:func:`resolve_weights`,
-:func:`record_weights`, :func:`held_out_frames`). The ``record_*`` functions write a section through
-``writer``, a :class:`histostudy.reporting.SectionWriter` (this layer sits below ``reporting`` and
-does not import it), and return what the notebook shows.
+The section's interface (:mod:`.section`): :class:`SegmentationConfig` (the notebook's parameters,
+checked), :func:`prepare` (the U-Net and the held-out frames, in a :class:`SegmentationSetup`), then
+functions returning each heading's tables, values and comparisons as a
+:class:`~.section.SectionPart` (or a result holding one as ``part``) that :func:`~.section.record`
+writes through a :class:`histostudy.reporting.SectionWriter` (this layer sits below ``reporting``
+and does not import it). The parameters, the shipped checkpoint and the held-out frames are
+:mod:`.held_out`'s, shared with notebook 03 (its names are here too).
 """
 
 from __future__ import annotations
 
-import contextlib
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, ContextManager, Iterable
+from typing import Iterable, Mapping
 
 import numpy as np
 import pandas as pd
 
-from histostudy.learning import (HybridFrames, RenderConfig, UNetSegmenter, default_cache_dir, shipped_model,
-                                 training_summary)
+from histostudy.learning import HybridFrames, UNetSegmenter, training_summary
 from histostudy.transducer import Feature
+from .held_out import (RECORDED_PARAMETERS, HeldOutConfig, held_out_frames, resolve_weights, weights_part,
+                       weights_summary)
+from .section import SectionPart, Timer, record, timer_or_untimed
 from .stats import anova_oneway, segmentation_metrics, tukey_hsd
 
 __all__ = [
     "CLASS_KEYS",
     "METRICS",
+    "RECORDED_PARAMETERS",
     "SECTION",
     "TITLE",
+    "PrecisionTests",
+    "SegmentationConfig",
+    "SegmentationEvaluation",
+    "SegmentationSetup",
     "anova_text",
     "background_minus_screws_ci",
     "evaluate_segmentation",
+    "evaluation_section",
     "held_out_frames",
     "load_unet",
     "precision_tests",
-    "record_evaluation",
-    "record_precision_tests",
-    "record_stand_ins",
-    "record_table1",
-    "record_weights",
+    "precision_tests_section",
+    "prepare",
+    "record",
     "resolve_weights",
+    "stand_ins_part",
     "summary",
     "table1",
+    "table1_part",
+    "weights_part",
+    "weights_summary",
 ]
 
 SECTION = "02_segmentation"
@@ -63,57 +76,17 @@ SUMMARY_KEYS = {"global_accuracy": "seg.global_accuracy", "weighted_iou": "seg.w
                 "mean_precision": "seg.mean_precision", "mean_recall": "seg.mean_recall"}
 
 
-def resolve_weights(weights: str | os.PathLike, shipped_name: str, network: str, train_task: str) -> Path:
-    """The checkpoint to evaluate: ``weights`` if given, else the shipped ``data/models/<shipped_name>``.
+@dataclass(frozen=True)
+class SegmentationConfig(HeldOutConfig):
+    """Notebook 02's parameters, checked (:class:`~.held_out.HeldOutConfig`'s fields)."""
 
-    Raises FileNotFoundError, naming the ``histostudy train <train_task>`` command that makes
-    the weights, when neither is usable (notebooks 02 and 03 never train).
-    """
-    path = Path(weights) if weights else shipped_model(shipped_name)
-    if path is None:
-        raise FileNotFoundError(f"no usable shipped {network} in data/models ({shipped_name}.safetensors + .json); "
-                                f"train it with `histostudy train {train_task} --profile standard` "
-                                f"or pass weights=<path>")
-    return path
+    NOTEBOOK = "02"
 
 
 def load_unet(weights: str | os.PathLike = "") -> tuple[UNetSegmenter, Path]:
     """The U-Net of ``weights`` (default: the shipped ``unet_standard``) and its checkpoint path."""
     path = resolve_weights(weights, "unet_standard", "U-Net", "segmentation")
     return UNetSegmenter.load(path), path
-
-
-def record_weights(writer, network: str, weights_path: Path, manifest: dict, input_scale: float) -> str:
-    """Record which checkpoint the section evaluates (file, manifest, hash, configuration,
-    training record) under ``weights``; returns a one-line summary for the notebook."""
-    writer.value("weights", {"file": str(weights_path), "manifest": str(weights_path.with_suffix(".json")),
-                             "sha256": manifest["sha256"], "config": manifest["config"],
-                             "profile": manifest.get("profile"), "training_steps": manifest.get("training_steps"),
-                             "validation": manifest.get("validation")})
-    return (f"{network} {manifest['config']} from {weights_path.name}: {manifest.get('training_steps')} steps "
-            f"(profile {manifest.get('profile')}), input scale {input_scale}")
-
-
-def held_out_frames(seed: int, n_images: int, *, render_spacing_mm: float, photons_per_pixel: float, n_splats: int,
-                    splat_sigma_mm: float, background: str, cache_frames: bool = True, render_workers: int = 1,
-                    timer: Callable[[str], ContextManager] | None = None) -> HybridFrames:
-    """The evaluation split (``"eval"``) of the study's hybrid frames, which no training or
-    validation frame shares a seed with (§II-B.2; images and labels both from the
-    ``render_spacing_mm`` models).
-
-    With ``cache_frames`` the frames are read from (or rendered into) the frame cache, and with
-    ``render_workers > 1`` the first ``n_images`` are pre-rendered in that many processes
-    (``timer``, optional, times it). The frames are the same either way.
-    """
-    render = RenderConfig(render_spacing_mm=render_spacing_mm, label_spacing_mm=render_spacing_mm,
-                          photons_per_pixel=photons_per_pixel, n_splats=n_splats, splat_sigma_mm=splat_sigma_mm,
-                          background=background)
-    frames = HybridFrames("eval", seed, render, cache_dir=default_cache_dir() if cache_frames else None)
-    if cache_frames and render_workers > 1:
-        timer = (lambda name: contextlib.nullcontext()) if timer is None else timer
-        with timer(f"pre-render the uncached evaluation frames ({render_workers} processes)"):
-            frames.prerender(n_images, workers=render_workers)
-    return frames
 
 
 def evaluate_segmentation(segmenter, frames: Iterable, rng: np.random.Generator | None = None, *,
@@ -218,40 +191,74 @@ def anova_text(anova: dict, tukey: pd.DataFrame, reference: str = "background") 
     return text
 
 
-def record_evaluation(writer, segmenter, frames: HybridFrames, n_images: int, *,
-                      keep: int = 3) -> tuple[pd.DataFrame, pd.DataFrame, list]:
-    """Segment frames ``0 .. n_images-1`` of ``frames`` (:func:`evaluate_segmentation`, timed),
-    record the per-image table and the median segmentation time (s); returns
-    ``(per_class, per_image, predictions)``."""
-    with writer.timer(f"render and segment {n_images} frames"):
+@dataclass(frozen=True)
+class SegmentationSetup:
+    """What notebook 02 runs on: its ``params``, the ``seed``, the ``segmenter`` (:func:`load_unet`)
+    and its ``weights_path``, and the held-out ``frames`` (:func:`held_out_frames`)."""
+
+    params: SegmentationConfig
+    seed: int
+    segmenter: UNetSegmenter
+    weights_path: Path
+    frames: HybridFrames
+
+
+def prepare(params: SegmentationConfig | Mapping, seed: int, *, timer: Timer | None = None) -> SegmentationSetup:
+    """The section's set-up: the U-Net of ``params.weights`` and the held-out frames of ``seed``
+    (``timer`` times their pre-rendering, with ``render_workers`` > 1)."""
+    if not isinstance(params, SegmentationConfig):
+        params = SegmentationConfig.from_parameters(params)
+    segmenter, weights_path = load_unet(params.weights)
+    return SegmentationSetup(params, seed, segmenter, weights_path, params.frames(seed, timer=timer))
+
+
+@dataclass(frozen=True, eq=False)
+class SegmentationEvaluation:
+    """The held-out frames segmented (:func:`evaluation_section`): ``per_class``, ``per_image`` and
+    the first frames' ``predictions`` (:func:`evaluate_segmentation`), and the report's ``part``."""
+
+    per_class: pd.DataFrame
+    per_image: pd.DataFrame
+    predictions: list
+    part: SectionPart
+
+
+def evaluation_section(segmenter, frames: HybridFrames, n_images: int, *, keep: int = 3,
+                       timer: Timer | None = None) -> SegmentationEvaluation:
+    """Segment frames ``0 .. n_images-1`` of ``frames`` (:func:`evaluate_segmentation`, timed as
+    ``"render and segment <n> frames"``); its part: the per-image table and the median segmentation
+    time (s)."""
+    with timer_or_untimed(timer)(f"render and segment {n_images} frames"):
         per_class, per_image, predictions = evaluate_segmentation(
             segmenter, (frames.frame(i) for i in range(n_images)), keep=keep)
-    writer.table("per_image", per_image, "Per-image global accuracy, weighted IoU, mean precision and recall (%)",
-                 digits=2)
-    writer.value("segmentation_seconds_median", float(per_image["seconds"].median()))
-    return per_class, per_image, predictions
+    part = SectionPart(tables={"per_image": (per_image, "Per-image global accuracy, weighted IoU, mean precision "
+                                                        "and recall (%)", {"digits": 2})},
+                       values={"segmentation_seconds_median": float(per_image["seconds"].median())})
+    return SegmentationEvaluation(per_class, per_image, predictions, part)
 
 
-def record_table1(writer, per_class: pd.DataFrame, per_image: pd.DataFrame) -> pd.DataFrame:
-    """Record Table I and the per-image summary (global accuracy, weighted IoU, mean precision and
-    recall), each value beside the paper's; returns Table I."""
+def table1_part(per_class: pd.DataFrame, per_image: pd.DataFrame) -> SectionPart:
+    """Table I (table ``table1``) and the per-image summary (global accuracy, weighted IoU, mean
+    precision and recall; table ``summary``), each value beside the paper's."""
     n_images = int(per_image["image"].nunique())
     table = table1(per_class)
-    writer.table("table1", table, f"Table I: per-class metrics, mean and SD over {n_images} held-out frames (%)",
-                 digits=1)
-    for row in table.to_dict("records"):
-        for metric in METRICS:
-            writer.compare(f"table1.{row['class']}.{metric}", f"{row['class']}: {metric}",
-                           (row[f"{metric}_mean"], row[f"{metric}_sd"]), unit="%", digits=1)
+    comparisons = [dict(key=f"table1.{row['class']}.{metric}", label=f"{row['class']}: {metric}",
+                        ours=(row[f"{metric}_mean"], row[f"{metric}_sd"]), unit="%", digits=1)
+                   for row in table.to_dict("records") for metric in METRICS]
     overall = summary(per_image)
-    writer.table("summary", overall, "Global accuracy, frequency-weighted IoU, mean precision and recall (%)",
-                 digits=2)
     for metric, key in SUMMARY_KEYS.items():
         row = overall[overall["metric"] == metric].iloc[0]
-        writer.compare(key, metric.replace("_", " "), (row["mean"], row["sd"]), unit="%", digits=1)
-    writer.compare("seg.n_images", "Evaluation images", n_images,
-                   note="held-out synthetic hybrid frames (split 'eval'); the paper's were annotated real frames")
-    return table
+        comparisons.append(dict(key=key, label=metric.replace("_", " "), ours=(row["mean"], row["sd"]), unit="%",
+                                digits=1))
+    comparisons.append(dict(key="seg.n_images", label="Evaluation images", ours=n_images,
+                            note="held-out synthetic hybrid frames (split 'eval'); the paper's were annotated real "
+                                 "frames"))
+    return SectionPart(
+        tables={"table1": (table, f"Table I: per-class metrics, mean and SD over {n_images} held-out frames (%)",
+                           {"digits": 1}),
+                "summary": (overall, "Global accuracy, frequency-weighted IoU, mean precision and recall (%)",
+                            {"digits": 2})},
+        comparisons=tuple(comparisons))
 
 
 def background_minus_screws_ci(tukey: pd.DataFrame) -> tuple[float, float] | None:
@@ -265,43 +272,59 @@ def background_minus_screws_ci(tukey: pd.DataFrame) -> tuple[float, float] | Non
     return (-r["upper"], -r["lower"]) if r["group1"] == "background" else (r["lower"], r["upper"])
 
 
-def record_precision_tests(writer, per_class: pd.DataFrame) -> tuple[str, pd.DataFrame | None]:
-    """Record the ANOVA and Tukey HSD of the classes' precision (:func:`precision_tests`) and the
-    §III paragraph on them; returns ``(paragraph, tukey)`` (``tukey`` None when not computed)."""
+@dataclass(frozen=True, eq=False)
+class PrecisionTests:
+    """The ANOVA and Tukey HSD of the classes' precision (:func:`precision_tests_section`): the §III
+    ``paragraph`` on them, the ``tukey`` table (None when not computed) and the report's ``part``."""
+
+    paragraph: str
+    tukey: pd.DataFrame | None
+    part: SectionPart
+
+
+def precision_tests_section(per_class: pd.DataFrame) -> PrecisionTests:
+    """:func:`precision_tests` of ``per_class`` and the §III paragraph on them; its part: the Tukey
+    table, the ANOVA beside the paper's and the paragraph (with fewer than two classes, that no
+    ANOVA was computed)."""
     anova, tukey, dropped = precision_tests(per_class)
+    label = "ANOVA F of precision over classes"
     if anova is None:
         paragraph = (f"No ANOVA: fewer than two classes have a defined precision in two or more images "
                      f"(left out: {', '.join(dropped)}).")
-        writer.compare("seg.anova_F", "ANOVA F of precision over classes", "not computed", note=paragraph)
-    else:
-        writer.table("tukey_precision", tukey,
-                     "Tukey HSD of the per-image precision (meandiff = group2 - group1, %)", digits=3)
-        writer.compare("seg.anova_F", "ANOVA F of precision over classes", anova["F"], digits=1)
-        writer.compare("seg.anova_df_between", "ANOVA degrees of freedom, between", anova["df_between"])
-        writer.compare("seg.anova_df_within", "ANOVA degrees of freedom, within", anova["df_within"])
-        writer.compare("seg.anova_p", "ANOVA p", f"{anova['p']:.2g}")
-        ci = background_minus_screws_ci(tukey)
-        if ci is not None:
-            writer.compare("seg.tukey_screws_vs_background_ci", "Tukey 95 % CI, background minus screws precision",
-                           f"[{ci[0]:.1f}, {ci[1]:.1f}]", unit="%")
-        paragraph = anova_text(anova, tukey)
-        if dropped:
-            paragraph += f" Left out (fewer than two images with a defined precision): {', '.join(dropped)}."
-    writer.text(paragraph)
-    return paragraph, tukey
+        return PrecisionTests(paragraph, None, SectionPart(
+            comparisons=(dict(key="seg.anova_F", label=label, ours="not computed", note=paragraph),),
+            texts=(paragraph,)))
+    comparisons = [dict(key="seg.anova_F", label=label, ours=anova["F"], digits=1),
+                   dict(key="seg.anova_df_between", label="ANOVA degrees of freedom, between",
+                        ours=anova["df_between"]),
+                   dict(key="seg.anova_df_within", label="ANOVA degrees of freedom, within", ours=anova["df_within"]),
+                   dict(key="seg.anova_p", label="ANOVA p", ours=f"{anova['p']:.2g}")]
+    ci = background_minus_screws_ci(tukey)
+    if ci is not None:
+        comparisons.append(dict(key="seg.tukey_screws_vs_background_ci",
+                                label="Tukey 95 % CI, background minus screws precision",
+                                ours=f"[{ci[0]:.1f}, {ci[1]:.1f}]", unit="%"))
+    paragraph = anova_text(anova, tukey)
+    if dropped:
+        paragraph += f" Left out (fewer than two images with a defined precision): {', '.join(dropped)}."
+    return PrecisionTests(paragraph, tukey, SectionPart(
+        tables={"tukey_precision": (tukey, "Tukey HSD of the per-image precision (meandiff = group2 - group1, %)",
+                                    {"digits": 3})},
+        comparisons=tuple(comparisons), texts=(paragraph,)))
 
 
-def record_stand_ins(writer, segmenter, weights_path: Path, per_image: pd.DataFrame,
-                     detector_shape: tuple[int, int]) -> None:
-    """Record what stands in for the annotated frames and the GPU-trained U-Net, and the median
-    time to segment one full ``detector_shape`` (rows, cols) frame."""
+def stand_ins_part(segmenter, weights_path: Path, per_image: pd.DataFrame,
+                   detector_shape: tuple[int, int]) -> SectionPart:
+    """What stands in for the annotated frames and the GPU-trained U-Net, and the median time to
+    segment one full ``detector_shape`` (rows, cols) frame."""
     manifest = segmenter.manifest
-    writer.stand_in("310 manually annotated porcine and phantom fluoroscopy frames",
-                    f"{len(per_image)} held-out synthetic hybrid frames (procedural background, physical transducer "
-                    "at a random §II-B.2 pose, Poisson noise) with the digital model's labels in the true pose")
-    writer.stand_in("U-Net trained on GPU (512x512 crops, 64-1024 channels)",
-                    f"the shipped CPU-trained U-Net {manifest['config']} at input scale {segmenter.scale}: "
-                    f"{training_summary(manifest)} (manifest {weights_path.with_suffix('.json').name})")
-    writer.text(f"Segmentation takes a median {per_image['seconds'].median():.2f} s per full "
-                f"{detector_shape[1]}x{detector_shape[0]} frame on this machine "
-                f"(downscaled by {segmenter.scale}, logits upsampled to full size).")
+    return SectionPart(stand_ins=(
+        ("310 manually annotated porcine and phantom fluoroscopy frames",
+         f"{len(per_image)} held-out synthetic hybrid frames (procedural background, physical transducer "
+         "at a random §II-B.2 pose, Poisson noise) with the digital model's labels in the true pose"),
+        ("U-Net trained on GPU (512x512 crops, 64-1024 channels)",
+         f"the shipped CPU-trained U-Net {manifest['config']} at input scale {segmenter.scale}: "
+         f"{training_summary(manifest)} (manifest {weights_path.with_suffix('.json').name})")),
+        texts=(f"Segmentation takes a median {per_image['seconds'].median():.2f} s per full "
+               f"{detector_shape[1]}x{detector_shape[0]} frame on this machine "
+               f"(downscaled by {segmenter.scale}, logits upsampled to full size).",))

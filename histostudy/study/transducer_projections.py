@@ -8,59 +8,110 @@ geometry beside the paper's numbers, renders one biplane pair (plane A at -45°,
 §II-D) of the transducer in a known C-arm pose, tabulates the label content of the frames and the
 projection geometry (pixels), and times the renderer (seconds).
 
-The ``record_*`` functions write a section through ``writer``, a
-:class:`histostudy.reporting.SectionWriter` (any object with its ``value``, ``compare``,
-``table``, ``text`` and ``stand_in`` methods: this layer sits below ``reporting`` and does not
-import it), and return what the notebook shows. Frames, units and seeding:
+The section's interface (:mod:`.section`): :class:`TransducerProjectionsConfig` (the notebook's
+parameters, checked), :func:`prepare` (the stage generators and the models, in a
+:class:`TransducerProjectionsSetup`), then the ``*_part`` functions returning each heading's
+tables, values and comparisons as a :class:`~.section.SectionPart` that :func:`~.section.record`
+writes through a :class:`histostudy.reporting.SectionWriter` (this layer sits below ``reporting``
+and does not import it). Frames, units and seeding:
 ``docs/architecture.md``.
 """
 
 from __future__ import annotations
 
-import contextlib
 import time
 from dataclasses import dataclass
-from typing import Callable, ContextManager, Mapping, NamedTuple, Sequence
+from typing import Mapping, NamedTuple, Sequence
 
 import numpy as np
 import pandas as pd
 
-from histostudy.core import as_generator
+from histostudy.core import as_generator, check_count, check_positive
 from histostudy.geometry import fit_sphere
-from histostudy.imaging import default_biplane, random_background, render_frame, render_line_integrals
+from histostudy.imaging import BACKGROUNDS, default_biplane, random_background, render_frame, render_line_integrals
 from histostudy.transducer import FEATURE_CLASSES, Feature, TransducerModel, TransducerSpec, pose_facing
+from .section import SectionPart, Timer, check_bool, check_choice, config_from_parameters, record, timer_or_untimed
 
 __all__ = [
+    "RECORDED_PARAMETERS",
     "SECTION",
     "TITLE",
     "BiplanePair",
     "StageGenerators",
     "TransducerModels",
+    "TransducerProjectionsConfig",
+    "TransducerProjectionsSetup",
     "build_models",
     "example_pose",
+    "label_content_part",
     "label_fraction_table",
+    "label_percentages",
     "model_geometry",
+    "model_geometry_part",
     "point_count_table",
-    "record_label_content",
-    "record_model_geometry",
-    "record_point_counts",
-    "record_render_timing",
-    "record_stand_ins",
+    "point_counts_part",
+    "prepare",
+    "record",
     "render_biplane_pair",
     "render_timing",
+    "render_timing_part",
     "stage_generators",
+    "stand_ins_part",
     "view_geometry_table",
 ]
 
 SECTION = "01_transducer_and_projections"
 TITLE = "01 · Digital transducer model and synthetic biplane fluoroscopy (§II-A, §II-B.1, §II-B.2)"
 
-#: ``timer(name)`` -> context manager that records the block's wall time (``SectionWriter.timer``).
-Timer = Callable[[str], ContextManager]
+#: The notebook parameters the report records, in the order it records them.
+RECORDED_PARAMETERS = ("photons_per_pixel", "n_splats", "splat_sigma_mm", "pose_spacing_mm", "render_spacing_mm",
+                       "background", "timing_repeats")
 
 
-def _untimed(name: str) -> ContextManager:
-    return contextlib.nullcontext()
+@dataclass(frozen=True)
+class TransducerProjectionsConfig:
+    """Notebook 01's parameters, checked: the frames' dose and splatting (``photons_per_pixel``,
+    ``n_splats``, ``splat_sigma_mm`` in mm), the model grids (``pose_spacing_mm``,
+    ``render_spacing_mm``), the scene ``background`` (one of :data:`~histostudy.imaging.BACKGROUNDS`),
+    the render timing's ``timing_repeats`` and whether to draw the 3-D model (``render_3d``).
+
+    A bad value raises ValueError naming the parameter, its value and what it must be.
+    """
+
+    photons_per_pixel: float
+    n_splats: int
+    splat_sigma_mm: float
+    pose_spacing_mm: float
+    render_spacing_mm: float
+    background: str
+    timing_repeats: int
+    render_3d: bool
+
+    def __post_init__(self):
+        def put(name, value):
+            object.__setattr__(self, name, value)
+
+        for name, unit in (("photons_per_pixel", "photons per pixel"), ("splat_sigma_mm", "mm"),
+                           ("pose_spacing_mm", "mm"), ("render_spacing_mm", "mm")):
+            put(name, check_positive(getattr(self, name), name, unit=unit))
+        for name in ("n_splats", "timing_repeats"):
+            put(name, check_count(getattr(self, name), name))
+        check_choice(self.background, "background", BACKGROUNDS)
+        put("render_3d", check_bool(self.render_3d, "render_3d"))
+
+    @classmethod
+    def from_parameters(cls, parameters: Mapping) -> TransducerProjectionsConfig:
+        """The parameters of ``parameters`` (the notebook's ``globals()``; other entries ignored)."""
+        return config_from_parameters(cls, parameters, "01")
+
+    def recorded(self) -> dict:
+        """The parameters the report records (:data:`RECORDED_PARAMETERS`, in that order)."""
+        return {name: getattr(self, name) for name in RECORDED_PARAMETERS}
+
+    def render(self) -> dict:
+        """The frames' dose and splatting (:func:`~histostudy.imaging.render_frame` keywords)."""
+        return {"photons_per_pixel": self.photons_per_pixel, "n_splats": self.n_splats,
+                "splat_sigma_mm": self.splat_sigma_mm}
 
 
 class StageGenerators(NamedTuple):
@@ -95,7 +146,7 @@ def build_models(pose_spacing_mm: float, render_spacing_mm: float, *, rng: np.ra
     """Build the three models of :class:`TransducerModels`; ``rng`` draws the physical
     transducer's manufacturing deviation, ``timer`` (optional) times each build."""
     spec = TransducerSpec() if spec is None else spec
-    timer = _untimed if timer is None else timer
+    timer = timer_or_untimed(timer)
     with timer(f"build digital model {pose_spacing_mm} mm"):
         pose_model = TransducerModel.build(spec, spacing_mm=pose_spacing_mm)
     with timer(f"build digital model {render_spacing_mm} mm"):
@@ -103,6 +154,28 @@ def build_models(pose_spacing_mm: float, render_spacing_mm: float, *, rng: np.ra
     with timer(f"build physical model {render_spacing_mm} mm"):
         physical = TransducerModel.build_physical(spec, spacing_mm=render_spacing_mm, rng=rng)
     return TransducerModels(spec, pose_model, render_model, physical)
+
+
+@dataclass(frozen=True)
+class TransducerProjectionsSetup:
+    """What notebook 01 runs on: its ``params``, the ``seed``, the stage generators ``rngs``
+    (:func:`stage_generators`) and the ``models`` (:func:`build_models`)."""
+
+    params: TransducerProjectionsConfig
+    seed: int
+    rngs: StageGenerators
+    models: TransducerModels
+
+
+def prepare(params: TransducerProjectionsConfig | Mapping, seed: int, *,
+            timer: Timer | None = None) -> TransducerProjectionsSetup:
+    """The section's set-up: the stage generators of ``seed`` and the models on the parameters'
+    grids (the physical transducer drawn from ``rngs.physical``; ``timer`` times each build)."""
+    if not isinstance(params, TransducerProjectionsConfig):
+        params = TransducerProjectionsConfig.from_parameters(params)
+    rngs = stage_generators(seed)
+    models = build_models(params.pose_spacing_mm, params.render_spacing_mm, rng=rngs.physical, timer=timer)
+    return TransducerProjectionsSetup(params, seed, rngs, models)
 
 
 def point_count_table(models: Mapping[str, TransducerModel]) -> pd.DataFrame:
@@ -139,39 +212,42 @@ def model_geometry(model: TransducerModel) -> dict:
     }
 
 
-def record_point_counts(writer, models: TransducerModels) -> pd.DataFrame:
-    """Record and return the points per class of the three models (table ``point_counts``)."""
+def point_counts_part(models: TransducerModels) -> SectionPart:
+    """The points per class of the three models (table ``point_counts``)."""
     counts = point_count_table({f"{models.pose.spacing_mm} mm (pose)": models.pose,
                                 f"{models.render.spacing_mm} mm (render)": models.render,
                                 f"{models.physical.spacing_mm} mm physical": models.physical})
-    writer.table("point_counts", counts, "Model points per feature class")
-    return counts
+    return SectionPart(tables={"point_counts": (counts, "Model points per feature class")})
 
 
-def record_model_geometry(writer, models: TransducerModels) -> dict:
-    """Record the rendering model's measured geometry beside the paper's (§II-B.1), the grid
-    spacings, and the physical transducer's focal-point shift from the digital one (mm); returns
-    :func:`model_geometry` of the rendering model."""
+
+
+def model_geometry_part(models: TransducerModels) -> SectionPart:
+    """The rendering model's measured geometry (:func:`model_geometry`, value ``model_geometry``)
+    beside the paper's (§II-B.1), the grid spacings, and the physical transducer's focal-point shift
+    from the digital one (mm)."""
     geometry = model_geometry(models.render)
-    writer.value("model_geometry", geometry)
-    writer.value("spec", models.spec.to_dict())
-    writer.compare("model.radius_mm", "Cap sphere radius (least-squares fit of element points)",
-                   geometry["sphere_radius_mm"], unit="mm", digits=3)
-    writer.compare("model.cutout_diameter_mm", "Central cutout diameter (measured)",
-                   geometry["cutout_diameter_mm"], unit="mm", digits=1)
-    writer.compare("model.aperture_mm", "Aperture, LR x TB (measured)",
-                   f"{geometry['aperture_x_mm']:.1f} x {geometry['aperture_y_mm']:.1f} mm")
-    writer.compare("model.spacing_pose_mm", "Grid spacing, pose-estimation model", models.pose.spacing_mm, unit="mm")
-    writer.compare("model.spacing_render_mm", "Grid spacing, rendering model", models.render.spacing_mm,
-                   unit="mm", digits=3)
-    writer.compare("model.n_feature_classes", "Feature classes with points",
-                   int(sum(len(v) > 0 for v in models.render.points.values())))
     focal_shift_mm = float(np.linalg.norm(models.physical.focal_point_mm))
-    writer.value("physical_focal_point_shift_mm", focal_shift_mm)
-    writer.compare("physical.focal_shift_mm", "Physical vs digital focal point (manufacturing deviation)",
-                   focal_shift_mm, unit="mm", paper_key="",
-                   note="stands in for the bias the paper attributes to model mismatch (§IV)")
-    return geometry
+    comparisons = (
+        dict(key="model.radius_mm", label="Cap sphere radius (least-squares fit of element points)",
+             ours=geometry["sphere_radius_mm"], unit="mm", digits=3),
+        dict(key="model.cutout_diameter_mm", label="Central cutout diameter (measured)",
+             ours=geometry["cutout_diameter_mm"], unit="mm", digits=1),
+        dict(key="model.aperture_mm", label="Aperture, LR x TB (measured)",
+             ours=f"{geometry['aperture_x_mm']:.1f} x {geometry['aperture_y_mm']:.1f} mm"),
+        dict(key="model.spacing_pose_mm", label="Grid spacing, pose-estimation model", ours=models.pose.spacing_mm,
+             unit="mm"),
+        dict(key="model.spacing_render_mm", label="Grid spacing, rendering model", ours=models.render.spacing_mm,
+             unit="mm", digits=3),
+        dict(key="model.n_feature_classes", label="Feature classes with points",
+             ours=int(sum(len(v) > 0 for v in models.render.points.values()))),
+        dict(key="physical.focal_shift_mm", label="Physical vs digital focal point (manufacturing deviation)",
+             ours=focal_shift_mm, unit="mm", paper_key="",
+             note="stands in for the bias the paper attributes to model mismatch (§IV)"))
+    return SectionPart(values={"model_geometry": geometry, "spec": models.spec.to_dict(),
+                               "physical_focal_point_shift_mm": focal_shift_mm}, comparisons=comparisons)
+
+
 
 
 def example_pose() -> np.ndarray:
@@ -202,7 +278,7 @@ def render_biplane_pair(models: TransducerModels, background: str, *, rng_backgr
     ``render_kwargs`` go to :func:`~histostudy.imaging.render_frame` (photons_per_pixel,
     n_splats, splat_sigma_mm); ``timer`` (optional) times the rendering of the pair.
     """
-    timer = _untimed if timer is None else timer
+    timer = timer_or_untimed(timer)
     views = default_biplane()
     T_carm_transducer = example_pose() if T_carm_transducer is None else T_carm_transducer
     anatomy = random_background(rng_background, background)
@@ -235,21 +311,28 @@ def view_geometry_table(frames: Sequence, T_carm_transducer) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def record_label_content(writer, pair: BiplanePair) -> pd.DataFrame:
-    """Record the label pixels per class and view, the feature classes visible in both views,
-    and the projection geometry of the two planes; returns the label percentages as a
-    class x view table."""
+def label_content_part(pair: BiplanePair) -> SectionPart:
+    """The label pixels per class and view (table ``label_pixels``), the feature classes visible in
+    both views, and the projection geometry of the two planes (table ``views``)."""
     labels = label_fraction_table(pair.frames)
-    writer.table("label_pixels", labels, "Reference label pixels per class and view", digits=2)
     n_foreground_classes = labels[labels["pixels"] > 0].groupby("view")["class"].nunique() - 1
-    writer.compare("model.n_feature_classes", "Feature classes visible in each view", int(n_foreground_classes.min()),
-                   note="min over both planes")
     geometry = view_geometry_table(pair.frames, pair.T_carm_transducer)
-    writer.table("views", geometry, "Projection geometry of the two planes")
-    writer.compare("carm.gantry_angles_deg", "Gantry angles (plane A, plane B)",
-                   f"{pair.views[0].gantry['primary_deg']:+.0f}°, {pair.views[1].gantry['primary_deg']:+.0f}° around PA")
-    writer.compare("carm.network_input_px", "Network input size (detector x 0.25)", geometry["network input (0.25x)"][0])
+    gantry = f"{pair.views[0].gantry['primary_deg']:+.0f}°, {pair.views[1].gantry['primary_deg']:+.0f}° around PA"
+    return SectionPart(
+        tables={"label_pixels": (labels, "Reference label pixels per class and view", {"digits": 2}),
+                "views": (geometry, "Projection geometry of the two planes")},
+        comparisons=(dict(key="model.n_feature_classes", label="Feature classes visible in each view",
+                          ours=int(n_foreground_classes.min()), note="min over both planes"),
+                     dict(key="carm.gantry_angles_deg", label="Gantry angles (plane A, plane B)", ours=gantry),
+                     dict(key="carm.network_input_px", label="Network input size (detector x 0.25)",
+                          ours=geometry["network input (0.25x)"][0])))
+
+
+def label_percentages(labels: pd.DataFrame) -> pd.DataFrame:
+    """:func:`label_fraction_table`'s percentages as a class x view table."""
     return labels.pivot(index="class", columns="view", values="percent")
+
+
 
 
 def render_timing(model: TransducerModel, T_carm_transducer, view, *, background, rng, physical=None,
@@ -283,30 +366,34 @@ def render_timing(model: TransducerModel, T_carm_transducer, view, *, background
     return table.astype({"points": "Int64"})
 
 
-def record_render_timing(writer, models: TransducerModels, pair: BiplanePair, *, repeats: int, rng,
-                         **render_kwargs) -> pd.DataFrame:
-    """Record and return :func:`render_timing` of plane A's frame of ``pair``, with the splatting
-    parameters (``n_splats``, ``splat_sigma_mm`` in ``render_kwargs``) beside the paper's."""
+def render_timing_part(models: TransducerModels, pair: BiplanePair, *, repeats: int, rng,
+                       **render_kwargs) -> SectionPart:
+    """:func:`render_timing` of plane A's frame of ``pair`` (table ``render_timing``), with the
+    splatting parameters (``n_splats``, ``splat_sigma_mm`` in ``render_kwargs``) beside the paper's."""
     view = pair.views[0]
     timing = render_timing(models.render, pair.T_carm_transducer, view, background=pair.anatomy,
                            physical=models.physical, repeats=repeats, rng=rng, **render_kwargs)
-    writer.table("render_timing", timing, f"Render time of one {view.shape[1]}x{view.shape[0]} frame "
-                 f"(median of {repeats})")
-    writer.compare("render.n_splats", "Splats per point", render_kwargs["n_splats"])
-    writer.compare("render.splat_sigma_mm", "Splat offset SD", render_kwargs["splat_sigma_mm"], unit="mm")
-    return timing
+    return SectionPart(
+        tables={"render_timing": (timing, f"Render time of one {view.shape[1]}x{view.shape[0]} frame "
+                                          f"(median of {repeats})")},
+        comparisons=(dict(key="render.n_splats", label="Splats per point", ours=render_kwargs["n_splats"]),
+                     dict(key="render.splat_sigma_mm", label="Splat offset SD", ours=render_kwargs["splat_sigma_mm"],
+                          unit="mm")))
 
 
-def record_stand_ins(writer, models: TransducerModels, *, background: str, photons_per_pixel: float,
-                     n_splats: int) -> None:
-    """Record what stands in for the lab's transducer, projections and annotation, and how the
-    frames were made."""
-    writer.stand_in("the HistoSonics transducer", "a physical model: per-quadrant manufacturing offsets/tilts and "
-                    "probe-mount screws that the digital model lacks")
-    writer.stand_in("porcine and phantom projections (Artis zee, line integrals)",
-                    "exact cone-beam projections of a procedural 3-D abdomen or phantom scene")
-    writer.stand_in("manual annotation (digital model aligned by hand)", "the digital model in the known true pose")
-    writer.text(f"The cap radius, cutout and aperture are measured on the built points, not copied from the spec. "
-                f"Frames splat the {models.physical.spacing_mm} mm physical model "
-                f"({sum(models.physical.n_points.values()):,} points x {n_splats} splats) onto a '{background}' "
-                f"background at {photons_per_pixel:.0f} photons per pixel.")
+
+
+def stand_ins_part(models: TransducerModels, *, background: str, photons_per_pixel: float,
+                   n_splats: int) -> SectionPart:
+    """What stands in for the lab's transducer, projections and annotation, and how the frames were
+    made."""
+    return SectionPart(stand_ins=(
+        ("the HistoSonics transducer", "a physical model: per-quadrant manufacturing offsets/tilts and "
+         "probe-mount screws that the digital model lacks"),
+        ("porcine and phantom projections (Artis zee, line integrals)",
+         "exact cone-beam projections of a procedural 3-D abdomen or phantom scene"),
+        ("manual annotation (digital model aligned by hand)", "the digital model in the known true pose")),
+        texts=(f"The cap radius, cutout and aperture are measured on the built points, not copied from the spec. "
+               f"Frames splat the {models.physical.spacing_mm} mm physical model "
+               f"({sum(models.physical.n_points.values()):,} points x {n_splats} splats) onto a '{background}' "
+               f"background at {photons_per_pixel:.0f} photons per pixel.",))

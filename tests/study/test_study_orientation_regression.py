@@ -1,5 +1,6 @@
 """Notebook 03's study module: per-frame angles against the true pose, the §III statistics, the figure,
-the initialiser comparison, and what each ``record_*`` function writes into a section."""
+the initialiser comparison, the notebook's parameters checked by name, and what each part writes into a
+section through ``record``."""
 
 import numpy as np
 import pytest
@@ -153,23 +154,30 @@ def test_candidate_errors_draw_from_the_given_seed_or_generator():
 def test_load_vgg19_finds_the_shipped_weights(monkeypatch):
     source, path = study.load_vgg19()
     assert isinstance(source, LearnedOrientation) and path.name == "vgg19_standard.safetensors"
-    monkeypatch.setattr("histostudy.study.segmentation.shipped_model", lambda name: None)
+    monkeypatch.setattr("histostudy.study.held_out.shipped_model", lambda name: None)
     with pytest.raises(FileNotFoundError, match=r"VGG19 .*\(vgg19_standard\.safetensors .*histostudy train orientation"):
         study.load_vgg19()
 
 
-def test_record_evaluation_statistics_and_direction_error(tmp_path):
+def test_evaluation_statistics_and_direction_error(tmp_path):
     writer = _writer(tmp_path)
-    results = study.record_evaluation(writer, _Offset(np.radians(2.0), np.radians(-1.0)), _Frames(_frames()), 10)
+    evaluation = study.evaluation_section(_Offset(np.radians(2.0), np.radians(-1.0)), _Frames(_frames()), 10,
+                                          timer=writer.timer)
+    study.record(writer, evaluation)
+    results = evaluation.results
     assert len(results) == 10 and "render and regress 10 frames" in writer.timings_s
     assert writer.values["regression_seconds_median"] == pytest.approx(results["seconds"].median())
-    table = study.record_angle_statistics(writer, results)
+    part = study.angle_statistics_part(results)
+    study.record(writer, part)
+    table = part.table("angle_statistics")
     assert list(table["angle"]) == ["azimuth", "elevation"]
     ours = {row["key"]: row for row in writer.comparisons}
     assert len(ours) == 10
     assert (ours["angles.azimuth.mae"]["ours"], ours["angles.azimuth.mae"]["ours_sd"]) == pytest.approx((2.0, 0.0))
     assert ours["angles.elevation.intercept"]["ours"] == pytest.approx(-1.0)
-    direction = study.record_direction_error(writer, results)
+    part = study.direction_error_part(results)
+    study.record(writer, part)
+    direction = part.values["direction_error"]
     assert writer.values["direction_error"] is direction and direction["n"] == 10
     row = writer.comparisons[-1]
     assert row["key"] == "angles.direction.mae" and row["paper_key"] is None
@@ -186,11 +194,13 @@ def test_orientation_initialisers_and_their_keys():
     assert [study.initialiser_key(name) for name in both] == ["vgg19", "conic_U-Net", "conic_reference"]
 
 
-def test_record_initialiser_comparison(tmp_path):
+def test_initialiser_comparison_section(tmp_path):
     writer = _writer(tmp_path)
     frames = _frames(4)
-    summary = study.record_initialiser_comparison(writer, {"pair": _Pair(2.5), "VGG19 (stand-in)": _Pair(40.0, True)},
-                                                  frames, rng=study.INITIALISER_RNG_SEED)
+    comparison = study.initialiser_comparison_section({"pair": _Pair(2.5), "VGG19 (stand-in)": _Pair(40.0, True)},
+                                                      frames, rng=study.INITIALISER_RNG_SEED, timer=writer.timer)
+    study.record(writer, comparison)
+    summary = comparison.summary
     assert list(summary["source"]) == ["pair", "VGG19 (stand-in)"]
     assert "candidate directions of 2 initialisers on 4 frames" in writer.timings_s
     assert [t.name for t in writer.tables] == ["initialiser_candidates", "initialiser_summary"]
@@ -199,12 +209,52 @@ def test_record_initialiser_comparison(tmp_path):
     assert second["key"] == "initialiser.vgg19.direction" and second["note"].endswith("100 % fell back to the VGG19")
 
 
-def test_record_stand_ins_names_the_manifest(tmp_path):
+def test_stand_ins_part_names_the_manifest(tmp_path):
     class Net:
         manifest = {"config": {"arch": "vgg19"}, "training_steps": 80}
 
     writer = _writer(tmp_path)
-    study.record_stand_ins(writer, Net(), tmp_path / "vgg19.safetensors", 7)
+    study.record(writer, study.stand_ins_part(Net(), tmp_path / "vgg19.safetensors", 7))
     assert writer.stand_ins[0]["synthetic"] == "7 held-out synthetic hybrid frames with the true pose as the reference"
     assert writer.stand_ins[1]["synthetic"].endswith("80 training steps (manifest vgg19.json)")
     assert writer.paragraphs[0].startswith("Azimuth errors are wrapped")
+
+
+# --- the notebook's parameters and set-up -----------------------------------------------------------
+
+#: The parameters cell of notebooks/03_orientation.ipynb as stored (its defaults).
+DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, render_spacing_mm=0.125,
+                background="mixed", n_eval_images=4, weights="", cache_frames=True, render_workers=1,
+                geometric_initialiser=True)
+
+
+def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones(notebook_parameters):
+    cell = notebook_parameters("03_orientation")
+    params = study.OrientationConfig.from_parameters(cell)
+    assert {k: getattr(params, k) for k in DEFAULTS} == DEFAULTS
+    assert set(cell) - set(DEFAULTS) == {"profile", "seed", "output_dir"}
+    assert list(params.recorded()) == list(study.RECORDED_PARAMETERS) == list(DEFAULTS)[:7]
+    with pytest.raises(AttributeError):
+        params.geometric_initialiser = False  # frozen
+
+
+@pytest.mark.parametrize("name, value, expected", [
+    ("geometric_initialiser", "no", "True or False"),
+    ("n_eval_images", -4, "an integer >= 1"),
+    ("background", 3, "one of 'phantom', 'abdomen', 'mixed', 'none'"),
+    ("splat_sigma_mm", 0.0, "a finite number > 0 mm"),
+])
+def test_a_bad_parameter_is_refused_naming_it_its_value_and_what_it_must_be(name, value, expected):
+    with pytest.raises(ValueError) as info:
+        study.OrientationConfig(**{**DEFAULTS, name: value})
+    message = str(info.value)
+    assert message.startswith(f"{name} must be") and expected in message and repr(value) in message
+    with pytest.raises(ValueError, match=r"parameters lack \['geometric_initialiser'\] \(notebook 03's"):
+        study.OrientationConfig.from_parameters({k: v for k, v in DEFAULTS.items() if k != "geometric_initialiser"})
+
+
+def test_prepare_loads_the_shipped_vgg19_and_the_frames():
+    setup = study.prepare({**DEFAULTS, "cache_frames": False}, 7)
+    assert isinstance(setup.params, study.OrientationConfig) and setup.seed == 7
+    assert isinstance(setup.source, LearnedOrientation) and setup.weights_path.name == "vgg19_standard.safetensors"
+    assert setup.frames.split == "eval" and setup.frames.seed == 7

@@ -1,5 +1,6 @@
 """Notebook 02's study module: per-image metrics, Table I, the precision tests and their paragraph,
-the shipped weights and held-out frames, and what each ``record_*`` function writes into a section."""
+the shipped weights and held-out frames, the notebook's parameters checked by name, and what each part
+writes into a section through ``record``."""
 
 import contextlib
 
@@ -107,10 +108,11 @@ def test_resolve_weights_names_the_training_command(tmp_path):
         study.resolve_weights("", "no_such_network", "VGG19", "orientation")
 
 
-def test_record_weights_and_its_summary_line(tmp_path):
+def test_weights_part_and_its_summary_line(tmp_path):
     writer = _writer(tmp_path)
     manifest = {"sha256": "ab" * 32, "config": {"arch": "unet"}, "profile": "standard", "training_steps": 1200}
-    line = study.record_weights(writer, "U-Net", tmp_path / "unet.safetensors", manifest, 0.25)
+    study.record(writer, study.weights_part(tmp_path / "unet.safetensors", manifest))
+    line = study.weights_summary("U-Net", tmp_path / "unet.safetensors", manifest, 0.25)
     assert line == "U-Net {'arch': 'unet'} from unet.safetensors: 1200 steps (profile standard), input scale 0.25"
     record = writer.values["weights"]
     assert record["manifest"] == str(tmp_path / "unet.json") and record["sha256"] == "ab" * 32
@@ -130,14 +132,17 @@ def test_held_out_frames_are_the_eval_split(tmp_path, monkeypatch):
     assert cached.cache_dir is not None and timed == ["pre-render the uncached evaluation frames (2 processes)"]
 
 
-def test_record_evaluation_and_table1_of_a_perfect_segmenter(tmp_path):
+def test_evaluation_and_table1_of_a_perfect_segmenter(tmp_path):
     writer = _writer(tmp_path)
-    per_class, per_image, predictions = study.record_evaluation(writer, OracleSegmenter(), _Frames(_frames()), 4,
-                                                                keep=1)
+    evaluation = study.evaluation_section(OracleSegmenter(), _Frames(_frames()), 4, keep=1, timer=writer.timer)
+    study.record(writer, evaluation)
+    per_class, per_image, predictions = evaluation.per_class, evaluation.per_image, evaluation.predictions
     assert len(per_image) == 4 and len(predictions) == 1 and "render and segment 4 frames" in writer.timings_s
     assert writer.values["segmentation_seconds_median"] == pytest.approx(per_image["seconds"].median())
     assert (tmp_path / "tables" / "per_image.csv").is_file()
-    table = study.record_table1(writer, per_class, per_image)
+    part = study.table1_part(per_class, per_image)
+    study.record(writer, part)
+    table = part.table("table1")
     assert list(table["class"]) == list(study.CLASS_KEYS)
     by_key = {row["key"]: row for row in writer.comparisons}
     assert len(by_key) == 6 * 4 + 4 + 1
@@ -154,12 +159,14 @@ def test_background_minus_screws_ci_takes_the_papers_orientation():
     assert study.background_minus_screws_ci(tukey.iloc[1:]) is None
 
 
-def test_record_precision_tests_with_and_without_a_test(tmp_path):
+def test_precision_tests_section_with_and_without_a_test(tmp_path):
     deg = SegmentationDegradation(recall={k: 0.7 for k in FEATURE_CLASSES},
                                   precision={k: 0.8 for k in FEATURE_CLASSES})
     per_class, _, _ = study.evaluate_segmentation(OracleSegmenter(deg), _frames(8, seed=1), np.random.default_rng(2))
     writer = _writer(tmp_path)
-    paragraph, tukey = study.record_precision_tests(writer, per_class)
+    tests = study.precision_tests_section(per_class)
+    study.record(writer, tests)
+    paragraph, tukey = tests.paragraph, tests.tukey
     assert len(tukey) == 15 and writer.paragraphs == [paragraph] and paragraph.startswith("A one-way ANOVA")
     keys = [row["key"] for row in writer.comparisons]
     assert keys[:4] == ["seg.anova_F", "seg.anova_df_between", "seg.anova_df_within", "seg.anova_p"]
@@ -171,20 +178,75 @@ def test_record_precision_tests_with_and_without_a_test(tmp_path):
 
     per_class, _, _ = study.evaluate_segmentation(Background(), _frames(3))
     writer = _writer(tmp_path)
-    paragraph, tukey = study.record_precision_tests(writer, per_class)
+    tests = study.precision_tests_section(per_class)
+    study.record(writer, tests)
+    paragraph, tukey = tests.paragraph, tests.tukey
     assert tukey is None and paragraph.startswith("No ANOVA") and "screws" in paragraph
     assert writer.comparisons[0]["ours"] == "not computed" and writer.comparisons[0]["note"] == paragraph
 
 
-def test_record_stand_ins_reports_the_detector_and_time(tmp_path):
+def test_stand_ins_part_reports_the_detector_and_time(tmp_path):
     class Net:
         manifest = {"config": {"arch": "unet"}, "training_steps": 50}
         scale = 0.5
 
     writer = _writer(tmp_path)
     per_image = pd.DataFrame({"image": [0, 1, 2], "seconds": [0.1, 0.3, 0.2]})
-    study.record_stand_ins(writer, Net(), tmp_path / "unet.safetensors", per_image, detector_shape=(960, 1240))
+    study.record(writer, study.stand_ins_part(Net(), tmp_path / "unet.safetensors", per_image,
+                                              detector_shape=(960, 1240)))
     assert writer.stand_ins[0]["synthetic"].startswith("3 held-out synthetic hybrid frames")
     assert "50 training steps" in writer.stand_ins[1]["synthetic"] and "(manifest unet.json)" in writer.stand_ins[1]["synthetic"]
     assert writer.paragraphs == ["Segmentation takes a median 0.20 s per full 1240x960 frame on this machine "
                                  "(downscaled by 0.5, logits upsampled to full size)."]
+
+
+# --- the notebook's parameters and set-up -----------------------------------------------------------
+
+#: The parameters cell of notebooks/02_segmentation.ipynb as stored (its defaults).
+DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, render_spacing_mm=0.125,
+                background="mixed", n_eval_images=4, weights="", cache_frames=True, render_workers=1)
+
+
+def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones(notebook_parameters):
+    cell = notebook_parameters("02_segmentation")
+    params = study.SegmentationConfig.from_parameters(cell)
+    assert {k: getattr(params, k) for k in DEFAULTS} == DEFAULTS
+    assert set(cell) - set(DEFAULTS) == {"profile", "seed", "output_dir"}
+    assert list(params.recorded()) == list(study.RECORDED_PARAMETERS) == list(DEFAULTS)[:7]
+    with pytest.raises(AttributeError):
+        params.n_eval_images = 2  # frozen
+
+
+@pytest.mark.parametrize("name, value, expected", [
+    ("photons_per_pixel", -1.0, "a finite number > 0"),
+    ("n_splats", 0, "an integer >= 1"),
+    ("splat_sigma_mm", None, "a finite number > 0 mm"),
+    ("render_spacing_mm", float("inf"), "a finite number > 0 mm"),
+    ("background", "Mixed", "one of 'phantom', 'abdomen', 'mixed', 'none'"),
+    ("n_eval_images", 4.0, "an integer >= 1"),
+    ("weights", None, 'a checkpoint path or ""'),
+    ("cache_frames", 1, "True or False"),
+    ("render_workers", 0, "an integer >= 1"),
+])
+def test_a_bad_parameter_is_refused_naming_it_its_value_and_what_it_must_be(name, value, expected):
+    with pytest.raises(ValueError) as info:
+        study.SegmentationConfig(**{**DEFAULTS, name: value})
+    message = str(info.value)
+    assert message.startswith(f"{name} must be") and expected in message and repr(value) in message
+
+
+def test_missing_parameters_are_named_and_the_frames_are_the_held_out_ones():
+    with pytest.raises(ValueError, match=r"parameters lack \['weights'\] \(notebook 02's"):
+        study.SegmentationConfig.from_parameters({k: v for k, v in DEFAULTS.items() if k != "weights"})
+    params = study.SegmentationConfig(**{**DEFAULTS, "cache_frames": False})
+    frames = params.frames(7)
+    assert frames.split == "eval" and frames.seed == 7 and frames.cache_dir is None
+    assert frames.config == study.held_out_frames(7, 4, render_spacing_mm=0.125, photons_per_pixel=5e4, n_splats=16,
+                                                  splat_sigma_mm=0.5, background="mixed").config
+
+
+def test_prepare_loads_the_shipped_unet_and_the_frames():
+    setup = study.prepare({**DEFAULTS, "cache_frames": False}, 7)
+    assert isinstance(setup.params, study.SegmentationConfig) and setup.seed == 7
+    assert setup.weights_path.name == "unet_standard.safetensors" and setup.frames.split == "eval"
+    assert setup.segmenter.manifest["sha256"]

@@ -1,5 +1,6 @@
 """Notebook 01's study module: geometry measured on the points, counts, label fractions, the
-biplane pair, and what each ``record_*`` function writes into a section."""
+biplane pair, the notebook's parameters checked by name, and what each ``*_part`` writes into a
+section through ``record``."""
 
 import contextlib
 import json
@@ -136,12 +137,17 @@ def test_view_geometry_table_projects_the_focal_point(pair):
         centred["focal point v (px)"], (rows - 1) / 2, atol=2)
 
 
-def test_record_point_counts_and_geometry(tmp_path, models):
+def test_point_counts_and_geometry_parts(tmp_path, models):
     writer = _writer(tmp_path)
-    counts = study.record_point_counts(writer, models)
+    part = study.point_counts_part(models)
+    study.record(writer, part)
+    counts = part.table("point_counts")
     assert list(counts.columns) == ["feature class", "1.0 mm (pose)", "0.47 mm (render)", "0.47 mm physical"]
     assert (tmp_path / "tables" / "point_counts.csv").is_file()
-    geometry = study.record_model_geometry(writer, models)
+    part = study.model_geometry_part(models)
+    study.record(writer, part)
+    geometry = part.values["model_geometry"]
+    assert writer.values["model_geometry"] is geometry
     ours = _comparisons(writer)
     assert ours["Cap sphere radius (least-squares fit of element points)"] == pytest.approx(138.7, abs=1e-6)
     assert ours["Grid spacing, pose-estimation model"] == 1.0 and ours["Feature classes with points"] == 5
@@ -151,19 +157,77 @@ def test_record_point_counts_and_geometry(tmp_path, models):
     assert writer.values["spec"] == models.spec.to_dict()
 
 
-def test_record_label_content_timing_and_stand_ins(tmp_path, models, pair):
+def test_label_content_timing_and_stand_ins_parts(tmp_path, models, pair):
     writer = _writer(tmp_path)
-    percent = study.record_label_content(writer, pair)
+    labels = study.label_content_part(pair)
+    study.record(writer, labels)
+    percent = study.label_percentages(labels.table("label_pixels"))
     assert list(percent.columns) == ["A", "B"] and np.allclose(percent.sum(), 100.0)
     ours = _comparisons(writer)
     assert ours["Feature classes visible in each view"] == 5
     assert ours["Gantry angles (plane A, plane B)"] == "-45°, +45° around PA"
     assert ours["Network input size (detector x 0.25)"] == "310x240"
-    timing = study.record_render_timing(writer, models, pair, repeats=1, rng=0, n_splats=1, splat_sigma_mm=0.5,
-                                        photons_per_pixel=None)
+    part = study.render_timing_part(models, pair, repeats=1, rng=0, n_splats=1, splat_sigma_mm=0.5,
+                                    photons_per_pixel=None)
+    study.record(writer, part)
+    timing = part.table("render_timing")
     assert timing["points"].iloc[1] == sum(models.physical.n_points.values())
     assert _comparisons(writer)["Splats per point"] == 1
-    study.record_stand_ins(writer, models, background="phantom", photons_per_pixel=5e4, n_splats=1)
+    study.record(writer, study.stand_ins_part(models, background="phantom", photons_per_pixel=5e4, n_splats=1))
     assert len(writer.stand_ins) == 3 and "onto a 'phantom' background at 50000 photons" in writer.paragraphs[-1]
     saved = json.loads(writer.save().read_text())
     assert [t["name"] for t in saved["tables"]] == ["label_pixels", "views", "render_timing"]
+
+
+# --- the notebook's parameters and set-up -----------------------------------------------------------
+
+#: The parameters cell of notebooks/01_transducer_and_projections.ipynb as stored (its defaults).
+DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, pose_spacing_mm=0.47,
+                render_spacing_mm=0.125, background="abdomen", timing_repeats=1, render_3d=True)
+
+
+def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones(notebook_parameters):
+    cell = notebook_parameters("01_transducer_and_projections")
+    params = study.TransducerProjectionsConfig.from_parameters(cell)
+    assert {k: getattr(params, k) for k in DEFAULTS} == DEFAULTS
+    assert set(cell) - set(DEFAULTS) == {"profile", "seed", "output_dir"}
+    assert list(params.recorded()) == list(study.RECORDED_PARAMETERS) == [k for k in DEFAULTS if k != "render_3d"]
+    assert params.render() == {"photons_per_pixel": 50000.0, "n_splats": 16, "splat_sigma_mm": 0.5}
+    with pytest.raises(AttributeError):
+        params.n_splats = 2  # frozen
+
+
+@pytest.mark.parametrize("name, value, expected", [
+    ("photons_per_pixel", 0.0, "a finite number > 0"),
+    ("n_splats", 2.5, "an integer >= 1"),
+    ("splat_sigma_mm", "0.5", "a finite number > 0 mm"),
+    ("pose_spacing_mm", -0.47, "a finite number > 0 mm"),
+    ("render_spacing_mm", float("nan"), "a finite number > 0 mm"),
+    ("background", "liver", "one of 'phantom', 'abdomen', 'mixed', 'none'"),
+    ("timing_repeats", 0, "an integer >= 1"),
+    ("render_3d", "yes", "True or False"),
+])
+def test_a_bad_parameter_is_refused_naming_it_its_value_and_what_it_must_be(name, value, expected):
+    with pytest.raises(ValueError) as info:
+        study.TransducerProjectionsConfig(**{**DEFAULTS, name: value})
+    message = str(info.value)
+    assert message.startswith(f"{name} must be") and expected in message and repr(value) in message
+    with pytest.raises(ValueError, match=r"parameters lack \['render_3d'\]"):
+        study.TransducerProjectionsConfig.from_parameters({k: v for k, v in DEFAULTS.items() if k != "render_3d"})
+
+
+def test_prepare_builds_the_models_from_the_seeds_physical_generator():
+    timed = []
+
+    @contextlib.contextmanager
+    def timer(name):
+        timed.append(name)
+        yield
+
+    setup = study.prepare({**DEFAULTS, "pose_spacing_mm": 1.0, "render_spacing_mm": 0.47}, 5, timer=timer)
+    assert isinstance(setup.params, study.TransducerProjectionsConfig) and setup.seed == 5
+    assert setup.models.pose.spacing_mm == 1.0 and setup.models.render.spacing_mm == 0.47
+    expected = study.build_models(1.0, 0.47, rng=study.stage_generators(5).physical)
+    assert np.array_equal(setup.models.physical.focal_point_mm, expected.physical.focal_point_mm)
+    assert setup.rngs.render.random() == study.stage_generators(5).render.random()
+    assert timed == ["build digital model 1.0 mm", "build digital model 0.47 mm", "build physical model 0.47 mm"]

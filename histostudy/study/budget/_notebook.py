@@ -1,6 +1,7 @@
-"""Notebook 07's set-up and prose: its parameters to a :class:`~.error_budget.BudgetSetup` (the lab
-error model, the two studies' configurations, the models, the stages), the seeds, the sources'
-table and what stands in for what (§III, §IV).
+"""Notebook 07's parameters, set-up and parts: its parameters checked (:class:`BudgetSectionConfig`)
+and made a :class:`~._run.BudgetSetup` (the lab error model, the two studies' configurations, the
+models, the stages, the seeds; :func:`prepare`), the sources' table, the runs, the shares and what
+stands in for what (§III, §IV), each part recorded by :func:`~..section.record`.
 
 Every random draw of the notebook comes from one integer ``seed`` (:func:`budget_seeds`).
 """
@@ -10,20 +11,26 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 from dataclasses import dataclass
-from typing import Callable, Mapping
+from typing import Mapping
 
 import numpy as np
 import pandas as pd
 
-from histostudy.imaging import default_biplane
+from histostudy.core import check_count, check_positive
+from histostudy.imaging import BACKGROUNDS, default_biplane
 from histostudy.transducer import TransducerModel, TransducerSpec
-from ._run import BudgetSetup
+from ._run import BudgetSetup, run_error_budget
 from ._sources import LAB_SOURCES, LabErrorModel, draw_lab
+from ._summary import budget_comparisons, configuration_table, dominant_sources, source_shares, waterfall_figure
 from ..pose._config import PoseStudyConfig, study_stages
+from ..section import (SectionPart, Timer, check_bool, check_choice, check_text, config_from_parameters, record,
+                       timer_or_untimed)
 from ..targeting._setup import TargetingStudyConfig
 
-__all__ = ["BudgetSeeds", "RECORDED_PARAMETERS", "SECTION_TITLE", "SOURCE_PROVENANCE", "budget_seeds", "closing_text",
-           "lab_model_from_parameters", "prepare_budget", "sources_table", "stand_ins"]
+__all__ = ["BudgetRun", "BudgetSectionConfig", "BudgetSeeds", "RECORDED_PARAMETERS", "SECTION_TITLE",
+           "SOURCE_PROVENANCE", "SectionPart", "SharesSection", "budget_section", "budget_seeds", "closing_part",
+           "closing_text", "lab_model_from_parameters", "prepare", "prepare_budget", "record", "shares_section",
+           "sources_part", "sources_table", "stand_ins"]
 
 SECTION_TITLE = "07 · The error budget: the lab's error sources and their shares (§III, §IV)"
 
@@ -45,6 +52,56 @@ SOURCE_PROVENANCE = {
     "robot": "the paper: UR5e pose repeatability ±0.03 mm (§II-C), taken as one SD",
     "phantom_motion": "assumption: an agarose phantom in a water bath, between treatment and CBCT",
 }
+
+
+@dataclass(frozen=True)
+class BudgetSectionConfig:
+    """Notebook 07's parameters (its ``parameters`` cell names and documents each), checked: the
+    frames' dose and splatting and the model grids (``photons_per_pixel``, ``n_splats``,
+    ``splat_sigma_mm``, ``pose_spacing_mm``, ``render_spacing_mm``, ``background``), the
+    experiments per configuration (``pose_experiments``, ``targeting_experiments``), the stages
+    (``learned_stages``), the lab's ``sources`` on (names of :data:`LAB_SOURCES`, each at most
+    once) and the ``scheduler`` the experiments run on (``""``: ``HISTOSTUDY_SCHEDULER``, else here).
+
+    A bad value raises ValueError naming the parameter, its value and what it must be. Values are
+    kept as given, ``sources`` as a tuple.
+    """
+
+    photons_per_pixel: float
+    n_splats: int
+    splat_sigma_mm: float
+    pose_spacing_mm: float
+    render_spacing_mm: float
+    background: str
+    pose_experiments: int
+    targeting_experiments: int
+    learned_stages: bool
+    sources: tuple
+    scheduler: str
+
+    def __post_init__(self):
+        for name, unit in (("photons_per_pixel", "photons per pixel"), ("splat_sigma_mm", "mm"),
+                           ("pose_spacing_mm", "mm"), ("render_spacing_mm", "mm")):
+            check_positive(getattr(self, name), name, unit=unit)
+        for name in ("n_splats", "pose_experiments", "targeting_experiments"):
+            check_count(getattr(self, name), name)
+        check_choice(self.background, "background", BACKGROUNDS)
+        object.__setattr__(self, "learned_stages", check_bool(self.learned_stages, "learned_stages"))
+        if isinstance(self.sources, (str, bytes)) or not isinstance(self.sources, (list, tuple)):
+            raise ValueError(f"sources must be a list of the names {LAB_SOURCES}, got {self.sources!r}")
+        lab_model_from_parameters(self.sources)  # each name known, at most once
+        object.__setattr__(self, "sources", tuple(self.sources))
+        check_text(self.scheduler, "scheduler", '"" (HISTOSTUDY_SCHEDULER, else here), "local:<n>" or '
+                                                '"tcp://<host>:<port>"')
+
+    @classmethod
+    def from_parameters(cls, parameters: Mapping) -> BudgetSectionConfig:
+        """The parameters of ``parameters`` (the notebook's ``globals()``; other entries ignored)."""
+        return config_from_parameters(cls, parameters, "07")
+
+    def recorded(self) -> dict:
+        """The parameters the report records (:data:`RECORDED_PARAMETERS`, in that order)."""
+        return {name: getattr(self, name) for name in RECORDED_PARAMETERS}
 
 
 @dataclass(frozen=True)
@@ -74,8 +131,17 @@ def lab_model_from_parameters(sources) -> LabErrorModel:
     return dataclasses.replace(model, **{name: None for name in LAB_SOURCES if name not in sources})
 
 
-def prepare_budget(parameters: Mapping, seed: int, *,
-                   timer: Callable[[str], contextlib.AbstractContextManager] | None = None) -> BudgetSetup:
+def prepare(params: BudgetSectionConfig | Mapping, seed: int, *, timer: Timer | None = None) -> BudgetSetup:
+    """The section's set-up (:func:`prepare_budget`) from its checked parameters (a
+    :class:`BudgetSectionConfig` or a mapping of them); the set-up keeps them as ``params`` and the
+    seeds (:func:`budget_seeds`) as ``seeds``."""
+    if not isinstance(params, BudgetSectionConfig):
+        params = BudgetSectionConfig.from_parameters(params)
+    return dataclasses.replace(prepare_budget(params.recorded(), seed, timer=timer), params=params,
+                               seeds=budget_seeds(seed))
+
+
+def prepare_budget(parameters: Mapping, seed: int, *, timer: Timer | None = None) -> BudgetSetup:
     """Build the models (``pose_spacing_mm``, ``render_spacing_mm``; the study's physical
     transducer from the seed), the default biplane views, the lab (:func:`draw_lab`), both
     studies' configurations (``pose_experiments``: margins in the paper's fast mode, occlusion-aware
@@ -129,3 +195,69 @@ def closing_text(setup: BudgetSetup, n_pose: int, n_targeting: int) -> str:
             f"model's (the study's transducer: {np.linalg.norm(lab.study_physical.focal_point_mm):.2f} mm). A single "
             "lab draws each systematic source once: its bias is one draw of the sources' distribution, as the "
             "paper's was.")
+
+
+# --- the notebook's parts: tables, figures, values and comparisons for record() ---------------------
+
+
+def sources_part(setup: BudgetSetup) -> SectionPart:
+    """The lab's error sources (table ``sources``, :func:`sources_table`)."""
+    return SectionPart(tables={"sources": (sources_table(setup.lab.model), "The lab's error sources: on or off, "
+                                           "their magnitudes, and where each default comes from (none fitted to the "
+                                           "paper's figures)")})
+
+
+@dataclass(frozen=True, eq=False)
+class BudgetRun:
+    """The budget run (:func:`budget_section`): its ``records``, the per-configuration tables of
+    both studies (``pose_table``, ``targeting_table``) and the report's ``part``."""
+
+    records: pd.DataFrame
+    pose_table: pd.DataFrame
+    targeting_table: pd.DataFrame
+    part: SectionPart
+
+
+def budget_section(setup: BudgetSetup, *, timer: Timer | None = None) -> BudgetRun:
+    """:func:`run_error_budget` on the set-up's study seed and ``params.scheduler`` (timed as
+    ``"budget"``); its part: each study's table per configuration (:func:`configuration_table`)."""
+    with timer_or_untimed(timer)("budget"):
+        records = run_error_budget(setup, seed=setup.seeds.study, executor=setup.params.scheduler or None)
+    pose_table, targeting_table = configuration_table(records, "pose"), configuration_table(records, "targeting")
+    return BudgetRun(records, pose_table, targeting_table, SectionPart(tables={
+        "pose_configurations": (pose_table, "Table II's centre error per configuration (mm): mean, SD and RMS of the "
+                                "Euclidean error, bias and MAE per direction, radius MAE; n experiments with an "
+                                "estimate"),
+        "targeting_configurations": (targeting_table, "The targeting error per configuration (mm), as the lab "
+                                     "measures it")}))
+
+
+@dataclass(frozen=True, eq=False)
+class SharesSection:
+    """One study's shares of the error (:func:`shares_section`): the ``shares`` table
+    (:func:`source_shares`) and the report's ``part``."""
+
+    shares: pd.DataFrame
+    part: SectionPart
+
+
+def shares_section(records: pd.DataFrame, study: str) -> SharesSection:
+    """``study``'s (``"pose"`` or ``"targeting"``) shares of the lab's MSE increment (table
+    ``<study>_shares``), its dominant sources (``<study>_dominant``) and the waterfall figure
+    (``<study>_waterfall``)."""
+    shares = source_shares(records, study)
+    return SharesSection(shares, SectionPart(
+        tables={f"{study}_shares": (shares, f"{study}: each source's share of the lab's MSE increment (alone: only "
+                                    "that source on; total: the lab without it), and the bias it adds alone (mm)")},
+        figures={f"{study}_waterfall": (waterfall_figure(shares, study), f"{study}: the mean squared error from the "
+                                        "baseline to the lab, source by source (first-order increments, then the "
+                                        "interactions)")},
+        values={f"{study}_dominant": dominant_sources(shares)}))
+
+
+def closing_part(setup: BudgetSetup, records: pd.DataFrame) -> SectionPart:
+    """The lab beside the paper (:func:`budget_comparisons`), what stands in for what
+    (:func:`stand_ins`) and the closing paragraph (:func:`closing_text`)."""
+    p = setup.params
+    return SectionPart(comparisons=tuple(budget_comparisons(records)), stand_ins=tuple(stand_ins()),
+                       texts=(closing_text(setup, p.pose_experiments, p.targeting_experiments),))

@@ -71,6 +71,8 @@ class BudgetSetup:
 
     ``pose_config.bubble_offset_mm`` and ``targeting_config.bubble_offset_mm`` must be zeros (the
     lab's offset replaces them); the budget predicts without a bias correction, as the paper did.
+    Made by notebook 07's ``prepare``, it also holds the notebook's checked ``params`` and its
+    ``seeds`` (:class:`~._notebook.BudgetSectionConfig`, :class:`~._notebook.BudgetSeeds`).
     """
 
     lab: LabDraw
@@ -80,6 +82,8 @@ class BudgetSetup:
     render_model: TransducerModel
     segmenter: object = None
     orientation: object = None
+    params: object = None
+    seeds: object = None
 
     def __post_init__(self):
         if not isinstance(self.lab, LabDraw):

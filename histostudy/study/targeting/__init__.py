@@ -60,15 +60,18 @@ Its modules, one job each: the configuration and the ground truth an experiment 
 the simulated robots (``_robots``), hand-eye calibration (``_calibration``, §II-C), positioning the
 TCP on a CBCT target (``_positioning``, §II-D), treating a zone (``_treatment``), one experiment and
 the study of several (``_experiment``), §III's figures, tables and comparisons (``_summary``), Fig.
-7's cuts and scene (``_figures``), the notebook's parameters, set-up and text (``_notebook``).
+7's cuts and scene (``_figures``), the notebook's parameters (:class:`TargetingSectionConfig`), set-up
+(:func:`prepare`) and parts recorded by :func:`record` (``_notebook``).
 """
 
 from . import (_calibration, _experiment, _figures, _notebook, _positioning, _robots, _setup, _summary, _treatment)
 from ._calibration import (HALF_TURN, calibrate_robot, calibration_poses, config_focal_flange)
 from ._experiment import (calibration_errors, run_targeting_experiment, run_targeting_study, zone_errors)
 from ._figures import (SceneFigure, fig7_figures, plot_target_slices, scene_figure)
-from ._notebook import (RECORDED_PARAMETERS, SECTION_TITLE, NotebookSeeds, TargetingSetup, closing_text,
-                        config_from_parameters, notebook_seeds, prepare_study, run_prepared_study, stand_ins)
+from ._notebook import (RECORDED_PARAMETERS, ROBOTS, SECTION_TITLE, NotebookSeeds, SectionPart, SensitivitySection,
+                        TargetingRun, TargetingSectionConfig, TargetingSetup, calibration_part, closing_part,
+                        closing_text, config_from_parameters, experiments_section, notebook_seeds, prepare,
+                        prepare_study, record, run_prepared_study, sensitivity_section, stand_ins, targeting_part)
 from ._positioning import (DOWN, position_for_target, scene_at_target, target_orientation, tcp_for_target)
 from ._robots import (robot_seed, rtde_robot, sim_robot)
 from ._setup import (GroundTruth, TargetingError, TargetingStudyConfig, draw_ground_truth, start_joints)

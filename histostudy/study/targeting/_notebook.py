@@ -1,6 +1,7 @@
-"""Notebook 05's set-up and prose: its parameters to a :class:`TargetingStudyConfig`, the transducer
-models (spacings in mm), the views and the pose-estimation stages, the seeds of its random draws,
-and what the report says stands in for the lab (§II-C, §II-D, §III).
+"""Notebook 05's parameters, set-up and prose: its parameters checked (:class:`TargetingSectionConfig`)
+and made a :class:`TargetingStudyConfig`, the transducer models (spacings in mm), the views and the
+pose-estimation stages, the seeds of its random draws (:func:`prepare`), and what the report says
+stands in for the lab (§II-C, §II-D, §III).
 
 Every random draw of the notebook comes from one integer ``seed`` through
 :func:`notebook_seeds`, so a profile's seed fixes every number of the section.
@@ -16,14 +17,22 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from histostudy.core import check_count, check_positive, is_finite_real
 from histostudy.imaging import View, default_biplane
 from histostudy.transducer import TransducerModel, TransducerSpec
 from ..pose import StudyStages, study_stages
+from ..section import SectionPart, check_bool, check_choice, record, timer_or_untimed
+from ..section import config_from_parameters as _section_config
 from ._experiment import run_targeting_study
 from ._setup import TargetingStudyConfig
+from ._summary import (CALIBRATION_TABLE_CAPTION, ERROR_TABLE_CAPTION, SUMMARY_TABLE_CAPTION,
+                       calibration_sensitivity_table, calibration_table, error_table, first_robot_rows,
+                       robot_max_difference, sensitivity_caption, summary, targeting_comparisons)
 
-__all__ = ["RECORDED_PARAMETERS", "SECTION_TITLE", "NotebookSeeds", "TargetingSetup", "closing_text",
-           "config_from_parameters", "notebook_seeds", "prepare_study", "run_prepared_study", "stand_ins"]
+__all__ = ["RECORDED_PARAMETERS", "ROBOTS", "SECTION_TITLE", "NotebookSeeds", "SectionPart", "SensitivitySection",
+           "TargetingRun", "TargetingSectionConfig", "TargetingSetup", "calibration_part", "closing_part",
+           "closing_text", "config_from_parameters", "experiments_section", "notebook_seeds", "prepare",
+           "prepare_study", "record", "run_prepared_study", "sensitivity_section", "stand_ins", "targeting_part"]
 
 SECTION_TITLE = "05 · Automated targeting: calibration, positioning, treatment (§II-C, §II-D, §II-E.4, §III)"
 
@@ -32,6 +41,99 @@ RECORDED_PARAMETERS = ("photons_per_pixel", "n_splats", "splat_sigma_mm", "pose_
                        "background", "n_experiments", "zone_diameters_mm", "n_calibration_poses", "pose_mode",
                        "degradation", "learned_stages", "phantom_voxel_mm", "cbct_voxel_mm", "treatment_spacing_mm",
                        "bubble_offset_mm", "bias_correction", "robot")
+
+
+#: The robots the study runs on: the simulated UR5e, the simulated controller through ur_rtde, both.
+ROBOTS = ("sim", "rtde", "both")
+
+
+def _numbers(value, name: str, what: str, *, length: int | None = None, check=is_finite_real) -> tuple:
+    if isinstance(value, (str, bytes)) or np.ndim(value) != 1 or (length is not None and len(value) != length) \
+            or not all(check(v) for v in value):
+        raise ValueError(f"{name} must be {what}, got {value!r}")
+    return tuple(value)
+
+
+@dataclass(frozen=True)
+class TargetingSectionConfig:
+    """Notebook 05's parameters (its ``parameters`` cell names and documents each), checked.
+
+    The frames' dose and splatting and the model grids (``photons_per_pixel``, ``n_splats``,
+    ``splat_sigma_mm``, ``pose_spacing_mm``, ``render_spacing_mm``, ``background``), the experiments
+    (:class:`TargetingStudyConfig`'s fields of the same names, :meth:`study_config`;
+    ``learned_stages``: the calibration's pose estimates on the shipped networks), the ``robot``
+    (one of :data:`ROBOTS`), the figures (``n_figure_experiments``, ``render_3d``) and the
+    calibration-sensitivity Monte-Carlo (``sensitivity_poses``, ``sensitivity_noise`` as
+    (translation SD mm, rotation SD deg) pairs, ``sensitivity_trials``).
+
+    A bad value raises ValueError naming the parameter, its value and what it must be (the
+    experiments' through :class:`TargetingStudyConfig`'s checks). Values are kept as given, lists
+    as tuples.
+    """
+
+    photons_per_pixel: float
+    n_splats: int
+    splat_sigma_mm: float
+    pose_spacing_mm: float
+    render_spacing_mm: float
+    background: str
+    n_experiments: int
+    zone_diameters_mm: tuple
+    n_calibration_poses: int
+    pose_mode: str
+    degradation: str
+    learned_stages: bool
+    phantom_voxel_mm: float
+    cbct_voxel_mm: float
+    treatment_spacing_mm: tuple
+    bubble_offset_mm: tuple
+    bias_correction: bool
+    robot: str
+    n_figure_experiments: int
+    sensitivity_poses: tuple
+    sensitivity_noise: tuple
+    sensitivity_trials: int
+    render_3d: bool
+
+    def __post_init__(self):
+        def put(name, value):
+            object.__setattr__(self, name, value)
+
+        put("zone_diameters_mm", _numbers(self.zone_diameters_mm, "zone_diameters_mm", "finite diameters in mm"))
+        for name in ("treatment_spacing_mm", "bubble_offset_mm"):
+            put(name, _numbers(getattr(self, name), name, "3 finite numbers (mm)", length=3))
+        for name in ("pose_spacing_mm", "render_spacing_mm"):
+            check_positive(getattr(self, name), name, unit="mm")
+        check_count(self.n_experiments, "n_experiments")
+        check_count(self.n_calibration_poses, "n_calibration_poses", minimum=3)
+        check_count(self.n_figure_experiments, "n_figure_experiments", minimum=0)
+        check_count(self.sensitivity_trials, "sensitivity_trials")
+        for name in ("learned_stages", "bias_correction", "render_3d"):
+            put(name, check_bool(getattr(self, name), name))
+        check_choice(self.robot, "robot", ROBOTS)
+        put("sensitivity_poses", _numbers(self.sensitivity_poses, "sensitivity_poses", "integers >= 3 (robot poses)",
+                                          check=lambda v: isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+                                          and v >= 3))
+        noise = self.sensitivity_noise
+        if isinstance(noise, (str, bytes)) or np.ndim(noise) != 2 or np.shape(noise)[1:] != (2,) \
+                or not all(is_finite_real(v) and v >= 0 for pair in noise for v in pair):
+            raise ValueError(f"sensitivity_noise must be (translation SD mm, rotation SD deg) pairs of finite numbers "
+                             f">= 0, got {noise!r}")
+        put("sensitivity_noise", tuple(tuple(pair) for pair in noise))
+        self.study_config()  # the experiments' parameters, checked by TargetingStudyConfig
+
+    @classmethod
+    def from_parameters(cls, parameters: Mapping) -> TargetingSectionConfig:
+        """The parameters of ``parameters`` (the notebook's ``globals()``; other entries ignored)."""
+        return _section_config(cls, parameters, "05")
+
+    def recorded(self) -> dict:
+        """The parameters the report records (:data:`RECORDED_PARAMETERS`, in that order)."""
+        return {name: getattr(self, name) for name in RECORDED_PARAMETERS}
+
+    def study_config(self) -> TargetingStudyConfig:
+        """The experiments' :class:`TargetingStudyConfig` (:func:`config_from_parameters`)."""
+        return config_from_parameters(self.recorded())
 
 
 @dataclass(frozen=True)
@@ -65,7 +167,8 @@ def config_from_parameters(parameters: Mapping) -> TargetingStudyConfig:
 class TargetingSetup:
     """What the notebook's experiments run with: the configuration, the digital model the pose is
     estimated with, the (finer) model frames are rendered from, the physical transducer, the
-    biplane views, the pose-estimation stages and the seeds."""
+    biplane views, the pose-estimation stages, the seeds and (from :func:`prepare`) the notebook's
+    checked ``params``."""
 
     config: TargetingStudyConfig
     pose_model: TransducerModel
@@ -74,14 +177,26 @@ class TargetingSetup:
     views: Sequence[View]
     stages: StudyStages
     seeds: NotebookSeeds
+    params: TargetingSectionConfig | None = None
 
 
-def prepare_study(parameters: Mapping, seed: int, *,
-                  timer: Callable[[str], contextlib.AbstractContextManager] | None = None) -> TargetingSetup:
+Timer = Callable[[str], contextlib.AbstractContextManager]
+
+
+def prepare(params: TargetingSectionConfig | Mapping, seed: int, *, timer: Timer | None = None) -> TargetingSetup:
+    """The section's set-up (:func:`prepare_study`) from its checked parameters (a
+    :class:`TargetingSectionConfig` or a mapping of them); the set-up keeps them as ``params``."""
+    if not isinstance(params, TargetingSectionConfig):
+        params = TargetingSectionConfig.from_parameters(params)
+    return dataclasses.replace(prepare_study(params.recorded(), seed, timer=timer), params=params)
+
+
+def prepare_study(parameters: Mapping, seed: int, *, timer: Timer | None = None) -> TargetingSetup:
     """Build the models (``pose_spacing_mm``, ``render_spacing_mm``; the physical transducer drawn
     from the seed), the default biplane views, the configuration and the stages
     (:func:`~.pose_estimation.study_stages` with ``learned_stages``) from the notebook's
-    parameters. ``timer(name)``: a context manager timing the model build (e.g.
+    parameters (a mapping naming at least :data:`RECORDED_PARAMETERS`; :func:`prepare` checks them
+    first). ``timer(name)``: a context manager timing the model build (e.g.
     ``SectionWriter.timer``)."""
     seeds = notebook_seeds(seed)
     spec = TransducerSpec()
@@ -138,3 +253,69 @@ def closing_text(n_experiments: int, setup: TargetingSetup, bubble_offset_mm) ->
             f"{np.linalg.norm(setup.physical.focal_point_mm):.2f} mm from the digital model's; the bubble offset is "
             f"{list(bubble_offset_mm)} mm. The bias correction learns the offset from a calibration treatment of a "
             f"{setup.config.bias_test_diameter_mm:.0f} mm test zone (§IV).")
+
+
+# --- the notebook's parts: tables, values and comparisons for record() ------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class TargetingRun:
+    """The study run (:func:`experiments_section`): its ``records`` (one row per experiment and
+    robot), their ``volumes`` (for the figures) and the report's ``part`` (the error table)."""
+
+    records: pd.DataFrame
+    volumes: pd.Series
+    part: SectionPart
+
+
+def experiments_section(setup: TargetingSetup, *, timer: Timer | None = None) -> TargetingRun:
+    """:func:`run_prepared_study` on ``setup.params.robot``, timed as ``"targeting study"``; its part:
+    the per-experiment errors (table ``targeting_errors``)."""
+    with timer_or_untimed(timer)("targeting study"):
+        records, volumes = run_prepared_study(setup, setup.params.robot)
+    return TargetingRun(records, volumes, SectionPart(tables={"targeting_errors": (error_table(records),
+                                                                                   ERROR_TABLE_CAPTION)}))
+
+
+def calibration_part(records: pd.DataFrame) -> SectionPart:
+    """The calibration against the ground truth (table ``calibration``)."""
+    return SectionPart(tables={"calibration": (calibration_table(records), CALIBRATION_TABLE_CAPTION)})
+
+
+def targeting_part(records: pd.DataFrame) -> SectionPart:
+    """§III's targeting figures beside the paper's (:func:`targeting_comparisons`), their summary
+    (table ``targeting_summary``) and, with both robots, their largest difference
+    (``rtde_vs_sim_max_difference``)."""
+    max_difference = robot_max_difference(records)
+    return SectionPart(tables={"targeting_summary": (summary(records), SUMMARY_TABLE_CAPTION)},
+                       values={} if max_difference is None else {"rtde_vs_sim_max_difference": max_difference},
+                       comparisons=tuple(targeting_comparisons(records)))
+
+
+@dataclass(frozen=True, eq=False)
+class SensitivitySection:
+    """The calibration-sensitivity Monte-Carlo (:func:`sensitivity_section`): its ``table`` of
+    medians and the report's ``part``."""
+
+    table: pd.DataFrame
+    part: SectionPart
+
+
+def sensitivity_section(setup: TargetingSetup, *, timer: Timer | None = None) -> SensitivitySection:
+    """:func:`calibration_sensitivity_table` on ``setup.params``' poses, noise and trials (timed as
+    ``"calibration sensitivity"``); its part: the table and its rows as
+    ``calibration_sensitivity_medians``."""
+    p = setup.params
+    with timer_or_untimed(timer)("calibration sensitivity"):
+        table = calibration_sensitivity_table(p.sensitivity_poses, p.sensitivity_noise, p.sensitivity_trials,
+                                              setup.seeds.sensitivity)
+    return SensitivitySection(table, SectionPart(
+        tables={"calibration_sensitivity": (table, sensitivity_caption(p.sensitivity_trials))},
+        values={"calibration_sensitivity_medians": table.to_dict("records")}))
+
+
+def closing_part(setup: TargetingSetup, records: pd.DataFrame) -> SectionPart:
+    """What stands in for the lab (:func:`stand_ins`) and the closing paragraph (:func:`closing_text`)."""
+    p = setup.params
+    return SectionPart(stand_ins=tuple(stand_ins(p.robot, setup.stages.learned, p.bubble_offset_mm)),
+                       texts=(closing_text(len(first_robot_rows(records)), setup, p.bubble_offset_mm),))
