@@ -34,7 +34,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from histostudy.core import atomic_path, check_unit_fraction
+from histostudy.core import atomic_path, check_count, check_positive, check_unit_fraction
 from histostudy.geometry import make_transform, matrix_from_euler
 from histostudy.imaging import FrameRenderConfig, View, random_background, render_frame
 from histostudy.transducer import TransducerModel
@@ -100,9 +100,7 @@ class RenderConfig(FrameRenderConfig):
         if self.photons_per_pixel is None:
             raise ValueError("photons_per_pixel must be a finite number > 0 for hybrid frames, got None")
         for name in ("render_spacing_mm", "label_spacing_mm", "translation_range_mm"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value <= 0:
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+            check_positive(getattr(self, name), name)
         if self.background == "none":
             raise ValueError(f"background must be 'abdomen', 'phantom' or 'mixed', got {self.background!r}")
         lo, hi = (float(v) for v in self.primary_range_deg)
@@ -172,8 +170,7 @@ class HybridFrames:
     def __init__(self, split: str, seed: int, config: RenderConfig | None = None, cache_dir=None):
         if split not in SPLIT_CODES:
             raise ValueError(f"split must be one of {sorted(SPLIT_CODES)}, got {split!r}")
-        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-            raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+        check_count(seed, "seed", minimum=0)
         self.split, self.seed = split, int(seed)
         config = RenderConfig() if config is None else config
         if not isinstance(config, RenderConfig):
@@ -183,8 +180,7 @@ class HybridFrames:
 
     def seed_sequence(self, index: int) -> np.random.SeedSequence:
         """The seed sequence of frame ``index`` (distinct for every split, seed and index)."""
-        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or index < 0:
-            raise ValueError(f"index must be an integer >= 0, got {index!r}")
+        check_count(index, "index", minimum=0)
         return np.random.SeedSequence([self.seed, SPLIT_CODES[self.split], int(index)])
 
     def view(self, index: int) -> View:
@@ -209,10 +205,8 @@ class HybridFrames:
         """
         if self.cache_dir is None:
             raise ValueError("prerender needs a cache_dir: without one the rendered frames would be thrown away")
-        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
-            raise ValueError(f"n must be an integer >= 0, got {n!r}")
-        if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
-            raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
+        check_count(n, "n", minimum=0)
+        check_count(workers, "workers")
         missing = [i for i in range(int(n)) if not self.cached(i)]
         if workers == 1 or len(missing) < 2:
             for i in missing:
@@ -321,14 +315,12 @@ class HybridImageDataset(Dataset):
             raise ValueError(f"task must be one of {TASKS}, got {task!r}")
         if not isinstance(frames, HybridFrames):
             raise TypeError(f"frames must be HybridFrames, got {type(frames).__name__}")
-        if isinstance(size, bool) or not isinstance(size, int) or size < 1:
-            raise ValueError(f"size must be an integer >= 1, got {size!r}")
+        check_count(size, "size")
         check_unit_fraction(scale)
         rows, cols = (s * scale for s in frames.config.detector)
         if crop is not None and (isinstance(crop, bool) or not isinstance(crop, int) or not 1 <= crop <= min(rows, cols)):
             raise ValueError(f"crop must be None or an integer in [1, {int(min(rows, cols))}] px, got {crop!r}")
-        if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
-            raise ValueError(f"repeats must be an integer >= 1, got {repeats!r}")
+        check_count(repeats, "repeats")
         self.task, self.frames, self.size, self.scale, self.crop = task, frames, size, float(scale), crop
         self.repeats = repeats
         self.augment, self.seed, self.epoch = bool(augment), int(seed), 0

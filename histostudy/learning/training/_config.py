@@ -18,6 +18,7 @@ from pathlib import Path
 
 import torch
 
+from histostudy.core import check_count, check_positive, is_real
 from ..datasets import RenderConfig, TASKS
 from ..nets import build_network
 
@@ -83,12 +84,8 @@ class FineTuneConfig:
         if not isinstance(self.render, RenderConfig):
             raise TypeError(f"fine_tune.render must be a RenderConfig, got {type(self.render).__name__}")
         for name in ("n_train", "n_val", "max_epochs"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"fine_tune.{name} must be an integer >= 1, got {value!r}")
-        if not (isinstance(self.learning_rate, (int, float)) and not isinstance(self.learning_rate, bool)
-                and math.isfinite(self.learning_rate) and self.learning_rate > 0):
-            raise ValueError(f"fine_tune.learning_rate must be a finite number > 0, got {self.learning_rate!r}")
+            check_count(getattr(self, name), f"fine_tune.{name}")
+        check_positive(self.learning_rate, "fine_tune.learning_rate")
         if self.max_minutes is not None and not (self.max_minutes > 0):
             raise ValueError(f"fine_tune.max_minutes must be > 0 or None, got {self.max_minutes!r}")
 
@@ -192,16 +189,12 @@ class TrainingConfig:
             raise ValueError(f"task must be one of {TASKS}, got {self.task!r}")
         build_network(dict(self.network))  # a clear error now rather than after rendering
         for name in ("n_train", "n_val", "batch_size", "patience", "max_epochs", "crops_per_frame"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+            check_count(getattr(self, name), name)
         if self.batch_size > self.n_train:
             raise ValueError(f"batch_size ({self.batch_size}) must not exceed n_train ({self.n_train})")
         for name in ("learning_rate", "momentum"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-        if not (isinstance(self.lr_decay, (int, float)) and not isinstance(self.lr_decay, bool)
+            check_positive(getattr(self, name), name, allow_zero=True)
+        if not (is_real(self.lr_decay)
                 and 0 < self.lr_decay <= 1):
             raise ValueError(f"lr_decay must be a number in (0, 1], got {self.lr_decay!r}")
         if self.optimizer not in ("sgd", "adam"):
