@@ -4,6 +4,7 @@ that a failure on one machine can be told from a failure on every machine (docs/
 the order that lets two workers share the suite: the longest test first. And one fixture:
 ``notebook_parameters``, a notebook's stored parameters cell."""
 
+import contextlib
 import json
 from pathlib import Path
 
@@ -36,3 +37,37 @@ def notebook_parameters():
         return {k: v for k, v in namespace.items() if not k.startswith("__")}
 
     return read
+
+
+@pytest.fixture
+def assert_parameter_refused():
+    """``assert_parameter_refused(config_class, defaults, name, value, expected)``: the section config
+    made of ``defaults`` with ``name`` set to ``value`` raises a ValueError that starts with the
+    parameter's name and holds the value and ``expected`` (what the value must be); and the
+    config's ``from_parameters`` without ``name`` names it as missing, with the notebook."""
+    def check(config_class, defaults: dict, name: str, value, expected: str) -> None:
+        with pytest.raises(ValueError) as info:
+            config_class(**{**defaults, name: value})
+        message = str(info.value)
+        assert message.startswith(f"{name} must ") and expected in message and repr(value) in message
+        with pytest.raises(ValueError, match=rf"parameters lack \['{name}'\] \(notebook "):
+            config_class.from_parameters({k: v for k, v in defaults.items() if k != name})
+
+    return check
+
+
+@pytest.fixture
+def recording_timer():
+    """``timer, timed = recording_timer()``: a context manager like ``SectionWriter.timer`` that
+    appends each name it times to the list ``timed``."""
+    def make():
+        timed = []
+
+        @contextlib.contextmanager
+        def timer(name):
+            timed.append(name)
+            yield
+
+        return timer, timed
+
+    return make

@@ -9,16 +9,14 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping
 
 from histostudy.core import check_count, check_positive
 from histostudy.imaging import BACKGROUNDS
 from histostudy.learning import HybridFrames, RenderConfig, default_cache_dir, shipped_model
-from .section import (SectionPart, Timer, check_bool, check_choice, check_text, config_from_parameters,
-                      timer_or_untimed)
+from .section import SectionConfig, SectionPart, Timer, check_bool, check_choice, check_text, timer_or_untimed
 
 __all__ = ["RECORDED_PARAMETERS", "HeldOutConfig", "held_out_frames", "resolve_weights", "weights_part",
-           "weights_summary"]
+           "weights_summary", "prepare_held_out", "HeldOutSetup"]
 
 #: The notebook parameters the reports of notebooks 02 and 03 record, in the order they record them.
 RECORDED_PARAMETERS = ("photons_per_pixel", "n_splats", "splat_sigma_mm", "render_spacing_mm", "background",
@@ -26,7 +24,7 @@ RECORDED_PARAMETERS = ("photons_per_pixel", "n_splats", "splat_sigma_mm", "rende
 
 
 @dataclass(frozen=True)
-class HeldOutConfig:
+class HeldOutConfig(SectionConfig):
     """Notebooks 02 and 03's parameters, checked: the held-out frames' dose and splatting
     (``photons_per_pixel``, ``n_splats``, ``splat_sigma_mm`` in mm), their model grid
     (``render_spacing_mm``) and scene ``background`` (one of :data:`~histostudy.imaging.BACKGROUNDS`),
@@ -50,6 +48,7 @@ class HeldOutConfig:
 
     #: The notebook whose parameters cell names the fields (in :meth:`from_parameters`' message).
     NOTEBOOK = "02 or 03"
+    RECORDED = RECORDED_PARAMETERS
 
     def __post_init__(self):
         def put(name, value):
@@ -65,14 +64,7 @@ class HeldOutConfig:
             check_text(self.weights, "weights", "a checkpoint path or \"\" (the shipped network)")
         put("cache_frames", check_bool(self.cache_frames, "cache_frames"))
 
-    @classmethod
-    def from_parameters(cls, parameters: Mapping):
-        """The parameters of ``parameters`` (the notebook's ``globals()``; other entries ignored)."""
-        return config_from_parameters(cls, parameters, cls.NOTEBOOK)
 
-    def recorded(self) -> dict:
-        """The parameters the report records (:data:`RECORDED_PARAMETERS`, in that order)."""
-        return {name: getattr(self, name) for name in RECORDED_PARAMETERS}
 
     def frames(self, seed: int, *, timer: Timer | None = None) -> HybridFrames:
         """:func:`held_out_frames` of ``seed`` on these parameters."""
@@ -130,3 +122,27 @@ def weights_summary(network: str, weights_path: Path, manifest: dict, input_scal
     """A one-line summary of the checkpoint for the notebook."""
     return (f"{network} {manifest['config']} from {weights_path.name}: {manifest.get('training_steps')} steps "
             f"(profile {manifest.get('profile')}), input scale {input_scale}")
+
+
+@dataclass(frozen=True)
+class HeldOutSetup:
+    """What notebooks 02 and 03 run on: their checked ``params``, the ``seed``, the network's
+    ``weights_path`` and the held-out ``frames`` (:func:`held_out_frames`); each notebook's set-up
+    adds its network."""
+
+    params: HeldOutConfig
+    seed: int
+    weights_path: Path
+    frames: HybridFrames
+
+
+def prepare_held_out(config_class, params, seed: int, load, *, timer: Timer | None = None) -> tuple:
+    """What notebooks 02 and 03 set up alike: ``params`` checked into ``config_class`` (a
+    :class:`HeldOutConfig`, or a mapping of its fields), the network ``load(params.weights)`` gives
+    with its weights path, and the held-out frames of ``seed`` (``timer`` times their pre-rendering);
+    returned in the order of a :class:`HeldOutSetup` subclass's fields, ``(params, seed,
+    weights_path, frames, network)``."""
+    if not isinstance(params, config_class):
+        params = config_class.from_parameters(params)
+    network, weights_path = load(params.weights)
+    return params, seed, weights_path, params.frames(seed, timer=timer), network

@@ -32,12 +32,11 @@ import numpy as np
 import pandas as pd
 
 from histostudy.core import as_generator
-from histostudy.learning import (HybridFrames, LearnedOrientation, OracleSegmenter, angles_from_direction,
-                                 beam_direction_of_pose, direction_candidates, orientation_angle_error,
-                                 training_summary, wrap_angle)
+from histostudy.learning import (LearnedOrientation, OracleSegmenter, angles_from_direction, beam_direction_of_pose,
+                                 direction_candidates, orientation_angle_error, training_summary, wrap_angle)
 from histostudy.pose import ConicOrientation
-from .held_out import (RECORDED_PARAMETERS, HeldOutConfig, held_out_frames, resolve_weights, weights_part,
-                       weights_summary)
+from .held_out import (RECORDED_PARAMETERS, HeldOutConfig, HeldOutSetup, held_out_frames, prepare_held_out,
+                       resolve_weights, weights_part, weights_summary)
 from .section import SectionPart, Timer, check_bool, record, timer_or_untimed
 from .stats import angle_statistics
 
@@ -103,25 +102,17 @@ def load_vgg19(weights: str | os.PathLike = "") -> tuple[LearnedOrientation, Pat
 
 
 @dataclass(frozen=True)
-class OrientationSetup:
-    """What notebook 03 runs on: its ``params``, the ``seed``, the VGG19 ``source``
-    (:func:`load_vgg19`) and its ``weights_path``, and the held-out ``frames``
-    (:func:`~.held_out.held_out_frames`)."""
+class OrientationSetup(HeldOutSetup):
+    """What notebook 03 runs on (:class:`~.held_out.HeldOutSetup`) and the VGG19 ``source``
+    (:func:`load_vgg19`)."""
 
-    params: OrientationConfig
-    seed: int
     source: LearnedOrientation
-    weights_path: Path
-    frames: HybridFrames
 
 
 def prepare(params: OrientationConfig | Mapping, seed: int, *, timer: Timer | None = None) -> OrientationSetup:
     """The section's set-up: the VGG19 of ``params.weights`` and the held-out frames of ``seed``
     (``timer`` times their pre-rendering, with ``render_workers`` > 1)."""
-    if not isinstance(params, OrientationConfig):
-        params = OrientationConfig.from_parameters(params)
-    source, weights_path = load_vgg19(params.weights)
-    return OrientationSetup(params, seed, source, weights_path, params.frames(seed, timer=timer))
+    return OrientationSetup(*prepare_held_out(OrientationConfig, params, seed, load_vgg19, timer=timer))
 
 
 def evaluate_orientation(source, frames: Iterable, rng: np.random.Generator | None = None) -> pd.DataFrame:

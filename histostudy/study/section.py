@@ -14,12 +14,12 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 from dataclasses import dataclass
-from typing import Callable, Mapping
+from typing import Callable, ClassVar, Mapping
 
 import numpy as np
 
-__all__ = ["SectionPart", "Timer", "check_bool", "check_choice", "check_text", "config_from_parameters", "record",
-           "timer_or_untimed"]
+__all__ = ["RenderedSectionConfig", "SectionConfig", "SectionPart", "Timer", "check_bool", "check_choice",
+           "check_text", "config_from_parameters", "record", "timer_or_untimed"]
 
 #: ``timer(name)`` -> a context manager timing the block under ``name`` (``SectionWriter.timer``).
 Timer = Callable[[str], contextlib.AbstractContextManager]
@@ -60,6 +60,41 @@ def config_from_parameters(cls, parameters: Mapping, notebook: str):
     if missing:
         raise ValueError(f"parameters lack {missing} (notebook {notebook}'s parameters cell names each)")
     return cls(**{name: parameters[name] for name in names})
+
+
+class SectionConfig:
+    """What every notebook's parameters object shares (docs/architecture.md, "Configuration
+    classes"): it is built from the parameters cell by :meth:`from_parameters` and gives the
+    parameters its report records by :meth:`recorded`. A subclass is a frozen dataclass that sets
+    ``NOTEBOOK`` (its number, named when a parameter is missing) and ``RECORDED`` (the recorded
+    names, in order; empty: every field)."""
+
+    NOTEBOOK: ClassVar[str] = ""
+    RECORDED: ClassVar[tuple] = ()
+
+    @classmethod
+    def from_parameters(cls, parameters: Mapping):
+        """The parameters of ``parameters`` (the notebook's ``globals()``, or any mapping naming every
+        field; other entries are ignored)."""
+        return config_from_parameters(cls, parameters, cls.NOTEBOOK)
+
+    def recorded(self) -> dict:
+        """The parameters the report records (``RECORDED``, in that order)."""
+        return {name: getattr(self, name) for name in self.RECORDED or [f.name for f in dataclasses.fields(self)]}
+
+
+@dataclass(frozen=True)
+class RenderedSectionConfig(SectionConfig):
+    """A :class:`SectionConfig` whose notebook renders frames (§II-B.2): the unattenuated photons per
+    pixel, the splats per model point and their jitter (mm), the pose and render models' point
+    spacings (mm) and the background scene. Each subclass checks them in its ``__post_init__``."""
+
+    photons_per_pixel: float
+    n_splats: int
+    splat_sigma_mm: float
+    pose_spacing_mm: float
+    render_spacing_mm: float
+    background: str
 
 
 @dataclass(frozen=True, eq=False)

@@ -28,8 +28,8 @@ import pandas as pd
 
 from histostudy.learning import HybridFrames, UNetSegmenter, training_summary
 from histostudy.transducer import Feature
-from .held_out import (RECORDED_PARAMETERS, HeldOutConfig, held_out_frames, resolve_weights, weights_part,
-                       weights_summary)
+from .held_out import (RECORDED_PARAMETERS, HeldOutConfig, HeldOutSetup, held_out_frames, prepare_held_out,
+                       resolve_weights, weights_part, weights_summary)
 from .section import SectionPart, Timer, record, timer_or_untimed
 from .stats import anova_oneway, segmentation_metrics, tukey_hsd
 
@@ -192,24 +192,17 @@ def anova_text(anova: dict, tukey: pd.DataFrame, reference: str = "background") 
 
 
 @dataclass(frozen=True)
-class SegmentationSetup:
-    """What notebook 02 runs on: its ``params``, the ``seed``, the ``segmenter`` (:func:`load_unet`)
-    and its ``weights_path``, and the held-out ``frames`` (:func:`held_out_frames`)."""
+class SegmentationSetup(HeldOutSetup):
+    """What notebook 02 runs on (:class:`~.held_out.HeldOutSetup`) and the ``segmenter``
+    (:func:`load_unet`)."""
 
-    params: SegmentationConfig
-    seed: int
     segmenter: UNetSegmenter
-    weights_path: Path
-    frames: HybridFrames
 
 
 def prepare(params: SegmentationConfig | Mapping, seed: int, *, timer: Timer | None = None) -> SegmentationSetup:
     """The section's set-up: the U-Net of ``params.weights`` and the held-out frames of ``seed``
     (``timer`` times their pre-rendering, with ``render_workers`` > 1)."""
-    if not isinstance(params, SegmentationConfig):
-        params = SegmentationConfig.from_parameters(params)
-    segmenter, weights_path = load_unet(params.weights)
-    return SegmentationSetup(params, seed, segmenter, weights_path, params.frames(seed, timer=timer))
+    return SegmentationSetup(*prepare_held_out(SegmentationConfig, params, seed, load_unet, timer=timer))
 
 
 @dataclass(frozen=True, eq=False)

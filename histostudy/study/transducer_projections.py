@@ -30,7 +30,7 @@ from histostudy.core import as_generator, check_count, check_positive
 from histostudy.geometry import fit_sphere
 from histostudy.imaging import BACKGROUNDS, default_biplane, random_background, render_frame, render_line_integrals
 from histostudy.transducer import FEATURE_CLASSES, Feature, TransducerModel, TransducerSpec, pose_facing
-from .section import SectionPart, Timer, check_bool, check_choice, config_from_parameters, record, timer_or_untimed
+from .section import RenderedSectionConfig, SectionPart, Timer, check_bool, check_choice, record, timer_or_untimed
 
 __all__ = [
     "RECORDED_PARAMETERS",
@@ -69,7 +69,7 @@ RECORDED_PARAMETERS = ("photons_per_pixel", "n_splats", "splat_sigma_mm", "pose_
 
 
 @dataclass(frozen=True)
-class TransducerProjectionsConfig:
+class TransducerProjectionsConfig(RenderedSectionConfig):
     """Notebook 01's parameters, checked: the frames' dose and splatting (``photons_per_pixel``,
     ``n_splats``, ``splat_sigma_mm`` in mm), the model grids (``pose_spacing_mm``,
     ``render_spacing_mm``), the scene ``background`` (one of :data:`~histostudy.imaging.BACKGROUNDS`),
@@ -78,12 +78,9 @@ class TransducerProjectionsConfig:
     A bad value raises ValueError naming the parameter, its value and what it must be.
     """
 
-    photons_per_pixel: float
-    n_splats: int
-    splat_sigma_mm: float
-    pose_spacing_mm: float
-    render_spacing_mm: float
-    background: str
+    NOTEBOOK = "01"
+    RECORDED = RECORDED_PARAMETERS
+
     timing_repeats: int
     render_3d: bool
 
@@ -99,14 +96,7 @@ class TransducerProjectionsConfig:
         check_choice(self.background, "background", BACKGROUNDS)
         put("render_3d", check_bool(self.render_3d, "render_3d"))
 
-    @classmethod
-    def from_parameters(cls, parameters: Mapping) -> TransducerProjectionsConfig:
-        """The parameters of ``parameters`` (the notebook's ``globals()``; other entries ignored)."""
-        return config_from_parameters(cls, parameters, "01")
 
-    def recorded(self) -> dict:
-        """The parameters the report records (:data:`RECORDED_PARAMETERS`, in that order)."""
-        return {name: getattr(self, name) for name in RECORDED_PARAMETERS}
 
     def render(self) -> dict:
         """The frames' dose and splatting (:func:`~histostudy.imaging.render_frame` keywords)."""

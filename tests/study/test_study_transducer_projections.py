@@ -197,32 +197,8 @@ def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones(n
         params.n_splats = 2  # frozen
 
 
-@pytest.mark.parametrize("name, value, expected", [
-    ("photons_per_pixel", 0.0, "a finite number > 0"),
-    ("n_splats", 2.5, "an integer >= 1"),
-    ("splat_sigma_mm", "0.5", "a finite number > 0 mm"),
-    ("pose_spacing_mm", -0.47, "a finite number > 0 mm"),
-    ("render_spacing_mm", float("nan"), "a finite number > 0 mm"),
-    ("background", "liver", "one of 'phantom', 'abdomen', 'mixed', 'none'"),
-    ("timing_repeats", 0, "an integer >= 1"),
-    ("render_3d", "yes", "True or False"),
-])
-def test_a_bad_parameter_is_refused_naming_it_its_value_and_what_it_must_be(name, value, expected):
-    with pytest.raises(ValueError) as info:
-        study.TransducerProjectionsConfig(**{**DEFAULTS, name: value})
-    message = str(info.value)
-    assert message.startswith(f"{name} must be") and expected in message and repr(value) in message
-    with pytest.raises(ValueError, match=r"parameters lack \['render_3d'\]"):
-        study.TransducerProjectionsConfig.from_parameters({k: v for k, v in DEFAULTS.items() if k != "render_3d"})
-
-
-def test_prepare_builds_the_models_from_the_seeds_physical_generator():
-    timed = []
-
-    @contextlib.contextmanager
-    def timer(name):
-        timed.append(name)
-        yield
+def test_prepare_builds_the_models_from_the_seeds_physical_generator(recording_timer):
+    timer, timed = recording_timer()
 
     setup = study.prepare({**DEFAULTS, "pose_spacing_mm": 1.0, "render_spacing_mm": 0.47}, 5, timer=timer)
     assert isinstance(setup.params, study.TransducerProjectionsConfig) and setup.seed == 5

@@ -23,7 +23,7 @@ from ._run import BudgetSetup, run_error_budget
 from ._sources import LAB_SOURCES, LabErrorModel, draw_lab
 from ._summary import budget_comparisons, configuration_table, dominant_sources, source_shares, waterfall_figure
 from ..pose._config import PoseStudyConfig, study_stages
-from ..section import (SectionPart, Timer, check_bool, check_choice, check_text, config_from_parameters, record,
+from ..section import (SectionPart, Timer, check_bool, check_choice, check_text, RenderedSectionConfig, record,
                        timer_or_untimed)
 from ..targeting._setup import TargetingStudyConfig
 
@@ -55,7 +55,7 @@ SOURCE_PROVENANCE = {
 
 
 @dataclass(frozen=True)
-class BudgetSectionConfig:
+class BudgetSectionConfig(RenderedSectionConfig):
     """Notebook 07's parameters (its ``parameters`` cell names and documents each), checked: the
     frames' dose and splatting and the model grids (``photons_per_pixel``, ``n_splats``,
     ``splat_sigma_mm``, ``pose_spacing_mm``, ``render_spacing_mm``, ``background``), the
@@ -67,12 +67,9 @@ class BudgetSectionConfig:
     kept as given, ``sources`` as a tuple.
     """
 
-    photons_per_pixel: float
-    n_splats: int
-    splat_sigma_mm: float
-    pose_spacing_mm: float
-    render_spacing_mm: float
-    background: str
+    NOTEBOOK = "07"
+    RECORDED = RECORDED_PARAMETERS
+
     pose_experiments: int
     targeting_experiments: int
     learned_stages: bool
@@ -94,14 +91,7 @@ class BudgetSectionConfig:
         check_text(self.scheduler, "scheduler", '"" (HISTOSTUDY_SCHEDULER, else here), "local:<n>" or '
                                                 '"tcp://<host>:<port>"')
 
-    @classmethod
-    def from_parameters(cls, parameters: Mapping) -> BudgetSectionConfig:
-        """The parameters of ``parameters`` (the notebook's ``globals()``; other entries ignored)."""
-        return config_from_parameters(cls, parameters, "07")
 
-    def recorded(self) -> dict:
-        """The parameters the report records (:data:`RECORDED_PARAMETERS`, in that order)."""
-        return {name: getattr(self, name) for name in RECORDED_PARAMETERS}
 
 
 @dataclass(frozen=True)

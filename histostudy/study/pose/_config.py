@@ -19,6 +19,7 @@ from histostudy.core import renamed_attributes
 from histostudy.imaging import FrameRenderConfig
 from histostudy.learning import OracleOrientation, OracleSegmenter, OrientationSource, Segmenter
 from histostudy.pose import MAP_KINDS, learned_stage_shortfalls
+from ..section import RenderedSectionConfig
 
 __all__ = ["PoseSectionConfig", "PoseStudyConfig", "StudyStages", "study_stages"]
 
@@ -147,7 +148,7 @@ def study_stages(config, learned: bool = True, *, segmenter=None, orientation=No
 
 
 @dataclass(frozen=True)
-class PoseSectionConfig:
+class PoseSectionConfig(RenderedSectionConfig):
     """Notebook 04's parameters, as the profiles (``histostudy/reporting/profiles/*.toml``) name them.
 
     Rendering: ``photons_per_pixel``, ``n_splats``, ``splat_sigma_mm``; model grids
@@ -162,12 +163,8 @@ class PoseSectionConfig:
     ``projector_study_poses``, ``projector_random_poses``.
     """
 
-    photons_per_pixel: float
-    n_splats: int
-    splat_sigma_mm: float
-    pose_spacing_mm: float
-    render_spacing_mm: float
-    background: str
+    NOTEBOOK = "04"
+
     n_experiments: int
     margin_mm: list
     modes: list

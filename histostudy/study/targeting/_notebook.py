@@ -22,7 +22,7 @@ from histostudy.imaging import View, default_biplane
 from histostudy.transducer import TransducerModel, TransducerSpec
 from ..pose import StudyStages, study_stages
 from ..section import SectionPart, check_bool, check_choice, record, timer_or_untimed
-from ..section import config_from_parameters as _section_config
+from ..section import RenderedSectionConfig
 from ._experiment import run_targeting_study
 from ._setup import TargetingStudyConfig
 from ._summary import (CALIBRATION_TABLE_CAPTION, ERROR_TABLE_CAPTION, SUMMARY_TABLE_CAPTION,
@@ -55,7 +55,7 @@ def _numbers(value, name: str, what: str, *, length: int | None = None, check=is
 
 
 @dataclass(frozen=True)
-class TargetingSectionConfig:
+class TargetingSectionConfig(RenderedSectionConfig):
     """Notebook 05's parameters (its ``parameters`` cell names and documents each), checked.
 
     The frames' dose and splatting and the model grids (``photons_per_pixel``, ``n_splats``,
@@ -71,12 +71,9 @@ class TargetingSectionConfig:
     as tuples.
     """
 
-    photons_per_pixel: float
-    n_splats: int
-    splat_sigma_mm: float
-    pose_spacing_mm: float
-    render_spacing_mm: float
-    background: str
+    NOTEBOOK = "05"
+    RECORDED = RECORDED_PARAMETERS
+
     n_experiments: int
     zone_diameters_mm: tuple
     n_calibration_poses: int
@@ -122,14 +119,7 @@ class TargetingSectionConfig:
         put("sensitivity_noise", tuple(tuple(pair) for pair in noise))
         self.study_config()  # the experiments' parameters, checked by TargetingStudyConfig
 
-    @classmethod
-    def from_parameters(cls, parameters: Mapping) -> TargetingSectionConfig:
-        """The parameters of ``parameters`` (the notebook's ``globals()``; other entries ignored)."""
-        return _section_config(cls, parameters, "05")
 
-    def recorded(self) -> dict:
-        """The parameters the report records (:data:`RECORDED_PARAMETERS`, in that order)."""
-        return {name: getattr(self, name) for name in RECORDED_PARAMETERS}
 
     def study_config(self) -> TargetingStudyConfig:
         """The experiments' :class:`TargetingStudyConfig` (:func:`config_from_parameters`)."""

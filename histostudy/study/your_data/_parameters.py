@@ -6,13 +6,11 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from typing import Mapping
 
 import numpy as np
 
 from histostudy.core import check_count, check_positive, is_finite_real
-from ..section import check_bool as _check_bool
-from ..section import config_from_parameters
+from ..section import SectionConfig, check_bool as _check_bool
 
 __all__ = ["RECORDED_PARAMETERS", "SECTION_TITLE", "YourDataConfig"]
 
@@ -33,7 +31,7 @@ def _check_optional_count(value, name: str) -> int | None:
 
 
 @dataclass(frozen=True)
-class YourDataConfig:
+class YourDataConfig(SectionConfig):
     """Notebook 06's parameters (its ``parameters`` cell names and documents each), checked.
 
     The lab's files: ``data_dir`` (None: the lab-like dataset is generated), ``target_mm`` (3
@@ -47,6 +45,9 @@ class YourDataConfig:
     A bad value raises ValueError naming the parameter, its value and what it must be. Numbers are
     kept as floats and ints, ``target_mm`` as a tuple of 3 floats.
     """
+
+    NOTEBOOK = "06"
+    RECORDED = RECORDED_PARAMETERS
 
     data_dir: str | os.PathLike | None
     target_mm: tuple | None
@@ -93,15 +94,7 @@ class YourDataConfig:
             raise ValueError(f"robot_host must be None or the UR controller's host name or address, "
                              f"got {self.robot_host!r}")
 
-    @classmethod
-    def from_parameters(cls, parameters: Mapping) -> YourDataConfig:
-        """The parameters of ``parameters`` (the notebook's ``globals()``, or any mapping naming every
-        field; other entries are ignored)."""
-        return config_from_parameters(cls, parameters, "06")
 
-    def recorded(self) -> dict:
-        """The parameters the report records (:data:`RECORDED_PARAMETERS`, in that order)."""
-        return {name: getattr(self, name) for name in RECORDED_PARAMETERS}
 
     def render(self) -> dict:
         """The generated frames' dose and splatting (:class:`~histostudy.imaging.FrameRenderConfig` fields)."""

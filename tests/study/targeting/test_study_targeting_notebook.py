@@ -1,7 +1,6 @@
 """Notebook 05's set-up and prose (histostudy.study.targeting._notebook) and the per-zone and
 calibration error rows of an experiment (histostudy.study.targeting._experiment), on known values."""
 
-import contextlib
 from types import SimpleNamespace
 
 import numpy as np
@@ -60,13 +59,8 @@ def test_recorded_parameters_are_parameters_of_notebook_05():
     assert len(set(T.RECORDED_PARAMETERS)) == len(T.RECORDED_PARAMETERS) == len(SMOKE)
 
 
-def test_prepare_study_builds_the_seeded_set_up():
-    timed = []
-
-    @contextlib.contextmanager
-    def timer(name):
-        timed.append(name)
-        yield
+def test_prepare_study_builds_the_seeded_set_up(recording_timer):
+    timer, timed = recording_timer()
 
     setup = T.prepare_study(SMOKE, 20230119, timer=timer)
     assert timed == ["build models"]

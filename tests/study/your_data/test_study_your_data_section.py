@@ -2,7 +2,6 @@
 parts it records, and the one call that drives the robot — planned and checked from the robot's
 joints, moved only when not a dry run (a SimulatedUR5e counts its moves)."""
 
-import contextlib
 import json
 from pathlib import Path
 
@@ -46,35 +45,6 @@ def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones()
         params.dry_run = False  # frozen
     given = study.YourDataConfig(**{**DEFAULTS, "target_mm": [1, 2, 3], "moving_cine_s": 0})
     assert given.target_mm == (1.0, 2.0, 3.0) and given.moving_cine_s == 0.0
-
-
-@pytest.mark.parametrize("name, value, expected", [
-    ("target_mm", [1.0, 2.0], "3 finite numbers"),
-    ("target_mm", [1.0, np.nan, 2.0], "3 finite numbers"),
-    ("target_mm", "1, 2, 3", "3 finite numbers"),
-    ("n_cine_frames", 0, "an integer >= 1"),
-    ("n_cine_frames", 2.5, "an integer >= 1"),
-    ("max_tracked_frames", -1, "None or an integer >= 1"),
-    ("max_queued_pairs", True, "None or an integer >= 1"),
-    ("stream_cine", "yes", "True or False"),
-    ("dry_run", 0, "True or False"),
-    ("moving_cine_s", -2.0, "a finite number >= 0 s"),
-    ("moving_cine_fps", 0.0, "a finite number > 0 frames/s"),
-    ("moving_cine_speed_mm_s", float("inf"), "a finite number > 0 mm/s"),
-    ("photons_per_pixel", -5.0, "a finite number > 0"),
-    ("n_splats", 0, "an integer >= 1"),
-    ("splat_sigma_mm", "0.5", "a finite number > 0 mm"),
-    ("pose_spacing_mm", 0, "a finite number > 0 mm"),
-    ("speed_mm_s", -50.0, "a finite number > 0 mm/s"),
-    ("robot_host", "", "None or the UR controller's host"),
-    ("robot_host", 5, "None or the UR controller's host"),
-    ("data_dir", 3, "None or a folder path"),
-])
-def test_a_bad_parameter_is_refused_naming_it_its_value_and_what_it_must_be(name, value, expected):
-    with pytest.raises(ValueError) as info:
-        study.YourDataConfig(**{**DEFAULTS, name: value})
-    message = str(info.value)
-    assert message.startswith(f"{name} must be") and expected in message and repr(value) in message
 
 
 def test_missing_parameters_are_named():
@@ -185,13 +155,8 @@ def test_the_robot_arguments_are_checked(lab):
         study.drive_robot(calibration, inputs, volume, robot=object())
 
 
-def test_prepare_reads_the_lab_folder_and_times_the_set_up(tmp_path, monkeypatch):
-    timed = []
-
-    @contextlib.contextmanager
-    def timer(name):
-        timed.append(name)
-        yield
+def test_prepare_reads_the_lab_folder_and_times_the_set_up(tmp_path, monkeypatch, recording_timer):
+    timer, timed = recording_timer()
 
     monkeypatch.setattr(section_module, "lab_inputs", lambda data_dir, **kw: ("inputs", data_dir, kw))
     monkeypatch.setattr(section_module, "transducer_model", lambda inputs, spacing: ("model", spacing))
