@@ -10,7 +10,8 @@ at its frame rate to a :class:`histostudy.lab.FrameReceiver` on loopback with ``
 (:func:`histostudy.study.moving_cine_live.stream_moving_cine`; ``--pipeline``: the receiver's pipeline
 on; ``--retries on|off``: the tracker's retries of a refused estimate from scratch) and prints the counts, rates, latency
 and focal error (:func:`~histostudy.study.moving_cine_live.count_table`), the seconds per posed pair
-of each stage, and per kind of update (warm, from scratch, re-acquired) the pose seconds, latency and
+of each stage, the latency's percentiles (p50, p90, p99, max) and the pairs dropped from the
+receiver's stats, and per kind of update (warm, from scratch, re-acquired) the pose seconds, latency and
 focal error. Writes ``<mode>_frames.csv``, ``<mode>_counts.csv``, ``<mode>_stats.json`` and
 ``<mode>_focal_error.png`` into ``--output``. The load average before and after says how busy the
 machine was.
@@ -34,6 +35,15 @@ from histostudy.study.moving_cine_live import count_table, frame_table, plot_foc
 from histostudy.transducer import TransducerModel
 
 
+def latency_line(stats: dict) -> str:
+    """The latency's percentiles (s, from a pair's last frame received to its pose line) and the
+    pairs dropped, from the receiver's stats."""
+    latency = stats["latency_s"]
+    figures = ", ".join(f"{k} {latency[k]:.3f}" for k in ("p50", "p90", "p99", "max") if latency[k] is not None)
+    return (f"latency s: {figures or 'no pose'} over {latency['n']} poses; pairs posed {stats['pairs_processed']}, "
+            f"dropped {stats['pairs_skipped']} ({stats['pairs_dropped_stale']} for a newer pair)")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--folder", required=True, help="the cine's folder (written unless it holds one)")
@@ -43,7 +53,8 @@ def main() -> None:
     parser.add_argument("--fps", type=float, default=7.5, help="frame rate, frames/s (default 7.5)")
     parser.add_argument("--speed-mm-s", type=float, default=10.0, help="the robot's peak speed, mm/s (default 10)")
     parser.add_argument("--modes", default="fast,full", help="comma-separated: fast, full (default both)")
-    parser.add_argument("--max-queued-pairs", type=int, default=2, help="the receiver's queue (default 2)")
+    parser.add_argument("--max-queued-pairs", type=int, default=1,
+                        help="the receiver's queue (default 1, the receiver's own: the newest pair only)")
     parser.add_argument("--tracker-seed", type=int, default=0, help="the receiver's tracker seed (default 0)")
     parser.add_argument("--pipeline", action="store_true",
                         help="the receiver's pipeline (FrameReceiver(pipeline=True): the next pair segmented ahead)")
@@ -86,6 +97,7 @@ def main() -> None:
         print(f"load average after {os.getloadavg()}; {time.perf_counter() - t0:.1f} s", flush=True)
         print(counts.to_string(), flush=True)
         print("seconds per posed pair:", json.dumps({k: round(v, 3) for k, v in run.stats["seconds_per_pair"].items()}))
+        print(latency_line(run.stats), flush=True)
         posed = frames[frames["status"] == "posed"]
         print(posed.groupby("tracking")[["pose_s", "latency_s", "focal_error_mm"]].median().to_string(), flush=True)
 

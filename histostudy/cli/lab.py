@@ -7,7 +7,8 @@
   of the focal point onto a target: planned (a dry run, the default) or, only with ``--execute``
   and a robot, made;
 - ``listen --port N --views V`` — a DICOM C-STORE receiver of live C-arm frames -> one pose per
-  biplane pair, as JSON lines.
+  biplane pair, as JSON lines, the newest pair posed and older waiting ones dropped
+  (``--max-queued-pairs``), and a short line per pose on stdout (``--quiet``: none).
 
 Each writes its result as JSON (atomically: whole or not at all). Exit status 0 done, 1 refused
 (a verdict, a calibration beyond its bound, an unreachable target), 2 bad input.
@@ -97,10 +98,27 @@ def add_parsers(sub, parents) -> None:
     lis.add_argument("--fast", action=argparse.BooleanOptionalAction, default=True,
                      help="track on the region of the last pose (pose.Tracker(fast=True), the default: "
                           "docs/tracking.md); --no-fast: every pair on the full frames")
-    lis.add_argument("--max-queued-pairs", type=int, default=None,
-                     help="drop the oldest waiting pairs beyond this many rather than fall behind (counted in the "
-                          "stats; default: keep every pair)")
+    lis.add_argument("--max-queued-pairs", type=_queue_bound, default=1, metavar="N|all",
+                     help="the most pairs waiting for a pose: a newer pair drops the oldest rather than fall behind "
+                          "(counted in the stats; default 1: the newest pair only; all: keep every pair, for a cine "
+                          "sent at once)")
+    lis.add_argument("--quiet", action="store_true",
+                     help="no line per pose on stdout (default: time, pair, kind, verdict, focal point, latency, "
+                          "pairs dropped)")
     lis.set_defaults(run=_listen)
+
+
+def _queue_bound(text: str) -> int | None:
+    """``--max-queued-pairs``: an integer >= 1, or ``all`` (None: no bound)."""
+    if text.strip().lower() == "all":
+        return None
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1 or 'all', got {text!r}")
+    return value
 
 
 def _frame_options(parser) -> None:
@@ -281,8 +299,13 @@ def _listen(args) -> int:
         views = load_views(args.views)
         stats = listen(views, port=args.port, host=args.host, ae_title=args.ae_title, output_path=args.output,
                        max_pairs=args.max_pairs, timeout_s=args.timeout_s, seed=args.seed,
-                       max_queued_pairs=args.max_queued_pairs, fast=args.fast, on_start=started)
+                       max_queued_pairs=args.max_queued_pairs, fast=args.fast, on_start=started,
+                       on_summary=None if args.quiet else lambda text: print(text, flush=True))
     except (ValueError, TypeError, FileNotFoundError, OSError) as exc:
         return _fail("listen", exc)
+    latency = stats["latency_s"]
+    figures = ", ".join(f"{k} {latency[k]:.3f}" for k in ("p50", "p90", "p99", "max") if latency[k] is not None)
+    print(f"listen: {stats['pairs_processed']} pairs posed ({stats['pairs_accepted']} accepted, "
+          f"{stats['pairs_errors']} errors), {stats['pairs_skipped']} dropped; latency s: {figures or 'no pose'}")
     print(f"listen: {stats}")
     return 0

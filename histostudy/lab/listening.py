@@ -1,9 +1,11 @@
 """``histostudy listen``'s loop (§II-A): :func:`listen`, a :class:`.receiver.FrameReceiver` started,
-served until Ctrl-C, a number of pose lines or a time-out, and its statistics returned.
+served until Ctrl-C, a number of pose lines or a time-out, and its statistics returned; and the
+short human line it can report per pose as it goes (:func:`pose_summary`).
 """
 
 from __future__ import annotations
 
+import datetime as _dt
 import os
 from typing import Callable, Sequence
 
@@ -11,22 +13,66 @@ from histostudy.imaging import View
 from histostudy.transducer import TransducerModel
 from .receiver import FrameReceiver
 
-__all__ = ["listen"]
+__all__ = ["listen", "pose_summary"]
+
+#: The most characters of a refusal's or an error's reason in a :func:`pose_summary` line.
+_REASON_CHARS = 60
+
+
+def pose_summary(record: dict, pairs_dropped: int, now: _dt.datetime | None = None) -> str:
+    """One short line for a pose line ``record`` (:func:`.pose_lines.pose_line`): the wall-clock
+    time ``now`` (default: now), the pair's index, how it was found (``warm``, ``from_scratch``,
+    ``reacquired``; ``error`` when its pose or pixels raised), ``accepted`` or ``REFUSED`` with the
+    verdict's first reason (shortened), the focal point (mm, C-arm frame), the latency (ms, from the
+    pair's last frame received to its line written) and ``pairs_dropped`` so far.
+
+    ``HH:MM:SS.fff pair <index> <kind> accepted|REFUSED (<reason>) focal (<x>, <y>, <z>) mm latency <ms>
+    ms dropped <n>``
+    """
+    now = _dt.datetime.now() if now is None else now
+    if "error" in record:
+        kind, verdict, focal = "error", "ERROR " + _short(record["error"]), "-"
+    else:
+        reasons = record.get("verdict", {}).get("reasons") or []
+        kind = record.get("tracking") or "-"
+        verdict = "accepted" if record.get("accepted") else "REFUSED" + (f" ({_short(reasons[0])})" if reasons else "")
+        focal = "(" + ", ".join(f"{float(v):.2f}" for v in record["focal_point_mm"]) + ") mm"
+    latency_ms = 1000.0 * float(record["seconds"]["latency"])
+    return (f"{now.strftime('%H:%M:%S.%f')[:-3]} pair {record['pair_index']} {kind} {verdict} focal {focal} "
+            f"latency {latency_ms:.0f} ms dropped {int(pairs_dropped)}")
+
+
+def _short(text: str) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= _REASON_CHARS else text[:_REASON_CHARS - 3] + "..."
 
 
 def listen(views: Sequence[View], *, port: int = 11112, output_path: str | os.PathLike = "poses.jsonl",
            host: str = "127.0.0.1", ae_title: str = "HISTOSTUDY", max_pairs: int | None = None,
            timeout_s: float | None = None, model: TransducerModel | None = None, seed=0,
            on_pose: Callable[[dict], object] | None = None, on_start: Callable[[int], object] | None = None,
-           **receiver_options) -> dict:
+           on_summary: Callable[[str], object] | None = None, **receiver_options) -> dict:
     """Receive live C-arm frames and write a pose per biplane pair until Ctrl-C, ``max_pairs`` lines
     or ``timeout_s`` seconds (what ``histostudy listen`` runs); returns :meth:`FrameReceiver.stats`.
 
-    ``on_start(port)`` is called once listening (the bound port, useful with ``port=0``); the
-    other arguments are :class:`FrameReceiver`'s.
+    ``on_start(port)`` is called once listening (the bound port, useful with ``port=0``);
+    ``on_summary(text)`` after each pose line, after ``on_pose``, with its :func:`pose_summary`
+    (the pairs dropped so far: the stats' ``pairs_skipped``); the other arguments are
+    :class:`FrameReceiver`'s (``max_queued_pairs`` default 1: the newest pair only).
     """
+    if on_summary is not None and not callable(on_summary):
+        raise TypeError(f"on_summary must be callable (text -> None) or None, got {type(on_summary).__name__}")
+    receiver = None
+
+    def posed(record: dict) -> None:
+        try:
+            if on_pose is not None:
+                on_pose(record)
+        finally:  # the summary line even when the caller's on_pose fails (the receiver logs that)
+            on_summary(pose_summary(record, receiver.stats()["pairs_skipped"]))
+
     receiver = FrameReceiver(views, model, output_path=output_path, ae_title=ae_title, port=port, host=host,
-                             seed=seed, on_pose=on_pose, **receiver_options)
+                             seed=seed, on_pose=posed if on_summary is not None else on_pose, **receiver_options)
     bound = receiver.start()
     if on_start is not None:
         try:

@@ -8,36 +8,44 @@ pair to a JSON-lines file as it comes.
 
 The chain, per object:
 
-1. The C-STORE handler (pynetdicom's association thread) decodes and validates the object and
-   gives each frame its plane (:func:`.xray_objects.decode_c_store` over
-   :func:`~.xray_objects.decode_xray_object`: the SOP class, the geometry tags checked against the
-   views, the frame times, the pixels as line integrals). The handler answers at once; nothing
-   heavy runs on the network thread.
+1. The C-STORE handler (pynetdicom's association thread) reads and checks the object's header and
+   gives each frame its plane (:func:`.xray_objects.read_c_store` over
+   :func:`~.xray_objects.read_xray_header`: the SOP class, the geometry tags checked against the
+   views, the frame times, the pixel module's tags and length). It answers at once and converts
+   no pixels: nothing heavy runs on the network thread.
 2. The frames are paired by acquisition time (:mod:`.pairing`: ``AcquisitionDateTime`` + frame
    index x ``FrameTime``; two planes' frames pair when less than half a frame interval apart).
-3. A worker thread takes the pairs in order from a queue and runs :class:`histostudy.pose.Tracker`
-   through :meth:`~histostudy.pose.Tracker.track` (each estimate warm-started from the last
-   accepted pose, by default on the region where it projects: ``fast``, docs/tracking.md; a lost
-   track re-acquired from scratch). With ``pipeline`` (and ``fast``), while a pair is refined, the
-   next waiting pair's regions are segmented on another thread (taken from the queue only when one
-   waits, so that no pose waits for the stream); by default each pair is posed before the next is
-   taken. It then writes the record and calls ``on_pose(record)`` (e.g. a notebook's live figure).
-   With ``max_queued_pairs`` a pair arriving while that many wait pushes the oldest waiting one out
-   (counted as skipped), so the poses follow a stream that outpaces them at most that many pairs
-   (and, with ``pipeline``, the one taken ahead) behind.
+3. Live, the newest pair: a completed pair waits for the pose worker, and a newer one arriving
+   while ``max_queued_pairs`` (default 1) wait pushes the oldest waiting one out, dropped unposed
+   (counted: ``pairs_dropped_stale``, and among ``pairs_skipped``). So the worker always takes the
+   newest complete pair, and a pair's latency stays bounded (the pose in progress, then its own)
+   whatever the stream's rate: a live stream that falls behind is worse than one that drops pairs.
+   ``max_queued_pairs=None`` keeps every pair (batch use: a cine sent at once, each pair posed).
+4. The pose worker (:mod:`.pose_worker`) converts the pair's pixels to line integrals
+   (:meth:`.xray_objects.PendingFrame.decode`: a dropped pair's never are) and runs
+   :class:`histostudy.pose.Tracker` through :meth:`~histostudy.pose.Tracker.track` (each estimate
+   warm-started from the last accepted pose, by default on the region where it projects: ``fast``,
+   docs/tracking.md; a lost track re-acquired from scratch). With ``pipeline`` (and ``fast``),
+   while a pair is refined, the next waiting pair's regions are segmented on another thread (taken
+   from the queue only when one waits, so that no pose waits for the stream); by default each pair
+   is posed before the next is taken. It then writes the record and calls ``on_pose(record)``
+   (e.g. a notebook's live figure, or ``histostudy listen``'s line per pose).
 
-Each pair's JSON line (:func:`.pose_lines.pose_line`: the pose, or the error its pose work raised,
-and where and when the pair came from) is appended and flushed one by one.
+Each pair's JSON line (:func:`.pose_lines.pose_line`: the pose, or the error its pose or its pixels
+raised, and where and when the pair came from) is appended and flushed one by one. :meth:`FrameReceiver.stats`
+gives the counts and the latency's percentiles (:mod:`.receiver_counts`).
 
 Rejections: the C-STORE failure status of :mod:`.xray_objects` (``0x0122`` not an X-ray image,
 ``0xA900`` unreadable as one, ``0xC000`` unusable; :data:`.xray_objects.REJECTION_STATUSES`), or
 ``0xA700`` while the receiver is stopping, with the reason as its ErrorComment and in the log; the
-other objects are unaffected. The receiver accepts every storage SOP class at association time so
+other objects are unaffected. What only the pixels can tell (a frame without signal, a compressed
+stream that does not decode) is found when the worker takes the pair: that pair's line holds the
+error (``XRayObjectRejected: ...``). The receiver accepts every storage SOP class at association time so
 that an object that is not an X-ray image gets its 0x0122 answer rather than a refused
 presentation context.
 
 A sender that aborts or drops its connection mid-association loses only that association's
-unfinished object: each association runs on its own thread, and the frames already decoded stay
+unfinished object: each association runs on its own thread, and the frames already read stay
 in the pairing. :func:`histostudy.lab.send_frames` (:mod:`.sender`) is a sender. Units: mm,
 seconds; frames and transforms as in docs/architecture.md.
 """
@@ -57,18 +65,18 @@ from histostudy.imaging import View
 from histostudy.pose import Tracker
 from histostudy.transducer import TransducerModel
 from .pairing import DEFAULT_FRAME_INTERVAL_S, BiplanePairer, PlaneFrame
-from .pose_lines import append_pose_line, pose_line
+from .pose_worker import PoseWorker
 from .receiver_counts import ReceiverCounts
 from .sender import check_ae_title, check_count, check_host, check_port, check_positive
-from .xray_objects import (STATUS_OUT_OF_RESOURCES, STATUS_SUCCESS, XRayObjectRejected,
-                           decode_c_store, rejection_response, storage_application_entity)
+from .xray_objects import (STATUS_OUT_OF_RESOURCES, STATUS_SUCCESS, XRayObjectRejected, read_c_store,
+                           rejection_response, storage_application_entity)
 
 __all__ = ["FrameReceiver"]
 
 log = logging.getLogger(__name__)
 
 
-class FrameReceiver:
+class FrameReceiver(PoseWorker):
     """A DICOM C-STORE receiver of live C-arm frames that writes a pose per biplane pair (§II-A).
 
     ``with FrameReceiver(views, output_path="poses.jsonl", port=0) as rx: ...`` — or
@@ -103,9 +111,10 @@ class FrameReceiver:
         tolerance_s, default_interval_s: the pairing's (:class:`~.pairing.BiplanePairer`).
         match_tolerance_mm: how far (mm at the isocentre) the tags' geometry may project from a
             plane's view (:func:`.xray_objects.decode_xray_object`).
-        max_queued_pairs: the most pairs waiting for the pose; beyond, the oldest is skipped
-            (counted, logged, no line) so that the poses follow a live stream that outpaces them.
-            None (default): every pair gets its line.
+        max_queued_pairs: the most pairs waiting for the pose; beyond, the oldest is dropped
+            (counted in ``pairs_dropped_stale`` and ``pairs_skipped``, no line) so that the poses
+            follow a live stream that outpaces them. 1 (default): the newest complete pair only;
+            None: every pair waits for its line (batch use), however far behind the stream.
         network_timeout_s: how long an idle or half-open association is kept (s).
         pipeline: overlap the next waiting pair's segmentation with the current pair's refinement
             (:meth:`~histostudy.pose.Tracker.track`). Off by default: on the shared two-core machine
@@ -119,7 +128,7 @@ class FrameReceiver:
                  host: str = "127.0.0.1", seed=0, segmenter=None, orientation=None, options=None,
                  on_pose: Callable[[dict], object] | None = None, air_value: float | None = None,
                  tolerance_s: float | None = None, default_interval_s: float = DEFAULT_FRAME_INTERVAL_S,
-                 match_tolerance_mm: float | None = 5.0, max_queued_pairs: int | None = None,
+                 match_tolerance_mm: float | None = 5.0, max_queued_pairs: int | None = 1,
                  network_timeout_s: float = 30.0, fast=True, pipeline: bool = False, **option_overrides):
         views = [views] if isinstance(views, View) else list(views)
         if not views or not all(isinstance(v, View) for v in views):
@@ -157,6 +166,7 @@ class FrameReceiver:
         self._ae = self._server = self._worker = self._out = None
         self._closing = self._stopped = False
         self._max_pairs: int | None = None
+        self._t_free = time.perf_counter()  # when the worker last wrote a line (its pose time starts after)
         self._stats = ReceiverCounts(self.tracker.stats())
         self._counts = self._stats.counts
 
@@ -268,7 +278,8 @@ class FrameReceiver:
         return handler
 
     def _on_c_store(self, event):
-        """Decode and validate one object, pair its frames, queue completed pairs; answer at once."""
+        """Read and check one object's header, pair its frames, queue completed pairs; answer at once
+        (the pixels are converted by the worker, for the pairs it poses)."""
         t0 = time.perf_counter()
         sop_class = str(getattr(event.request, "AffectedSOPClassUID", "") or "")
         uid = str(getattr(event.request, "AffectedSOPInstanceUID", "") or "")
@@ -278,8 +289,7 @@ class FrameReceiver:
         if closing:
             return self._reject(STATUS_OUT_OF_RESOURCES, uid, sop_class, "the receiver is stopping")
         try:
-            frames = decode_c_store(event, self.views, air_value=self.air_value,
-                                    match_tolerance_mm=self.match_tolerance_mm)
+            frames = read_c_store(event, self.views, match_tolerance_mm=self.match_tolerance_mm)
         except XRayObjectRejected as exc:
             return self._reject(exc.status, uid, sop_class, exc.reason)
         now = time.perf_counter()
@@ -311,7 +321,8 @@ class FrameReceiver:
         if self.max_queued_pairs is not None and len(self._queue) > self.max_queued_pairs:
             index, skipped, _ = self._queue.popleft()
             self._counts["pairs_skipped"] += 1
-            log.warning("pair %d skipped: %d pairs wait for the pose (max_queued_pairs)", index, len(self._queue))
+            self._counts["pairs_dropped_stale"] += 1
+            log.info("pair %d dropped for a newer one (max_queued_pairs=%d)", index, self.max_queued_pairs)
         self._counts["pairs_waiting_max"] = max(self._counts["pairs_waiting_max"], len(self._queue))
 
     def _reject(self, status: int, uid: str, sop_class: str, reason: str):
@@ -320,72 +331,6 @@ class FrameReceiver:
         with self._cv:
             self._stats.add_rejection(status, uid, sop_class, reason)
         return rejection_response(status, reason)
-
-    # --- the pose worker ----------------------------------------------------------------------
-
-    def _work(self) -> None:
-        """Pose the queued pairs through ``Tracker.track`` until closing leaves none; a pair whose
-        pose raised gets its error line, and the stream goes on in a new ``track``."""
-        handed: collections.deque = collections.deque()  # taken by the tracker, line not yet written
-        again: collections.deque = collections.deque()   # taken by a track() that ended on an error
-        t_free = time.perf_counter()  # when the worker last wrote a line (its pose time starts after)
-
-        def ready() -> bool:  # take the next pair ahead: it is there, and the pipeline is on
-            return self.pipeline and (bool(again) or (bool(self._queue) and not self._at_limit(len(handed))))
-
-        while True:
-            results = self.tracker.track(self._pairs(handed, again), ready=ready)
-            try:
-                for result in results:
-                    t_free = self._write(handed.popleft(), result, None, t_free)
-                return  # closing, nothing left to pose
-            except Exception as exc:  # one pair's failure is a line, not the end of the stream
-                entry = handed.popleft()
-                log.warning("pair %d: no pose: %s: %s", entry[0], type(exc).__name__, exc)
-                t_free = self._write(entry, None, exc, t_free)
-                again.extend(handed)
-                handed.clear()
-
-    def _pairs(self, handed: collections.deque, again: collections.deque):
-        """The pairs' images for the tracker, in order (a generator that waits for the queue and ends
-        once closing with none left); each entry taken goes to ``handed`` first."""
-        while True:
-            if again:
-                entry = again.popleft()
-            else:
-                with self._cv:
-                    # wait for a pair unless max_pairs lines are written or on their way
-                    while not self._queue or self._at_limit(len(handed)):
-                        if self._closing:
-                            return
-                        self._cv.wait()
-                    index, pair, queued_at = self._queue.popleft()
-                entry = (index, [f.data for f in pair], queued_at, time.perf_counter())
-            handed.append(entry)
-            yield [f.image for f in entry[1]]
-
-    def _at_limit(self, in_flight: int = 0) -> bool:
-        return self._max_pairs is not None and self._counts["pairs_processed"] + in_flight >= self._max_pairs
-
-    def _write(self, entry, result, error, t_free: float) -> float:
-        """Write the line of ``entry`` (its result, or the ``error`` its pose raised), count it, call
-        ``on_pose``; returns when done."""
-        index, frames, queued_at, taken_at = entry
-        record = pose_line(index, frames, queued_at, taken_at, result=result, error=error,
-                           tracking=None if error is not None else self.tracker.last_kind, t_free=t_free,
-                           t_written=time.perf_counter())
-        append_pose_line(self._out, record, self.output_path)
-        now = time.perf_counter()
-        with self._cv:
-            # a snapshot of the tracker's counters: stats() reads it from other threads
-            self._stats.add_line(record, self.tracker.stats(), now)
-            self._cv.notify_all()
-        if self.on_pose is not None:
-            try:
-                self.on_pose(record)
-            except Exception:
-                log.exception("on_pose raised on pair %d; the receiver goes on", index)
-        return time.perf_counter()  # on_pose's time is no pair's pose time
 
     # --- statistics -----------------------------------------------------------------------------
 

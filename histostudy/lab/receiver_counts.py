@@ -1,8 +1,9 @@
 """What the pose receiver (:class:`.receiver.FrameReceiver`, §II-A) counts and times:
 :class:`ReceiverCounts`.
 
-The counts of objects, frames and pairs, the rejections by status, the seconds spent decoding and
-posing, and the latency, kept in one place so that the receiver's network and worker threads add to
+The counts of objects, frames and pairs (the pairs dropped for newer ones among them), the
+rejections by status, the seconds spent decoding and posing, and the latency (its mean, and its
+percentiles over the last :data:`LATENCY_WINDOW` lines), kept in one place so that the receiver's network and worker threads add to
 them (under the receiver's lock) and :meth:`ReceiverCounts.stats` reports them. Times in seconds
 (``time.perf_counter``).
 """
@@ -11,14 +12,19 @@ from __future__ import annotations
 
 import collections
 
+import numpy as np
+
 from histostudy.core import to_jsonable
 
-__all__ = ["COUNT_KEYS", "ReceiverCounts"]
+__all__ = ["COUNT_KEYS", "LATENCY_WINDOW", "ReceiverCounts"]
 
 #: The counters :meth:`ReceiverCounts.stats` reports (0 until counted).
 COUNT_KEYS = ("objects_received", "objects_accepted", "objects_rejected", "frames_received", "frames_unpaired",
               "pairs_completed", "pairs_processed", "pairs_accepted", "pairs_errors", "pairs_skipped",
-              "pairs_waiting_max", "connections", "associations", "associations_aborted")
+              "pairs_dropped_stale", "pairs_waiting_max", "connections", "associations", "associations_aborted")
+
+#: How many of the last lines' latencies the percentiles of :meth:`ReceiverCounts.stats` are taken over.
+LATENCY_WINDOW = 10_000
 
 
 class ReceiverCounts:
@@ -28,8 +34,10 @@ class ReceiverCounts:
         counts: a ``collections.Counter`` of :data:`COUNT_KEYS` (and any other event).
         rejections: rejected objects per status (``"0xA900"``, ...).
         last_rejections: the last 20 rejections (instance UID, SOP class, status, reason).
-        decode_s, pose_s, latency_s: seconds summed: decoding in the handlers, the pose worker's
-            work per line, and from each pair's last frame received to its line.
+        decode_s, pose_s, latency_s: seconds summed: decoding (the headers in the handlers, the
+            pixels of the pairs taken by the pose worker), the pose worker's work per line, and
+            from each pair's last frame received to its line.
+        latencies_s: the latency of each of the last :data:`LATENCY_WINDOW` lines (s), oldest first.
         t_first_frame, t_last_line, t_started: ``perf_counter`` times of the first frame decoded,
             the last line written and the server's start (None until then).
         tracker: the last snapshot of :meth:`histostudy.pose.Tracker.stats`.
@@ -40,6 +48,7 @@ class ReceiverCounts:
         self.rejections: collections.Counter = collections.Counter()
         self.last_rejections: collections.deque = collections.deque(maxlen=20)
         self.decode_s = self.pose_s = self.latency_s = 0.0
+        self.latencies_s: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)
         self.t_first_frame = self.t_last_line = self.t_started = None
         self.tracker = tracker_stats
 
@@ -57,6 +66,7 @@ class ReceiverCounts:
         self.counts["pairs_errors"] += "error" in record
         self.pose_s += record["seconds"]["pose"]
         self.latency_s += record["seconds"]["latency"]
+        self.latencies_s.append(record["seconds"]["latency"])
         self.t_last_line = now
         self.tracker = tracker_stats
 
@@ -66,8 +76,14 @@ class ReceiverCounts:
         ``objects_received`` / ``objects_accepted`` / ``objects_rejected`` (with ``rejections`` per
         status and ``last_rejections``' reasons), ``frames_received``, ``frames_unpaired``,
         ``pairs_completed`` (paired), ``pairs_processed`` (a line written), ``pairs_accepted``,
-        ``pairs_errors``, ``pairs_skipped``, ``pairs_waiting`` (now) and ``pairs_waiting_max`` (the most
-        that ever waited: at most ``max_queued_pairs``); ``connections``, ``associations``,
+        ``pairs_errors`` (the pose or the pixels raised), ``pairs_skipped`` (every pair without a line:
+        dropped for a newer one, or left waiting when the receiver stopped), ``pairs_dropped_stale``
+        (those dropped for a newer one, ``max_queued_pairs``), ``pairs_waiting`` (now) and
+        ``pairs_waiting_max`` (the most that ever waited: at most ``max_queued_pairs``);
+        ``latency_s``: ``p50``, ``p90``, ``p99`` and ``max`` of the latency (s, from a pair's last
+        frame received to its line written; ``numpy.percentile``, linear) over the last
+        :data:`LATENCY_WINDOW` lines, ``n`` of them, and ``mean`` over every line (None without a
+        line); ``connections``, ``associations``,
         ``associations_aborted``; ``stage_seconds`` summed (``decode`` in the handlers, the pose
         stages of :attr:`histostudy.pose.Tracker.stage_seconds`) and ``seconds_per_pair`` (those over
         ``pairs_processed``, plus ``pose`` and ``latency``); ``frames_per_s``: the frames of the
@@ -90,6 +106,7 @@ class ReceiverCounts:
             "seconds_per_pair": ({k: v / n_pairs for k, v in stage.items()}
                                  | {"pose": self.pose_s / n_pairs, "latency": self.latency_s / n_pairs})
             if n_pairs else {},
+            "latency_s": self._latency_summary(n_pairs),
             "frames_per_s": n_frames / span if span else None,
             "pose_frames_per_s": n_frames / self.pose_s if self.pose_s > 0 else None,
             "tracker": self.tracker,
@@ -97,3 +114,11 @@ class ReceiverCounts:
             "elapsed_s": None if self.t_started is None else now - self.t_started,
         })
         return to_jsonable(out)
+
+    def _latency_summary(self, n_pairs: int) -> dict:
+        """The latency's percentiles over :attr:`latencies_s` and its mean over every line (s)."""
+        if not self.latencies_s:
+            return {"p50": None, "p90": None, "p99": None, "max": None, "mean": None, "n": 0}
+        p50, p90, p99 = np.percentile(np.asarray(self.latencies_s), [50, 90, 99])
+        return {"p50": float(p50), "p90": float(p90), "p99": float(p99), "max": float(max(self.latencies_s)),
+                "mean": self.latency_s / n_pairs, "n": len(self.latencies_s)}

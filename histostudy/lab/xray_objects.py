@@ -1,10 +1,13 @@
 """Received DICOM X-ray objects decoded and checked: frames of line integrals, each with its plane (§II-A).
 
-What the live receiver (:mod:`.receiver`) does with each object a C-arm or a PACS sends it, before
-any pairing or pose: :func:`decode_xray_object` checks the SOP class, the geometry tags, the frame
-times and the pixels, and gives one :class:`ReceivedFrame` per frame (a cine's frames each one);
-:func:`decode_c_store` runs it on a pynetdicom C-STORE request and :func:`rejection_response` is
-the answer to a refused one.
+What the live receiver (:mod:`.receiver`) does with each object a C-arm or a PACS sends it, in two
+steps: :func:`read_xray_header` checks the SOP class, the geometry tags, the frame times and the
+pixel module's tags (and, uncompressed, the pixel data's length) and gives one
+:class:`PendingFrame` per frame (a cine's frames each one), all that pairing and the C-STORE answer
+need; :meth:`PendingFrame.decode` converts one frame's pixels into a :class:`ReceivedFrame`, done by
+the receiver only for the pairs it poses. :func:`decode_xray_object` does both for every frame;
+:func:`read_c_store` and :func:`decode_c_store` run them on a pynetdicom C-STORE request, and
+:func:`rejection_response` is the answer to a refused one.
 
 - **The plane.** Each frame goes to a plane (a view): the view named as the object's
   ``SeriesDescription`` — whose geometry the tags (:meth:`histostudy.imaging.View.from_dicom`) must
@@ -27,6 +30,10 @@ Refusals raise :class:`XRayObjectRejected` with the C-STORE failure status to an
 - ``0xC000`` Error: Cannot understand — a readable X-ray object that cannot be used: missing
   geometry tags, no acquisition time, colour pixels, a bad rescale, a frame without signal, a plane
   matching no view.
+
+A frame without signal and a compressed stream that does not decode are found only by
+:meth:`PendingFrame.decode` (0xC000, 0xA900): the receiver, which has answered by then, writes
+the pair's error line instead.
 - ``0xA700`` Refused: Out of resources — the receiver is stopping (answered by the receiver).
 
 Units: mm, seconds; frames and transforms as in docs/architecture.md.
@@ -36,6 +43,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import logging
+import time
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -44,7 +52,8 @@ import numpy as np
 from histostudy.imaging import View, line_integrals_from_pixels
 from .pairing import frame_times, posix_seconds
 
-__all__ = ["REJECTION_STATUSES", "ReceivedFrame", "X_RAY_SOP_CLASSES", "XRayObjectRejected", "decode_xray_object"]
+__all__ = ["PendingFrame", "REJECTION_STATUSES", "ReceivedFrame", "X_RAY_SOP_CLASSES", "XRayObjectRejected",
+           "decode_xray_object", "read_xray_header"]
 
 log = logging.getLogger(__name__)
 
@@ -105,26 +114,69 @@ class ReceivedFrame:
         return posix_seconds(self.acquired)
 
 
-def decode_xray_object(ds, views: Sequence[View], *, sop_class_uid: str | None = None, air_value: float | None = None,
-                       match_tolerance_mm: float | None = 5.0) -> list[ReceivedFrame]:
-    """The frames of one received DICOM X-ray object, each with its plane's view.
+@dataclass(frozen=True, eq=False)
+class PendingFrame:
+    """One received frame whose header is checked (:func:`read_xray_header`) and whose pixels are not
+    yet converted: plane ``view``, frame ``frame_index`` of the object ``instance_uid`` (its data set
+    ``dataset``), taken at ``acquired`` (its cine's interval ``interval_s``, None for a single
+    frame). ``decode_s``: its share of the object's header reading (s); ``received_at``:
+    ``time.perf_counter()`` when read. :meth:`decode` gives the :class:`ReceivedFrame`."""
 
-    Args:
-        ds: the pydicom ``Dataset`` (with ``file_meta`` giving its transfer syntax).
-        views: the planes' views (their names are the planes').
-        sop_class_uid: the SOP class the sender said it stores (the C-STORE's affected SOP class);
-            None: the data set's own.
-        air_value: the unattenuated intensity ``I0`` of ``-log(I / I0)`` (modality units); None:
-            each frame's maximum, as :func:`histostudy.imaging.load_frame`.
-        match_tolerance_mm: the largest distance between the projections of the isocentre region
-            (the isocentre and the corners of a 100 mm cube around it) by the tags' geometry and by
-            a view, in mm at the isocentre (detector pixels times the view's pixel size there), for
-            a frame to be that view's: 5 mm passes a gantry 1 deg off its calibrated angle (0.9
-            mm) and refuses one 10 deg off (8.7 mm). None: a named plane is not checked and an
-            unnamed one takes the nearest view.
+    view: View
+    dataset: object = field(repr=False)
+    instance_uid: str
+    frame_index: int
+    acquired: _dt.datetime
+    interval_s: float | None
+    decode_s: float = 0.0
+    received_at: float = 0.0
 
-    Raises:
-        XRayObjectRejected: with the status to answer and why (module docstring).
+    @property
+    def time_s(self) -> float:
+        return posix_seconds(self.acquired)
+
+    def decode(self, air_value: float | None = None) -> ReceivedFrame:
+        """The frame with its pixels as line integrals (:func:`decode_xray_object`'s ``air_value``);
+        only this frame's pixels are decoded. Its ``decode_s`` adds the seconds spent here.
+
+        Raises:
+            XRayObjectRejected: 0xA900, the pixels cannot be read (a compressed stream that does
+                not decode); 0xC000, they cannot be used (a frame without signal).
+        """
+        from pydicom.pixels import get_decoder
+
+        t0 = time.perf_counter()
+        ds = self.dataset
+        rows, cols = int(ds.Rows), int(ds.Columns)
+        try:
+            pixels, _ = get_decoder(ds.file_meta.TransferSyntaxUID).as_array(ds, index=self.frame_index)
+        except Exception as exc:  # pydicom raises several kinds for a broken pixel module
+            raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
+                                     f"its pixel data cannot be read: {type(exc).__name__}: {exc}") from None
+        if pixels.size != rows * cols:
+            raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"frame {self.frame_index}'s pixel data decode to "
+                                                              f"shape {pixels.shape}, not {rows} x {cols}")
+        try:
+            image = line_integrals_from_pixels(pixels.reshape(1, rows, cols), ds, air_value=air_value)[0]
+        except ValueError as exc:  # a frame without signal
+            raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, str(exc).replace("frame 0 ", f"frame "
+                                                                                 f"{self.frame_index} ")) from None
+        return ReceivedFrame(view=self.view, image=image, instance_uid=self.instance_uid,
+                             frame_index=self.frame_index, acquired=self.acquired, interval_s=self.interval_s,
+                             decode_s=self.decode_s + time.perf_counter() - t0, received_at=self.received_at)
+
+
+def read_xray_header(ds, views: Sequence[View], *, sop_class_uid: str | None = None,
+                     match_tolerance_mm: float | None = 5.0) -> list[PendingFrame]:
+    """The frames of one received DICOM X-ray object, each with its plane's view, checked as far as
+    the header goes: the pixels are left for :meth:`PendingFrame.decode` (the receiver converts
+    only the pairs it poses).
+
+    Checks the SOP class, the image size, the geometry tags against ``views``, the frame times, the
+    pixel module's tags (MONOCHROME1's ``BitsStored``, the rescale) and, for a native (not
+    encapsulated) transfer syntax, that ``PixelData`` holds every frame's bytes. What only the
+    pixels can tell (a compressed stream that does not decode, a frame without signal) is left to
+    :meth:`PendingFrame.decode`. Arguments and refusals as :func:`decode_xray_object`'s.
     """
     sop = str(getattr(ds, "SOPClassUID", "") or "")
     expected = sop if sop_class_uid is None else str(sop_class_uid)
@@ -139,7 +191,7 @@ def decode_xray_object(ds, views: Sequence[View], *, sop_class_uid: str | None =
     uid = str(getattr(ds, "SOPInstanceUID", "") or "")
     try:
         n_frames = int(getattr(ds, "NumberOfFrames", 1) or 1)
-        rows, cols = int(ds.Rows), int(ds.Columns)
+        int(ds.Rows), int(ds.Columns)
     except (AttributeError, TypeError, ValueError) as exc:
         raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"no readable image size (Rows, Columns, "
                                                           f"NumberOfFrames): {exc}") from None
@@ -158,28 +210,43 @@ def decode_xray_object(ds, views: Sequence[View], *, sop_class_uid: str | None =
         times, interval_s = frame_times(ds)
     except ValueError as exc:
         raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, str(exc)) from None
-    try:
-        pixels = np.asarray(ds.pixel_array)
-    except Exception as exc:  # pydicom raises several kinds for a broken pixel module
-        raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
-                                 f"its pixel data cannot be read: {type(exc).__name__}: {exc}") from None
-    pixels = pixels.reshape((n_frames, rows, cols)) if pixels.size == n_frames * rows * cols else pixels
-    if pixels.shape != (n_frames, rows, cols) and not (n_frames == 1 and pixels.shape == (rows, cols)):
-        raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"its pixel data decode to shape {pixels.shape}, not "
-                                                          f"{n_frames} frames of {rows} x {cols}")
-    try:
-        images = line_integrals_from_pixels(pixels.reshape(n_frames, rows, cols), ds, air_value=air_value)
-    except ValueError as exc:  # a bad rescale tag, a frame without signal
-        raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, str(exc)) from None
-    return [ReceivedFrame(view=plane_views[i], image=images[i], instance_uid=uid, frame_index=i, acquired=times[i],
-                          interval_s=interval_s) for i in range(n_frames)]
+    _check_pixel_module(ds)
+    return [PendingFrame(view=plane_views[i], dataset=ds, instance_uid=uid, frame_index=i, acquired=times[i],
+                         interval_s=interval_s) for i in range(n_frames)]
 
 
-def decode_c_store(event, views: Sequence[View], **options) -> list[ReceivedFrame]:
-    """The frames of a pynetdicom C-STORE request ``event`` (:func:`decode_xray_object` with
-    ``options``): a SOP class that is not an X-ray image is refused before its data set is decoded,
-    and an unforeseen error in a sender's object becomes a refusal (0xC000), logged, so that the
-    receiver keeps serving. Raises :class:`XRayObjectRejected` only."""
+def decode_xray_object(ds, views: Sequence[View], *, sop_class_uid: str | None = None, air_value: float | None = None,
+                       match_tolerance_mm: float | None = 5.0) -> list[ReceivedFrame]:
+    """The frames of one received DICOM X-ray object, each with its plane's view, its pixels as line
+    integrals: :func:`read_xray_header` then :meth:`PendingFrame.decode` of every frame.
+
+    Args:
+        ds: the pydicom ``Dataset`` (with ``file_meta`` giving its transfer syntax).
+        views: the planes' views (their names are the planes').
+        sop_class_uid: the SOP class the sender said it stores (the C-STORE's affected SOP class);
+            None: the data set's own.
+        air_value: the unattenuated intensity ``I0`` of ``-log(I / I0)`` (modality units); None:
+            each frame's maximum, as :func:`histostudy.imaging.load_frame`.
+        match_tolerance_mm: the largest distance between the projections of the isocentre region
+            (the isocentre and the corners of a 100 mm cube around it) by the tags' geometry and by
+            a view, in mm at the isocentre (detector pixels times the view's pixel size there), for
+            a frame to be that view's: 5 mm passes a gantry 1 deg off its calibrated angle (0.9
+            mm) and refuses one 10 deg off (8.7 mm). None: a named plane is not checked and an
+            unnamed one takes the nearest view.
+
+    Raises:
+        XRayObjectRejected: with the status to answer and why (module docstring).
+    """
+    return [frame.decode(air_value) for frame in read_xray_header(ds, views, sop_class_uid=sop_class_uid,
+                                                                  match_tolerance_mm=match_tolerance_mm)]
+
+
+def read_c_store(event, views: Sequence[View], *, match_tolerance_mm: float | None = 5.0) -> list[PendingFrame]:
+    """The frames of a pynetdicom C-STORE request ``event``, header checked and pixels not converted
+    (:func:`read_xray_header`): what the receiver's handler needs to answer and to pair. A SOP class
+    that is not an X-ray image is refused before its data set is decoded, and an unforeseen error in
+    a sender's object becomes a refusal (0xC000), logged, so that the receiver keeps serving. Raises
+    :class:`XRayObjectRejected` only."""
     sop_class = str(getattr(event.request, "AffectedSOPClassUID", "") or "")
     if sop_class not in X_RAY_SOP_CLASSES:
         raise XRayObjectRejected(STATUS_SOP_CLASS_NOT_SUPPORTED,
@@ -191,12 +258,20 @@ def decode_c_store(event, views: Sequence[View], **options) -> list[ReceivedFram
         raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"the data set cannot be decoded: "
                                                           f"{type(exc).__name__}: {exc}") from None
     try:
-        return decode_xray_object(ds, views, sop_class_uid=sop_class, **options)
+        return read_xray_header(ds, views, sop_class_uid=sop_class, match_tolerance_mm=match_tolerance_mm)
     except XRayObjectRejected:
         raise
     except Exception as exc:
-        log.exception("unexpected error decoding object %s", getattr(event.request, "AffectedSOPInstanceUID", ""))
+        log.exception("unexpected error reading object %s", getattr(event.request, "AffectedSOPInstanceUID", ""))
         raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, f"{type(exc).__name__}: {exc}") from None
+
+
+def decode_c_store(event, views: Sequence[View], *, air_value: float | None = None,
+                   match_tolerance_mm: float | None = 5.0) -> list[ReceivedFrame]:
+    """The frames of a pynetdicom C-STORE request ``event`` with their pixels as line integrals:
+    :func:`read_c_store` then :meth:`PendingFrame.decode` of every frame. Raises
+    :class:`XRayObjectRejected` only."""
+    return [frame.decode(air_value) for frame in read_c_store(event, views, match_tolerance_mm=match_tolerance_mm)]
 
 
 def rejection_response(status: int, reason: str):
@@ -224,6 +299,30 @@ def storage_application_entity(ae_title: str, network_timeout_s: float):
     ae.add_supported_context(Verification)
     ae.network_timeout = network_timeout_s
     return ae
+
+
+def _check_pixel_module(ds) -> None:
+    """Refuses an object whose pixels could not be converted, as far as the tags tell: the tags
+    :func:`histostudy.imaging.line_integrals_from_pixels` reads (0xC000) and, for a native transfer
+    syntax, a ``PixelData`` shorter than its frames (0xA900)."""
+    from pydicom.pixels.utils import get_expected_length
+
+    try:
+        line_integrals_from_pixels(np.ones((1, 1)), ds, air_value=1.0)  # the tags alone: a one-pixel probe
+    except ValueError as exc:
+        raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, str(exc)) from None
+    try:
+        syntax = ds.file_meta.TransferSyntaxUID
+        data = ds.PixelData
+        expected = None if syntax.is_encapsulated else get_expected_length(ds, "bytes")
+    except Exception as exc:  # no file meta, no PixelData, a pixel module pydicom cannot size
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
+                                 f"its pixel data cannot be read: {type(exc).__name__}: {exc}") from None
+    if expected is not None and len(data) < expected:
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
+                                 f"its pixel data cannot be read: PixelData holds {len(data)} bytes, its "
+                                 f"{int(getattr(ds, 'NumberOfFrames', 1) or 1)} frame(s) of {ds.Rows} x "
+                                 f"{ds.Columns} need {expected}")
 
 
 def _plane_view(ds, views: Sequence[View], frame_index: int | None, tol_mm: float | None) -> View:

@@ -47,7 +47,8 @@ def test_listen_prints_its_port_and_poses_every_pair_of_a_cine_sent_to_it(lab, t
     output = tmp_path / "poses.jsonl"
     command = [sys.executable, "-m", "histostudy.cli", "listen", "--port", "0", "--host", "127.0.0.1",
                "--views", str(lab.views), "--output", str(output), "--max-pairs", str(N_FRAMES),
-               "--seed", str(SEED), "--timeout-s", "400", "--fast" if fast else "--no-fast"]
+               "--seed", str(SEED), "--timeout-s", "400", "--fast" if fast else "--no-fast",
+               "--max-queued-pairs", "all"]  # a cine sent at once: every pair posed
     log = tmp_path / "listen.err"
     with open(log, "w") as err:  # a file, not a pipe: a full pipe would block the command
         process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=err, text=True, cwd=tmp_path)

@@ -326,7 +326,8 @@ def test_a_cine_sent_gets_a_pose_per_pair_as_a_direct_tracker(cine, views, model
     out = tmp_path / "poses.jsonl"
     seen = []
     paths = [str(cine["paths"][v.name]) for v in views]
-    with FrameReceiver(views, model, output_path=out, port=0, seed=SEED, on_pose=seen.append) as receiver:
+    with FrameReceiver(views, model, output_path=out, port=0, seed=SEED, on_pose=seen.append,
+                       max_queued_pairs=None) as receiver:  # a cine sent at once: every pair posed
         if sender == "storescu":
             done = subprocess.run(["storescu", "-aec", "HISTOSTUDY", "127.0.0.1", str(receiver.port), *paths],
                                   capture_output=True, text=True, timeout=60)
@@ -365,7 +366,7 @@ def test_refused_objects_get_failure_statuses_and_the_other_frames_still_get_pos
     short.PixelData = short.PixelData[:-2 * views[1].shape[1]]
     short.SOPInstanceUID = generate_uid(entropy_srcs=["short"])
     out = tmp_path / "poses.jsonl"
-    with FrameReceiver(views, model, output_path=out, port=0, seed=SEED) as receiver:
+    with FrameReceiver(views, model, output_path=out, port=0, seed=SEED, max_queued_pairs=None) as receiver:
         statuses = send(receiver.port, [ct_dataset(), cine["paths"]["A"], bad_geometry, short, cine["paths"]["B"]])
         assert receiver.wait_for_pairs(N_FRAMES, timeout_s=120)
     assert statuses == [0x0122, 0x0000, 0xC000, 0xA900, 0x0000]
@@ -428,7 +429,8 @@ def test_the_pipeline_poses_as_a_direct_tracker_and_a_failed_pair_does_not_end_t
     before = T0 - dt.timedelta(seconds=1)
     objects = [xa_dataset(v, flat, acquisition_time=before, uid_seed=f"flat-first/{v.name}") for v in views]
     out = tmp_path / "poses.jsonl"
-    with FrameReceiver(views, model, output_path=out, port=0, seed=SEED, pipeline=True) as receiver:
+    with FrameReceiver(views, model, output_path=out, port=0, seed=SEED, pipeline=True,
+                       max_queued_pairs=None) as receiver:
         assert send(receiver.port, objects + [cine["paths"][v.name] for v in views]) == [0] * 4
         assert receiver.wait_for_pairs(1 + N_FRAMES, timeout_s=180)
     stats = receiver.stats()

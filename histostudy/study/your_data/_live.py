@@ -70,7 +70,8 @@ def stream_cine(inputs: LabInputs, model: TransducerModel, seed: int, *, output_
     output.unlink(missing_ok=True)  # the receiver appends: start from an empty file
     views = [f.view for f in frames_from_files(inputs.cine, inputs.views, frame_index=0)]
     receiver = FrameReceiver(views, model, output_path=output, port=0, host="127.0.0.1", seed=seed,
-                             on_pose=on_pose, fast=False)  # track_cine's full-frame path: the same poses
+                             on_pose=on_pose, fast=False,  # track_cine's full-frame path: the same poses
+                             max_queued_pairs=None)  # the cine is sent at once: every pair posed, none dropped
     receiver.start()
     try:
         statuses = send_frames(inputs.cine, "127.0.0.1", receiver.port, ae_title=receiver.ae_title)

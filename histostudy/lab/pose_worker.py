@@ -1,0 +1,112 @@
+"""The pose worker of the live receiver (:class:`.receiver.FrameReceiver`, §II-A): the thread that
+takes the waiting biplane pairs, converts their pixels, poses them through
+:meth:`histostudy.pose.Tracker.track` and writes each pair's JSON line (:mod:`.pose_lines`).
+
+:class:`PoseWorker` is the receiver's half that runs on that thread (a base class of
+:class:`~.receiver.FrameReceiver`, which holds the state it reads: the lock ``_cv``, the queue of
+waiting pairs, the counters, the tracker and the output). A pair's pixels are converted
+(:meth:`.xray_objects.PendingFrame.decode`) only when the worker takes it, so that a pair dropped
+for a newer one costs no pixel decoding; a pair whose pixels cannot be used (a frame without
+signal, a compressed stream that does not decode) gets an error line naming why, as a pair whose
+pose raised does. With ``pipeline`` such a line can precede the line of the pair posed before it.
+Times are ``time.perf_counter`` seconds.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import time
+
+from .pose_lines import append_pose_line, pose_line
+from .xray_objects import XRayObjectRejected
+
+__all__: list[str] = []  # the receiver's internals: FrameReceiver is the public face
+
+log = logging.getLogger("histostudy.lab.receiver")  # the receiver's log, where its users look
+
+
+class PoseWorker:
+    """The pose worker's methods of :class:`~.receiver.FrameReceiver` (its base class; module
+    docstring): :meth:`_work` is the thread's target."""
+
+    def _work(self) -> None:
+        """Pose the queued pairs through ``Tracker.track`` until closing leaves none; a pair whose
+        pose raised gets its error line, and the stream goes on in a new ``track``."""
+        handed: collections.deque = collections.deque()  # taken by the tracker, line not yet written
+        again: collections.deque = collections.deque()   # taken by a track() that ended on an error
+
+        def ready() -> bool:  # take the next pair ahead: it is there, and the pipeline is on
+            return self.pipeline and (bool(again) or (bool(self._queue) and not self._at_limit(len(handed))))
+
+        while True:
+            results = self.tracker.track(self._pairs(handed, again), ready=ready)
+            try:
+                for result in results:
+                    self._write(handed.popleft(), result, None)
+                return  # closing, nothing left to pose
+            except Exception as exc:  # one pair's failure is a line, not the end of the stream
+                entry = handed.popleft()
+                log.warning("pair %d: no pose: %s: %s", entry[0], type(exc).__name__, exc)
+                self._write(entry, None, exc)
+                again.extend(handed)
+                handed.clear()
+
+    def _pairs(self, handed: collections.deque, again: collections.deque):
+        """The pairs' images for the tracker, in order (a generator that waits for the queue and ends
+        once closing with none left); each entry taken goes to ``handed`` first. A pair's pixels are
+        converted here, when taken: a pair whose pixels cannot be used gets its error line at once."""
+        while True:
+            if again:
+                entry = again.popleft()
+            else:
+                with self._cv:
+                    # wait for a pair unless max_pairs lines are written or on their way
+                    while not self._queue or self._at_limit(len(handed)):
+                        if self._closing:
+                            return
+                        self._cv.wait()
+                    index, pair, queued_at = self._queue.popleft()
+                entry = self._decode(index, [f.data for f in pair], queued_at)
+                if entry is None:
+                    continue
+            handed.append(entry)
+            yield [f.image for f in entry[1]]
+
+    def _decode(self, index: int, pending: list, queued_at: float):
+        """The entry ``(index, frames, queued_at, taken_at)`` of a pair taken, its frames' pixels
+        converted (:meth:`.xray_objects.PendingFrame.decode`); None when they cannot be, after
+        writing the pair's error line (the C-STORE was answered long before: the line says why)."""
+        taken_at = time.perf_counter()
+        try:
+            frames = [f.decode(self.air_value) for f in pending]
+        except XRayObjectRejected as exc:
+            log.warning("pair %d: its pixels cannot be used (0x%04X): %s", index, exc.status, exc.reason)
+            self._write((index, pending, queued_at, taken_at), None, exc)
+            return None
+        with self._cv:
+            self._stats.decode_s += time.perf_counter() - taken_at
+        return index, frames, queued_at, taken_at
+
+    def _at_limit(self, in_flight: int = 0) -> bool:
+        return self._max_pairs is not None and self._counts["pairs_processed"] + in_flight >= self._max_pairs
+
+    def _write(self, entry, result, error) -> None:
+        """Write the line of ``entry`` (its result, or the ``error`` its pose or its pixels raised),
+        count it, call ``on_pose``."""
+        index, frames, queued_at, taken_at = entry
+        record = pose_line(index, frames, queued_at, taken_at, result=result, error=error,
+                           tracking=None if error is not None else self.tracker.last_kind, t_free=self._t_free,
+                           t_written=time.perf_counter())
+        append_pose_line(self._out, record, self.output_path)
+        now = time.perf_counter()
+        with self._cv:
+            # a snapshot of the tracker's counters: stats() reads it from other threads
+            self._stats.add_line(record, self.tracker.stats(), now)
+            self._cv.notify_all()
+        if self.on_pose is not None:
+            try:
+                self.on_pose(record)
+            except Exception:
+                log.exception("on_pose raised on pair %d; the receiver goes on", index)
+        self._t_free = time.perf_counter()  # on_pose's time is no pair's pose time
