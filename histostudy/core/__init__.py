@@ -12,8 +12,8 @@ from . import (checks as _checks, io as _io, machine as _machine, moved_modules 
                provenance as _provenance, seeding as _seeding, sweeps as _sweeps)
 from .checks import check_count, check_items, check_positive, check_unit_fraction, is_finite_real, is_real
 from .io import atomic_path, atomic_write_bytes, atomic_write_json, atomic_write_text, process_umask, to_jsonable
-from .machine import (AVX2_RESTRICTION, ISA_FLAGS, ISA_RESTRICTION_ENV, avx2_env_words, avx2_restriction, cpu_model,
-                      isa_flags, isa_restriction, machine_summary)
+from .machine import (AVX2_RESTRICTION, BENCHMARK_ISAS, ISA_FLAGS, ISA_RESTRICTION_ENV, avx2_env_words,
+                      avx2_restriction, cpu_model, isa_flags, isa_restriction, machine_summary, run_restricted_to)
 from .moved_modules import MOVED_MODULES, MOVED_MODULES_REMOVED_IN, install, renamed_attributes
 from .provenance import git_commit, package_versions, provenance
 from .seeding import as_generator

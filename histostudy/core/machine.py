@@ -18,8 +18,8 @@ import os
 import platform
 from importlib import metadata
 
-__all__ = ["AVX2_RESTRICTION", "ISA_FLAGS", "ISA_RESTRICTION_ENV", "avx2_env_words", "avx2_restriction", "cpu_model",
-           "isa_flags", "isa_restriction", "machine_summary"]
+__all__ = ["AVX2_RESTRICTION", "BENCHMARK_ISAS", "ISA_FLAGS", "ISA_RESTRICTION_ENV", "avx2_env_words",
+           "avx2_restriction", "cpu_model", "isa_flags", "isa_restriction", "machine_summary", "run_restricted_to"]
 
 #: The CPU flags (as Linux's /proc/cpuinfo names them) that decide which kernels run here.
 ISA_FLAGS = ("avx2", "fma", "avx512f", "avx512_bf16", "amx_tile", "amx_bf16")
@@ -32,6 +32,9 @@ ISA_RESTRICTION_ENV = ("ONEDNN_MAX_CPU_ISA", "ATEN_CPU_CAPABILITY", "NUMBA_CPU_N
 #: The restriction of torch and numba that makes any x86-64 machine compute as an AVX2-only CPU (a
 #: Haswell) would; :func:`avx2_restriction` adds numpy's.
 AVX2_RESTRICTION = {"ONEDNN_MAX_CPU_ISA": "AVX2", "ATEN_CPU_CAPABILITY": "avx2", "NUMBA_CPU_NAME": "haswell"}
+
+#: What a benchmark's ``--isa`` takes (:func:`run_restricted_to`): the CPU as it is, or AVX2 only.
+BENCHMARK_ISAS = ("native", "avx2")
 
 _LIBRARIES = ("numpy", "scipy", "numba", "torch", "opencv-python-headless")
 
@@ -113,3 +116,27 @@ def machine_summary() -> str:
             f"ISA restriction: {restriction}\n"
             f"libraries: {', '.join(versions)}")
 
+
+
+def run_restricted_to(isa: str, argv: list[str] | None = None) -> None:
+    """Make this process compute as a CPU of instruction set ``isa`` would (a benchmark's ``--isa``).
+
+    ``"native"``: nothing. ``"avx2"``: unless :func:`avx2_restriction`'s variables already hold
+    their values, replace this process by the same command (``argv``, default ``sys.argv``, run by
+    ``sys.executable``) with them in its environment, since oneDNN, ATen and numba read them
+    once, when first loaded. It then prints the same results as on an AVX2-only CPU, bfloat16
+    included (:func:`histostudy.learning.native_bfloat16` is False there). Does not return when it
+    re-executes. ValueError for another ``isa``."""
+    import sys
+
+    if isa not in BENCHMARK_ISAS:
+        raise ValueError(f"isa must be one of {BENCHMARK_ISAS}, got {isa!r}")
+    if isa == "native":
+        return
+    wanted = avx2_restriction()
+    if all(os.environ.get(name) == value for name, value in wanted.items()):
+        return
+    argv = list(sys.argv if argv is None else argv)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execve(sys.executable, [sys.executable, *argv], {**os.environ, **wanted})

@@ -45,8 +45,8 @@ from .result import PoseEstimationError, PoseResult, add_timings, refused, resul
 from .retries import Refined, refine_with_retries
 from .silhouette import SILHOUETTE_CELL_PX, segmented_occupancy, silhouette_candidates, silhouette_seed
 from .start import SILHOUETTE_POINTS, Initialisation, coarse_scorings, directions_to_try, initialise
-from .tracking import (PreparedRegions, RegionEstimator, RegionMaps, RegionOfInterest, ScratchEstimator, Tracker,
-                       TrackingConfig, crop_view, frames_for_views, region_of_interest, scaled_pose_options,
+from .tracking import (PreparedRegions, RegionEstimator, RegionMaps, RegionOfInterest, RegionPlan, ScratchEstimator,
+                       Tracker, TrackingConfig, crop_view, frames_for_views, region_of_interest, scaled_pose_options,
                        scratch_estimator)
 from .truncations import PoseCosts, pose_costs
 from .verdict import (PoseJudge, PoseVerdict, check_unexplained, check_view_agreement, judge_fit,

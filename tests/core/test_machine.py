@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from histostudy.core import (AVX2_RESTRICTION, ISA_RESTRICTION_ENV, avx2_env_words, avx2_restriction, isa_flags,
-                             isa_restriction, machine_summary)
+                             isa_restriction, machine_summary, run_restricted_to)
 
 linux = pytest.mark.skipif(not os.path.exists("/proc/cpuinfo"), reason="no /proc/cpuinfo on this system")
 
@@ -76,3 +76,24 @@ def test_native_bfloat16_is_off_when_onednn_is_held_below_its_bfloat16_kernels(m
 
     monkeypatch.setenv("ONEDNN_MAX_CPU_ISA", value)
     assert native_bfloat16() is False
+
+
+def test_run_restricted_to_avx2_reruns_the_command_as_an_avx2_cpu(tmp_path):
+    """A benchmark's --isa avx2: the same command again, its libraries held to AVX2 (torch's kernel
+    level says so, bfloat16 is off); 'native' changes nothing; another name is refused."""
+    script = tmp_path / "probe.py"
+    script.write_text("import sys, torch\n"
+                      "from histostudy.core import run_restricted_to, isa_restriction\n"
+                      "from histostudy.learning import native_bfloat16\n"
+                      "run_restricted_to(sys.argv[1])\n"
+                      "print(sys.argv[1:], torch.backends.cpu.get_cpu_capability(), native_bfloat16(),\n"
+                      "      sorted(isa_restriction()))\n")
+    env = {k: v for k, v in os.environ.items() if k not in ISA_RESTRICTION_ENV}
+    out = subprocess.run([sys.executable, str(script), "avx2", "extra"], env=env, capture_output=True, text=True,
+                         check=True).stdout.strip()
+    assert out == f"['avx2', 'extra'] AVX2 False {sorted(avx2_restriction())}"
+    native = subprocess.run([sys.executable, str(script), "native"], env=env, capture_output=True, text=True,
+                            check=True).stdout
+    assert native.endswith("[]\n")  # no restriction set, none added
+    with pytest.raises(ValueError, match=r"isa must be one of \('native', 'avx2'\), got 'sse'"):
+        run_restricted_to("sse")

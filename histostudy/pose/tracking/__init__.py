@@ -15,7 +15,7 @@ from ._options import TrackingConfig
 from ._roi import RegionOfInterest, crop_view, region_of_interest
 from ._scratch import ScratchEstimator, scaled_pose_options, scratch_estimator
 from ._tracker import Tracker
-from ._warm import PreparedRegions, RegionEstimator
+from ._warm import PreparedRegions, RegionEstimator, RegionPlan
 
 # every public name of the modules above, as each module's __all__ declares it
 __all__ = list(dict.fromkeys([*_tracker.__all__, *_input.__all__, *_maps.__all__, *_options.__all__,

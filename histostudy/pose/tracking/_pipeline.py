@@ -1,12 +1,15 @@
 """The pipeline of :meth:`~._tracker.Tracker.track` with ``fast`` (docs/tracking.md):
 :func:`pipelined_updates`.
 
-Two stages on two threads: while the calling thread refines and judges a pair
-(:meth:`~._warm.RegionEstimator.finish`, the cost's kernels serial meanwhile), one worker thread
-segments and maps the next pair's regions (:meth:`~._warm.RegionEstimator.prepare`, its
-views one after the other) from the last pose accepted before it. Torch, OpenCV and the cost's
-kernels release the GIL, so on two cores each stage has one. On the cines of docs/tracking.md this
-gives more warm pairs per second than the same stages one after the other (the figures are there).
+Each pair is three pieces of work: each view's region segmented and mapped
+(:meth:`~._warm.RegionEstimator.prepare_view`), then the refinement and verdict on both
+(:meth:`~._warm.RegionEstimator.finish`). While the calling thread refines and judges pair n (the
+cost's kernels serial meanwhile), pair n+1's views, boxed where the last pose accepted before pair n
+projects, wait as two tasks for one worker thread. When the calling thread needs pair n+1, it takes
+back the view the worker has not started and segments it itself, so that on two cores neither
+thread waits while the other has work: the segmentation of a pair is most of its cost on a CPU
+without bfloat16 arithmetic. Torch, OpenCV and the cost's kernels release the GIL. Which thread
+segments a view changes no bit of its labels or maps.
 
 Implementation of :class:`~._tracker.Tracker`'s method: it reads and updates the tracker's state
 (its last pose, its Generator, its counters through ``Tracker._update``).
@@ -51,8 +54,9 @@ def pipelined_updates(tracker, pairs: Iterable, ready: Callable[[], bool] | None
         except ValueError as exc:
             return _BadPair(exc)
 
+    region = tracker._region
     worker = ThreadPoolExecutor(max_workers=1)
-    pending = None
+    pending = None  # the next pair's plan and its views' tasks on the worker
     try:
         nxt = take()
         slot = 0  # the map buffers of the pair being finished; the next pair is prepared in the other
@@ -61,7 +65,7 @@ def pipelined_updates(tracker, pairs: Iterable, ready: Callable[[], bool] | None
                 nxt = take()
             if nxt is _END:
                 break
-            frames, prepared_future = nxt, pending
+            frames, prepared_tasks = nxt, pending
             pending = nxt = None
             if isinstance(frames, _BadPair):
                 raise frames.error
@@ -69,24 +73,44 @@ def pipelined_updates(tracker, pairs: Iterable, ready: Callable[[], bool] | None
                 nxt = take()
             if nxt is not None and nxt is not _END and not isinstance(nxt, _BadPair) \
                     and tracker._last_pose is not None:
-                # A segmenter that draws gets its own Generator, seeded here: nothing is drawn
-                # from the tracker's on the worker thread.
-                rng = None if tracker._region.fast_unet is not None else \
-                    np.random.default_rng(int(tracker.rng.integers(2 ** 63)))
-                # The views one after the other: the pairs already overlap, and two more threads
-                # on two cores cost pairs per second (docs/tracking.md).
-                pending = worker.submit(tracker._region.prepare, nxt, tracker._last_pose.copy(), rng, 1 - slot, False)
+                plan = region.plan(nxt, tracker._last_pose.copy(), _worker_rng(tracker), 1 - slot)
+                pending = (plan, [worker.submit(region.prepare_view, plan, a) for a in range(len(nxt))])
             t_start = time.perf_counter()
-            prepared = None if prepared_future is None else prepared_future.result()
+            prepared = None if prepared_tasks is None else _collect(region, *prepared_tasks)
             # While the worker segments the next pair, serial kernels here: numba's threads would
-            # take its core (16.7-17.5 warm pairs/s against 13.5-17.3, docs/tracking.md).
+            # take its core (docs/tracking.md).
             result = tracker._update(frames, prepared, t_start, slot, parallel=False if pending is not None else None)
             if pending is not None and tracker.last_kind != "warm":
-                pending.result()  # prepared from a pose the track has since left: prepare again
+                _drop(pending[1])  # prepared from a pose the track has since left: prepared again
                 pending = None
             slot = 1 - slot
             yield result
     finally:
         if pending is not None:
-            pending.cancel()
+            _drop(pending[1])
         worker.shutdown(wait=True)
+
+
+def _worker_rng(tracker) -> list | None:
+    """A segmenter that draws gets a Generator per view, seeded here: nothing is drawn from the
+    tracker's on the worker thread, and the views draw the same numbers whichever thread runs
+    them (None for a U-Net, which draws nothing)."""
+    if tracker._region.fast_unet is not None:
+        return None
+    seed = int(tracker.rng.integers(2 ** 63))
+    return [np.random.default_rng([seed, a]) for a in range(len(tracker.views))]
+
+
+def _collect(region, plan, tasks):
+    """The plan's :class:`~._warm.PreparedRegions`: each view task the worker has not started is
+    taken back and run on this thread, then the started ones are awaited."""
+    outputs = {a: region.prepare_view(plan, a) for a, task in enumerate(tasks) if task.cancel()}
+    outputs.update({a: task.result() for a, task in enumerate(tasks) if a not in outputs})
+    return region.assemble(plan, [outputs[a] for a in range(len(tasks))])
+
+
+def _drop(tasks) -> None:
+    """Cancel the tasks not started and wait for the others (their map buffers are reused next)."""
+    for task in tasks:
+        if not task.cancel():
+            task.exception()

@@ -10,7 +10,7 @@ transducer moves little between frames. A warm start whose verdict fails (the tr
 too far, or the refinement slid into a wrong basin) loses the track: the same frames are then
 estimated from scratch (a re-acquisition), and both events are counted.
 
-With ``fast=True`` (or ``fast=TrackingConfig(...)``) a warm update runs
+By default (``fast=True``, or ``fast=TrackingConfig(...)``) a warm update runs
 :class:`~._warm.RegionEstimator` instead: the same stages on the region where the last pose
 projects, at the segmenter's own resolution (docs/tracking.md: where the time goes, and the
 figures). From-scratch estimates and re-acquisitions run :func:`~histostudy.pose.estimate.estimate_pose` on the
@@ -72,9 +72,8 @@ class Tracker:
             fields, as for :func:`~histostudy.pose.estimate.estimate_pose`. Unlike there, ``raise_on_failure``
             defaults to False when no ``options`` are given: a tracker reports a failed verdict in
             the result (``result.verdict.ok``) rather than stopping the stream.
-        fast: False (default): every warm update is :func:`~histostudy.pose.estimate.estimate_pose` from the last
-            pose on the full frames. True or a :class:`~._options.TrackingConfig`: warm
-            updates run on the regions where the last pose projects
+        fast: True (default) or a :class:`~._options.TrackingConfig`: warm updates run on the
+            regions where the last pose projects
             (:class:`~._warm.RegionEstimator`: Levenberg-Marquardt whatever ``mode``, which
             then applies to the from-scratch estimates only); ``result.labels`` are then the regions'
             labels at the label scale, and :attr:`last_regions` says where they lie. From-scratch
@@ -96,7 +95,10 @@ class Tracker:
             ``n_rescued``. After a pose the verdict refused only for its views' agreement (the fit
             checks passed), the next update first tries a warm start from it
             (``TrackingConfig.resume_refused``; counted in ``n_resume_attempts`` / ``n_resumed``)
-            before estimating from scratch.
+            before estimating from scratch. False: every warm update is
+            :func:`~histostudy.pose.estimate.estimate_pose` from the last pose on the full frames,
+            and every estimate from scratch ``estimate_pose`` itself (the study's path: what
+            notebook 06 and ``study.your_data`` run).
 
     Attributes (read them, do not set them):
         n_updates: calls of :meth:`update` that ran (bad input raises before counting).
@@ -131,7 +133,7 @@ class Tracker:
                 "n_rescue_attempts", "n_rescued", "n_resume_attempts", "n_resumed")
 
     def __init__(self, model: TransducerModel, views: Sequence[View] | View, *, segmenter=None, orientation=None,
-                 rng=None, options: PoseConfig | None = None, fast: bool | TrackingConfig = False,
+                 rng=None, options: PoseConfig | None = None, fast: bool | TrackingConfig = True,
                  **option_overrides):
         if not isinstance(model, TransducerModel):
             raise TypeError(f"model must be a histostudy.transducer.TransducerModel, got {type(model).__name__}")

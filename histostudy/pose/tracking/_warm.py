@@ -51,7 +51,7 @@ from ._maps import RegionMaps
 from ._options import TrackingConfig, scaled_pose_options
 from ._roi import RegionOfInterest, crop_view, region_of_interest
 
-__all__ = ["PreparedRegions", "RegionEstimator"]
+__all__ = ["PreparedRegions", "RegionEstimator", "RegionPlan"]
 
 #: Model points projected to box the region (every n-th point of each class; the margin covers the
 #: spacing they leave).
@@ -78,6 +78,25 @@ class PreparedRegions:
     timings_s: dict
     seconds: float
     frames: list | None = None
+
+
+@dataclass
+class RegionPlan:
+    """What :meth:`RegionEstimator.plan` decided for a frame pair before its views are segmented.
+
+    Attributes:
+        frames: the pair's frames, in the order of the views.
+        regions: each view's :class:`~._roi.RegionOfInterest`.
+        rngs: each view's Generator, for a segmenter that draws (None for a U-Net).
+        buffers: each view's map buffer (:class:`~._maps.RegionMaps`).
+        t_start: ``time.perf_counter()`` when the plan was made.
+    """
+
+    frames: list
+    regions: list
+    rngs: list
+    buffers: list
+    t_start: float
 
 
 def _subset_indices(n_points: int, n: int | None, rng: np.random.Generator) -> np.ndarray:
@@ -249,16 +268,29 @@ class RegionEstimator:
         while this one is refined. ``parallel_views``: the views on two threads (True) or one after
         the other (False); None: ``TrackingConfig.parallel_views``. Safe to run on another thread
         than :meth:`finish`."""
+        if parallel_views not in (None, True, False):
+            raise ValueError(f"parallel_views must be None, True or False, got {parallel_views!r}")
+        plan = self.plan(frames, T_roi, rng, slot)
+        in_parallel = self.tracking.parallel_views if parallel_views is None else parallel_views
+        return self._segment_and_map(plan, in_parallel)
+
+    def plan(self, frames: Sequence[Frame], T_roi: np.ndarray, rng, slot: int = 0) -> "RegionPlan":
+        """Step 1 (module docstring) of ``frames``: the regions where ``T_roi`` projects, and what
+        :meth:`prepare_view` needs to segment and map each of them into the map buffers of
+        ``slot`` (0 or 1). ``rng``: for a segmenter that draws, a Generator the views share (then
+        run them one after the other) or a sequence of one per view; None for a U-Net. :meth:`assemble` of the views' outputs is :meth:`prepare`'s result, so
+        that the views can run on different threads, in any order."""
         t_start = time.perf_counter()
         if slot not in (0, 1):
             raise ValueError(f"slot must be 0 or 1, got {slot!r}")
-        if parallel_views not in (None, True, False):
-            raise ValueError(f"parallel_views must be None, True or False, got {parallel_views!r}")
         s = self.label_scale
         regions = [region_of_interest(v, self._roi_points, T_roi, margin_px=self.tracking.roi_margin_px,
                                       align_px=self._align_px, scale=s) for v in self.views]
-        return self._segment_and_map(frames, regions, rng, [2 * a + slot for a in range(len(frames))], t_start,
-                                     self.tracking.parallel_views if parallel_views is None else parallel_views)
+        rngs = list(rng) if isinstance(rng, (list, tuple)) else [rng] * len(frames)
+        if len(rngs) != len(frames):
+            raise ValueError(f"rng must be a Generator, None or one Generator per view ({len(frames)}), "
+                             f"got {len(rngs)}")
+        return RegionPlan(list(frames), regions, rngs, [2 * a + slot for a in range(len(frames))], t_start)
 
     def prepare_rescue(self, prepared: PreparedRegions, rng: np.random.Generator | None) -> PreparedRegions:
         """The regions of ``prepared`` (same boxes) segmented again and mapped at :attr:`rescue_scale`,
@@ -275,28 +307,37 @@ class RegionEstimator:
         regions = [RegionOfInterest(box=reg.box, scale=r, view=crop_view(v, reg.box, r), frame_shape=reg.frame_shape)
                    for v, reg in zip(self.views, prepared.regions)]
         n = len(self.views)
-        return self._segment_and_map(prepared.frames, regions, rng, [2 * n + a for a in range(n)], t_start,
-                                     self.tracking.parallel_views)
+        plan = RegionPlan(prepared.frames, regions, [rng] * n, [2 * n + a for a in range(n)], t_start)
+        return self._segment_and_map(plan, self.tracking.parallel_views)
 
-    def _segment_and_map(self, frames, regions, rng, buffers, t_start, parallel_views: bool) -> PreparedRegions:
-        """Labels and distance maps of each view's region (into the map buffers ``buffers[a]``)."""
-        reach_px = self._caps(regions[0].scale)["reach"]  # the views' regions share their scale
+    def prepare_view(self, plan: "RegionPlan", a: int) -> tuple:
+        """Steps 2-3 (module docstring) of view ``a`` of ``plan``: its region's labels and distance
+        maps (in the plan's map buffer of the view), with the seconds of each. Views of one plan may
+        run on different threads at once."""
+        t0 = time.perf_counter()
+        labels = self._labels(plan.frames[a], plan.regions[a], plan.rngs[a])
+        t1 = time.perf_counter()
+        maps = self._maps.build(plan.buffers[a], plan.regions[a].view, labels,
+                                self._caps(plan.regions[a].scale)["reach"])
+        return labels, maps, t1 - t0, time.perf_counter() - t1
 
-        def per_view(a):
-            t0 = time.perf_counter()
-            labels = self._labels(frames[a], regions[a], rng)
-            t1 = time.perf_counter()
-            maps = self._maps.build(buffers[a], regions[a].view, labels, reach_px)
-            return labels, maps, t1 - t0, time.perf_counter() - t1
-
-        if parallel_views and self.fast_unet is not None:
-            outputs = list(self._pool.map(per_view, range(len(frames))))
-        else:
-            outputs = [per_view(a) for a in range(len(frames))]
+    @staticmethod
+    def assemble(plan: "RegionPlan", outputs: Sequence[tuple]) -> PreparedRegions:
+        """:meth:`prepare`'s result from ``plan`` and each view's :meth:`prepare_view` output, in the
+        order of the views; its ``seconds`` run from the plan to now."""
         timings = {"segmentation": sum(o[2] for o in outputs), "distance_maps": sum(o[3] for o in outputs),
                    "orientation": 0.0, "initialisation": 0.0}
-        return PreparedRegions(regions=regions, labels=[o[0] for o in outputs], maps=[o[1] for o in outputs],
-                               timings_s=timings, seconds=time.perf_counter() - t_start, frames=list(frames))
+        return PreparedRegions(regions=plan.regions, labels=[o[0] for o in outputs], maps=[o[1] for o in outputs],
+                               timings_s=timings, seconds=time.perf_counter() - plan.t_start, frames=plan.frames)
+
+    def _segment_and_map(self, plan: "RegionPlan", parallel_views: bool) -> PreparedRegions:
+        """Labels and distance maps of each view's region, on two threads or one after the other."""
+        views = range(len(plan.frames))
+        if parallel_views and self.fast_unet is not None:
+            outputs = list(self._pool.map(lambda a: self.prepare_view(plan, a), views))
+        else:
+            outputs = [self.prepare_view(plan, a) for a in views]
+        return self.assemble(plan, outputs)
 
     def finish(self, prepared: PreparedRegions, T_prev: np.ndarray, parallel: bool | None = None) -> PoseResult:
         """Steps 4-5 (module docstring): the refinement from ``T_prev`` on ``prepared``'s maps and

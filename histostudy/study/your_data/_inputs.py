@@ -147,8 +147,9 @@ def track_cine(inputs: LabInputs, model: TransducerModel, seed: int,
     n = cine_frame_count(inputs) if max_frames is None else min(max_frames, cine_frame_count(inputs))
     views = load_views(inputs.views) if inputs.views is not None else None
     first = frames_from_files(inputs.cine, inputs.views, frame_index=0)
+    # the full-frame path (fast=False): the study's numbers, as estimate_pose gives them
     tracker = Tracker(model, views or [f.view for f in first], rng=np.random.default_rng(seed),
-                      raise_on_failure=False)
+                      fast=False, raise_on_failure=False)
     results, rows = [], []
     for k in range(n):
         frames = first if k == 0 else frames_from_files(inputs.cine, inputs.views, frame_index=k)

@@ -26,7 +26,7 @@ SMALL_MOVE = transform_from_params([0.01, -0.012, 0.008, 0.5, -0.4, 0.5])
 def test_warm_start_gives_the_from_scratch_pose_at_less_cost(models, views):
     model, fine = models
     T0, T1 = POSES[0], moved(POSES[0], SMALL_MOVE)
-    tracker = Tracker(model, views, rng=1, **ORACLES)
+    tracker = Tracker(model, views, fast=False, rng=1, **ORACLES)
     first = tracker.update(frames_of(fine, T0, views))
     assert tracker.last_kind == "from_scratch" and first.verdict.ok and first.init is not None
     assert tracker.tracking and focal_error(first, T0) < 0.1
@@ -54,7 +54,7 @@ def test_a_jump_loses_the_track_and_is_reacquired_on_the_same_frames(models, vie
     T0 = POSES[0]
     T_jump = T0.copy()
     T_jump[:3, 3] += [40.0, 0.0, 0.0]
-    tracker = Tracker(model, views, rng=2, **ORACLES)
+    tracker = Tracker(model, views, fast=False, rng=2, **ORACLES)
     tracker.update(frames_of(fine, T0, views))
     result = tracker.update(frames_of(fine, T_jump, views))
     assert tracker.last_kind == "reacquired" and result.verdict.ok and result.init is not None
@@ -77,7 +77,7 @@ def test_arrays_and_frames_give_the_same_poses_for_the_same_seed(models, views):
     stages = dict(segmenter=ImageLabels(), orientation=ConicOrientation(segmenter=ImageLabels()))
     images = [[f.labels.astype(np.float32) for f in frames_of(fine, T, views)]
               for T in (POSES[1], moved(POSES[1], SMALL_MOVE))]
-    with_frames, with_arrays, stacked = (Tracker(model, views, rng=5, **stages) for _ in range(3))
+    with_frames, with_arrays, stacked = (Tracker(model, views, fast=False, rng=5, **stages) for _ in range(3))
     for pair in images:
         a = with_frames.update([Frame(image, v) for image, v in zip(pair, views)])
         b = with_arrays.update(pair)
@@ -90,7 +90,7 @@ def test_arrays_and_frames_give_the_same_poses_for_the_same_seed(models, views):
 
 def test_no_feature_raises_and_loses_the_track(models, views):
     model, fine = models
-    tracker = Tracker(model, views, rng=0, **ORACLES)
+    tracker = Tracker(model, views, fast=False, rng=0, **ORACLES)
     tracker.update(frames_of(fine, POSES[0], views))
     blank = [Frame(np.zeros(v.shape, np.float32), v, labels=np.zeros(v.shape, np.uint8),
                    T_carm_transducer=POSES[0]) for v in views]
@@ -105,10 +105,10 @@ def test_a_failed_verdict_is_returned_or_raised_as_asked(models, views):
     model, fine = models
     # labels of two different poses: no single pose explains both views
     contradicting = frames_of(fine, POSES[0], views, labels_pose=[None, POSES[1]])
-    tracker = Tracker(model, views, rng=0, mode="fast", retry_hypotheses=False, **ORACLES)
+    tracker = Tracker(model, views, fast=False, rng=0, mode="fast", retry_hypotheses=False, **ORACLES)
     result = tracker.update(contradicting)
     assert not result.verdict.ok and not tracker.tracking and tracker.n_failed == 1
-    strict = Tracker(model, views, rng=0, mode="fast", retry_hypotheses=False, raise_on_failure=True, **ORACLES)
+    strict = Tracker(model, views, fast=False, rng=0, mode="fast", retry_hypotheses=False, raise_on_failure=True, **ORACLES)
     with pytest.raises(PoseEstimationError, match="implausible pose") as err:
         strict.update(contradicting)
     assert err.value.result is not None and strict.n_failed == 1
@@ -116,7 +116,7 @@ def test_a_failed_verdict_is_returned_or_raised_as_asked(models, views):
 
 def test_bad_input_is_refused_naming_the_argument(models, views):
     model, fine = models
-    tracker = Tracker(model, views, rng=0, **ORACLES)
+    tracker = Tracker(model, views, fast=False, rng=0, **ORACLES)
     frames = frames_of(fine, POSES[0], views)
     with pytest.raises(ValueError, match=r"frames must hold one frame per view, 2 \('A', 'B'\), got 1"):
         tracker.update(frames[:1])

@@ -33,7 +33,7 @@ def sequence(models, views):
 
 @pytest.fixture(scope="module")
 def full_frame_poses(models, views, sequence):
-    tracker = Tracker(models[0], views, rng=3, mode="fast", **ORACLES)
+    tracker = Tracker(models[0], views, fast=False, rng=3, mode="fast", **ORACLES)
     return [tracker.update(f).T_carm_transducer for f in sequence[1]]
 
 
@@ -92,6 +92,19 @@ def test_the_same_seed_gives_the_same_fast_track(models, views, sequence):
     np.testing.assert_array_equal(np.array(runs[0]), np.array(runs[1]))
 
 
+def test_the_default_tracker_is_the_fast_one(models, views, sequence):
+    """Tracker(model, views) runs the region path with TrackingConfig()'s defaults: the poses of
+    fast=True, bit for bit; fast=False is the full-frame path, with no region estimator."""
+    default = Tracker(models[0], views, rng=6, mode="fast", **ORACLES)
+    explicit = Tracker(models[0], views, rng=6, mode="fast", fast=True, **ORACLES)
+    assert default.tracking_options == TrackingConfig() == explicit.tracking_options
+    for pair in sequence[1][:2]:
+        np.testing.assert_array_equal(default.update(pair).T_carm_transducer, explicit.update(pair).T_carm_transducer)
+    assert default.last_kind == "warm" and default.last_regions is not None
+    full = Tracker(models[0], views, rng=6, fast=False, **ORACLES)
+    assert full.tracking_options is None and full._region is None
+
+
 def test_bad_fast_options_are_refused_naming_the_argument(models, views):
     with pytest.raises(TypeError, match="fast must be True, False or a histostudy.pose.TrackingConfig"):
         Tracker(models[0], views, fast="yes", **ORACLES)
@@ -121,7 +134,7 @@ def test_track_overlaps_the_stages_and_gives_the_poses_of_update(models, views, 
     for a, b in zip(results, expected):
         assert a.verdict.ok and np.linalg.norm(a.focal_point_mm - b.focal_point_mm) < 0.01
     assert streamed.stats()["n_warm"] == stepwise.stats()["n_warm"] == len(frames) - 1
-    plain = Tracker(models[0], views, rng=4, mode="fast", **ORACLES)  # without fast: update in a loop
+    plain = Tracker(models[0], views, fast=False, rng=4, mode="fast", **ORACLES)  # without fast: update in a loop
     assert [r.verdict.ok for r in plain.track(frames[:2])] == [True, True] and plain.n_updates == 2
 
 
