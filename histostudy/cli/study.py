@@ -1,5 +1,6 @@
 """The study's subcommands of ``histostudy``: ``reproduce --profile smoke`` (the notebooks through
-papermill, then the report), ``train segmentation|orientation|segmentation_tracking[_fine]``, ``report`` (rebuilt from a
+papermill, then the report), ``train segmentation|orientation|segmentation_tracking[_fine]``,
+``calibrate-int8`` (a U-Net's int8 network for CPUs without bfloat16), ``report`` (rebuilt from a
 reproduce folder) and ``profiles``."""
 
 from __future__ import annotations
@@ -77,6 +78,18 @@ def add_parsers(sub, parents) -> None:
                          "leased GPU, render first, then give the training the time that is left (--max-minutes)")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.set_defaults(run=_train)
+
+    cal = sub.add_parser("calibrate-int8", parents=parents,
+                         help="calibrate a U-Net's int8 network (FastUNet precision 'int8', what the tracker runs on "
+                              "a CPU without bfloat16) on validation frames and store it beside its weights")
+    cal.add_argument("--model", default="unet_standard", help="U-Net weights in data/models (default: unet_standard)")
+    cal.add_argument("--frames", type=_positive_int, default=24,
+                     help="validation frames of the profile's seed to calibrate on (default: 24)")
+    cal.add_argument("--profile", type=_profile, default="standard",
+                     help="the profile whose seed draws the frames (default: standard)")
+    cal.add_argument("--output", default=None,
+                     help="where the calibration goes (default: data/models/<model>.int8.json, where FastUNet finds it)")
+    cal.set_defaults(run=_calibrate_int8)
 
     rebuild = sub.add_parser("report", parents=parents,
                              help="rebuild REPORT.md and report.html from a reproduce output folder")
@@ -165,6 +178,29 @@ def _train(args) -> int:
         name = export_name(args.task, cfg.network["arch"], profile.name)
         manifest = export(result, cfg, name, seed=profile.seed, profile=profile.name, models_dir=args.models_dir)
         print(f"exported {manifest.with_suffix('.safetensors')} (manifest {manifest})")
+    return 0
+
+
+def _calibrate_int8(args) -> int:
+    import time
+
+    from histostudy.learning import (MODELS_DIR, HybridFrames, UNetSegmenter, calibrate_int8, default_cache_dir,
+                                     int8_available, int8_calibration_path, save_int8_calibration)
+
+    if not int8_available():
+        print("histostudy calibrate-int8: this torch has no int8 (oneDNN) kernels", file=sys.stderr)
+        return 2
+    try:
+        segmenter = UNetSegmenter.load(MODELS_DIR / f"{args.model}.safetensors")
+    except (OSError, ValueError) as exc:
+        print(f"histostudy calibrate-int8: --model {args.model!r}: {exc}", file=sys.stderr)
+        return 2
+    t0 = time.monotonic()
+    frames = HybridFrames("val", args.profile.seed, cache_dir=default_cache_dir())
+    calibration = calibrate_int8(segmenter, [frames.frame(i) for i in range(args.frames)])
+    path = save_int8_calibration(calibration, args.output or int8_calibration_path(segmenter))
+    print(f"calibrated {args.model} on {args.frames} validation frames of seed {args.profile.seed} in "
+          f"{time.monotonic() - t0:.0f} s: {len(calibration['activation_qparams'])} activations -> {path}")
     return 0
 
 

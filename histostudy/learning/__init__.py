@@ -4,21 +4,25 @@
 metrics (``training_losses``), a teacher's labels as targets (``training_teacher``), the loop
 (``training``) and the export (``training_export``);
 checkpoints with their provenance (``checkpoints``), the segmenters (``segment``), the U-Net's fast
-CPU inference on a region for tracking (``fast_segment``, its fused layers ``fused_conv``) and the
+CPU inference on a region for tracking (``fast_segment``, its fused layers ``fused_conv``, its int8
+network ``int8_unet``) and the
 orientation angles and sources (``orientation``). The pose estimation above this layer takes a
 segmenter and an orientation source.
 """
 
 from . import (nets as _nets, checkpoints as _checkpoints, datasets as _datasets, fast_segment as _fast_segment,
-               fused_conv as _fused_conv, orientation as _orientation, preprocess as _preprocess,
+               fused_conv as _fused_conv, int8_unet as _int8_unet, orientation as _orientation,
+               preprocess as _preprocess,
                segment as _segment, training as _training)
 from .nets import UNet, VGG19, build_network, max_pool_2x2
 from .checkpoints import (MODELS_DIR, load_checkpoint, load_network, load_shipped, manifest_path, save_checkpoint,
                           sha256_file, shipped_model, training_summary)
 from .datasets import (HybridFrames, HybridImageDataset, RenderConfig, SPLAT_DEVICES, SPLIT_CODES, default_cache_dir,
                        flip_angles, random_training_pose, true_angles)
-from .fast_segment import FAST_UNET_PRECISIONS, FastUNet, native_bfloat16
+from .fast_segment import FAST_UNET_PRECISIONS, FastUNet, auto_precision, native_bfloat16
 from .fused_conv import ConvReLU, fuse_conv_relu, reordering_bound
+from .int8_unet import (INT8_CALIBRATION_FORMAT, INT8_ENGINE, Int8UNet, calibrate_int8, int8_available,
+                        int8_calibration_path, load_int8_calibration, save_int8_calibration)
 from .orientation import (LearnedOrientation, N_ORIENTATION_CLASSES, OracleOrientation, OrientationSource,
                           angles_from_direction, beam_direction_of_pose, default_vgg19, direction_candidates,
                           hemisphere_angles, hemisphere_directions, orientation_angle_error, orientation_class,
@@ -32,5 +36,5 @@ from .training import (FineTuneConfig, SEGMENTATION_LOSSES, TRAINING_TABLES, Tra
 
 # every public name of the modules above, as each module's __all__ declares it
 __all__ = list(dict.fromkeys([*_nets.__all__, *_checkpoints.__all__, *_datasets.__all__, *_fast_segment.__all__,
-                              *_fused_conv.__all__, *_orientation.__all__,
+                              *_fused_conv.__all__, *_int8_unet.__all__, *_orientation.__all__,
                               *_preprocess.__all__, *_segment.__all__, *_training.__all__]))

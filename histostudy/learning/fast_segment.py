@@ -55,11 +55,11 @@ from .nets import max_pool_2x2
 from .head_argmax import head_argmax
 from .segment import UNetSegmenter
 
-__all__ = ["FAST_UNET_PRECISIONS", "FastUNet", "native_bfloat16"]
+__all__ = ["FAST_UNET_PRECISIONS", "FastUNet", "auto_precision", "native_bfloat16"]
 
-#: What :class:`FastUNet` computes in: ``"auto"`` (bfloat16 where :func:`native_bfloat16`, else
-#: float32), ``"float32"`` or ``"bfloat16"``.
-FAST_UNET_PRECISIONS = ("auto", "float32", "bfloat16")
+#: What :class:`FastUNet` computes in: ``"auto"`` (:func:`auto_precision`), ``"float32"``,
+#: ``"bfloat16"`` or ``"int8"`` (:mod:`.int8_unet`).
+FAST_UNET_PRECISIONS = ("auto", "float32", "bfloat16", "int8")
 
 
 #: oneDNN instruction-set levels (``ONEDNN_MAX_CPU_ISA``) at which its convolutions have native
@@ -89,6 +89,18 @@ def native_bfloat16() -> bool:
         return bool(torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported())
     except (AttributeError, RuntimeError):
         return False
+
+
+def auto_precision(segmenter: UNetSegmenter) -> str:
+    """What ``precision="auto"`` runs ``segmenter`` in here: ``"bfloat16"`` on a CPU with native
+    bfloat16 (:func:`native_bfloat16`); else ``"int8"`` where this torch has the int8 kernels and
+    the checkpoint its stored calibration (:func:`~.int8_unet.load_int8_calibration`); else
+    ``"float32"``."""
+    from .int8_unet import int8_available, load_int8_calibration
+
+    if native_bfloat16():
+        return "bfloat16"
+    return "int8" if int8_available() and load_int8_calibration(segmenter) is not None else "float32"
 
 
 def _fold_batch_norms(network):
@@ -132,8 +144,11 @@ class FastUNet:
     Args:
         segmenter: the :class:`UNetSegmenter` whose checkpoint (weights, input scale) this runs;
             it is not modified (its network is copied and folded).
-        precision: one of :data:`FAST_UNET_PRECISIONS`: ``"auto"`` (default) resolves to
-            ``"bfloat16"`` on a CPU with native bfloat16 (:func:`native_bfloat16`), else ``"float32"``.
+        precision: one of :data:`FAST_UNET_PRECISIONS`: ``"auto"`` (default) resolves by
+            :func:`auto_precision` (bfloat16 on a CPU with native bfloat16, else int8 where the
+            checkpoint has its calibration, else float32).
+        int8_calibration: for ``"int8"``, the calibration (:func:`~.int8_unet.calibrate_int8`);
+            None: the checkpoint's stored one (a ValueError where there is none).
 
     Attributes:
         segmenter: the reference segmenter (the torch checkpoint as loaded).
@@ -142,12 +157,12 @@ class FastUNet:
         stride_px: frame pixels per network-input pixel (``1 / scale``); box corners are multiples of it.
         network_stride_px: frame pixels per cell of the U-Net's coarsest level (``pad_multiple / scale``,
             :attr:`~.nets.unet.UNet.pad_multiple`).
-        precision: ``"float32"`` or ``"bfloat16"`` (``"auto"`` resolved).
+        precision: ``"float32"``, ``"bfloat16"`` or ``"int8"`` (``"auto"`` resolved).
         n_fused_layers: the network's ``Conv2d -> ReLU`` pairs run as one call
             (:func:`~.fused_conv.fuse_conv_relu`; 0 where this torch cannot fuse them).
     """
 
-    def __init__(self, segmenter: UNetSegmenter, *, precision: str = "auto"):
+    def __init__(self, segmenter: UNetSegmenter, *, precision: str = "auto", int8_calibration: dict | None = None):
         import torch
 
         if not isinstance(segmenter, UNetSegmenter):
@@ -155,7 +170,7 @@ class FastUNet:
         if precision not in FAST_UNET_PRECISIONS:
             raise ValueError(f"precision must be one of {FAST_UNET_PRECISIONS}, got {precision!r}")
         if precision == "auto":
-            precision = "bfloat16" if native_bfloat16() else "float32"
+            precision = auto_precision(segmenter)
         self.segmenter = segmenter
         self.precision = precision
         self.scale = float(segmenter.scale)
@@ -175,6 +190,16 @@ class FastUNet:
         self._net = net.to(memory_format=torch.channels_last).to(self._dtype)
         # Each Conv2d -> ReLU in one oneDNN call where that keeps float32 rounding's bound (fused_conv.py).
         self._net, self.n_fused_layers = fuse_conv_relu(self._net)
+        self._int8 = None
+        if precision == "int8":
+            from .int8_unet import Int8UNet, int8_calibration_path, load_int8_calibration
+
+            calibration = load_int8_calibration(segmenter) if int8_calibration is None else int8_calibration
+            if calibration is None:
+                raise ValueError(f"precision 'int8' needs the calibration of this checkpoint: none at "
+                                 f"{str(int8_calibration_path(segmenter))!r} (histostudy calibrate-int8), and "
+                                 f"int8_calibration is None")
+            self._int8 = Int8UNet(segmenter, calibration)
 
     def segment_region(self, frame: Frame, box, upsample: int = 1) -> np.ndarray:
         """``uint8`` labels (:class:`~histostudy.transducer.Feature` values) of ``box`` of ``frame``
@@ -256,6 +281,8 @@ class FastUNet:
                 mode = "reflect" if min(rows, cols) > max(pad_r, pad_c) else "replicate"
                 t = F.pad(t, (0, pad_c, 0, pad_r), mode=mode)
             x = t.contiguous(memory_format=torch.channels_last).to(self._dtype)
+            if self._int8 is not None:
+                return self._int8.features(x), (rows, cols)
             return self._net.features(x, pool=max_pool_2x2), (rows, cols)
 
     def _logits(self, frame: Frame, box):

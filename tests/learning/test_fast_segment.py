@@ -66,11 +66,11 @@ def shipped_and_frame():
     return segmenter, frame
 
 
-@pytest.mark.parametrize("precision", ["auto", "float32"])
+@pytest.mark.parametrize("precision", ["auto", "float32", "int8"])
 def test_fast_labels_agree_with_the_checkpoint_on_a_rendered_frame(shipped_and_frame, precision):
     """The fast path's labels against the torch checkpoint run eagerly in float32, at the network's
     resolution: on the whole frame, and on a tracking region (the crop changes the context near its
-    edges). "auto" is bfloat16 on a CPU with native bfloat16."""
+    edges). "auto" is bfloat16 on a CPU with native bfloat16, else int8 (the stored calibration)."""
     segmenter, frame = shipped_and_frame
     fast = FastUNet(segmenter, precision=precision)
     reference = _eager_labels(segmenter, frame)
@@ -88,10 +88,10 @@ def test_fast_labels_agree_with_the_checkpoint_on_a_rendered_frame(shipped_and_f
     assert np.mean(region[foreground] == in_box[foreground]) >= 0.98
 
 
-@pytest.mark.parametrize("precision", ["auto", "float32"])
+@pytest.mark.parametrize("precision", ["auto", "float32", "int8"])
 def test_full_frame_labels_are_the_checkpoints_upsampled_labels(shipped_and_frame, precision):
     """FastUNet.segment (a Segmenter of whole frames) against UNetSegmenter.segment, which upsamples
-    all six logit channels before the arg-max: the same labels in float32, 99.9 % in bfloat16."""
+    all six logit channels before the arg-max: the same labels in float32, 99.9 % in bfloat16 and int8."""
     segmenter, frame = shipped_and_frame
     fast = FastUNet(segmenter, precision=precision)
     reference = segmenter.segment(frame)
@@ -124,4 +124,4 @@ def test_bad_input_is_refused_naming_the_argument(random_unet):
     with pytest.raises(TypeError, match="segmenter must be a histostudy.learning.UNetSegmenter"):
         FastUNet("unet")
     with pytest.raises(ValueError, match="precision must be one of"):
-        FastUNet(random_unet, precision="int8")
+        FastUNet(random_unet, precision="float16")

@@ -76,10 +76,13 @@ class TrackingConfig:
         parallel_views: in :meth:`~._tracker.Tracker.update`, segment the views and build their maps
             on two threads at once (torch and OpenCV release the GIL; more pairs per second on two
             free cores, nothing gained when other processes hold the cores: docs/tracking.md);
-            False: one after the other. :meth:`~._tracker.Tracker.track`, whose worker prepares the next
-            pair while this one is refined, takes the views one after the other either way.
+            False: one after the other. :meth:`~._tracker.Tracker.track` schedules the views itself
+            (its worker prepares the next pair while this one is refined; the calling thread then
+            segments the view the worker has not started).
         precision: what a U-Net computes in (:class:`~histostudy.learning.FastUNet`): ``"auto"``
-            (bfloat16 on a CPU with native bfloat16, else float32), ``"float32"`` or ``"bfloat16"``.
+            (bfloat16 on a CPU with native bfloat16, else int8 where the checkpoint has its stored
+            calibration, else float32: :func:`~histostudy.learning.auto_precision`), ``"float32"``,
+            ``"bfloat16"`` or ``"int8"``.
         network: the U-Net of the warm updates' regions, in place of the tracker's U-Net: None (the
             tracker's segmenter), the name of shipped weights in ``data/models`` (``"unet_tracking"``:
             :func:`~histostudy.learning.tracking_segmenter`, the U-Net trained at input scale 0.25;

@@ -119,7 +119,7 @@ def test_bad_fast_options_are_refused_naming_the_argument(models, views):
     with pytest.raises(ValueError, match="parallel_views must be True or False"):
         TrackingConfig(parallel_views=1)
     with pytest.raises(ValueError, match="precision must be one of"):
-        TrackingConfig(precision="int8")
+        TrackingConfig(precision="float16")
 
 
 def test_track_overlaps_the_stages_and_gives_the_poses_of_update(models, views, sequence):

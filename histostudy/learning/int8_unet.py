@@ -1,0 +1,255 @@
+"""The U-Net of §II-B.2 in 8-bit integers, for CPUs without bfloat16 arithmetic:
+:class:`Int8UNet` and its calibration (:func:`calibrate_int8`).
+
+On a CPU with AVX2 only (most lab workstations), :class:`~.fast_segment.FastUNet`'s float32
+convolutions are most of a tracking update (docs/tracking.md, "Fifteen pairs a second on every
+CPU"). Integer convolutions do four times the multiply-adds per instruction there. The network is
+quantised after training (post-training static quantisation, torch's FX graph mode, oneDNN's
+kernels, which run on AVX2 as on AVX-512 and AMX):
+
+- each convolution's weights per output channel, symmetric int8; each activation per tensor,
+  unsigned 8-bit, over the range that a histogram of the calibration frames' activations keeps
+  (torch's ``HistogramObserver``: the range that least distorts them);
+- the first convolution (one input channel: the standardised image, whose fine contrast the
+  thin classes live in; a negligible share of the work) and the 2x2 transposed convolutions stay
+  float32. Quantised, oneDNN's transposed convolutions lost a quarter of the foreground labels
+  (docs/tracking-alternatives.md), where the float ones keep 99.8 % of them;
+- batch norms fold into the convolutions and each convolution and its ReLU run as one call.
+
+The calibration is data, not a fit to a target: the quantisation parameters of every activation,
+read from frames of the checkpoint's own validation split (``histostudy calibrate-int8``), stored
+beside the weights as ``<checkpoint>.int8.json`` with the checkpoint's SHA-256, so that the int8
+network is rebuilt exactly, without frames, wherever the weights are. The torch checkpoint stays
+the source of truth: tests/learning/test_int8_unet.py checks the int8 labels against it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import json
+import warnings
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from histostudy.imaging import Frame
+from .segment import UNetSegmenter
+
+__all__ = ["INT8_CALIBRATION_FORMAT", "INT8_ENGINE", "Int8UNet", "calibrate_int8", "int8_available",
+           "int8_calibration_path", "load_int8_calibration", "save_int8_calibration"]
+
+#: The quantised engine whose kernels the int8 network runs on (oneDNN's: AVX2, AVX-512 VNNI, AMX).
+INT8_ENGINE = "onednn"
+
+#: The format tag of a calibration file.
+INT8_CALIBRATION_FORMAT = "histostudy.int8-calibration/1"
+
+
+def int8_available() -> bool:
+    """Whether this torch has :data:`INT8_ENGINE`'s quantised kernels (x86-64 builds do) and FX graph
+    mode quantisation (``torch.ao.quantization``, which torch deprecates in favour of the separate
+    torchao package: where a later torch drops it, ``precision="auto"`` falls back to float32)."""
+    import torch
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            import torch.ao.quantization.quantize_fx  # noqa: F401
+    except ImportError:
+        return False
+    return INT8_ENGINE in torch.backends.quantized.supported_engines
+
+
+@contextlib.contextmanager
+def _engine():
+    """torch's quantised engine set to :data:`INT8_ENGINE` while weights are packed for it, and
+    torch's deprecation notices of ``torch.ao.quantization`` silenced (int8_available's docstring)."""
+    import torch
+
+    before = torch.backends.quantized.engine
+    torch.backends.quantized.engine = INT8_ENGINE
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", category=DeprecationWarning, message="torch.ao.quantization")
+            warnings.filterwarnings("ignore", category=UserWarning, message="torch.quantize_per_tensor")
+            yield
+    finally:
+        torch.backends.quantized.engine = before
+
+
+def _float_module_names(network) -> list[str]:
+    """The modules that stay float32: the first convolution and every transposed convolution."""
+    import torch
+
+    names = [name for name, m in network.named_modules() if isinstance(m, torch.nn.ConvTranspose2d)]
+    first = next(name for name, m in network.named_modules() if isinstance(m, torch.nn.Conv2d))
+    return [f"n.{name}" for name in [first, *names]]
+
+
+def _prepared(network, observer, example):
+    """The network's feature extractor (:meth:`~.nets.unet.UNet.features`) traced and prepared for
+    quantisation, an ``observer`` after every quantised activation."""
+    import torch
+
+    with _engine():
+        from torch.ao.quantization import QConfig, QConfigMapping
+        from torch.ao.quantization.observer import PerChannelMinMaxObserver
+        from torch.ao.quantization.quantize_fx import prepare_fx
+
+    class Features(torch.nn.Module):
+        def __init__(self, net):
+            super().__init__()
+            self.n = net
+
+        def forward(self, x):
+            return self.n.features(x)
+
+    weights = PerChannelMinMaxObserver.with_args(dtype=torch.qint8, qscheme=torch.per_channel_symmetric)
+    mapping = QConfigMapping().set_global(QConfig(activation=observer, weight=weights))
+    for name in _float_module_names(network):
+        mapping = mapping.set_module_name(name, None)
+    model = Features(copy.deepcopy(network).float().eval()).eval()
+    with _engine():
+        return prepare_fx(model, mapping, example_inputs=(example,))
+
+
+def _activation_observers(prepared) -> list:
+    with _engine():
+        from torch.ao.quantization.observer import ObserverBase
+
+    return [m for _, m in prepared.named_modules() if isinstance(m, ObserverBase)]
+
+
+def _network_input(segmenter: UNetSegmenter, frame: Frame):
+    """``frame`` as the network reads it: standardised at its input scale, padded as the U-Net pads."""
+    import torch
+    from torch.nn import functional as F
+
+    from .preprocess import prepare_image
+
+    x = torch.from_numpy(prepare_image(frame.image, segmenter.scale))[None, None]
+    m = segmenter.network.pad_multiple
+    pad_r, pad_c = (-x.shape[-2]) % m, (-x.shape[-1]) % m
+    return F.pad(x, (0, pad_c, 0, pad_r), mode="reflect") if pad_r or pad_c else x
+
+
+def calibrate_int8(segmenter: UNetSegmenter, frames: Sequence[Frame]) -> dict:
+    """The quantisation parameters of ``segmenter``'s activations on ``frames`` (full frames as the
+    network sees them): a dict for :class:`Int8UNet` and :func:`save_int8_calibration`, with the
+    checkpoint's SHA-256, torch's version and the number of frames."""
+    import torch
+
+    with _engine():
+        from torch.ao.quantization.observer import HistogramObserver
+    if not isinstance(segmenter, UNetSegmenter):
+        raise TypeError(f"segmenter must be a histostudy.learning.UNetSegmenter, got {type(segmenter).__name__}")
+    frames = list(frames)
+    if not frames or not all(isinstance(f, Frame) for f in frames):
+        raise ValueError(f"frames must be a non-empty sequence of Frames, got {len(frames)} items")
+    inputs = [_network_input(segmenter, f) for f in frames]
+    prepared = _prepared(segmenter.network, HistogramObserver.with_args(reduce_range=False), inputs[0])
+    with torch.no_grad(), _engine():
+        for x in inputs:
+            prepared(x)
+    qparams = [[float(s), int(z)] for s, z in (obs.calculate_qparams() for obs in _activation_observers(prepared))]
+    return {"format": INT8_CALIBRATION_FORMAT, "checkpoint_sha256": (segmenter.manifest or {}).get("sha256"),
+            "engine": INT8_ENGINE, "torch": torch.__version__, "frames": len(frames),
+            "float_modules": _float_module_names(segmenter.network), "activation_qparams": qparams}
+
+
+class Int8UNet:
+    """The int8 feature extractor of a :class:`UNetSegmenter` (module docstring), rebuilt from its
+    calibration (:func:`calibrate_int8` or :func:`load_int8_calibration`).
+
+    ``features(x)``: float32 ``(1, channels, rows, cols)`` features of the last decoder block (the
+    input to the head) of a float32 ``(1, 1, rows, cols)`` network input whose sides are multiples
+    of the U-Net's ``pad_multiple``. Safe to call from several threads at once.
+    """
+
+    def __init__(self, segmenter: UNetSegmenter, calibration: dict):
+        import torch
+
+        if not isinstance(segmenter, UNetSegmenter):
+            raise TypeError(f"segmenter must be a histostudy.learning.UNetSegmenter, got {type(segmenter).__name__}")
+        if not int8_available():
+            raise ValueError(f"this torch ({torch.__version__}) has no {INT8_ENGINE!r} quantised engine: "
+                             f"use precision 'float32'")
+        _check_calibration(calibration, segmenter)
+        with _engine():
+            from torch.ao.quantization.observer import MinMaxObserver
+            from torch.ao.quantization.quantize_fx import convert_fx
+        m = segmenter.network.pad_multiple
+        prepared = _prepared(segmenter.network, MinMaxObserver.with_args(reduce_range=False),
+                             torch.zeros(1, 1, 2 * m, 2 * m))
+        observers = _activation_observers(prepared)
+        qparams = calibration["activation_qparams"]
+        if len(observers) != len(qparams):
+            raise ValueError(f"calibration holds {len(qparams)} activations, this torch's graph of the network "
+                             f"{len(observers)}: calibrate again with this torch (histostudy calibrate-int8)")
+        for obs, (scale, zero_point) in zip(observers, qparams):
+            obs.calculate_qparams = _stored(scale, zero_point)
+        with _engine():
+            self._model = convert_fx(prepared)
+
+    def features(self, x):
+        import torch
+
+        with torch.no_grad():
+            return self._model(x)
+
+
+def _stored(scale: float, zero_point: int):
+    """An observer's ``calculate_qparams`` returning the calibration's values exactly."""
+    import torch
+
+    def calculate_qparams():
+        return torch.tensor([scale], dtype=torch.float32), torch.tensor([zero_point], dtype=torch.int32)
+
+    return calculate_qparams
+
+
+def _check_calibration(calibration, segmenter: UNetSegmenter) -> None:
+    if not isinstance(calibration, dict) or calibration.get("format") != INT8_CALIBRATION_FORMAT:
+        raise ValueError(f"calibration must be a dict of format {INT8_CALIBRATION_FORMAT!r} (calibrate_int8), "
+                         f"got {type(calibration).__name__} of format "
+                         f"{calibration.get('format') if isinstance(calibration, dict) else None!r}")
+    sha = (segmenter.manifest or {}).get("sha256")
+    if calibration.get("checkpoint_sha256") != sha:
+        raise ValueError(f"calibration is of the checkpoint with SHA-256 {calibration.get('checkpoint_sha256')!r}, "
+                         f"the segmenter's is {sha!r}: calibrate this checkpoint (histostudy calibrate-int8)")
+    qparams = calibration.get("activation_qparams")
+    if not isinstance(qparams, list) or not all(
+            isinstance(q, list) and len(q) == 2 and np.isfinite(q[0]) and q[0] > 0 and 0 <= q[1] <= 255
+            for q in qparams):
+        raise ValueError("calibration['activation_qparams'] must be a list of [scale > 0, zero point in 0..255]")
+
+
+def int8_calibration_path(segmenter: UNetSegmenter) -> Path | None:
+    """Where the calibration of ``segmenter``'s checkpoint lives: ``<weights>.int8.json`` beside its
+    weights in ``data/models`` (None for a network without a manifest)."""
+    from .checkpoints import MODELS_DIR
+
+    weights = (segmenter.manifest or {}).get("weights_file")
+    return None if not weights else MODELS_DIR / (Path(weights).name.split(".")[0] + ".int8.json")
+
+
+def load_int8_calibration(segmenter: UNetSegmenter) -> dict | None:
+    """The stored calibration of ``segmenter``'s checkpoint, or None where there is none or it is of
+    another checkpoint (another SHA-256)."""
+    path = int8_calibration_path(segmenter)
+    if path is None or not path.is_file():
+        return None
+    calibration = json.loads(path.read_text(encoding="utf-8"))
+    sha = (segmenter.manifest or {}).get("sha256")
+    return calibration if calibration.get("checkpoint_sha256") == sha else None
+
+
+def save_int8_calibration(calibration: dict, path) -> Path:
+    """Write ``calibration`` as JSON to ``path`` (atomically, honouring the umask)."""
+    from histostudy.core import atomic_write_json
+
+    path = Path(path)
+    atomic_write_json(path, calibration)
+    return path
