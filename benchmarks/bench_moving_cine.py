@@ -5,7 +5,7 @@ Writes (or reuses, when ``--folder`` already holds one) the cine of
 :func:`histostudy.study.moving_cine.write_moving_cine`: the robot carrying the physical transducer
 between the margin points of the study at up to ``--speed-mm-s``, ``--seconds`` long at ``--fps``
 frames per second, single-frame DICOM XA per plane and frame. Then, for each of ``--modes`` (``fast``:
-the receiver's default, ``Tracker(fast=True)``; ``full``: every pair on the full frames), streams it
+the receiver's default, ``Tracker``'s fast path; ``full``: every pair on the full frames), streams it
 at its frame rate to a :class:`histostudy.lab.FrameReceiver` on loopback with ``--max-queued-pairs``
 (:func:`histostudy.study.moving_cine_live.stream_moving_cine`; ``--pipeline``: the receiver's pipeline
 on; ``--retries on|off``: the tracker's retries of a refused estimate from scratch) and prints the counts, rates, latency
@@ -13,10 +13,11 @@ and focal error (:func:`~histostudy.study.moving_cine_live.count_table`), the se
 of each stage, the latency's percentiles (p50, p90, p99, max) and the pairs dropped from the
 receiver's stats, and per kind of update (warm, from scratch, re-acquired) the pose seconds, latency and
 focal error. Writes ``<mode>_frames.csv``, ``<mode>_counts.csv``, ``<mode>_stats.json`` and
-``<mode>_focal_error.png`` into ``--output``. The load average before and after says how busy the
-machine was.
+``<mode>_focal_error.png`` into ``--output``. The CPU and its instruction sets come first, the load
+average before and after says how busy the machine was; ``--isa avx2`` runs it as on a CPU with
+AVX2 only (:func:`histostudy.core.run_restricted_to`).
 
-Usage: ``.venv/bin/python benchmarks/bench_moving_cine.py --folder /tmp/cine --output /tmp/out``
+Usage: ``.venv/bin/python benchmarks/bench_moving_cine.py --folder /tmp/cine --output /tmp/out [--isa avx2]``
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from histostudy.core import atomic_write_json, to_jsonable
+from histostudy.core import BENCHMARK_ISAS, atomic_write_json, machine_summary, run_restricted_to, to_jsonable
 from histostudy.study.moving_cine import load_moving_cine, write_moving_cine
 from histostudy.study.moving_cine_live import count_table, frame_table, plot_focal_error, stream_moving_cine
 from histostudy.transducer import TransducerModel
@@ -61,7 +62,11 @@ def main() -> None:
     parser.add_argument("--retries", choices=("default", "on", "off"), default="default",
                         help="the tracker's retries of a refused estimate from scratch "
                              "(PoseConfig.retry_hypotheses; default: the receiver's own)")
+    parser.add_argument("--isa", choices=BENCHMARK_ISAS, default="native",
+                        help="avx2: run as on a CPU with AVX2 only (the command again, its libraries restricted)")
     args = parser.parse_args()
+    run_restricted_to(args.isa)
+    print(machine_summary(), flush=True)
     retries = {} if args.retries == "default" else {"retry_hypotheses": args.retries == "on"}
     pd.set_option("display.width", 200)
 
