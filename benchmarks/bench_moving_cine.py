@@ -8,7 +8,9 @@ frames per second, single-frame DICOM XA per plane and frame. Then, for each of 
 the receiver's default, ``Tracker``'s fast path; ``full``: every pair on the full frames), streams it
 at its frame rate to a :class:`histostudy.lab.FrameReceiver` on loopback with ``--max-queued-pairs``
 (:func:`histostudy.study.moving_cine_live.stream_moving_cine`; ``--pipeline``: the receiver's pipeline
-on; ``--retries on|off``: the tracker's retries of a refused estimate from scratch) and prints the counts, rates, latency
+on; ``--retries on|off``: the tracker's retries of a refused estimate from scratch;
+``--scratch-full-frames on|off``: its second and third steps on the full frames; ``--refinement
+paper|fast``: the tracker's mode) and prints the counts, rates, latency
 and focal error (:func:`~histostudy.study.moving_cine_live.count_table`), the seconds per posed pair
 of each stage, the latency's percentiles (p50, p90, p99, max) and the pairs dropped from the
 receiver's stats, and per kind of update (warm, from scratch, re-acquired) the pose seconds, latency and
@@ -31,6 +33,7 @@ from pathlib import Path
 import pandas as pd
 
 from histostudy.core import BENCHMARK_ISAS, atomic_write_json, machine_summary, run_restricted_to, to_jsonable
+from histostudy.pose import TrackingConfig
 from histostudy.study.moving_cine import load_moving_cine, write_moving_cine
 from histostudy.study.moving_cine_live import count_table, frame_table, plot_focal_error, stream_moving_cine
 from histostudy.transducer import TransducerModel
@@ -62,12 +65,21 @@ def main() -> None:
     parser.add_argument("--retries", choices=("default", "on", "off"), default="default",
                         help="the tracker's retries of a refused estimate from scratch "
                              "(PoseConfig.retry_hypotheses; default: the receiver's own)")
+    parser.add_argument("--scratch-full-frames", choices=("default", "on", "off"), default="default",
+                        help="a refused estimate from scratch tried again on the full frames "
+                             "(TrackingConfig.scratch_full_frames; default: the receiver's own)")
+    parser.add_argument("--refinement", choices=("default", "paper", "fast"), default="default",
+                        help="PoseConfig.mode of the tracker (default: the receiver's own, fast)")
     parser.add_argument("--isa", choices=BENCHMARK_ISAS, default="native",
                         help="avx2: run as on a CPU with AVX2 only (the command again, its libraries restricted)")
     args = parser.parse_args()
     run_restricted_to(args.isa)
     print(machine_summary(), flush=True)
     retries = {} if args.retries == "default" else {"retry_hypotheses": args.retries == "on"}
+    fast = True if args.scratch_full_frames == "default" else TrackingConfig(
+        scratch_full_frames=args.scratch_full_frames == "on")
+    if args.refinement != "default":
+        retries["mode"] = args.refinement
     pd.set_option("display.width", 200)
 
     folder, out = Path(args.folder), Path(args.output)
@@ -88,7 +100,7 @@ def main() -> None:
         print(f"== {mode}: load average before {os.getloadavg()}", flush=True)
         t0 = time.perf_counter()
         run = stream_moving_cine(cine, model, args.tracker_seed, output_path=out / f"{mode}_poses.jsonl",
-                                 fast=mode == "fast", max_queued_pairs=args.max_queued_pairs,
+                                 fast=fast if mode == "fast" else False, max_queued_pairs=args.max_queued_pairs,
                                  pipeline=args.pipeline, **retries)
         frames = frame_table(run, cine)
         counts = count_table(run, frames)

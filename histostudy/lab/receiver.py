@@ -62,7 +62,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from histostudy.imaging import View
-from histostudy.pose import Tracker
+from histostudy.pose import Tracker, TrackingConfig
 from histostudy.transducer import TransducerModel
 from .pairing import DEFAULT_FRAME_INTERVAL_S, BiplanePairer, PlaneFrame
 from .pose_worker import PoseWorker
@@ -96,15 +96,18 @@ class FrameReceiver(PoseWorker):
             the same poses.
         segmenter, orientation, options, **option_overrides: the pose stages and
             :class:`~histostudy.pose.PoseConfig` for :class:`~histostudy.pose.Tracker`. Without
-            ``options``, ``retry_hypotheses`` defaults to False: live, the next pair is 0.13 s away,
-            where a refused estimate's retries held the stream 8-13 s (docs/tracking.md, "Where it stands").
+            ``options``, ``retry_hypotheses`` defaults to False and ``mode`` to ``"fast"``
+            (Levenberg-Marquardt): live, the next pair is 0.13 s away, where a refused estimate's
+            retries held the stream 8-13 s and Nelder-Mead's refinement from scratch takes several
+            times Levenberg-Marquardt's (docs/tracking.md, "A minute of moving cine").
         fast: the tracker's warm path (:class:`~histostudy.pose.Tracker`'s ``fast``): True
             (default) or a :class:`~histostudy.pose.TrackingConfig`: warm updates on the region of
-            the last pose, about 10 times the pairs per second of the full-frame path one pair at a
-            time (16-18 in Tracker.track's pipeline) within 0.1 mm of its poses, a refused one tried
-            again at the detector's resolution before a re-acquisition (docs/tracking.md, "Warm
-            starts that hold"); False: every update on the full frames, as
-            the study's :func:`~histostudy.pose.estimate_pose`.
+            the last pose, a refused one tried again at the detector's resolution before a
+            re-acquisition (docs/tracking.md, "Warm starts that hold"). True is
+            ``TrackingConfig(scratch_full_frames=False)`` here: a refused estimate from scratch is
+            not tried again on the full frames, which held the stream seconds for few accepted
+            poses. False: every update on the full frames, as the study's
+            :func:`~histostudy.pose.estimate_pose`.
         on_pose: called with each record (a dict, as written) on the worker thread; its errors are
             logged, not raised.
         air_value: ``I0`` for the line integrals (modality units); None: each frame's maximum.
@@ -151,6 +154,9 @@ class FrameReceiver(PoseWorker):
         self.model = TransducerModel.build(spacing_mm=0.47) if model is None else model
         if options is None:
             option_overrides.setdefault("retry_hypotheses", False)
+            option_overrides.setdefault("mode", "fast")
+        if fast is True:
+            fast = TrackingConfig(scratch_full_frames=False)
         self.tracker = Tracker(self.model, self.views, segmenter=segmenter, orientation=orientation, rng=seed,
                                options=options, fast=fast, **option_overrides)
         self.pairer = BiplanePairer(names, tolerance_s=tolerance_s, default_interval_s=default_interval_s)

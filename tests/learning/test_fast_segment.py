@@ -70,7 +70,7 @@ def shipped_and_frame():
 def test_fast_labels_agree_with_the_checkpoint_on_a_rendered_frame(shipped_and_frame, precision):
     """The fast path's labels against the torch checkpoint run eagerly in float32, at the network's
     resolution: on the whole frame, and on a tracking region (the crop changes the context near its
-    edges). "auto" is bfloat16 on a CPU with native bfloat16, else int8 (the stored calibration)."""
+    edges). "auto" is bfloat16 on a CPU with native bfloat16; "int8" the stored calibration's network."""
     segmenter, frame = shipped_and_frame
     fast = FastUNet(segmenter, precision=precision)
     reference = _eager_labels(segmenter, frame)

@@ -84,9 +84,9 @@ def test_calibrations_are_stored_beside_the_weights_and_checked(small_unet, fram
         FastUNet(small_unet, precision="int8")
 
 
-def test_the_shipped_unet_has_its_calibration_and_auto_takes_it_without_bfloat16(small_unet, monkeypatch):
-    """data/models/unet_standard.int8.json is of the shipped weights (same SHA-256); "auto" runs int8
-    where bfloat16 is not native and a calibration exists, float32 where none does."""
+def test_the_shipped_unet_has_its_calibration_and_int8_is_asked_for_by_name(small_unet, monkeypatch):
+    """data/models/unet_standard.int8.json is of the shipped weights (same SHA-256); "auto" is
+    bfloat16 where it is native and float32 elsewhere, never int8."""
     shipped = default_segmenter()
     if shipped is None:
         pytest.skip("the shipped U-Net (data/models/unet_standard) is not available")
@@ -94,6 +94,9 @@ def test_the_shipped_unet_has_its_calibration_and_auto_takes_it_without_bfloat16
     assert calibration is not None and calibration["checkpoint_sha256"] == shipped.manifest["sha256"]
     assert calibration["frames"] >= 8
     monkeypatch.setattr(fast_segment, "native_bfloat16", lambda: False)
-    assert auto_precision(shipped) == "int8" and auto_precision(small_unet) == "float32"
+    assert auto_precision(shipped) == auto_precision(small_unet) == "float32"
+    assert FastUNet(shipped).precision == "float32" and FastUNet(shipped, precision="int8").precision == "int8"
     monkeypatch.setattr(fast_segment, "native_bfloat16", lambda: True)
     assert auto_precision(shipped) == "bfloat16"
+    with pytest.raises(TypeError, match="segmenter must be a histostudy.learning.UNetSegmenter"):
+        auto_precision("unet")

@@ -80,9 +80,10 @@ class TrackingConfig:
             (its worker prepares the next pair while this one is refined; the calling thread then
             segments the view the worker has not started).
         precision: what a U-Net computes in (:class:`~histostudy.learning.FastUNet`): ``"auto"``
-            (bfloat16 on a CPU with native bfloat16, else int8 where the checkpoint has its stored
-            calibration, else float32: :func:`~histostudy.learning.auto_precision`), ``"float32"``,
-            ``"bfloat16"`` or ``"int8"``.
+            (bfloat16 on a CPU with native bfloat16, else float32:
+            :func:`~histostudy.learning.auto_precision`), ``"float32"``, ``"bfloat16"`` or
+            ``"int8"`` (the checkpoint's stored calibration; faster than float32 on AVX2, single
+            poses up to 0.2 mm from float32's: docs/tracking.md).
         network: the U-Net of the warm updates' regions, in place of the tracker's U-Net: None (the
             tracker's segmenter), the name of shipped weights in ``data/models`` (``"unet_tracking"``:
             :func:`~histostudy.learning.tracking_segmenter`, the U-Net trained at input scale 0.25;
@@ -117,6 +118,12 @@ class TrackingConfig:
             acceptance and focal errors: docs/tracking.md, "From scratch in under a second"), 1
             for other segmenters. 1: ``estimate_pose`` on the full frames, as before. Below 1, 1/k of
             a U-Net's input scale (its labels pooled by priority).
+        scratch_full_frames: a from-scratch estimate its verdict refuses at the label scale is
+            refined and judged again on the full frames, then estimated from scratch there (steps
+            2-3 of :meth:`~._scratch.ScratchEstimator.estimate`; True, default). False: the refused
+            pose is the result, and a from-scratch estimate costs one step at the label scale (a
+            live stream, whose next pair is a fraction of a second away, then starts warm from it
+            where ``resume_refused`` allows: :class:`histostudy.lab.FrameReceiver`'s default).
     """
 
     roi_margin_px: float = 48.0
@@ -131,6 +138,7 @@ class TrackingConfig:
     rescue_scale: float | None = 1.0
     resume_refused: bool = True
     scratch_label_scale: float | None = None
+    scratch_full_frames: bool = True
 
     def __post_init__(self):
         if not (is_real(self.roi_margin_px) and np.isfinite(self.roi_margin_px) and self.roi_margin_px >= 0):
@@ -151,7 +159,7 @@ class TrackingConfig:
             value = getattr(self, name)
             if not (is_real(value) and np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-        for name in ("parallel_views", "resume_refused"):
+        for name in ("parallel_views", "resume_refused", "scratch_full_frames"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
         if self.precision not in FAST_UNET_PRECISIONS:

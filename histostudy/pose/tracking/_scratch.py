@@ -141,6 +141,7 @@ class ScratchEstimator:
                                            raise_on_failure=False,
                                            init_points_per_class=max(1, round(options.init_points_per_class * s)))
         self.full_options, self.full_model = options, model
+        self.full_frames = bool(tracking.scratch_full_frames)
         self.last_step: str | None = None
         self.full_views = tuple(views)
         self.views = tuple(crop_view(v, (0, v.shape[0], 0, v.shape[1]), s) for v in views)
@@ -168,7 +169,7 @@ class ScratchEstimator:
     def estimate(self, frames: Sequence[Frame], rng: np.random.Generator) -> PoseResult:
         """The pose in ``frames`` (one per view, in order) from scratch (module docstring), in up to
         three steps, each run only when the verdict refused the one before (:attr:`last_step` says
-        which gave the result):
+        which gave the result; steps 2-3 only with ``TrackingConfig.scratch_full_frames``):
 
         1. ``"scaled"``: :func:`~histostudy.pose.estimate_pose_from_labels` at the label scale,
            without its retries;
@@ -195,7 +196,7 @@ class ScratchEstimator:
                                            options=self.options)
         result.timings_s["segmentation"] += seconds
         self.last_step, timings = "scaled", dict(result.timings_s)
-        if not result.verdict.ok:
+        if not result.verdict.ok and self.full_frames:
             first = result
             full = dict(model=self.full_model, segmenter=self.segmenter, orientation=self.orientation, rng=rng)
             result = estimate_pose(frames, initial_pose=first.T_carm_transducer, **full,

@@ -59,6 +59,23 @@ def test_a_pose_refused_at_the_label_scale_is_judged_again_on_the_full_frames(mo
     assert estimator.last_step == "full_frame" and not result.verdict.ok and result.init is not None
 
 
+def test_without_the_full_frames_a_pose_refused_at_the_label_scale_is_the_result(models, views):
+    """scratch_full_frames=False (the live receiver's): one step at the label scale, its refused pose
+    returned as it is, with no step on the full frames."""
+    model, fine = models
+    frames = frames_of(fine, POSES[1], views)
+    live = TrackingConfig(scratch_label_scale=0.5, scratch_full_frames=False)
+    tracker = Tracker(model, views, rng=4, mode="fast", fast=live, **ORACLES)
+    estimator = tracker._scratch
+    estimator.options = dataclasses.replace(estimator.options, max_rms_px=1e-9)
+    result = tracker.update(frames)
+    assert estimator.last_step == "scaled" and not result.verdict.ok and result.init is not None
+    assert [lab.shape for lab in result.labels] == [(v.shape[0] // 2, v.shape[1] // 2) for v in views]
+    assert focal_error(result, POSES[1]) < 0.5  # the refusal is the impossible RMS limit's, not the pose's
+    with pytest.raises(ValueError, match="scratch_full_frames must be True or False"):
+        TrackingConfig(scratch_full_frames="no")
+
+
 def test_pixel_options_are_scaled_and_the_rest_kept():
     options = PoseConfig(mode="fast", max_body_rms_px=None)
     scaled = scaled_pose_options(options, 0.5)
