@@ -12,8 +12,9 @@ same frames, and ``net-<name>``, ``fast`` with ``TrackingConfig(network=--networ
 network trained for tracking"), in an order that rotates frame by frame so that a slow spell of the machine does not
 fall on one of them only. Then, each alone (its worker thread would run on while the others are
 timed), ``fast+pipeline`` and ``net+pipeline``: ``Tracker(..., fast=...).track(frames)``, which
-segments the next pair (its views one after the other) while this one is refined; their seconds per
-pair are the wall time between two results.
+segments the next pair while this one is refined; their seconds per pair are the wall time
+between two results. With ``--int8``, ``fast-int8`` and ``int8+pipeline``: the same with
+``TrackingConfig(precision="int8")`` (docs/tracking.md).
 
 Cine: the physical transducer (0.25 mm render model) on a phantom scene with Poisson noise, on
 ``default_biplane()`` (960 x 1240), starting at a pose of notebook 04's distribution and moving
@@ -171,6 +172,8 @@ def main() -> None:
     parser.add_argument("--network", default="unet_tracking",
                         help="also track with TrackingConfig(network=NAME), the shipped U-Net trained for tracking "
                              "(warm regions at its input scale; '' leaves it out)")
+    parser.add_argument("--int8", action="store_true",
+                        help="also track with TrackingConfig(precision='int8') (fast-int8, int8+pipeline)")
     parser.add_argument("--isa", choices=BENCHMARK_ISAS, default="native",
                         help="avx2: run as on a CPU with AVX2 only (the command again, its libraries restricted)")
     args = parser.parse_args()
@@ -197,6 +200,9 @@ def main() -> None:
     if args.network:
         trackers["net-" + args.network[-8:]] = Tracker(model, views, rng=args.seed, mode="fast",
                                                        fast=TrackingConfig(network=args.network), **stages)
+    if args.int8:
+        trackers["fast-int8"] = Tracker(model, views, rng=args.seed, mode="fast", fast=TrackingConfig(precision="int8"),
+                                        **stages)
     names = list(trackers)
     # Warm-up, untimed: numba's kernels, torch's convolution primitives for these frames' regions.
     for tracker in trackers.values():
@@ -219,6 +225,8 @@ def main() -> None:
     piped = [("fast+pipeline", TrackingConfig())]
     if args.network:
         piped.append(("net+pipeline", TrackingConfig(network=args.network)))
+    if args.int8:
+        piped.append(("int8+pipeline", TrackingConfig(precision="int8")))
     for name, options in piped:
         tracker = Tracker(model, views, rng=args.seed, mode="fast", fast=options, **stages)
         list(tracker.track(frames[:2]))
