@@ -20,6 +20,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from .study import _positive_int as positive_int  # the one check of a count argument
+
 __all__ = ["add_parsers"]
 
 
@@ -113,12 +115,9 @@ def _queue_bound(text: str) -> int | None:
     if text.strip().lower() == "all":
         return None
     try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1 or 'all', got {text!r}")
-    return value
+        return positive_int(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1 or 'all', got {text!r}") from None
 
 
 def _frame_options(parser) -> None:
