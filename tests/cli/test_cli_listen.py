@@ -20,7 +20,7 @@ import pytest
 
 from histostudy.imaging import load_frame, load_views
 from histostudy.lab import send_frames
-from histostudy.pose import Tracker
+from histostudy.pose import Tracker, TrackingConfig
 from histostudy.study.lab_dataset import write_lab_dataset
 from histostudy.transducer import TransducerModel
 
@@ -81,9 +81,12 @@ def test_listen_prints_its_port_and_poses_every_pair_of_a_cine_sent_to_it(lab, t
     assert [r["frame_indices"] for r in records] == [[k, k] for k in range(N_FRAMES)]
     assert all(r["planes"] == ["A", "B"] and "error" not in r for r in records)
 
-    # The same frames as arrays, through a Tracker with the same seed and the command's model.
+    # The same frames as arrays, through a Tracker set as the receiver sets its own (same seed, the
+    # command's model, Levenberg-Marquardt, no retries, no full-frame steps from scratch when fast).
     views = load_views(lab.views)
-    tracker = Tracker(TransducerModel.build(spacing_mm=0.47), views, rng=SEED, fast=fast)
+    live = TrackingConfig(scratch_full_frames=False) if fast else False
+    tracker = Tracker(TransducerModel.build(spacing_mm=0.47), views, rng=SEED, fast=live, mode="fast",
+                      retry_hypotheses=False)
     truth = json.loads(lab.truth.read_text())["cine_T_carm_transducer"]
     for k, record in enumerate(records):
         frames = [load_frame(path, view, line_integrals=False, frame_index=k) for path, view in zip(lab.cine, views)]

@@ -27,7 +27,7 @@ from histostudy.geometry import transform_from_params
 from histostudy.imaging import (default_biplane, detector_counts, load_frame, random_background, render_frame,
                                 write_xa, xa_dataset)
 from histostudy.lab import FrameReceiver, XRayObjectRejected, decode_xray_object, listen, send_frames
-from histostudy.pose import Tracker, pose_record
+from histostudy.pose import Tracker, TrackingConfig, pose_record
 from histostudy.transducer import TransducerModel, pose_facing
 
 T0 = dt.datetime(2024, 5, 6, 10, 30, 0)
@@ -84,9 +84,11 @@ def model():
 
 @pytest.fixture(scope="module")
 def direct(cine, views, model):
-    """What a Tracker finds on the cine's frames given as arrays (same seed and, as the receiver's
-    default, the fast warm path): result per pair."""
-    tracker = Tracker(model, views, rng=SEED, fast=True)
+    """What a Tracker finds on the cine's frames given as arrays, set as the receiver sets its own
+    without options (same seed, the fast warm path without the full-frame steps from scratch,
+    Levenberg-Marquardt, no retries): result per pair."""
+    live = TrackingConfig(scratch_full_frames=False)
+    tracker = Tracker(model, views, rng=SEED, fast=live, mode="fast", retry_hypotheses=False)
     out = []
     for i in range(N_FRAMES):
         frames = [load_frame(cine["paths"][v.name], v, line_integrals=False, frame_index=i) for v in views]
