@@ -173,8 +173,7 @@ class FastUNet:
         self.precision = precision
         self.scale = float(segmenter.scale)
         self.stride_px = int(round(1.0 / self.scale))
-        self._pad_multiple = int(segmenter.network.pad_multiple)
-        self.network_stride_px = self.stride_px * self._pad_multiple
+        self.network_stride_px = self.stride_px * int(segmenter.network.pad_multiple)
         self._dtype = torch.bfloat16 if precision == "bfloat16" else torch.float32
         net = _fold_batch_norms(segmenter.network)
         # The last 1x1 convolution stays float32: its logits decide the arg-max, and bfloat16's
@@ -258,7 +257,6 @@ class FastUNet:
         ``(1, channels, rows', cols')`` tensor of the network's dtype, channels-last, padded as
         :class:`~.nets.unet.UNet` pads; and the box's ``(rows, cols)`` at the network's resolution."""
         import torch
-        from torch.nn import functional as F
 
         from .preprocess import prepare_image
 
@@ -271,13 +269,8 @@ class FastUNet:
         k = self.stride_px
         x = np.ascontiguousarray(x[r0 // k:r1 // k, c0 // k:c1 // k])
         with torch.no_grad():
-            t = torch.from_numpy(x)[None, None]
             rows, cols = x.shape
-            m = self._pad_multiple
-            pad_r, pad_c = (-rows) % m, (-cols) % m
-            if pad_r or pad_c:  # as UNet.forward pads
-                mode = "reflect" if min(rows, cols) > max(pad_r, pad_c) else "replicate"
-                t = F.pad(t, (0, pad_c, 0, pad_r), mode=mode)
+            t = self.segmenter.network.pad(torch.from_numpy(x)[None, None])
             x = t.contiguous(memory_format=torch.channels_last).to(self._dtype)
             if self._int8 is not None:
                 return self._int8.features(x), (rows, cols)

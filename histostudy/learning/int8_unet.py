@@ -125,14 +125,10 @@ def _activation_observers(prepared) -> list:
 def _network_input(segmenter: UNetSegmenter, frame: Frame):
     """``frame`` as the network reads it: standardised at its input scale, padded as the U-Net pads."""
     import torch
-    from torch.nn import functional as F
 
     from .preprocess import prepare_image
 
-    x = torch.from_numpy(prepare_image(frame.image, segmenter.scale))[None, None]
-    m = segmenter.network.pad_multiple
-    pad_r, pad_c = (-x.shape[-2]) % m, (-x.shape[-1]) % m
-    return F.pad(x, (0, pad_c, 0, pad_r), mode="reflect") if pad_r or pad_c else x
+    return segmenter.network.pad(torch.from_numpy(prepare_image(frame.image, segmenter.scale))[None, None])
 
 
 def calibrate_int8(segmenter: UNetSegmenter, frames: Sequence[Frame]) -> dict:

@@ -95,12 +95,19 @@ class UNet(nn.Module):
         if x.ndim != 4 or x.shape[1] != self.config["in_channels"]:
             raise ValueError(f"x must be (N, {self.config['in_channels']}, H, W), got {tuple(x.shape)}")
         rows, cols = x.shape[-2:]
+        return self.head(self.features(self.pad(x)))[..., :rows, :cols]
+
+    def pad(self, x: torch.Tensor) -> torch.Tensor:
+        """``x`` ``(N, C, H, W)`` padded at its bottom and right to multiples of :attr:`pad_multiple`
+        (reflected, or replicated where the image is smaller than the padding), as :meth:`forward`
+        pads its input; ``x`` itself where no padding is needed."""
+        rows, cols = x.shape[-2:]
         m = self.pad_multiple
         pad_r, pad_c = (-rows) % m, (-cols) % m
-        if pad_r or pad_c:
-            mode = "reflect" if min(rows, cols) > max(pad_r, pad_c) else "replicate"
-            x = F.pad(x, (0, pad_c, 0, pad_r), mode=mode)
-        return self.head(self.features(x))[..., :rows, :cols]
+        if not (pad_r or pad_c):
+            return x
+        mode = "reflect" if min(rows, cols) > max(pad_r, pad_c) else "replicate"
+        return F.pad(x, (0, pad_c, 0, pad_r), mode=mode)
 
     def features(self, x: torch.Tensor, pool=None) -> torch.Tensor:
         """The stem (if any) and the encoder-decoder before the head, on ``x`` whose rows and columns
