@@ -88,7 +88,8 @@ def add_parsers(sub, parents) -> None:
     cal.add_argument("--profile", type=_profile, default="standard",
                      help="the profile whose seed draws the frames (default: standard)")
     cal.add_argument("--output", default=None,
-                     help="where the calibration goes (default: data/models/<model>.int8.json, where FastUNet finds it)")
+                     help="where the calibration goes (default: data/models/<model>.int8.json, where FastUNet "
+                          "finds it)")
     cal.set_defaults(run=_calibrate_int8)
 
     rebuild = sub.add_parser("report", parents=parents,

@@ -117,7 +117,6 @@ def machine_summary() -> str:
             f"libraries: {', '.join(versions)}")
 
 
-
 def run_restricted_to(isa: str, argv: list[str] | None = None) -> None:
     """Make this process compute as a CPU of instruction set ``isa`` would (a benchmark's ``--isa``).
 

@@ -3,8 +3,9 @@
 
 The counts of objects, frames and pairs (the pairs dropped for newer ones among them), the
 rejections by status, the seconds spent decoding and posing, and the latency (its mean, and its
-percentiles over the last :data:`LATENCY_WINDOW` lines), kept in one place so that the receiver's network and worker threads add to
-them (under the receiver's lock) and :meth:`ReceiverCounts.stats` reports them. Times in seconds
+percentiles over the last :data:`LATENCY_WINDOW` lines), kept in one place so that the receiver's
+network and worker threads add to them (under the receiver's lock) and
+:meth:`ReceiverCounts.stats` reports them. Times in seconds
 (``time.perf_counter``).
 """
 

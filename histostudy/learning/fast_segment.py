@@ -272,9 +272,12 @@ class FastUNet:
             rows, cols = x.shape
             t = self.segmenter.network.pad(torch.from_numpy(x)[None, None])
             x = t.contiguous(memory_format=torch.channels_last).to(self._dtype)
-            if self._int8 is not None:
-                return self._int8.features(x), (rows, cols)
-            return self._net.features(x, pool=max_pool_2x2), (rows, cols)
+            return self._network_features(x), (rows, cols)
+
+    def _network_features(self, x):
+        """The last decoder block's output of ``x`` (channels-last, of the network's dtype, sides
+        multiples of ``pad_multiple``): the int8 network's where there is one, else the folded one's."""
+        return self._int8.features(x) if self._int8 is not None else self._net.features(x, pool=max_pool_2x2)
 
     def _logits(self, frame: Frame, box):
         """float32 logits ``(6, rows, cols)`` (a torch tensor, channels-last strides) of ``box`` at the
@@ -304,9 +307,9 @@ class FastUNet:
         return head_argmax(hwc.contiguous().numpy(), *self._head_weights)
 
     def _forward(self, x):
-        """The U-Net's layers (:meth:`~.nets.unet.UNet.features`, then the float32 head) on ``x`` (of the
+        """The U-Net's layers (:meth:`_network_features`, then the float32 head) on ``x`` (of the
         network's dtype), whose rows and columns are multiples of ``pad_multiple``: float32 logits."""
-        return self._head(self._net.features(x, pool=max_pool_2x2).float())
+        return self._head(self._network_features(x).float())
 
     def _check_box(self, box, shape) -> tuple[int, int, int, int]:
         try:

@@ -278,8 +278,9 @@ class RegionEstimator:
         """Step 1 (module docstring) of ``frames``: the regions where ``T_roi`` projects, and what
         :meth:`prepare_view` needs to segment and map each of them into the map buffers of
         ``slot`` (0 or 1). ``rng``: for a segmenter that draws, a Generator the views share (then
-        run them one after the other) or a sequence of one per view; None for a U-Net. :meth:`assemble` of the views' outputs is :meth:`prepare`'s result, so
-        that the views can run on different threads, in any order."""
+        run them one after the other) or a sequence of one per view; None for a U-Net.
+        :meth:`assemble` of the views' outputs is :meth:`prepare`'s result, so that the views can
+        run on different threads, in any order."""
         t_start = time.perf_counter()
         if slot not in (0, 1):
             raise ValueError(f"slot must be 0 or 1, got {slot!r}")
