@@ -37,3 +37,15 @@ def moved(T, step):
     out[:3, :3] = step[:3, :3] @ T[:3, :3]
     out[:3, 3] = T[:3, 3] + step[:3, 3]
     return out
+
+
+def assert_jump_reacquired(tracker, fine, views, T_before, T_jump, T_after):
+    """Track ``T_before``, then a jump to ``T_jump``: the warm start is lost, the same frames are
+    re-acquired from scratch (focal point within 0.1 mm), and ``T_after`` is tracked warm again."""
+    tracker.update(frames_of(fine, T_before, views))
+    result = tracker.update(frames_of(fine, T_jump, views))
+    assert tracker.last_kind == "reacquired" and result.verdict.ok and result.init is not None
+    assert focal_error(result, T_jump) < 0.1
+    assert (tracker.n_lost, tracker.n_reacquired, tracker.n_from_scratch) == (1, 1, 2)
+    tracker.update(frames_of(fine, T_after, views))
+    assert tracker.last_kind == "warm" and tracker.n_warm == 1 and tracker.n_accepted == 3

@@ -12,7 +12,7 @@ from histostudy.imaging import Frame
 from histostudy.learning import OracleOrientation, OracleSegmenter
 from histostudy.pose import ConicOrientation, PoseEstimationError, Tracker, estimate_pose
 
-from pose_frames import POSES, focal_error, frames_of, moved
+from pose_frames import POSES, assert_jump_reacquired, focal_error, frames_of, moved
 
 ORACLES = dict(segmenter=OracleSegmenter(), orientation=OracleOrientation())
 
@@ -55,13 +55,7 @@ def test_a_jump_loses_the_track_and_is_reacquired_on_the_same_frames(models, vie
     T_jump = T0.copy()
     T_jump[:3, 3] += [40.0, 0.0, 0.0]
     tracker = Tracker(model, views, fast=False, rng=2, **ORACLES)
-    tracker.update(frames_of(fine, T0, views))
-    result = tracker.update(frames_of(fine, T_jump, views))
-    assert tracker.last_kind == "reacquired" and result.verdict.ok and result.init is not None
-    assert focal_error(result, T_jump) < 0.1
-    assert (tracker.n_lost, tracker.n_reacquired, tracker.n_from_scratch) == (1, 1, 2)
-    tracker.update(frames_of(fine, moved(T_jump, SMALL_MOVE), views))
-    assert tracker.last_kind == "warm" and tracker.n_warm == 1 and tracker.n_accepted == 3
+    assert_jump_reacquired(tracker, fine, views, T0, T_jump, moved(T_jump, SMALL_MOVE))
 
 
 class ImageLabels:

@@ -13,7 +13,7 @@ from histostudy.imaging import Frame
 from histostudy.learning import OracleOrientation, OracleSegmenter
 from histostudy.pose import PoseEstimationError, PoseConfig, RegionEstimator, Tracker, TrackingConfig
 
-from pose_frames import POSES, focal_error, frames_of, moved
+from pose_frames import POSES, assert_jump_reacquired, focal_error, frames_of, moved
 
 ORACLES = dict(segmenter=OracleSegmenter(), orientation=OracleOrientation())
 STEP = transform_from_params(np.r_[np.deg2rad(0.2) * np.array([0.6, -0.48, 0.64]), [0.3, -0.25, 0.3]])
@@ -64,13 +64,7 @@ def test_a_jump_loses_the_fast_track_and_is_reacquired_and_counted(models, views
     model, fine = models
     T0, T_jump = POSES[0], POSES[1]
     tracker = Tracker(model, views, rng=2, mode="fast", fast=True, **ORACLES)
-    tracker.update(frames_of(fine, T0, views))
-    result = tracker.update(frames_of(fine, T_jump, views))
-    assert tracker.last_kind == "reacquired" and result.verdict.ok and result.init is not None
-    assert focal_error(result, T_jump) < 0.1
-    assert (tracker.n_lost, tracker.n_reacquired, tracker.n_from_scratch) == (1, 1, 2)
-    tracker.update(frames_of(fine, moved(T_jump, STEP), views))
-    assert tracker.last_kind == "warm" and tracker.n_warm == 1 and tracker.n_accepted == 3
+    assert_jump_reacquired(tracker, fine, views, T0, T_jump, moved(T_jump, STEP))
     tracker.reset()
     assert tracker.last_regions is None and not tracker.tracking
 
