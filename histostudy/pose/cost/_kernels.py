@@ -101,9 +101,10 @@ def _interpolate(maps, cell, stride, fx, fy, cap):
     return top + fy * (bottom - top), (1.0 - fy) * (d10 - d00) + fy * (d11 - d01), bottom - top
 
 
-@numba.njit(fastmath=False, cache=True, nogil=True, error_model="numpy")
-def _task_cost(ti, pts, tasks, M, c, maps, rows, cols, wt, outside_sq, cap):
-    """Eq. 3's contribution of one task (one block of one class in one view)."""
+@numba.njit(inline="always")
+def _located_task(ti, pts, tasks, M, c, rows, cols):
+    """Task ``ti``'s view ``a``, class ``s``, first point ``i0`` and number of points ``m``, and its
+    block located in view ``a`` (:func:`_locate_block`'s cells, fractions, inside flags, u, v, 1/w)."""
     a, s, base, i0, i1 = tasks[ti, 0], tasks[ti, 1], tasks[ti, 2], tasks[ti, 3], tasks[ti, 4]
     m = i1 - i0
     cell = np.empty(BLOCK_POINTS, dtype=np.int64)
@@ -114,6 +115,13 @@ def _task_cost(ti, pts, tasks, M, c, maps, rows, cols, wt, outside_sq, cap):
     vb = np.empty(BLOCK_POINTS)
     iwb = np.empty(BLOCK_POINTS)
     _locate_block(pts, i0, m, M, c, a, base, rows[a], cols[a], cell, fxb, fyb, inb, ub, vb, iwb)
+    return a, s, i0, m, cell, fxb, fyb, inb, ub, vb, iwb
+
+
+@numba.njit(fastmath=False, cache=True, nogil=True, error_model="numpy")
+def _task_cost(ti, pts, tasks, M, c, maps, rows, cols, wt, outside_sq, cap):
+    """Eq. 3's contribution of one task (one block of one class in one view)."""
+    a, s, i0, m, cell, fxb, fyb, inb, ub, vb, iwb = _located_task(ti, pts, tasks, M, c, rows, cols)
     total = 0.0
     n_out = 0.0
     for j in range(m):
@@ -192,16 +200,7 @@ def _map_gradient(maps, cell, cols_a, rows_a, fx, fy, u, v, cap):
 @numba.njit(fastmath=False, cache=True, nogil=True, error_model="numpy")
 def _task_normal(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq, cap, out):
     """Cost, J^T J (upper triangle, 21) and J^T r (6) of one task into ``out`` (28,)."""
-    a, s, base, i0, i1 = tasks[ti, 0], tasks[ti, 1], tasks[ti, 2], tasks[ti, 3], tasks[ti, 4]
-    m = i1 - i0
-    cell = np.empty(BLOCK_POINTS, dtype=np.int64)
-    fxb = np.empty(BLOCK_POINTS)
-    fyb = np.empty(BLOCK_POINTS)
-    inb = np.empty(BLOCK_POINTS)
-    ub = np.empty(BLOCK_POINTS)
-    vb = np.empty(BLOCK_POINTS)
-    iwb = np.empty(BLOCK_POINTS)
-    _locate_block(pts, i0, m, M, c, a, base, rows[a], cols[a], cell, fxb, fyb, inb, ub, vb, iwb)
+    a, s, i0, m, cell, fxb, fyb, inb, ub, vb, iwb = _located_task(ti, pts, tasks, M, c, rows, cols)
     acc = np.zeros(28)
     jrow = np.zeros(6)
     sw = np.sqrt(wt[a, s])
@@ -256,16 +255,7 @@ def normal_serial(pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside_sq, cap
 @numba.njit(fastmath=False, cache=True, nogil=True, error_model="numpy")
 def _task_residual(ti, pts, tasks, R, M, c, P3, maps, rows, cols, wt, outside, cap, r_out, j_out):
     """Residuals and Jacobian rows of one task into ``r_out (A, N)`` and ``j_out (A, N, 6)``."""
-    a, s, base, i0, i1 = tasks[ti, 0], tasks[ti, 1], tasks[ti, 2], tasks[ti, 3], tasks[ti, 4]
-    m = i1 - i0
-    cell = np.empty(BLOCK_POINTS, dtype=np.int64)
-    fxb = np.empty(BLOCK_POINTS)
-    fyb = np.empty(BLOCK_POINTS)
-    inb = np.empty(BLOCK_POINTS)
-    ub = np.empty(BLOCK_POINTS)
-    vb = np.empty(BLOCK_POINTS)
-    iwb = np.empty(BLOCK_POINTS)
-    _locate_block(pts, i0, m, M, c, a, base, rows[a], cols[a], cell, fxb, fyb, inb, ub, vb, iwb)
+    a, s, i0, m, cell, fxb, fyb, inb, ub, vb, iwb = _located_task(ti, pts, tasks, M, c, rows, cols)
     jrow = np.zeros(6)
     sw = np.sqrt(wt[a, s])
     for j in range(m):
