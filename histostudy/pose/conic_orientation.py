@@ -184,10 +184,12 @@ class ConicOrientation:
 
     # --- the estimate ---------------------------------------------------------------------------
 
-    def fit(self, labels, view: View, rng: np.random.Generator, maps=None) -> ConicFit | None:
+    def fit(self, labels, view: View, rng: np.random.Generator, maps=None, *, executor=None) -> ConicFit | None:
         """The ellipse of the inner boundary in ``labels`` and the focal directions it gives, or
         None when the view shows no usable ellipse (see the class's thresholds). ``maps``: the
-        labels' :class:`~histostudy.pose.distance_maps.DistanceMaps` when already made (else made here)."""
+        labels' :class:`~histostudy.pose.distance_maps.DistanceMaps` when already made (else made here).
+        ``executor``: a ``concurrent.futures.Executor`` that fits the four (circle, sign) poses
+        concurrently (they draw nothing, so the result is the same); None: one after the other."""
         labels = np.asarray(labels)
         if labels.shape != tuple(view.shape):
             raise ValueError(f"labels have shape {labels.shape}, expected the view's {view.shape}")
@@ -212,10 +214,12 @@ class ConicOrientation:
             maps = DistanceMaps(view, labels, occlusion_aware=True)
         elif not isinstance(maps, DistanceMaps) or maps.view is not view:
             raise ValueError("maps must be the DistanceMaps of these labels in this view")
+        cases = [(circle, sign) for circle in circles for sign in (1.0, -1.0)]
+        fit_case = lambda case: self._fit_circle_pose(*case, maps, tolerance)  # noqa: E731
+        fits = list(map(fit_case, cases) if executor is None else executor.map(fit_case, cases))
         directions, scores = [], []
-        for circle in circles:
-            fits = [self._fit_circle_pose(circle, sign, maps, tolerance) for sign in (1.0, -1.0)]
-            best, other = sorted(fits, key=lambda f: f[1])
+        for i in range(len(circles)):
+            best, other = sorted(fits[2 * i:2 * i + 2], key=lambda f: f[1])
             directions.append(-best[0][:3, 2])
             scores.append((best[1], other[1]))
         return ConicFit(ellipse=ellipse, circles=tuple(circles), directions=np.array(directions),

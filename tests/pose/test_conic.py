@@ -113,3 +113,22 @@ def test_ransac_fit_is_seeded_and_checks_its_arguments():
         fit_ellipse_ransac(pts, np.random.default_rng(0), tolerance_px=float("nan"))
     with pytest.raises(ValueError, match="iterations"):
         fit_ellipse_ransac(pts, np.random.default_rng(0), iterations=0)
+
+
+def test_ransac_scores_hypotheses_as_the_sampson_distance_counts_them():
+    # the compiled score of a hypothesis against numpy's Sampson distance (the refits' measure),
+    # on integer pixel positions of a noisy band, for conics fitted to random samples of it
+    from histostudy.pose.conic import _count_within_px, _fit_conic_cv, _sampson_distance
+
+    rng = np.random.default_rng(11)
+    t = rng.uniform(0, 2 * np.pi, 3000)
+    pts = np.round(np.column_stack([300 + 90 * np.cos(t), 200 + 40 * np.sin(t)]) + rng.normal(0, 2, (3000, 2)))
+    checked = 0
+    for _ in range(100):
+        C = _fit_conic_cv(pts[rng.choice(len(pts), 6, replace=False)].astype(np.float32))
+        if C is None:
+            continue
+        for tolerance in (1.0, 3.0, 6.5):
+            assert _count_within_px(C, pts, tolerance) == np.count_nonzero(_sampson_distance(C, pts) <= tolerance)
+        checked += 1
+    assert checked > 80

@@ -122,3 +122,15 @@ def test_the_default_orientation_is_the_conic_with_the_shipped_vgg19_as_fallback
     # the learned-stage requirements judge the VGG19 behind it
     assert source.manifest["sha256"] == vgg.manifest["sha256"]
     assert learned_stage_shortfalls(default_segmenter(), source) == []
+
+
+def test_fitting_the_circle_poses_on_threads_gives_the_same_fit(frames):
+    from concurrent.futures import ThreadPoolExecutor
+
+    source = ConicOrientation(segmenter=OracleSegmenter())
+    frame = frames[0][0]
+    alone = source.fit(frame.labels, frame.view, np.random.default_rng(0))
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        threaded = source.fit(frame.labels, frame.view, np.random.default_rng(0), executor=pool)
+    assert isinstance(alone, ConicFit)
+    assert np.array_equal(alone.directions, threaded.directions) and alone.sign_scores == threaded.sign_scores

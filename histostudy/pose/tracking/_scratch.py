@@ -68,13 +68,14 @@ class _ScaledDirections:
     scaled thresholds on its labels, or the fallback (any other source) on the full frame."""
 
     def __init__(self, orientation, conics: Sequence[ConicOrientation | None], views: Sequence[View],
-                 frames: Sequence[Frame]):
+                 frames: Sequence[Frame], executor=None):
         self.orientation, self.conics, self.views, self.frames = orientation, conics, views, frames
+        self.executor = executor
 
     def __call__(self, a: int, labels: np.ndarray, maps, rng: np.random.Generator) -> np.ndarray:
         conic, full, source = self.conics[a], self.frames[a], self.orientation
         if conic is not None:
-            fit = conic.fit(labels, self.views[a], rng, maps)
+            fit = conic.fit(labels, self.views[a], rng, maps, executor=self.executor)
             if fit is not None:
                 # normalised as estimate_pose normalises a source's pair read from labels
                 return unit_direction_pair(fit.directions, "ConicOrientation.fit")
@@ -191,7 +192,7 @@ class ScratchEstimator:
         else:
             labels = [self._labels(f, rng) for f in frames]
         seconds = time.perf_counter() - t_start
-        directions = _ScaledDirections(self.orientation, self._conics, self.views, frames)
+        directions = _ScaledDirections(self.orientation, self._conics, self.views, frames, self._pool)
         result = estimate_pose_from_labels(labels, self.views, self.model, orientation=directions, rng=rng,
                                            options=self.options)
         result.timings_s["segmentation"] += seconds
