@@ -47,7 +47,7 @@ from .silhouette import SILHOUETTE_CELL_PX, segmented_occupancy, silhouette_cand
 from .start import SILHOUETTE_POINTS, Initialisation, coarse_scorings, directions_to_try, initialise
 from .tracking import (PreparedRegions, RegionEstimator, RegionMaps, RegionOfInterest, RegionPlan, ScratchEstimator,
                        Tracker, TrackingConfig, crop_view, frames_for_views, region_of_interest, scaled_pose_options,
-                       scratch_estimator)
+                       scratch_estimator, views_isocentre_mm, warm_up_pair)
 from .truncations import PoseCosts, pose_costs
 from .verdict import (PoseJudge, PoseVerdict, check_unexplained, check_view_agreement, judge_fit,
                       unexplained_fraction, view_disagreement_mm)

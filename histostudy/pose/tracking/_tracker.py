@@ -48,6 +48,7 @@ from ._options import TrackingConfig
 from ._pipeline import pipelined_updates
 from ._scratch import scratch_estimator
 from ._warm import RegionEstimator
+from ._warm_up import warm_up
 
 __all__ = ["Tracker"]
 
@@ -205,6 +206,16 @@ class Tracker:
         """The counters and the summed stage seconds as a plain dict (JSON-ready)."""
         return {**{name: getattr(self, name) for name in self.COUNTERS}, "stage_seconds": dict(self.stage_seconds),
                 "update_seconds": self.update_seconds}
+
+    def warm_up(self, frames=None, *, seed: int = 0) -> dict:
+        """Run the whole path once before the first real pair — from scratch, then warm — on
+        ``frames`` (as :meth:`update` takes them; default a synthetic pair of :attr:`model` at the
+        views' isocentre, :func:`~._warm_up.warm_up_pair`, drawn from ``seed``), then put the
+        tracker back as it was: the track, the counters and the Generator's state, so the poses
+        that follow are the same as without it. Loads or compiles the kernels and builds the
+        network's primitives that a live stream's first pair would otherwise wait for.
+        Returns ``{"seconds", "kinds", "accepted"}`` of the two warm-up updates."""
+        return warm_up(self, frames, seed=seed)
 
     # --- the update -----------------------------------------------------------------------------
 
