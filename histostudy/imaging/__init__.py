@@ -27,6 +27,8 @@ from .cbct import PhantomSpec, check_target, phantom_mask, phantom_values, phant
 from .io import REQUIRED_GEOMETRY_TAGS, gantry_from_dicom
 from .io import SLICE_POSITION_RTOL
 from .io import XA_SOP_CLASS_UID, detector_counts, write_xa, xa_dataset
+from .io import (RECEIVABLE_TRANSFER_SYNTAXES, X_RAY_SOP_CLASSES, XRayObjectRejected, check_sop_class,
+                 check_xray_object, xray_pixels)
 from .frame import Frame, line_integrals_from_pixels, load_frame
 from .io import save_volume_nifti
 from .render import add_poisson_noise, background_line_integrals, render_frame, render_labels, render_line_integrals

@@ -94,8 +94,11 @@ def load_frame(path: str | os.PathLike, view: View, *, line_integrals: bool = Tr
         resample: resize an image whose size differs from ``view.shape`` onto it (area averaging
             when shrinking, bilinear when enlarging); without it such an image is refused.
 
-    DICOM: the stored values are inverted first for ``MONOCHROME1`` (low values white), so that a
-    larger value is always more X-ray intensity; then ``RescaleSlope`` / ``RescaleIntercept``
+    DICOM: the object must be an X-ray image in a transfer syntax this install decodes
+    (:func:`~histostudy.imaging.check_xray_object`, which the live receiver applies too: a refusal
+    is an :class:`~histostudy.imaging.XRayObjectRejected`, a ValueError); the stored values are
+    inverted first for ``MONOCHROME1`` (low values white), so that a larger value is always more
+    X-ray intensity; then ``RescaleSlope`` / ``RescaleIntercept``
     (finite, or refused naming the tag) give the modality values
     (:func:`line_integrals_from_pixels`, which also makes the line integrals).
     """
@@ -119,8 +122,11 @@ def load_frame(path: str | os.PathLike, view: View, *, line_integrals: bool = Tr
     elif suffix in (".dcm", ".dicom", ""):
         import pydicom
 
+        from .io import check_xray_object, xray_pixels
+
         dataset = pydicom.dcmread(path)
-        image = dataset.pixel_array
+        check_xray_object(dataset, source=source)  # the receiver's check: the same objects refused alike
+        image = xray_pixels(dataset, source=source)
     else:
         raise ValueError(f"{source}: unknown image format {suffix!r} (expected .npy, .png, .tif, .dcm)")
     image = _modality_values(_one_frame(np.asarray(image, dtype=np.float64), frame_index, path), dataset, source)

@@ -1,8 +1,11 @@
 """Received DICOM X-ray objects decoded and checked: frames of line integrals, each with its plane (§II-A).
 
 What the live receiver (:mod:`.receiver`) does with each object a C-arm or a PACS sends it, in two
-steps: :func:`read_xray_header` checks the SOP class, the geometry tags, the frame times and the
-pixel module's tags (and, uncompressed, the pixel data's length) and gives one
+steps: :func:`read_xray_header` checks the object as every reader of the lab's frames does
+(:func:`histostudy.imaging.check_xray_object`, which ``histostudy pose`` and ``calibrate`` apply
+through :func:`~histostudy.imaging.load_frame`: the SOP class, the transfer syntax among
+:data:`histostudy.imaging.RECEIVABLE_TRANSFER_SYNTAXES`, the image size and, uncompressed, the pixel
+data's length), then the geometry tags, the frame times and the pixel module's tags, and gives one
 :class:`PendingFrame` per frame (a cine's frames each one), all that pairing and the C-STORE answer
 need; :meth:`PendingFrame.decode` converts one frame's pixels into a :class:`ReceivedFrame`, done by
 the receiver only for the pairs it poses. :func:`decode_xray_object` does both for every frame;
@@ -49,20 +52,14 @@ from typing import Sequence
 
 import numpy as np
 
-from histostudy.imaging import View, line_integrals_from_pixels
+from histostudy.imaging import (RECEIVABLE_TRANSFER_SYNTAXES, View, X_RAY_SOP_CLASSES, XRayObjectRejected,
+                                check_sop_class, check_xray_object, line_integrals_from_pixels, xray_pixels)
 from .pairing import frame_times, posix_seconds
 
 __all__ = ["PendingFrame", "REJECTION_STATUSES", "ReceivedFrame", "X_RAY_SOP_CLASSES", "XRayObjectRejected",
            "decode_xray_object", "read_xray_header"]
 
 log = logging.getLogger(__name__)
-
-#: The SOP classes whose frames are received (the others are answered 0x0122).
-X_RAY_SOP_CLASSES = {
-    "1.2.840.10008.5.1.4.1.1.12.1": "X-Ray Angiographic Image Storage",
-    "1.2.840.10008.5.1.4.1.1.12.1.1": "Enhanced XA Image Storage",
-    "1.2.840.10008.5.1.4.1.1.12.2": "X-Ray Radiofluoroscopic Image Storage",
-}
 
 STATUS_SUCCESS = 0x0000
 STATUS_SOP_CLASS_NOT_SUPPORTED = 0x0122
@@ -82,16 +79,6 @@ REJECTION_STATUSES = {
 #: corners of a 100 mm cube around it, the region where the transducer's focal point is sought.
 _PROBE_POINTS_MM = np.array([[0.0, 0.0, 0.0]] + [[x, y, z] for x in (-50.0, 50.0) for y in (-50.0, 50.0)
                                                  for z in (-50.0, 50.0)])
-
-
-class XRayObjectRejected(ValueError):
-    """A received object the receiver refuses: ``status`` is the C-STORE failure status to answer
-    (:data:`REJECTION_STATUSES`), the message the reason."""
-
-    def __init__(self, status: int, reason: str):
-        super().__init__(reason)
-        self.status = int(status)
-        self.reason = reason
 
 
 @dataclass(frozen=True, eq=False)
@@ -143,19 +130,10 @@ class PendingFrame:
             XRayObjectRejected: 0xA900, the pixels cannot be read (a compressed stream that does
                 not decode); 0xC000, they cannot be used (a frame without signal).
         """
-        from pydicom.pixels import get_decoder
-
         t0 = time.perf_counter()
         ds = self.dataset
         rows, cols = int(ds.Rows), int(ds.Columns)
-        try:
-            pixels, _ = get_decoder(ds.file_meta.TransferSyntaxUID).as_array(ds, index=self.frame_index)
-        except Exception as exc:  # pydicom raises several kinds for a broken pixel module
-            raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
-                                     f"its pixel data cannot be read: {type(exc).__name__}: {exc}") from None
-        if pixels.size != rows * cols:
-            raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"frame {self.frame_index}'s pixel data decode to "
-                                                              f"shape {pixels.shape}, not {rows} x {cols}")
+        pixels = xray_pixels(ds, self.frame_index)  # the decoder load_frame uses: 0xA900 if it fails
         try:
             image = line_integrals_from_pixels(pixels.reshape(1, rows, cols), ds, air_value=air_value)[0]
         except ValueError as exc:  # a frame without signal
@@ -178,27 +156,11 @@ def read_xray_header(ds, views: Sequence[View], *, sop_class_uid: str | None = N
     pixels can tell (a compressed stream that does not decode, a frame without signal) is left to
     :meth:`PendingFrame.decode`. Arguments and refusals as :func:`decode_xray_object`'s.
     """
-    sop = str(getattr(ds, "SOPClassUID", "") or "")
-    expected = sop if sop_class_uid is None else str(sop_class_uid)
-    if expected not in X_RAY_SOP_CLASSES:
-        raise XRayObjectRejected(STATUS_SOP_CLASS_NOT_SUPPORTED,
-                                 f"SOP class {expected or '(none)'} is not an X-ray angiographic or RF image; "
-                                 f"this receiver takes {', '.join(X_RAY_SOP_CLASSES.values())}")
-    if sop != expected:
-        raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
-                                 f"the data set's SOPClassUID {sop or '(none)'} differs from the stored SOP class "
-                                 f"{expected}")
+    # the checks load_frame applies to a file (histostudy pose, calibrate): the same objects refused alike
+    check_xray_object(ds, sop_class_uid=str(getattr(ds, "SOPClassUID", "") or "") if sop_class_uid is None
+                      else sop_class_uid)
     uid = str(getattr(ds, "SOPInstanceUID", "") or "")
-    try:
-        n_frames = int(getattr(ds, "NumberOfFrames", 1) or 1)
-        int(ds.Rows), int(ds.Columns)
-    except (AttributeError, TypeError, ValueError) as exc:
-        raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"no readable image size (Rows, Columns, "
-                                                          f"NumberOfFrames): {exc}") from None
-    samples = int(getattr(ds, "SamplesPerPixel", 1) or 1)
-    if samples != 1:
-        raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, f"SamplesPerPixel (0028,0002) is {samples}; X-ray "
-                                                           "frames must be greyscale (1)")
+    n_frames = int(getattr(ds, "NumberOfFrames", 1) or 1)
     # the plane of each frame: once for a plain cine, per frame where functional groups may differ
     per_frame = bool(getattr(ds, "PerFrameFunctionalGroupsSequence", None))
     plane_views = []
@@ -248,9 +210,7 @@ def read_c_store(event, views: Sequence[View], *, match_tolerance_mm: float | No
     a sender's object becomes a refusal (0xC000), logged, so that the receiver keeps serving. Raises
     :class:`XRayObjectRejected` only."""
     sop_class = str(getattr(event.request, "AffectedSOPClassUID", "") or "")
-    if sop_class not in X_RAY_SOP_CLASSES:
-        raise XRayObjectRejected(STATUS_SOP_CLASS_NOT_SUPPORTED,
-                                 f"SOP class {sop_class} is not an X-ray angiographic or RF image")
+    check_sop_class(sop_class, stored=sop_class)  # the reason load_frame gives for the same object
     try:
         ds = event.dataset
         ds.file_meta = event.file_meta
@@ -289,13 +249,15 @@ def storage_application_entity(ae_title: str, network_timeout_s: float):
     """pynetdicom's application entity of a Storage SCP that C-arms send X-ray objects to: every
     storage SOP class accepted at negotiation, so that an object that is not an X-ray image reaches
     the C-STORE handler and gets a failure status naming why (:func:`rejection_response`), and
-    Verification (C-ECHO, the C-arm's connection test)."""
+    Verification (C-ECHO, the C-arm's connection test). Each storage context accepts the transfer
+    syntaxes the readers decode (:data:`histostudy.imaging.RECEIVABLE_TRANSFER_SYNTAXES`: native,
+    JPEG Lossless, JPEG-LS, JPEG 2000, RLE), so that a C-arm may send its frames compressed."""
     from pynetdicom import AE, AllStoragePresentationContexts
     from pynetdicom.sop_class import Verification
 
     ae = AE(ae_title=ae_title)
     for context in AllStoragePresentationContexts:
-        ae.add_supported_context(context.abstract_syntax)
+        ae.add_supported_context(context.abstract_syntax, list(RECEIVABLE_TRANSFER_SYNTAXES))
     ae.add_supported_context(Verification)
     ae.network_timeout = network_timeout_s
     return ae
@@ -303,26 +265,11 @@ def storage_application_entity(ae_title: str, network_timeout_s: float):
 
 def _check_pixel_module(ds) -> None:
     """Refuses an object whose pixels could not be converted, as far as the tags tell: the tags
-    :func:`histostudy.imaging.line_integrals_from_pixels` reads (0xC000) and, for a native transfer
-    syntax, a ``PixelData`` shorter than its frames (0xA900)."""
-    from pydicom.pixels.utils import get_expected_length
-
+    :func:`histostudy.imaging.line_integrals_from_pixels` reads (0xC000), as load_frame reads them."""
     try:
         line_integrals_from_pixels(np.ones((1, 1)), ds, air_value=1.0)  # the tags alone: a one-pixel probe
     except ValueError as exc:
         raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, str(exc)) from None
-    try:
-        syntax = ds.file_meta.TransferSyntaxUID
-        data = ds.PixelData
-        expected = None if syntax.is_encapsulated else get_expected_length(ds, "bytes")
-    except Exception as exc:  # no file meta, no PixelData, a pixel module pydicom cannot size
-        raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
-                                 f"its pixel data cannot be read: {type(exc).__name__}: {exc}") from None
-    if expected is not None and len(data) < expected:
-        raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
-                                 f"its pixel data cannot be read: PixelData holds {len(data)} bytes, its "
-                                 f"{int(getattr(ds, 'NumberOfFrames', 1) or 1)} frame(s) of {ds.Rows} x "
-                                 f"{ds.Columns} need {expected}")
 
 
 def _plane_view(ds, views: Sequence[View], frame_index: int | None, tol_mm: float | None) -> View:

@@ -84,8 +84,14 @@ def gantry_from_dicom(ds, frame_index: int | None = None, source: str = "the DIC
     ``shape`` ``(rows, cols)`` and ``pixel_mm`` ``(row spacing, column spacing)``. Raises a
     ValueError naming ``source`` and the first missing attribute with its tag. A rotational
     acquisition (``PositionerPrimaryAngleIncrement``) is refused: the standard leaves it open
-    whether its increments are per frame or cumulative, and a wrong guess moves every view.
+    whether its increments are per frame or cumulative, and a wrong guess moves every view. An
+    object of a SOP class that is not an X-ray image (CT, secondary capture, ...) is refused first,
+    as every reader of the lab's frames refuses it (:func:`~._xray.check_sop_class`; a data set
+    without SOPClassUID is a bare set of tags, read).
     """
+    from ._xray import check_sop_class
+
+    check_sop_class(getattr(ds, "SOPClassUID", None), source=source)
     if frame_index is not None and (isinstance(frame_index, bool) or not isinstance(frame_index, int)
                                     or frame_index < 0):
         raise ValueError(f"frame_index must be an integer >= 0 or None, got {frame_index!r}")

@@ -1,0 +1,215 @@
+"""The one check of a DICOM X-ray object that every reader of the lab's frames applies, and the
+decoding of its pixels: ``histostudy pose`` and ``histostudy calibrate`` (through
+:func:`histostudy.imaging.load_frame` and :meth:`~histostudy.imaging.View.from_dicom`) and the live
+receiver (:func:`histostudy.lab.xray_objects.read_xray_header`, ``histostudy listen``) refuse the
+same objects with the same reason.
+
+- **The SOP class** (:func:`check_sop_class`): X-ray angiographic, enhanced XA or RF image
+  storage (:data:`X_RAY_SOP_CLASSES`); any other (CT, secondary capture, ...) is refused (C-STORE
+  status 0x0122), and a data set whose SOP class differs from the one it was stored as (0xA900).
+  A data set that names no SOP class at all is a bare image (a file written by a script), read
+  as one; the receiver always has the sender's SOP class, so there it is refused as differing.
+- **The transfer syntax** (:data:`RECEIVABLE_TRANSFER_SYNTAXES`): the native ones, and the
+  compressed ones pydicom can decode in this install (its plugins: python-gdcm for JPEG Lossless,
+  JPEG-LS and JPEG 2000, pydicom's own RLE decoder). Refused (0xA900): any syntax without a
+  decoder here, and lossy pixels: JPEG baseline and extended, a JPEG-LS stream with NEAR > 0 (its
+  near-lossless syntax carries lossless streams too), an irreversible (9-7 wavelet) JPEG 2000
+  stream, and an object whose LossyImageCompression (0028,2110) is "01". A lossy frame is not
+  posed: a near-lossless pair (NEAR 2 of 4095 counts) moved the pose by about 13 mm, and only the
+  verdict caught it (docs/your-data.md, "Compressed frames").
+- **The image** (:func:`check_xray_object`): a readable size, one sample per pixel (0xC000), and,
+  for a native transfer syntax, every frame's bytes (0xA900).
+
+:func:`xray_pixels` decodes one frame (or all) through pydicom's pixel-data plugins; a stream that
+does not decode is refused (0xA900). The tags of the pixel module (MONOCHROME1, the rescale) are
+checked where they are used, by :func:`histostudy.imaging.line_integrals_from_pixels`.
+"""
+
+from __future__ import annotations
+
+__all__ = ["RECEIVABLE_TRANSFER_SYNTAXES", "X_RAY_SOP_CLASSES", "XRayObjectRejected", "check_sop_class",
+           "check_xray_object", "xray_pixels"]
+
+#: The SOP classes whose frames are read (the others are refused; C-STORE status 0x0122).
+X_RAY_SOP_CLASSES = {
+    "1.2.840.10008.5.1.4.1.1.12.1": "X-Ray Angiographic Image Storage",
+    "1.2.840.10008.5.1.4.1.1.12.1.1": "Enhanced XA Image Storage",
+    "1.2.840.10008.5.1.4.1.1.12.2": "X-Ray Radiofluoroscopic Image Storage",
+}
+
+STATUS_SOP_CLASS_NOT_SUPPORTED = 0x0122
+STATUS_DATASET_MISMATCH = 0xA900
+STATUS_CANNOT_UNDERSTAND = 0xC000
+
+#: Native (uncompressed) transfer syntaxes: implicit and explicit VR little endian, deflated
+#: explicit VR little endian, explicit VR big endian (retired, still sent by old equipment).
+_NATIVE = ("1.2.840.10008.1.2.1", "1.2.840.10008.1.2", "1.2.840.10008.1.2.1.99", "1.2.840.10008.1.2.2")
+#: The compressed ones read where pydicom has a decoder for them.
+_COMPRESSED = (
+    "1.2.840.10008.1.2.4.70",  # JPEG Lossless, first-order prediction (process 14, selection value 1)
+    "1.2.840.10008.1.2.4.57",  # JPEG Lossless (process 14)
+    "1.2.840.10008.1.2.4.80",  # JPEG-LS Lossless
+    "1.2.840.10008.1.2.4.81",  # JPEG-LS near-lossless: read when its stream's NEAR is 0
+    "1.2.840.10008.1.2.4.90",  # JPEG 2000 (lossless only)
+    "1.2.840.10008.1.2.4.91",  # JPEG 2000: read when its stream is reversible
+    "1.2.840.10008.1.2.5",     # RLE Lossless
+)
+#: Syntaxes refused on purpose, with why.
+_REFUSED = {
+    "1.2.840.10008.1.2.4.50": "lossy JPEG (baseline) is refused: its 8x8 blocks edit the edges the pose is "
+                              "found from; send JPEG Lossless, JPEG-LS, JPEG 2000 or RLE",
+    "1.2.840.10008.1.2.4.51": "lossy JPEG (extended) is refused: its 8x8 blocks edit the edges the pose is "
+                              "found from; send JPEG Lossless, JPEG-LS, JPEG 2000 or RLE",
+}
+
+
+def _receivable() -> tuple[str, ...]:
+    from pydicom.pixels import get_decoder
+
+    return _NATIVE + tuple(uid for uid in _COMPRESSED if get_decoder(uid).is_available)
+
+
+#: The transfer syntaxes whose pixels the readers decode in this install, native first: what the
+#: live receiver accepts at association negotiation and what a file may be stored in.
+RECEIVABLE_TRANSFER_SYNTAXES: tuple[str, ...] = _receivable()
+
+
+class XRayObjectRejected(ValueError):
+    """A DICOM object the readers refuse: ``status`` is the C-STORE failure status the receiver
+    answers (:data:`histostudy.lab.REJECTION_STATUSES`), the message the reason."""
+
+    def __init__(self, status: int, reason: str):
+        super().__init__(reason)
+        self.status = int(status)
+        self.reason = reason
+
+
+def _named(uid: str) -> str:
+    from pydicom.uid import UID
+
+    name = UID(uid).name if uid else ""
+    return f"{uid or '(none)'}" + (f" ({name})" if name and name != uid else "")
+
+
+def check_sop_class(sop_class_uid, *, stored=None, source: str | None = None) -> None:
+    """Refuses (:class:`XRayObjectRejected`) an object that is not an X-ray image: ``stored`` (the
+    SOP class it was stored as: a C-STORE's affected SOP class) or else ``sop_class_uid`` (its data
+    set's SOPClassUID) not in :data:`X_RAY_SOP_CLASSES` (0x0122), or the two differing (0xA900).
+    ``sop_class_uid`` None or empty with ``stored`` None: a bare image, not refused. ``source``
+    starts the message (e.g. ``"path 'A.dcm'"``)."""
+    prefix = "" if not source else f"{source}: "
+    sop = str(sop_class_uid or "")
+    expected = sop if stored is None else str(stored or "")
+    if stored is None and not sop:
+        return
+    if expected not in X_RAY_SOP_CLASSES:
+        raise XRayObjectRejected(STATUS_SOP_CLASS_NOT_SUPPORTED,
+                                 f"{prefix}SOP class {_named(expected)} is not an X-ray angiographic or RF image; "
+                                 f"this reader takes {', '.join(X_RAY_SOP_CLASSES.values())}")
+    if sop != expected:
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"{prefix}the data set's SOPClassUID {sop or '(none)'} "
+                                                          f"differs from the stored SOP class {expected}")
+
+
+def _check_transfer_syntax(ds, prefix: str) -> str:
+    try:
+        syntax = str(ds.file_meta.TransferSyntaxUID)
+    except AttributeError:
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"{prefix}its pixel data cannot be read: no file meta "
+                                                          "TransferSyntaxUID (0002,0010)") from None
+    if syntax in RECEIVABLE_TRANSFER_SYNTAXES:
+        return syntax
+    if syntax in _REFUSED:
+        why = _REFUSED[syntax]
+    elif syntax in _COMPRESSED:
+        from pydicom.pixels import get_decoder
+
+        why = "pydicom has no decoder for it in this install (" + "; ".join(
+            get_decoder(syntax).missing_dependencies) + ")"
+    else:
+        why = "not one this reader decodes"
+    raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"{prefix}its pixel data cannot be read: transfer syntax "
+                                                      f"{_named(syntax)}: {why}")
+
+
+def _lossy(ds, syntax: str) -> str | None:
+    """Why the object's pixels are lossy (module docstring), or None; a stream read from its first frame."""
+    if str(getattr(ds, "LossyImageCompression", "") or "").strip() == "01":
+        return "its LossyImageCompression (0028,2110) is 01: its pixels were compressed lossily"
+    if syntax not in ("1.2.840.10008.1.2.4.81", "1.2.840.10008.1.2.4.91"):
+        return None
+    from pydicom.encaps import generate_frames
+
+    try:
+        stream = next(generate_frames(ds.PixelData, number_of_frames=int(getattr(ds, "NumberOfFrames", 1) or 1)))
+    except Exception:  # an unreadable stream is refused where it is decoded (xray_pixels)
+        return None
+    if syntax.endswith(".81"):  # JPEG-LS: NEAR follows the scan's components in its SOS segment
+        at = stream.find(b"\xff\xda")
+        end = at + 5 + 2 * stream[at + 4] if 0 <= at < len(stream) - 4 else -1
+        near = stream[end] if 0 <= end < len(stream) else 0
+        return f"its JPEG-LS stream is near-lossless (NEAR {near}): send it lossless" if near else None
+    at = stream.find(b"\xff\x52")  # JPEG 2000 COD: the wavelet transform, 0 = irreversible 9-7
+    if 0 <= at and len(stream) > at + 13 and stream[at + 13] == 0:
+        return "its JPEG 2000 stream is irreversible (9-7 wavelet): send it reversible (lossless)"
+    return None
+
+
+def check_xray_object(ds, *, sop_class_uid=None, source: str | None = None) -> None:
+    """The checks every reader of an X-ray object applies before its pixels (module docstring):
+    the SOP class (:func:`check_sop_class`, ``sop_class_uid`` the one it was stored as), the
+    transfer syntax, lossless pixels, the image size, one sample per pixel and, native, the pixel
+    data's length.
+
+    Raises:
+        XRayObjectRejected: with the C-STORE status and the reason, starting with ``source``.
+    """
+    from pydicom.pixels.utils import get_expected_length
+
+    prefix = "" if not source else f"{source}: "
+    check_sop_class(getattr(ds, "SOPClassUID", None), stored=sop_class_uid, source=source)
+    syntax = _check_transfer_syntax(ds, prefix)
+    if (lossy := _lossy(ds, syntax)) is not None:
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"{prefix}lossy pixels are refused: {lossy}")
+    try:
+        n_frames = int(getattr(ds, "NumberOfFrames", 1) or 1)
+        rows, cols = int(ds.Rows), int(ds.Columns)
+    except (AttributeError, TypeError, ValueError) as exc:
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"{prefix}no readable image size (Rows, Columns, "
+                                                          f"NumberOfFrames): {exc}") from None
+    samples = int(getattr(ds, "SamplesPerPixel", 1) or 1)
+    if samples != 1:
+        raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, f"{prefix}SamplesPerPixel (0028,0002) is {samples}; "
+                                                           "X-ray frames must be greyscale (1)")
+    try:
+        data = ds.PixelData
+        expected = get_expected_length(ds, "bytes") if syntax in _NATIVE else None
+    except Exception as exc:  # no PixelData, a pixel module pydicom cannot size
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
+                                 f"{prefix}its pixel data cannot be read: {type(exc).__name__}: {exc}") from None
+    if expected is not None and len(data) < expected:
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
+                                 f"{prefix}its pixel data cannot be read: PixelData holds {len(data)} bytes, its "
+                                 f"{n_frames} frame(s) of {rows} x {cols} need {expected}")
+
+
+def xray_pixels(ds, frame_index: int | None = None, *, source: str | None = None):
+    """The stored values of frame ``frame_index`` (``(rows, cols)``), or of every frame (None:
+    ``(frames, rows, cols)``, or ``(rows, cols)`` for a single frame), decoded by pydicom's plugin
+    for the object's transfer syntax. Raises :class:`XRayObjectRejected` (0xA900) for a stream that
+    does not decode or decodes to another size."""
+    import numpy as np
+    from pydicom.pixels import get_decoder
+
+    prefix = "" if not source else f"{source}: "
+    rows, cols = int(ds.Rows), int(ds.Columns)
+    try:
+        pixels, _ = get_decoder(ds.file_meta.TransferSyntaxUID).as_array(ds, index=frame_index)
+    except Exception as exc:  # pydicom and its plugins raise several kinds for a broken stream
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
+                                 f"{prefix}its pixel data cannot be read: {type(exc).__name__}: {exc}") from None
+    pixels = np.asarray(pixels)
+    if frame_index is not None and pixels.size != rows * cols:
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"{prefix}frame {frame_index}'s pixel data decode to "
+                                                          f"shape {pixels.shape}, not {rows} x {cols}")
+    return pixels.reshape(rows, cols) if frame_index is not None else pixels
