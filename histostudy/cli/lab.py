@@ -8,7 +8,9 @@
   and a robot, made;
 - ``listen --port N --views V`` — a DICOM C-STORE receiver of live C-arm frames -> one pose per
   biplane pair, as JSON lines, the newest pair posed and older waiting ones dropped
-  (``--max-queued-pairs``), and a short line per pose on stdout (``--quiet``: none).
+  (``--max-queued-pairs``), and a short line per pose on stdout (``--quiet``: none); on loopback
+  unless ``--host`` says otherwise, from the senders ``--allow``/``--modalities`` list, over TLS
+  with ``--tls-cert``/``--tls-key`` (``--tls-ca``: client certificates required).
 
 Each writes its result as JSON (atomically: whole or not at all). Exit status 0 done, 1 refused
 (a verdict, a calibration beyond its bound, an unreachable target), 2 bad input.
@@ -91,7 +93,9 @@ def add_parsers(sub, parents) -> None:
     lis.add_argument("--port", type=int, required=True, help="TCP port to listen on (0: any free port)")
     lis.add_argument("--views", required=True, help="views JSON: one view per plane, named as the planes' "
                                                     "SeriesDescription")
-    lis.add_argument("--host", default="0.0.0.0", help="address to bind (default all interfaces)")
+    lis.add_argument("--host", default="127.0.0.1",
+                     help="address to bind (default 127.0.0.1: this machine only; 0.0.0.0: every interface, e.g. "
+                          "for the C-arm's network, with --allow or --modalities)")
     lis.add_argument("--ae-title", default="HISTOSTUDY", help="this receiver's AE title (default HISTOSTUDY)")
     lis.add_argument("--output", default="poses.jsonl", help="JSON lines, one pose per pair (default poses.jsonl)")
     lis.add_argument("--max-pairs", type=int, default=None, help="stop after this many pairs")
@@ -104,6 +108,18 @@ def add_parsers(sub, parents) -> None:
                      help="the most pairs waiting for a pose: a newer pair drops the oldest rather than fall behind "
                           "(counted in the stats; default 1: the newest pair only; all: keep every pair, for a cine "
                           "sent at once)")
+    lis.add_argument("--allow", action="append", default=[], metavar="AE[@IP]",
+                     help="a sender allowed: its calling AE title and, optionally, the IP address it must call from "
+                          "(repeat for each; with --modalities, both lists). Others are rejected at association "
+                          "(A-ASSOCIATE-RJ). "
+                          "Default: any calling AE title, with a warning; the called AE title is checked always")
+    lis.add_argument("--modalities", default=None, metavar="FILE",
+                     help='JSON allow-list: {"modalities": {"carm_a": {"ae_title": "CARM_A", "host": '
+                          '"192.168.10.21"}, ...}} (host optional)')
+    lis.add_argument("--tls-cert", default=None, metavar="PEM", help="receive over TLS: this receiver's certificate")
+    lis.add_argument("--tls-key", default=None, metavar="PEM", help="its private key (default: in --tls-cert's file)")
+    lis.add_argument("--tls-ca", default=None, metavar="PEM",
+                     help="CA certificate(s): every sender must present a certificate it signed (mutual TLS)")
     lis.add_argument("--quiet", action="store_true",
                      help="no line per pose on stdout (default: time, pair, kind, verdict, focal point, latency, "
                           "pairs dropped)")
@@ -289,17 +305,30 @@ def _target(args) -> int:
 
 def _listen(args) -> int:
     from histostudy.imaging import load_views
-    from histostudy.lab import listen
+    from histostudy.lab import AllowList, TLSConfig, listen, load_modalities, parse_allow
 
     def started(port: int) -> None:  # the bound port (--port 0: a free one), for whoever sends the frames
         print(f"listening on {args.host}:{port} as {args.ae_title}; poses to {args.output}", flush=True)
+        senders = "any calling AE title (no --allow or --modalities)" if allow is None else \
+            ", ".join(map(str, allow.modalities))
+        link = "plain TCP" if tls is None else "TLS" + (", client certificates required" if tls.ca else "")
+        print(f"senders allowed: {senders}; {link}", flush=True)
 
     try:
+        listed = [parse_allow(text) for text in args.allow]
+        if args.modalities is not None:
+            listed += load_modalities(args.modalities).modalities
+        allow = AllowList(tuple(listed)) if listed else None
+        tls = None
+        if (args.tls_key or args.tls_ca) and not args.tls_cert:
+            raise ValueError("--tls-key and --tls-ca need --tls-cert: the certificate this receiver presents")
+        if args.tls_cert:
+            tls = TLSConfig(args.tls_cert, args.tls_key, args.tls_ca)
         views = load_views(args.views)
         stats = listen(views, port=args.port, host=args.host, ae_title=args.ae_title, output_path=args.output,
                        max_pairs=args.max_pairs, timeout_s=args.timeout_s, seed=args.seed,
                        max_queued_pairs=args.max_queued_pairs, fast=args.fast, on_start=started,
-                       on_summary=None if args.quiet else lambda text: print(text, flush=True))
+                       on_summary=None if args.quiet else lambda text: print(text, flush=True), allow=allow, tls=tls)
     except (ValueError, TypeError, FileNotFoundError, OSError) as exc:
         return _fail("listen", exc)
     latency = stats["latency_s"]

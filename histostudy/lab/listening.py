@@ -11,6 +11,7 @@ from typing import Callable, Sequence
 
 from histostudy.imaging import View
 from histostudy.transducer import TransducerModel
+from .access import check_listening_address
 from .receiver import FrameReceiver
 
 __all__ = ["listen", "pose_summary"]
@@ -58,10 +59,16 @@ def listen(views: Sequence[View], *, port: int = 11112, output_path: str | os.Pa
     ``on_start(port)`` is called once listening (the bound port, useful with ``port=0``);
     ``on_summary(text)`` after each pose line, after ``on_pose``, with its :func:`pose_summary`
     (the pairs dropped so far: the stats' ``pairs_skipped``); the other arguments are
-    :class:`FrameReceiver`'s (``max_queued_pairs`` default 1: the newest pair only).
+    :class:`FrameReceiver`'s (``max_queued_pairs`` default 1: the newest pair only; ``allow``, who
+    may send; ``tls``).
+
+    The address is tried first (:func:`.access.check_listening_address`): one in use raises an
+    OSError naming the host and port at once, before the models load and before ``output_path``
+    is created.
     """
     if on_summary is not None and not callable(on_summary):
         raise TypeError(f"on_summary must be callable (text -> None) or None, got {type(on_summary).__name__}")
+    check_listening_address(host, port)
     receiver = None
 
     def posed(record: dict) -> None:

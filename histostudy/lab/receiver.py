@@ -44,6 +44,15 @@ error (``XRayObjectRejected: ...``). The receiver accepts every storage SOP clas
 that an object that is not an X-ray image gets its 0x0122 answer rather than a refused
 presentation context.
 
+Who may send (:mod:`.access`): ``allow`` (an :class:`~.access.AllowList` of calling AE titles, each
+with the IP address it must call from, or none) and the receiver's own AE title as the called one
+are checked at association negotiation; an association that fails is rejected there (A-ASSOCIATE-RJ,
+logged with the peer and both AE titles, counted in ``associations_rejected``) before any object is
+read. With ``tls`` (:mod:`.tls`) the senders connect over TLS, and with a CA must present a
+certificate it signed (``tls_refused`` counts those refused). :meth:`FrameReceiver.start` binds its
+address before it opens the output: an address in use raises an OSError naming the host and port,
+and no file is created.
+
 A sender that aborts or drops its connection mid-association loses only that association's
 unfinished object: each association runs on its own thread, and the frames already read stay
 in the pairing. :func:`histostudy.lab.send_frames` (:mod:`.sender`) is a sender. Units: mm,
@@ -64,10 +73,12 @@ from typing import Callable, Sequence
 from histostudy.imaging import View
 from histostudy.pose import Tracker, TrackingConfig
 from histostudy.transducer import TransducerModel
+from .access import AllowList, AssociationGate, listening_error
 from .pairing import DEFAULT_FRAME_INTERVAL_S, BiplanePairer, PlaneFrame
 from .pose_worker import PoseWorker
 from .receiver_counts import ReceiverCounts
 from .sender import check_ae_title, check_count, check_host, check_port, check_positive
+from .tls import ServerTLS, tls_context
 from .xray_objects import (STATUS_OUT_OF_RESOURCES, STATUS_SUCCESS, XRayObjectRejected, read_c_store,
                            rejection_response, storage_application_entity)
 
@@ -119,6 +130,14 @@ class FrameReceiver(PoseWorker):
             follow a live stream that outpaces them. 1 (default): the newest complete pair only;
             None: every pair waits for its line (batch use), however far behind the stream.
         network_timeout_s: how long an idle or half-open association is kept (s).
+        allow: who may send: an :class:`~.access.AllowList` (e.g. :func:`~.access.load_modalities`),
+            or :class:`~.access.Modality` objects and ``"AE[@IP]"`` texts; an association from
+            another calling AE title, or from another address than its modality's, is rejected at
+            negotiation. None (default): any calling AE title may send, with a warning in the log.
+            The called AE title must be ``ae_title`` either way.
+        tls: None (plain TCP), a :class:`~.tls.TLSConfig` (the receiver's ``cert`` and ``key``;
+            with ``ca``, every sender must present a certificate that CA signed) or a server-side
+            ``ssl.SSLContext``.
         pipeline: overlap the next waiting pair's segmentation with the current pair's refinement
             (:meth:`~histostudy.pose.Tracker.track`). Off by default: on the shared two-core machine
             it posed 19 pairs of a 60-s cine where one pair at a time posed 28-31, because the pair
@@ -132,7 +151,8 @@ class FrameReceiver(PoseWorker):
                  on_pose: Callable[[dict], object] | None = None, air_value: float | None = None,
                  tolerance_s: float | None = None, default_interval_s: float = DEFAULT_FRAME_INTERVAL_S,
                  match_tolerance_mm: float | None = 5.0, max_queued_pairs: int | None = 1,
-                 network_timeout_s: float = 30.0, fast=True, pipeline: bool = False, **option_overrides):
+                 network_timeout_s: float = 30.0, fast=True, pipeline: bool = False, allow=None, tls=None,
+                 **option_overrides):
         views = [views] if isinstance(views, View) else list(views)
         if not views or not all(isinstance(v, View) for v in views):
             raise ValueError(f"views must be a non-empty sequence of histostudy.imaging.View, got {views!r}")
@@ -148,6 +168,8 @@ class FrameReceiver(PoseWorker):
         if pipeline not in (True, False):
             raise ValueError(f"pipeline must be True or False, got {pipeline!r}")
         check_positive("network_timeout_s", network_timeout_s, "a finite number of seconds > 0", optional=False)
+        self.allow = AllowList.of(allow)
+        self.tls = tls_context(tls, server=True)
         if on_pose is not None and not callable(on_pose):
             raise TypeError(f"on_pose must be callable (record -> None) or None, got {type(on_pose).__name__}")
         self.views = tuple(views)
@@ -179,28 +201,44 @@ class FrameReceiver(PoseWorker):
     # --- life cycle -----------------------------------------------------------------------------
 
     def start(self) -> int:
-        """Open the output, start the pose worker and listen (non-blocking); returns the bound port."""
+        """Listen (non-blocking), then open the output and start the pose worker; returns the bound
+        port. An address that cannot be bound (in use, not this machine's) raises an OSError naming
+        the host and port before the output is opened: nothing is created or written."""
         from pynetdicom import evt
 
         if self._server is not None or self._stopped:
             raise RuntimeError("this FrameReceiver was started already; make a new one")
-        self._out = open(self.output_path, "a", encoding="utf-8")
-        self._worker = threading.Thread(target=self._work, name="histostudy-pose-worker", daemon=True)
-        self._worker.start()
         ae = storage_application_entity(self.ae_title, self.network_timeout_s)
-        handlers = [(evt.EVT_C_STORE, self._on_c_store), (evt.EVT_CONN_OPEN, self._on_event("connections")),
-                    (evt.EVT_ACCEPTED, self._on_event("associations")),
+        gate = AssociationGate(self.allow, self._on_rejected)
+        gate.configure(ae)
+        tls = None if self.tls is None else ServerTLS(self.tls, self.network_timeout_s, self._on_tls_refused)
+        handlers = [(evt.EVT_CONN_OPEN, self._on_event("connections")), *gate.handlers(),
+                    (evt.EVT_C_STORE, self._on_c_store), (evt.EVT_ACCEPTED, self._on_event("associations")),
                     (evt.EVT_ABORTED, self._on_event("associations_aborted"))]
+        if tls is not None:  # the handshake first, on the connection's thread (tls.ServerTLS)
+            handlers.insert(0, (evt.EVT_CONN_OPEN, tls.handshake))
+        self._ae = ae
         try:
-            self._server = ae.start_server((self.host, self.port), block=False, evt_handlers=handlers)
+            self._server = ae.start_server((self.host, self.port), block=False, ssl_context=tls,
+                                           evt_handlers=handlers)
+        except OSError as exc:
+            self.stop(drain=False)
+            raise listening_error(self.host, self.port, exc) from None
         except BaseException:
-            self._ae = ae
             self.stop(drain=False)
             raise
-        self._ae = ae
+        try:
+            self._out = open(self.output_path, "a", encoding="utf-8")
+            self._worker = threading.Thread(target=self._work, name="histostudy-pose-worker", daemon=True)
+            self._worker.start()
+        except BaseException:
+            self.stop(drain=False)
+            raise
         self.port = int(self._server.server_address[1])
         self._stats.t_started = time.perf_counter()
-        log.info("receiving DICOM X-ray frames on %s:%d as %r; poses to %s", self.host, self.port, self.ae_title,
+        log.info("receiving DICOM X-ray frames on %s:%d as %r%s%s; poses to %s", self.host, self.port,
+                 self.ae_title, "" if self.tls is None else " over TLS",
+                 "" if self.allow is None else f" from {', '.join(map(str, self.allow.modalities))}",
                  self.output_path)
         return self.port
 
@@ -276,6 +314,14 @@ class FrameReceiver(PoseWorker):
         return True
 
     # --- the network side (pynetdicom's association threads) ------------------------------------
+
+    def _on_rejected(self, record: dict) -> None:
+        with self._cv:
+            self._stats.add_association_rejection(record)
+
+    def _on_tls_refused(self, peer: str, exc: Exception) -> None:
+        with self._cv:
+            self._counts["tls_refused"] += 1
 
     def _on_event(self, counter: str):
         def handler(event):

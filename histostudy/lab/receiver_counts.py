@@ -22,7 +22,8 @@ __all__ = ["COUNT_KEYS", "LATENCY_WINDOW", "ReceiverCounts"]
 #: The counters :meth:`ReceiverCounts.stats` reports (0 until counted).
 COUNT_KEYS = ("objects_received", "objects_accepted", "objects_rejected", "frames_received", "frames_unpaired",
               "pairs_completed", "pairs_processed", "pairs_accepted", "pairs_errors", "pairs_skipped",
-              "pairs_dropped_stale", "pairs_waiting_max", "connections", "associations", "associations_aborted")
+              "pairs_dropped_stale", "pairs_waiting_max", "connections", "associations", "associations_aborted",
+              "associations_rejected", "tls_refused")
 
 #: How many of the last lines' latencies the percentiles of :meth:`ReceiverCounts.stats` are taken over.
 LATENCY_WINDOW = 10_000
@@ -35,6 +36,8 @@ class ReceiverCounts:
         counts: a ``collections.Counter`` of :data:`COUNT_KEYS` (and any other event).
         rejections: rejected objects per status (``"0xA900"``, ...).
         last_rejections: the last 20 rejections (instance UID, SOP class, status, reason).
+        last_association_rejections: the last 20 associations rejected at negotiation (peer,
+            calling and called AE titles, A-ASSOCIATE-RJ reason, why).
         decode_s, pose_s, latency_s: seconds summed: decoding (the headers in the handlers, the
             pixels of the pairs taken by the pose worker), the pose worker's work per line, and
             from each pair's last frame received to its line.
@@ -48,6 +51,7 @@ class ReceiverCounts:
         self.counts: collections.Counter = collections.Counter()
         self.rejections: collections.Counter = collections.Counter()
         self.last_rejections: collections.deque = collections.deque(maxlen=20)
+        self.last_association_rejections: collections.deque = collections.deque(maxlen=20)
         self.decode_s = self.pose_s = self.latency_s = 0.0
         self.latencies_s: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)
         self.t_first_frame = self.t_last_line = self.t_started = None
@@ -59,6 +63,11 @@ class ReceiverCounts:
         self.rejections[f"0x{status:04X}"] += 1
         self.last_rejections.append({"instance_uid": uid, "sop_class_uid": sop_class, "status": status,
                                      "reason": reason})
+
+    def add_association_rejection(self, record: dict) -> None:
+        """One association rejected at negotiation (:class:`.access.AssociationGate`'s ``record``)."""
+        self.counts["associations_rejected"] += 1
+        self.last_association_rejections.append(dict(record))
 
     def add_line(self, record: dict, tracker_stats: dict, now: float) -> None:
         """One pose line written at ``now``: its outcome and seconds, and the tracker's counters then."""
@@ -85,7 +94,9 @@ class ReceiverCounts:
         frame received to its line written; ``numpy.percentile``, linear) over the last
         :data:`LATENCY_WINDOW` lines, ``n`` of them, and ``mean`` over every line (None without a
         line); ``connections``, ``associations``,
-        ``associations_aborted``; ``stage_seconds`` summed (``decode`` in the handlers, the pose
+        ``associations_aborted``, ``associations_rejected`` at negotiation (with
+        ``last_association_rejections``: peer, AE titles, reason) and ``tls_refused`` (TLS
+        handshakes failed: no certificate, or one the CA did not sign); ``stage_seconds`` summed (``decode`` in the handlers, the pose
         stages of :attr:`histostudy.pose.Tracker.stage_seconds`) and ``seconds_per_pair`` (those over
         ``pairs_processed``, plus ``pose`` and ``latency``); ``frames_per_s``: the frames of the
         processed pairs over the time from the first frame received to the last line written;
@@ -103,6 +114,7 @@ class ReceiverCounts:
             "pairs_waiting": pairs_waiting,
             "rejections": dict(self.rejections),
             "last_rejections": list(self.last_rejections),
+            "last_association_rejections": list(self.last_association_rejections),
             "stage_seconds": stage,
             "seconds_per_pair": ({k: v / n_pairs for k, v in stage.items()}
                                  | {"pose": self.pose_s / n_pairs, "latency": self.latency_s / n_pairs})

@@ -10,7 +10,7 @@ fluoroscopy run: each object is stored once its last frame has been taken (its
 ``AcquisitionDateTime`` plus its cine offset, :func:`.pairing.frame_times`, counted from the
 first object's first frame), and it reports when each object went out and how late. Objects given
 as paths are read when they are stored (their headers before the association), so a long run
-never sits in memory.
+never sits in memory. With ``tls`` (:mod:`.tls`) both send over TLS.
 
 The ``check_*`` functions are the argument checks of both ends (AE titles, ports, hosts, counts,
 timeouts), which the receiver shares; each raises ValueError naming the argument and its value.
@@ -88,7 +88,7 @@ class SentObject:
 
 
 def send_frames(paths: Sequence, host: str, port: int, *, ae_title: str = "HISTOSTUDY",
-                calling_ae_title: str = "HISTOSTUDY_SCU", timeout_s: float = 30.0) -> list[int]:
+                calling_ae_title: str = "HISTOSTUDY_SCU", timeout_s: float = 30.0, tls=None) -> list[int]:
     """Store DICOM objects on a Storage SCP in one association; the C-STORE status of each, in order.
 
     Args:
@@ -99,6 +99,10 @@ def send_frames(paths: Sequence, host: str, port: int, *, ae_title: str = "HISTO
             ``HISTOSTUDY``).
         calling_ae_title: this sender's AE title.
         timeout_s: seconds to wait for the association and for each response.
+        tls: None (plain TCP), a :class:`~.tls.TLSConfig` (``ca``: the CA that signed the
+            receiver's certificate, None: the system's; ``cert``/``key``: this sender's, for a
+            receiver that asks for one) or a client-side ``ssl.SSLContext``. The receiver's
+            certificate must name ``host``.
 
     Returns:
         The C-STORE response status per object (an int: 0x0000 success, else the SCP's failure
@@ -108,15 +112,16 @@ def send_frames(paths: Sequence, host: str, port: int, *, ae_title: str = "HISTO
         FileNotFoundError: a path that does not exist (before anything is sent).
         ValueError: an object that is not DICOM, lacks its SOP class or transfer syntax, or a bad
             argument (naming it).
-        ConnectionError: the SCP unreachable, the association rejected or aborted, or no response
-            to an object (naming the object and what was stored before it).
+        ConnectionError: the SCP unreachable, the TLS handshake failed, the association rejected
+            (with the A-ASSOCIATE-RJ reason) or aborted, or no response to an object (naming the
+            object and what was stored before it).
     """
     return [sent.status for sent in _store(paths, host, port, ae_title=ae_title, calling_ae_title=calling_ae_title,
-                                           timeout_s=timeout_s, pace=None)]
+                                           timeout_s=timeout_s, pace=None, tls=tls)]
 
 
 def stream_frames(paths: Sequence, host: str, port: int, *, pace: float = 1.0, ae_title: str = "HISTOSTUDY",
-                  calling_ae_title: str = "HISTOSTUDY_SCU", timeout_s: float = 30.0) -> list[SentObject]:
+                  calling_ae_title: str = "HISTOSTUDY_SCU", timeout_s: float = 30.0, tls=None) -> list[SentObject]:
     """:func:`send_frames` at the pace of the acquisition: each object is stored no earlier than
     its last frame's acquisition time (:func:`.pairing.frame_times`) after the first object's first
     frame, divided by ``pace`` (1.0: real time; 2.0: twice as fast). An object whose time has passed
@@ -129,7 +134,7 @@ def stream_frames(paths: Sequence, host: str, port: int, *, pace: float = 1.0, a
     """
     check_positive("pace", pace, "a finite speed-up > 0 (1.0: the acquisition's own pace)", optional=False)
     return _store(paths, host, port, ae_title=ae_title, calling_ae_title=calling_ae_title, timeout_s=timeout_s,
-                  pace=float(pace))
+                  pace=float(pace), tls=tls)
 
 
 def _read(items: list) -> tuple[list, list[str]]:
@@ -178,12 +183,14 @@ def _due_s(headers: list, names: list[str], pace: float) -> list[float]:
 
 
 def _store(paths, host: str, port: int, *, ae_title: str, calling_ae_title: str, timeout_s: float,
-           pace: float | None) -> list[SentObject]:
+           pace: float | None, tls=None) -> list[SentObject]:
     """Store the objects in one association (at ``pace``, or at once with None); a SentObject each."""
     import pydicom
     from pydicom.dataset import Dataset
     from pydicom.uid import ExplicitVRLittleEndian, ImplicitVRLittleEndian
     from pynetdicom import AE, evt
+
+    from .tls import tls_context
 
     if isinstance(paths, (str, os.PathLike, Dataset)):
         paths = [paths]
@@ -193,6 +200,7 @@ def _store(paths, host: str, port: int, *, ae_title: str, calling_ae_title: str,
     host, port = check_host(host), check_port(port, allow_zero=False)
     ae_title, calling_ae_title = check_ae_title(ae_title), check_ae_title(calling_ae_title, "calling_ae_title")
     check_positive("timeout_s", timeout_s, "a finite number of seconds > 0", optional=False)
+    context = tls_context(tls, server=False)
     headers, names = _read(items)
     due = [0.0] * len(items) if pace is None else _due_s(headers, names, pace)
 
@@ -206,13 +214,12 @@ def _store(paths, host: str, port: int, *, ae_title: str, calling_ae_title: str,
                 syntaxes.append(uid)
     for sop_class, syntaxes in contexts.items():
         ae.add_requested_context(sop_class, syntaxes)
-    where = f"{ae_title}@{host}:{port}"
+    where = f"{ae_title}@{host}:{port}" + (" over TLS" if context is not None else "")
     connected = []  # the TCP connection opened: a failed association is then the peer's answer
-    assoc = ae.associate(host, port, ae_title=ae_title, evt_handlers=[(evt.EVT_CONN_OPEN, connected.append)])
+    assoc = ae.associate(host, port, ae_title=ae_title, evt_handlers=[(evt.EVT_CONN_OPEN, connected.append)],
+                         tls_args=None if context is None else (context, host))
     if not assoc.is_established:
-        why = "could not be reached (is it listening there?)" if not connected else \
-            "rejected the association" if assoc.is_rejected else "aborted the association request"
-        raise ConnectionError(f"the DICOM Storage SCP {where} {why}")
+        raise ConnectionError(f"the DICOM Storage SCP {where} {_refusal(assoc, bool(connected), context is not None)}")
     sent: list[SentObject] = []
     t0 = time.perf_counter()
     try:
@@ -234,3 +241,21 @@ def _store(paths, host: str, port: int, *, ae_title: str, calling_ae_title: str,
         if assoc.is_established:
             assoc.release()
     return sent
+
+
+def _refusal(assoc, connected: bool, tls: bool) -> str:
+    """What a failed association request says: unreachable, rejected (with the A-ASSOCIATE-RJ's
+    result, source and reason), or aborted."""
+    if not connected:
+        return ("could not be reached or refused the TLS handshake (is it listening there, over TLS, with a "
+                "certificate the given CA signed for that address?)" if tls else
+                "could not be reached (is it listening there?)")
+    if assoc.is_rejected:
+        answer = assoc.acceptor.primitive
+        reason = getattr(answer, "diagnostic", None)
+        return (f"rejected the association (A-ASSOCIATE-RJ result {getattr(answer, 'result', '?')}, source "
+                f"{getattr(answer, 'result_source', '?')}, reason {reason}"
+                + {3: ": calling AE title not recognised", 7: ": called AE title not recognised"}.get(reason, "")
+                + ")")
+    return ("aborted the association request" +
+            (" (over TLS: did it refuse this sender's certificate?)" if tls else ""))

@@ -2,23 +2,30 @@
 lab-like dataset's biplane cine over DICOM on loopback (``--port 0``: the bound port read from its
 first line), and every frame pair gets a pose within 0.1 mm of the same frames given as arrays to
 a :class:`~histostudy.pose.Tracker` with the same seed, and within a few mm of the dataset's truth.
+And its network options, in this process: loopback by default, a port in use refused at once
+naming it (no output file), ``--allow``/``--modalities`` rejecting other senders at association,
+and the TLS options checked.
 
 The dataset's views are full size: the shipped learned stages (U-Net, VGG19) need detector images
 of about the size they were trained on, and refuse (VGG19's pooling) views of a tenth of it.
 """
 
+import ast
 import json
 import queue
 import re
 import shutil
+import socket
 import subprocess
 import sys
 import threading
+import time
 
 import numpy as np
 import pytest
 
-from histostudy.imaging import load_frame, load_views
+from histostudy.cli import build_parser, main
+from histostudy.imaging import default_biplane, load_frame, load_views, save_views
 from histostudy.lab import send_frames
 from histostudy.pose import Tracker, TrackingConfig
 from histostudy.study.lab_dataset import write_lab_dataset
@@ -96,3 +103,96 @@ def test_listen_prints_its_port_and_poses_every_pair_of_a_cine_sent_to_it(lab, t
         assert np.linalg.norm(focal - direct.focal_point_mm) < 0.1, f"pair {k}"
         assert np.linalg.norm(focal - np.asarray(truth[k])[:3, 3]) < 3.0, f"pair {k} far from the truth"
     assert all(r["accepted"] for r in records)
+
+
+@pytest.fixture
+def small_views_file(tmp_path):
+    path = tmp_path / "views.json"
+    save_views(path, default_biplane(shape=(48, 62), pixel_mm=6.16))
+    return path
+
+
+def test_listen_binds_loopback_unless_told_otherwise():
+    args = build_parser().parse_args(["listen", "--port", "0", "--views", "views.json"])
+    assert args.host == "127.0.0.1" and args.allow == [] and args.modalities is None and args.tls_cert is None
+
+
+def test_a_port_in_use_is_refused_at_once_naming_it_and_no_output_is_created(tmp_path, small_views_file, capsys):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        port = taken.getsockname()[1]
+        code = main(["listen", "--port", str(port), "--views", str(small_views_file), "--output",
+                     str(tmp_path / "poses.jsonl"), "--timeout-s", "5"])
+    captured = capsys.readouterr()
+    assert code == 2 and captured.out == ""
+    assert re.match(rf"histostudy listen: \[Errno \d+\] cannot listen on 127.0.0.1:{port}: .*in use", captured.err)
+    assert not (tmp_path / "poses.jsonl").exists()
+
+
+def test_listen_rejects_a_sender_off_its_allow_list_at_association(tmp_path, small_views_file, capsys):
+    """``--allow`` and ``--modalities`` together: their AE titles may associate (a C-ECHO), another
+    is rejected (A-ASSOCIATE-RJ reason 3), counted in the final statistics; nothing is written."""
+    from pynetdicom import AE
+    from pynetdicom.sop_class import Verification
+
+    modalities = tmp_path / "modalities.json"
+    modalities.write_text(json.dumps({"modalities": {"carm_b": {"ae_title": "CARM_B", "host": "127.0.0.1"}}}))
+    results = []
+
+    def echo(port: int, calling: str) -> None:
+        ae = AE(ae_title=calling)
+        ae.add_requested_context(Verification)
+        assoc = ae.associate("127.0.0.1", port, ae_title="HISTOSTUDY")
+        results.append((calling, assoc.is_established, assoc.acceptor.primitive.diagnostic if assoc.is_rejected
+                        else None))
+        if assoc.is_established:
+            assoc.release()
+
+    port = free_port()
+    command = threading.Thread(target=lambda: results.append(main([
+        "listen", "--port", str(port), "--views", str(small_views_file), "--output", str(tmp_path / "poses.jsonl"),
+        "--allow", "CARM_A", "--modalities", str(modalities), "--timeout-s", "4", "--quiet"])))
+    command.start()
+    wait_for_listening(port)
+    for calling in ("CARM_A", "CARM_B", "ROGUE"):
+        echo(port, calling)
+    command.join(60)
+    assert results == [("CARM_A", True, None), ("CARM_B", True, None), ("ROGUE", False, 3), 0]
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == f"listening on 127.0.0.1:{port} as HISTOSTUDY; poses to {tmp_path / 'poses.jsonl'}"
+    assert out[1] == "senders allowed: CARM_A, CARM_B@127.0.0.1; plain TCP"
+    stats = ast.literal_eval(out[-1].removeprefix("listen: "))  # the statistics' dict, printed last
+    assert (stats["associations"], stats["associations_rejected"], stats["objects_received"]) == (2, 1, 0)
+    assert (tmp_path / "poses.jsonl").read_text() == ""
+
+
+@pytest.mark.parametrize("options, message", [
+    (["--tls-ca", "ca.pem"], "--tls-key and --tls-ca need --tls-cert"),
+    (["--tls-cert", "server.pem"], "tls cert 'server.pem': no such file"),
+    (["--allow", "CARM_A@carm.local"], "host must be an IP address"),
+    (["--modalities", "missing.json"], "modalities file 'missing.json': no such file"),
+])
+def test_bad_network_options_are_refused_naming_them(tmp_path, small_views_file, capsys, monkeypatch, options,
+                                                     message):
+    monkeypatch.chdir(tmp_path)
+    code = main(["listen", "--port", "0", "--views", str(small_views_file), *options])
+    assert code == 2 and message in capsys.readouterr().err
+    assert not (tmp_path / "poses.jsonl").exists()
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def wait_for_listening(port: int, timeout_s: float = 30.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            return
+        except OSError:
+            assert time.monotonic() < deadline, "listen did not start"
+            time.sleep(0.05)

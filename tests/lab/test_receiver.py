@@ -20,13 +20,14 @@ import time
 import numpy as np
 import pydicom
 import pytest
+from receiver_stub import free_port
 from pydicom.dataset import Dataset, FileMetaDataset
 from pydicom.uid import ExplicitVRLittleEndian, generate_uid
 
 from histostudy.geometry import transform_from_params
 from histostudy.imaging import (default_biplane, detector_counts, load_frame, random_background, render_frame,
                                 write_xa, xa_dataset)
-from histostudy.lab import FrameReceiver, XRayObjectRejected, decode_xray_object, listen, send_frames
+from histostudy.lab import FrameReceiver, TLSConfig, XRayObjectRejected, decode_xray_object, listen, send_frames
 from histostudy.pose import Tracker, TrackingConfig, pose_record
 from histostudy.transducer import TransducerModel, pose_facing
 
@@ -272,13 +273,6 @@ def test_listen_serves_until_its_timeout_and_answers_c_echo(views, tmp_path):
 # --- the sender ------------------------------------------------------------------------------------
 
 
-def free_port():
-    """A TCP port nothing listens on (bound, then closed)."""
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
 def test_send_frames_checks_its_arguments_before_connecting(small_views, tmp_path):
     ds, _ = small_object(small_views[0])
     with pytest.raises(ValueError, match=r"port must be an integer in 1..65535, got 0"):
@@ -318,22 +312,28 @@ def test_send_frames_raises_connection_error_when_unreachable_or_rejected(small_
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("sender", ["storescu", "send_frames"])
-def test_a_cine_sent_gets_a_pose_per_pair_as_a_direct_tracker(cine, views, model, direct, tmp_path, sender):
+@pytest.mark.parametrize("sender", ["storescu", "send_frames", "send_frames_tls"])
+def test_a_cine_sent_gets_a_pose_per_pair_as_a_direct_tracker(cine, views, model, direct, tmp_path, sender, request):
     """Every frame pair of the two planes' cines gets its line, with the pose a Tracker finds on the
     same frames as arrays; on_pose sees each record as written. Sent by DCMTK's storescu (where it
-    is installed) and by send_frames."""
+    is installed), by send_frames, and by send_frames over TLS with a client certificate
+    (conftest.py's test CA): the same poses."""
     if sender == "storescu" and not shutil.which("storescu"):
         pytest.skip("DCMTK's storescu is not installed")
     out = tmp_path / "poses.jsonl"
     seen = []
     paths = [str(cine["paths"][v.name]) for v in views]
+    pki = request.getfixturevalue("tls_files") if sender == "send_frames_tls" else None
+    tls = {} if pki is None else {"tls": TLSConfig(pki.server_cert, pki.server_key, pki.ca)}
     with FrameReceiver(views, model, output_path=out, port=0, seed=SEED, on_pose=seen.append,
-                       max_queued_pairs=None) as receiver:  # a cine sent at once: every pair posed
+                       max_queued_pairs=None, **tls) as receiver:  # a cine sent at once: every pair posed
         if sender == "storescu":
             done = subprocess.run(["storescu", "-aec", "HISTOSTUDY", "127.0.0.1", str(receiver.port), *paths],
                                   capture_output=True, text=True, timeout=60)
             assert done.returncode == 0, done.stderr
+        elif pki is not None:
+            assert send_frames(paths, "127.0.0.1", receiver.port, calling_ae_title="TESTSCU",
+                               tls=TLSConfig(pki.client_cert, pki.client_key, pki.ca)) == [0, 0]
         else:
             assert send(receiver.port, paths) == [0, 0]
         assert receiver.wait_for_pairs(N_FRAMES, timeout_s=120)

@@ -2,85 +2,32 @@
 pair and drops the older waiting ones (counted), converts the pixels only of the pairs it poses,
 reports the latency's percentiles, and ``histostudy listen`` prints a line per pose.
 
-The pose work is a stub tracker (no learned stages) that the test holds on its first pair, so that
-which pairs wait, and which are dropped, is decided by the test and not by the machine's speed.
-Frames are small XA objects sent with :func:`histostudy.lab.send_frames` over loopback.
+The pose work is a stub tracker (no learned stages; receiver_stub.py) that the test holds on its
+first pair, so that which pairs wait, and which are dropped, is decided by the test and not by the
+machine's speed. Frames are small XA objects sent with :func:`histostudy.lab.send_frames` over loopback.
 """
 
 import datetime as dt
-import json
 import re
-import socket
 import threading
 import time
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from receiver_stub import T0, StubTracker, free_port, pair_objects, read_lines, receiver_with, small_views
 
-from histostudy.imaging import default_biplane, save_views, xa_dataset
+from histostudy.imaging import save_views
 from histostudy.lab import FrameReceiver, PendingFrame, XRayObjectRejected, pose_summary, read_xray_header, \
     send_frames
 
-T0 = dt.datetime(2024, 5, 6, 10, 30, 0)
-INTERVAL_S = 0.1  # between pairs: more than the pairing's tolerance, so each pair is its own
 #: What ``histostudy listen`` prints per pose (listening.pose_summary).
 SUMMARY = re.compile(r"^\d\d:\d\d:\d\d\.\d{3} pair (?P<index>\d+) (?P<kind>\S+) (?P<verdict>accepted|REFUSED.*|ERROR.*) "
                      r"focal (\(\S+, \S+, \S+\) mm|-) latency \d+ ms dropped (?P<dropped>\d+)$")
 
 
-class StubTracker:
-    """What the receiver asks of a Tracker (``track``, ``stats``, ``last_kind``), without pose work:
-    each pair's result has a focal point of (index, 0, 0) mm. With ``hold``, the first pair is held
-    until ``release`` is set (``taken`` is set once it is)."""
-
-    def __init__(self, hold: bool = False):
-        self.hold, self.taken, self.release = hold, threading.Event(), threading.Event()
-        self.images, self.last_kind = [], None
-
-    def stats(self) -> dict:
-        return {"stage_seconds": {}, "n_updates": len(self.images)}
-
-    def track(self, pairs, *, ready=None):
-        for images in pairs:
-            self.images.append(images)
-            self.taken.set()
-            if self.hold and len(self.images) == 1:
-                assert self.release.wait(30)
-            self.last_kind = "from_scratch" if len(self.images) == 1 else "warm"
-            verdict = SimpleNamespace(ok=True, reasons=[], rms_distance_px=[1.0, 1.0],
-                                      view_disagreement_mm=[0.1, 0.1], unexplained_fraction=[0.0, 0.0])
-            yield SimpleNamespace(T_carm_transducer=np.eye(4), focal_point_mm=np.array([len(self.images), 0.0, 0.0]),
-                                  cost=0.0, verdict=verdict, timings_s={"total": 0.0})
-
-
 @pytest.fixture(scope="module")
 def views():
-    return default_biplane(shape=(48, 62), pixel_mm=6.16)
-
-
-def pair_objects(views, k: int, blank: bool = False) -> list:
-    """Pair ``k``: one single-frame XA object per plane, taken ``k`` intervals after T0."""
-    rng = np.random.default_rng(k)
-    objects = []
-    for view in views:
-        counts = rng.integers(100, 4000, size=view.shape).astype(np.uint16)
-        ds = xa_dataset(view, counts, acquisition_time=T0 + dt.timedelta(seconds=k * INTERVAL_S),
-                        uid_seed=f"pair{k}/{view.name}/{blank}")
-        if blank:
-            ds.PixelData = bytes(len(ds.PixelData))
-        objects.append(ds)
-    return objects
-
-
-def receiver_with(views, tmp_path, tracker, **options) -> FrameReceiver:
-    receiver = FrameReceiver(views, output_path=tmp_path / "poses.jsonl", port=0, tolerance_s=0.02, **options)
-    receiver.tracker = tracker
-    return receiver
-
-
-def read_lines(path):
-    return [json.loads(line) for line in path.read_text().splitlines()]
+    return small_views()
 
 
 def wait_until(done, timeout_s: float = 30.0) -> None:
@@ -207,12 +154,6 @@ def test_pose_summary_says_kind_verdict_focal_point_latency_and_drops():
     error = pose_summary({"pair_index": 8, "error": "PoseEstimationError: no transducer feature", "accepted": False,
                           "tracking": None, "seconds": {"latency": 0.05}}, 4)
     assert " pair 8 error ERROR PoseEstimationError: no transducer feature focal - latency 50 ms dropped 4" in error
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 @pytest.mark.parametrize("quiet", [False, True], ids=["lines", "quiet"])

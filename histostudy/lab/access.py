@@ -1,0 +1,267 @@
+"""Who may send frames to the live receiver (:class:`.receiver.FrameReceiver`, §II-A), and where
+it listens: the hospital network's side of the cable.
+
+:class:`AllowList` holds the modalities allowed to send (:class:`Modality`: a calling AE title and,
+optionally, the IP address it must call from), as Orthanc's ``DicomModalities`` or dcm4chee's
+"validate calling AE hostname" do. It is read from a JSON file (:func:`load_modalities`)::
+
+    {"modalities": {"carm_a": {"ae_title": "CARM_A", "host": "192.168.10.21"},
+                    "carm_b": {"ae_title": "CARM_B", "host": "192.168.10.22"},
+                    "pacs":   {"ae_title": "PACS"}}}
+
+or from ``AE[@HOST]`` texts (:func:`parse_allow`, ``histostudy listen --allow``).
+
+:class:`AssociationGate` applies it at association negotiation, before any object is read: the
+called AE title must be the receiver's own (pynetdicom's ``require_called_aet``), the calling AE
+title one of the list's (``require_calling_aet``), and a modality given with a host must call from
+that address (an ``EVT_REQUESTED`` handler). An association that fails is rejected with the
+standard A-ASSOCIATE-RJ: result 1 (permanent), source 1 (service user), reason 3 (calling AE title
+not recognised; also for a listed title calling from another address, as dcm4chee does) or 7
+(called AE title not recognised). Each rejection is logged with the peer's address and both AE
+titles, and reported to the receiver (its ``associations_rejected`` count). Without a list any
+calling AE title may send (the called AE title is still checked), and a warning says so.
+
+:func:`check_listening_address` tells, before anything is written, whether the receiver can bind
+its address; :func:`listening_error` words a failed bind with the host and port.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import errno
+import ipaddress
+import json
+import logging
+import os
+import socket
+from pathlib import Path
+from typing import Callable, Iterable
+
+from .sender import check_ae_title, check_host, check_port
+
+__all__ = ["AllowList", "AssociationGate", "Modality", "check_listening_address", "load_modalities",
+           "parse_allow"]
+
+log = logging.getLogger("histostudy.lab.receiver")  # the receiver's log, where its users look
+
+#: A-ASSOCIATE-RJ reasons (source 1, DICOM UL service user; PS3.8 §9.3.4) the gate answers with.
+REJECT_REASONS = {1: "no reason given", 3: "calling AE title not recognised", 7: "called AE title not recognised"}
+
+
+def _address(value: str, name: str) -> str:
+    """An IP address in its canonical text (an IPv4-mapped IPv6 address as the IPv4 one)."""
+    try:
+        address = ipaddress.ip_address(str(value).split("%")[0].strip())
+    except ValueError:
+        raise ValueError(f"{name} must be an IP address (e.g. '192.168.10.21' or '::1'; a host name is not "
+                         f"resolved), got {value!r}") from None
+    mapped = getattr(address, "ipv4_mapped", None)
+    return str(mapped or address)
+
+
+@dataclasses.dataclass(frozen=True)
+class Modality:
+    """One sender allowed: its ``name`` (the config's key, for the log), its calling ``ae_title``
+    (1-16 characters) and ``host``: the IP address it must call from, or None (any address)."""
+
+    name: str
+    ae_title: str
+    host: str | None = None
+
+    def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name.strip():
+            raise ValueError(f"a modality's name must be a non-empty string, got {self.name!r}")
+        object.__setattr__(self, "ae_title", check_ae_title(self.ae_title, f"modality {self.name!r} ae_title"))
+        if self.host is not None:
+            object.__setattr__(self, "host", _address(self.host, f"modality {self.name!r} host"))
+
+    def allows(self, ae_title: str, address: str) -> bool:
+        """Whether a peer calling as ``ae_title`` from ``address`` is this modality."""
+        return ae_title.strip() == self.ae_title and (self.host is None or _peer(address) == self.host)
+
+    def __str__(self) -> str:
+        return self.ae_title + ("" if self.host is None else f"@{self.host}")
+
+
+def _peer(address: str) -> str | None:
+    try:
+        return _address(address, "address")
+    except ValueError:
+        return None
+
+
+@dataclasses.dataclass(frozen=True)
+class AllowList:
+    """The modalities allowed to send (at least one): a peer may send when one of them
+    :meth:`Modality.allows` it."""
+
+    modalities: tuple[Modality, ...]
+
+    def __post_init__(self):
+        items = tuple(self.modalities) if not isinstance(self.modalities, Modality) else (self.modalities,)
+        if not items or not all(isinstance(m, Modality) for m in items):
+            raise ValueError(f"modalities must be one or more histostudy.lab.Modality, got {self.modalities!r}")
+        object.__setattr__(self, "modalities", items)
+
+    @property
+    def ae_titles(self) -> list[str]:
+        """The calling AE titles listed, sorted, each once."""
+        return sorted({m.ae_title for m in self.modalities})
+
+    def allows(self, ae_title: str, address: str) -> bool:
+        return any(m.allows(ae_title, address) for m in self.modalities)
+
+    def why_not(self, ae_title: str, address: str) -> str:
+        """Why a peer is not allowed (for the log): its title unknown, or the addresses its title may call from."""
+        hosts = [m.host for m in self.modalities if m.ae_title == ae_title.strip()]
+        if not hosts:
+            return f"the calling AE title {ae_title!r} is none of {self.ae_titles}"
+        return f"{ae_title!r} may call only from {sorted(set(hosts))}, not from {address}"
+
+    def __add__(self, other: "AllowList") -> "AllowList":
+        return AllowList(self.modalities + other.modalities)
+
+    @classmethod
+    def of(cls, allow) -> "AllowList | None":
+        """An AllowList from ``allow``: one, a Modality, ``AE[@HOST]`` texts and Modalities, or None (no list)."""
+        if allow is None or isinstance(allow, AllowList):
+            return allow
+        items = [allow] if isinstance(allow, (Modality, str)) else list(allow) if isinstance(allow, Iterable) else None
+        if not items or not all(isinstance(m, (Modality, str)) for m in items):
+            raise ValueError("allow must be None, an AllowList, or Modality objects and 'AE[@HOST]' texts, got "
+                             f"{allow!r}")
+        return cls(tuple(m if isinstance(m, Modality) else parse_allow(m) for m in items))
+
+
+def parse_allow(text: str) -> Modality:
+    """``"AE"`` or ``"AE@HOST"`` (HOST an IP address) as a :class:`Modality` named after it."""
+    if not isinstance(text, str) or not text.strip():
+        raise ValueError(f"allow must be 'AE_TITLE' or 'AE_TITLE@IP_ADDRESS', got {text!r}")
+    title, _, host = text.strip().rpartition("@") if "@" in text else (text.strip(), "", "")
+    return Modality(text.strip(), title, host or None)
+
+
+def load_modalities(path: str | os.PathLike) -> AllowList:
+    """The :class:`AllowList` of a JSON file ``{"modalities": {name: {"ae_title": ..., "host": ...}}}``
+    (``host`` optional; ``port``, the modality's own SCP port in Orthanc's lists, is accepted and
+    not used: the receiver never calls back). Raises FileNotFoundError, or ValueError naming the
+    file and the entry at fault."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"modalities file {str(path)!r}: no such file")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ValueError(f"modalities file {str(path)!r} is not JSON: {exc}") from None
+    entries = data.get("modalities") if isinstance(data, dict) else None
+    if not isinstance(entries, dict) or not entries:
+        raise ValueError(f"modalities file {str(path)!r} must hold {{\"modalities\": {{name: {{\"ae_title\": ..., "
+                         f"\"host\": ...}}, ...}}}} with at least one modality, got {data!r}")
+    modalities = []
+    for name, entry in entries.items():
+        where = f"modalities file {str(path)!r}, modality {name!r}"
+        if not isinstance(entry, dict) or "ae_title" not in entry or set(entry) - {"ae_title", "host", "port"}:
+            raise ValueError(f"{where} must be {{\"ae_title\": ..., \"host\": ... (optional), \"port\": ... "
+                             f"(optional, unused)}}, got {entry!r}")
+        try:
+            if "port" in entry:
+                check_port(entry["port"], "port", allow_zero=False)
+            modalities.append(Modality(name, entry["ae_title"], entry.get("host")))
+        except ValueError as exc:
+            raise ValueError(f"{where}: {exc}") from None
+    return AllowList(tuple(modalities))
+
+
+class AssociationGate:
+    """The receiver's checks at association negotiation (module docstring): :meth:`configure` sets
+    pynetdicom's own AE-title checks on the AE, :meth:`handlers` the address check and the log.
+
+    ``on_rejected(record)`` is called once per rejected association with a dict: ``peer``
+    (``"address:port"``), ``calling_ae_title``, ``called_ae_title``, ``reason`` (A-ASSOCIATE-RJ
+    reason code) and ``why`` (text).
+    """
+
+    def __init__(self, allow: AllowList | None, on_rejected: Callable[[dict], object]):
+        self.allow, self.on_rejected = allow, on_rejected
+
+    def configure(self, ae) -> None:
+        """Make ``ae`` refuse another called AE title and, with a list, the titles not on it."""
+        ae.require_called_aet = True
+        if self.allow is not None:
+            ae.require_calling_aet = self.allow.ae_titles
+        else:
+            log.warning("no allow-list of modalities: any calling AE title, from any address that reaches "
+                        "the receiver, may send frames (only the called AE title %r is checked)", ae.ae_title)
+
+    def handlers(self) -> list:
+        from pynetdicom import evt
+
+        return [(evt.EVT_REQUESTED, self._on_requested), (evt.EVT_REJECTED, self._on_rejected)]
+
+    def _on_requested(self, event) -> None:
+        """A listed calling AE title from an address its modality may not call from: rejected (reason
+        3). The other checks are pynetdicom's, during the negotiation that follows."""
+        if self.allow is None:
+            return
+        try:
+            request = event.assoc.requestor.primitive
+            calling, address = str(request.calling_ae_title).strip(), str(event.assoc.requestor.address)
+            refused = calling in self.allow.ae_titles and not self.allow.allows(calling, address)
+        except Exception:  # a check that cannot be made refuses: the gate fails closed
+            log.exception("the association's address check failed; rejecting it")
+            refused = True
+        if refused:
+            self._reject(event.assoc, 3)
+
+    @staticmethod
+    def _reject(assoc, reason: int) -> None:
+        """Reject permanently (result 1, source 1) with ``reason``, as pynetdicom's negotiation does."""
+        from pynetdicom import evt
+
+        assoc.acse.send_reject(0x01, 0x01, reason)
+        evt.trigger(assoc, evt.EVT_REJECTED, {})
+        assoc.kill()
+
+    def _on_rejected(self, event) -> None:
+        assoc = event.assoc
+        request, answer = assoc.requestor.primitive, assoc.acceptor.primitive
+        calling, called = str(request.calling_ae_title).strip(), str(request.called_ae_title).strip()
+        reason = int(getattr(answer, "diagnostic", 1) or 1)
+        peer = f"{assoc.requestor.address}:{assoc.requestor.port}"
+        why = REJECT_REASONS.get(reason, f"reason {reason}")
+        if reason == 3 and self.allow is not None:
+            why += ": " + self.allow.why_not(calling, str(assoc.requestor.address))
+        elif reason == 7:
+            why += f": {called!r} is not this receiver's AE title {assoc.ae.ae_title!r}"
+        log.warning("rejected an association from %s (calling AE title %r, called %r): %s (A-ASSOCIATE-RJ "
+                    "result %s, source %s, reason %d)", peer, calling, called, why,
+                    getattr(answer, "result", "?"), getattr(answer, "result_source", "?"), reason)
+        self.on_rejected({"peer": peer, "calling_ae_title": calling, "called_ae_title": called, "reason": reason,
+                          "why": why})
+
+
+def listening_error(host: str, port: int, exc: OSError) -> OSError:
+    """``exc`` of a failed bind on ``host:port``, worded with both and what to do."""
+    code = exc.errno or errno.EADDRINUSE
+    hint = {errno.EADDRINUSE: "another receiver or program listens there: stop it or choose another port",
+            errno.EADDRNOTAVAIL: "this machine has no such address: bind one of its own, or 0.0.0.0",
+            errno.EACCES: "ports below 1024 need privileges: choose a port from 1024 up"}.get(code, "")
+    return OSError(code, f"cannot listen on {host}:{port}: {exc.strerror or exc}" + (f" ({hint})" if hint else ""))
+
+
+def check_listening_address(host: str, port: int) -> None:
+    """Raise :func:`listening_error`'s OSError unless ``host:port`` can be bound now (port 0: any
+    free one, always): bound with ``SO_REUSEADDR`` as the receiver's server binds, then closed."""
+    host, port = check_host(host), check_port(port)
+    if port == 0:
+        return
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM,
+                                                             flags=socket.AI_PASSIVE)[0]
+        with socket.socket(family, kind, proto) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            probe.bind(address)
+    except socket.gaierror as exc:
+        raise OSError(errno.EADDRNOTAVAIL, f"cannot listen on {host}:{port}: {exc.strerror}") from None
+    except OSError as exc:
+        raise listening_error(host, port, exc) from None
