@@ -104,6 +104,9 @@ def add_parsers(sub, parents) -> None:
     lis.add_argument("--fast", action=argparse.BooleanOptionalAction, default=True,
                      help="track on the region of the last pose (pose.Tracker(fast=True), the default: "
                           "docs/tracking.md); --no-fast: every pair on the full frames")
+    lis.add_argument("--warm-up", action=argparse.BooleanOptionalAction, default=True,
+                     help="run the tracker once on a synthetic pair before the first frame (pose.Tracker.warm_up, "
+                          "the default), so the first pair does not wait for compiled kernels; the poses are the same")
     lis.add_argument("--max-queued-pairs", type=_queue_bound, default=1, metavar="N|all",
                      help="the most pairs waiting for a pose: a newer pair drops the oldest rather than fall behind "
                           "(counted in the stats; default 1: the newest pair only; all: keep every pair, for a cine "
@@ -327,7 +330,7 @@ def _listen(args) -> int:
         views = load_views(args.views)
         stats = listen(views, port=args.port, host=args.host, ae_title=args.ae_title, output_path=args.output,
                        max_pairs=args.max_pairs, timeout_s=args.timeout_s, seed=args.seed,
-                       max_queued_pairs=args.max_queued_pairs, fast=args.fast, on_start=started,
+                       max_queued_pairs=args.max_queued_pairs, fast=args.fast, warm_up=args.warm_up, on_start=started,
                        on_summary=None if args.quiet else lambda text: print(text, flush=True), allow=allow, tls=tls)
     except (ValueError, TypeError, FileNotFoundError, OSError) as exc:
         return _fail("listen", exc)

@@ -30,6 +30,23 @@ class PoseWorker:
     """The pose worker's methods of :class:`~.receiver.FrameReceiver` (its base class; module
     docstring): :meth:`_work` is the thread's target."""
 
+    def _warm_up_tracker(self) -> None:
+        """:meth:`histostudy.pose.Tracker.warm_up` with ``warm_up``, its seconds in the stats; a
+        warm-up that raises is logged and left: the first pair then pays what it would have."""
+        if not self.warm_up:
+            return
+        try:
+            report = self.tracker.warm_up()
+        except Exception as exc:
+            log.warning("tracker warm-up failed (%s: %s); the first pair will compile and build what it needs",
+                        type(exc).__name__, exc)
+            return
+        with self._cv:
+            self._stats.warm_up_s = report["seconds"]
+        log.info("tracker warmed up in %.1f s (%s)", report["seconds"],
+                 ", ".join(f"{kind} {'accepted' if ok else 'refused'}"
+                           for kind, ok in zip(report["kinds"], report["accepted"])))
+
     def _work(self) -> None:
         """Pose the queued pairs through ``Tracker.track`` until closing leaves none; a pair whose
         pose raised gets its error line, and the stream goes on in a new ``track``."""

@@ -139,10 +139,11 @@ class FrameReceiver(PoseWorker):
             with ``ca``, every sender must present a certificate that CA signed) or a server-side
             ``ssl.SSLContext``.
         pipeline: overlap the next waiting pair's segmentation with the current pair's refinement
-            (:meth:`~histostudy.pose.Tracker.track`). Off by default: on the shared two-core machine
-            it posed 19 pairs of a 60-s cine where one pair at a time posed 28-31, because the pair
-            taken ahead can no longer be dropped for a newer one and the threads find no free core
-            (docs/tracking.md, "Warm starts that hold").
+            (:meth:`~histostudy.pose.Tracker.track`). Off by default: the pair taken ahead can no
+            longer be dropped for a newer one (docs/tracking-alternatives.md, "The receiver").
+        warm_up: :meth:`start` runs :meth:`~histostudy.pose.Tracker.warm_up` once listening, before
+            the pose worker starts, so that the first pair does not wait for compiled kernels and
+            network primitives; the poses are the same either way (``stats()["warm_up_s"]``).
     """
 
     def __init__(self, views: Sequence[View], model: TransducerModel | None = None, *,
@@ -152,7 +153,7 @@ class FrameReceiver(PoseWorker):
                  tolerance_s: float | None = None, default_interval_s: float = DEFAULT_FRAME_INTERVAL_S,
                  match_tolerance_mm: float | None = 5.0, max_queued_pairs: int | None = 1,
                  network_timeout_s: float = 30.0, fast=True, pipeline: bool = False, allow=None, tls=None,
-                 **option_overrides):
+                 warm_up: bool = True, **option_overrides):
         views = [views] if isinstance(views, View) else list(views)
         if not views or not all(isinstance(v, View) for v in views):
             raise ValueError(f"views must be a non-empty sequence of histostudy.imaging.View, got {views!r}")
@@ -165,8 +166,9 @@ class FrameReceiver(PoseWorker):
         check_positive("air_value", air_value, "a finite intensity > 0")
         check_positive("match_tolerance_mm", match_tolerance_mm, "a finite number > 0 (mm at the isocentre)")
         check_count("max_queued_pairs", max_queued_pairs)
-        if pipeline not in (True, False):
-            raise ValueError(f"pipeline must be True or False, got {pipeline!r}")
+        for name, flag in (("pipeline", pipeline), ("warm_up", warm_up)):
+            if not isinstance(flag, bool):
+                raise ValueError(f"{name} must be True or False, got {flag!r}")
         check_positive("network_timeout_s", network_timeout_s, "a finite number of seconds > 0", optional=False)
         self.allow = AllowList.of(allow)
         self.tls = tls_context(tls, server=True)
@@ -187,7 +189,7 @@ class FrameReceiver(PoseWorker):
         self.on_pose = on_pose
         self.air_value, self.match_tolerance_mm = air_value, match_tolerance_mm
         self.max_queued_pairs, self.network_timeout_s = max_queued_pairs, float(network_timeout_s)
-        self.pipeline = bool(pipeline)
+        self.pipeline, self.warm_up = bool(pipeline), bool(warm_up)
 
         self._cv = threading.Condition()  # guards the pairer, the queue and the counters
         self._queue: collections.deque = collections.deque()
@@ -201,8 +203,8 @@ class FrameReceiver(PoseWorker):
     # --- life cycle -----------------------------------------------------------------------------
 
     def start(self) -> int:
-        """Listen (non-blocking), then open the output and start the pose worker; returns the bound
-        port. An address that cannot be bound (in use, not this machine's) raises an OSError naming
+        """Listen (non-blocking), warm the tracker up (``warm_up``), then open the output and start
+        the pose worker; returns the bound port. An address that cannot be bound (in use, not this machine's) raises an OSError naming
         the host and port before the output is opened: nothing is created or written."""
         from pynetdicom import evt
 
@@ -228,6 +230,7 @@ class FrameReceiver(PoseWorker):
             self.stop(drain=False)
             raise
         try:
+            self._warm_up_tracker()
             self._out = open(self.output_path, "a", encoding="utf-8")
             self._worker = threading.Thread(target=self._work, name="histostudy-pose-worker", daemon=True)
             self._worker.start()

@@ -44,6 +44,7 @@ class ReceiverCounts:
         latencies_s: the latency of each of the last :data:`LATENCY_WINDOW` lines (s), oldest first.
         t_first_frame, t_last_line, t_started: ``perf_counter`` times of the first frame decoded,
             the last line written and the server's start (None until then).
+        warm_up_s: seconds of the tracker's warm-up at the start (None without one).
         tracker: the last snapshot of :meth:`histostudy.pose.Tracker.stats`.
     """
 
@@ -55,6 +56,7 @@ class ReceiverCounts:
         self.decode_s = self.pose_s = self.latency_s = 0.0
         self.latencies_s: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)
         self.t_first_frame = self.t_last_line = self.t_started = None
+        self.warm_up_s = None
         self.tracker = tracker_stats
 
     def add_rejection(self, status: int, uid: str, sop_class: str, reason: str) -> None:
@@ -102,7 +104,8 @@ class ReceiverCounts:
         processed pairs over the time from the first frame received to the last line written;
         ``pose_frames_per_s``: the same frames over the pose worker's busy time; ``tracker``: the
         tracker's counters (:meth:`histostudy.pose.Tracker.stats`) at the last line; ``port``;
-        ``elapsed_s`` since the server started.
+        ``elapsed_s`` since the server started; ``warm_up_s``: the tracker's warm-up at the start
+        (None without one).
         """
         n_pairs = self.counts.get("pairs_processed", 0)
         n_frames = n_pairs * n_views
@@ -125,6 +128,7 @@ class ReceiverCounts:
             "tracker": self.tracker,
             "port": port,
             "elapsed_s": None if self.t_started is None else now - self.t_started,
+            "warm_up_s": self.warm_up_s,
         })
         return to_jsonable(out)
 

@@ -236,6 +236,8 @@ def test_receiver_arguments_are_checked(views, tmp_path):
         FrameReceiver(views, output_path=out, speed=1)
     with pytest.raises(ValueError, match="pipeline must be True or False, got 'yes'"):
         FrameReceiver(views, output_path=out, pipeline="yes")
+    with pytest.raises(ValueError, match="warm_up must be True or False, got 1"):
+        FrameReceiver(views, output_path=out, warm_up=1)
 
 
 def test_the_receivers_estimates_from_scratch_do_not_retry_unless_asked(views, tmp_path):
@@ -354,6 +356,8 @@ def test_a_cine_sent_gets_a_pose_per_pair_as_a_direct_tracker(cine, views, model
     assert stats["frames_per_s"] > 0 and stats["pose_frames_per_s"] >= stats["frames_per_s"]
     assert set(stats["seconds_per_pair"]) >= {"decode", "segmentation", "refinement", "total", "pose", "latency"}
     assert stats["tracker"]["n_updates"] == N_FRAMES
+    # warmed up at the start (Tracker.warm_up), and its two updates not counted among the pairs'
+    assert stats["warm_up_s"] > 0 and stats["tracker"]["n_from_scratch"] == 1
 
 
 @pytest.mark.slow
