@@ -72,3 +72,27 @@ def test_silhouette_seed_rejects_bad_input_and_returns_none_on_an_empty_view(sil
     with pytest.raises(ValueError, match="axial_step_deg"):
         silhouette_candidates(beam_direction_of_pose(T_TRUE), views, masks, body, centre_local_mm=c, axial_step_deg=0)
     assert silhouette_seed(R, views, [masks[0], np.zeros_like(masks[1])], body, centre_local_mm=c) is None
+
+
+def test_the_compiled_occupancy_is_numpys_cell_for_cell():
+    # the one-pass kernel against numpy's formula (divide by w, keep the detector, floor to cells),
+    # on points around and beyond a view, some behind the source
+    from histostudy.pose.silhouette import _project_to_cells
+
+    view = default_biplane()[0]
+    rows, cols = view.shape
+    rng = np.random.default_rng(3)
+    world = rng.normal(0.0, 120.0, (5000, 3))
+    world[:50] = view.source_mm + rng.normal(0.0, 10.0, (50, 3)) - 200.0 * (np.zeros(3) - view.source_mm) / 1000.0
+    uvw = view.project_homogeneous(world)
+    front = uvw[:, 2] > 0
+    px = uvw[front, :2] / uvw[front, 2:3]
+    inside = view.in_image(px)
+    shape = (-(-rows // 16), -(-cols // 16))
+    expected = np.zeros(shape, np.uint8)
+    cells = np.floor((px[inside] + 0.5) / 16).astype(np.int64)
+    expected[cells[:, 1], cells[:, 0]] = 1
+    occupied, visible = _project_to_cells(uvw, rows, cols, 16, shape)
+    assert 0 < inside.sum() < len(world) and not front.all()
+    assert np.array_equal(occupied, expected)
+    assert np.array_equal(world[visible], world[front][inside])
