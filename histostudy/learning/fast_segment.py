@@ -32,7 +32,9 @@ the region where the transducer projects. :class:`FastUNet` therefore
 their full resolution (the tracker's from-scratch estimates): the arg-max of the bilinearly
 upsampled logits equals the arg-max at the network's resolution wherever the four logit vectors
 the interpolation blends share their arg-max (a convex combination keeps a common maximum), so
-only the pixels where they differ, along the label edges, are interpolated.
+only the pixels where they differ, along the label edges, are interpolated; so does
+:meth:`FastUNet.segment_region` above the network's resolution (a tracker's second warm attempt,
+which reads the box's features kept from its first).
 
 Boxes are ``(row0, row1, col0, col1)`` in full-frame pixels, half-open, with all four multiples
 of :attr:`FastUNet.stride_px` (one network-input pixel for every ``1 / scale`` frame pixels,
@@ -45,7 +47,9 @@ with the U-Net trained at 0.25 for tracking (``data/models/unet_tracking``).
 
 from __future__ import annotations
 
+import collections
 import copy
+import threading
 
 import numpy as np
 
@@ -60,6 +64,9 @@ __all__ = ["FAST_UNET_PRECISIONS", "FastUNet", "auto_precision", "native_bfloat1
 #: What :class:`FastUNet` computes in: ``"auto"`` (:func:`auto_precision`), ``"float32"``,
 #: ``"bfloat16"`` or ``"int8"`` (:mod:`.int8_unet`).
 FAST_UNET_PRECISIONS = ("auto", "float32", "bfloat16", "int8")
+
+#: How many (frame, box) features a FastUNet keeps for a second reading of the same region.
+_RECENT_FEATURES = 4
 
 
 #: oneDNN instruction-set levels (``ONEDNN_MAX_CPU_ISA``) at which its convolutions have native
@@ -136,6 +143,26 @@ def _bilinear_support(n_out: int, n_in: int) -> tuple[np.ndarray, np.ndarray, np
     return lo, hi, (src - lo).astype(np.float32)
 
 
+def _upsampled_argmax(logits: np.ndarray, labels: np.ndarray, n_rows: int, n_cols: int) -> np.ndarray:
+    """The arg-max of ``logits`` (``(classes, rows, cols)``) resized bilinearly to ``n_rows x n_cols``
+    (:func:`_bilinear_support`), given their arg-max ``labels`` at their own size: an output pixel
+    whose four source pixels share a label takes it (a convex blend of logits that one class leads
+    is led by it); only the others blend their logits."""
+    (y0, y1, wy), (x0, x1, wx) = _bilinear_support(n_rows, labels.shape[0]), _bilinear_support(n_cols, labels.shape[1])
+    top, bottom = labels[y0], labels[y1]
+    out = np.take(top, x0, axis=1)
+    mixed = out != np.take(top, x1, axis=1)
+    mixed |= out != np.take(bottom, x0, axis=1)
+    mixed |= out != np.take(bottom, x1, axis=1)
+    v, u = np.nonzero(mixed)
+    if len(v):
+        a, b, c, d = (logits[:, y0[v], x0[u]], logits[:, y0[v], x1[u]], logits[:, y1[v], x0[u]],
+                      logits[:, y1[v], x1[u]])
+        blended = (1 - wy[v]) * ((1 - wx[u]) * a + wx[u] * b) + wy[v] * ((1 - wx[u]) * c + wx[u] * d)
+        out[v, u] = blended.argmax(axis=0)
+    return out
+
+
 class FastUNet:
     """Fast CPU inference of a :class:`~.segment.UNetSegmenter`'s network on a region of a frame.
 
@@ -187,6 +214,10 @@ class FastUNet:
         self._net = net.to(memory_format=torch.channels_last).to(self._dtype)
         # Each Conv2d -> ReLU in one oneDNN call where that keeps float32 rounding's bound (fused_conv.py).
         self._net, self.n_fused_layers = fuse_conv_relu(self._net)
+        # The features of the last few (frame, box) pairs: a tracker's second warm attempt reads the
+        # same regions of the same frames at a finer label grid, and needs no second forward pass.
+        self._recent: collections.OrderedDict = collections.OrderedDict()
+        self._recent_lock = threading.Lock()
         self._int8 = None
         if precision == "int8":
             from .int8_unet import Int8UNet, int8_calibration_path, load_int8_calibration
@@ -205,9 +236,11 @@ class FastUNet:
         ``frame.view.scaled(scale * upsample)`` cut to the box. With ``upsample`` > 1 the logits
         are upsampled bilinearly first (pixel centres aligned, as :meth:`segment` and
         :meth:`~.segment.UNetSegmenter.segment` upsample; edge pixels clamp to the box's), which
-        places the label edges between the network's pixels (a U-Net run at 0.25 labelling at 0.5)."""
+        places the label edges between the network's pixels (a U-Net run at 0.25 labelling at 0.5);
+        as in :meth:`segment`, only the pixels along the label edges are interpolated. The features
+        of the last few (frame, box) pairs are kept: reading a box of a frame again (at another
+        ``upsample``) runs no second forward pass, as long as the frame's image is not changed in place."""
         import torch
-        from torch.nn import functional as F
 
         if not isinstance(frame, Frame):
             raise TypeError(f"frame must be a histostudy.imaging.frame.Frame, got {type(frame).__name__}")
@@ -217,8 +250,9 @@ class FastUNet:
         if upsample == 1:
             return self._labels(frame, box)
         logits = self._logits(frame, box)
-        logits = F.interpolate(logits[None], scale_factor=int(upsample), mode="bilinear", align_corners=False)[0]
-        return logits.argmax(dim=0).to(torch.uint8).numpy()
+        labels = logits.argmax(dim=0).to(torch.uint8).numpy()
+        return _upsampled_argmax(logits.numpy(), labels, labels.shape[0] * int(upsample),
+                                 labels.shape[1] * int(upsample))
 
     def segment(self, frame: Frame, rng: np.random.Generator | None = None) -> np.ndarray:
         """``uint8`` labels of the whole frame at its full resolution, as
@@ -237,20 +271,7 @@ class FastUNet:
         labels = logits.argmax(dim=0).to(torch.uint8).numpy()
         if k == 1:
             return labels
-        logits = logits.numpy()
-        (y0, y1, wy), (x0, x1, wx) = _bilinear_support(rows, labels.shape[0]), _bilinear_support(cols, labels.shape[1])
-        top, bottom = labels[y0], labels[y1]
-        out = np.take(top, x0, axis=1)
-        mixed = out != np.take(top, x1, axis=1)
-        mixed |= out != np.take(bottom, x0, axis=1)
-        mixed |= out != np.take(bottom, x1, axis=1)
-        v, u = np.nonzero(mixed)
-        if len(v):
-            a, b, c, d = (logits[:, y0[v], x0[u]], logits[:, y0[v], x1[u]], logits[:, y1[v], x0[u]],
-                          logits[:, y1[v], x1[u]])
-            blended = (1 - wy[v]) * ((1 - wx[u]) * a + wx[u] * b) + wy[v] * ((1 - wx[u]) * c + wx[u] * d)
-            out[v, u] = blended.argmax(axis=0)
-        return out
+        return _upsampled_argmax(logits.numpy(), labels, rows, cols)
 
     def _features(self, frame: Frame, box):
         """The last decoder block's output on ``box`` at the network's resolution, before the head: a
@@ -261,6 +282,12 @@ class FastUNet:
         from .preprocess import prepare_image
 
         r0, r1, c0, c1 = self._check_box(box, frame.shape)
+        key = (id(frame), r0, r1, c0, c1)
+        with self._recent_lock:
+            hit = self._recent.get(key)
+        # the frame object and its image array held in the entry: the same id is the same frame
+        if hit is not None and hit[0] is frame and hit[1] is frame.image:
+            return hit[2], hit[3]
         try:
             x = prepare_image(frame.image, self.scale)
         except ValueError as exc:
@@ -272,7 +299,12 @@ class FastUNet:
             rows, cols = x.shape
             t = self.segmenter.network.pad(torch.from_numpy(x)[None, None])
             x = t.contiguous(memory_format=torch.channels_last).to(self._dtype)
-            return self._network_features(x), (rows, cols)
+            features = self._network_features(x)
+        with self._recent_lock:
+            self._recent[key] = (frame, frame.image, features, (rows, cols))
+            while len(self._recent) > _RECENT_FEATURES:
+                self._recent.popitem(last=False)
+        return features, (rows, cols)
 
     def _network_features(self, x):
         """The last decoder block's output of ``x`` (channels-last, of the network's dtype, sides

@@ -53,6 +53,29 @@ def test_region_labels_are_the_network_resolution_labels_of_the_box(random_unet)
     assert part.shape == (64, 80) and part.dtype == np.uint8
 
 
+def test_upsampled_region_labels_are_the_interpolated_logits_arg_max_and_reuse_the_features(random_unet,
+                                                                                          monkeypatch):
+    from torch.nn import functional as F
+
+    view = default_biplane()[0].scaled(0.25)
+    frame = Frame(np.random.default_rng(2).standard_normal(view.shape).astype(np.float32), view)
+    fast = FastUNet(random_unet, precision="float32")
+    box = (32, 224, 64, 288)
+    logits = fast._logits(frame, box)
+    reference = F.interpolate(logits[None], scale_factor=2, mode="bilinear", align_corners=False)[0]
+    # the edge-only interpolation gives the full interpolation's arg-max, pixel for pixel
+    np.testing.assert_array_equal(fast.segment_region(frame, box, 2), reference.argmax(dim=0).numpy())
+    runs = []
+    forward = fast._network_features
+    monkeypatch.setattr(fast, "_network_features", lambda x: runs.append(1) or forward(x))
+    coarse = fast.segment_region(frame, box)  # the same box of the same frame: no second forward pass
+    again = fast.segment_region(frame, box, 2)
+    assert runs == [] and coarse.shape == (96, 112) and again.shape == (192, 224)
+    copy = Frame(frame.image.copy(), view)  # another frame (or a new image) runs the network again
+    np.testing.assert_array_equal(fast.segment_region(copy, box), coarse)
+    assert runs == [1]
+
+
 @pytest.fixture(scope="module")
 def shipped_and_frame():
     segmenter = default_segmenter()
