@@ -10,7 +10,8 @@ at its frame rate to a :class:`histostudy.lab.FrameReceiver` on loopback with ``
 (:func:`histostudy.study.moving_cine_live.stream_moving_cine`; ``--pipeline``: the receiver's pipeline
 on; ``--retries on|off``: the tracker's retries of a refused estimate from scratch;
 ``--scratch-full-frames on|off``: its second and third steps on the full frames; ``--refinement
-paper|fast``: the tracker's mode) and prints the counts, rates, latency
+paper|fast``: the tracker's mode; ``--sender process|thread``: the sender in a process of its own, the
+default, or on a thread of the receiver's process) and prints the counts, rates, latency
 and focal error (:func:`~histostudy.study.moving_cine_live.count_table`), the seconds per posed pair
 of each stage, the latency's percentiles (p50, p90, p99, max) and the pairs dropped from the
 receiver's stats, and per kind of update (warm, from scratch, re-acquired) the pose seconds, latency and
@@ -70,6 +71,9 @@ def main() -> None:
                              "(TrackingConfig.scratch_full_frames; default: the receiver's own)")
     parser.add_argument("--refinement", choices=("default", "paper", "fast"), default="default",
                         help="PoseConfig.mode of the tracker (default: the receiver's own, fast)")
+    parser.add_argument("--sender", choices=("process", "thread"), default="process",
+                        help="where the C-arm's sender runs: a process of its own (default; a C-arm is another "
+                             "machine, here sharing the cores) or a thread of the receiver's process")
     parser.add_argument("--isa", choices=BENCHMARK_ISAS, default="native",
                         help="avx2: run as on a CPU with AVX2 only (the command again, its libraries restricted)")
     args = parser.parse_args()
@@ -101,7 +105,7 @@ def main() -> None:
         t0 = time.perf_counter()
         run = stream_moving_cine(cine, model, args.tracker_seed, output_path=out / f"{mode}_poses.jsonl",
                                  fast=fast if mode == "fast" else False, max_queued_pairs=args.max_queued_pairs,
-                                 pipeline=args.pipeline, **retries)
+                                 pipeline=args.pipeline, sender_process=args.sender == "process", **retries)
         frames = frame_table(run, cine)
         counts = count_table(run, frames)
         frames.to_csv(out / f"{mode}_frames.csv", index=False)

@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import multiprocessing
 import os
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -50,7 +52,8 @@ class MovingCineRun:
 
 def stream_moving_cine(cine: MovingCine, model: TransducerModel, seed: int, *, output_path: str | os.PathLike,
                        fast=True, max_queued_pairs: int | None = 2, pace: float = 1.0,
-                       on_pose: Callable[[dict], object] | None = None, **receiver_options) -> MovingCineRun:
+                       on_pose: Callable[[dict], object] | None = None, sender_process: bool = False,
+                       **receiver_options) -> MovingCineRun:
     """Stream ``cine`` at its frame rate (times ``pace``) to a pose receiver on loopback.
 
     Args:
@@ -63,6 +66,9 @@ def stream_moving_cine(cine: MovingCine, model: TransducerModel, seed: int, *, o
         pace: the speed-up of the sending (1.0: the frames' own times).
         on_pose: called with each record on the receiver's worker thread (a sleeping one slows
             the tracker down).
+        sender_process: send from a process of its own, as a C-arm sends from a machine of its
+            own (it still shares this machine's cores); False: from this process's thread, where
+            the sender's Python holds the interpreter lock the receiver and the tracker also need.
         receiver_options: more :class:`~histostudy.lab.FrameReceiver` arguments.
 
     After the last object is sent the receiver stops and poses what waits (at most
@@ -75,9 +81,15 @@ def stream_moving_cine(cine: MovingCine, model: TransducerModel, seed: int, *, o
                              default_interval_s=1.0 / cine.fps, **receiver_options)
     receiver.start()
     t0 = time.perf_counter()
+    paths = [p for pair in cine.frames for p in pair]
     try:
-        sent = stream_frames([p for pair in cine.frames for p in pair], "127.0.0.1", receiver.port,
-                             ae_title=receiver.ae_title, pace=pace)
+        if sender_process:
+            # spawn, not fork: the receiver's threads and torch's pools are running in this process
+            with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+                sent = pool.submit(stream_frames, paths, "127.0.0.1", receiver.port, ae_title=receiver.ae_title,
+                                   pace=pace).result()
+        else:
+            sent = stream_frames(paths, "127.0.0.1", receiver.port, ae_title=receiver.ae_title, pace=pace)
     finally:
         receiver.stop(drain=True)
     wall_s = time.perf_counter() - t0
