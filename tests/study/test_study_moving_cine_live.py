@@ -123,8 +123,11 @@ def check_run(run, cine, max_queued_pairs):
 
 
 @pytest.mark.slow
-def test_a_paced_stream_through_the_fast_receiver_adds_up_and_tracks_within_3_mm(cine, model, tmp_path):
-    run = stream_moving_cine(cine, model, 0, output_path=tmp_path / "poses.jsonl", max_queued_pairs=2)
+@pytest.mark.parametrize("sender_process", [False, True], ids=["sender_thread", "sender_process"])
+def test_a_paced_stream_through_the_fast_receiver_adds_up_and_tracks_within_3_mm(cine, model, tmp_path,
+                                                                                  sender_process):
+    run = stream_moving_cine(cine, model, 0, output_path=tmp_path / "poses.jsonl", max_queued_pairs=2,
+                             sender_process=sender_process)
     assert (cine.n_frames - 1) / FPS - 1e-6 <= run.stream_s <= (cine.n_frames - 1) / FPS + 2.0
     check_run(run, cine, 2)
 
