@@ -21,6 +21,12 @@ not recognised; also for a listed title calling from another address, as dcm4che
 titles, and reported to the receiver (its ``associations_rejected`` count). Without a list any
 calling AE title may send (the called AE title is still checked), and a warning says so.
 
+:class:`ConnectionGuard` bounds what one connection may hold, whoever it is from (the checks above
+come only once a whole A-ASSOCIATE-RQ is read): a PDU begun and left unfinished, or answers left
+unread, for ``network_timeout_s`` (pynetdicom reads an accepted connection blocking, without one); a
+PDU announcing more than :data:`MAX_PDU_BYTES` (a length of 0xFFFFFFFF); a message's data set beyond
+:data:`MAX_OBJECT_BYTES`. Each closes the connection (logged) before more is read or kept.
+
 :func:`check_listening_address` tells, before anything is written, whether the receiver can bind
 its address; :func:`listening_error` words a failed bind with the host and port.
 """
@@ -46,6 +52,11 @@ log = logging.getLogger("histostudy.lab.receiver")  # the receiver's log, where 
 
 #: A-ASSOCIATE-RJ reasons (source 1, DICOM UL service user; PS3.8 §9.3.4) the gate answers with.
 REJECT_REASONS = {1: "no reason given", 3: "calling AE title not recognised", 7: "called AE title not recognised"}
+#: The largest PDU a connection may announce (bytes): 256 times the 16 KiB the receiver negotiates
+#: for P-DATA (pynetdicom's default), ample for an A-ASSOCIATE-RQ proposing every storage class.
+MAX_PDU_BYTES = 4 << 20
+#: The largest data set one message may bring (bytes): a cine of 500 frames of 1024 x 1024 at 16 bits.
+MAX_OBJECT_BYTES = 1 << 30
 
 
 def _address(value: str, name: str) -> str:
@@ -238,6 +249,65 @@ class AssociationGate:
                     getattr(answer, "result", "?"), getattr(answer, "result_source", "?"), reason)
         self.on_rejected({"peer": peer, "calling_ae_title": calling, "called_ae_title": called, "reason": reason,
                           "why": why})
+
+
+class ConnectionGuard:
+    """The bounds of every connection (module docstring): :meth:`handlers` gives the receiver's
+    server an ``EVT_CONN_OPEN`` handler, which runs on the connection's thread before any PDU is
+    read (after the TLS handshake, when there is one) and bounds its socket's reads and sends by
+    ``timeout_s``, its PDUs by ``max_pdu_bytes`` and its data sets by ``max_object_bytes``."""
+
+    def __init__(self, timeout_s: float, max_pdu_bytes: int = MAX_PDU_BYTES, max_object_bytes: int = MAX_OBJECT_BYTES):
+        self.timeout_s, self.max_pdu_bytes, self.max_object_bytes = float(timeout_s), int(max_pdu_bytes), \
+            int(max_object_bytes)
+
+    def handlers(self) -> list:
+        from pynetdicom import evt
+
+        return [(evt.EVT_CONN_OPEN, self._on_open)]
+
+    def _on_open(self, event) -> None:
+        from pynetdicom import evt
+
+        transport, assoc = event.assoc.dul.socket, event.assoc
+        peer = ":".join(str(part) for part in event.address[:2])
+        try:
+            transport.socket.settimeout(self.timeout_s)
+        except (AttributeError, OSError):  # closed already: a refused TLS handshake
+            return
+        read, limit, held, refused = transport.recv, self.max_pdu_bytes, [0], []
+
+        def close(why: str) -> None:  # pynetdicom does not close it after an abort (stop()) meanwhile
+            log.warning("closed the connection from %s: %s", peer, why)
+            try:
+                transport.socket.shutdown(socket.SHUT_RDWR)
+                transport.socket.close()
+            except (AttributeError, OSError):  # closed already
+                pass
+
+        def recv(n: int):  # pynetdicom reads a PDU's 6-byte header, then the length it announces
+            if refused or n > limit:
+                close(why := refused[0] if refused else f"it announced a PDU of {n} bytes (more than {limit})")
+                raise ConnectionAbortedError(why)  # pynetdicom's "connection closed"
+            try:
+                return read(n)
+            except TimeoutError:
+                close(f"a PDU begun was left unfinished for {self.timeout_s} s")
+                raise
+
+        def on_data(event) -> None:  # each PDU read: the data set fragments of P-DATA-TF (PS3.8 §9.3.5)
+            data, at = event.data, 6
+            while data[:1] == b"\x04" and at + 6 <= len(data) and not refused:
+                length, control = int.from_bytes(data[at:at + 4], "big"), data[at + 5]
+                if not control & 1:  # a data set's fragment (bit 1 set: its last)
+                    held[0] += length - 2
+                    if held[0] > self.max_object_bytes:  # the next read closes the connection
+                        refused.append(f"its data set passed {self.max_object_bytes} bytes")
+                    held[0] = 0 if control & 2 else held[0]
+                at += 4 + length
+
+        transport.recv = recv
+        assoc.bind(evt.EVT_DATA_RECV, on_data)
 
 
 def listening_error(host: str, port: int, exc: OSError) -> OSError:

@@ -53,10 +53,10 @@ certificate it signed (``tls_refused`` counts those refused). :meth:`FrameReceiv
 address before it opens the output: an address in use raises an OSError naming the host and port,
 and no file is created.
 
-A sender that aborts or drops its connection mid-association loses only that association's
-unfinished object: each association runs on its own thread, and the frames already read stay
-in the pairing. :func:`histostudy.lab.send_frames` (:mod:`.sender`) is a sender. Units: mm,
-seconds; frames and transforms as in docs/architecture.md.
+A sender that aborts or drops its connection mid-association loses only that association's unfinished
+object (each association runs on its own thread; frames already read stay in the pairing); one that
+stalls mid-PDU, or sends a PDU or a data set beyond bounds, is cut off (:class:`.access.ConnectionGuard`).
+:func:`histostudy.lab.send_frames` (:mod:`.sender`) is a sender. Units: mm, seconds; frames as in docs/architecture.md.
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ from typing import Callable, Sequence
 from histostudy.imaging import View
 from histostudy.pose import Tracker, TrackingConfig
 from histostudy.transducer import TransducerModel
-from .access import AllowList, AssociationGate, listening_error
+from .access import MAX_OBJECT_BYTES, MAX_PDU_BYTES, AllowList, AssociationGate, ConnectionGuard, listening_error
 from .pairing import DEFAULT_FRAME_INTERVAL_S, BiplanePairer, PlaneFrame
 from .pose_worker import PoseWorker
 from .receiver_counts import ReceiverCounts
@@ -129,7 +129,8 @@ class FrameReceiver(PoseWorker):
             (counted in ``pairs_dropped_stale`` and ``pairs_skipped``, no line) so that the poses
             follow a live stream that outpaces them. 1 (default): the newest complete pair only;
             None: every pair waits for its line (batch use), however far behind the stream.
-        network_timeout_s: how long an idle or half-open association is kept (s).
+        network_timeout_s: how long an idle or half-open association, or a PDU begun, is kept (s;
+            :class:`~.access.ConnectionGuard`, with the attributes ``max_pdu_bytes`` and ``max_object_bytes``).
         allow: who may send: an :class:`~.access.AllowList` (e.g. :func:`~.access.load_modalities`),
             or :class:`~.access.Modality` objects and ``"AE[@IP]"`` texts; an association from
             another calling AE title, or from another address than its modality's, is rejected at
@@ -189,6 +190,7 @@ class FrameReceiver(PoseWorker):
         self.on_pose = on_pose
         self.air_value, self.match_tolerance_mm = air_value, match_tolerance_mm
         self.max_queued_pairs, self.network_timeout_s = max_queued_pairs, float(network_timeout_s)
+        self.max_pdu_bytes, self.max_object_bytes = MAX_PDU_BYTES, MAX_OBJECT_BYTES  # ConnectionGuard's bounds
         self.pipeline, self.warm_up = bool(pipeline), bool(warm_up)
 
         self._cv = threading.Condition()  # guards the pairer, the queue and the counters
@@ -211,10 +213,11 @@ class FrameReceiver(PoseWorker):
         if self._server is not None or self._stopped:
             raise RuntimeError("this FrameReceiver was started already; make a new one")
         ae = storage_application_entity(self.ae_title, self.network_timeout_s)
-        gate = AssociationGate(self.allow, self._on_rejected)
+        gate, guard = AssociationGate(self.allow, self._on_rejected), ConnectionGuard(
+            self.network_timeout_s, self.max_pdu_bytes, self.max_object_bytes)
         gate.configure(ae)
         tls = None if self.tls is None else ServerTLS(self.tls, self.network_timeout_s, self._on_tls_refused)
-        handlers = [(evt.EVT_CONN_OPEN, self._on_event("connections")), *gate.handlers(),
+        handlers = [(evt.EVT_CONN_OPEN, self._on_event("connections")), *guard.handlers(), *gate.handlers(),
                     (evt.EVT_C_STORE, self._on_c_store), (evt.EVT_ACCEPTED, self._on_event("associations")),
                     (evt.EVT_ABORTED, self._on_event("associations_aborted"))]
         if tls is not None:  # the handshake first, on the connection's thread (tls.ServerTLS)

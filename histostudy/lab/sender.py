@@ -3,7 +3,8 @@ demonstrations and replaying a lab's recorded cines to :class:`~.receiver.FrameR
 
 :func:`send_frames` opens one association (pynetdicom's SCU) with the receiver, proposes each
 object's SOP class with its own transfer syntax (and the uncompressed little-endian ones), stores
-the objects in order and releases the association; it returns the C-STORE status of each object
+the objects in order (a compressed one in its own context, sent as it is) and releases the
+association; it returns the C-STORE status of each object
 (0x0000 success; the receiver's refusals in :data:`.xray_objects.REJECTION_STATUSES`).
 :func:`stream_frames` does the same at the pace of the acquisition, as a C-arm streams a
 fluoroscopy run: each object is stored once its last frame has been taken (its
@@ -187,7 +188,7 @@ def _store(paths, host: str, port: int, *, ae_title: str, calling_ae_title: str,
     """Store the objects in one association (at ``pace``, or at once with None); a SentObject each."""
     import pydicom
     from pydicom.dataset import Dataset
-    from pydicom.uid import ExplicitVRLittleEndian, ImplicitVRLittleEndian
+    from pydicom.uid import UID, ExplicitVRLittleEndian, ImplicitVRLittleEndian
     from pynetdicom import AE, evt
 
     from .tls import tls_context
@@ -206,13 +207,16 @@ def _store(paths, host: str, port: int, *, ae_title: str, calling_ae_title: str,
 
     ae = AE(ae_title=calling_ae_title)
     ae.acse_timeout = ae.dimse_timeout = ae.network_timeout = float(timeout_s)
-    contexts: dict[str, list[str]] = {}
+    # a compressed syntax in a context of its own: pynetdicom sends such an object only as it is, and
+    # an SCP offered it beside the native ones may choose a native one (the receiver does)
+    contexts: dict[tuple[str, str], list[str]] = {}
     for ds in headers:
-        syntaxes = contexts.setdefault(str(ds.SOPClassUID), [])
-        for uid in (str(ds.file_meta.TransferSyntaxUID), ExplicitVRLittleEndian, ImplicitVRLittleEndian):
+        syntax = UID(str(ds.file_meta.TransferSyntaxUID))
+        syntaxes = contexts.setdefault((str(ds.SOPClassUID), syntax if syntax.is_compressed else ""), [])
+        for uid in (syntax,) if syntax.is_compressed else (syntax, ExplicitVRLittleEndian, ImplicitVRLittleEndian):
             if uid not in syntaxes:
                 syntaxes.append(uid)
-    for sop_class, syntaxes in contexts.items():
+    for (sop_class, _), syntaxes in contexts.items():
         ae.add_requested_context(sop_class, syntaxes)
     where = f"{ae_title}@{host}:{port}" + (" over TLS" if context is not None else "")
     connected = []  # the TCP connection opened: a failed association is then the peer's answer

@@ -28,8 +28,8 @@ Refusals raise :class:`XRayObjectRejected` with the C-STORE failure status to an
 
 - ``0x0122`` Refused: SOP Class not supported — not an X-ray image (e.g. CT Image Storage).
 - ``0xA900`` Error: Data Set does not match SOP Class — an X-ray object that cannot be read as
-  one: undecodable, pixel data of the wrong length, the data set's SOP class differing from the
-  request's.
+  one: undecodable, pixel data of the wrong length (compressed: fewer fragments than frames), the
+  data set's SOP class differing from the request's.
 - ``0xC000`` Error: Cannot understand — a readable X-ray object that cannot be used: missing
   geometry tags, no acquisition time, colour pixels, a bad rescale, a frame without signal, a plane
   matching no view.
@@ -161,6 +161,7 @@ def read_xray_header(ds, views: Sequence[View], *, sop_class_uid: str | None = N
                       else sop_class_uid)
     uid = str(getattr(ds, "SOPInstanceUID", "") or "")
     n_frames = int(getattr(ds, "NumberOfFrames", 1) or 1)
+    _check_fragments(ds, n_frames)  # before a time and a frame are made for each frame it declares
     # the plane of each frame: once for a plain cine, per frame where functional groups may differ
     per_frame = bool(getattr(ds, "PerFrameFunctionalGroupsSequence", None))
     plane_views = []
@@ -245,6 +246,11 @@ def rejection_response(status: int, reason: str):
     return response
 
 
+#: The largest P-DATA PDU the receiver announces (bytes; A-ASSOCIATE-RQ's maximum length), below
+#: the connection guard's bound on any PDU (:data:`.access.MAX_PDU_BYTES`).
+RECEIVER_MAX_PDU_BYTES = 1 << 20
+
+
 def storage_application_entity(ae_title: str, network_timeout_s: float):
     """pynetdicom's application entity of a Storage SCP that C-arms send X-ray objects to: every
     storage SOP class accepted at negotiation, so that an object that is not an X-ray image reaches
@@ -259,7 +265,11 @@ def storage_application_entity(ae_title: str, network_timeout_s: float):
     for context in AllStoragePresentationContexts:
         ae.add_supported_context(context.abstract_syntax, list(RECEIVABLE_TRANSFER_SYNTAXES))
     ae.add_supported_context(Verification)
-    ae.network_timeout = network_timeout_s
+    # an idle association, and a connection that sends no A-ASSOCIATE-RQ (its thread waits for one)
+    ae.network_timeout = ae.acse_timeout = network_timeout_s
+    # a frame in a few P-DATA PDUs rather than pynetdicom's default of 16 KiB each: every PDU is
+    # parsed in Python on both sides, holding the interpreter lock the tracker needs
+    ae.maximum_pdu_size = RECEIVER_MAX_PDU_BYTES
     return ae
 
 
@@ -270,6 +280,27 @@ def _check_pixel_module(ds) -> None:
         line_integrals_from_pixels(np.ones((1, 1)), ds, air_value=1.0)  # the tags alone: a one-pixel probe
     except ValueError as exc:
         raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, str(exc)) from None
+
+
+def _check_fragments(ds, n_frames: int) -> None:
+    """Refuses (0xA900) encapsulated (compressed) pixel data with fewer fragments than the frames it
+    declares: each fragment holds one frame's data at most (PS3.5 §A.4), and, unlike native pixels,
+    no length bounds a compressed object's NumberOfFrames (a few bytes may declare 2**30 frames)."""
+    from pydicom.encaps import parse_fragments
+    from pydicom.uid import UID
+
+    if n_frames == 1 or not UID(str(ds.file_meta.TransferSyntaxUID)).is_encapsulated:
+        return
+    try:
+        fragments = parse_fragments(ds.PixelData)[0] - 1  # the first item is the Basic Offset Table
+    except Exception as exc:  # items pydicom cannot walk
+        fragments, why = 0, f": {type(exc).__name__}: {exc}"
+    else:
+        why = ""
+    if fragments < n_frames:
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"its pixel data cannot be read: NumberOfFrames is "
+                                                          f"{n_frames}, its encapsulated pixel data holds {fragments} "
+                                                          f"fragment(s){why}")
 
 
 def _plane_view(ds, views: Sequence[View], frame_index: int | None, tol_mm: float | None) -> View:

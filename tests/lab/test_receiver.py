@@ -448,3 +448,21 @@ def test_the_pipeline_poses_as_a_direct_tracker_and_a_failed_pair_does_not_end_t
         == (1 + N_FRAMES, 1 + N_FRAMES, 1, 0)
     assert stats["tracker"]["n_updates"] == 1 + N_FRAMES
     assert all(line["seconds"]["pose"] >= 0 and line["seconds"]["queue"] >= 0 for line in lines)
+
+
+def test_the_receiver_announces_pdus_of_a_mebibyte_under_the_guards_bound(small_views, tmp_path):
+    # a 2.4 MB frame in three P-DATA PDUs rather than 150 of pynetdicom's default 16 KiB
+    from pynetdicom import AE
+
+    from histostudy.lab.access import MAX_PDU_BYTES
+    from histostudy.lab.xray_objects import RECEIVER_MAX_PDU_BYTES
+
+    assert RECEIVER_MAX_PDU_BYTES == 1 << 20 and RECEIVER_MAX_PDU_BYTES < MAX_PDU_BYTES
+    with FrameReceiver(small_views, output_path=tmp_path / "p.jsonl", port=0, warm_up=False) as receiver:
+        ae = AE(ae_title="TESTSCU")
+        ae.add_requested_context("1.2.840.10008.1.1")
+        assoc = ae.associate("127.0.0.1", receiver.port, ae_title="HISTOSTUDY")
+        try:
+            assert assoc.is_established and assoc.acceptor.maximum_length == RECEIVER_MAX_PDU_BYTES
+        finally:
+            assoc.release()
