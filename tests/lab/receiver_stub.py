@@ -75,9 +75,19 @@ def pair_objects(views, k: int, blank: bool = False) -> list:
 
 def receiver_with(views, tmp_path, tracker, **options) -> FrameReceiver:
     """A receiver on a free loopback port writing ``tmp_path/poses.jsonl``, its tracker ``tracker``."""
+    options.setdefault("warm_up", False)  # a stub tracker has nothing to warm up
     receiver = FrameReceiver(views, output_path=tmp_path / "poses.jsonl", port=0, tolerance_s=0.02, **options)
     receiver.tracker = tracker
     return receiver
+
+
+def wait_for_count(receiver, key: str, n: int, timeout_s: float = 30.0) -> dict:
+    """The receiver's stats once ``stats()[key]`` reaches ``n`` (or at ``timeout_s``): a refusal is
+    counted on the connection's thread, which may run after the peer has already seen it."""
+    deadline = time.monotonic() + timeout_s
+    while receiver.stats()[key] < n and time.monotonic() < deadline:
+        time.sleep(0.02)
+    return receiver.stats()
 
 
 def read_lines(path):

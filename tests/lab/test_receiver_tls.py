@@ -14,7 +14,7 @@ import subprocess
 
 import numpy as np
 import pytest
-from receiver_stub import StubTracker, pair_objects, read_lines, receiver_with, small_views
+from receiver_stub import StubTracker, pair_objects, read_lines, receiver_with, small_views, wait_for_count
 
 from histostudy.lab import TLSConfig, send_frames
 
@@ -94,7 +94,7 @@ def test_a_client_without_a_certificate_the_ca_signed_is_refused(views, tmp_path
         with pytest.raises(ConnectionError, match=r"over TLS .*(aborted|refused the TLS handshake)"):
             send_frames(pair_objects(views, 0), "127.0.0.1", receiver.port, tls=client_tls(tls_files, who),
                         timeout_s=10)
-        stats = receiver.stats()
+        stats = wait_for_count(receiver, "tls_refused", 1)
         assert (stats["tls_refused"], stats["associations"], stats["objects_received"]) == (1, 0, 0)
         assert read_lines(tmp_path / "poses.jsonl") == [] and tracker.images == []
         assert send_frames(pair_objects(views, 1), "127.0.0.1", receiver.port, tls=client_tls(tls_files)) == [0, 0]
@@ -113,7 +113,7 @@ def test_storescu_with_a_certificate_of_another_ca_is_refused(views, tmp_path, t
     with receiver_with(views, tmp_path, StubTracker(), tls=server_tls(tls_files)) as receiver:
         done = _storescu_tls(receiver.port, tls_files, "rogue", [path])
         assert done.returncode != 0
-    stats = receiver.stats()
+        stats = wait_for_count(receiver, "tls_refused", 1)
     assert (stats["tls_refused"], stats["associations"], stats["objects_received"]) == (1, 0, 0)
 
 
