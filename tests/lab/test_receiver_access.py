@@ -14,7 +14,7 @@ import socket
 import threading
 
 import pytest
-from receiver_stub import StubTracker, pair_objects, read_lines, receiver_with, small_views
+from receiver_stub import StubTracker, pair_objects, read_lines, receiver_with, small_views, wait_for_count
 
 from histostudy.lab import AllowList, FrameReceiver, Modality, listen, load_modalities, parse_allow, send_frames
 
@@ -61,6 +61,7 @@ def test_an_ae_not_on_the_list_is_rejected_at_negotiation_and_nothing_of_it_is_s
         with pytest.raises(ConnectionError, match=CALLING_NOT_RECOGNISED):
             send_frames(pair_objects(views, 0), "127.0.0.1", receiver.port, calling_ae_title="ROGUE")
         assert nothing_received(receiver, tmp_path / "poses.jsonl") and tracker.images == []
+        wait_for_count(receiver, "associations_rejected", 1)
         assert send_frames(pair_objects(views, 1), "127.0.0.1", receiver.port, calling_ae_title="CARM_B") == [0, 0]
         assert receiver.wait_for_pairs(1, timeout_s=30)
     stats = receiver.stats()
@@ -84,7 +85,7 @@ def test_a_wrong_called_ae_title_is_rejected_with_reason_7(views, tmp_path, allo
             send_frames(pair_objects(views, 0), "127.0.0.1", receiver.port, ae_title="OTHER_SCP",
                         calling_ae_title="CARM_A")
         assert nothing_received(receiver, tmp_path / "poses.jsonl")
-    stats = receiver.stats()
+        stats = wait_for_count(receiver, "associations_rejected", 1)  # counted after the A-ASSOCIATE-RJ went
     (rejection,) = stats["last_association_rejections"]
     assert stats["associations_rejected"] == 1 and rejection["reason"] == 7
     assert rejection["called_ae_title"] == "OTHER_SCP"
@@ -107,7 +108,7 @@ def test_a_listed_ae_calling_from_another_address_is_rejected(views, tmp_path):
         assert echo_from("127.0.0.2", receiver.port, "CARM_A") == (True, None)
         assert echo_from("127.0.0.1", receiver.port, "CARM_B") == (True, None)
         assert echo_from("127.0.0.2", receiver.port, "CARM_B") == (True, None)
-    stats = receiver.stats()
+        stats = wait_for_count(receiver, "associations_rejected", 2)
     assert (stats["associations_rejected"], stats["associations"], stats["objects_received"]) == (2, 3, 0)
     assert all("'CARM_A' may call only from ['127.0.0.2'], not from 127.0.0.1" in r["why"]
                for r in stats["last_association_rejections"])
