@@ -1,8 +1,9 @@
 """What every test session prints first: the CPU, its instruction-set flags, any restriction of the
 libraries to a lower instruction set (``make test-avx2``) and the numerical libraries' versions, so
 that a failure on one machine can be told from a failure on every machine (docs/testing.md); and
-the order that lets two workers share the suite: the longest test first. And one fixture:
-``notebook_parameters``, a notebook's stored parameters cell."""
+the order that lets two workers share the suite: the longest test first. And the fixtures:
+``notebook_parameters``, a notebook's stored parameters cell, and the logging state restored after
+each test (``histostudy.cli.main`` sets it for its process)."""
 
 import contextlib
 import json
@@ -71,3 +72,17 @@ def recording_timer():
         return timer, timed
 
     return make
+
+
+@pytest.fixture(autouse=True)
+def _logging_as_it_was():
+    """``histostudy.cli.main`` sets the ``histostudy`` loggers' levels and stderr handler for its
+    process (-q/-v); a test that calls it in this process must not change what later tests log."""
+    import logging
+
+    loggers = [logging.getLogger(name) for name in ("histostudy", "histostudy.cli")]
+    saved = [(lg, lg.level, list(lg.handlers)) for lg in loggers]
+    yield
+    for lg, level, handlers in saved:
+        lg.setLevel(level)
+        lg.handlers[:] = handlers

@@ -10,6 +10,7 @@ import signal
 import sys
 
 from histostudy.reporting import PROFILE_NAMES, load_profile
+from .console import add_command
 
 #: The ``[training.<table>]`` tables ``histostudy train`` runs (histostudy.learning.TRAINING_TABLES).
 TRAINING_TABLE_NAMES = ("segmentation", "orientation", "segmentation_tracking", "segmentation_tracking_fine",
@@ -37,8 +38,13 @@ def _positive_int(value: str) -> int:
 
 def add_parsers(sub, parents) -> None:
     """The study's subcommands on the ``histostudy`` parser's ``sub``."""
-    rep = sub.add_parser("reproduce", parents=parents,
-                         help="run the study notebooks through papermill and write the report")
+    rep = add_command(
+        sub, "reproduce", parents, help="run the study notebooks through papermill and write the report",
+        description="Run the study's notebooks (notebooks/NN_*.ipynb) in order through papermill under a profile, "
+                    "then write the report (REPORT.md, report.html) beside each notebook's results, tables and "
+                    "figures. Exit status 1 when a notebook fails (named, with its cell).",
+        example="histostudy reproduce --profile smoke --output reports\n"
+                "histostudy reproduce --profile standard --only 04 05 --workers 2")
     rep.add_argument("--profile", type=_profile, default="smoke",
                      help=f"one of {', '.join(PROFILE_NAMES)} or a .toml file (default: smoke)")
     rep.add_argument("--only", nargs="+", metavar="NAME",
@@ -50,8 +56,13 @@ def add_parsers(sub, parents) -> None:
                      help="notebooks run at once, each in its own kernel (default: 1; the numbers do not depend on it)")
     rep.set_defaults(run=_reproduce)
 
-    tr = sub.add_parser("train", parents=parents,
-                        help="train a learned stage (U-Net or VGG19) on hybrid images and export its weights")
+    tr = add_command(
+        sub, "train", parents, help="train a learned stage (U-Net or VGG19) on hybrid images and export its weights",
+        description="Train a learned stage on hybrid frames as the profile's [training.<task>] table says, resuming "
+                    "an interrupted run from its folder, and export the best weights with their manifest to "
+                    "data/models (docs/training.md).",
+        example="histostudy train segmentation --profile standard\n"
+                "histostudy train orientation --profile smoke --run-dir /tmp/run --no-export")
     tr.add_argument("task", choices=tuple(TRAINING_TABLE_NAMES),
                     help="the profile's [training.<task>] table: segmentation (U-Net), orientation (VGG19) or "
                          "segmentation_tracking (the U-Net of Tracker(fast=True) at input scale 0.25, exported as "
@@ -79,9 +90,13 @@ def add_parsers(sub, parents) -> None:
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.set_defaults(run=_train)
 
-    cal = sub.add_parser("calibrate-int8", parents=parents,
-                         help="calibrate a U-Net's int8 network (FastUNet precision 'int8', what the tracker runs on "
-                              "a CPU without bfloat16) on validation frames and store it beside its weights")
+    cal = add_command(
+        sub, "calibrate-int8", parents,
+        help="calibrate a U-Net's int8 network (FastUNet precision 'int8', an option of the tracker on a CPU "
+             "without bfloat16) on validation frames and store it beside its weights",
+        description="Calibrate the activation ranges of a U-Net's int8 network on validation frames and store them "
+                    "beside its weights (with their SHA-256), where FastUNet(precision='int8') finds them.",
+        example="histostudy calibrate-int8 --model unet_standard --frames 24")
     cal.add_argument("--model", default="unet_standard", help="U-Net weights in data/models (default: unet_standard)")
     cal.add_argument("--frames", type=_positive_int, default=24,
                      help="validation frames of the profile's seed to calibrate on (default: 24)")
@@ -92,12 +107,17 @@ def add_parsers(sub, parents) -> None:
                           "finds it)")
     cal.set_defaults(run=_calibrate_int8)
 
-    rebuild = sub.add_parser("report", parents=parents,
-                             help="rebuild REPORT.md and report.html from a reproduce output folder")
+    rebuild = add_command(
+        sub, "report", parents, help="rebuild REPORT.md and report.html from a reproduce output folder",
+        description="Rebuild REPORT.md and report.html from the files a `histostudy reproduce` run wrote "
+                    "(run.json and each section's results), e.g. after a run on another machine.",
+        example="histostudy report --output reports")
     rebuild.add_argument("--output", default="reports", help="the folder reproduce wrote (default: reports)")
     rebuild.set_defaults(run=_report)
 
-    prof = sub.add_parser("profiles", parents=parents, help="list the built-in profiles")
+    prof = add_command(sub, "profiles", parents, help="list the built-in profiles",
+                       description="List the built-in profiles (smoke, standard, paper): seed and what each is for.",
+                       example="histostudy profiles")
     prof.set_defaults(run=_profiles)
 
 
@@ -113,7 +133,7 @@ def _reproduce(args) -> int:
 
     try:
         run = run_study(args.profile, args.output, only=args.only, notebooks_dir=args.notebooks,
-                        progress=not args.no_progress and args.workers == 1, workers=args.workers)
+                        progress=not args.no_progress and not args.quiet and args.workers == 1, workers=args.workers)
     except NotebookFailed as exc:
         print(f"histostudy reproduce: {exc}", file=sys.stderr)
         return 1
@@ -172,7 +192,7 @@ def _train(args) -> int:
             return 0
     run_dir = args.run_dir or default_cache_dir() / "runs" / f"{args.task}-{profile.name}"
     result = train(cfg, run_dir, seed=profile.seed, profile=profile.name, resume=not args.no_resume,
-                   progress=not args.no_progress)
+                   progress=not args.no_progress and not args.quiet)
     print(f"{args.task}: {result.steps} steps, {result.epochs} epochs in the last stage; stopped: {result.stopped}")
     print(f"best validation: {result.validation}")
     if not args.no_export:

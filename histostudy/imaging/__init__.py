@@ -28,15 +28,17 @@ from .io import REQUIRED_GEOMETRY_TAGS, gantry_from_dicom
 from .io import SLICE_POSITION_RTOL
 from .io import XA_SOP_CLASS_UID, detector_counts, write_xa, xa_dataset
 from .io import (RECEIVABLE_TRANSFER_SYNTAXES, X_RAY_SOP_CLASSES, XRayObjectRejected, check_sop_class,
-                 check_xray_object, xray_pixels)
+                 check_xray_object, read_dicom_file, xray_pixels)
 from .frame import Frame, line_integrals_from_pixels, load_frame
 from .io import save_volume_nifti
 from .render import add_poisson_noise, background_line_integrals, render_frame, render_labels, render_line_integrals
 from .render import check_device, mark_nearest_pixels_compiled, splat_compiled, splat_points, splat_torch
 from .render import BACKGROUNDS, FrameRenderConfig
 from .render import TorchSplatter, poisson_noise_torch
+from .render import FrameMemo, shared_frames
 from .rtk_projector import forward_project, render_frame_rtk, rtk_available, rtk_geometry, voxelise_model
 from .volume import Volume, check_mask, check_volume, vector3_mm
+from .volume import LPS_FROM_RAS, lps_from_ras, ras_from_lps
 from .io import SUPPORTED_FORMATS, load_volume
 from .io import AXIS_TOLERANCE
 

@@ -194,10 +194,10 @@ class View:
 
         source = "the DICOM object"
         if isinstance(dataset, (str, os.PathLike)):
-            import pydicom
+            from .io._xray import read_dicom_file
 
             source = str(dataset)
-            dataset = pydicom.dcmread(dataset, stop_before_pixels=True)
+            dataset = read_dicom_file(dataset, stop_before_pixels=True)  # its failures name the file
         g = gantry_from_dicom(dataset, frame_index, source)
         row_mm, col_mm = g["pixel_mm"]
         view = cls.from_gantry(g["primary_deg"], g["secondary_deg"], source_isocenter_mm=g["source_isocenter_mm"],

@@ -120,11 +120,9 @@ def load_frame(path: str | os.PathLike, view: View, *, line_integrals: bool = Tr
         if image.ndim == 3:
             image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     elif suffix in (".dcm", ".dicom", ""):
-        import pydicom
+        from .io import check_xray_object, read_dicom_file, xray_pixels
 
-        from .io import check_xray_object, xray_pixels
-
-        dataset = pydicom.dcmread(path)
+        dataset = read_dicom_file(path)  # pydicom's failures, named with the file
         check_xray_object(dataset, source=source)  # the receiver's check: the same objects refused alike
         image = xray_pixels(dataset, source=source)
     else:

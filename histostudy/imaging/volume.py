@@ -5,7 +5,8 @@ interpolation (§II-A). Frames and units: millimetres; the CBCT/C-arm frame is t
 (origin at the isocentre). A :class:`Volume` is axis-aligned with the world frame: ``data`` is
 indexed ``[iz, iy, ix]`` (z slowest), while ``spacing_mm``, ``origin_mm`` and every point or voxel
 coordinate are given in ``(x, y, z)`` order. ``origin_mm`` is the world position of the centre of
-voxel ``(0, 0, 0)``. Gray values are in Hounsfield units (HU): water 0 HU.
+voxel ``(0, 0, 0)``. Gray values are in Hounsfield units (HU): water 0 HU. The world frame has
+DICOM's LPS axes; NIfTI, nibabel and 3D Slicer show RAS, x and y negated (:func:`lps_from_ras`).
 """
 
 from __future__ import annotations
@@ -17,7 +18,21 @@ from scipy import ndimage
 
 from histostudy.geometry import as_points
 
-__all__ = ["Volume", "check_mask", "check_volume", "vector3_mm"]
+__all__ = ["LPS_FROM_RAS", "Volume", "check_mask", "check_volume", "lps_from_ras", "ras_from_lps", "vector3_mm"]
+
+#: RAS (NIfTI, nibabel, 3D Slicer) -> LPS (DICOM; the world frame, :data:`histostudy.core.WORLD_FRAME`):
+#: x and y change sign, z is shared. Its own inverse.
+LPS_FROM_RAS = np.diag([-1.0, -1.0, 1.0])
+
+
+def lps_from_ras(points_ras_mm) -> np.ndarray:
+    """World points (LPS mm, ``(n, 3)``) of points in RAS mm (as nibabel's affine or 3D Slicer gives them)."""
+    return as_points(points_ras_mm, "points_ras_mm") @ LPS_FROM_RAS.T
+
+
+def ras_from_lps(points_lps_mm) -> np.ndarray:
+    """Points in RAS mm (``(n, 3)``, as nibabel and 3D Slicer show them) of world points (LPS mm)."""
+    return as_points(points_lps_mm, "points_lps_mm") @ LPS_FROM_RAS.T
 
 
 def vector3_mm(value, name: str, positive: bool = False) -> np.ndarray:
@@ -48,12 +63,15 @@ class Volume:
     in mm, required and > 0 (a volume without spacing has no geometry and is refused).
     ``origin_mm``: world position ``(x, y, z)`` of the centre of voxel ``[0, 0, 0]``.
     Voxel coordinates ``(i, j, k)`` are continuous indices in ``(x, y, z)`` order:
-    ``world = origin_mm + (i, j, k) * spacing_mm``.
+    ``world = origin_mm + (i, j, k) * spacing_mm``. ``T_world_file_voxel``: 4x4, the voxel indices
+    of the file the volume was read from (which may run along other axes or directions) to world
+    mm (:meth:`file_voxel_to_world`); None for a volume not read from a file.
     """
 
     data: np.ndarray
     spacing_mm: np.ndarray | None
     origin_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    T_world_file_voxel: np.ndarray | None = None
 
     def __post_init__(self):
         data = np.asarray(self.data)
@@ -69,6 +87,13 @@ class Volume:
             )
         self.spacing_mm = vector3_mm(self.spacing_mm, "spacing_mm", positive=True)
         self.origin_mm = vector3_mm(self.origin_mm, "origin_mm")
+        if self.T_world_file_voxel is not None:
+            T = np.asarray(self.T_world_file_voxel, dtype=np.float64)
+            if (T.shape != (4, 4) or not np.all(np.isfinite(T)) or not np.allclose(T[3], [0, 0, 0, 1])
+                    or abs(np.linalg.det(T[:3, :3])) == 0):
+                raise ValueError("T_world_file_voxel must be a finite, invertible 4x4 affine (file voxel -> world "
+                                 f"mm, last row 0 0 0 1) or None, got {self.T_world_file_voxel!r}")
+            self.T_world_file_voxel = T
 
     @classmethod
     def from_bounds(cls, lower_mm, upper_mm, spacing_mm, fill: float = 0.0) -> "Volume":
@@ -113,6 +138,17 @@ class Volume:
         """World points (mm) of continuous voxel coordinates ``(i, j, k)`` (x, y, z order), ``(n, 3)``."""
         return self.origin_mm + as_points(ijk, "ijk") * self.spacing_mm
 
+    def file_voxel_to_world(self, ijk) -> np.ndarray:
+        """World points (LPS mm, ``(n, 3)``) of voxel indices ``(i, j, k)`` as the volume's file
+        indexes its voxels: nibabel's ``(i, j, k)`` of a NIfTI's array (3D Slicer's IJK), or
+        ``(column, row, slice)`` of a DICOM volume, its slices sorted along their normal (§II-D: the
+        voxel a user reads off a viewer). A volume not read from a file is its own file's grid
+        (:func:`~histostudy.imaging.save_volume_nifti` writes it so): :meth:`voxel_to_world`."""
+        points = as_points(ijk, "ijk")
+        if self.T_world_file_voxel is None:
+            return self.voxel_to_world(points)
+        return points @ self.T_world_file_voxel[:3, :3].T + self.T_world_file_voxel[:3, 3]
+
     def axes_mm(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World coordinates of the voxel centres along x, y and z (three 1-D arrays)."""
         return tuple(self.origin_mm[a] + np.arange(self.shape_xyz[a]) * self.spacing_mm[a] for a in range(3))
@@ -148,7 +184,8 @@ class Volume:
         data = np.asarray(data)
         if data.shape != self.data.shape:
             raise ValueError(f"data must have the volume's shape {self.data.shape}, got {data.shape}")
-        return Volume(data, self.spacing_mm.copy(), self.origin_mm.copy())
+        return Volume(data, self.spacing_mm.copy(), self.origin_mm.copy(),
+                      None if self.T_world_file_voxel is None else self.T_world_file_voxel.copy())
 
 
 def check_volume(volume, name: str = "volume") -> Volume:

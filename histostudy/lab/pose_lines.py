@@ -20,6 +20,7 @@ from typing import Sequence
 
 from histostudy.core import to_jsonable
 from histostudy.pose import PoseResult, pose_record
+from histostudy.transducer import TransducerModel
 from .xray_objects import ReceivedFrame
 
 __all__ = ["pose_line"]
@@ -29,7 +30,7 @@ log = logging.getLogger(__name__)
 
 def pose_line(index: int, frames: Sequence[ReceivedFrame], queued_at: float, taken_at: float, *,
               result: PoseResult | None, error: BaseException | None, tracking: str | None, t_free: float,
-              t_written: float) -> dict:
+              t_written: float, model: TransducerModel | None = None) -> dict:
     """The JSON-ready line of pair ``index`` (module docstring): ``result``'s pose, or the ``error``
     its pose work raised (``result`` then None). ``tracking``: the tracker's ``last_kind`` for the
     result. Times are ``time.perf_counter`` seconds: ``queued_at`` / ``taken_at`` (the pair queued /
@@ -39,7 +40,7 @@ def pose_line(index: int, frames: Sequence[ReceivedFrame], queued_at: float, tak
               "instance_uids": [f.instance_uid for f in frames], "frame_indices": [f.frame_index for f in frames],
               "frame_times": [f.acquired.isoformat() for f in frames]}
     if error is None:
-        record.update({**pose_record(result, ids), "tracking": tracking})
+        record.update({**pose_record(result, ids, model=model), "tracking": tracking})
     else:
         record.update({"frames": ids, "accepted": False, "error": f"{type(error).__name__}: {error}",
                        "tracking": None})

@@ -18,6 +18,9 @@ import collections
 import logging
 import time
 
+import numpy as np
+
+from histostudy.pose import half_turn_reading
 from .pose_lines import append_pose_line, pose_line
 from .xray_objects import XRayObjectRejected
 
@@ -37,6 +40,7 @@ class PoseWorker:
             return
         try:
             report = self.tracker.warm_up()
+            half_turn_reading(np.eye(4), self.model)  # the pose lines' symmetry check, once per model
         except Exception as exc:
             log.warning("tracker warm-up failed (%s: %s); the first pair will compile and build what it needs",
                         type(exc).__name__, exc)
@@ -114,7 +118,7 @@ class PoseWorker:
         index, frames, queued_at, taken_at = entry
         record = pose_line(index, frames, queued_at, taken_at, result=result, error=error,
                            tracking=None if error is not None else self.tracker.last_kind, t_free=self._t_free,
-                           t_written=time.perf_counter())
+                           t_written=time.perf_counter(), model=self.model)
         append_pose_line(self._out, record, self.output_path)
         now = time.perf_counter()
         with self._cv:

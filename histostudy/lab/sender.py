@@ -150,7 +150,7 @@ def _read(items: list) -> tuple[list, list[str]]:
         if isinstance(item, Dataset):
             ds, name = item, f"paths[{i}] (SOPInstanceUID {getattr(item, 'SOPInstanceUID', '?')})"
         elif isinstance(item, (str, os.PathLike)):
-            name = f"paths[{i}] {str(item)!r}"
+            name = f"file {str(item)!r}"
             if not Path(item).is_file():
                 raise FileNotFoundError(f"{name}: no such file")
             try:

@@ -12,6 +12,11 @@ The files, all JSON (mm, 4x4 ``T_<to>_<from>``; docs/architecture.md, "Frames an
 - the calibration, :meth:`~histostudy.calibration.HandEyeCalibration.save`'s schema;
 - the targeting plan, :meth:`TargetingPlan.to_dict`.
 
+Every position is in the C-arm (CBCT world) frame, DICOM LPS axes, mm
+(:data:`histostudy.core.WORLD_FRAME`), and every file says so (``frame``, ``units``). A pose of a
+transducer that looks the same after a half turn about its axis has two readings no image tells
+apart; :func:`plan_targeting_either_reading` plans with the one the robot reaches with less travel.
+
 A robot never moves on a pose this module has not checked: :func:`plan_targeting` runs the
 inverse kinematics from the robot's present joints and the workspace check, and
 :func:`execute_targeting` moves only on a plan that passed them (the robot checks again).
@@ -21,21 +26,26 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
 from histostudy.calibration import (HandEyeCalibration, calibrate_half_turns, target_orientation, tcp_for_target)
-from histostudy.core import to_jsonable
+from histostudy.core import to_jsonable, world_frame_keys
 from histostudy.geometry import check_rigid, check_rotation, invert_transform
-from histostudy.imaging import Volume, check_volume
-from histostudy.robot import (HOME_JOINTS_RAD, Robot, Workspace, forward_kinematics, inverse_kinematics_closest,
-                             transform_from_pose)
+from histostudy.imaging import Volume, check_volume, ras_from_lps
+from histostudy.robot import (HOME_JOINTS_RAD, Robot, UnreachablePoseError, Workspace, WorkspaceViolation,
+                             forward_kinematics, inverse_kinematics_closest, transform_from_pose)
+from histostudy.transducer import HALF_TURN
 
-__all__ = ["TargetingPlan", "accepted_stations", "calibrate_from_poses", "execute_targeting", "load_flange_poses", "load_pose_record",
-           "plan_targeting"]
+__all__ = ["READINGS", "TargetingPlan", "accepted_stations", "calibrate_from_poses", "execute_targeting",
+           "load_flange_poses", "load_pose_record", "plan_targeting", "plan_targeting_either_reading"]
+
+#: The two readings of the pose of a transducer that looks the same after a half turn about its
+#: axis (§II-B.4), as a plan's ``orientation_reading`` names them.
+READINGS = ("as recorded", "half turn")
 
 PLAN_SCHEMA = "histostudy.targeting_plan/1"
 
@@ -70,10 +80,15 @@ def load_flange_poses(path: str | os.PathLike) -> list[np.ndarray]:
     if not isinstance(data, dict) or not ({"T_base_flange", "ur_pose"} & set(data)):
         raise ValueError(f"flange poses file {str(path)!r} must be a JSON object with 'T_base_flange' "
                          "(4x4, mm) or 'ur_pose' ([x, y, z, rx, ry, rz] in m and rad) per station")
+    from .inputs import check_flange_pose_units
+
     if "T_base_flange" in data:
-        return [check_rigid(np.asarray(T, dtype=np.float64), f"{path}: T_base_flange[{i}]")
-                for i, T in enumerate(data["T_base_flange"])]
-    return [transform_from_pose(p, f"{path}: ur_pose[{i}]") for i, p in enumerate(data["ur_pose"])]
+        flanges = [check_rigid(np.asarray(T, dtype=np.float64), f"{path}: T_base_flange[{i}]")
+                   for i, T in enumerate(data["T_base_flange"])]
+    else:
+        flanges = [transform_from_pose(p, f"{path}: ur_pose[{i}]") for i, p in enumerate(data["ur_pose"])]
+    check_flange_pose_units(data, path)  # metres read as mm (or back) would fail only at the calibration's end
+    return flanges
 
 
 def calibrate_from_poses(pose_records: Sequence[dict], T_base_flange_list: Sequence, *,
@@ -120,7 +135,10 @@ class TargetingPlan:
     ``T_base_flange`` (the commanded poses), ``start_joints_rad`` (where the plan starts from: the
     robot's joints, or the home configuration for a plan made without a robot) and
     ``joints_rad`` (the inverse-kinematics solution nearest them), ``joint_travel_rad`` (largest
-    joint move) and ``workspace_ok`` (always True: a plan outside the workspace is not made).
+    joint move) and ``workspace_ok`` (always True: a plan outside the workspace is not made);
+    ``orientation_reading`` (one of :data:`READINGS`, None for an orientation not read off a pose)
+    and ``orientation_reason`` (why, :func:`plan_targeting_either_reading`). :meth:`to_dict` adds
+    the ``frame`` and ``target_ras_mm``, the target with RAS axes (as nibabel and 3D Slicer show it).
     """
 
     target_mm: np.ndarray
@@ -132,10 +150,13 @@ class TargetingPlan:
     joints_rad: np.ndarray
     joint_travel_rad: float
     workspace_ok: bool = True
+    orientation_reading: str | None = None
+    orientation_reason: str | None = None
 
     def to_dict(self) -> dict:
-        return to_jsonable({"schema": PLAN_SCHEMA, "units": {"length": "mm", "angle": "rad"},
-                            **{k: getattr(self, k) for k in self.__dataclass_fields__}})
+        return to_jsonable({"schema": PLAN_SCHEMA, **world_frame_keys(angle="rad"),
+                            **{k: getattr(self, k) for k in self.__dataclass_fields__},
+                            "target_ras_mm": ras_from_lps(self.target_mm)[0]})
 
 
 def _orientation(calibration: HandEyeCalibration, orientation) -> np.ndarray:
@@ -185,6 +206,51 @@ def plan_targeting(calibration: HandEyeCalibration, target_mm, *, volume: Volume
     return TargetingPlan(target_mm=target, R_carm_transducer=R, T_flange_tcp=T_flange_tcp, T_base_tcp=T_base_tcp,
                          T_base_flange=T_base_flange, start_joints_rad=start, joints_rad=joints,
                          joint_travel_rad=float(np.max(np.abs(joints - start))))
+
+
+def plan_targeting_either_reading(calibration: HandEyeCalibration, target_mm, T_carm_transducer, *,
+                                  symmetric: bool | None = True, volume: Volume | None = None,
+                                  start_joints_rad=None, workspace: Workspace | None = None) -> TargetingPlan:
+    """:func:`plan_targeting` keeping a recorded pose's orientation (``T_carm_transducer`` 4x4 or
+    ``R_carm_transducer`` 3x3, C-arm frame), read as recorded or turned half about the transducer's
+    axis (:data:`~histostudy.transducer.HALF_TURN`, §II-B.4). ``symmetric``: whether the transducer
+    looks the same both ways (a pose record's ``half_turn.symmetric``; None where the record does
+    not say: read as symmetric, as the paper's transducer is). Then no image told the readings
+    apart, and both keep the beam axis and put the focal point on the target: of those the robot
+    can reach (inverse kinematics, workspace) the one of smaller joint travel from
+    ``start_joints_rad`` is planned (as recorded on a tie). With ``symmetric=False`` the orientation
+    is planned as recorded. The plan's ``orientation_reading`` says which reading, and
+    ``orientation_reason`` why. Raises as :func:`plan_targeting` when no reading can be reached."""
+    if symmetric not in (True, False, None):
+        raise ValueError(f"symmetric must be True, False or None (not recorded), got {symmetric!r}")
+    if isinstance(T_carm_transducer, str):
+        raise ValueError(f"T_carm_transducer must be a 4x4 transform or a 3x3 rotation, got {T_carm_transducer!r}")
+    R = _orientation(calibration, T_carm_transducer)
+    options = dict(volume=volume, start_joints_rad=start_joints_rad, workspace=workspace)
+    if symmetric is False:
+        return replace(plan_targeting(calibration, target_mm, orientation=R, **options),
+                       orientation_reading=READINGS[0],
+                       orientation_reason="the transducer does not look the same after a half turn about its axis: "
+                                          "its recorded orientation is not ambiguous")
+    plans, refused = {}, {}
+    for reading, R_reading in zip(READINGS, (R, R @ HALF_TURN)):
+        try:
+            plans[reading] = plan_targeting(calibration, target_mm, orientation=R_reading, **options)
+        except (UnreachablePoseError, WorkspaceViolation) as exc:
+            refused[reading] = exc
+    if not plans:
+        first = refused[READINGS[0]]
+        raise type(first)("neither reading of the pose reaches the target: " + "; ".join(
+            f"{reading}: {exc}" for reading, exc in refused.items())) from first
+    chosen = min(plans, key=lambda reading: plans[reading].joint_travel_rad)  # min keeps READINGS' order on a tie
+    other = next(reading for reading in READINGS if reading != chosen)
+    why = (f"the robot cannot take the other reading ({other}): {type(refused[other]).__name__}: {refused[other]}"
+           if other in refused else f"{plans[chosen].joint_travel_rad:.3f} rad of joint travel, against "
+                                    f"{plans[other].joint_travel_rad:.3f} rad for the other reading ({other})")
+    unsaid = "" if symmetric else " (the pose record does not say; read as the paper's transducer, which does)"
+    reason = (f"the transducer looks the same after a half turn about its axis{unsaid}, so both readings put the "
+              f"focal point on the target; {chosen} chosen: {why}")
+    return replace(plans[chosen], orientation_reading=chosen, orientation_reason=reason)
 
 
 def execute_targeting(plan: TargetingPlan, robot: Robot, *, speed_mm_s: float = 50.0,

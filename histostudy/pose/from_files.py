@@ -5,24 +5,26 @@ with its view, the view taken from a views file (:func:`~histostudy.imaging.load
 order or by name) or, for DICOM, from the file's own geometry tags
 (:meth:`~histostudy.imaging.View.from_dicom`); :func:`~.estimate.estimate_pose` then runs with the
 shipped learned stages. :func:`pose_record` is the result as plain JSON (mm, 4x4 transforms
-``T_carm_transducer``, the verdict's figures).
+``T_carm_transducer``, the verdict's figures, the half turn no image can tell apart).
 """
 
 from __future__ import annotations
 
+import functools
 import os
+import weakref
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
-from histostudy.core import to_jsonable
+from histostudy.core import to_jsonable, world_frame_keys
 from histostudy.imaging import View, load_frame, load_views
-from histostudy.transducer import TransducerModel
+from histostudy.transducer import HALF_TURN, TransducerModel, half_turn_symmetric
 from .estimate import estimate_pose
 from .result import PoseResult
 
-__all__ = ["frames_from_files", "pose_from_files", "pose_record"]
+__all__ = ["frames_from_files", "half_turn_reading", "pose_from_files", "pose_record"]
 
 _DICOM_SUFFIXES = (".dcm", ".dicom", "")
 
@@ -49,7 +51,7 @@ def frames_from_files(frame_paths: Sequence[str | os.PathLike], views_path: str 
         elif path.suffix.lower() in _DICOM_SUFFIXES:
             view = View.from_dicom(path, frame_index=frame_index, name=path.stem)
         else:
-            raise ValueError(f"frame {str(path)!r} carries no geometry: give a views file (views_path)")
+            raise ValueError(f"frame {str(path)!r} carries no geometry (not DICOM): give its view in a views file")
         frames.append(load_frame(path, view, line_integrals=line_integrals, frame_index=frame_index,
                                  resample=resample))
     return frames
@@ -74,11 +76,17 @@ def pose_from_files(frame_paths: Sequence[str | os.PathLike], views_path: str | 
     return estimate_pose(frames, model, rng=np.random.default_rng(seed), **options)
 
 
-def pose_record(result: PoseResult, frame_paths: Sequence[str | os.PathLike] = ()) -> dict:
-    """The pose as plain JSON: ``T_carm_transducer`` (4x4, mm), ``focal_point_mm``, the cost, the
-    verdict (accepted, reasons, per-view figures) and the stage timings."""
+def pose_record(result: PoseResult, frame_paths: Sequence[str | os.PathLike] = (), *,
+                model: TransducerModel | None = None) -> dict:
+    """The pose as plain JSON: ``frame`` and ``units`` (the C-arm/CBCT frame, DICOM LPS, mm;
+    :func:`~histostudy.core.world_frame_keys`), ``T_carm_transducer`` (4x4, mm),
+    ``focal_point_mm``, the cost, the verdict (accepted, reasons, per-view figures), the stage
+    timings and ``half_turn`` (:func:`half_turn_reading`) for ``model``, the model the pose was
+    estimated with (None: the paper's digital model, which :func:`pose_from_files` and the live
+    receiver use when given none)."""
     verdict = result.verdict
     return to_jsonable({
+        **world_frame_keys(),
         "frames": [str(p) for p in frame_paths],
         "T_carm_transducer": result.T_carm_transducer,
         "focal_point_mm": result.focal_point_mm,
@@ -88,4 +96,41 @@ def pose_record(result: PoseResult, frame_paths: Sequence[str | os.PathLike] = (
                     "view_disagreement_mm": verdict.view_disagreement_mm,
                     "unexplained_fraction": verdict.unexplained_fraction},
         "timings_s": result.timings_s,
+        "half_turn": half_turn_reading(result.T_carm_transducer, model),
     })
+
+
+def half_turn_reading(T_carm_transducer, model: TransducerModel | None = None) -> dict:
+    """The pose's other reading (§II-B.4): ``symmetric``, whether ``model`` (None: the paper's
+    digital model) looks the same after a half turn about its axis, so that no image tells the two
+    readings apart (:func:`~histostudy.transducer.half_turn_symmetric`, computed once per model);
+    ``axis_carm``, that axis (the transducer's z, the beam axis; a unit vector in the C-arm frame);
+    and ``T_carm_transducer_half_turn``, the pose turned half about it (4x4, mm): the same axis and,
+    the focal point lying on it (the transducer frame's origin by convention, docs/architecture.md),
+    the same focal point."""
+    T = np.asarray(T_carm_transducer, dtype=np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ValueError(f"T_carm_transducer must be a finite 4x4 transform (mm), got shape {T.shape}")
+    turned = T.copy()
+    turned[:3, :3] = T[:3, :3] @ HALF_TURN
+    return to_jsonable({"symmetric": _default_model_symmetric() if model is None else _model_symmetric(model),
+                        "axis_carm": T[:3, 2], "T_carm_transducer_half_turn": turned})
+
+
+# Whether a model is half-turn symmetric, per model object: the check queries every model point
+# (a fraction of a second), which a pose record per pair of the live stream must not pay again.
+_SYMMETRIC: "weakref.WeakKeyDictionary[TransducerModel, bool]" = weakref.WeakKeyDictionary()
+
+
+def _model_symmetric(model: TransducerModel) -> bool:
+    if not isinstance(model, TransducerModel):
+        raise TypeError(f"model must be a TransducerModel or None, got {type(model).__name__}")
+    if model not in _SYMMETRIC:
+        _SYMMETRIC[model] = half_turn_symmetric(model)
+    return _SYMMETRIC[model]
+
+
+@functools.lru_cache(maxsize=1)
+def _default_model_symmetric() -> bool:
+    # the model pose_from_files builds when given none (model_spacing_mm's default)
+    return half_turn_symmetric(TransducerModel.build(spacing_mm=0.47))

@@ -47,7 +47,11 @@ def test_target_plans_a_dry_run_and_refuses_to_move_without_a_robot(calibration_
     x, y, z = lab.target_mm
     code = main(["target", "--calibration", str(calibration_file), f"--target={x},{y},{z}", "--cbct",
                  str(lab.cbct), "--output", str(out)])
-    assert code == 0 and "dry run: nothing moved" in capsys.readouterr().out
+    captured = capsys.readouterr()
+    assert code == 0 and "dry run: nothing moved" in captured.err
+    summary = json.loads(captured.out)  # stdout: the summary, one JSON line
+    assert summary["command"] == "target" and summary["dry_run"] is True and summary["moved"] is False
+    np.testing.assert_allclose(summary["target_mm"], lab.target_mm)
     plan = json.loads(out.read_text())
     assert plan["dry_run"] is True and plan["executed"] is None
     np.testing.assert_allclose(plan["plan"]["target_mm"], lab.target_mm)

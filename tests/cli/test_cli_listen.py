@@ -10,7 +10,6 @@ The dataset's views are full size: the shipped learned stages (U-Net, VGG19) nee
 of about the size they were trained on, and refuse (VGG19's pooling) views of a tenth of it.
 """
 
-import ast
 import json
 import queue
 import re
@@ -33,8 +32,6 @@ from histostudy.transducer import TransducerModel
 
 SEED = 3
 N_FRAMES = 3
-#: The first line ``histostudy listen`` prints once it listens.
-LISTENING = re.compile(r"^listening on (?P<host>\S+):(?P<port>\d+) as (?P<ae>\S+); poses to (?P<output>.+)$")
 
 
 @pytest.fixture(scope="module")
@@ -64,11 +61,11 @@ def test_listen_prints_its_port_and_poses_every_pair_of_a_cine_sent_to_it(lab, t
     try:
         first = stdout.get(timeout=120)  # the models load before the receiver listens
         assert first is not None, f"listen exited ({process.wait(10)}) before listening: {log.read_text()}"
-        match = LISTENING.match(first)
-        assert match, f"first line {first!r} does not name the bound port"
-        port = int(match["port"])
-        assert port > 0 and match["host"] == "127.0.0.1" and match["ae"] == "HISTOSTUDY"
-        assert match["output"] == str(output)
+        listening = json.loads(first)  # stdout carries JSON only: first the bound port
+        assert listening["event"] == "listening", first
+        port = listening["port"]
+        assert port > 0 and listening["host"] == "127.0.0.1" and listening["ae_title"] == "HISTOSTUDY"
+        assert listening["output"] == str(output)
         paths = [str(p) for p in lab.cine]
         if shutil.which("storescu"):
             sent = subprocess.run(["storescu", "-aec", "HISTOSTUDY", "127.0.0.1", str(port), *paths],
@@ -82,6 +79,12 @@ def test_listen_prints_its_port_and_poses_every_pair_of_a_cine_sent_to_it(lab, t
             process.kill()
             process.wait()
     assert code == 0, log.read_text()
+    rest = []
+    while (line := stdout.get(timeout=10)) is not None:
+        rest.append(line)
+    summary = json.loads(rest[-1])  # and last the statistics, as JSON
+    assert summary["event"] == "summary" and summary["pairs_processed"] == N_FRAMES
+    assert len(re.findall(r" pair \d ", log.read_text())) == N_FRAMES  # a line per pose on stderr
 
     records = [json.loads(line) for line in output.read_text().splitlines()]
     assert [r["pair_index"] for r in records] == list(range(N_FRAMES))
@@ -126,7 +129,7 @@ def test_a_port_in_use_is_refused_at_once_naming_it_and_no_output_is_created(tmp
                      str(tmp_path / "poses.jsonl"), "--timeout-s", "5"])
     captured = capsys.readouterr()
     assert code == 2 and captured.out == ""
-    assert re.match(rf"histostudy listen: \[Errno \d+\] cannot listen on 127.0.0.1:{port}: .*in use", captured.err)
+    assert re.search(rf"histostudy listen: \[Errno \d+\] cannot listen on 127.0.0.1:{port}: .*in use", captured.err)
     assert not (tmp_path / "poses.jsonl").exists()
 
 
@@ -152,17 +155,19 @@ def test_listen_rejects_a_sender_off_its_allow_list_at_association(tmp_path, sma
     port = free_port()
     command = threading.Thread(target=lambda: results.append(main([
         "listen", "--port", str(port), "--views", str(small_views_file), "--output", str(tmp_path / "poses.jsonl"),
-        "--allow", "CARM_A", "--modalities", str(modalities), "--timeout-s", "4", "--quiet"])))
+        "--allow", "CARM_A", "--modalities", str(modalities), "--timeout-s", "4", "-q"])))
     command.start()
     wait_for_listening(port)
     for calling in ("CARM_A", "CARM_B", "ROGUE"):
         echo(port, calling)
     command.join(60)
     assert results == [("CARM_A", True, None), ("CARM_B", True, None), ("ROGUE", False, 3), 0]
-    out = capsys.readouterr().out.splitlines()
-    assert out[0] == f"listening on 127.0.0.1:{port} as HISTOSTUDY; poses to {tmp_path / 'poses.jsonl'}"
-    assert out[1] == "senders allowed: CARM_A, CARM_B@127.0.0.1; plain TCP"
-    stats = ast.literal_eval(out[-1].removeprefix("listen: "))  # the statistics' dict, printed last
+    captured = capsys.readouterr()
+    out = [json.loads(line) for line in captured.out.splitlines()]  # stdout: JSON lines only
+    assert out[0] == {"event": "listening", "host": "127.0.0.1", "port": port, "ae_title": "HISTOSTUDY",
+                      "output": str(tmp_path / "poses.jsonl"), "tls": False}
+    assert captured.err == ""  # -q: nothing but errors on stderr
+    stats = out[-1]  # the statistics, printed last
     assert (stats["associations"], stats["associations_rejected"], stats["objects_received"]) == (2, 1, 0)
     assert (tmp_path / "poses.jsonl").read_text() == ""
 

@@ -8,6 +8,7 @@ machine's speed. Frames are small XA objects sent with :func:`histostudy.lab.sen
 """
 
 import datetime as dt
+import json
 import re
 import threading
 import time
@@ -159,8 +160,9 @@ def test_pose_summary_says_kind_verdict_focal_point_latency_and_drops():
 @pytest.mark.parametrize("quiet", [False, True], ids=["lines", "quiet"])
 def test_histostudy_listen_prints_a_line_per_pose_and_the_latency_percentiles(views, tmp_path, monkeypatch, capsys,
                                                                               quiet):
-    """``histostudy listen`` (in this process, its tracker a stub) prints one line per pose as it
-    goes, none with ``--quiet``, and at the end the counts and the latency's percentiles."""
+    """``histostudy listen`` (in this process, its tracker a stub) prints one line per pose on stderr
+    as it goes, none with ``--quiet``, and at the end the counts and the latency's percentiles (stderr)
+    and the statistics as JSON (stdout)."""
     import histostudy.lab.receiver as receiver_module
     from histostudy.cli import main
 
@@ -184,13 +186,19 @@ def test_histostudy_listen_prints_a_line_per_pose_and_the_latency_percentiles(vi
             time.sleep(0.1)
     command.join(60)
     assert codes == [0]
-    out = capsys.readouterr().out.splitlines()
-    assert out[0].startswith(f"listening on 127.0.0.1:{port}")
-    poses = [SUMMARY.match(line) for line in out if " pair " in line and not line.startswith("listen")]
+    captured = capsys.readouterr()
+    events = [json.loads(line) for line in captured.out.splitlines()]
+    assert [e["event"] for e in events] == ["listening", "summary"] and events[0]["port"] == port
+    assert events[1]["pairs_processed"] == 3 and events[1]["latency_s"]["p99"] is not None
+    out = captured.err.splitlines()
+    poses = [m for m in map(SUMMARY.match, out) if m]
     if quiet:
         assert poses == []
     else:
         assert [int(m["index"]) for m in poses] == [0, 1, 2] and all(m["verdict"] == "accepted" for m in poses)
         assert [m["kind"] for m in poses] == ["from_scratch", "warm", "warm"] and {m["dropped"] for m in poses} == {"0"}
     summary = [line for line in out if line.startswith("listen: 3 pairs posed")]
+    assert len(summary) == (0 if quiet else 1)
+    if quiet:
+        return
     assert len(summary) == 1 and re.search(r"0 dropped; latency s: p50 \S+, p90 \S+, p99 \S+, max \S+$", summary[0])

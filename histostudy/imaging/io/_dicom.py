@@ -129,12 +129,13 @@ def _has_dicom_prefix(path: Path) -> bool:
     return len(head) == 132 and head[128:] == b"DICM"
 
 
-def _read_dicom(path: Path):
+def _read_dicom(path: Path, stop_before_pixels: bool = False):
     """The pydicom dataset of ``path``, or None where the file is not DICOM at all.
 
     pydicom reads a file cut short without complaint (it stops at the last whole element, or keeps a
     short value), which would drop a slice from a series unnoticed. A file that starts as DICOM (or
     is named .dcm/.dicom) and cannot be read whole is therefore refused, not skipped.
+    ``stop_before_pixels``: read the header only (the checks that need the pixel data are skipped).
     """
     import pydicom
     from pydicom.dataelem import RawDataElement
@@ -147,10 +148,14 @@ def _read_dicom(path: Path):
     except OSError as exc:
         raise ValueError(f"{source} could not be read: {exc}") from exc
     try:
-        ds = pydicom.dcmread(path)
+        ds = pydicom.dcmread(path, stop_before_pixels=stop_before_pixels)
     except Exception as exc:  # a damaged file escapes as struct.error, EOFError, ValueError, ...
         if not claims_dicom and isinstance(exc, (InvalidDicomError, OSError, EOFError)):
             return None  # not DICOM (notes, thumbnails, a DICOMDIR's neighbours): not a slice
+        if isinstance(exc, InvalidDicomError):  # pydicom's own text suggests a Python argument
+            raise ValueError(f"{source} could not be read as DICOM: it does not start as a DICOM file does (a "
+                             f"128-byte preamble, then 'DICM'; {size} bytes in all): truncated, or not a DICOM "
+                             "file") from exc
         raise ValueError(
             f"{source} could not be read as DICOM: truncated or corrupt ({type(exc).__name__}: {exc})"
         ) from exc
@@ -167,7 +172,7 @@ def _read_dicom(path: Path):
     if (isinstance(last, RawDataElement) and last.length != 0xFFFFFFFF and last.value_tell is not None
             and not deflated):
         end = last.value_tell + last.length
-        if end > size or 0 < size - end < 8:
+        if end > size or 0 < size - end < 8:  # stopped before the pixels: their header is 8+ bytes
             raise ValueError(
                 f"{source} is truncated or corrupt: its last data element {last.tag} ends at byte {end}, "
                 f"but the file has {size} bytes"
@@ -178,7 +183,7 @@ def _read_dicom(path: Path):
                  or ds.get("SOPClassUID") or "")
     sop_name = getattr(sop_class, "name", str(sop_class))
     is_image = "Image Storage" in sop_name or "Rows" in ds or "Columns" in ds
-    if is_image and not any(k in ds for k in _BULK_DATA):
+    if is_image and not stop_before_pixels and not any(k in ds for k in _BULK_DATA):
         raise ValueError(f"{source} is truncated or corrupt: an image ({sop_name or 'Rows/Columns'}) without "
                          "its pixel data (7FE0,0010)")
     return ds
@@ -315,4 +320,5 @@ def _stack_slices(slices: list[_Slice], source: str) -> Volume:
         ref.col_cosine * ref.pixel_spacing[0],   # next row: along the column cosine, row spacing
         ref.row_cosine * ref.pixel_spacing[1],   # next column: along the row cosine, column spacing
     ])
-    return _axis_aligned_volume(data, steps, positions[0], source)
+    # The file's voxel (i, j, k) is (column, row, slice): data axes 2, 1, 0.
+    return _axis_aligned_volume(data, steps, positions[0], source, file_axes=(2, 1, 0))

@@ -97,15 +97,15 @@ def gantry_from_dicom(ds, frame_index: int | None = None, source: str = "the DIC
         raise ValueError(f"frame_index must be an integer >= 0 or None, got {frame_index!r}")
     if getattr(ds, "PositionerPrimaryAngleIncrement", None) is not None:
         raise ValueError(f"{source} is a rotational acquisition (PositionerPrimaryAngleIncrement (0018,1520)); "
-                         "its per-frame angles are not read yet: build its views with View.from_krt or "
-                         "View.from_matrix from the C-arm's calibration")
+                         "its per-frame angles are not read yet: give its views in a views file, made from the "
+                         "C-arm's calibration")
     sources = _frame_groups(ds, frame_index)
     values = {}
     for keyword, tag in REQUIRED_GEOMETRY_TAGS.items():
         value = _find(sources, keyword)
         if value is None:
-            raise ValueError(f"{source} lacks {keyword} {tag}, which a view needs; give the view another way "
-                             "(View.from_gantry, View.from_krt or a views file)")
+            raise ValueError(f"{source} lacks {keyword} {tag}, which a view needs; give the frame's view in a "
+                             "views file instead")
         values[keyword] = value
     spacing = values["ImagerPixelSpacing"]
     try:

@@ -41,12 +41,14 @@ def _require_finite(values: np.ndarray, source: str) -> None:
 
 
 def _axis_aligned_volume(data: np.ndarray, steps_lps: np.ndarray, origin_lps: np.ndarray,
-                         source: str) -> Volume:
+                         source: str, file_axes: tuple[int, int, int] = (0, 1, 2)) -> Volume:
     """The :class:`Volume` of a 3-D array whose axis ``a`` steps by ``steps_lps[:, a]`` (LPS mm).
 
     ``origin_lps`` is the LPS position of ``data[0, 0, 0]``. The step matrix must be a signed
     permutation times positive scales; axes are flipped and transposed (no value is changed)
-    so that the Volume runs along +x, +y, +z.
+    so that the Volume runs along +x, +y, +z. ``file_axes``: the array axis of each of the file's
+    voxel indices ``(i, j, k)``, kept as the Volume's ``T_world_file_voxel`` (a user picks a voxel
+    in the file's indexing, not in the reoriented grid's).
     """
     _require_finite(data, source)
     steps = np.asarray(steps_lps, dtype=np.float64)
@@ -67,6 +69,9 @@ def _axis_aligned_volume(data: np.ndarray, steps_lps: np.ndarray, origin_lps: np
             "resample the volume onto an axis-aligned grid first"
         )
     origin = np.asarray(origin_lps, dtype=np.float64).copy()
+    T_world_file_voxel = np.eye(4)
+    T_world_file_voxel[:3, :3] = steps[:, list(file_axes)]
+    T_world_file_voxel[:3, 3] = origin
     # The snapped on-axis step is kept, not the vector length: sqrt of a sum of squares would
     # perturb the last bit of the spacing and break exact round trips.
     signed = steps[world_axis, np.arange(3)]
@@ -77,4 +82,4 @@ def _axis_aligned_volume(data: np.ndarray, steps_lps: np.ndarray, origin_lps: np
     array_axis_of = [int(np.flatnonzero(world_axis == w)[0]) for w in range(3)]
     data = np.transpose(data, (array_axis_of[2], array_axis_of[1], array_axis_of[0]))
     spacing = np.abs(signed[array_axis_of])
-    return Volume(np.ascontiguousarray(data, dtype=np.float32), spacing, origin)
+    return Volume(np.ascontiguousarray(data, dtype=np.float32), spacing, origin, T_world_file_voxel)

@@ -20,15 +20,17 @@ same objects with the same reason.
 - **The image** (:func:`check_xray_object`): a readable size, one sample per pixel (0xC000), and,
   for a native transfer syntax, every frame's bytes (0xA900).
 
-:func:`xray_pixels` decodes one frame (or all) through pydicom's pixel-data plugins; a stream that
-does not decode is refused (0xA900). The tags of the pixel module (MONOCHROME1, the rescale) are
-checked where they are used, by :func:`histostudy.imaging.line_integrals_from_pixels`.
+:func:`read_dicom_file` reads a frame file, naming it in every failure (missing, a folder, not
+DICOM, truncated or corrupt). :func:`xray_pixels` decodes one frame (or all) through pydicom's
+pixel-data plugins; a stream that does not decode is refused (0xA900). The tags of the pixel
+module (MONOCHROME1, the rescale) are checked where they are used, by
+:func:`histostudy.imaging.line_integrals_from_pixels`.
 """
 
 from __future__ import annotations
 
 __all__ = ["RECEIVABLE_TRANSFER_SYNTAXES", "X_RAY_SOP_CLASSES", "XRayObjectRejected", "check_sop_class",
-           "check_xray_object", "xray_pixels"]
+           "check_xray_object", "read_dicom_file", "xray_pixels"]
 
 #: The SOP classes whose frames are read (the others are refused; C-STORE status 0x0122).
 X_RAY_SOP_CLASSES = {
@@ -191,6 +193,29 @@ def check_xray_object(ds, *, sop_class_uid=None, source: str | None = None) -> N
         raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
                                  f"{prefix}its pixel data cannot be read: PixelData holds {len(data)} bytes, its "
                                  f"{n_frames} frame(s) of {rows} x {cols} need {expected}")
+
+
+def read_dicom_file(path, *, stop_before_pixels: bool = False):
+    """The pydicom data set of the DICOM file ``path`` (its header only with ``stop_before_pixels``).
+
+    pydicom reads a file cut short without complaint and words its own errors without the file's
+    name; here every failure names ``path`` and what is wrong. Raises FileNotFoundError (no such
+    file), IsADirectoryError (a folder) or ValueError (not DICOM, truncated or corrupt)."""
+    from pathlib import Path
+
+    from ._dicom import _read_dicom
+
+    path = Path(path)
+    source = f"DICOM file {str(path)!r}"
+    if path.is_dir():
+        raise IsADirectoryError(f"{source} is a folder, not a file")
+    if not path.is_file():
+        raise FileNotFoundError(f"{source}: no such file")
+    ds = _read_dicom(path, stop_before_pixels)
+    if ds is None:  # a name without .dcm/.dicom and no DICM prefix: _read_dicom's "not DICOM at all"
+        raise ValueError(f"{source} could not be read as DICOM: it does not start as a DICOM file does (a 128-byte "
+                         "preamble, then 'DICM'): not a DICOM file")
+    return ds
 
 
 def xray_pixels(ds, frame_index: int | None = None, *, source: str | None = None):

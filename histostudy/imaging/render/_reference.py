@@ -30,6 +30,7 @@ from histostudy.geometry import check_rigid
 from histostudy.transducer import FEATURE_CLASSES, LABEL_PRIORITY, TransducerModel
 from ..carm import View
 from ..frame import Frame
+from ._memo import memoised_frames
 from ._device import (SEED_BOUND, check_device, mark_nearest_pixels_compiled, splat_compiled, splat_points,
                             splat_torch)
 from ._settings import check_n_splats, check_photons_per_pixel, check_splat_sigma_mm
@@ -272,6 +273,7 @@ def add_poisson_noise(line_integrals, photons_per_pixel: float, rng: np.random.G
 # --- frames ---------------------------------------------------------------------------------
 
 
+@memoised_frames  # inside shared_frames(), a frame rendered before is handed out again
 def render_frame(model: TransducerModel, T_carm_transducer, view: View, *, rng: np.random.Generator,
                  physical: TransducerModel | None = None, background=None,
                  photons_per_pixel: float | None = 5e4, n_splats: int = 16, splat_sigma_mm: float = 0.5,

@@ -72,11 +72,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-lifetime-s", type=float, default=3600.0, help="exit after this many seconds")
     p.add_argument("--parent-pid", type=int, default=None, help="exit when this process is gone")
     p.add_argument("--verbose", action="store_true")
+    p.add_argument("--detach", action="store_true",
+                   help="start the controller in the background, wait until its ports accept connections, print "
+                        "its process id on stdout and return (stop it with kill PID; it exits by itself after "
+                        "--max-lifetime-s)")
     return p
 
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    if args.detach:
+        return _detach(list(sys.argv[1:] if argv is None else argv))
     try:
         workspace = Workspace()
         if args.workspace_box is not None:
@@ -107,26 +113,47 @@ def main(argv=None) -> int:
     return 0
 
 
+def _detach(argv: list[str]) -> int:
+    """``--detach``: the same command line without it, in a new session that outlives this process;
+    its pid on stdout once it serves."""
+    rest = [a for a in argv if a != "--detach"]
+    host = rest[rest.index("--host") + 1] if "--host" in rest else "127.0.0.1"
+    try:
+        child = ControllerProcess(host, *rest, tied_to_parent=False, max_lifetime_s=3600.0)
+    except (ValueError, RuntimeError, TimeoutError) as exc:
+        print(f"simulated UR controller: {exc}", file=sys.stderr)
+        return 2
+    print(child.proc.pid, flush=True)
+    return 0
+
+
 class ControllerProcess:
     """The simulated controller in a child process (for tests, benchmarks and notebooks).
 
     ``ControllerProcess("127.0.0.2", "--repeatability-mm", "0")`` starts
     ``python -m histostudy.robot.controller --host 127.0.0.2 ...`` and waits (at most
     ``start_timeout_s``) until its three ports accept connections. Use as a context manager or
-    call :meth:`stop`; :meth:`kill` simulates a crashed controller (SIGKILL).
+    call :meth:`stop`; :meth:`kill` simulates a crashed controller (SIGKILL). ``tied_to_parent``
+    (default): the controller exits when this process is gone; False: it runs in a session of its
+    own until stopped or ``max_lifetime_s`` (``--detach``).
     """
 
-    def __init__(self, host: str, *args: str, start_timeout_s: float = 20.0, max_lifetime_s: float = 600.0):
+    def __init__(self, host: str, *args: str, start_timeout_s: float = 20.0, max_lifetime_s: float = 600.0,
+                 tied_to_parent: bool = True):
         if not ipaddress.ip_address(host).is_loopback:
             raise ValueError(f"host must be a loopback address (127.0.0.0/8), got {host!r}")
         self.host = host
-        cmd = [
-            sys.executable, "-m", "histostudy.robot.controller", "--host", host,
-            "--max-lifetime-s", str(max_lifetime_s), "--parent-pid", str(os.getpid()), *map(str, args),
-        ]
+        args = [str(a) for a in args]
+        if "--host" in args:  # the host given twice (--detach passes its command line on): the one checked above
+            i = args.index("--host")
+            del args[i:i + 2]
+        tie = ["--parent-pid", str(os.getpid())] if tied_to_parent else []
+        cmd = [sys.executable, "-m", "histostudy.robot.controller", "--host", host,
+               "--max-lifetime-s", str(max_lifetime_s), *tie, *args]
         # A file, not a pipe, for the log: a full pipe would block the controller.
         self.log = tempfile.TemporaryFile(mode="w+t")
-        self.proc = subprocess.Popen(cmd, stdout=self.log, stderr=subprocess.STDOUT, text=True)
+        self.proc = subprocess.Popen(cmd, stdout=self.log, stderr=subprocess.STDOUT, text=True,
+                                     start_new_session=not tied_to_parent)
         deadline = time.monotonic() + start_timeout_s
         pending = [DASHBOARD_PORT, RTDE_PORT, SCRIPT_PORT]
         while pending:

@@ -104,7 +104,7 @@ def station_poses(inputs: LabInputs, model: TransducerModel, seed: int) -> tuple
     for k, station in enumerate(inputs.stations):
         frames = _station_frames(station)
         result = pose_from_files(frames, inputs.views, model=model, seed=seed + k)
-        record = pose_record(result, frames)
+        record = pose_record(result, frames, model=model)
         records.append(record)
         row = {"station": station.name, **{f"focal_{a}_mm": v for a, v in zip("xyz", record["focal_point_mm"])},
                "accepted": record["accepted"], "seconds": result.timings_s.get("total", np.nan)}

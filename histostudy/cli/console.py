@@ -1,0 +1,143 @@
+"""What every ``histostudy`` command shares with the terminal, in the habits of dcmtk and git.
+
+- **stdout carries results**: each lab command ends with one line of JSON, its summary
+  (:func:`emit`); ``listen`` writes a JSON line per event. A script reads them with ``jq``.
+- **stderr carries talk**: the commands' own lines go through the ``histostudy.cli`` logger
+  (INFO by default), the library's through ``histostudy.*`` (WARNING by default). ``-q`` keeps
+  errors only; ``-v`` shows the library's INFO, ``-vv`` everything (DEBUG).
+- **Progress** (:class:`Steps`): a bar on stderr for work longer than a couple of seconds, only
+  when stderr is a terminal and not ``-q``; its elapsed time ticks while a step runs.
+- **Errors** (:func:`fail`): ``histostudy <command>: <message>`` on stderr, exit status 2 for bad
+  input (the message names the flag or file), 1 for a refusal (a verdict, a bound).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import threading
+import time
+from typing import Iterable
+
+__all__ = ["Steps", "add_command", "common_parent", "configure_logging", "elapsed_since", "emit", "fail", "log"]
+
+#: The commands' own lines (stderr).
+log = logging.getLogger("histostudy.cli")
+
+_HANDLER_NAME = "histostudy-cli-stderr"
+
+
+def common_parent(version: str) -> argparse.ArgumentParser:
+    """The options of every subcommand: ``--version``, ``-q/--quiet`` and ``-v/--verbose``."""
+    parent = argparse.ArgumentParser(add_help=False)
+    parent.add_argument("--version", action="version", version=f"histostudy {version}")
+    talk = parent.add_mutually_exclusive_group()
+    talk.add_argument("-q", "--quiet", action="store_true",
+                      help="errors only on stderr: no progress, no lines of the command's own")
+    talk.add_argument("-v", "--verbose", action="count", default=0,
+                      help="more on stderr: -v the library's steps (INFO), -vv everything (DEBUG)")
+    return parent
+
+
+def add_command(sub, name: str, parents, *, help: str, description: str, example: str):
+    """A subcommand whose ``--help`` shows its ``description`` and an ``example`` (shell lines)."""
+    return sub.add_parser(name, parents=parents, help=help, description=description,
+                          epilog="example:\n" + "\n".join("  " + line for line in example.strip().splitlines()),
+                          formatter_class=argparse.RawDescriptionHelpFormatter)
+
+
+def configure_logging(args) -> None:
+    """Route the ``histostudy`` loggers to stderr at the levels ``-q``/``-v`` ask for (idempotent:
+    ``main`` may be called many times in one process, e.g. by tests)."""
+    quiet, verbose = bool(getattr(args, "quiet", False)), int(getattr(args, "verbose", 0) or 0)
+    own = logging.ERROR if quiet else (logging.DEBUG if verbose else logging.INFO)
+    library = logging.ERROR if quiet else {0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG)
+    root = logging.getLogger("histostudy")
+    for handler in list(root.handlers):
+        if handler.get_name() == _HANDLER_NAME:
+            root.removeHandler(handler)
+    handler = _StderrHandler()
+    handler.set_name(_HANDLER_NAME)
+    handler.setFormatter(logging.Formatter("%(message)s"))
+    root.addHandler(handler)
+    root.setLevel(library)
+    log.setLevel(own)
+    args.progress = not quiet and sys.stderr.isatty()
+
+
+class _StderrHandler(logging.StreamHandler):
+    """A handler on whatever ``sys.stderr`` is at each record (pytest and notebooks swap it)."""
+
+    def __init__(self):
+        super().__init__(sys.stderr)
+
+    def emit(self, record):
+        self.stream = sys.stderr
+        super().emit(record)
+
+
+def emit(summary: dict) -> None:
+    """The command's summary as one line of JSON on stdout."""
+    from histostudy.core import to_jsonable
+
+    print(json.dumps(to_jsonable(summary), allow_nan=False), flush=True)
+
+
+def fail(command: str, exc: BaseException | str, code: int = 2) -> int:
+    """Report a bad input (2) or a refusal (1) on stderr; returns the exit status."""
+    print(f"histostudy {command}: {exc}", file=sys.stderr, flush=True)
+    return code
+
+
+class Steps:
+    """A progress bar over named steps (tqdm, on stderr), off unless ``enabled``; the bar redraws
+    every half second so that a long step shows its elapsed time. Use as a context manager and call
+    :meth:`step` before each step."""
+
+    def __init__(self, names: Iterable[str] | int, *, enabled: bool, label: str):
+        self.total = names if isinstance(names, int) else len(list(names))
+        self.enabled, self.label = bool(enabled), label
+        self._bar, self._stop, self._thread, self._started = None, threading.Event(), None, False
+
+    def __enter__(self):
+        if self.enabled:
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=self.total, desc=self.label, file=sys.stderr, leave=False,
+                             bar_format="{desc}: {n_fmt}/{total_fmt} [{elapsed}] {postfix}")
+            self._thread = threading.Thread(target=self._tick, daemon=True, name="histostudy-progress")
+            self._thread.start()
+        return self
+
+    def step(self, name: str) -> None:
+        if self._bar is None:
+            return
+        if self._started:
+            self._bar.update(1)
+        self._started = True
+        self._bar.set_postfix_str(name, refresh=True)
+
+    def _tick(self) -> None:
+        while not self._stop.wait(0.5):
+            self._bar.refresh()
+
+    def close(self) -> None:
+        """Remove the bar (idempotent: also at the end of the ``with`` block)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+
+    def __exit__(self, *exc_info):
+        self.close()
+        return False
+
+
+def elapsed_since(t0: float) -> float:
+    """Seconds since ``t0`` (``time.monotonic``), for summaries' ``wall_s``."""
+    return round(time.monotonic() - t0, 3)

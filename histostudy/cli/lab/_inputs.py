@@ -1,0 +1,210 @@
+"""Options and inputs the lab's commands share: the frames' options, the calibration's bounds, the
+transducer from its CAD meshes, ``x,y,z`` triples; and the checks of the frame files and meshes
+that run before any pose work, naming the flag, the argument or the file."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from histostudy.core import WORLD_FRAME
+
+__all__ = ["FRAME_SUFFIXES", "WORLD_FRAME", "check_frames", "check_transducer", "estimate_from_files", "frame_options",
+           "model_from_args", "positive_int", "residual_options", "triple"]
+
+FRAME_SUFFIXES = (".dcm", ".dicom", ".npy", ".png", ".tif", ".tiff")
+_MESH_SUFFIXES = (".stl", ".ply", ".obj", ".vtp")
+
+
+def positive_int(value: str) -> int:
+    """An argument that must be an integer >= 1."""
+    try:
+        number = int(value)
+    except ValueError:
+        number = 0
+    if number < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value!r}")
+    return number
+
+
+def triple(text: str) -> tuple[float, float, float]:
+    """``x,y,z``: three finite numbers."""
+    try:
+        values = tuple(float(v) for v in text.replace(" ", "").split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(abs(v) < float("inf") for v in values):
+        raise argparse.ArgumentTypeError(f"expected three finite numbers x,y,z, got {text!r}")
+    return values
+
+
+def frame_options(parser) -> None:
+    """How frame files are read: views, the cine's frame, line integrals, resampling, the seed, the
+    transducer's meshes."""
+    parser.add_argument("--views", default=None, help="views JSON file (histostudy.imaging.save_views): matched by "
+                                                      "order, or by name = the frame file's stem")
+    parser.add_argument("--frame-index", type=int, default=None, help="the frame of each multi-frame file (a cine)")
+    parser.add_argument("--line-integrals", action="store_true",
+                        help="the files hold line integrals already (default: intensities, converted with -log(I/I0))")
+    parser.add_argument("--resample", action="store_true", help="resize frames of another size onto their view")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the estimate's random draws (default 0)")
+    parser.add_argument("--transducer", default=None, metavar="DIR",
+                        help="the transducer's CAD meshes, one file per feature class named after it (transducer.stl, "
+                             "outer_boundary.stl, inner_boundary.stl, gaps.stl, screws.stl; mm, transducer frame); "
+                             "default: the paper's digital model")
+
+
+def residual_options(parser) -> None:
+    """The calibration's bounds, checked by ``calibrate`` and again by ``target``."""
+    parser.add_argument("--max-focal-residual-mm", type=float, default=2.0,
+                        help="the calibration's bound on each station's focal-point residual (default 2 mm)")
+    parser.add_argument("--max-rotation-residual-deg", type=float, default=1.0,
+                        help="the calibration's bound on each station's rotation residual (default 1 deg)")
+
+
+def model_from_args(args):
+    """The transducer model of ``--transducer`` (None: the digital model), cached on ``args``:
+    ``calibrate`` estimates several poses with it."""
+    from histostudy.transducer import TransducerModel
+
+    if args.transducer is None:
+        return None
+    if getattr(args, "_model", None) is None:
+        folder = Path(args.transducer)
+        if not folder.is_dir():
+            raise FileNotFoundError(f"--transducer {str(folder)!r}: no such folder of meshes")
+        meshes = {p.stem: p for p in sorted(folder.iterdir()) if p.suffix.lower() in _MESH_SUFFIXES}
+        if not meshes:
+            raise ValueError(f"--transducer {str(folder)!r} holds no mesh files ({', '.join(_MESH_SUFFIXES)})")
+        args._model = TransducerModel.from_meshes(meshes)
+    return args._model
+
+
+def estimate_from_files(frames, args):
+    """The pose of one station's or one pair's frame files, with the frames' options of ``args``."""
+    from histostudy.pose import pose_from_files
+
+    return pose_from_files(frames, args.views, frame_index=args.frame_index, line_integrals=args.line_integrals,
+                           resample=args.resample, seed=args.seed, model=model_from_args(args))
+
+
+_DICOM_SUFFIXES = (".dcm", ".dicom", "")
+
+
+def check_frames(frames, args, *, label: str = "FRAMES") -> None:
+    """Every frame file read as far as its pixel data, before any pose work, by the rules the
+    estimate reads it by (:func:`histostudy.pose.frames_from_files`): it exists and has a frame
+    format; it has a view (``--views``'s, by order or by name = the file's stem, or a DICOM file's
+    geometry tags); a DICOM file is one whole X-ray object
+    (:func:`~histostudy.imaging.check_xray_object`); ``--frame-index`` picks a frame each file
+    holds; each image has its view's size unless ``--resample``. ``label`` starts the messages
+    about one file (the argument that named it). Raises ValueError (XRayObjectRejected among them)
+    or OSError naming the flag, the argument or the file."""
+    paths = [Path(p) for p in frames]
+    for path in paths:
+        if path.is_dir():
+            raise IsADirectoryError(f"{label} {str(path)!r} is a folder, not a frame file")
+        if not path.is_file():
+            raise FileNotFoundError(f"{label} {str(path)!r}: no such file")
+        if path.suffix.lower() not in FRAME_SUFFIXES + ("",):
+            raise ValueError(f"{label} {str(path)!r}: not a frame file (expected {', '.join(FRAME_SUFFIXES)}, or "
+                             "DICOM without a suffix)")
+    if args.frame_index is not None and args.frame_index < 0:
+        raise ValueError(f"--frame-index {args.frame_index}: expected a frame index >= 0")
+    for path, view in zip(paths, _views_of(paths, args, label)):
+        if path.suffix.lower() in _DICOM_SUFFIXES:
+            shape, n_frames = _dicom_shape(path, view, args)
+        else:
+            shape, n_frames = _image_shape(path, label)
+        where = f"{label} {str(path)!r}"
+        if n_frames > 1 and args.frame_index is None:
+            raise ValueError(f"{where} holds {n_frames} frames (a cine): pick one with --frame-index")
+        if args.frame_index is not None and args.frame_index >= n_frames:
+            raise ValueError(f"--frame-index {args.frame_index}: {where} holds {n_frames} frame(s), "
+                             f"0 to {n_frames - 1}")
+        if view is not None and shape != tuple(view.shape) and not args.resample:
+            raise ValueError(f"{where} holds a {shape[0]} x {shape[1]} image, its view {view.name!r} in --views "
+                             f"expects {view.shape[0]} x {view.shape[1]}: give --resample to resize it onto the view")
+
+
+def _views_of(paths: list, args, label: str) -> list:
+    """Each frame file's view from ``--views`` (matched as frames_from_files matches them), or
+    None for a DICOM file's own tags."""
+    from histostudy.imaging import load_views
+
+    if args.views is None:
+        bare = [p for p in paths if p.suffix.lower() not in _DICOM_SUFFIXES]
+        if bare:
+            raise ValueError(f"{label} {str(bare[0])!r} carries no geometry (not DICOM): give the frames' views "
+                             "with --views FILE")
+        return [None] * len(paths)
+    if not Path(args.views).is_file():
+        raise FileNotFoundError(f"--views {args.views!r}: no such file")
+    try:
+        views = load_views(args.views)
+    except (OSError, ValueError, TypeError, KeyError) as exc:  # load_views lets json's errors through unnamed
+        raise ValueError(f"--views {args.views!r} is not a views file: {exc}") from None
+    if len(views) == len(paths):
+        return views
+    by_name = {v.name: v for v in views}
+    missing = [p.name for p in paths if p.stem not in by_name]
+    if missing:
+        raise ValueError(f"--views {args.views!r} holds {len(views)} views for {len(paths)} frame files and none "
+                         f"named as the stem of {missing} (a view is matched by order, or by name = the file's stem)")
+    return [by_name[p.stem] for p in paths]
+
+
+def _dicom_shape(path: Path, view, args) -> tuple[tuple[int, int], int]:
+    """A DICOM frame file's image size and frame count, the file read whole and checked as the
+    estimate checks it; its view from its tags too when ``view`` is None."""
+    from histostudy.imaging import View, XRayObjectRejected, check_xray_object, read_dicom_file
+
+    ds = read_dicom_file(path)  # to its pixel data: a truncated or corrupt file is named here
+    n_frames = int(getattr(ds, "NumberOfFrames", 1) or 1)
+    if view is None:
+        index = args.frame_index if args.frame_index is not None and args.frame_index < n_frames else None
+        try:
+            View.from_dicom(path, frame_index=index, name=path.stem)
+        except XRayObjectRejected:
+            raise  # not an X-ray image: the same reason as every reader's
+        except ValueError as exc:  # a geometry tag missing or out of range: a views file stands in
+            text = str(exc)
+            raise ValueError(text.replace("a views file", "a views file (--views FILE)") if "a views file" in text
+                             else f"{text}; or give the frames' views with --views FILE") from None
+    check_xray_object(ds, source=f"path {str(path)!r}")
+    return (int(ds.Rows), int(ds.Columns)), n_frames
+
+
+def _image_shape(path: Path, label: str) -> tuple[tuple[int, ...], int]:
+    """A .npy, .png or .tif frame file's image size and frame count (a .npy read as a memory map)."""
+    import numpy as np
+
+    try:
+        if path.suffix.lower() == ".npy":
+            shape = np.load(path, mmap_mode="r", allow_pickle=False).shape
+        else:
+            import cv2
+
+            image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            if image is None:
+                raise ValueError("not a readable image")
+            shape = image.shape[:2]
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{label} {str(path)!r} could not be read: {exc}") from None
+    if len(shape) not in (2, 3):
+        raise ValueError(f"{label} {str(path)!r} holds an array of shape {shape}, expected a (rows, cols) frame "
+                         "or a (frames, rows, cols) stack")
+    return tuple(shape[-2:]), (shape[0] if len(shape) == 3 else 1)
+
+
+def check_transducer(args) -> None:
+    """``--transducer``'s meshes loaded (:func:`model_from_args`, which keeps the model for the
+    estimate), a failure named with the flag."""
+    if args.transducer is None:
+        return
+    try:
+        model_from_args(args)
+    except (ValueError, TypeError, OSError) as exc:
+        text = str(exc)
+        named = text if text.startswith("--transducer") else f"--transducer {args.transducer!r}: {text}"
+        raise (FileNotFoundError if isinstance(exc, FileNotFoundError) else ValueError)(named) from None

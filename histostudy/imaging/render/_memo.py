@@ -1,0 +1,118 @@
+"""Frames rendered once and handed out again: :func:`shared_frames`, a scope inside which
+:func:`~._reference.render_frame` returns the frame it already made for the same inputs.
+
+A frame is a function of its inputs and of its Generator's state (the splat jitter, then the
+noise). Inside the scope a call with the same model and physical transducer (the same objects),
+pose, view (projection matrix, shape, pixel size, name), background (by value), settings and
+Generator state as an earlier one returns a copy of that frame and sets the Generator to the state
+the first call left it in: the caller gets the numbers it would have rendered, and draws the same
+numbers afterwards. A study that runs the same experiment for several variants whose frames are
+alike (the error budget's labs, whose errors act on what the estimator is told) renders each
+frame once. Outside a scope nothing is kept.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import dataclasses
+import functools
+import hashlib
+import pickle
+from collections import OrderedDict
+from typing import Iterator
+
+import numpy as np
+
+__all__ = ["FrameMemo", "shared_frames"]
+
+
+class FrameMemo:
+    """The frames of one :func:`shared_frames` scope, at most ``max_frames`` (the oldest go first);
+    ``hits`` and ``misses`` count the calls answered from it and rendered."""
+
+    def __init__(self, max_frames: int = 32):
+        if isinstance(max_frames, bool) or not isinstance(max_frames, int) or max_frames < 1:
+            raise ValueError(f"max_frames must be an integer >= 1, got {max_frames!r}")
+        self.max_frames = max_frames
+        self.hits = 0
+        self.misses = 0
+        self._frames: OrderedDict = OrderedDict()
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def call(self, render, model, T_carm_transducer, view, *, rng, physical=None, background=None, **settings):
+        """``render(model, T_carm_transducer, view, rng=rng, physical=physical, background=background,
+        **settings)``, or the frame an identical earlier call made (module docstring)."""
+        key = _key(model, T_carm_transducer, view, rng, physical, background, settings)
+        if key is None:  # an input without a value to compare (an unpicklable background): render
+            return render(model, T_carm_transducer, view, rng=rng, physical=physical, background=background,
+                          **settings)
+        entry = self._frames.get(key)
+        if entry is not None and entry[0] is model and entry[1] is physical:
+            self.hits += 1
+            rng.bit_generator.state = entry[3]
+            return _copy(entry[2])
+        self.misses += 1
+        frame = render(model, T_carm_transducer, view, rng=rng, physical=physical, background=background, **settings)
+        self._frames[key] = (model, physical, _copy(frame), rng.bit_generator.state)
+        while len(self._frames) > self.max_frames:
+            self._frames.popitem(last=False)
+        return frame
+
+
+_ACTIVE: contextvars.ContextVar[FrameMemo | None] = contextvars.ContextVar("histostudy_frame_memo", default=None)
+
+
+@contextlib.contextmanager
+def shared_frames(max_frames: int = 32) -> Iterator[FrameMemo]:
+    """A scope in which :func:`~._reference.render_frame` renders each distinct frame once (module
+    docstring); yields its :class:`FrameMemo`. Scopes nest (the inner one answers) and are local
+    to a thread or task (a context variable)."""
+    token = _ACTIVE.set(FrameMemo(max_frames))
+    try:
+        yield _ACTIVE.get()
+    finally:
+        _ACTIVE.reset(token)
+
+
+def memoised_frames(render):
+    """Decorate ``render`` (a function with ``render_frame``'s signature) so that it goes through
+    the active :func:`shared_frames` scope, if any."""
+    @functools.wraps(render)
+    def wrapper(model, T_carm_transducer, view, *, rng, physical=None, background=None, **settings):
+        memo = _ACTIVE.get()
+        if memo is None or not isinstance(rng, np.random.Generator):
+            return render(model, T_carm_transducer, view, rng=rng, physical=physical, background=background,
+                          **settings)
+        return memo.call(render, model, T_carm_transducer, view, rng=rng, physical=physical, background=background,
+                         **settings)
+
+    return wrapper
+
+
+def _digest(value) -> str | None:
+    if value is None:
+        return "none"
+    if isinstance(value, np.ndarray):
+        return f"array:{value.dtype}:{value.shape}:{hashlib.blake2b(np.ascontiguousarray(value).tobytes()).hexdigest()}"
+    try:
+        return "pickle:" + hashlib.blake2b(pickle.dumps(value, protocol=4)).hexdigest()
+    except Exception:  # noqa: BLE001 - any object pickle refuses has no value to compare
+        return None
+
+
+def _key(model, T, view, rng, physical, background, settings) -> tuple | None:
+    scene = _digest(background)
+    if scene is None or not hasattr(view, "P"):
+        return None
+    return (id(model), id(physical), np.asarray(T, np.float64).tobytes(), np.asarray(view.P, np.float64).tobytes(),
+            tuple(view.shape), float(view.pixel_mm), view.name, scene, repr(rng.bit_generator.state),
+            repr(sorted(settings.items())))
+
+
+def _copy(frame):
+    return dataclasses.replace(frame, image=frame.image.copy(),
+                               labels=None if frame.labels is None else frame.labels.copy(),
+                               meta=dict(frame.meta))
