@@ -283,10 +283,10 @@ def test_send_frames_checks_its_arguments_before_connecting(small_views, tmp_pat
         send_frames([ds], "127.0.0.1", 104, calling_ae_title="")
     with pytest.raises(ValueError, match="paths must name at least one DICOM object"):
         send_frames([], "127.0.0.1", 104)
-    with pytest.raises(FileNotFoundError, match=r"paths\[0\] '.*missing.dcm': no such file"):
+    with pytest.raises(FileNotFoundError, match=r"file '.*missing.dcm': no such file"):
         send_frames([tmp_path / "missing.dcm"], "127.0.0.1", 104)
     (tmp_path / "text.dcm").write_text("not DICOM")
-    with pytest.raises(ValueError, match=r"paths\[0\] '.*text.dcm' is not a readable DICOM file"):
+    with pytest.raises(ValueError, match=r"file '.*text.dcm' is not a readable DICOM file"):
         send_frames([tmp_path / "text.dcm"], "127.0.0.1", 104)
     del ds.file_meta
     with pytest.raises(ValueError, match="lacks its SOPClassUID .* or its file meta TransferSyntaxUID"):

@@ -97,17 +97,22 @@ def test_a_seeded_fuzz_leaves_the_receiver_serving_every_good_pair_posed_no_thre
     assert set(report["kinds"]) == set(HOSTILE) and sum(report["kinds"].values()) == N_HOSTILE
     assert set(report["outcomes"]["huge_pdu"]) == {"cut"}
     n_good, n_batches = report["good_sent"], -(-N_HOSTILE // CONCURRENCY)
-    assert n_good == 3 * n_batches and report["good_posed"] == n_good
+    # A good pair sent again after its association was aborted (its sender starved on a loaded
+    # machine) is posed twice when the abort came after its objects were stored: the receiver takes
+    # a re-sent instance as a new frame (the bound below is that, and nothing else).
+    n_posed, n_resent = report["good_posed"], len(report["good_resent"])
+    assert n_good == 3 * n_batches and n_good <= n_posed <= n_good + n_resent
     lines = read_lines(tmp_path / "poses.jsonl")
-    assert [line["pair_index"] for line in lines] == list(range(n_good))
-    assert [line["instance_uids"] for line in lines] == report["good_uids"]
+    assert [line["pair_index"] for line in lines] == list(range(n_posed))
+    uids = [line["instance_uids"] for line in lines]
+    assert [u for i, u in enumerate(uids) if i == 0 or u != uids[i - 1]] == report["good_uids"]
     assert all("error" not in line and line["accepted"] for line in lines)
     stats = receiver.stats()
     assert stats["objects_received"] == stats["objects_accepted"] + stats["objects_rejected"]
     assert sum(stats["rejections"].values()) == stats["objects_rejected"]
     assert stats["frames_received"] == 2 * stats["pairs_completed"] + stats["frames_unpaired"]
     assert stats["pairs_completed"] == stats["pairs_processed"] + stats["pairs_skipped"]
-    assert (stats["pairs_processed"], stats["pairs_skipped"], stats["pairs_errors"]) == (n_good, 0, 0)
+    assert (stats["pairs_processed"], stats["pairs_skipped"], stats["pairs_errors"]) == (n_posed, 0, 0)
     # a connection per hostile association, good pair and C-ECHO, per attempt rejected while
     # pynetdicom's limit of associations at once (10) was reached (transient, reason 2: tried again)
     # and per good pair sent again (its association aborted: its sender starved on a loaded machine)
@@ -115,7 +120,7 @@ def test_a_seeded_fuzz_leaves_the_receiver_serving_every_good_pair_posed_no_thre
         report["good_resent"])
     assert {r["reason"] for r in stats["last_association_rejections"]} <= {2}
     assert stats["associations"] >= n_good + n_batches and stats["objects_accepted"] >= 2 * n_good
-    assert stats["tracker"]["n_updates"] == n_good
+    assert stats["tracker"]["n_updates"] == n_posed
     assert threads_left(before) == []
     assert report["memory"]["settled"] and report["memory"]["after_first"] == 0
     assert report["memory"]["after_all"] < 512 << 10, f"{report['memory']['after_all']} bytes still held"
