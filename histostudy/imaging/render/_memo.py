@@ -28,7 +28,7 @@ __all__ = ["FrameMemo", "shared_frames"]
 
 
 class FrameMemo:
-    """The frames of one :func:`shared_frames` scope, at most ``max_frames`` (the oldest go first);
+    """The frames of one :func:`shared_frames` scope, the ``max_frames`` most recently used;
     ``hits`` and ``misses`` count the calls answered from it and rendered."""
 
     def __init__(self, max_frames: int = 32):
@@ -52,6 +52,7 @@ class FrameMemo:
         entry = self._frames.get(key)
         if entry is not None and entry[0] is model and entry[1] is physical:
             self.hits += 1
+            self._frames.move_to_end(key)
             rng.bit_generator.state = entry[3]
             return _copy(entry[2])
         self.misses += 1

@@ -19,6 +19,7 @@ import pandas as pd
 from histostudy.core import check_count, check_positive
 from histostudy.imaging import BACKGROUNDS, default_biplane
 from histostudy.transducer import TransducerModel, TransducerSpec
+from ._references import SOURCE_REFERENCES
 from ._run import BudgetSetup, run_error_budget
 from ._sources import LAB_SOURCES, LabErrorModel, draw_lab
 from ._summary import budget_comparisons, configuration_table, dominant_sources, source_shares, waterfall_figure
@@ -37,21 +38,11 @@ SECTION_TITLE = "07 · The error budget: the lab's error sources and their share
 #: The notebook parameters the report records, in the order it records them.
 RECORDED_PARAMETERS = ("photons_per_pixel", "n_splats", "splat_sigma_mm", "pose_spacing_mm", "render_spacing_mm",
                        "background", "pose_experiments", "targeting_experiments", "learned_stages", "sources",
-                       "scheduler")
+                       "n_labs", "scheduler")
 
-#: Where each source's default comes from (the report's sources table).
-SOURCE_PROVENANCE = {
-    "manufacturing": "ISO 2768-1 class m for a 120-400 mm part (±0.5 mm, ±0°10'), read as uniform; the study's "
-                     "own assumption is 0.2 mm / 0.15°",
-    "bubble_offset": "assumption: a sixth of the 3 x 3 x 6 mm bubble cloud (§II-C) per axis; one offset per "
-                     "transducer (a bias), uncorrected as in the paper's targeting",
-    "projection": "assumption: 0.5 px residual reprojection error of a phantom calibration, focal spot within 1 mm",
-    "gantry_sag": "assumption: 0.5 mm along gravity per plane, what the calibration misses at a fluoroscopic angle",
-    "registration": "assumption: a same-C-arm CBCT-to-fluoroscopy registration reproducible to 0.3 mm / 0.1°",
-    "annotation": "derived: each extreme point of a hand-drawn sphere within ±1 voxel of a 1 mm CBCT",
-    "robot": "the paper: UR5e pose repeatability ±0.03 mm (§II-C), taken as one SD",
-    "phantom_motion": "assumption: an agarose phantom in a water bath, between treatment and CBCT",
-}
+#: Where each source's default comes from (the report's sources table): its status, value, range
+#: and reference (:data:`~._references.SOURCE_REFERENCES`).
+SOURCE_PROVENANCE = {name: ref.provenance for name, ref in SOURCE_REFERENCES.items()}
 
 
 @dataclass(frozen=True)
@@ -61,7 +52,8 @@ class BudgetSectionConfig(RenderedSectionConfig):
     ``splat_sigma_mm``, ``pose_spacing_mm``, ``render_spacing_mm``, ``background``), the
     experiments per configuration (``pose_experiments``, ``targeting_experiments``), the stages
     (``learned_stages``), the lab's ``sources`` on (names of :data:`LAB_SOURCES`, each at most
-    once) and the ``scheduler`` the experiments run on (``""``: ``HISTOSTUDY_SCHEDULER``, else here).
+    once), the labs drawn for the distribution (``n_labs``, lab 0 the one the configurations run on)
+    and the ``scheduler`` the experiments run on (``""``: ``HISTOSTUDY_SCHEDULER``, else here).
 
     A bad value raises ValueError naming the parameter, its value and what it must be. Values are
     kept as given, ``sources`` as a tuple.
@@ -74,13 +66,14 @@ class BudgetSectionConfig(RenderedSectionConfig):
     targeting_experiments: int
     learned_stages: bool
     sources: tuple
+    n_labs: int
     scheduler: str
 
     def __post_init__(self):
         for name, unit in (("photons_per_pixel", "photons per pixel"), ("splat_sigma_mm", "mm"),
                            ("pose_spacing_mm", "mm"), ("render_spacing_mm", "mm")):
             check_positive(getattr(self, name), name, unit=unit)
-        for name in ("n_splats", "pose_experiments", "targeting_experiments"):
+        for name in ("n_splats", "pose_experiments", "targeting_experiments", "n_labs"):
             check_count(getattr(self, name), name)
         check_choice(self.background, "background", BACKGROUNDS)
         object.__setattr__(self, "learned_stages", check_bool(self.learned_stages, "learned_stages"))
@@ -175,16 +168,19 @@ def stand_ins() -> list[tuple[str, str]]:
              "every configuration on the same draws")]
 
 
-def closing_text(setup: BudgetSetup, n_pose: int, n_targeting: int) -> str:
+def closing_text(setup: BudgetSetup, n_pose: int, n_targeting: int, n_labs: int = 1) -> str:
     """The section's closing paragraph: the lab drawn (its bubble offset and transducer focal
-    offset) and the experiments run."""
+    offset), the experiments run and, with ``n_labs`` > 1, what the comparisons with the paper
+    rest on."""
     lab = setup.lab
-    return (f"{n_pose} pose and {n_targeting} targeting experiment(s) per configuration, one lab. This lab's "
+    labs = ("" if n_labs <= 1 else f" The comparisons with the paper below are the median over {n_labs} labs "
+            "(each lab's mean over its experiments, all sources on), with the labs' 5-95 % band in the note.")
+    return (f"{n_pose} pose and {n_targeting} targeting experiment(s) per configuration, one lab (lab 0). This lab's "
             f"bubble offset is {np.round(lab.bubble_offset_mm, 2).tolist()} mm (LR, TB, -depth; transducer frame); "
             f"its transducer's focal point lies {np.linalg.norm(lab.physical.focal_point_mm):.2f} mm from the digital "
             f"model's (the study's transducer: {np.linalg.norm(lab.study_physical.focal_point_mm):.2f} mm). A single "
             "lab draws each systematic source once: its bias is one draw of the sources' distribution, as the "
-            "paper's was.")
+            "paper's was." + labs)
 
 
 # --- the notebook's parts: tables, figures, values and comparisons for record() ---------------------
@@ -245,9 +241,11 @@ def shares_section(records: pd.DataFrame, study: str) -> SharesSection:
         values={f"{study}_dominant": dominant_sources(shares)}))
 
 
-def closing_part(setup: BudgetSetup, records: pd.DataFrame) -> SectionPart:
-    """The lab beside the paper (:func:`budget_comparisons`), what stands in for what
-    (:func:`stand_ins`) and the closing paragraph (:func:`closing_text`)."""
+def closing_part(setup: BudgetSetup, records: pd.DataFrame, labs: pd.DataFrame | None = None) -> SectionPart:
+    """The lab beside the paper (:func:`budget_comparisons`; with ``labs``, the
+    :func:`~._distribution.lab_statistics` of the many labs, the "lab" rows are their distribution),
+    what stands in for what (:func:`stand_ins`) and the closing paragraph (:func:`closing_text`)."""
     p = setup.params
-    return SectionPart(comparisons=tuple(budget_comparisons(records)), stand_ins=tuple(stand_ins()),
-                       texts=(closing_text(setup, p.pose_experiments, p.targeting_experiments),))
+    n_labs = 1 if labs is None else int(labs["lab"].nunique())
+    return SectionPart(comparisons=tuple(budget_comparisons(records, labs)), stand_ins=tuple(stand_ins()),
+                       texts=(closing_text(setup, p.pose_experiments, p.targeting_experiments, n_labs),))

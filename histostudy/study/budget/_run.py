@@ -6,13 +6,18 @@ A lab (:func:`~histostudy.study.budget._sources.draw_lab`) is drawn once; every 
 sources are on (common random numbers). The work is shared where the physics allows:
 
 - the frames and the estimates depend only on the transducer (``manufacturing``), the views
-  (``projection``, ``gantry_sag``) and the robot's noise (``robot``): each combination of those
-  that a configuration needs runs once per experiment;
-- the post-treatment CBCT reference of Table II depends on the transducer, the bubble offset and
-  the robot; the targeting treatment on all of these;
+  (``projection``, ``gantry_sag``, ``carm_reproducibility``) and the robot (``robot``,
+  ``robot_accuracy``): each combination of those that a configuration needs runs once per
+  experiment;
+- the post-treatment CBCT reference of Table II depends on the transducer, the bubble offset (the
+  lab's and its per-experiment ``replacement``) and the robot; the targeting treatment on all of
+  these;
 - ``registration``, ``annotation`` and ``phantom_motion`` act on what the lab reads from its
   CBCTs (:class:`~histostudy.study.budget._sources.ExperimentDraw`): applied to the reference and to
-  the treated zone, no re-run needed.
+  the treated zone, no re-run needed;
+- the frames alone depend on fewer of them (not ``projection`` nor ``carm_reproducibility``, which
+  act on what the estimator is told): runs of one experiment whose frames are alike render and
+  segment them once (:func:`~histostudy.study.budget._shared.shared_work`, exact).
 
 One task per (study, experiment) runs through :func:`histostudy.core.run_sweep`, so the budget
 runs sequentially, on local processes or on a dask cluster with the same numbers. C-arm frame,
@@ -22,6 +27,7 @@ mm; errors along depth/TB/LR as §II-E.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -31,6 +37,7 @@ import pandas as pd
 from histostudy.calibration import CalibrationError
 from histostudy.core import SweepExecutor, run_sweep
 from histostudy.transducer import TransducerModel
+from ._shared import shared_work
 from ._sources import LAB_SOURCES, ExperimentDraw, LabDraw, LabErrorModel
 from ..pose._config import PoseStudyConfig
 from ..pose._experiments import run_pose_study
@@ -45,7 +52,11 @@ __all__ = ["BudgetSetup", "ESTIMATE_SOURCES", "budget_configurations", "measured
            "run_error_budget"]
 
 #: The sources that change the frames or what the estimator is told (everything else acts after).
-ESTIMATE_SOURCES = ("manufacturing", "projection", "gantry_sag", "robot")
+ESTIMATE_SOURCES = ("manufacturing", "projection", "gantry_sag", "robot", "carm_reproducibility", "robot_accuracy")
+
+#: The pose study's: the robot's accuracy is not modelled there (its centre pose is measured, not
+#: commanded; a margin move of r errs by about accuracy/reach x r, a hundredth of a millimetre).
+_POSE_ESTIMATE_SOURCES = tuple(s for s in ESTIMATE_SOURCES if s != "robot_accuracy")
 
 
 def budget_configurations(model: LabErrorModel) -> list[tuple[str, LabErrorModel]]:
@@ -137,16 +148,16 @@ def _pose_task(setup: BudgetSetup, seed: int, experiment: int,
         sub = lab.variant(model)
         draw = sub.experiment(experiment)
         config = dataclasses.replace(base, robot_repeatability_mm=sub.robot_repeatability_mm(base.robot_repeatability_mm),
-                                     bubble_offset_mm=tuple(float(v) for v in sub.bubble_offset_mm),
+                                     bubble_offset_mm=tuple(float(v) for v in sub.bubble_offset_at(experiment)),
                                      assumed_bubble_offset_mm=(0.0, 0.0, 0.0))
-        key = _key(model, ESTIMATE_SOURCES)
+        key = _key(model, _POSE_ESTIMATE_SOURCES)
         if key not in records:
             records[key] = run_pose_study(config, pose_model=setup.pose_model, render_model=setup.render_model,
                                           physical=sub.physical, views=sub.frame_views,
                                           estimator_views=sub.estimator_views, seed=seed,
                                           segmenter=setup.segmenter, orientation=setup.orientation,
-                                          experiments=[experiment])
-        ref_key = _key(model, ("manufacturing", "bubble_offset", "robot"))
+                                          experiments=[experiment], acquisition_views=sub.acquisition_views)
+        ref_key = _key(model, ("manufacturing", "bubble_offset", "robot", "replacement"))
         if ref_key not in references:
             references[ref_key] = cbct_reference(config, physical=sub.physical, seed=seed, experiments=[experiment])
         rec, ref = records[key], references[ref_key]
@@ -171,17 +182,19 @@ def _targeting_task(setup: BudgetSetup, seed: int, experiment: int,
     for label, model in configurations:
         sub = lab.variant(model)
         draw = sub.experiment(10_000 + experiment)  # the targeting study's own experiments
-        key = _key(model, (*ESTIMATE_SOURCES, "bubble_offset"))
+        key = _key(model, (*ESTIMATE_SOURCES, "bubble_offset", "replacement"))
         if key not in runs:
             config = dataclasses.replace(
                 base, bias_correction=False,
                 robot_repeatability_mm=sub.robot_repeatability_mm(base.robot_repeatability_mm),
-                bubble_offset_mm=tuple(float(v) for v in sub.bubble_offset_mm))
+                bubble_offset_mm=tuple(float(v) for v in sub.bubble_offset_at(10_000 + experiment)))
+            views = functools.partial(sub.acquisition_views, 10_000 + experiment)
             try:
                 runs[key] = run_targeting_experiment(
                     config, seq, pose_model=setup.pose_model, render_model=setup.render_model, physical=sub.physical,
-                    views=sub.frame_views, estimator_views=sub.estimator_views, robot_factory=sim_robot(config),
-                    experiment=experiment, segmenter=setup.segmenter, orientation=setup.orientation)
+                    views=sub.frame_views, estimator_views=sub.estimator_views,
+                    robot_factory=sim_robot(config, sub.kinematic_error()), experiment=experiment,
+                    segmenter=setup.segmenter, orientation=setup.orientation, acquisition_views=views)
             except (TargetingError, CalibrationError) as exc:  # the lab would redo the calibration
                 runs[key] = {"failure": str(exc)}
         run = runs[key]
@@ -196,7 +209,11 @@ def _targeting_task(setup: BudgetSetup, seed: int, experiment: int,
 
 def _run_task(task: tuple, *, setup: BudgetSetup, configurations: list) -> pd.DataFrame:
     study, seed, experiment = task
-    frame = (_pose_task if study == "pose" else _targeting_task)(setup, seed, experiment, configurations)
+    config = setup.pose_config if study == "pose" else setup.targeting_config
+    # Configurations whose frames are alike (the sources that act on the views the estimator is told,
+    # or after it) render and segment them once: exact, the numbers of separate runs (_shared).
+    with shared_work(setup, config, max_frames=64) as (shared, _, _):
+        frame = (_pose_task if study == "pose" else _targeting_task)(shared, seed, experiment, configurations)
     frame.insert(0, "study", study)
     return frame
 

@@ -22,7 +22,17 @@ A source acts where it acts in the lab (:class:`LabDraw`):
   it;
 - ``annotation``: the observer's hand segmentation of the treated zone: its centroid and radii;
 - ``robot``: the UR5e's landing noise (both studies' robot);
-- ``phantom_motion``: the phantom shifts between the treatment and the post-treatment CBCT.
+- ``phantom_motion``: the phantom shifts between the treatment and the post-treatment CBCT;
+- ``replacement``: the bubble cloud's offset varies about the lab's from one experiment to the
+  next (the transducer re-placed, a new phantom in the path; transducer frame);
+- ``carm_reproducibility``: each acquisition's projection shifted on the detector (the gantry
+  returning to its angles), applied to the views the estimator is told;
+- ``robot_accuracy``: the arm's true kinematics differ from its controller's nominal table (one
+  arm per lab): the calibration poses and every move land off their commands, pose by pose.
+
+The magnitudes are :mod:`._magnitudes`' dataclasses; their references, ranges and statuses
+:mod:`._references`'. The last three sources were added after the first eight: each draws from its
+own stream (appended to :data:`LAB_SOURCES`), so with them off every number is what it was.
 
 Frames: C-arm (LPS) mm for points, transducer frame for the bubble offset, degrees where named.
 """
@@ -30,138 +40,30 @@ Frames: C-arm (LPS) mm for points, transducer frame for the bubble offset, degre
 from __future__ import annotations
 
 import dataclasses
-import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from histostudy.geometry import make_transform, matrix_from_rotvec
 from histostudy.imaging import GRAVITY_CARM, View, displaced_view, miscalibrated_view
 from histostudy.transducer import ManufacturingDeviation, TransducerModel
+from ._magnitudes import (ISO_2768_M_DEVIATION, AnnotationError, BubbleOffset, CarmReproducibility, GantrySag,
+                          PhantomMotion, ProjectionError, RegistrationError, RobotAccuracy, RobotRepeatability,
+                          TransducerReplacement)
+from ..targeting._robots import KinematicError
 
-__all__ = ["AnnotationError", "BubbleOffset", "ExperimentDraw", "GantrySag", "LAB_SOURCES", "LabDraw", "LabErrorModel",
-           "PhantomMotion", "ProjectionError", "RegistrationError", "RobotRepeatability", "draw_lab"]
+__all__ = ["ExperimentDraw", "LAB_SOURCES", "LabDraw", "LabErrorModel", "draw_lab"]
 
-#: The sources, in the order of :class:`LabErrorModel`'s fields and of their seed streams.
+#: The sources, in the order of :class:`LabErrorModel`'s fields and of their seed streams (a new
+#: source is appended, so that no existing stream moves).
 LAB_SOURCES = ("manufacturing", "bubble_offset", "projection", "gantry_sag", "registration", "annotation", "robot",
-               "phantom_motion")
-
-
-class _Magnitudes:
-    """A source's magnitudes: every field a finite number >= 0 (or a tuple of them), checked and
-    made float when the dataclass is built."""
-
-    def __post_init__(self):
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            values = value if isinstance(value, tuple) else (value,)
-            for v in values:
-                if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
-                        or not math.isfinite(float(v)) or float(v) < 0:
-                    raise ValueError(f"{type(self).__name__}.{f.name} must be finite and >= 0, got {value!r}")
-            object.__setattr__(self, f.name, tuple(float(v) for v in values) if isinstance(value, tuple) else float(value))
-
-
-@dataclass(frozen=True)
-class BubbleOffset(_Magnitudes):
-    """SD of the bubble cloud's offset from the physical focal point, per transducer axis (mm;
-    LR, TB, depth). One offset per transducer: it is systematic, a bias.
-
-    Default (0.5, 0.5, 1.0) mm: an assumption scaled to the cloud (§II-C: 3 x 3 x 6 mm), a sixth
-    of its extent per axis. The clinical workflow calibrates this offset with a test pulse
-    (§I, step 3) because it is not negligible; the paper's C-arm targeting did not.
-    """
-
-    sd_mm: tuple = (0.5, 0.5, 1.0)
-
-    def __post_init__(self):
-        if np.shape(self.sd_mm) != (3,):
-            raise ValueError(f"BubbleOffset.sd_mm must be 3 SDs (LR, TB, depth) in mm, got {self.sd_mm!r}")
-        object.__setattr__(self, "sd_mm", tuple(self.sd_mm))
-        super().__post_init__()
-
-
-@dataclass(frozen=True)
-class ProjectionError(_Magnitudes):
-    """The C-arm's geometric calibration error, one draw per plane: the principal point off by
-    ``reprojection_px`` (SD per detector axis) and the source off by ``source_mm`` (SD per world
-    axis), the detector where the calibration says.
-
-    Defaults: 0.5 px (0.15 mm at the 0.308 mm detector pixel), the order of the residual
-    reprojection error of phantom-based C-arm calibrations; 1.0 mm for the focal spot, the
-    order of its size. Both are assumptions, stated as such.
-    """
-
-    reprojection_px: float = 0.5
-    source_mm: float = 1.0
-
-
-@dataclass(frozen=True)
-class GantrySag(_Magnitudes):
-    """Each plane's source-detector assembly displaced along gravity (SD, mm), one draw per plane:
-    what the geometric calibration did not capture at the fluoroscopy's angulation.
-
-    Default 0.5 mm: an assumption, a fraction of the millimetre-scale flexing that C-arm gantries
-    show over an orbit (which their calibration captures for the CBCT orbit, not for each
-    fluoroscopic angulation of a biplane pair).
-    """
-
-    sd_mm: float = 0.5
-
-
-@dataclass(frozen=True)
-class RegistrationError(_Magnitudes):
-    """The CBCT's coordinates against the fluoroscopy's: a rigid error, per experiment (SD of each
-    translation axis in mm, of each rotation-vector component in degrees).
-
-    Defaults 0.3 mm and 0.1 deg: assumptions of a same-C-arm registration (the CBCT is
-    reconstructed in the frame of the C-arm's calibration; what differs is its reproducibility).
-    """
-
-    translation_mm: float = 0.3
-    rotation_deg: float = 0.1
-
-
-@dataclass(frozen=True)
-class AnnotationError(_Magnitudes):
-    """The observer's segmentation of the treated zone (per experiment): centroid SD per axis and
-    radius SD per direction (mm).
-
-    Defaults 0.41 mm: derived, not fitted. A sphere annotated by hand in a CBCT of 1 mm voxels
-    (the studies' reconstruction) has each of its six extreme points placed within ±1 voxel
-    (uniform, SD 1/√3 mm); a centroid or radius is half the sum or difference of two of them:
-    SD (1/√3)/√2 = 0.41 mm.
-    """
-
-    centroid_mm: float = 0.41
-    radius_mm: float = 0.41
-
-
-@dataclass(frozen=True)
-class RobotRepeatability(_Magnitudes):
-    """The UR5e's landing noise, SD per axis (mm). Default 0.03 mm: the paper's ±0.03 mm pose
-    repeatability (§II-C, the UR5e's data sheet) taken as one SD, the conservative reading."""
-
-    sd_mm: float = 0.03
-
-
-@dataclass(frozen=True)
-class PhantomMotion(_Magnitudes):
-    """The phantom's shift between the treatment and the post-treatment CBCT (SD per axis, mm; per
-    experiment). Default 0.2 mm: an assumption for an agarose phantom in a water bath as the
-    transducer is lifted out of it."""
-
-    sd_mm: float = 0.2
-
-
-#: The manufacturing tolerances of the lab model: ISO 2768-1 class m ("medium") for the quadrants'
-#: placement in a 120-400 mm housing, ±0.5 mm and ±0°10', read as uniform (SD = tolerance / √3).
-ISO_2768_M_DEVIATION = ManufacturingDeviation(quadrant_offset_sd_mm=0.5 / math.sqrt(3),
-                                              quadrant_tilt_sd_deg=(10.0 / 60.0) / math.sqrt(3))
+               "phantom_motion", "replacement", "carm_reproducibility", "robot_accuracy")
 
 _SOURCE_TYPES = {"manufacturing": ManufacturingDeviation, "bubble_offset": BubbleOffset,
                  "projection": ProjectionError, "gantry_sag": GantrySag, "registration": RegistrationError,
-                 "annotation": AnnotationError, "robot": RobotRepeatability, "phantom_motion": PhantomMotion}
+                 "annotation": AnnotationError, "robot": RobotRepeatability, "phantom_motion": PhantomMotion,
+                 "replacement": TransducerReplacement, "carm_reproducibility": CarmReproducibility,
+                 "robot_accuracy": RobotAccuracy}
 
 
 @dataclass(frozen=True)
@@ -181,6 +83,9 @@ class LabErrorModel:
     annotation: AnnotationError | None = AnnotationError()
     robot: RobotRepeatability | None = RobotRepeatability()
     phantom_motion: PhantomMotion | None = PhantomMotion()
+    replacement: TransducerReplacement | None = TransducerReplacement()
+    carm_reproducibility: CarmReproducibility | None = CarmReproducibility()
+    robot_accuracy: RobotAccuracy | None = RobotAccuracy()
 
     def __post_init__(self):
         for name, kind in _SOURCE_TYPES.items():
@@ -233,12 +138,14 @@ def _stream(seq: np.random.SeedSequence, *keys: int) -> np.random.Generator:
 class ExperimentDraw:
     """The per-experiment draws (zeros where the source is off): ``T_cbct_carm`` (the CBCT's
     coordinates of a C-arm point, 4x4 mm), the annotation's centroid offset (3, mm) and radius
-    errors per direction (depth, TB, LR; mm), the phantom's motion (3, mm, C-arm frame)."""
+    errors per direction (depth, TB, LR; mm), the phantom's motion (3, mm, C-arm frame), and the
+    re-placed transducer's bubble-offset change (3, mm, transducer frame)."""
 
     T_cbct_carm: np.ndarray
     annotation_centroid_mm: np.ndarray
     annotation_radius_mm: np.ndarray
     phantom_motion_mm: np.ndarray
+    bubble_offset_change_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def measured_point(self, point_mm) -> np.ndarray:
         """Where the lab reads a treated zone's centroid at ``point_mm`` (C-arm frame) in its
@@ -310,7 +217,37 @@ class LabDraw:
         rng_mot = _stream(self.seed, LAB_SOURCES.index("phantom_motion"), int(index))
         motion = rng_mot.normal(0.0, 1.0, 3)
         motion = np.zeros(3) if m.phantom_motion is None else m.phantom_motion.sd_mm * motion
-        return ExperimentDraw(T, ann[0], ann[1], motion)
+        change = _stream(self.seed, LAB_SOURCES.index("replacement"), int(index)).normal(0.0, 1.0, 3)
+        change = np.zeros(3) if m.replacement is None else np.asarray(m.replacement.sd_mm) * change
+        return ExperimentDraw(T, ann[0], ann[1], motion, change)
+
+    def bubble_offset_at(self, index: int) -> np.ndarray:
+        """The bubble cloud's offset in experiment ``index`` (transducer frame, mm): the lab's,
+        changed by the re-placed transducer's draw where ``replacement`` is on."""
+        if self.model.replacement is None:
+            return self.bubble_offset_mm
+        return self.bubble_offset_mm + self.experiment(index).bubble_offset_change_mm
+
+    def acquisition_views(self, experiment: int, acquisition: int, views) -> tuple:
+        """The views the estimator is told for acquisition ``acquisition`` of experiment
+        ``experiment``: ``views`` (the lab's calibration), each plane's projection shifted by
+        ``carm_reproducibility`` (mm at the detector, one draw per plane); ``views`` unchanged
+        where the source is off."""
+        m = self.model.carm_reproducibility
+        if m is None:
+            return tuple(views)
+        rng = _stream(self.seed, LAB_SOURCES.index("carm_reproducibility"), int(experiment), int(acquisition))
+        return tuple(miscalibrated_view(v, detector_shift_px=m.shift_mm * rng.normal(0.0, 1.0, 2) / v.pixel_mm)
+                     for v in views)
+
+    def kinematic_error(self) -> KinematicError | None:
+        """The lab's arm against its nominal DH table (``robot_accuracy``; one draw per lab), or
+        None where the source is off."""
+        m = self.model.robot_accuracy
+        if m is None:
+            return None
+        normals = _stream(self.seed, LAB_SOURCES.index("robot_accuracy")).normal(0.0, 1.0, (4, 6))
+        return KinematicError.from_normals(normals, length_sd_mm=m.length_sd_mm, angle_sd_rad=m.angle_sd_rad)
 
 
 def draw_lab(model: LabErrorModel, seed, *, physical: TransducerModel, views,

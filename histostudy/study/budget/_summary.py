@@ -163,18 +163,22 @@ def waterfall_figure(shares: pd.DataFrame, study: str, title: str = ""):
     return fig
 
 
-def budget_comparisons(records: pd.DataFrame) -> list[dict]:
+def budget_comparisons(records: pd.DataFrame, labs: pd.DataFrame | None = None) -> list[dict]:
     """``SectionWriter.compare`` keyword arguments: the "lab" and "baseline" configurations'
     Table II centre error, LR bias and radius MAE, and targeting error and LR bias, each beside
-    the paper's value (Table II's keys and §III's targeting keys)."""
+    the paper's value (Table II's keys and §III's targeting keys).
+
+    With ``labs`` (:func:`~._distribution.lab_statistics` of several labs) the "lab" rows are the
+    labs' distribution, not one draw: the median over the labs of each lab's mean (and of its SD
+    over its experiments), the 5-95 % band of the labs' means and lab 0's own figure in the note.
+    Biases as recorded (Table II prediction minus zone, targeting zone minus target)."""
     out = []
     for label in ("lab", "baseline"):
         note = "lab error model, all sources on" if label == "lab" else "every lab source off (the studies as run)"
-        for study, keys in (("pose", (("center_mae.overall", "euclidean", "Table II centre error, Euclidean"),
-                                      ("center_bias.lr", "bias_lr", "Table II centre bias, LR"),
-                                      ("radius_mae.overall", "radius", "Table II radius MAE"))),
-                            ("targeting", (("euclidean", "euclidean", "Targeting error, Euclidean"),
-                                           ("bias.lr", "bias_lr", "Targeting bias, LR")))):
+        for study, keys in _COMPARED:
+            if label == "lab" and labs is not None and (labs["study"] == study).any():
+                out += _distribution_rows(labs[labs["study"] == study], study, keys)
+                continue
             rows = _study(records, study)
             g = rows[rows["configuration"] == label]
             if g.empty:
@@ -187,7 +191,44 @@ def budget_comparisons(records: pd.DataFrame) -> list[dict]:
                 if values.empty:
                     continue
                 ours = float(values.mean()) if what == "bias_lr" else mean_sd(values)
-                paper_key = f"table2.{key}" if study == "pose" else f"targeting.{key}"
                 out.append(dict(key=f"budget.{label}.{study}.{key}", label=f"{text} ({label})", ours=ours, unit="mm",
-                                paper_key=paper_key, note=f"{note}; {len(values)} experiment(s)"))
+                                paper_key=_paper_key(study, key), note=f"{note}; {len(values)} experiment(s)"))
+    return out
+
+
+#: Per study, the compared figures: (key, what, label).
+_COMPARED = (("pose", (("center_mae.overall", "euclidean", "Table II centre error, Euclidean"),
+                       ("center_bias.lr", "bias_lr", "Table II centre bias, LR"),
+                       ("radius_mae.overall", "radius", "Table II radius MAE"))),
+             ("targeting", (("euclidean", "euclidean", "Targeting error, Euclidean"),
+                            ("bias.lr", "bias_lr", "Targeting bias, LR"))))
+
+
+def _paper_key(study: str, key: str) -> str:
+    return f"table2.{key}" if study == "pose" else f"targeting.{key}"
+
+
+def _distribution_rows(stats: pd.DataFrame, study: str, keys) -> list[dict]:
+    columns = {"euclidean": ("euclidean_mean_mm", "euclidean_sd_mm"), "bias_lr": ("bias_lr_mm", None),
+               "radius": ("radius_mae_mm", None)}
+    out = []
+    for key, what, text in keys:
+        mean_col, sd_col = columns[what]
+        if mean_col not in stats:
+            continue
+        values = stats[mean_col].to_numpy(float)
+        finite = values[np.isfinite(values)]
+        if finite.size == 0:
+            continue
+        median = float(np.median(finite))
+        sds = stats[sd_col].to_numpy(float) if sd_col in stats else np.array([])
+        ours = (median, float(np.median(sds[np.isfinite(sds)]))) if np.isfinite(sds).any() else median
+        lo, hi = np.percentile(finite, (5.0, 95.0))
+        lab0 = stats.loc[stats["lab"] == 0, mean_col]
+        first = f"; lab 0 alone: {float(lab0.iloc[0]):.2f} mm" if len(lab0) and np.isfinite(lab0.iloc[0]) else ""
+        out.append(dict(key=f"budget.lab.{study}.{key}", label=f"{text} (lab)", ours=ours, unit="mm",
+                        paper_key=_paper_key(study, key),
+                        note=f"lab error model, all sources on: median of {finite.size} labs (each lab's mean over its "
+                             f"experiments{', ± the median SD' if isinstance(ours, tuple) else ''}); 5-95 % band of "
+                             f"the labs {lo:.2f} to {hi:.2f} mm{first}"))
     return out

@@ -81,7 +81,7 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
                    physical: TransducerModel, views: Sequence[View], seed: int,
                    segmenter: Segmenter | None = None, orientation: OrientationSource | None = None,
                    progress: Callable[[str], None] | None = None, estimator_views: Sequence[View] | None = None,
-                   experiments: Sequence[int] | None = None) -> pd.DataFrame:
+                   experiments: Sequence[int] | None = None, acquisition_views=None) -> pd.DataFrame:
     """Run the experiments; one row per (experiment, position, mode, maps), plus tracking rows.
 
     Columns: experiment, radius_mm, position, mode, maps, the true and predicted focal points
@@ -95,7 +95,10 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
     the paper's angle MAE); pass learned ones to run the study on them.
 
     ``views`` make the frames (the C-arm's true geometry); ``estimator_views``, when given, are
-    what the estimator is told (a lab's calibration, :mod:`~histostudy.study.budget._sources`).
+    what the estimator is told (a lab's calibration, :mod:`~histostudy.study.budget._sources`);
+    ``acquisition_views(experiment, acquisition, views)``, when given, those it is told at each
+    acquisition (0 the centre, then the margins in order: a lab's per-acquisition C-arm
+    reproducibility), the frames unchanged.
     ``experiments``: run only these experiment indices (the others are drawn, not rendered, so
     each keeps its numbers).
     """
@@ -113,10 +116,11 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
         e, radius, scene = exp.experiment, exp.radius_mm, exp.scene
         axes = transducer_axes(exp.T_centre)
         centre_estimate = None
-        for position, T_true in exp.T_true.items():
+        for acquisition, (position, T_true) in enumerate(exp.T_true.items()):
+            told = estimator_views if acquisition_views is None else acquisition_views(e, acquisition, estimator_views)
             frames = [render_frame(render_model, T_true, v, rng=rng_render, physical=physical, background=scene,
                                    **config.frame_kwargs()).with_view(given)
-                      for v, given in zip(views, estimator_views)]
+                      for v, given in zip(views, told)]
             truth = bubble_cloud_centre_mm(physical, T_true, config.bubble_offset_mm)
             variants = list(config.variants)
             if config.track and position != "centre":

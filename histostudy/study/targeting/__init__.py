@@ -73,7 +73,7 @@ from ._notebook import (RECORDED_PARAMETERS, ROBOTS, SECTION_TITLE, NotebookSeed
                         closing_text, config_from_parameters, experiments_section, notebook_seeds, prepare,
                         prepare_study, record, run_prepared_study, sensitivity_section, stand_ins, targeting_part)
 from ._positioning import (DOWN, position_for_target, scene_at_target, target_orientation, tcp_for_target)
-from ._robots import (robot_seed, rtde_robot, sim_robot)
+from ._robots import (InaccurateArm, KinematicError, reported_flange_pose, robot_seed, rtde_robot, sim_robot)
 from ._setup import (GroundTruth, TargetingError, TargetingStudyConfig, draw_ground_truth, start_joints)
 from ._summary import (CALIBRATION_TABLE_CAPTION, ERROR_TABLE_CAPTION, SUMMARY_TABLE_CAPTION, calibration_table,
                        error_table, first_robot_rows, robot_max_difference, sensitivity_caption, sensitivity_medians,

@@ -23,6 +23,7 @@ from histostudy.learning import OracleOrientation
 from histostudy.pose import PoseEstimationError, estimate_pose
 from histostudy.robot import Robot
 from histostudy.transducer import TransducerModel
+from ._robots import InaccurateArm, reported_flange_pose
 from ._setup import GroundTruth, TargetingError, TargetingStudyConfig
 
 # HALF_TURN lives in histostudy.calibration.targeting; named here too for the study's users.
@@ -60,7 +61,8 @@ def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConf
                     render_model: TransducerModel, physical: TransducerModel, views: Sequence[View],
                     rng_pose: np.random.Generator, rng_scene: np.random.Generator, rng_render: np.random.Generator,
                     rng_est: np.random.Generator, segmenter=None, orientation=None,
-                    estimator_views: Sequence[View] | None = None) -> tuple[HandEyeCalibration, pd.DataFrame]:
+                    estimator_views: Sequence[View] | None = None,
+                    acquisition_views=None) -> tuple[HandEyeCalibration, pd.DataFrame]:
     """§II-C on ``robot``: move to the preprogrammed poses, estimate the transducer pose from a
     biplane pair rendered from the true pose at each, calibrate, check the residuals.
 
@@ -69,7 +71,10 @@ def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConf
     segmenter and the oracle orientation.
 
     ``views`` make the frames (the C-arm's true geometry); ``estimator_views``, when given, are
-    what the estimator is told (a lab's calibration of the C-arm).
+    what the estimator is told (a lab's calibration of the C-arm); ``acquisition_views(k, views)``,
+    when given, the views it is told at pose ``k`` (a lab's per-acquisition C-arm reproducibility).
+    The encoders' reading (:func:`~._robots.reported_flange_pose`) enters the calibration; the frames
+    are rendered where the flange really is (an :class:`~._robots.InaccurateArm`'s ``flange_pose()``).
 
     Returns the checked calibration and one row per pose (the true and estimated focal points,
     the pose-estimation error). Raises :class:`TargetingError` when a pose estimate fails its
@@ -85,10 +90,12 @@ def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConf
     F, C, rows = [], [], []
     for k, T_cmd in enumerate(calibration_poses(rng_pose, config, truth)):
         robot.move_linear(T_cmd)
-        F_k = robot.flange_pose()  # what the encoders say
-        T_true = truth.T_carm_transducer(F_k)
+        F_k = reported_flange_pose(robot)  # what the encoders say
+        # only a simulated inaccurate arm knows where its flange really is; any other robot is its reading
+        T_true = truth.T_carm_transducer(robot.flange_pose() if isinstance(robot, InaccurateArm) else F_k)
+        told = estimator_views if acquisition_views is None else acquisition_views(k, estimator_views)
         frames = [render_frame(render_model, T_true, v, rng=rng_render, physical=physical, background=scene,
-                               **config.frame_kwargs()).with_view(given) for v, given in zip(views, estimator_views)]
+                               **config.frame_kwargs()).with_view(given) for v, given in zip(views, told)]
         try:
             res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=orientation,
                                 rng=np.random.default_rng(rng_est.integers(2**63)), mode=config.pose_mode)

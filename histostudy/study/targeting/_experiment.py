@@ -76,12 +76,13 @@ def run_targeting_experiment(config: TargetingStudyConfig, seq: np.random.SeedSe
                              pose_model: TransducerModel, render_model: TransducerModel, physical: TransducerModel,
                              views: Sequence[View], robot_factory=None, keep_volumes: bool = False,
                              experiment: int = 0, segmenter=None, orientation=None,
-                             estimator_views: Sequence[View] | None = None) -> dict:
+                             estimator_views: Sequence[View] | None = None, acquisition_views=None) -> dict:
     """One experiment (module docstring) from the seed sequence ``seq``; returns one flat row.
 
     ``segmenter`` / ``orientation``: the calibration's pose-estimation stages (see
     :func:`calibrate_robot`; None: the oracles). ``estimator_views``: the views the estimator is
-    told, when they differ from the ``views`` that make the frames (a lab's calibration).
+    told, when they differ from the ``views`` that make the frames (a lab's calibration);
+    ``acquisition_views(k, views)``: those told at calibration pose ``k`` (see :func:`calibrate_robot`).
 
     ``robot_factory(seed, initial_joints_rad) -> context manager yielding a Robot`` (default
     :func:`sim_robot`); the robot starts where the operator jogged it, the flange pointing down
@@ -118,7 +119,7 @@ def run_targeting_experiment(config: TargetingStudyConfig, seq: np.random.SeedSe
                                         rng_scene=np.random.default_rng(s_scene),
                                         rng_render=np.random.default_rng(s_render), rng_est=np.random.default_rng(s_est),
                                         segmenter=segmenter, orientation=orientation,
-                                        estimator_views=estimator_views)
+                                        estimator_views=estimator_views, acquisition_views=acquisition_views)
         R_des = target_orientation(cal)
         axes = transducer_axes(make_transform(R_des))
         row.update({f"axis_{d}_{a}": float(v) for d in DIRECTIONS for a, v in zip("xyz", axes[d])})

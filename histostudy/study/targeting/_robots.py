@@ -5,6 +5,11 @@ Each factory takes the experiment's integer robot seed (the controller's ``--see
 start joints (rad) and yields a :class:`~histostudy.robot.Robot` as a context manager, so that
 the same study seed gives the same moves, and the same numbers, on either robot (up to the float
 round trip of the metre/axis-angle boundary, far below 1e-6 mm).
+
+An arm whose true kinematics differ from the nominal DH table its controller inverts (a lab's
+robot accuracy, §II-C's "rTe can be calculated for every pose" taken as only nearly true):
+:class:`KinematicError` and the :class:`InaccurateArm` wrapper that :func:`sim_robot` puts around
+the simulation when given one.
 """
 
 from __future__ import annotations
@@ -13,13 +18,93 @@ import contextlib
 import itertools
 import os
 import threading
+from dataclasses import dataclass
 
 import numpy as np
 
-from histostudy.robot import HOME_JOINTS_RAD, SimulatedUR5e
+from histostudy.robot import HOME_JOINTS_RAD, UR5E, SimulatedUR5e, forward_kinematics
+from histostudy.robot.kinematics import DHSpec
 from ._setup import TargetingStudyConfig
 
-__all__ = ["robot_seed", "rtde_robot", "sim_robot"]
+__all__ = ["InaccurateArm", "KinematicError", "reported_flange_pose", "robot_seed", "rtde_robot", "sim_robot"]
+
+
+@dataclass(frozen=True, eq=False)
+class KinematicError:
+    """An arm's true DH parameters less its nominal table's: ``d_mm`` and ``a_mm`` (6 each, mm),
+    ``alpha_rad`` and the joint zero offsets ``theta_rad`` (6 each, rad)."""
+
+    d_mm: np.ndarray
+    a_mm: np.ndarray
+    alpha_rad: np.ndarray
+    theta_rad: np.ndarray
+
+    @classmethod
+    def from_normals(cls, normals, *, length_sd_mm: float, angle_sd_rad: float) -> "KinematicError":
+        """Standard normals (4, 6: d, a, alpha, theta) scaled by the lengths' SD (mm) and the
+        angles' (rad), so that a magnitude changes no draw."""
+        z = np.asarray(normals, dtype=np.float64)
+        if z.shape != (4, 6) or not np.all(np.isfinite(z)):
+            raise ValueError(f"normals must be a finite (4, 6) array (d, a, alpha, theta), got shape {z.shape}")
+        return cls(length_sd_mm * z[0], length_sd_mm * z[1], angle_sd_rad * z[2], angle_sd_rad * z[3])
+
+    def physical_dh(self, dh: DHSpec = UR5E) -> DHSpec:
+        """The arm's true table: ``dh`` plus the length and twist errors (mm, rad)."""
+        return DHSpec(tuple(np.asarray(dh.d_mm) + self.d_mm), tuple(np.asarray(dh.a_mm) + self.a_mm),
+                      tuple(np.asarray(dh.alpha_rad) + self.alpha_rad))
+
+    def flange_pose(self, joints_rad, dh: DHSpec = UR5E) -> np.ndarray:
+        """Where the flange really is (``T_base_flange``, mm) at the encoders' ``joints_rad``."""
+        return forward_kinematics(np.asarray(joints_rad, dtype=np.float64) + self.theta_rad, self.physical_dh(dh))
+
+
+class InaccurateArm:
+    """A robot whose arm is not its controller's model (the simulation's view of a real arm).
+
+    The wrapped robot plans every move and reads its joints through the nominal table, as a UR
+    controller does; the flange sits where :class:`KinematicError` puts it. ``flange_pose``,
+    ``tcp_pose`` and ``move_linear``'s return are therefore the TRUE poses (what the study's ground
+    truth is built from), and :meth:`reported_flange_pose` what the controller reports. Every other
+    attribute is the wrapped robot's.
+    """
+
+    def __init__(self, robot, error: KinematicError):
+        if not isinstance(error, KinematicError):
+            raise TypeError(f"error must be a KinematicError, got {type(error).__name__}")
+        self._robot, self.kinematic_error = robot, error
+
+    def __getattr__(self, name):
+        return getattr(self._robot, name)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self._robot.close()
+
+    def flange_pose(self) -> np.ndarray:
+        """The true ``T_base_flange`` (mm)."""
+        return self.kinematic_error.flange_pose(self._robot.joints(), getattr(self._robot, "dh", UR5E))
+
+    def tcp_pose(self) -> np.ndarray:
+        """The true ``T_base_tcp`` (mm)."""
+        return self.flange_pose() @ self._robot.tcp_offset()
+
+    def reported_flange_pose(self) -> np.ndarray:
+        """``T_base_flange`` as the controller reports it (the nominal table, mm)."""
+        return self._robot.flange_pose()
+
+    def move_linear(self, T_base_tcp, *args, **kwargs) -> np.ndarray:
+        """The wrapped robot's move (planned through the nominal table); returns the true ``T_base_tcp``."""
+        self._robot.move_linear(T_base_tcp, *args, **kwargs)
+        return self.tcp_pose()
+
+
+def reported_flange_pose(robot) -> np.ndarray:
+    """What the robot's controller reports as ``T_base_flange`` (mm): an :class:`InaccurateArm`'s
+    nominal reading, any other robot's ``flange_pose()``."""
+    reported = getattr(robot, "reported_flange_pose", None)
+    return robot.flange_pose() if reported is None else reported()
 
 
 def robot_seed(seq: np.random.SeedSequence) -> int:
@@ -27,15 +112,16 @@ def robot_seed(seq: np.random.SeedSequence) -> int:
     return int(seq.generate_state(1)[0])
 
 
-def sim_robot(config: TargetingStudyConfig):
-    """A robot factory for :func:`run_targeting_experiment`: ``SimulatedUR5e`` in process."""
+def sim_robot(config: TargetingStudyConfig, kinematic_error: KinematicError | None = None):
+    """A robot factory for :func:`run_targeting_experiment`: ``SimulatedUR5e`` in process, inside an
+    :class:`InaccurateArm` when ``kinematic_error`` is given (a lab's arm)."""
 
     @contextlib.contextmanager
     def factory(seed: int, initial_joints_rad=HOME_JOINTS_RAD):
         robot = SimulatedUR5e(int(seed), repeatability_mm=config.robot_repeatability_mm,
                               initial_joints_rad=initial_joints_rad)
         try:
-            yield robot
+            yield robot if kinematic_error is None else InaccurateArm(robot, kinematic_error)
         finally:
             robot.close()
 

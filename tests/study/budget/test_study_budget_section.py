@@ -13,7 +13,7 @@ DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, pose
                 render_spacing_mm=0.25, background="phantom", pose_experiments=1, targeting_experiments=1,
                 learned_stages=True, sources=("manufacturing", "bubble_offset", "projection", "gantry_sag",
                                               "registration", "annotation", "robot", "phantom_motion"),
-                scheduler="")
+                n_labs=3, scheduler="")
 
 
 def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones(notebook_parameters):
@@ -56,7 +56,8 @@ def test_the_parts_of_a_budget(setup, monkeypatch, recording_timer):
 
     monkeypatch.setattr(budget_notebook, "run_error_budget", fake_budget)
     monkeypatch.setattr(budget_notebook, "configuration_table", lambda records, study: pd.DataFrame({"study": [study]}))
-    monkeypatch.setattr(budget_notebook, "budget_comparisons", lambda records: [dict(key="k", label="", ours=1.0)])
+    monkeypatch.setattr(budget_notebook, "budget_comparisons",
+                        lambda records, labs: [dict(key="k", label="", ours=1.0, labs=labs)])
     timer, timed = recording_timer()
 
     run = B.budget_section(setup, timer=timer)
@@ -64,5 +65,10 @@ def test_the_parts_of_a_budget(setup, monkeypatch, recording_timer):
     assert list(run.part.tables) == ["pose_configurations", "targeting_configurations"]
     assert run.pose_table["study"][0] == "pose" and run.targeting_table["study"][0] == "targeting"
     closing = B.closing_part(setup, run.records)
-    assert closing.comparisons == (dict(key="k", label="", ours=1.0),) and closing.stand_ins == tuple(B.stand_ins())
-    assert closing.texts[0].startswith("1 pose and 1 targeting experiment(s) per configuration")
+    assert closing.comparisons == (dict(key="k", label="", ours=1.0, labs=None),)
+    assert closing.stand_ins == tuple(B.stand_ins())
+    assert closing.texts[0].startswith("1 pose and 1 targeting experiment(s) per configuration, one lab (lab 0)")
+    assert "median over" not in closing.texts[0]
+    labs = pd.DataFrame({"lab": [0, 1, 2, 0, 1, 2], "study": ["pose"] * 3 + ["targeting"] * 3})
+    many = B.closing_part(setup, run.records, labs)
+    assert many.comparisons[0]["labs"] is labs and "the median over 3 labs" in many.texts[0]

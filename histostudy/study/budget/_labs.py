@@ -1,0 +1,196 @@
+"""Many labs (§III, §IV): the lab error model drawn for several labs, each lab's pose and targeting
+experiments run with all its sources on, on :func:`histostudy.core.run_sweep`.
+
+A lab is one draw of the systematic sources (the transducer's tolerances, the bubble offset, the
+C-arm's calibration error and sag) with its own per-experiment draws; the paper's figures are one
+lab's. Lab 0 is the notebook's single lab (:func:`~._sources.draw_lab` on the lab seed, its
+transducer from the study's physical seed); lab ``k >= 1`` draws everything, its transducer
+included, from :func:`lab_seed` ``(seed, k)``. Every lab runs the same experiments (the study seed:
+poses, scenes, noise, robot landings), so the labs differ only in what the lab model draws.
+
+Work is shared where it is exact. The frames of an experiment depend on the transducer that makes
+them, the true views and, for the targeting calibration, the arm (``manufacturing``,
+``gantry_sag``, ``robot_accuracy``), not on what the estimator is told (``projection``,
+``carm_reproducibility``) nor on the bubble offset or the CBCT readings: labs whose frames are
+alike (:func:`frames_alike`) render each frame once and segment it once
+(:func:`~._shared.shared_work`: the same inputs and
+Generator state give the same output and leave the Generator where the first call left it), and
+the estimate (distance maps included) runs per lab, as its views differ. Labs whose frames differ
+share nothing. C-arm frame, mm.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from histostudy.core import SweepExecutor, run_sweep
+from histostudy.imaging import View
+from histostudy.transducer import TransducerModel
+from ._run import BudgetSetup, _pose_task, _targeting_task
+from ._shared import shared_work
+from ._sources import LabDraw, LabErrorModel, draw_lab
+
+__all__ = ["LAB_MAGNITUDES", "draw_labs", "frames_alike", "lab_magnitudes", "lab_seed",
+           "labs_records", "run_labs"]
+
+#: The spawn-key element under which labs ``k >= 1`` draw (distinct from every source's stream index).
+_LABS_KEY = 0x4C414253
+
+#: The systematic sources with a per-lab magnitude (:func:`lab_magnitudes`) and what it measures (mm).
+LAB_MAGNITUDES = {
+    "manufacturing": "distance of the lab's transducer's focal point from the digital model's",
+    "bubble_offset": "length of the bubble cloud's offset from the physical focal point",
+    "projection": "shift of the isocentre's projection, calibrated against true view, at the detector, mean of "
+                  "the planes",
+    "gantry_sag": "displacement of each plane's source by the sag, mean of the planes",
+}
+
+
+def lab_seed(seed, index: int) -> np.random.SeedSequence:
+    """Lab ``index``'s seed: ``seed`` itself (an int or a ``SeedSequence``) for lab 0, else the child
+    of ``seed`` at spawn key ``(..., LABS, index)``, apart from every stream lab 0 draws from."""
+    seq = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(int(seed))
+    if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or index < 0:
+        raise ValueError(f"index must be an integer >= 0, got {index!r}")
+    if index == 0:
+        return seq
+    return np.random.SeedSequence(seq.entropy, spawn_key=(*seq.spawn_key, _LABS_KEY, int(index)),
+                                  pool_size=seq.pool_size)
+
+
+def draw_labs(model: LabErrorModel, seed, n_labs: int, *, physical: TransducerModel, views,
+              physical_seed: np.random.SeedSequence | int | None = None) -> list[LabDraw]:
+    """``n_labs`` labs of ``model``: lab 0 is ``draw_lab(model, seed, physical=physical, views=views,
+    physical_seed=physical_seed)`` (the notebook's single lab, number for number); lab ``k``
+    draws from :func:`lab_seed` ``(seed, k)``, its transducer from its own stream (each lab has its
+    own transducer)."""
+    if isinstance(n_labs, bool) or not isinstance(n_labs, (int, np.integer)) or n_labs < 1:
+        raise ValueError(f"n_labs must be an integer >= 1, got {n_labs!r}")
+    seq = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(int(seed))
+    labs = [draw_lab(model, seq, physical=physical, views=views, physical_seed=physical_seed)]
+    labs += [draw_lab(model, lab_seed(seq, k), physical=physical, views=views) for k in range(1, int(n_labs))]
+    return labs
+
+
+def frames_alike(labs: Sequence[LabDraw], study: str = "pose") -> bool:
+    """Whether every lab makes ``study``'s frames alike, so that the labs can share renders and
+    segmentations: the same transducer object and the same true views (projection matrices), and
+    for ``"targeting"`` the same arm (``robot_accuracy`` off: its kinematic error moves the
+    calibration poses)."""
+    labs = list(labs)
+    first = labs[0]
+    if study == "targeting" and any(getattr(lab.model, "robot_accuracy", None) is not None for lab in labs):
+        return False
+    return all(lab.physical is first.physical and len(lab.frame_views) == len(first.frame_views)
+               and all(np.array_equal(a.P, b.P) for a, b in zip(lab.frame_views, first.frame_views))
+               for lab in labs[1:])
+
+
+def _labs_task(task: tuple, *, setup: BudgetSetup, labs: Sequence[LabDraw], share: bool) -> pd.DataFrame:
+    """The "lab" configuration of each lab of the task's chunk, on one experiment of one study."""
+    study, seed, experiment, indices = task
+    run = _pose_task if study == "pose" else _targeting_task
+    config = setup.pose_config if study == "pose" else setup.targeting_config
+    frames = []
+    scope = shared_work(setup, config) if share else contextlib.nullcontext((setup, None, None))
+    with scope as (base, memo, seg):
+        for k in indices:
+            lab = labs[k]
+            frame = run(dataclasses.replace(base, lab=lab), seed, experiment, [("lab", lab.model)])
+            frame.insert(0, "lab", int(k))
+            frame.insert(0, "study", study)
+            frames.append(frame)
+    out = pd.concat(frames, ignore_index=True)
+    out.attrs["frames"] = (memo.misses, memo.hits) if share else (0, 0)
+    out.attrs["segmentations"] = (seg.misses, seg.hits) if share else (0, 0)
+    return out
+
+
+def run_labs(setup: BudgetSetup, labs: Sequence[LabDraw], *, seed: int, indices: Sequence[int] | None = None,
+             executor: SweepExecutor | str | None = None, labs_per_task: int | None = None,
+             studies: Sequence[str] = ("pose", "targeting"), share: bool = True,
+             progress: bool = False) -> pd.DataFrame:
+    """Run every lab of ``labs`` (:func:`draw_labs`) with all its sources on, on ``setup``'s pose and
+    targeting experiments and the study ``seed``: the "lab" configuration of
+    :func:`~._run.run_error_budget` for each lab, number for number.
+
+    One row per (study, lab, experiment): ``lab`` (``indices[i]`` for ``labs[i]``, default
+    ``0, 1, ...``) and the columns of :func:`~._run.run_error_budget`. One task per (study,
+    experiment, chunk of ``labs_per_task`` labs) goes through :func:`histostudy.core.run_sweep`
+    (``executor``: sequential, local processes or a dask cluster); default: all the labs in one
+    chunk when their frames are alike (:func:`frames_alike`), so that they share renders and
+    segmentations (``share``), else one lab per task (per study). The numbers depend neither on the
+    executor nor on the chunks. ``attrs["frames"]`` and ``attrs["segmentations"]``: (made, shared)
+    over all tasks.
+    """
+    if not isinstance(setup, BudgetSetup):
+        raise TypeError(f"setup must be a BudgetSetup, got {type(setup).__name__}")
+    labs = list(labs)
+    if not labs or not all(isinstance(lab, LabDraw) for lab in labs):
+        raise ValueError("labs must be a non-empty sequence of LabDraw (draw_labs)")
+    indices = list(range(len(labs))) if indices is None else [int(i) for i in indices]
+    if len(indices) != len(labs) or len(set(indices)) != len(indices):
+        raise ValueError(f"indices must name each of the {len(labs)} labs once, got {indices!r}")
+    studies = tuple(studies)
+    if not studies or any(s not in ("pose", "targeting") for s in studies):
+        raise ValueError(f"studies must name 'pose' and/or 'targeting', got {studies!r}")
+    if labs_per_task is not None and (isinstance(labs_per_task, bool) or not isinstance(labs_per_task, (int, np.integer))
+                                      or labs_per_task < 1):
+        raise ValueError(f"labs_per_task must be an integer >= 1 or None, got {labs_per_task!r}")
+    tasks = []
+    for study in studies:
+        size = labs_per_task or (len(labs) if share and frames_alike(labs, study) else 1)
+        chunks = [tuple(range(i, min(i + size, len(labs)))) for i in range(0, len(labs), size)]
+        tasks += [(study, int(seed), e, chunk) for e in range(getattr(setup, f"{study}_config").n_experiments)
+                  for chunk in chunks]
+    frames = run_sweep(_labs_task, tasks, executor=executor, shared={"setup": setup, "labs": labs, "share": share},
+                       chunk_size=1, progress=progress)
+    out = pd.concat(frames, ignore_index=True)
+    out["lab"] = [indices[k] for k in out["lab"]]
+    out = out.sort_values(["study", "lab", "experiment"], kind="stable").reset_index(drop=True)
+    out.attrs["frames"] = tuple(int(sum(f.attrs["frames"][i] for f in frames)) for i in (0, 1))
+    out.attrs["segmentations"] = tuple(int(sum(f.attrs["segmentations"][i] for f in frames)) for i in (0, 1))
+    return out
+
+
+def labs_records(budget_records: pd.DataFrame, more: pd.DataFrame | None = None) -> pd.DataFrame:
+    """Lab 0's rows from :func:`~._run.run_error_budget`'s records (its "lab" configuration) as
+    ``lab`` 0, and the rows of :func:`run_labs` for the other labs (``more``), in one table."""
+    lab0 = budget_records[budget_records["configuration"] == "lab"].copy()
+    lab0.insert(1, "lab", 0)
+    frames = [lab0] if more is None or more.empty else [lab0, more[more["lab"] != 0]]
+    out = pd.concat(frames, ignore_index=True)
+    return out.sort_values(["study", "lab", "experiment"], kind="stable").reset_index(drop=True)
+
+
+def _isocentre_shift_mm(a: View, b: View) -> float:
+    origin = np.zeros((1, 3))
+    return float(np.linalg.norm(a.project(origin) - b.project(origin)) * a.pixel_mm)
+
+
+def lab_magnitudes(labs: Sequence[LabDraw], indices: Sequence[int] | None = None) -> pd.DataFrame:
+    """One row per lab (``lab``), one column per systematic source of :data:`LAB_MAGNITUDES` that the
+    labs' model has on: the size of that lab's draw (mm, as :data:`LAB_MAGNITUDES` says)."""
+    labs = list(labs)
+    indices = list(range(len(labs))) if indices is None else list(indices)
+    rows = []
+    for k, lab in zip(indices, labs):
+        on = set(lab.model.enabled)
+        row = {"lab": int(k)}
+        if "manufacturing" in on:
+            row["manufacturing"] = float(np.linalg.norm(lab.physical.focal_point_mm))
+        if "bubble_offset" in on:
+            row["bubble_offset"] = float(np.linalg.norm(lab.bubble_offset_mm))
+        if "projection" in on:
+            row["projection"] = float(np.mean([_isocentre_shift_mm(e, s)
+                                               for e, s in zip(lab.estimator_views, lab.study_views)]))
+        if "gantry_sag" in on:
+            row["gantry_sag"] = float(np.mean([np.linalg.norm(f.source_mm - s.source_mm)
+                                               for f, s in zip(lab.frame_views, lab.study_views)]))
+        rows.append(row)
+    return pd.DataFrame(rows)
