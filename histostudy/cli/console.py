@@ -21,7 +21,8 @@ import threading
 import time
 from typing import Iterable
 
-__all__ = ["Steps", "add_command", "common_parent", "configure_logging", "elapsed_since", "emit", "fail", "log"]
+__all__ = ["Steps", "add_command", "common_parent", "configure_logging", "elapsed_since", "emit", "fail", "log",
+           "positive_int"]
 
 #: The commands' own lines (stderr).
 log = logging.getLogger("histostudy.cli")
@@ -76,6 +77,17 @@ class _StderrHandler(logging.StreamHandler):
     def emit(self, record):
         self.stream = sys.stderr
         super().emit(record)
+
+
+def positive_int(value: str) -> int:
+    """An argument that must be an integer >= 1."""
+    try:
+        number = int(value)
+    except ValueError:
+        number = 0
+    if number < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value!r}")
+    return number
 
 
 def emit(summary: dict) -> None:

@@ -10,7 +10,7 @@ import signal
 import sys
 
 from histostudy.reporting import PROFILE_NAMES, load_profile
-from .console import add_command
+from .console import add_command, positive_int
 
 #: The ``[training.<table>]`` tables ``histostudy train`` runs (histostudy.learning.TRAINING_TABLES).
 TRAINING_TABLE_NAMES = ("segmentation", "orientation", "segmentation_tracking", "segmentation_tracking_fine",
@@ -26,14 +26,7 @@ def _profile(value: str):
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _positive_int(value: str) -> int:
-    try:
-        number = int(value)
-    except ValueError:
-        number = 0
-    if number < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value!r}")
-    return number
+_positive_int = positive_int  # the one check of a count argument (cli/console.py)
 
 
 def add_parsers(sub, parents) -> None:

@@ -10,17 +10,6 @@ import pytest
 from histostudy.cli import main
 from histostudy.robot import forward_kinematics
 from histostudy.robot.controller._process import ControllerProcess
-from histostudy.study.lab_dataset import write_lab_dataset
-
-
-@pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    return write_lab_dataset(tmp_path_factory.mktemp("lab"), seed=5, n_cine_frames=2)
-
-
-@pytest.fixture(scope="module")
-def truth(lab):
-    return {k: np.asarray(v) if isinstance(v, list) else v for k, v in json.loads(lab.truth.read_text()).items()}
 
 
 @pytest.fixture(scope="module")

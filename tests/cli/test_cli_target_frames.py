@@ -14,20 +14,9 @@ from histostudy.calibration import HandEyeCalibration
 from histostudy.cli import main
 from histostudy.core import WORLD_FRAME
 from histostudy.lab import READINGS, plan_targeting
-from histostudy.study.lab_dataset import write_lab_dataset
 from histostudy.transducer import HALF_TURN
 
 VOXEL = (36, 37, 31)
-
-
-@pytest.fixture(scope="module")
-def lab(tmp_path_factory):
-    return write_lab_dataset(tmp_path_factory.mktemp("lab"), seed=5, n_cine_frames=2)
-
-
-@pytest.fixture(scope="module")
-def truth(lab):
-    return {k: np.asarray(v) if isinstance(v, list) else v for k, v in json.loads(lab.truth.read_text()).items()}
 
 
 @pytest.fixture(scope="module")

@@ -8,23 +8,13 @@ import argparse
 from pathlib import Path
 
 from histostudy.core import WORLD_FRAME
+from ..console import positive_int
 
 __all__ = ["FRAME_SUFFIXES", "WORLD_FRAME", "check_frames", "check_transducer", "estimate_from_files", "frame_options",
            "model_from_args", "positive_int", "residual_options", "triple"]
 
 FRAME_SUFFIXES = (".dcm", ".dicom", ".npy", ".png", ".tif", ".tiff")
 _MESH_SUFFIXES = (".stl", ".ply", ".obj", ".vtp")
-
-
-def positive_int(value: str) -> int:
-    """An argument that must be an integer >= 1."""
-    try:
-        number = int(value)
-    except ValueError:
-        number = 0
-    if number < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value!r}")
-    return number
 
 
 def triple(text: str) -> tuple[float, float, float]:
