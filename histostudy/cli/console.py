@@ -19,7 +19,6 @@ import logging
 import sys
 import threading
 import time
-from typing import Iterable
 
 __all__ = ["Steps", "add_command", "common_parent", "configure_logging", "elapsed_since", "emit", "fail", "log",
            "positive_int"]
@@ -104,12 +103,12 @@ def fail(command: str, exc: BaseException | str, code: int = 2) -> int:
 
 
 class Steps:
-    """A progress bar over named steps (tqdm, on stderr), off unless ``enabled``; the bar redraws
-    every half second so that a long step shows its elapsed time. Use as a context manager and call
-    :meth:`step` before each step."""
+    """A progress bar over ``total`` named steps (tqdm, on stderr), off unless ``enabled``; the bar
+    redraws every half second so that a long step shows its elapsed time. Use as a context manager
+    and call :meth:`step` with each step's name before it."""
 
-    def __init__(self, names: Iterable[str] | int, *, enabled: bool, label: str):
-        self.total = names if isinstance(names, int) else len(list(names))
+    def __init__(self, total: int, *, enabled: bool, label: str):
+        self.total = int(total)
         self.enabled, self.label = bool(enabled), label
         self._bar, self._stop, self._thread, self._started = None, threading.Event(), None, False
 

@@ -31,7 +31,7 @@ from .cost import OUTSIDE_DISTANCE_PX, PARALLEL_MIN_PROJECTIONS, PoseCost
 from .directions import DirectionStage, SourceDirections, check_direction_pair, unit_direction_pair
 from .distance_maps import DistanceMaps, euclidean_distance_map
 from .estimate import estimate_pose
-from .from_files import frames_from_files, half_turn_reading, pose_from_files, pose_record
+from .from_files import frames_from_files, half_turn_reading, match_views, pose_from_files, pose_record
 from .from_labels import estimate_pose_from_labels
 from .init import (COARSE_GRID, FINE_GRID, GridSpec, InitResult, MEDIUM_GRID, PAPER_AXIAL_SEEDS_DEG,
                    ROBUST_AXIAL_SEEDS_DEG, axial_minima, axial_search, grid_offsets, grid_search, initialise_pose,

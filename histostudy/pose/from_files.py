@@ -24,9 +24,24 @@ from histostudy.transducer import HALF_TURN, TransducerModel, half_turn_symmetri
 from .estimate import estimate_pose
 from .result import PoseResult
 
-__all__ = ["frames_from_files", "half_turn_reading", "pose_from_files", "pose_record"]
+__all__ = ["frames_from_files", "half_turn_reading", "match_views", "pose_from_files", "pose_record"]
 
 _DICOM_SUFFIXES = (".dcm", ".dicom", "")
+
+
+def match_views(views: Sequence[View], frame_paths: Sequence[str | os.PathLike]) -> list[View]:
+    """The view of each frame file: ``views`` in the same order when there are as many, else the
+    view named as the file's stem. Raises ValueError (its message to follow the views file's name)
+    when a file has none."""
+    paths = [Path(p) for p in frame_paths]
+    if len(views) == len(paths):
+        return list(views)
+    by_name = {v.name: v for v in views}
+    missing = [p.name for p in paths if p.stem not in by_name]
+    if missing:
+        raise ValueError(f"holds {len(views)} views for {len(paths)} frame files and none named as the stem of "
+                         f"{missing} (a view is matched by order, or by name = the file's stem)")
+    return [by_name[p.stem] for p in paths]
 
 
 def frames_from_files(frame_paths: Sequence[str | os.PathLike], views_path: str | os.PathLike | None = None, *,
@@ -36,14 +51,12 @@ def frames_from_files(frame_paths: Sequence[str | os.PathLike], views_path: str 
     paths = [Path(p) for p in frame_paths]
     if not paths:
         raise ValueError("frame_paths must name at least one frame file")
-    views = None if views_path is None else load_views(views_path)
-    if views is not None and len(views) != len(paths):
-        by_name = {v.name: v for v in views}
-        missing = [p.name for p in paths if p.stem not in by_name]
-        if missing:
-            raise ValueError(f"views file {str(views_path)!r} holds {len(views)} views for {len(paths)} frames and "
-                             f"none named as {missing} (a view is matched by order, or by name = the file's stem)")
-        views = [by_name[p.stem] for p in paths]
+    views = None
+    if views_path is not None:
+        try:
+            views = match_views(load_views(views_path), paths)
+        except ValueError as exc:
+            raise ValueError(f"views file {str(views_path)!r} {exc}") from None
     frames = []
     for i, path in enumerate(paths):
         if views is not None:

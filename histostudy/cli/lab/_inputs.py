@@ -118,9 +118,10 @@ def check_frames(frames, args, *, label: str = "FRAMES") -> None:
 
 
 def _views_of(paths: list, args, label: str) -> list:
-    """Each frame file's view from ``--views`` (matched as frames_from_files matches them), or
-    None for a DICOM file's own tags."""
+    """Each frame file's view from ``--views`` (:func:`histostudy.pose.match_views`, as the estimate
+    matches them), or None for a DICOM file's own tags."""
     from histostudy.imaging import load_views
+    from histostudy.pose import match_views
 
     if args.views is None:
         bare = [p for p in paths if p.suffix.lower() not in _DICOM_SUFFIXES]
@@ -134,14 +135,10 @@ def _views_of(paths: list, args, label: str) -> list:
         views = load_views(args.views)
     except (OSError, ValueError, TypeError, KeyError) as exc:  # load_views lets json's errors through unnamed
         raise ValueError(f"--views {args.views!r} is not a views file: {exc}") from None
-    if len(views) == len(paths):
-        return views
-    by_name = {v.name: v for v in views}
-    missing = [p.name for p in paths if p.stem not in by_name]
-    if missing:
-        raise ValueError(f"--views {args.views!r} holds {len(views)} views for {len(paths)} frame files and none "
-                         f"named as the stem of {missing} (a view is matched by order, or by name = the file's stem)")
-    return [by_name[p.stem] for p in paths]
+    try:
+        return match_views(views, paths)
+    except ValueError as exc:
+        raise ValueError(f"--views {args.views!r} {exc}") from None
 
 
 def _dicom_shape(path: Path, view, args) -> tuple[tuple[int, int], int]:
