@@ -1,7 +1,7 @@
 """The study's subcommands of ``histostudy``: ``reproduce --profile smoke`` (the notebooks through
 papermill, then the report), ``train segmentation|orientation|segmentation_tracking[_fine]``,
 ``calibrate-int8`` (a U-Net's int8 network for CPUs without bfloat16), ``report`` (rebuilt from a
-reproduce folder) and ``profiles``."""
+reproduce folder), ``publish`` (a finished run into docs/results/<profile>) and ``profiles``."""
 
 from __future__ import annotations
 
@@ -47,7 +47,24 @@ def add_parsers(sub, parents) -> None:
     rep.add_argument("--no-progress", action="store_true", help="no per-cell progress bar")
     rep.add_argument("--workers", type=_positive_int, default=1, metavar="N",
                      help="notebooks run at once, each in its own kernel (default: 1; the numbers do not depend on it)")
+    rep.add_argument("--force", action="store_true",
+                     help="run every notebook again, even a section finished with the same content key (notebook, "
+                          "parameters, code, weights, libraries), which is otherwise kept")
     rep.set_defaults(run=_reproduce)
+
+    pub = add_command(
+        sub, "publish", parents, help="publish a finished reproduce folder into the repository (docs/results/<profile>)",
+        description="Copy a finished `histostudy reproduce` run's report, run record, sections' results, tables and "
+                    "figures (not the executed notebooks) into a folder of the repository, replaced whole, and "
+                    "put its headline table into the README between its markers.",
+        example="histostudy publish reports-standard --to docs/results/standard --readme README.md")
+    pub.add_argument("run_dir", metavar="RUN_DIR", help="the folder histostudy reproduce wrote")
+    pub.add_argument("--to", required=True, metavar="DIR", help="where to publish (replaced whole)")
+    pub.add_argument("--readme", default=None, metavar="FILE",
+                     help="a README whose block between <!-- published-headline:begin/end --> gets the headline")
+    pub.add_argument("--partial", action="store_true",
+                     help="publish although some notebooks did not run (the report names them)")
+    pub.set_defaults(run=_publish)
 
     tr = add_command(
         sub, "train", parents, help="train a learned stage (U-Net or VGG19) on hybrid images and export its weights",
@@ -126,7 +143,8 @@ def _reproduce(args) -> int:
 
     try:
         run = run_study(args.profile, args.output, only=args.only, notebooks_dir=args.notebooks,
-                        progress=not args.no_progress and not args.quiet and args.workers == 1, workers=args.workers)
+                        progress=not args.no_progress and not args.quiet and args.workers == 1, workers=args.workers,
+                        force=args.force)
     except NotebookFailed as exc:
         print(f"histostudy reproduce: {exc}", file=sys.stderr)
         return 1
@@ -141,6 +159,24 @@ def _reproduce(args) -> int:
         print(f"histostudy reproduce: {exc}", file=sys.stderr)
         return 2
     print(f"report: {run.report_md}\n        {run.report_html}")
+    return 0
+
+
+def _publish(args) -> int:
+    import os
+    from pathlib import Path
+
+    from histostudy.reporting.publish import publish_run, replace_readme_headline
+
+    try:
+        report = publish_run(args.run_dir, args.to, allow_partial=args.partial)
+        if args.readme:
+            prefix = Path(os.path.relpath(report, Path(args.readme).resolve().parent)).as_posix()
+            replace_readme_headline(args.readme, report.parent, prefix)
+    except (ValueError, OSError) as exc:
+        print(f"histostudy publish: {exc}", file=sys.stderr)
+        return 2
+    print(f"published: {report}")
     return 0
 
 

@@ -91,12 +91,36 @@ def contents_markdown(entries: list[tuple[str, str]]) -> list[str]:
 
 
 def run_facts(run: dict) -> list[str]:
-    """Profile, seed, commit, creation time and the notebooks with their status, as a Markdown list."""
+    """Profile, seed, commit, creation time, machine, wall time and the notebooks with their status
+    and wall time (kept: finished by an earlier run with the same content key), as a Markdown list."""
     prov = run.get("provenance", {})
     notebooks = ", ".join(f"{md_code(n['name'])} ({md_escape(n.get('status', 'pending'))}"
+                          + (", kept" if n.get("kept") else "")
                           + (f", {n['seconds']:.0f} s)" if isinstance(n.get("seconds"), (int, float)) else ")")
                           for n in run.get("notebooks", []))
-    return [f"- Profile: {md_code(run.get('profile'))} (seed {md_escape(run.get('seed'))})",
-            f"- Commit: {md_code(prov.get('git_commit', 'unknown'))}",
-            f"- Created (UTC): {md_escape(prov.get('created_utc', ''))}",
-            f"- Notebooks: {notebooks}", ""]
+    lines = [f"- Profile: {md_code(run.get('profile'))} (seed {md_escape(run.get('seed'))})",
+             f"- Commit: {md_code(prov.get('git_commit', 'unknown'))}",
+             f"- Created (UTC): {md_escape(prov.get('created_utc', ''))}"]
+    machine = prov.get("machine") or {}
+    if machine:
+        flags = machine.get("isa_flags") or {}
+        isa = ", ".join(name for name, present in flags.items() if present) or "none of " + ", ".join(flags)
+        restriction = machine.get("isa_restriction") or {}
+        lines.append(f"- Machine: {md_escape(machine.get('cpu_model', 'unknown CPU'))}, {md_escape(machine.get('cpus'))} "
+                     f"cores; ISA {md_escape(isa)}"
+                     + (f" (held to {md_escape(' '.join(f'{k}={v}' for k, v in restriction.items()))})"
+                        if restriction else ""))
+    timed = [n for n in run.get("notebooks", []) if isinstance(n.get("seconds"), (int, float))]
+    if timed:
+        total = sum(n["seconds"] for n in timed)
+        kept = sum(n["seconds"] for n in timed if n.get("kept"))
+        wall = run.get("wall_seconds")
+        lines.append(f"- Wall time of the sections: {_hours(total)}"
+                     + (f", of which {_hours(kept)} in earlier runs whose sections were kept" if kept else "")
+                     + (f"; this run: {_hours(wall)}" if isinstance(wall, (int, float)) else ""))
+    return lines + [f"- Notebooks: {notebooks}", ""]
+
+
+def _hours(seconds: float) -> str:
+    minutes = seconds / 60
+    return f"{seconds:.0f} s" if minutes < 2 else f"{minutes:.1f} min" if minutes < 120 else f"{minutes / 60:.2f} h"

@@ -4,7 +4,9 @@ then assemble the report.
 ``histostudy reproduce`` calls :func:`run_study`. Each notebook ``notebooks/NN_name.ipynb`` runs
 with the profile's parameters plus ``output_dir = <output>/NN_name``, where it records its
 results (:class:`histostudy.reporting.report.SectionWriter`); the executed notebook lands in
-``<output>/notebooks/``. The kernel is the running interpreter (a kernelspec written to a
+``<output>/notebooks/``. A section whose content key (:mod:`.section_keys`: notebook, parameters,
+code, weights, libraries) matches the one stored when it last finished is kept, not run again, so
+that a rerun or a run after an interruption only does what changed (``force`` redoes all). The kernel is the running interpreter (a kernelspec written to a
 temporary Jupyter path), so the notebooks see exactly the installed package the CLI runs from.
 Before anything runs or is written, the profile is checked against every notebook of the folder
 (:func:`histostudy.reporting.profiles.validate_profile`), so a misspelt table or key stops the
@@ -16,6 +18,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import resource
 import sys
 import tempfile
 import time
@@ -28,6 +31,8 @@ from histostudy.core.provenance import REPO_ROOT
 from .interrupts import StudyInterrupted, remove_temporaries, signals_interrupt, stop_kernels
 from .profiles import Profile, load_profile, validate_profile
 from .report import build_report, write_run_record
+from .section_keys import (SectionKey, changed_parts, estimate_seconds, kept_section, record_key, remove_key,
+                           section_key)
 
 __all__ = ["NotebookFailed", "discover_notebooks", "run_study", "select_notebooks"]
 
@@ -82,7 +87,8 @@ class StudyRun:
 
 def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLike = "reports", *,
               only: Sequence[str] | None = None, notebooks_dir: str | os.PathLike | None = None,
-              progress: bool = True, log: Callable[[str], None] | None = None, workers: int = 1) -> StudyRun:
+              progress: bool = True, log: Callable[[str], None] | None = None, workers: int = 1,
+              force: bool = False) -> StudyRun:
     """Run the study notebooks of ``profile`` into ``output_dir`` and assemble the report.
 
     ``workers``: how many notebooks run at once, each in its own kernel (1: one after the other).
@@ -90,6 +96,12 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
     atomically), and each takes its seed from the profile, so the numbers do not depend on it;
     ``run.json`` lists them in their order either way. A failed notebook stops new ones from
     starting; those already running finish.
+
+    A section whose content key (:func:`~.section_keys.section_key`) equals the one stored when it
+    last finished in ``output_dir`` is kept (``"kept": true`` in ``run.json``, its wall time that of
+    the run that made it); ``force`` runs every notebook again. Before each notebook the log gives
+    the estimate of its wall time and of the run's time left, from the last finished run with the
+    same parameters here or in the published run ``docs/results/<profile>``.
 
     Raises ValueError, before executing or writing anything, when the profile does not fit the
     notebooks of ``notebooks_dir`` (:func:`~histostudy.reporting.profiles.validate_profile`).
@@ -118,10 +130,14 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
         "notebooks": [{"name": p.stem, "status": "pending"} for p in notebooks],
         "failure": None,
     }
-    tasks = [_NotebookTask(i, len(notebooks), nb_path, entry, prof, out, progress, log)
+    workers = min(workers, len(notebooks))
+    tasks = [_NotebookTask(i, len(notebooks), nb_path, entry, prof, out, progress, log, force, workers == 1)
              for i, (nb_path, entry) in enumerate(zip(notebooks, record["notebooks"]), start=1)]
+    _estimate(tasks, out, prof.name)
+    started = time.perf_counter()
     with signals_interrupt(), _running_kernel() as kernel_name:
-        failure = _run_tasks(tasks, kernel_name, min(workers, len(tasks)), record)
+        failure = _run_tasks(tasks, kernel_name, workers, record)
+    record["wall_seconds"] = time.perf_counter() - started
     write_run_record(out, record)
     md, html_path = build_report(out, record)
     if failure is not None:
@@ -141,27 +157,65 @@ class _NotebookTask:
     out: Path
     progress: bool
     log: Callable[[str], None]
+    force: bool = False
+    #: whether this notebook runs alone, so that the CPU time of the finished kernels is its own
+    alone: bool = True
+    #: (estimated wall time in s, where it was measured), or None (:func:`_estimate`)
+    estimate: tuple[float, str] | None = None
+    #: the estimated seconds of this and every later notebook, None where one has no estimate
+    left_s: float | None = None
+    key: SectionKey | None = None
+    #: the stored record of the finished section this run keeps, or None: it runs (:meth:`prepare`)
+    kept: dict | None = None
 
     @property
     def section_dir(self) -> Path:
         return self.out / self.nb_path.stem
 
+    @property
+    def executed_path(self) -> Path:
+        return self.out / "notebooks" / self.nb_path.name
+
+    @property
+    def params(self) -> dict:
+        return self.profile.parameters_for(self.nb_path.stem) | {"output_dir": str(self.section_dir)}
+
+    def prepare(self) -> None:
+        """Compute the content key and whether the finished section is kept."""
+        self.key = section_key(self.nb_path, self.params)
+        self.kept = None if self.force else kept_section(self.section_dir, self.executed_path, self.key)
+
     def run(self, kernel_name: str) -> NotebookFailed | None:
-        """Execute the notebook; its :class:`NotebookFailed` is returned, not raised."""
-        params = self.profile.parameters_for(self.nb_path.stem) | {"output_dir": str(self.section_dir)}
-        self.entry.update(output_dir=str(self.section_dir), parameters=params, status="running")
-        self.log(f"[{self.index}/{self.count}] {self.nb_path.stem} (profile {self.profile.name})")
-        t0 = time.perf_counter()
+        """Execute the notebook, or keep its finished section when its content key is unchanged;
+        its :class:`NotebookFailed` is returned, not raised."""
+        params, name, key, kept = self.params, self.nb_path.stem, self.key, self.kept
+        self.entry.update(output_dir=str(self.section_dir), parameters=params, key=key.key)
+        if kept is not None:
+            self.entry.update(status="ok", kept=True, seconds=kept["seconds"], cpu_seconds=kept.get("cpu_seconds"),
+                              finished_utc=kept.get("finished_utc"))
+            self.log(f"[{self.index}/{self.count}] {name}: unchanged since {kept.get('finished_utc')} "
+                     f"(key {key.key[:12]}), kept ({kept['seconds']:.0f} s then)")
+            return None
+        why = "--force" if self.force else ", ".join(changed_parts(self.section_dir, key))
+        remove_key(self.section_dir)
+        self.entry.update(status="running", kept=False)
+        self.log(f"[{self.index}/{self.count}] {name} (profile {self.profile.name}; runs: {why or 'no finished run'})"
+                 + _estimate_text(self.estimate, self.left_s))
+        t0, cpu0 = time.perf_counter(), _children_cpu_seconds()
         failure = None
         try:
-            _execute(self.nb_path, self.out / "notebooks" / self.nb_path.name, params, kernel_name, self.progress)
+            _execute(self.nb_path, self.executed_path, params, kernel_name, self.progress)
         except NotebookFailed as exc:
             failure = exc
         finally:
             self.entry["seconds"] = time.perf_counter() - t0
+            self.entry["cpu_seconds"] = _children_cpu_seconds() - cpu0 if self.alone else None
         self.entry["status"] = "ok" if failure is None else "failed"
         if failure is None:
-            self.log(f"      {self.nb_path.stem} done in {self.entry['seconds']:.1f} s")
+            record_key(self.section_dir, key, notebook=name, profile=self.profile.name, parameters=params,
+                       seconds=self.entry["seconds"], cpu_seconds=self.entry["cpu_seconds"],
+                       machine=provenance()["machine"])
+            self.log(f"      {name} done in {self.entry['seconds']:.1f} s")
         return failure
 
     def interrupted(self, signal_name: str) -> None:
@@ -169,6 +223,38 @@ class _NotebookTask:
         remove_temporaries(self.section_dir, self.out / "notebooks")
         self.entry.update(status="interrupted")
         self.log(f"      interrupted by {signal_name}: kernel stopped, section {self.nb_path.stem} marked interrupted")
+
+
+def _children_cpu_seconds() -> float:
+    """User + system CPU seconds of this process's finished children (the kernels and their workers)."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def _estimate(tasks: list[_NotebookTask], out: Path, profile_name: str) -> None:
+    """Set each task's estimate from the last finished run with its parameters (this output folder,
+    then the published run of the profile), and the time left from it on."""
+    places = [out, REPO_ROOT / "docs" / "results" / profile_name]
+    left = 0.0
+    for task in reversed(tasks):
+        task.prepare()
+        task.estimate = estimate_seconds(task.nb_path.stem, task.params, places)
+        if task.kept is None:
+            left = None if left is None or task.estimate is None else left + task.estimate[0]
+        task.left_s = left
+
+
+def _estimate_text(estimate: tuple[float, str] | None, left_s: float | None) -> str:
+    if estimate is None:
+        return "; no earlier run with these parameters to estimate its time from"
+    text = f"; about {_duration(estimate[0])} by {estimate[1]}"
+    return text + (f", about {_duration(left_s)} left for the run" if left_s is not None else "")
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    return f"{seconds / 60:.0f} min" if seconds < 5400 else f"{seconds / 3600:.1f} h"
 
 
 def _run_tasks(tasks: list[_NotebookTask], kernel_name: str, workers: int, record: dict):

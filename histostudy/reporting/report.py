@@ -295,10 +295,8 @@ def _failure_banner(failure: dict | None) -> list[str]:
 
 
 def _section_markdown(name: str, res: dict, nb: dict, section_dir: Path) -> list[str]:
-    seconds = nb.get("seconds")
     lines = [f'<a id="{section_anchor(name)}"></a>', "", f"## {md_escape(res.get('title', name))}", ""]
-    lines += [f"*Notebook {md_code(name)}, executed copy {md_code(f'notebooks/{name}.ipynb')}"
-              + (f", {seconds:.1f} s.*" if isinstance(seconds, (int, float)) else ".*"), ""]
+    lines += [_section_facts(name, res, nb), ""]
     for para in res.get("text", []):
         lines += [para, ""]
     comps = res.get("comparisons", [])
@@ -322,6 +320,22 @@ def _section_markdown(name: str, res: dict, nb: dict, section_dir: Path) -> list
     if timings:
         lines += ["Timings: " + md_escape(", ".join(f"{k} {v:.2f} s" for k, v in timings.items())), ""]
     return lines
+
+
+def _section_facts(name: str, res: dict, nb: dict) -> str:
+    """The section's first line: notebook, executed copy, wall and CPU time, and the commit and CPU
+    that made it (a kept section may come from an earlier commit or another machine)."""
+    seconds, cpu = nb.get("seconds"), nb.get("cpu_seconds")
+    prov = res.get("provenance", {})
+    text = f"*Notebook {md_code(name)}, executed copy {md_code(f'notebooks/{name}.ipynb')}"
+    if isinstance(seconds, (int, float)):
+        text += f", {seconds:.1f} s" + (f" ({cpu:.0f} CPU-s)" if isinstance(cpu, (int, float)) else "")
+    if prov.get("git_commit"):
+        text += f"; commit {md_code(str(prov['git_commit'])[:12])}"
+    cpu_model = (prov.get("machine") or {}).get("cpu_model")
+    if cpu_model:
+        text += f" on {md_escape(cpu_model)}, {md_escape(prov['machine'].get('cpus'))} cores"
+    return text + ("; kept from an earlier run (same content key)" if nb.get("kept") else "") + ".*"
 
 
 def _versus_paper(comparison: dict) -> str:

@@ -6,7 +6,7 @@ import json
 import nbformat
 import pytest
 
-from histostudy.reporting import PROFILE_NAMES, discover_notebooks, load_profile, run_study
+from histostudy.reporting import KEY_FILE, PROFILE_NAMES, discover_notebooks, load_profile, run_study
 from histostudy.reporting.pipeline import DEFAULT_NOTEBOOK_DIR
 
 NOTEBOOKS = discover_notebooks(DEFAULT_NOTEBOOK_DIR)
@@ -60,3 +60,13 @@ def test_smoke_study_runs_every_notebook_and_writes_the_report(tmp_path):
             assert (out / p.stem / fig["path"]).stat().st_size > 1000
     assert (out / "report.html").stat().st_size > 1000
     assert not list(out.rglob("*.tmp*"))
+
+    # run again: every section is kept; a section left without its key (as a stopped run leaves the
+    # one it was running) is the only one done again, the cheapest here
+    redo = min(record["notebooks"], key=lambda n: n["seconds"])["name"]
+    (out / redo / KEY_FILE).unlink()
+    stamps = {p.stem: (out / p.stem / "results.json").stat().st_mtime_ns for p in NOTEBOOKS}
+    again = run_study("smoke", out, progress=False, log=lambda m: None, workers=2)
+    assert [n["name"] for n in again.record["notebooks"] if not n["kept"]] == [redo]
+    assert all((out / n / "results.json").stat().st_mtime_ns == t for n, t in stamps.items() if n != redo)
+    assert all(n["status"] == "ok" for n in again.record["notebooks"])

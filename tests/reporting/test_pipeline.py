@@ -189,6 +189,8 @@ def test_a_signal_stops_the_kernel_leaves_no_temporary_file_and_marks_the_sectio
     assert not (out / "02_second" / "big.csv").exists()
     run = json.loads((out / "run.json").read_text())
     assert [n["status"] for n in run["notebooks"]] == ["ok", "interrupted"]
+    # the interrupted section carries no content key: the next run does it again, keeping 01
+    assert (out / "01_first" / "section_key.json").is_file() and not (out / "02_second" / "section_key.json").exists()
     report = (out / "REPORT.md").read_text()
     assert f"interrupted by {signal_name}" in report and "stale" not in report
 
@@ -234,3 +236,56 @@ def test_workers_must_be_a_positive_integer(toy_notebooks, toy_profile, tmp_path
     with pytest.raises(ValueError, match=f"workers must be a positive integer .*got {workers!r}"):
         run_study(toy_profile, tmp_path / "out", notebooks_dir=toy_notebooks, workers=workers)
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow
+def test_a_rerun_keeps_finished_sections_and_redoes_what_changed(toy_notebooks, toy_profile, tmp_path):
+    from histostudy.reporting import KEY_FILE
+
+    out = tmp_path / "reports"
+    run_study(toy_profile, out, notebooks_dir=toy_notebooks, progress=False, log=lambda m: None)
+    stamps = {n: (out / n / "results.json").stat().st_mtime_ns for n in ("01_first", "02_second")}
+    logged = []
+    again = run_study(toy_profile, out, notebooks_dir=toy_notebooks, progress=False, log=logged.append)
+    assert [n["kept"] for n in again.record["notebooks"]] == [True, True]
+    assert all((out / n / "results.json").stat().st_mtime_ns == t for n, t in stamps.items())
+    assert sum("unchanged since" in line for line in logged) == 2
+    assert again.record["notebooks"][0]["seconds"] == json.loads((out / "01_first" / KEY_FILE).read_text())["seconds"]
+    assert "kept from an earlier run" in again.report_md.read_text()
+
+    # a parameter of 02 changes: 02 runs, 01 is kept; the log says why and how long the last run took
+    toy_profile.write_text(toy_profile.read_text().replace("factor = 2", "factor = 5"))
+    logged.clear()
+    changed = run_study(toy_profile, out, notebooks_dir=toy_notebooks, progress=False, log=logged.append)
+    assert [n["kept"] for n in changed.record["notebooks"]] == [True, False]
+    assert any("02_second" in line and "runs: parameters" in line for line in logged), logged
+    assert json.loads((out / "02_second" / "results.json").read_text())["comparisons"][0]["ours"] == 80
+
+    # the notebook changes: it runs again; with force every notebook runs
+    _notebook(toy_notebooks / "01_first.ipynb", ["x = 1", WRITE.format(name="01_first")])
+    logged.clear()
+    run_study(toy_profile, out, notebooks_dir=toy_notebooks, progress=False, log=logged.append)
+    assert any("01_first" in line and "runs: notebook" in line for line in logged), logged
+    forced = run_study(toy_profile, out, notebooks_dir=toy_notebooks, progress=False, log=lambda m: None, force=True)
+    assert [n["kept"] for n in forced.record["notebooks"]] == [False, False]
+
+
+@pytest.mark.slow
+def test_a_run_stopped_by_a_failure_resumes_without_redoing_the_finished_section(toy_notebooks, toy_profile,
+                                                                                tmp_path):
+    from histostudy.reporting import KEY_FILE
+
+    good = (toy_notebooks / "02_second.ipynb").read_bytes()
+    _notebook(toy_notebooks / "02_second.ipynb", ["raise RuntimeError('the machine went away')"])
+    out = tmp_path / "reports"
+    with pytest.raises(NotebookFailed):
+        run_study(toy_profile, out, notebooks_dir=toy_notebooks, progress=False, log=lambda m: None)
+    assert (out / "01_first" / KEY_FILE).is_file() and not (out / "02_second" / KEY_FILE).exists()
+    stamp = (out / "01_first" / "results.json").stat().st_mtime_ns
+    (toy_notebooks / "02_second.ipynb").write_bytes(good)
+    logged = []
+    resumed = run_study(toy_profile, out, notebooks_dir=toy_notebooks, progress=False, log=logged.append)
+    assert [(n["status"], n["kept"]) for n in resumed.record["notebooks"]] == [("ok", True), ("ok", False)]
+    assert (out / "01_first" / "results.json").stat().st_mtime_ns == stamp
+    # the estimate of 02 comes from nowhere (it never finished); the finished 01 is not counted as time left
+    assert any("02_second" in line and "no earlier run with these parameters" in line for line in logged), logged

@@ -1,0 +1,189 @@
+"""A finished run published in the repository (``docs/results/<profile>``), and the checks that keep
+it honest.
+
+:func:`publish_run` copies what a reader needs from a ``histostudy reproduce`` folder: ``run.json``
+(its paths made relative), each section's ``results.json``, ``section_key.json``, tables and
+figures, and rebuilds ``REPORT.md`` and ``report.html`` there (the page is left out when it would
+exceed ``max_html_bytes``; REPORT.md says so). Executed notebooks and caches stay behind. The folder is
+replaced as a whole, never half-written.
+
+:func:`stale_parameters` lists where a published run's parameters differ from the current profile's
+(a test fails on any), and :func:`readme_headline` gives the README's copy of the published headline,
+whose links lead into the published REPORT.md.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+from pathlib import Path
+
+from histostudy.core import atomic_write_json, atomic_write_text
+from .headline import headline_markdown
+from .pipeline import discover_notebooks
+from .profiles import Profile, load_profile
+from .report import RESULTS_FILE, RUN_FILE, build_report, load_section
+from .twins import results_coverage
+
+__all__ = ["PUBLISHED_SUFFIXES", "README_HEADLINE_BEGIN", "README_HEADLINE_END", "publish_run", "readme_headline",
+           "replace_readme_headline", "stale_parameters"]
+
+#: The files of a section folder that are published (results, tables, figures).
+PUBLISHED_SUFFIXES = (".json", ".md", ".csv", ".png", ".svg")
+#: The markers of the README's block that holds the published headline.
+README_HEADLINE_BEGIN, README_HEADLINE_END = "<!-- published-headline:begin -->", "<!-- published-headline:end -->"
+_MAX_FILE_BYTES = 4 * 1024 * 1024
+
+
+def _load_run(folder: Path) -> dict:
+    try:
+        with open(folder / RUN_FILE, encoding="utf-8") as fh:
+            return json.load(fh)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"run_dir {str(folder)!r} holds no readable {RUN_FILE} (a histostudy reproduce "
+                         f"output folder was expected): {exc}") from None
+
+
+def _check_complete(run: dict, folder: Path, notebooks_dir, allow_partial: bool) -> list[str]:
+    """The notebooks of ``notebooks_dir`` the run did not run (allowed only with ``allow_partial``)."""
+    not_ok = [n["name"] for n in run.get("notebooks", []) if n.get("status") != "ok"]
+    if not_ok:
+        raise ValueError(f"run_dir {str(folder)!r}: notebooks {', '.join(not_ok)} did not finish (status in "
+                         f"{RUN_FILE}); a run is published only when every section it lists finished")
+    ran = {n["name"] for n in run.get("notebooks", [])}
+    missing = [p.stem for p in discover_notebooks(notebooks_dir) if p.stem not in ran] if notebooks_dir else []
+    if missing and not allow_partial:
+        raise ValueError(f"run_dir {str(folder)!r} did not run notebooks {', '.join(missing)}; run them "
+                         "(histostudy reproduce resumes, keeping the finished sections) or publish with "
+                         "allow_partial=True, which names them in the report")
+    return missing
+
+
+def _relative_run(run: dict) -> dict:
+    out = json.loads(json.dumps(run))
+    for entry in out.get("notebooks", []):
+        if "output_dir" in entry:
+            entry["output_dir"] = entry["name"]
+        if isinstance(entry.get("parameters"), dict) and "output_dir" in entry["parameters"]:
+            entry["parameters"]["output_dir"] = entry["name"]
+    out.get("provenance", {}).get("machine", {}).pop("executable", None)
+    if out.get("failure"):
+        out["failure"]["executed_notebook"] = None
+    return out
+
+
+def _copy_section(source: Path, target: Path) -> None:
+    target.mkdir(parents=True)
+    for path in sorted(source.rglob("*")):
+        if path.is_file() and path.suffix in PUBLISHED_SUFFIXES and path.stat().st_size <= _MAX_FILE_BYTES:
+            dest = target / path.relative_to(source)
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(path, dest)
+            os.chmod(dest, 0o666 & ~_umask())
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def publish_run(run_dir: str | os.PathLike, destination: str | os.PathLike, *, allow_partial: bool = False,
+                notebooks_dir: str | os.PathLike | None = None, max_html_bytes: int = 10 * 1024 * 1024) -> Path:
+    """Publish the finished run of ``run_dir`` into ``destination`` (replaced whole); returns the
+    published REPORT.md.
+
+    Raises ValueError, before writing anything, when ``run_dir`` holds no run record, a section it
+    lists did not finish, or (unless ``allow_partial``) a notebook of ``notebooks_dir`` (default:
+    the repository's) did not run.
+    """
+    from .pipeline import DEFAULT_NOTEBOOK_DIR
+
+    source, dest = Path(run_dir).resolve(), Path(destination).resolve()
+    if source == dest:
+        raise ValueError(f"destination {str(dest)!r} is run_dir itself: publish into another folder")
+    run = _load_run(source)
+    missing = _check_complete(run, source, notebooks_dir or DEFAULT_NOTEBOOK_DIR, allow_partial)
+    for entry in run["notebooks"]:
+        if not (source / entry["name"] / RESULTS_FILE).is_file():
+            raise ValueError(f"run_dir {str(source)!r}: section {entry['name']} has no {RESULTS_FILE}")
+    staging = dest.with_name(f".{dest.name}.publishing")
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)
+    try:
+        for entry in run["notebooks"]:
+            _copy_section(source / entry["name"], staging / entry["name"])
+        record = _relative_run(run)
+        record["notebooks"] = sorted(record["notebooks"] + [{"name": name, "status": "not run"} for name in missing],
+                                     key=lambda entry: entry["name"])
+        atomic_write_json(staging / RUN_FILE, record)
+        build_report(staging, record)
+        html = staging / "report.html"
+        html_bytes = html.stat().st_size
+        if html_bytes > max_html_bytes:
+            html.unlink()
+            md = staging / "REPORT.md"
+            atomic_write_text(md, md.read_text(encoding="utf-8") + f"\n*report.html ({html_bytes} bytes) is not "
+                              f"published: over {max_html_bytes} bytes; `histostudy report` rebuilds it.*\n")
+        old = dest.with_name(f".{dest.name}.replaced")
+        shutil.rmtree(old, ignore_errors=True)
+        if dest.exists():
+            os.replace(dest, old)
+        os.replace(staging, dest)
+        shutil.rmtree(old, ignore_errors=True)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return dest / "REPORT.md"
+
+
+def stale_parameters(published_dir: str | os.PathLike, profile: str | Profile | None = None) -> list[str]:
+    """Where the run published in ``published_dir`` differs from ``profile`` (default: the profile it
+    names): per notebook, each parameter added, removed or changed, and the seed. Empty when the
+    published numbers are those the current profile makes (the code may still differ: its commit
+    is in the report)."""
+    folder = Path(published_dir)
+    run = _load_run(folder)
+    prof = profile if isinstance(profile, Profile) else load_profile(profile or run["profile"])
+    found = []
+    if run.get("seed") != prof.seed:
+        found.append(f"seed: published {run.get('seed')!r}, profile {prof.seed!r}")
+    for entry in run.get("notebooks", []):
+        if entry.get("status") == "not run":
+            continue  # a partial publication names it in its report
+        name = entry["name"]
+        published = {k: v for k, v in entry.get("parameters", {}).items() if k != "output_dir"}
+        current = prof.parameters_for(name)
+        for key in sorted(set(published) | set(current)):
+            if key not in current:
+                found.append(f"{name}.{key}: published {published[key]!r}, not in profile {prof.name}")
+            elif key not in published:
+                found.append(f"{name}.{key}: profile {prof.name} has {current[key]!r}, the published run had none")
+            elif json.dumps(published[key], sort_keys=True) != json.dumps(current[key], sort_keys=True):
+                found.append(f"{name}.{key}: published {published[key]!r}, profile {prof.name} {current[key]!r}")
+    return found
+
+
+def readme_headline(published_dir: str | os.PathLike, link_prefix: str) -> str:
+    """The headline table of the published run, its links pointing into ``link_prefix`` (the path of
+    the published REPORT.md as seen from the README)."""
+    folder = Path(published_dir)
+    run = _load_run(folder)
+    sections = {n["name"]: load_section(folder / n["name"]) for n in run.get("notebooks", [])
+                if (folder / n["name"] / RESULTS_FILE).is_file()}
+    lines = headline_markdown(results_coverage(sections, run))
+    return re.sub(r"\]\(#", f"]({link_prefix}#", "\n".join(lines).rstrip()) + "\n"
+
+
+def replace_readme_headline(readme: str | os.PathLike, published_dir: str | os.PathLike, link_prefix: str) -> Path:
+    """Put :func:`readme_headline` between the README's markers (both must be there, once each)."""
+    path = Path(readme)
+    text = path.read_text(encoding="utf-8")
+    if text.count(README_HEADLINE_BEGIN) != 1 or text.count(README_HEADLINE_END) != 1:
+        raise ValueError(f"readme {str(path)!r} must hold {README_HEADLINE_BEGIN} and {README_HEADLINE_END} once each")
+    head, rest = text.split(README_HEADLINE_BEGIN)
+    _, tail = rest.split(README_HEADLINE_END)
+    block = f"{README_HEADLINE_BEGIN}\n{readme_headline(published_dir, link_prefix)}{README_HEADLINE_END}"
+    return atomic_write_text(path, head + block + tail)
+

@@ -1,0 +1,184 @@
+"""A section's content key: what a study section's numbers depend on, so that a rerun or a resumed
+run keeps a finished section instead of redoing it.
+
+A section (one notebook's output folder, ``<output>/NN_name``) depends on the notebook, its
+parameters (the profile's table for it, the seed among them), the package's code, the shipped
+weights (``data/models``) and the numerical libraries' versions. :func:`section_key` hashes each of
+these parts and the whole; the runner writes the key to ``<section>/section_key.json`` when the
+notebook finishes, with its wall and CPU time and the machine, and removes it before the notebook
+starts, so that an interrupted or failed section never carries a key (it is redone). A section is
+kept (:func:`kept_section`) only when its stored key equals the new one and its results and executed
+notebook are still there.
+
+The code part is the whole package, not the modules a notebook imports: worker processes import
+lazily, so the parent's imports under-count, and a key that misses a change would keep a wrong
+result, where one that sees too many only costs a rerun. The profiles' files are left out of it:
+a section's own parameters are a part of their own, so an edit to another notebook's table keeps it.
+
+The same record gives the estimate of a section's wall time (:func:`estimate_seconds`): the last
+finished run of the same notebook with the same parameters, in this output folder or in a published
+run (``docs/results/<profile>``).
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+import histostudy
+from histostudy.core import atomic_write_json
+from histostudy.core.provenance import REPO_ROOT, git_commit, package_versions
+
+__all__ = ["KEY_FILE", "SectionKey", "changed_parts", "code_digest", "estimate_seconds", "kept_section", "record_key",
+           "remove_key", "section_key", "stored_key", "weights_digest"]
+
+#: The file in a section folder that holds its content key and the run that made it.
+KEY_FILE = "section_key.json"
+
+#: The libraries whose version enters the key: they compute the numbers.
+_KEY_LIBRARIES = ("python", "numpy", "scipy", "torch", "opencv-python-headless", "pandas", "numba")
+
+#: Parameters that say where a section goes, not what it computes.
+_PLACE_PARAMETERS = ("output_dir",)
+
+
+@dataclass(frozen=True)
+class SectionKey:
+    """A section's content key: ``parts`` (notebook, parameters, code, weights, libraries: one
+    SHA-256 each) and ``key``, the SHA-256 of them all."""
+    key: str
+    parts: dict
+
+
+def _sha256_files(paths, root: Path) -> str:
+    digest = hashlib.sha256()
+    for path in sorted(paths, key=lambda p: p.relative_to(root).as_posix()):
+        digest.update(path.relative_to(root).as_posix().encode() + b"\0")
+        digest.update(hashlib.sha256(path.read_bytes()).digest())
+    return digest.hexdigest()
+
+
+def _code_files(package: Path):
+    profiles = package / "reporting" / "profiles"
+    for path in package.rglob("*"):
+        if (path.is_file() and "__pycache__" not in path.parts and path.suffix != ".pyc"
+                and not (path.parent == profiles and path.suffix == ".toml")):
+            yield path
+
+
+@functools.lru_cache(maxsize=4)
+def _code_digest(package: str, stamp: tuple) -> str:
+    root = Path(package)
+    return _sha256_files(list(_code_files(root)), root)
+
+
+def code_digest(package: str | os.PathLike | None = None) -> str:
+    """SHA-256 of the package's files (names and bytes), its profiles' ``.toml`` files left out."""
+    root = Path(package) if package is not None else Path(histostudy.__file__).resolve().parent
+    # re-hashed when any file's size or time changes (the cache only spares repeated calls of one run)
+    stamp = tuple(sorted((p.as_posix(), p.stat().st_size, p.stat().st_mtime_ns) for p in _code_files(root)))
+    return _code_digest(str(root), stamp)
+
+
+def weights_digest(models_dir: str | os.PathLike | None = None) -> str:
+    """SHA-256 of the shipped networks' files (``data/models``); of nothing where there are none."""
+    folder = Path(models_dir) if models_dir is not None else REPO_ROOT / "data" / "models"
+    files = [p for p in folder.rglob("*") if p.is_file()] if folder.is_dir() else []
+    return _sha256_files(files, folder)
+
+
+def _sha256_json(value) -> str:
+    return hashlib.sha256(json.dumps(value, sort_keys=True, separators=(",", ":"), default=str).encode()).hexdigest()
+
+
+def section_key(notebook: str | os.PathLike, parameters: dict, *, package: str | os.PathLike | None = None,
+                models_dir: str | os.PathLike | None = None) -> SectionKey:
+    """The content key of running ``notebook`` with ``parameters`` (the profile's table for it, seed
+    and profile name included; where the section is written does not count)."""
+    nb_path = Path(notebook)
+    if not nb_path.is_file():
+        raise ValueError(f"notebook {str(nb_path)!r} is not a file (expected a study notebook NN_name.ipynb)")
+    if not isinstance(parameters, dict):
+        raise TypeError(f"parameters must be a dict (the notebook's parameters), got {type(parameters).__name__}")
+    versions = package_versions(tuple(name for name in _KEY_LIBRARIES if name != "python"))
+    parts = {
+        "notebook": hashlib.sha256(nb_path.read_bytes()).hexdigest(),
+        "parameters": _sha256_json({k: v for k, v in parameters.items() if k not in _PLACE_PARAMETERS}),
+        "code": code_digest(package),
+        "weights": weights_digest(models_dir),
+        "libraries": _sha256_json({k: versions[k] for k in _KEY_LIBRARIES if k in versions}),
+    }
+    return SectionKey(_sha256_json(parts), parts)
+
+
+def stored_key(section_dir: str | os.PathLike) -> dict | None:
+    """The record of ``section_dir/section_key.json``, or None where there is none or it is unreadable."""
+    try:
+        with open(Path(section_dir) / KEY_FILE, encoding="utf-8") as fh:
+            record = json.load(fh)
+    except (OSError, ValueError):
+        return None
+    return record if isinstance(record, dict) and isinstance(record.get("key"), str) else None
+
+
+def kept_section(section_dir: str | os.PathLike, executed_notebook: str | os.PathLike, key: SectionKey) -> dict | None:
+    """The stored record when ``section_dir`` holds a finished section of this ``key`` (its results
+    and the executed notebook still there), else None: the section must run."""
+    record = stored_key(section_dir)
+    if record is None or record["key"] != key.key:
+        return None
+    if not (Path(section_dir) / "results.json").is_file() or not Path(executed_notebook).is_file():
+        return None
+    return record
+
+
+def changed_parts(section_dir: str | os.PathLike, key: SectionKey) -> list[str]:
+    """Which parts of ``key`` differ from the section's stored key (all of them where none is stored)."""
+    record = stored_key(section_dir)
+    stored = record.get("parts", {}) if record else {}
+    return [name for name, digest in key.parts.items() if stored.get(name) != digest]
+
+
+def remove_key(section_dir: str | os.PathLike) -> None:
+    """Forget the section's key before it runs again: a run stopped half-way leaves none."""
+    try:
+        os.remove(Path(section_dir) / KEY_FILE)
+    except FileNotFoundError:
+        pass
+
+
+def record_key(section_dir: str | os.PathLike, key: SectionKey, *, notebook: str, profile: str, parameters: dict,
+               seconds: float, cpu_seconds: float | None, machine: dict) -> Path:
+    """Write the finished section's key with what made it: the notebook, profile and parameters, its
+    wall time and CPU time (s; None where other notebooks ran beside it), the machine and commit."""
+    return atomic_write_json(Path(section_dir) / KEY_FILE, {
+        "key": key.key, "parts": key.parts, "notebook": notebook, "profile": profile,
+        "parameters": {k: v for k, v in parameters.items() if k not in _PLACE_PARAMETERS},
+        "seconds": float(seconds), "cpu_seconds": None if cpu_seconds is None else float(cpu_seconds),
+        "finished_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "git_commit": git_commit(), "machine": machine,
+    })
+
+
+def estimate_seconds(notebook: str, parameters: dict, places) -> tuple[float, str] | None:
+    """The wall time (s) of ``notebook`` with ``parameters`` in the last finished run found in
+    ``places`` (output folders, a published run's folder first or last as the caller prefers), and
+    where it was measured (date and machine); None where no run had these parameters."""
+    wanted = {k: v for k, v in parameters.items() if k not in _PLACE_PARAMETERS}
+    for place in places:
+        record = stored_key(Path(place) / notebook)
+        if record and _same_parameters(record.get("parameters"), wanted):
+            machine = record.get("machine") or {}
+            where = (f"the run of {str(record.get('finished_utc', ''))[:10]} on {machine.get('cpu_model', 'a CPU')}, "
+                     f"{machine.get('cpus', '?')} cores")
+            return float(record["seconds"]), where
+    return None
+
+
+def _same_parameters(a, b) -> bool:
+    return _sha256_json(a) == _sha256_json(b)

@@ -1,0 +1,136 @@
+"""A finished run published into the repository: what is copied and what is not, refusals before
+anything is written, the staleness check against the current profile, the README's headline, and the
+repository's own published runs checked against today's profiles."""
+
+import json
+import os
+
+import pytest
+
+from histostudy.cli import main
+from histostudy.reporting import (README_HEADLINE_BEGIN, README_HEADLINE_END, load_profile, publish_run,
+                                  readme_headline, replace_readme_headline, stale_parameters)
+from histostudy.reporting.pipeline import DEFAULT_NOTEBOOK_DIR, discover_notebooks
+from histostudy.core.provenance import REPO_ROOT
+
+PUBLISHED = REPO_ROOT / "docs" / "results"
+
+
+def _finished_run(folder, names=("01_transducer_and_projections", "02_segmentation"), profile="smoke"):
+    """A reproduce folder as the pipeline leaves it: sections, executed notebooks, a cache file and
+    run.json with the profile's parameters and absolute paths."""
+    prof = load_profile(profile)
+    for name in names:
+        folder.section(name, compare=[folder.paper_comparison("seg.global_accuracy")], image=True)
+        (folder.root / name / "frames.npz").write_bytes(b"\0" * 64)
+    (folder.root / "notebooks").mkdir(exist_ok=True)
+    for name in names:
+        (folder.root / "notebooks" / f"{name}.ipynb").write_text("{}")
+    run = folder.run(profile, parameters={n: prof.parameters_for(n) | {"output_dir": str(folder.root / n)}
+                                          for n in names})
+    run["seed"] = prof.seed
+    run["provenance"]["machine"] = {"cpu_model": "Test CPU", "cpus": 2, "executable": "/home/me/.venv/bin/python",
+                                    "isa_flags": {"avx2": True}, "isa_restriction": {}}
+    (folder.root / "run.json").write_text(json.dumps(run))
+    return run
+
+
+def test_publish_copies_results_tables_and_figures_not_notebooks_or_caches(folder, tmp_path):
+    _finished_run(folder)
+    report = publish_run(folder.root, tmp_path / "pub", allow_partial=True)
+    pub = tmp_path / "pub"
+    assert report == pub / "REPORT.md" and (pub / "report.html").is_file()
+    assert (pub / "02_segmentation" / "results.json").is_file()
+    assert list((pub / "02_segmentation").rglob("*.png")), "figures are published"
+    assert not list(pub.rglob("*.ipynb")) and not list(pub.rglob("*.npz"))
+    run = json.loads((pub / "run.json").read_text())
+    assert all(not os.path.isabs(n.get("output_dir", "")) for n in run["notebooks"])
+    assert "executable" not in run["provenance"]["machine"]
+    # the notebooks that did not run are named, in order, as not run
+    names = [n["name"] for n in run["notebooks"]]
+    assert names == sorted(names) and len(names) == len(discover_notebooks(DEFAULT_NOTEBOOK_DIR))
+    assert {n["status"] for n in run["notebooks"][2:]} == {"not run"}
+    md = report.read_text()
+    assert "No results: status not run" in md and "Test CPU, 2 cores; ISA avx2" in md
+    umask = os.umask(0)
+    os.umask(umask)
+    assert (pub / "REPORT.md").stat().st_mode & 0o777 == 0o666 & ~umask
+
+
+def test_publish_refuses_unfinished_or_partial_runs_before_writing(folder, tmp_path):
+    run = _finished_run(folder)
+    with pytest.raises(ValueError, match="did not run notebooks 03_orientation.*allow_partial"):
+        publish_run(folder.root, tmp_path / "pub")
+    run["notebooks"][1]["status"] = "interrupted"
+    (folder.root / "run.json").write_text(json.dumps(run))
+    with pytest.raises(ValueError, match="notebooks 02_segmentation did not finish"):
+        publish_run(folder.root, tmp_path / "pub", allow_partial=True)
+    with pytest.raises(ValueError, match="holds no readable run.json"):
+        publish_run(tmp_path / "nowhere", tmp_path / "pub")
+    assert not (tmp_path / "pub").exists() and not list(tmp_path.glob(".pub*"))
+
+
+def test_publish_replaces_the_folder_whole(folder, tmp_path):
+    _finished_run(folder)
+    pub = tmp_path / "pub"
+    (pub / "99_old").mkdir(parents=True)
+    publish_run(folder.root, pub, allow_partial=True)
+    assert not (pub / "99_old").exists() and (pub / "01_transducer_and_projections").is_dir()
+
+
+def test_stale_parameters_names_each_difference_from_the_profile(folder, tmp_path):
+    run = _finished_run(folder)
+    assert stale_parameters(folder.root) == []
+    run["seed"] = 7
+    run["notebooks"][1]["parameters"]["n_eval_images"] = 999
+    del run["notebooks"][0]["parameters"]["background"]
+    (folder.root / "run.json").write_text(json.dumps(run))
+    found = stale_parameters(folder.root)
+    smoke = load_profile("smoke")
+    assert f"seed: published 7, profile {smoke.seed}" in found
+    assert any(line.startswith("02_segmentation.n_eval_images: published 999") for line in found)
+    assert any(line.startswith("01_transducer_and_projections.background: profile smoke has") for line in found)
+    assert len(found) == 3
+
+
+def test_the_readme_headline_links_into_the_published_report(folder, tmp_path):
+    _finished_run(folder)
+    publish_run(folder.root, tmp_path / "pub", allow_partial=True)
+    block = readme_headline(tmp_path / "pub", "docs/results/smoke/REPORT.md")
+    assert "](docs/results/smoke/REPORT.md#" in block and "](#" not in block
+    assert "| Paper result |" in block
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# x\n\n{README_HEADLINE_BEGIN}\nold\n{README_HEADLINE_END}\n\nrest\n")
+    replace_readme_headline(readme, tmp_path / "pub", "docs/results/smoke/REPORT.md")
+    text = readme.read_text()
+    assert "old" not in text and block in text and text.endswith("\n\nrest\n")
+    readme.write_text("no markers")
+    with pytest.raises(ValueError, match="must hold <!-- published-headline:begin -->"):
+        replace_readme_headline(readme, tmp_path / "pub", "x")
+
+
+def test_cli_publish_writes_the_folder_and_the_readme(folder, tmp_path, capsys):
+    _finished_run(folder)
+    readme = tmp_path / "README.md"
+    readme.write_text(f"{README_HEADLINE_BEGIN}\n{README_HEADLINE_END}\n")
+    assert main(["publish", str(folder.root), "--to", str(tmp_path / "docs" / "pub")]) == 2
+    assert "did not run notebooks" in capsys.readouterr().err
+    assert main(["publish", str(folder.root), "--to", str(tmp_path / "docs" / "pub"), "--readme", str(readme),
+                 "--partial"]) == 0
+    assert "](docs/pub/REPORT.md#" in readme.read_text()
+
+
+@pytest.mark.parametrize("published", sorted(p for p in PUBLISHED.glob("*") if (p / "run.json").is_file()),
+                         ids=lambda p: p.name)
+def test_the_repository_s_published_runs_match_today_s_profiles(published):
+    stale = stale_parameters(published)
+    assert not stale, (f"{published.relative_to(REPO_ROOT)} was made with other parameters than profile "
+                       f"{published.name} has now; run it again and publish (histostudy publish): " + "; ".join(stale))
+
+
+@pytest.mark.parametrize("published", sorted(p for p in PUBLISHED.glob("*") if (p / "run.json").is_file()),
+                         ids=lambda p: p.name)
+def test_the_readme_shows_the_published_headline(published):
+    block = readme_headline(published, f"{published.relative_to(REPO_ROOT).as_posix()}/REPORT.md")
+    assert block in (REPO_ROOT / "README.md").read_text(), (
+        f"README.md's headline differs from {published.relative_to(REPO_ROOT)}: histostudy publish ... --readme README.md")
