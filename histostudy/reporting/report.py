@@ -331,7 +331,8 @@ def _section_facts(name: str, res: dict, nb: dict) -> str:
     if isinstance(seconds, (int, float)):
         text += f", {seconds:.1f} s" + (f" ({cpu:.0f} CPU-s)" if isinstance(cpu, (int, float)) else "")
     if prov.get("git_commit"):
-        text += f"; commit {md_code(str(prov['git_commit'])[:12])}"
+        commit = str(prov["git_commit"])
+        text += f"; commit {md_code(commit[:12] + ('-dirty' if commit.endswith('-dirty') else ''))}"
     cpu_model = (prov.get("machine") or {}).get("cpu_model")
     if cpu_model:
         text += f" on {md_escape(cpu_model)}, {md_escape(prov['machine'].get('cpus'))} cores"

@@ -38,7 +38,7 @@ SECTION_TITLE = "07 · The error budget: the lab's error sources and their share
 #: The notebook parameters the report records, in the order it records them.
 RECORDED_PARAMETERS = ("photons_per_pixel", "n_splats", "splat_sigma_mm", "pose_spacing_mm", "render_spacing_mm",
                        "background", "pose_experiments", "targeting_experiments", "learned_stages", "sources",
-                       "n_labs", "scheduler")
+                       "n_labs", "range_sources", "scheduler")
 
 #: Where each source's default comes from (the report's sources table): its status, value, range
 #: and reference (:data:`~._references.SOURCE_REFERENCES`).
@@ -52,7 +52,8 @@ class BudgetSectionConfig(RenderedSectionConfig):
     ``splat_sigma_mm``, ``pose_spacing_mm``, ``render_spacing_mm``, ``background``), the
     experiments per configuration (``pose_experiments``, ``targeting_experiments``), the stages
     (``learned_stages``), the lab's ``sources`` on (names of :data:`LAB_SOURCES`, each at most
-    once), the labs drawn for the distribution (``n_labs``, lab 0 the one the configurations run on)
+    once), the labs drawn for the distribution (``n_labs``, lab 0 the one the configurations run on),
+    the sources run at both ends of their range on lab 0 (``range_sources``, each on in ``sources``)
     and the ``scheduler`` the experiments run on (``""``: ``HISTOSTUDY_SCHEDULER``, else here).
 
     A bad value raises ValueError naming the parameter, its value and what it must be. Values are
@@ -67,6 +68,7 @@ class BudgetSectionConfig(RenderedSectionConfig):
     learned_stages: bool
     sources: tuple
     n_labs: int
+    range_sources: tuple
     scheduler: str
 
     def __post_init__(self):
@@ -81,6 +83,12 @@ class BudgetSectionConfig(RenderedSectionConfig):
             raise ValueError(f"sources must be a list of the names {LAB_SOURCES}, got {self.sources!r}")
         lab_model_from_parameters(self.sources)  # each name known, at most once
         object.__setattr__(self, "sources", tuple(self.sources))
+        ranges = self.range_sources
+        if (isinstance(ranges, (str, bytes)) or not isinstance(ranges, (list, tuple))
+                or any(r not in self.sources for r in ranges) or len(set(ranges)) != len(ranges)):
+            raise ValueError(f"range_sources must be a list of sources on in sources {list(self.sources)}, each at "
+                             f"most once, got {ranges!r}")
+        object.__setattr__(self, "range_sources", tuple(ranges))
         check_text(self.scheduler, "scheduler", '"" (HISTOSTUDY_SCHEDULER, else here), "local:<n>" or '
                                                 '"tcp://<host>:<port>"')
 

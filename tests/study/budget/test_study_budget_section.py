@@ -13,7 +13,7 @@ DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, pose
                 render_spacing_mm=0.25, background="phantom", pose_experiments=1, targeting_experiments=1,
                 learned_stages=True, sources=("manufacturing", "bubble_offset", "projection", "gantry_sag",
                                               "registration", "annotation", "robot", "phantom_motion"),
-                n_labs=3, scheduler="")
+                n_labs=3, range_sources=("bubble_offset",), scheduler="")
 
 
 def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones(notebook_parameters):
@@ -33,7 +33,7 @@ def test_missing_parameters_are_named():
 
 @pytest.fixture(scope="module")
 def setup():
-    return B.prepare({**DEFAULTS, "render_spacing_mm": 0.47, "learned_stages": False, "sources": ["robot"],
+    return B.prepare({**DEFAULTS, "render_spacing_mm": 0.47, "learned_stages": False, "sources": ["robot"], "range_sources": [],
                       "scheduler": "local:1"}, 7)
 
 

@@ -1,0 +1,150 @@
+"""The magnitudes without a measurement, swept over their plausible range (§IV; docs/error-budget.md,
+"Every magnitude cited or swept").
+
+A source whose reference is ``swept`` (:data:`~._references.SOURCE_REFERENCES`) has no published
+figure that fits this set-up: its default is a plausible point of a range. Here lab 0 (the lab the
+configurations run on) runs again with one such source at each end of its range, every other
+source and every draw as lab 0 has them (the draws are standard normals scaled by the magnitudes,
+so only that source moves), and the figures at the two ends give the band that this source's
+unknown magnitude puts around lab 0's. C-arm frame, mm.
+
+Work is shared as :func:`~._labs.run_labs` shares it: a source that does not change the frames
+(every source but ``manufacturing``, ``gantry_sag`` and, for the targeting calibration,
+``robot_accuracy``) leaves lab 0's transducer and true views as they were, and its runs render and
+segment each frame once.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from ._distribution import lab_statistics
+from ._labs import run_labs
+from ._references import SOURCE_REFERENCES, model_at
+from ._run import BudgetSetup
+from ._sources import LAB_SOURCES, LabDraw, draw_lab
+from ..section import SectionPart, Timer, timer_or_untimed
+
+__all__ = ["FRAME_SOURCES", "RANGE_ENDS", "RangesSection", "range_bands", "range_labs", "ranges_section",
+           "run_ranges"]
+
+#: The sources that change the frames themselves (the transducer imaged, where the source stands):
+#: a lab with one of them at another magnitude renders its own frames.
+FRAME_SOURCES = ("manufacturing", "gantry_sag", "robot_accuracy")
+
+#: The ends of a source's range that are run, as the reference names them.
+RANGE_ENDS = ("low", "high")
+
+
+def range_labs(setup: BudgetSetup, sources: Sequence[str]) -> list[tuple[str, str, float, LabDraw]]:
+    """``(source, end, value, lab)`` for each of ``sources`` (on in the set-up's lab model) at each
+    end of its range (:data:`RANGE_ENDS`, the reference's unit): lab 0's draw with that source's
+    magnitude set there (:func:`~._references.model_at`). A source outside :data:`FRAME_SOURCES`
+    keeps lab 0's transducer and true views (the same objects), so that its frames are shared."""
+    base = setup.lab
+    sources = list(sources)
+    off = [s for s in sources if s not in LAB_SOURCES or getattr(base.model, s) is None]
+    if off or len(set(sources)) != len(sources):
+        raise ValueError(f"sources must name sources on in the lab model ({', '.join(base.model.enabled)}), "
+                         f"each at most once, got {sources!r}")
+    out = []
+    for name in sources:
+        ref = SOURCE_REFERENCES[name]
+        for end in RANGE_ENDS:
+            value = float(getattr(ref, end))
+            lab = draw_lab(model_at(name, value, base=base.model), base.seed, physical=base.study_physical,
+                           views=base.study_views, physical_seed=setup.seeds.physical)
+            if name not in FRAME_SOURCES:
+                if not (np.array_equal(lab.physical.focal_point_mm, base.physical.focal_point_mm)
+                        and all(np.array_equal(a.P, b.P) for a, b in zip(lab.frame_views, base.frame_views))):
+                    raise RuntimeError(f"source {name!r} at {value:g} moved lab 0's frames; it belongs in FRAME_SOURCES")
+                lab = dataclasses.replace(lab, physical=base.physical, frame_views=base.frame_views)
+            out.append((name, end, value, lab))
+    return out
+
+
+def run_ranges(setup: BudgetSetup, sources: Sequence[str], *, executor=None) -> pd.DataFrame:
+    """Run every lab of :func:`range_labs` on the set-up's experiments (:func:`~._labs.run_labs`,
+    the study seed): the rows of ``run_labs`` with ``source``, ``end`` and ``value`` in front
+    (``lab`` numbers them from 1 in :func:`range_labs`'s order). The labs that keep lab 0's frames
+    run together, sharing renders and segmentations; the others one by one."""
+    labs = range_labs(setup, sources)
+    if not labs:
+        return pd.DataFrame(columns=["source", "end", "value", "lab", "study", "experiment"])
+    shared = [i for i, (name, *_) in enumerate(labs) if name not in FRAME_SOURCES]
+    own = [i for i, (name, *_) in enumerate(labs) if name in FRAME_SOURCES]
+    frames = []
+    for group in (shared, own):
+        if group:
+            frames.append(run_labs(setup, [labs[i][3] for i in group], seed=setup.seeds.study,
+                                   indices=[i + 1 for i in group], executor=executor))
+    out = pd.concat(frames, ignore_index=True).sort_values(["lab", "study", "experiment"], kind="stable")
+    meta = {i + 1: (name, end, value) for i, (name, end, value, _) in enumerate(labs)}
+    for position, column in enumerate(("source", "end", "value")):
+        out.insert(position, column, [meta[int(k)][position] for k in out["lab"]])
+    return out.reset_index(drop=True)
+
+
+def range_bands(range_records: pd.DataFrame, budget_records: pd.DataFrame) -> pd.DataFrame:
+    """Per swept source and study: the Euclidean mean (mm) of lab 0 at the source's low end, at its
+    default (lab 0's "lab" configuration in ``budget_records``) and at its high end, the band's
+    width, and the source's status, unit and range; the rows of :func:`run_ranges`."""
+    lab0 = budget_records[budget_records["configuration"] == "lab"].assign(lab=0)
+    at_default = lab_statistics(lab0).set_index("study")["euclidean_mean_mm"]
+    if range_records.empty:
+        return pd.DataFrame(columns=["source", "study", "status", "unit", "low", "default", "high", "at_low_mm",
+                                     "at_default_mm", "at_high_mm", "band_mm"])
+    stats = lab_statistics(range_records.drop(columns=["source", "end", "value"])).set_index(["lab", "study"])
+    meta = range_records.drop_duplicates("lab").set_index("lab")[["source", "end", "value"]]
+    rows = []
+    for source in dict.fromkeys(meta["source"]):
+        ref = SOURCE_REFERENCES[source]
+        ends = {row.end: lab for lab, row in meta[meta["source"] == source].iterrows()}
+        for study in at_default.index:
+            low = float(stats.loc[(ends["low"], study), "euclidean_mean_mm"])
+            high = float(stats.loc[(ends["high"], study), "euclidean_mean_mm"])
+            rows.append({"source": source, "study": study, "status": ref.status, "unit": ref.unit, "low": ref.low,
+                         "default": ref.value, "high": ref.high, "at_low_mm": low,
+                         "at_default_mm": float(at_default[study]), "at_high_mm": high,
+                         "band_mm": abs(high - low)})
+    return pd.DataFrame(rows)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class RangesSection:
+    """The swept sources (:func:`ranges_section`): the runs' ``records``, the ``bands`` and the
+    report's ``part``."""
+
+    records: pd.DataFrame
+    bands: pd.DataFrame
+    part: SectionPart
+
+
+def ranges_section(setup: BudgetSetup, budget_records: pd.DataFrame, *, timer: Timer | None = None) -> RangesSection:
+    """Run ``setup.params.range_sources`` at both ends of their ranges on lab 0 (:func:`run_ranges`
+    on ``params.scheduler``, timed as ``"ranges"``) and report the bands (:func:`range_bands`) as
+    table ``ranges`` with a paragraph naming the widest."""
+    with timer_or_untimed(timer)("ranges"):
+        records = run_ranges(setup, setup.params.range_sources, executor=setup.params.scheduler or None)
+    bands = range_bands(records, budget_records)
+    if bands.empty:
+        text = "No source was run over its range (`range_sources` is empty)."
+    else:
+        parts = []
+        for study, g in bands.groupby("study", sort=False):
+            top = g.sort_values("band_mm", ascending=False).iloc[0]
+            parts.append(f"{'Table II' if study == 'pose' else 'targeting'}: the widest band is {top['source']}'s, "
+                         f"{top['at_low_mm']:.2f} to {top['at_high_mm']:.2f} mm over {top['low']:g}-{top['high']:g} "
+                         f"{top['unit']} (lab 0 at its default: {top['at_default_mm']:.2f} mm)")
+        text = ("Each source run over its range moves lab 0's Euclidean mean error within the band shown; every "
+                "other source and every draw stays as lab 0 has them. " + "; ".join(parts) + ".")
+    part = SectionPart(
+        tables={"ranges": (bands, "The sources without a fitting measurement, each at both ends of its plausible "
+                           "range on lab 0 (the others at their defaults): the Euclidean mean error (mm) at the low "
+                           "end, at the default and at the high end, and the band's width", {"digits": 2})},
+        values={"ranges_sources": list(setup.params.range_sources)}, texts=(text,))
+    return RangesSection(records, bands, part)
