@@ -33,6 +33,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from .sweep_cache import SweepCache, resolve_sweep_cache
+
 __all__ = ["SCHEDULER_ENV", "SweepExecutor", "SweepTaskError", "resolve_executor", "run_sweep"]
 
 #: The environment variable that picks the executor of every sweep whose ``executor`` is left unset.
@@ -123,7 +125,7 @@ def resolve_executor(executor: SweepExecutor | str | None = None) -> SweepExecut
 
 def run_sweep(task_fn: Callable[..., Any], tasks: Sequence, *, seed: int | np.random.SeedSequence | None = None,
               executor: SweepExecutor | str | None = None, shared: dict | None = None,
-              chunk_size: int | None = None, progress: bool = False) -> list:
+              chunk_size: int | None = None, progress: bool = False, cache: str | os.PathLike | None = None) -> list:
     """Run ``task_fn`` on every element of ``tasks``; the results in task order.
 
     Task ``i`` is called ``task_fn(tasks[i], seeds[i], **shared)`` with ``seeds =
@@ -135,7 +137,10 @@ def run_sweep(task_fn: Callable[..., Any], tasks: Sequence, *, seed: int | np.ra
     function). ``executor``: see :func:`resolve_executor`. On a cluster, consecutive tasks go in
     chunks of ``chunk_size`` (default: about 4 chunks per worker thread), one dask task each, so
     that tasks of milliseconds do not pay dask's overhead one by one; the results do not depend
-    on it. ``progress`` shows a tqdm bar (per chunk on a cluster).
+    on it. ``progress`` shows a tqdm bar (per chunk on a cluster). ``cache``: a folder where each
+    finished task's result is kept under its content key and found again by a later sweep of the
+    same task (:mod:`.sweep_cache`; default: ``HISTOSTUDY_SWEEP_CACHE``, else nothing kept), so that
+    a sweep stopped half-way redoes only what did not finish.
 
     Raises :class:`SweepTaskError` naming the first task that raised (by completion) or whose
     workers died more than ``allowed_failures`` times.
@@ -157,22 +162,40 @@ def run_sweep(task_fn: Callable[..., Any], tasks: Sequence, *, seed: int | np.ra
     shared = {} if shared is None else dict(shared)
     ex = resolve_executor(executor)
     calls = [(arg,) if seeds is None else (arg, s) for arg, s in zip(tasks, seeds or [None] * len(tasks))]
+    folder = resolve_sweep_cache(cache)
+    if folder is None or not calls:
+        return _run(task_fn, calls, shared, ex, chunk_size, progress, lambda i, value: None)
+    store = SweepCache(folder, task_fn, shared, (ex.kind, ex.threads_per_worker if ex.kind != "sequential" else 0))
+    keys = [store.key(call) for call in calls]
+    found = {i: value for i, (hit, value) in enumerate(store.load(k) for k in keys) if hit}
+    todo = [i for i in range(len(calls)) if i not in found]
+    done = _run(task_fn, [calls[i] for i in todo], shared, ex, chunk_size, progress,
+                lambda j, value: store.store(keys[todo[j]], value), [todo[j] for j in range(len(todo))])
+    found.update(zip(todo, done))
+    return [found[i] for i in range(len(calls))]
+
+
+def _run(task_fn, calls, shared, ex, chunk_size, progress, on_result, indices=None) -> list:
+    """The sweep's calls on ``ex``; ``on_result(j, value)`` as call ``j`` finishes; ``indices``: the
+    calls' task numbers (errors name them)."""
+    indices = list(range(len(calls))) if indices is None else indices
     if ex.kind == "sequential" or not calls:
-        return _run_sequential(task_fn, calls, shared, progress)
-    return _run_distributed(task_fn, calls, shared, ex, chunk_size, progress)
+        return _run_sequential(task_fn, calls, shared, progress, on_result, indices)
+    return _run_distributed(task_fn, calls, shared, ex, chunk_size, progress, on_result, indices)
 
 
-def _run_sequential(task_fn, calls, shared, progress) -> list:
+def _run_sequential(task_fn, calls, shared, progress, on_result, indices) -> list:
     results = []
-    for i, args in enumerate(_progress(calls, len(calls), progress)):
+    for j, args in enumerate(_progress(calls, len(calls), progress)):
         try:
             results.append(task_fn(*args, **shared))
         except Exception as exc:
-            raise _task_error(task_fn, i, exc) from exc
+            raise _task_error(task_fn, indices[j], exc) from exc
+        on_result(j, results[-1])
     return results
 
 
-def _run_distributed(task_fn, calls, shared, ex: SweepExecutor, chunk_size, progress) -> list:
+def _run_distributed(task_fn, calls, shared, ex: SweepExecutor, chunk_size, progress, on_result, indices) -> list:
     import logging
 
     import dask
@@ -216,10 +239,13 @@ def _run_distributed(task_fn, calls, shared, ex: SweepExecutor, chunk_size, prog
                         failed = erred[0] if erred else future
                         exc = failed.exception() if erred else exc
                         if isinstance(exc, SweepTaskError):
-                            raise exc
-                        raise _task_error(task_fn, first[failed.key], exc) from exc
+                            raise SweepTaskError(indices[exc.index], str(exc).replace(
+                                f"sweep task {exc.index} ", f"sweep task {indices[exc.index]} ", 1)) from exc
+                        raise _task_error(task_fn, indices[first[failed.key]], exc) from exc
                     # as_completed yields each future once, re-run or not
-                    results.update(enumerate(values, start=first[future.key]))
+                    for j, value in enumerate(values, start=first[future.key]):
+                        results[j] = value
+                        on_result(j, value)
             finally:
                 client.cancel(futures)
         return [results[i] for i in range(len(calls))]

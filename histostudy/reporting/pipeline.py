@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
 
-from histostudy.core import atomic_path, provenance
+from histostudy.core import SWEEP_CACHE_ENV, atomic_path, provenance
 from histostudy.core.provenance import REPO_ROOT
 from .interrupts import StudyInterrupted, remove_temporaries, signals_interrupt, stop_kernels
 from .profiles import Profile, load_profile, validate_profile
@@ -39,6 +39,8 @@ __all__ = ["NotebookFailed", "discover_notebooks", "run_study", "select_notebook
 NOTEBOOK_PATTERN = re.compile(r"^\d\d_[A-Za-z0-9_]+\.ipynb$")
 DEFAULT_NOTEBOOK_DIR = REPO_ROOT / "notebooks"
 _KERNEL_NAME = "histostudy-running-python"
+#: The folder of a run's output that keeps its sweeps' finished tasks (:mod:`histostudy.core.sweep_cache`).
+SWEEP_CACHE_FOLDER = ".sweep-cache"
 
 
 class NotebookFailed(RuntimeError):
@@ -97,7 +99,9 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
     ``run.json`` lists them in their order either way. A failed notebook stops new ones from
     starting; those already running finish.
 
-    A section whose content key (:func:`~.section_keys.section_key`) equals the one stored when it
+    The sweeps inside the notebooks keep their finished tasks in ``output_dir/.sweep-cache``
+    (:mod:`histostudy.core.sweep_cache`), so a section stopped half-way redoes only what did not
+    finish. A section whose content key (:func:`~.section_keys.section_key`) equals the one stored when it
     last finished in ``output_dir`` is kept (``"kept": true`` in ``run.json``, its wall time that of
     the run that made it); ``force`` runs every notebook again. Before each notebook the log gives
     the estimate of its wall time and of the run's time left, from the last finished run with the
@@ -135,7 +139,7 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
              for i, (nb_path, entry) in enumerate(zip(notebooks, record["notebooks"]), start=1)]
     _estimate(tasks, out, prof.name)
     started = time.perf_counter()
-    with signals_interrupt(), _running_kernel() as kernel_name:
+    with signals_interrupt(), _running_kernel() as kernel_name, _sweep_cache(out):
         failure = _run_tasks(tasks, kernel_name, workers, record)
     record["wall_seconds"] = time.perf_counter() - started
     write_run_record(out, record)
@@ -336,6 +340,28 @@ def _failed_cell(executed_path: Path) -> tuple[int, str] | None:
             return index, (source.strip().splitlines() or [""])[0][:80]
         index += 1
     return None
+
+
+class _sweep_cache:
+    """Context manager: the kernels' sweeps keep their finished tasks in ``<output>/.sweep-cache``
+    (:data:`~histostudy.core.SWEEP_CACHE_ENV`), unless the variable names a folder already, so that
+    a section stopped half-way redoes only the tasks that did not finish."""
+
+    def __init__(self, out: Path):
+        self._folder = str(out / SWEEP_CACHE_FOLDER)
+
+    def __enter__(self):
+        self._old = os.environ.get(SWEEP_CACHE_ENV)
+        if not (self._old or "").strip():
+            os.environ[SWEEP_CACHE_ENV] = self._folder
+        return self
+
+    def __exit__(self, *exc):
+        if self._old is None:
+            os.environ.pop(SWEEP_CACHE_ENV, None)
+        else:
+            os.environ[SWEEP_CACHE_ENV] = self._old
+        return False
 
 
 class _running_kernel:

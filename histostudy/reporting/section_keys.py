@@ -22,7 +22,6 @@ run (``docs/results/<profile>``).
 
 from __future__ import annotations
 
-import functools
 import hashlib
 import json
 import os
@@ -30,8 +29,7 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
-import histostudy
-from histostudy.core import atomic_write_json
+from histostudy.core import atomic_write_json, package_digest
 from histostudy.core.provenance import REPO_ROOT, git_commit, package_versions
 
 __all__ = ["KEY_FILE", "SectionKey", "changed_parts", "code_digest", "estimate_seconds", "kept_section", "record_key",
@@ -63,26 +61,10 @@ def _sha256_files(paths, root: Path) -> str:
     return digest.hexdigest()
 
 
-def _code_files(package: Path):
-    profiles = package / "reporting" / "profiles"
-    for path in package.rglob("*"):
-        if (path.is_file() and "__pycache__" not in path.parts and path.suffix != ".pyc"
-                and not (path.parent == profiles and path.suffix == ".toml")):
-            yield path
-
-
-@functools.lru_cache(maxsize=4)
-def _code_digest(package: str, stamp: tuple) -> str:
-    root = Path(package)
-    return _sha256_files(list(_code_files(root)), root)
-
-
 def code_digest(package: str | os.PathLike | None = None) -> str:
-    """SHA-256 of the package's files (names and bytes), its profiles' ``.toml`` files left out."""
-    root = Path(package) if package is not None else Path(histostudy.__file__).resolve().parent
-    # re-hashed when any file's size or time changes (the cache only spares repeated calls of one run)
-    stamp = tuple(sorted((p.as_posix(), p.stat().st_size, p.stat().st_mtime_ns) for p in _code_files(root)))
-    return _code_digest(str(root), stamp)
+    """SHA-256 of the package's files (names and bytes), its profiles' ``.toml`` files left out
+    (:func:`histostudy.core.package_digest`, which the sweeps' task cache keys too)."""
+    return package_digest(package)
 
 
 def weights_digest(models_dir: str | os.PathLike | None = None) -> str:

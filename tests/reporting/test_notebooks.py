@@ -60,6 +60,8 @@ def test_smoke_study_runs_every_notebook_and_writes_the_report(tmp_path):
             assert (out / p.stem / fig["path"]).stat().st_size > 1000
     assert (out / "report.html").stat().st_size > 1000
     assert not list(out.rglob("*.tmp*"))
+    # the notebooks' sweeps kept their finished tasks in the run's folder (for a resumed section)
+    assert list((out / ".sweep-cache").rglob("*.pkl"))
 
     # run again: every section is kept; a section left without its key (as a stopped run leaves the
     # one it was running) is the only one done again, the cheapest here

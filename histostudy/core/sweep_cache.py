@@ -1,0 +1,118 @@
+"""The results of finished sweep tasks kept on disk, so that a sweep stopped half-way (a lost
+machine, a stopped study run) does not redo them (no paper section: the study's long sweeps,
+e.g. notebook 07's labs, which take hours on 2 cores).
+
+A task's result is stored under its content key: the task function's module and name, the task's
+argument and seed, the sweep's shared inputs, the package's code (:func:`package_digest`), the
+numerical libraries' versions, the instruction-set restriction in force and how the executor runs
+it (sequential, or the workers' thread count: torch's kernels may round differently with other
+thread pools). A change in any of these misses the cache and runs the task; what is found was made
+by the same code on the same inputs. The keys hash pickled bytes, so inputs that pickle differently
+in another process (a set of strings under another hash seed) only miss, never mislead.
+
+The folder is :data:`SWEEP_CACHE_ENV` (``HISTOSTUDY_SWEEP_CACHE``) when a sweep's ``cache`` is left
+unset: ``histostudy reproduce`` points it into its output folder. Entries are pickles written
+atomically (one file per task); a file that cannot be read is a miss.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import os
+import pickle
+from pathlib import Path
+from typing import Any, Callable
+
+__all__ = ["SWEEP_CACHE_ENV", "SweepCache", "package_digest", "resolve_sweep_cache"]
+
+#: The environment variable that names the folder of every sweep's cache when ``cache`` is unset.
+SWEEP_CACHE_ENV = "HISTOSTUDY_SWEEP_CACHE"
+
+_KEY_LIBRARIES = ("numpy", "scipy", "torch", "opencv-python-headless", "pandas", "numba")
+
+
+def _package_files(root: Path):
+    profiles = root / "reporting" / "profiles"
+    for path in root.rglob("*"):
+        if (path.is_file() and "__pycache__" not in path.parts and path.suffix != ".pyc"
+                and not (path.parent == profiles and path.suffix == ".toml")):
+            yield path
+
+
+@functools.lru_cache(maxsize=4)
+def _digest(root: str, stamp: tuple) -> str:
+    base = Path(root)
+    digest = hashlib.sha256()
+    for path in sorted(_package_files(base), key=lambda p: p.relative_to(base).as_posix()):
+        digest.update(path.relative_to(base).as_posix().encode() + b"\0")
+        digest.update(hashlib.sha256(path.read_bytes()).digest())
+    return digest.hexdigest()
+
+
+def package_digest(package: str | os.PathLike | None = None) -> str:
+    """SHA-256 of the package's files (names and bytes; default: this ``histostudy``), its profiles'
+    ``.toml`` files left out (a study section keys its own parameters)."""
+    root = Path(package) if package is not None else Path(__file__).resolve().parents[1]
+    # hashed again when a file's size or time changes; otherwise once per process
+    stamp = tuple(sorted((p.as_posix(), p.stat().st_size, p.stat().st_mtime_ns) for p in _package_files(root)))
+    return _digest(str(root), stamp)
+
+
+def resolve_sweep_cache(cache: str | os.PathLike | None = None) -> Path | None:
+    """The cache folder of a sweep: ``cache`` itself, else :data:`SWEEP_CACHE_ENV` when it is set and
+    not empty, else None (nothing kept). The one place that reads the variable."""
+    if cache is not None:
+        return Path(cache)
+    value = os.environ.get(SWEEP_CACHE_ENV, "").strip()
+    return Path(value) if value else None
+
+
+class SweepCache:
+    """The finished tasks of one sweep (module docstring) in ``folder``; ``context`` holds what else
+    the results depend on (the executor's kind and threads)."""
+
+    def __init__(self, folder: str | os.PathLike, task_fn: Callable, shared: dict, context: tuple = ()):
+        import cloudpickle
+
+        from .machine import isa_restriction
+        from .provenance import package_versions
+
+        self.folder = Path(folder)
+        name = f"{getattr(task_fn, '__module__', '')}.{getattr(task_fn, '__qualname__', repr(task_fn))}"
+        base = hashlib.sha256()
+        for part in (name, package_digest(), repr(sorted(package_versions(_KEY_LIBRARIES).items())),
+                     repr(sorted(isa_restriction().items())), repr(context)):
+            base.update(part.encode() + b"\0")
+        base.update(hashlib.sha256(cloudpickle.dumps(shared, protocol=pickle.HIGHEST_PROTOCOL)).digest())
+        self._base = base.digest()
+        self.hits = 0
+
+    def key(self, call: tuple) -> str:
+        """The key of one task's call (its argument, and its seed when the sweep has one)."""
+        import cloudpickle
+
+        return hashlib.sha256(self._base + cloudpickle.dumps(call, protocol=pickle.HIGHEST_PROTOCOL)).hexdigest()
+
+    def _path(self, key: str) -> Path:
+        return self.folder / key[:2] / f"{key}.pkl"
+
+    def load(self, key: str) -> tuple[bool, Any]:
+        """``(True, result)`` where the task's result is stored and readable, else ``(False, None)``."""
+        try:
+            with open(self._path(key), "rb") as fh:
+                value = pickle.load(fh)
+        except (OSError, EOFError, pickle.UnpicklingError, AttributeError, ImportError):
+            return False, None
+        self.hits += 1
+        return True, value
+
+    def store(self, key: str, value: Any) -> None:
+        """Keep ``value`` as the task's result (atomically: a stopped write leaves no entry)."""
+        from .io import atomic_path
+
+        path = self._path(key)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as fh:
+                pickle.dump(value, fh, protocol=pickle.HIGHEST_PROTOCOL)
