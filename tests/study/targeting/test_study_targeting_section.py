@@ -11,12 +11,12 @@ from histostudy.study.targeting import _notebook as targeting_notebook
 
 #: The parameters cell of notebooks/05_targeting.ipynb as stored (its defaults).
 DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, pose_spacing_mm=0.47,
-                render_spacing_mm=0.25, background="phantom", n_experiments=1, zone_diameters_mm=(20.0, 25.0),
+                render_spacing_mm=0.47, background="phantom", n_experiments=1, zone_diameters_mm=(20.0, 25.0),
                 n_calibration_poses=4, pose_mode="fast", degradation="table1", learned_stages=True,
                 phantom_voxel_mm=0.5, cbct_voxel_mm=1.0, treatment_spacing_mm=(2.0, 2.0, 3.0),
                 bubble_offset_mm=(0.0, 0.0, 0.0), bias_correction=True, robot="both", n_figure_experiments=4,
                 sensitivity_poses=(4, 8, 12), sensitivity_noise=((0.25, 0.1), (0.5, 0.2), (1.0, 0.4)),
-                sensitivity_trials=20, render_3d=True)
+                sensitivity_trials=5, render_3d=True)
 
 
 def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones(notebook_parameters):
