@@ -14,7 +14,7 @@ TORCH_SPEC ?= torch==2.13.0
 TORCH_PIP_ARGS ?=
 PROFILE ?= smoke
 # notebooks `make reproduce` runs at once, each in its own kernel (the numbers do not depend on it)
-WORKERS ?= 1
+WORKERS ?= 2
 REPORTS ?= reports
 PYTEST_ARGS ?=
 # pytest-xdist workers of `make test` (0: one process); docs/testing.md
