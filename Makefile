@@ -13,8 +13,9 @@ VENV ?= .venv
 TORCH_SPEC ?= torch==2.13.0
 TORCH_PIP_ARGS ?=
 PROFILE ?= smoke
-# notebooks `make reproduce` runs at once, each in its own kernel (the numbers do not depend on it)
-WORKERS ?= 2
+# notebooks `make reproduce` runs at once, each in its own kernel (the numbers do not depend on it):
+# three for the smoke profile, whose short notebooks then overlap their serial parts; one otherwise
+WORKERS ?= $(if $(filter smoke,$(PROFILE)),3,1)
 REPORTS ?= reports
 PYTEST_ARGS ?=
 # pytest-xdist workers of `make test` (0: one process); docs/testing.md
