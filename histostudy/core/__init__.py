@@ -20,7 +20,7 @@ from .machine import (AVX2_RESTRICTION, BENCHMARK_ISAS, ISA_FLAGS, ISA_RESTRICTI
 from .moved_modules import MOVED_MODULES, MOVED_MODULES_REMOVED_IN, install, renamed_attributes
 from .provenance import git_commit, package_versions, provenance
 from .seeding import as_generator
-from .sweep_cache import SWEEP_CACHE_ENV, SweepCache, package_digest, resolve_sweep_cache
+from .sweep_cache import SWEEP_CACHE_ENV, SweepCache, files_digest, package_digest, resolve_sweep_cache
 from .sweeps import SCHEDULER_ENV, SweepExecutor, SweepTaskError, resolve_executor, run_sweep
 from .world_frame import WORLD_FRAME, world_frame_keys
 

@@ -24,7 +24,7 @@ import pickle
 from pathlib import Path
 from typing import Any, Callable
 
-__all__ = ["SWEEP_CACHE_ENV", "SweepCache", "package_digest", "resolve_sweep_cache"]
+__all__ = ["SWEEP_CACHE_ENV", "SweepCache", "files_digest", "package_digest", "resolve_sweep_cache"]
 
 #: The environment variable that names the folder of every sweep's cache when ``cache`` is unset.
 SWEEP_CACHE_ENV = "HISTOSTUDY_SWEEP_CACHE"
@@ -40,14 +40,20 @@ def _package_files(root: Path):
             yield path
 
 
-@functools.lru_cache(maxsize=4)
-def _digest(root: str, stamp: tuple) -> str:
+def files_digest(paths, root: str | os.PathLike) -> str:
+    """SHA-256 of ``paths`` (files under ``root``): each one's name relative to ``root`` and the
+    SHA-256 of its bytes, in name order."""
     base = Path(root)
     digest = hashlib.sha256()
-    for path in sorted(_package_files(base), key=lambda p: p.relative_to(base).as_posix()):
+    for path in sorted(paths, key=lambda p: p.relative_to(base).as_posix()):
         digest.update(path.relative_to(base).as_posix().encode() + b"\0")
         digest.update(hashlib.sha256(path.read_bytes()).digest())
     return digest.hexdigest()
+
+
+@functools.lru_cache(maxsize=4)
+def _digest(root: str, stamp: tuple) -> str:
+    return files_digest(list(_package_files(Path(root))), root)
 
 
 def package_digest(package: str | os.PathLike | None = None) -> str:

@@ -80,14 +80,7 @@ def _copy_section(source: Path, target: Path) -> None:
         if path.is_file() and path.suffix in PUBLISHED_SUFFIXES and path.stat().st_size <= _MAX_FILE_BYTES:
             dest = target / path.relative_to(source)
             dest.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(path, dest)
-            os.chmod(dest, 0o666 & ~_umask())
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+            shutil.copyfile(path, dest)  # a new file: mode 0o666 less the umask, as open() makes it
 
 
 def publish_run(run_dir: str | os.PathLike, destination: str | os.PathLike, *, allow_partial: bool = False,

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
-from histostudy.core import atomic_write_json, package_digest
+from histostudy.core import atomic_write_json, files_digest, package_digest
 from histostudy.core.provenance import REPO_ROOT, git_commit, package_versions
 
 __all__ = ["KEY_FILE", "SectionKey", "changed_parts", "code_digest", "estimate_seconds", "kept_section", "record_key",
@@ -53,14 +53,6 @@ class SectionKey:
     parts: dict
 
 
-def _sha256_files(paths, root: Path) -> str:
-    digest = hashlib.sha256()
-    for path in sorted(paths, key=lambda p: p.relative_to(root).as_posix()):
-        digest.update(path.relative_to(root).as_posix().encode() + b"\0")
-        digest.update(hashlib.sha256(path.read_bytes()).digest())
-    return digest.hexdigest()
-
-
 def code_digest(package: str | os.PathLike | None = None) -> str:
     """SHA-256 of the package's files (names and bytes), its profiles' ``.toml`` files left out
     (:func:`histostudy.core.package_digest`, which the sweeps' task cache keys too)."""
@@ -71,7 +63,7 @@ def weights_digest(models_dir: str | os.PathLike | None = None) -> str:
     """SHA-256 of the shipped networks' files (``data/models``); of nothing where there are none."""
     folder = Path(models_dir) if models_dir is not None else REPO_ROOT / "data" / "models"
     files = [p for p in folder.rglob("*") if p.is_file()] if folder.is_dir() else []
-    return _sha256_files(files, folder)
+    return files_digest(files, folder)
 
 
 def _sha256_json(value) -> str:

@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from histostudy.core import SWEEP_CACHE_ENV, SweepTaskError, package_digest, resolve_sweep_cache, run_sweep
+from histostudy.core import (SWEEP_CACHE_ENV, SweepTaskError, package_digest, process_umask, resolve_sweep_cache,
+                             run_sweep)
 
 TABLE = np.arange(12.0).reshape(4, 3)
 
@@ -75,17 +76,11 @@ def test_another_seed_or_shared_input_misses_and_so_does_a_broken_entry(tmp_path
     assert _calls(calls) == sorted(list(range(8)) * 3)
     # an entry that cannot be read is a miss, run again and rewritten
     entries = sorted((tmp_path / "cache").rglob("*.pkl"))
-    assert len(entries) == 24 and all(p.stat().st_mode & 0o777 == 0o666 & ~_umask() for p in entries)
+    assert len(entries) == 24 and all(p.stat().st_mode & 0o777 == 0o666 & ~process_umask() for p in entries)
     for entry in entries:
         entry.write_bytes(b"not a pickle")
     _sweep(tmp_path / "cache", calls)
     assert len(_calls(calls)) == 32
-
-
-def _umask():
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 def test_the_folder_comes_from_the_environment(tmp_path, calls, monkeypatch):

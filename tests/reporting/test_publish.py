@@ -11,6 +11,7 @@ from histostudy.cli import main
 from histostudy.reporting import (README_HEADLINE_BEGIN, README_HEADLINE_END, load_profile, publish_run,
                                   readme_headline, replace_readme_headline, stale_parameters)
 from histostudy.reporting.pipeline import DEFAULT_NOTEBOOK_DIR, discover_notebooks
+from histostudy.core import process_umask
 from histostudy.core.provenance import REPO_ROOT
 
 PUBLISHED = REPO_ROOT / "docs" / "results"
@@ -52,9 +53,8 @@ def test_publish_copies_results_tables_and_figures_not_notebooks_or_caches(folde
     assert {n["status"] for n in run["notebooks"][2:]} == {"not run"}
     md = report.read_text()
     assert "No results: status not run" in md and "Test CPU, 2 cores; ISA avx2" in md
-    umask = os.umask(0)
-    os.umask(umask)
-    assert (pub / "REPORT.md").stat().st_mode & 0o777 == 0o666 & ~umask
+    modes = {p.stat().st_mode & 0o777 for p in pub.rglob("*") if p.is_file()}
+    assert modes == {0o666 & ~process_umask()}
 
 
 def test_publish_refuses_unfinished_or_partial_runs_before_writing(folder, tmp_path):
