@@ -92,7 +92,9 @@ def run_ranges(setup: BudgetSetup, sources: Sequence[str], *, executor=None) -> 
 def range_bands(range_records: pd.DataFrame, budget_records: pd.DataFrame) -> pd.DataFrame:
     """Per swept source and study: the Euclidean mean (mm) of lab 0 at the source's low end, at its
     default (lab 0's "lab" configuration in ``budget_records``) and at its high end, the band's
-    width, and the source's status, unit and range; the rows of :func:`run_ranges`."""
+    width ``band_mm`` (the largest of the three less the smallest: a lab's figure need not be
+    monotone in a source, its draws being fixed; NaN ends, a study with no result, left out), and
+    the source's status, unit and range; the rows of :func:`run_ranges`."""
     lab0 = budget_records[budget_records["configuration"] == "lab"].assign(lab=0)
     at_default = lab_statistics(lab0).set_index("study")["euclidean_mean_mm"]
     if range_records.empty:
@@ -110,8 +112,13 @@ def range_bands(range_records: pd.DataFrame, budget_records: pd.DataFrame) -> pd
             rows.append({"source": source, "study": study, "status": ref.status, "unit": ref.unit, "low": ref.low,
                          "default": ref.value, "high": ref.high, "at_low_mm": low,
                          "at_default_mm": float(at_default[study]), "at_high_mm": high,
-                         "band_mm": abs(high - low)})
+                         "band_mm": _spread_mm((low, float(at_default[study]), high))})
     return pd.DataFrame(rows)
+
+
+def _spread_mm(values) -> float:
+    finite = [v for v in values if np.isfinite(v)]
+    return float(max(finite) - min(finite)) if len(finite) >= 2 else float("nan")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

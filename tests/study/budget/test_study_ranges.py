@@ -103,6 +103,17 @@ def test_range_bands_are_lab_zero_at_each_end():
     assert bands.loc["pose", "status"] == "swept" and bands.loc["pose", "high"] == B.SOURCE_REFERENCES["bubble_offset"].high
 
 
+def test_a_band_spans_the_default_where_the_source_is_not_monotone():
+    ranges = pd.DataFrame(_records(1, [1.5, 0, 0]) + _records(2, [1.5, 0, 0]))
+    ranges.insert(0, "value", ranges["lab"].map({1: 0.0, 2: 2.0}))
+    ranges.insert(0, "end", ranges["lab"].map({1: "low", 2: "high"}))
+    ranges.insert(0, "source", "gantry_sag")
+    budget = pd.DataFrame(_records(None, [1.0, 0, 0], "lab")).drop(columns="lab")
+    bands = B.range_bands(ranges, budget).set_index("study")
+    assert bands.loc["pose", "at_low_mm"] == pytest.approx(bands.loc["pose", "at_high_mm"])
+    assert bands.loc["pose", "band_mm"] == pytest.approx(0.5)  # both ends 1.5 mm, the default 1.0 mm
+
+
 @pytest.mark.slow
 def test_a_range_run_is_the_lab_run_alone():
     setup = _setup("bubble_offset", "projection")
