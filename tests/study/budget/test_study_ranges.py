@@ -89,11 +89,17 @@ def _records(lab, err, configuration=None):
     return rows
 
 
-def test_range_bands_are_lab_zero_at_each_end():
-    ranges = pd.DataFrame(_records(1, [0.5, 0, 0]) + _records(2, [2.0, 0, 0]))
+def _range_records(source, low_err, high_err):
+    """run_ranges' rows for ``source``: lab 1 at the low end (value 0), lab 2 at the high end (value 2)."""
+    ranges = pd.DataFrame(_records(1, low_err) + _records(2, high_err))
     ranges.insert(0, "value", ranges["lab"].map({1: 0.0, 2: 2.0}))
     ranges.insert(0, "end", ranges["lab"].map({1: "low", 2: "high"}))
-    ranges.insert(0, "source", "bubble_offset")
+    ranges.insert(0, "source", source)
+    return ranges
+
+
+def test_range_bands_are_lab_zero_at_each_end():
+    ranges = _range_records("bubble_offset", [0.5, 0, 0], [2.0, 0, 0])
     budget = pd.DataFrame(_records(None, [1.0, 0, 0], "lab") + _records(None, [9.0, 0, 0], "baseline")).drop(columns="lab")
     bands = B.range_bands(ranges, budget).set_index("study")
     assert list(bands.index) == ["pose", "targeting"]
@@ -104,10 +110,7 @@ def test_range_bands_are_lab_zero_at_each_end():
 
 
 def test_a_band_spans_the_default_where_the_source_is_not_monotone():
-    ranges = pd.DataFrame(_records(1, [1.5, 0, 0]) + _records(2, [1.5, 0, 0]))
-    ranges.insert(0, "value", ranges["lab"].map({1: 0.0, 2: 2.0}))
-    ranges.insert(0, "end", ranges["lab"].map({1: "low", 2: "high"}))
-    ranges.insert(0, "source", "gantry_sag")
+    ranges = _range_records("gantry_sag", [1.5, 0, 0], [1.5, 0, 0])
     budget = pd.DataFrame(_records(None, [1.0, 0, 0], "lab")).drop(columns="lab")
     bands = B.range_bands(ranges, budget).set_index("study")
     assert bands.loc["pose", "at_low_mm"] == pytest.approx(bands.loc["pose", "at_high_mm"])
