@@ -22,13 +22,12 @@ import tempfile
 import time
 from pathlib import Path
 
-
+from histostudy import treatment as tr
 from histostudy.core import atomic_write_json
 from histostudy.geometry import make_transform, rotation_about_axis
 from histostudy.imaging import cbct
-from histostudy.treatment import TreatmentZone, segment_treatment_zone
 from histostudy.robot import SimulatedUR5e
-from histostudy import treatment as tr
+from histostudy.treatment import TreatmentZone, segment_treatment_zone
 
 
 def best_of(fn, repeat: int = 3) -> float:

@@ -26,7 +26,7 @@ import torch
 from torch.nn import functional as F
 
 from histostudy.imaging import Frame, default_biplane
-from histostudy.learning import LearnedOrientation, UNet, UNetSegmenter, VGG19, build_network, shipped_model
+from histostudy.learning import VGG19, LearnedOrientation, UNet, UNetSegmenter, build_network, shipped_model
 from histostudy.reporting import load_profile
 
 

@@ -34,8 +34,13 @@ import numpy as np
 
 from histostudy.geometry import rotation_angle
 from histostudy.imaging import default_biplane, render_labels
-from histostudy.pose import (DistanceMaps, PoseCost, apply_left_perturbation, refine_levenberg_marquardt,
-                             refine_nelder_mead)
+from histostudy.pose import (
+    DistanceMaps,
+    PoseCost,
+    apply_left_perturbation,
+    refine_levenberg_marquardt,
+    refine_nelder_mead,
+)
 from histostudy.transducer import FEATURE_CLASSES, TransducerModel, pose_facing
 
 

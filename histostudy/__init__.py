@@ -7,13 +7,7 @@ transforms), ``transducer`` (§II-B.1), ``imaging`` (views eq. 1-2, frames, rend
 CBCT, §II-A, §II-B.2), ``learning`` (U-Net and VGG19, §II-B.2, §II-B.4), ``pose`` (eq. 3-5,
 §II-B.3-4), ``calibration`` and ``robot`` (§II-C), ``treatment`` (§II-D, §II-E.3-4), ``study``
 (one front module or sub-package per notebook) and ``reporting`` (profiles, the papermill
-pipeline, the report beside the paper's values), and ``cli``, the ``histostudy`` command. Old
-module paths of families that became sub-packages still import, with a DeprecationWarning, until
-the version CHANGELOG.md names (docs/architecture.md, "Where modules moved").
+pipeline, the report beside the paper's values), and ``cli``, the ``histostudy`` command.
 """
 
 __version__ = "0.2.0"
-
-from histostudy.core import moved_modules as _moved_modules
-
-_moved_modules.install()

@@ -116,9 +116,19 @@ def main(argv=None) -> int:
     import torch
 
     from histostudy.core import git_commit, machine_summary
-    from histostudy.learning import (TRAINING_TABLES, HybridFrames, RenderConfig, TrainingConfig, default_cache_dir,
-                                     export, export_name, full_precision_copy, half_precision_copy, run_frame_sets,
-                                     train)
+    from histostudy.learning import (
+        TRAINING_TABLES,
+        HybridFrames,
+        RenderConfig,
+        TrainingConfig,
+        default_cache_dir,
+        export,
+        export_name,
+        full_precision_copy,
+        half_precision_copy,
+        run_frame_sets,
+        train,
+    )
     from histostudy.reporting import load_profile
 
     out = Path(args.out)

@@ -10,8 +10,16 @@ import numpy as np
 import pytest
 
 from histostudy.calibration import calibrate, solve_axxb
-from histostudy.imaging import (Frame, FrameRenderConfig, View, Volume, default_biplane, load_volume, render_frame,
-                                simulate_cbct)
+from histostudy.imaging import (
+    Frame,
+    FrameRenderConfig,
+    View,
+    Volume,
+    default_biplane,
+    load_volume,
+    render_frame,
+    simulate_cbct,
+)
 from histostudy.pose import PoseConfig, estimate_pose
 from histostudy.robot import SimulatedUR5e
 from histostudy.transducer import TransducerModel, check_label_image, pose_facing

@@ -1,19 +1,16 @@
 """The package's layering (docs/architecture.md, "Layers"): imports go one way, between subpackages
-and inside ``study`` and ``pose``, there are no import cycles, no name prefix is shared by three
-modules, and nothing in the project itself goes through the deprecated module paths."""
+and inside ``study`` and ``pose``, there are no import cycles, no package imports another's private
+module, and each package's ``__all__`` is a short, hand-written list of what its callers use."""
 
 from __future__ import annotations
 
 import ast
 import importlib
-import json
-import warnings
 from pathlib import Path
 
 import pytest
 
 import histostudy
-from histostudy.core import MOVED_MODULES, MOVED_MODULES_REMOVED_IN
 
 PACKAGE = Path(histostudy.__file__).parent
 REPO = PACKAGE.parent
@@ -35,12 +32,11 @@ LAYERS = {
     "cli": 11,
 }
 
-#: The flat module paths deprecated in 0.1.0 and removed in 0.2.0 (CHANGELOG.md).
+#: Module paths removed in 0.2.0 and 0.3.0 (CHANGELOG.md, "Removed"): a sample of each release's.
 REMOVED = ("histostudy.carm", "histostudy.frame", "histostudy.render", "histostudy.anatomy", "histostudy.volume_io",
-           "histostudy.segment", "histostudy.orientation", "histostudy.handeye", "histostudy.stats")
-
-#: Old module paths of families that became sub-packages: importable, deprecated (CHANGELOG.md).
-MOVED = MOVED_MODULES
+           "histostudy.segment", "histostudy.orientation", "histostudy.handeye", "histostudy.stats",
+           "histostudy.core.moved_modules", "histostudy.study.targeting_setup", "histostudy.imaging.anatomy_params",
+           "histostudy.learning.training_config", "histostudy.pose.tracker", "histostudy.study.error_budget")
 
 
 def _modules() -> dict[str, Path]:
@@ -124,70 +120,59 @@ def test_no_import_cycles():
     assert cycles == [], "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
 
 
-def _project_sources():
-    for path in list(PACKAGE.rglob("*.py")) + list((REPO / "benchmarks").glob("*.py")) + list((REPO / "tests").rglob("*.py")):
-        if path.name != Path(__file__).name:
-            yield path, path.read_text()
-    for path in (REPO / "notebooks").glob("*.ipynb"):
-        cells = json.loads(path.read_text())["cells"]
-        yield path, "\n".join("".join(c["source"]) for c in cells if c["cell_type"] == "code")
-
-
-def test_the_project_itself_uses_no_deprecated_module_path():
-    users = []
-    for path, source in _project_sources():
-        tree = ast.parse(source)
-        for node in ast.walk(tree):
-            if isinstance(node, ast.ImportFrom) and node.module:
-                targets = {node.module} | {f"{node.module}.{a.name}" for a in node.names}
-            elif isinstance(node, ast.Import):
-                targets = {a.name for a in node.names}
-            else:
-                continue
-            users += [f"{path.relative_to(REPO)}: {t}" for t in targets & (set(MOVED) | set(REMOVED))]
-    assert users == []
-
-
 @pytest.mark.parametrize("old", REMOVED)
 def test_the_removed_module_paths_no_longer_import(old):
     with pytest.raises(ModuleNotFoundError):
         importlib.import_module(old)
 
 
-@pytest.mark.parametrize("old, new", sorted(MOVED.items()))
-def test_moved_module_paths_import_the_same_module_with_a_deprecation_warning(old, new):
+def test_importing_the_package_installs_no_import_hook():
+    import subprocess
     import sys
 
-    sys.modules.pop(old, None)
-    public = ".".join(p for p in new.split(".") if not p.startswith("_"))
-    with pytest.warns(DeprecationWarning, match=rf"{old.replace('.', '[.]')} is deprecated and goes in histostudy "
-                                                 rf"{MOVED_MODULES_REMOVED_IN.replace('.', '[.]')}: import from "
-                                                 rf"{public.replace('.', '[.]')} instead"):
-        alias = importlib.import_module(old)
-    assert alias is importlib.import_module(new)
-    assert old not in MODULES, f"{old} is both moved and still a file"
+    code = "import sys; n = len(sys.meta_path); import histostudy; print(len(sys.meta_path) - n)"
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "0"
 
 
-@pytest.mark.parametrize("subpackage", sorted(set(LAYERS) - {"study", "cli"}))
-def test_each_subpackage_exports_every_public_name_of_its_modules(subpackage):
-    package = importlib.import_module(f"histostudy.{subpackage}")
-    folder = PACKAGE / subpackage
-    declared = set()
-    for path in sorted(folder.glob("*.py")) + sorted(folder.glob("*/__init__.py")):
-        if path == folder / "__init__.py":
-            continue
-        name = path.parent.name if path.name == "__init__.py" else path.stem
-        module = importlib.import_module(f"histostudy.{subpackage}.{name}")
-        assert hasattr(module, "__all__"), f"histostudy.{subpackage}.{name} declares no __all__"
-        declared |= set(module.__all__)
-    if subpackage == "robot":
-        # hand-written: the protocol, arms and kinematics users drive; the simulated controller's
-        # wire protocol and server stay in their modules
-        assert set(package.__all__) <= declared
-    else:
-        assert set(package.__all__) == declared
-    missing = [n for n in package.__all__ if not hasattr(package, n)]
-    assert missing == [], f"histostudy.{subpackage}.__all__ names what it does not import: {missing}"
+def _private_owner(target: str) -> str | None:
+    """The package whose private module (or private name) ``target`` is, or None where it is public."""
+    parts = target.split(".")
+    for i, part in enumerate(parts):
+        if part.startswith("_") and not part.startswith("__"):
+            owner = ".".join(parts[:i])
+            # a private name of a module is its package's
+            if owner in MODULES and MODULES[owner].name != "__init__.py":
+                owner = owner.rsplit(".", 1)[0]
+            return owner
+    return None
+
+
+def test_no_package_imports_another_package_s_private_module():
+    """A package's ``_private`` modules are its own: another package imports the name from the
+    package's public ``__init__`` or a public module (docs/architecture.md, "Layers")."""
+    wrong = []
+    for module, path in MODULES.items():
+        package = module if path.name == "__init__.py" else module.rsplit(".", 1)[0]
+        for target in _imports(module, path):
+            owner = _private_owner(target)
+            if owner is not None and not (package == owner or package.startswith(owner + ".")):
+                wrong.append(f"{module} -> {target}")
+    assert wrong == [], "imports of another package's private module:\n" + "\n".join(sorted(set(wrong)))
+
+
+#: The most names a package's ``__all__`` lists: what callers use, not every public name of its modules.
+MAX_EXPORTS = 40
+
+
+@pytest.mark.parametrize("package", sorted(m for m, p in MODULES.items() if p.name == "__init__.py"))
+def test_each_package_exports_a_short_hand_written_list(package):
+    module = importlib.import_module(package)
+    exported = list(getattr(module, "__all__", ()))
+    assert len(exported) <= MAX_EXPORTS, f"{package}.__all__ has {len(exported)} names"
+    assert len(set(exported)) == len(exported), f"{package}.__all__ names a name twice"
+    missing = [n for n in exported if not hasattr(module, n)]
+    assert missing == [], f"{package}.__all__ names what it does not import: {missing}"
+    assert all(not n.startswith("_") for n in exported)
 
 
 #: Rank of each unit (module or sub-package) of ``histostudy.study``: a unit imports only units of a

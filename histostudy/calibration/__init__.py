@@ -7,8 +7,11 @@ the calibrated chain run to a target, and the calibration that resolves the tran
 symmetry (``targeting``).
 """
 
-from . import (axxb as _axxb, dual_quaternion as _dual_quaternion, procedure as _procedure, sensitivity as _sensitivity,
-               targeting as _targeting)
+from . import axxb as _axxb
+from . import dual_quaternion as _dual_quaternion
+from . import procedure as _procedure
+from . import sensitivity as _sensitivity
+from . import targeting as _targeting
 from .axxb import AXXBSolution, DegenerateMotionError, daniilidis_matrix, solve_axxb, solve_axxb_dual_quaternions
 from .dual_quaternion import dual_quaternion_from_transform, transform_from_dual_quaternion
 from .procedure import CalibrationError, HandEyeCalibration, calibrate, flange_pose_for_target, motion_pairs

@@ -32,9 +32,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from histostudy.geometry import check_rigid
-from .dual_quaternion import (check_unit_dual_quaternions, dual_quaternions_from_transforms, invert_transforms,
-                              quaternion_conjugate, quaternion_product, rotation_angles_rad, skew_matrices,
-                              transforms_from_dual_quaternions)
+
+from .dual_quaternion import (
+    check_unit_dual_quaternions,
+    dual_quaternions_from_transforms,
+    invert_transforms,
+    quaternion_conjugate,
+    quaternion_product,
+    rotation_angles_rad,
+    skew_matrices,
+    transforms_from_dual_quaternions,
+)
 
 __all__ = ["AXXBSolution", "DegenerateMotionError", "daniilidis_matrix", "solve_axxb", "solve_axxb_dual_quaternions"]
 

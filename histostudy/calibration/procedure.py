@@ -37,8 +37,15 @@ import numpy as np
 
 from histostudy.core import atomic_write_json, to_jsonable
 from histostudy.geometry import check_rigid, check_rotation, invert_transform, make_transform
-from .axxb import (MIN_AXIS_ANGLE_DEG, MIN_ROTATION_DEG, DegenerateMotionError, check_transform_list,
-                   solution_details, solve_motion_dual_quaternions)
+
+from .axxb import (
+    MIN_AXIS_ANGLE_DEG,
+    MIN_ROTATION_DEG,
+    DegenerateMotionError,
+    check_transform_list,
+    solution_details,
+    solve_motion_dual_quaternions,
+)
 from .dual_quaternion import dual_quaternions_from_transforms, invert_transforms, rotation_angles_rad
 
 __all__ = ["CalibrationError", "HandEyeCalibration", "calibrate", "flange_pose_for_target", "motion_pairs"]
@@ -163,7 +170,7 @@ class HandEyeCalibration:
         }
 
     # ---- the gate targeting runs behind
-    def check(self, max_focal_residual_mm: float = 2.0, max_rotation_residual_deg: float = 1.0) -> "HandEyeCalibration":
+    def check(self, max_focal_residual_mm: float = 2.0, max_rotation_residual_deg: float = 1.0) -> HandEyeCalibration:
         """Raise :class:`CalibrationError` if any pose's focal-point residual exceeds
         ``max_focal_residual_mm`` or its rotation residual ``max_rotation_residual_deg``; returns
         ``self`` otherwise. The defaults (2 mm, 1°) are the study's bound: about the paper's
@@ -215,7 +222,7 @@ class HandEyeCalibration:
         )
 
     @classmethod
-    def from_dict(cls, d: dict) -> "HandEyeCalibration":
+    def from_dict(cls, d: dict) -> HandEyeCalibration:
         if not isinstance(d, dict):
             raise TypeError(f"d must be a dict from HandEyeCalibration.to_dict, got {type(d).__name__}")
         if d.get("schema") not in (SCHEMA, *LEGACY_SCHEMAS):
@@ -243,7 +250,7 @@ class HandEyeCalibration:
         return atomic_write_json(path, self.to_dict())
 
     @classmethod
-    def load(cls, path) -> "HandEyeCalibration":
+    def load(cls, path) -> HandEyeCalibration:
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"path {str(path)!r}: no hand-eye calibration file there")

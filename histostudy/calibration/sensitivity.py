@@ -11,6 +11,7 @@ import numpy as np
 
 from histostudy.core import SweepExecutor, as_generator, run_sweep
 from histostudy.geometry import check_rigid, invert_transform, make_transform, matrix_from_rotvec
+
 from .dual_quaternion import rotation_angles_rad
 from .procedure import calibrate
 

@@ -18,6 +18,7 @@ import itertools
 import numpy as np
 
 from histostudy.geometry import invert_transform, make_transform, matrix_from_rotvec, rotation_angle
+
 from .axxb import DegenerateMotionError, check_transform_list
 from .procedure import HandEyeCalibration, calibrate
 from .sensitivity import R_BASE_FLANGE_DOWN

@@ -15,7 +15,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import lab as _lab, study as _study
+from . import lab as _lab
+from . import study as _study
 from .console import common_parent, configure_logging
 
 __all__ = ["build_parser", "main"]

@@ -10,6 +10,7 @@ import signal
 import sys
 
 from histostudy.reporting import PROFILE_NAMES, load_profile
+
 from .console import add_command, positive_int
 
 #: The ``[training.<table>]`` tables ``histostudy train`` runs (histostudy.learning.TRAINING_TABLES).
@@ -234,8 +235,16 @@ def _train(args) -> int:
 def _calibrate_int8(args) -> int:
     import time
 
-    from histostudy.learning import (MODELS_DIR, HybridFrames, UNetSegmenter, calibrate_int8, default_cache_dir,
-                                     int8_available, int8_calibration_path, save_int8_calibration)
+    from histostudy.learning import (
+        MODELS_DIR,
+        HybridFrames,
+        UNetSegmenter,
+        calibrate_int8,
+        default_cache_dir,
+        int8_available,
+        int8_calibration_path,
+        save_int8_calibration,
+    )
 
     if not int8_available():
         print("histostudy calibrate-int8: this torch has no int8 (oneDNN) kernels", file=sys.stderr)

@@ -6,7 +6,7 @@ import os
 import platform
 import subprocess
 import sys
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
 
@@ -46,7 +46,7 @@ def git_commit(repo: str | os.PathLike = REPO_ROOT) -> str:
 def provenance() -> dict:
     """Everything needed to tell two runs apart: time, versions, commit, machine."""
     return {
-        "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
         "git_commit": git_commit(),
         "versions": package_versions(),
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(), "executable": sys.executable,

@@ -21,8 +21,9 @@ import functools
 import hashlib
 import os
 import pickle
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 __all__ = ["SWEEP_CACHE_ENV", "SweepCache", "files_digest", "package_digest", "resolve_sweep_cache"]
 

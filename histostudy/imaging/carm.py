@@ -22,10 +22,10 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Iterable, Sequence
 
 import numpy as np
 import scipy.linalg
@@ -105,7 +105,7 @@ class View:
         pixel_mm: float = 0.308,
         principal_point: tuple[float, float] | None = None,
         name: str = "",
-    ) -> "View":
+    ) -> View:
         """An ideal C-arm view from gantry angles (see the module docstring for the convention).
 
         Args:
@@ -155,12 +155,12 @@ class View:
         return cls(P=P, shape=(rows, cols), pixel_mm=pixel_mm, name=name, gantry=gantry)
 
     @classmethod
-    def from_matrix(cls, P, shape: tuple[int, int], pixel_mm: float, name: str = "") -> "View":
+    def from_matrix(cls, P, shape: tuple[int, int], pixel_mm: float, name: str = "") -> View:
         """A view from a user's calibrated 3x4 matrix (e.g. from a C-arm calibration phantom)."""
         return cls(P=P, shape=shape, pixel_mm=pixel_mm, name=name)
 
     @classmethod
-    def from_krt(cls, K, R, t, shape: tuple[int, int], pixel_mm: float, name: str = "") -> "View":
+    def from_krt(cls, K, R, t, shape: tuple[int, int], pixel_mm: float, name: str = "") -> View:
         """A view from a calibration's intrinsics and pose: ``P = K @ [R | t]`` (eq. 1).
 
         ``K``: 3x3 upper-triangular intrinsics in pixels (focal lengths > 0, principal point in
@@ -181,7 +181,7 @@ class View:
         return cls(P=K @ np.hstack([R, t[:, None]]), shape=shape, pixel_mm=pixel_mm, name=name)
 
     @classmethod
-    def from_dicom(cls, dataset, *, frame_index: int | None = None, name: str = "") -> "View":
+    def from_dicom(cls, dataset, *, frame_index: int | None = None, name: str = "") -> View:
         """The view a DICOM XA/RF object records (a pydicom dataset or a file path).
 
         Reads the positioner angles, the source distances, ``ImagerPixelSpacing`` and the image
@@ -209,7 +209,7 @@ class View:
         rows = np.array([[1.0, 0.0, 0.0], [0.0, ratio, cv * (1.0 - ratio)], [0.0, 0.0, 1.0]])
         return cls(P=rows @ view.P, shape=view.shape, pixel_mm=col_mm, name=name, gantry=gantry)
 
-    def scaled(self, factor: float) -> "View":
+    def scaled(self, factor: float) -> View:
         """The view of the same geometry on an image resampled by ``factor`` (0.25: 1240x960 -> 310x240).
 
         Keeps the pixel-centre convention: ``u' = factor * u + (factor - 1) / 2``.
@@ -307,7 +307,7 @@ class View:
         return out
 
     @classmethod
-    def from_dict(cls, data: dict) -> "View":
+    def from_dict(cls, data: dict) -> View:
         """A view from :meth:`to_dict`'s form; only ``P``, ``shape`` and ``pixel_mm`` are required."""
         if not isinstance(data, dict):
             raise ValueError(f"a view must be a JSON object, got {type(data).__name__}")

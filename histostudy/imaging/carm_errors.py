@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from histostudy.geometry import invert_transform
+
 from .carm import View
 
 __all__ = ["GRAVITY_CARM", "displaced_view", "miscalibrated_view"]

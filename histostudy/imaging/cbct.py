@@ -21,6 +21,7 @@ from scipy import ndimage
 
 from histostudy.core import as_generator
 from histostudy.geometry import as_points, check_rigid, invert_transform, transform_points
+
 from .volume import Volume, check_volume, vector3_mm
 
 __all__ = [

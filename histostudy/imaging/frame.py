@@ -23,6 +23,7 @@ import numpy as np
 
 from histostudy.geometry import check_rigid
 from histostudy.transducer import check_label_image
+
 from .carm import View
 
 __all__ = ["Frame", "line_integrals_from_pixels", "load_frame"]
@@ -69,7 +70,7 @@ class Frame:
     def shape(self) -> tuple[int, int]:
         return self.view.shape
 
-    def with_view(self, view: View) -> "Frame":
+    def with_view(self, view: View) -> Frame:
         """The same image, labels and truth under another geometry: what an estimator given a
         lab's (imperfect) calibration of the C-arm sees. Returns ``self`` for the same view."""
         if view is self.view:

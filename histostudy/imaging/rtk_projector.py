@@ -30,13 +30,14 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import scipy.ndimage
 
 from histostudy.geometry import check_rigid
 from histostudy.transducer import FEATURE_CLASSES, TransducerModel
+
 from .carm import View
 from .frame import Frame
 from .render._reference import add_poisson_noise, background_line_integrals, render_labels

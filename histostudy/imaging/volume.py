@@ -96,7 +96,7 @@ class Volume:
             self.T_world_file_voxel = T
 
     @classmethod
-    def from_bounds(cls, lower_mm, upper_mm, spacing_mm, fill: float = 0.0) -> "Volume":
+    def from_bounds(cls, lower_mm, upper_mm, spacing_mm, fill: float = 0.0) -> Volume:
         """A volume filled with ``fill`` whose voxel centres span ``[lower_mm, upper_mm]`` (world, mm).
 
         The grid starts at ``lower_mm`` and holds as many whole voxels as fit up to ``upper_mm``
@@ -179,7 +179,7 @@ class Volume:
         n = np.asarray(self.shape_xyz)
         return np.all((ijk >= -1e-9) & (ijk <= n - 1 + 1e-9), axis=1)
 
-    def with_data(self, data) -> "Volume":
+    def with_data(self, data) -> Volume:
         """A volume on the same grid holding ``data`` (same shape required)."""
         data = np.asarray(data)
         if data.shape != self.data.shape:

@@ -13,22 +13,46 @@ The lab-like dataset the project generates to stand in for a lab's files is the 
 (:mod:`histostudy.study.lab_dataset`).
 """
 
-from . import (access as _access, inputs as _inputs, listening as _listening, pairing as _pairing,
-               pose_lines as _pose_lines, receiver as _receiver, receiver_counts as _receiver_counts, sender as _sender, tls as _tls,
-               workflow as _workflow, xray_objects as _xray_objects)
+from . import access as _access
+from . import inputs as _inputs
+from . import listening as _listening
+from . import pairing as _pairing
+from . import pose_lines as _pose_lines
+from . import receiver as _receiver
+from . import receiver_counts as _receiver_counts
+from . import sender as _sender
+from . import tls as _tls
+from . import workflow as _workflow
+from . import xray_objects as _xray_objects
 from .access import AllowList, AssociationGate, Modality, check_listening_address, load_modalities, parse_allow
 from .inputs import FLANGE_DISTANCE_MM, FLANGE_UNIT_SPLIT, check_flange_pose_units
 from .listening import listen, pose_summary
-from .pairing import BiplanePairer, DEFAULT_FRAME_INTERVAL_S, Pairing, PlaneFrame, frame_times, posix_seconds
+from .pairing import DEFAULT_FRAME_INTERVAL_S, BiplanePairer, Pairing, PlaneFrame, frame_times, posix_seconds
 from .pose_lines import pose_line
 from .receiver import FrameReceiver
 from .receiver_counts import COUNT_KEYS, LATENCY_WINDOW, ReceiverCounts
 from .sender import SentObject, send_frames, stream_frames
 from .tls import TLSConfig
-from .workflow import (READINGS, TargetingPlan, accepted_stations, calibrate_from_poses, execute_targeting,
-                       load_flange_poses, load_pose_record, plan_targeting, plan_targeting_either_reading)
-from .xray_objects import (PendingFrame, REJECTION_STATUSES, ReceivedFrame, X_RAY_SOP_CLASSES, XRayObjectRejected,
-                           decode_xray_object, read_xray_header)
+from .workflow import (
+               READINGS,
+               TargetingPlan,
+               accepted_stations,
+               calibrate_from_poses,
+               execute_targeting,
+               load_flange_poses,
+               load_pose_record,
+               plan_targeting,
+               plan_targeting_either_reading,
+)
+from .xray_objects import (
+               REJECTION_STATUSES,
+               X_RAY_SOP_CLASSES,
+               PendingFrame,
+               ReceivedFrame,
+               XRayObjectRejected,
+               decode_xray_object,
+               read_xray_header,
+)
 
 # every public name of the modules above, as each module's __all__ declares it
 __all__ = list(dict.fromkeys([*_access.__all__, *_inputs.__all__, *_listening.__all__, *_pairing.__all__,

@@ -40,8 +40,8 @@ import json
 import logging
 import os
 import socket
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Callable, Iterable
 
 from .sender import check_ae_title, check_host, check_port
 
@@ -129,11 +129,11 @@ class AllowList:
             return f"the calling AE title {ae_title!r} is none of {self.ae_titles}"
         return f"{ae_title!r} may call only from {sorted(set(hosts))}, not from {address}"
 
-    def __add__(self, other: "AllowList") -> "AllowList":
+    def __add__(self, other: AllowList) -> AllowList:
         return AllowList(self.modalities + other.modalities)
 
     @classmethod
-    def of(cls, allow) -> "AllowList | None":
+    def of(cls, allow) -> AllowList | None:
         """An AllowList from ``allow``: one, a Modality, ``AE[@HOST]`` texts and Modalities, or None (no list)."""
         if allow is None or isinstance(allow, AllowList):
             return allow

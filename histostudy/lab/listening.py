@@ -7,10 +7,11 @@ from __future__ import annotations
 
 import datetime as _dt
 import os
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 from histostudy.imaging import View
 from histostudy.transducer import TransducerModel
+
 from .access import check_listening_address
 from .receiver import FrameReceiver
 

@@ -29,8 +29,9 @@ from __future__ import annotations
 import bisect
 import datetime as _dt
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 __all__ = ["BiplanePairer", "DEFAULT_FRAME_INTERVAL_S", "Pairing", "PlaneFrame", "frame_times", "posix_seconds"]
 
@@ -38,7 +39,7 @@ __all__ = ["BiplanePairer", "DEFAULT_FRAME_INTERVAL_S", "Pairing", "PlaneFrame",
 #: writer's default cine rate (:func:`histostudy.imaging.xa_dataset`).
 DEFAULT_FRAME_INTERVAL_S = 0.0667
 
-_EPOCH = _dt.datetime(1970, 1, 1, tzinfo=_dt.timezone.utc)
+_EPOCH = _dt.datetime(1970, 1, 1, tzinfo=_dt.UTC)
 
 
 @dataclass(frozen=True)
@@ -215,7 +216,7 @@ def frame_times(ds) -> tuple[list[_dt.datetime], float | None]:
 def posix_seconds(t: _dt.datetime) -> float:
     """``t`` as float seconds since the POSIX epoch; a naive time is read as UTC (see the module)."""
     if t.tzinfo is None:
-        t = t.replace(tzinfo=_dt.timezone.utc)
+        t = t.replace(tzinfo=_dt.UTC)
     return (t - _EPOCH).total_seconds()
 
 

@@ -16,11 +16,12 @@ from __future__ import annotations
 
 import json
 import logging
-from typing import Sequence
+from collections.abc import Sequence
 
 from histostudy.core import to_jsonable
 from histostudy.pose import PoseResult, pose_record
 from histostudy.transducer import TransducerModel
+
 from .xray_objects import ReceivedFrame
 
 __all__ = ["pose_line"]

@@ -21,6 +21,7 @@ import time
 import numpy as np
 
 from histostudy.pose import half_turn_reading
+
 from .pose_lines import append_pose_line, pose_line
 from .xray_objects import XRayObjectRejected
 

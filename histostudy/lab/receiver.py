@@ -67,20 +67,27 @@ import logging
 import os
 import threading
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Callable, Sequence
 
 from histostudy.imaging import View
 from histostudy.pose import Tracker, TrackingConfig
 from histostudy.transducer import TransducerModel
+
 from .access import MAX_OBJECT_BYTES, MAX_PDU_BYTES, AllowList, AssociationGate, ConnectionGuard, listening_error
 from .pairing import DEFAULT_FRAME_INTERVAL_S, BiplanePairer, PlaneFrame
 from .pose_worker import PoseWorker
 from .receiver_counts import ReceiverCounts
 from .sender import check_ae_title, check_count, check_host, check_port, check_positive
 from .tls import ServerTLS, tls_context
-from .xray_objects import (STATUS_OUT_OF_RESOURCES, STATUS_SUCCESS, XRayObjectRejected, read_c_store,
-                           rejection_response, storage_application_entity)
+from .xray_objects import (
+    STATUS_OUT_OF_RESOURCES,
+    STATUS_SUCCESS,
+    XRayObjectRejected,
+    read_c_store,
+    rejection_response,
+    storage_application_entity,
+)
 
 __all__ = ["FrameReceiver"]
 
@@ -275,7 +282,7 @@ class FrameReceiver(PoseWorker):
             self._out.close()
         log.info("receiver stopped: %s", {k: v for k, v in self.stats().items() if not isinstance(v, dict)})
 
-    def __enter__(self) -> "FrameReceiver":
+    def __enter__(self) -> FrameReceiver:
         self.start()
         return self
 

@@ -19,8 +19,8 @@ import dataclasses
 import logging
 import os
 import ssl
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 __all__ = ["TLSConfig"]
 

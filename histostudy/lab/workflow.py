@@ -26,18 +26,26 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
-from histostudy.calibration import (HandEyeCalibration, calibrate_half_turns, target_orientation, tcp_for_target)
+from histostudy.calibration import HandEyeCalibration, calibrate_half_turns, target_orientation, tcp_for_target
 from histostudy.core import to_jsonable, world_frame_keys
 from histostudy.geometry import check_rigid, check_rotation, invert_transform
 from histostudy.imaging import Volume, check_volume, ras_from_lps
-from histostudy.robot import (HOME_JOINTS_RAD, Robot, UnreachablePoseError, Workspace, WorkspaceViolation,
-                             forward_kinematics, inverse_kinematics_closest, transform_from_pose)
+from histostudy.robot import (
+    HOME_JOINTS_RAD,
+    Robot,
+    UnreachablePoseError,
+    Workspace,
+    WorkspaceViolation,
+    forward_kinematics,
+    inverse_kinematics_closest,
+    transform_from_pose,
+)
 from histostudy.transducer import HALF_TURN
 
 __all__ = ["READINGS", "TargetingPlan", "accepted_stations", "calibrate_from_poses", "execute_targeting",

@@ -47,13 +47,22 @@ from __future__ import annotations
 import datetime as _dt
 import logging
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 
-from histostudy.imaging import (RECEIVABLE_TRANSFER_SYNTAXES, View, X_RAY_SOP_CLASSES, XRayObjectRejected,
-                                check_sop_class, check_xray_object, line_integrals_from_pixels, xray_pixels)
+from histostudy.imaging import (
+    RECEIVABLE_TRANSFER_SYNTAXES,
+    X_RAY_SOP_CLASSES,
+    View,
+    XRayObjectRejected,
+    check_sop_class,
+    check_xray_object,
+    line_integrals_from_pixels,
+    xray_pixels,
+)
+
 from .pairing import frame_times, posix_seconds
 
 __all__ = ["PendingFrame", "REJECTION_STATUSES", "ReceivedFrame", "X_RAY_SOP_CLASSES", "XRayObjectRejected",

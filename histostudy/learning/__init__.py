@@ -10,29 +10,95 @@ orientation angles and sources (``orientation``). The pose estimation above this
 segmenter and an orientation source.
 """
 
-from . import (nets as _nets, checkpoints as _checkpoints, datasets as _datasets, fast_segment as _fast_segment,
-               fused_conv as _fused_conv, int8_unet as _int8_unet, orientation as _orientation,
-               preprocess as _preprocess,
-               segment as _segment, training as _training)
-from .nets import UNet, VGG19, build_network, max_pool_2x2
-from .checkpoints import (MODELS_DIR, load_checkpoint, load_network, load_shipped, manifest_path, save_checkpoint,
-                          sha256_file, shipped_model, training_summary)
-from .datasets import (HybridFrames, HybridImageDataset, RenderConfig, SPLAT_DEVICES, SPLIT_CODES, default_cache_dir,
-                       flip_angles, random_training_pose, true_angles)
+from . import checkpoints as _checkpoints
+from . import datasets as _datasets
+from . import fast_segment as _fast_segment
+from . import fused_conv as _fused_conv
+from . import int8_unet as _int8_unet
+from . import nets as _nets
+from . import orientation as _orientation
+from . import preprocess as _preprocess
+from . import segment as _segment
+from . import training as _training
+from .checkpoints import (
+               MODELS_DIR,
+               load_checkpoint,
+               load_network,
+               load_shipped,
+               manifest_path,
+               save_checkpoint,
+               sha256_file,
+               shipped_model,
+               training_summary,
+)
+from .datasets import (
+               SPLAT_DEVICES,
+               SPLIT_CODES,
+               HybridFrames,
+               HybridImageDataset,
+               RenderConfig,
+               default_cache_dir,
+               flip_angles,
+               random_training_pose,
+               true_angles,
+)
 from .fast_segment import FAST_UNET_PRECISIONS, FastUNet, auto_precision, native_bfloat16
 from .fused_conv import ConvReLU, fuse_conv_relu, reordering_bound
-from .int8_unet import (INT8_CALIBRATION_FORMAT, INT8_ENGINE, Int8UNet, calibrate_int8, int8_available,
-                        int8_calibration_path, load_int8_calibration, save_int8_calibration)
-from .orientation import (LearnedOrientation, N_ORIENTATION_CLASSES, OracleOrientation, OrientationSource,
-                          angles_from_direction, beam_direction_of_pose, default_vgg19, direction_candidates,
-                          hemisphere_angles, hemisphere_directions, orientation_angle_error, orientation_class,
-                          select_direction, wrap_angle)
+from .int8_unet import (
+               INT8_CALIBRATION_FORMAT,
+               INT8_ENGINE,
+               Int8UNet,
+               calibrate_int8,
+               int8_available,
+               int8_calibration_path,
+               load_int8_calibration,
+               save_int8_calibration,
+)
+from .nets import VGG19, UNet, build_network, max_pool_2x2
+from .orientation import (
+               N_ORIENTATION_CLASSES,
+               LearnedOrientation,
+               OracleOrientation,
+               OrientationSource,
+               angles_from_direction,
+               beam_direction_of_pose,
+               default_vgg19,
+               direction_candidates,
+               hemisphere_angles,
+               hemisphere_directions,
+               orientation_angle_error,
+               orientation_class,
+               select_direction,
+               wrap_angle,
+)
 from .preprocess import pool_labels, prepare_image
-from .segment import (OracleSegmenter, SegmentationDegradation, Segmenter, UNetSegmenter, default_segmenter,
-                      keep_largest_component, masks_from_labels, tracking_segmenter)
-from .training import (FineTuneConfig, SEGMENTATION_LOSSES, TRAINING_TABLES, TrainingConfig, TrainingResult, angle_loss,
-                       dice_loss, export, export_name, full_precision_copy, half_precision_copy, load_teacher,
-                       run_frame_sets, teacher_labeller, train)
+from .segment import (
+               OracleSegmenter,
+               SegmentationDegradation,
+               Segmenter,
+               UNetSegmenter,
+               default_segmenter,
+               keep_largest_component,
+               masks_from_labels,
+               tracking_segmenter,
+)
+from .training import (
+               SEGMENTATION_LOSSES,
+               TRAINING_TABLES,
+               FineTuneConfig,
+               TrainingConfig,
+               TrainingResult,
+               angle_loss,
+               dice_loss,
+               export,
+               export_name,
+               full_precision_copy,
+               half_precision_copy,
+               load_teacher,
+               run_frame_sets,
+               teacher_labeller,
+               train,
+)
 
 # every public name of the modules above, as each module's __all__ declares it
 __all__ = list(dict.fromkeys([*_nets.__all__, *_checkpoints.__all__, *_datasets.__all__, *_fast_segment.__all__,

@@ -35,6 +35,7 @@ from safetensors.torch import load_file, save_file
 
 from histostudy.core import atomic_path, atomic_write_json, git_commit, to_jsonable
 from histostudy.core.provenance import REPO_ROOT
+
 from .nets import build_network
 
 __all__ = ["MODELS_DIR", "load_checkpoint", "load_network", "load_shipped", "manifest_path", "save_checkpoint",

@@ -38,6 +38,7 @@ from histostudy.core import atomic_path, check_count, check_positive, check_unit
 from histostudy.geometry import make_transform, matrix_from_euler
 from histostudy.imaging import FrameRenderConfig, View, random_background, render_frame
 from histostudy.transducer import TransducerModel
+
 from .orientation import angles_from_direction, beam_direction_of_pose, orientation_class, wrap_angle
 from .preprocess import pool_labels, prepare_image
 
@@ -111,7 +112,7 @@ class RenderConfig(FrameRenderConfig):
         if self.splat_device not in SPLAT_DEVICES:
             raise ValueError(f"splat_device must be one of {SPLAT_DEVICES}, got {self.splat_device!r}")
 
-    def resolved(self) -> "RenderConfig":
+    def resolved(self) -> RenderConfig:
         """This configuration with ``splat_device="auto"`` replaced by the device it means here."""
         if self.splat_device != "auto":
             return self

@@ -54,9 +54,10 @@ import threading
 import numpy as np
 
 from histostudy.imaging import Frame
+
 from .fused_conv import fuse_conv_relu
-from .nets import max_pool_2x2
 from .head_argmax import head_argmax
+from .nets import max_pool_2x2
 from .segment import UNetSegmenter
 
 __all__ = ["FAST_UNET_PRECISIONS", "FastUNet", "auto_precision", "native_bfloat16"]

@@ -29,12 +29,13 @@ import contextlib
 import copy
 import json
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
 from histostudy.imaging import Frame
+
 from .segment import UNetSegmenter
 
 __all__ = ["INT8_CALIBRATION_FORMAT", "INT8_ENGINE", "Int8UNet", "calibrate_int8", "int8_available",

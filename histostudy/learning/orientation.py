@@ -21,8 +21,9 @@ Orientation sources (the oracle here; the learned VGG19 regressor of the learnin
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Protocol, Sequence, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -225,7 +226,7 @@ class LearnedOrientation:
     manifest: dict | None = field(default=None, repr=False)
 
     @classmethod
-    def load(cls, path) -> "LearnedOrientation":
+    def load(cls, path) -> LearnedOrientation:
         """From a VGG19 regressor checkpoint (hash and configuration checked)."""
         from .checkpoints import load_network
 

@@ -101,7 +101,7 @@ class SegmentationDegradation:
             raise ValueError(f"blob_sigma_px must be finite and >= 0, got {self.blob_sigma_px!r}")
 
     @classmethod
-    def paper_table1(cls, blob_sigma_px: float = 2.0) -> "SegmentationDegradation":
+    def paper_table1(cls, blob_sigma_px: float = 2.0) -> SegmentationDegradation:
         """Per-class recall and precision of the paper's Table I."""
         return cls(recall=_table1_fraction(1), precision=_table1_fraction(0), blob_sigma_px=blob_sigma_px)
 
@@ -127,7 +127,7 @@ class OracleSegmenter:
     degradation: SegmentationDegradation | None = None
 
     @classmethod
-    def named(cls, degradation: str) -> "OracleSegmenter":
+    def named(cls, degradation: str) -> OracleSegmenter:
         """The oracle of a study config: ``"table1"`` errs as the paper's U-Net (Table I), ``"none"`` not at all."""
         if degradation not in ORACLE_DEGRADATIONS:
             raise ValueError(f"degradation must be one of {ORACLE_DEGRADATIONS}, got {degradation!r}")
@@ -229,7 +229,7 @@ class UNetSegmenter:
             raise TypeError(f"test_time_flips must be True or False, got {self.test_time_flips!r}")
 
     @classmethod
-    def load(cls, path, *, test_time_flips: bool = False) -> "UNetSegmenter":
+    def load(cls, path, *, test_time_flips: bool = False) -> UNetSegmenter:
         """From a U-Net checkpoint (hash and configuration checked)."""
         from .checkpoints import load_network
 

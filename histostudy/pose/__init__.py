@@ -17,15 +17,35 @@ and seeding rule (``options``), its result (``result``) and its default learned 
 Poses are 4x4 ``T_carm_transducer`` (mm, C-arm/CBCT frame; docs/architecture.md).
 """
 
-from histostudy.core import renamed_attributes
-from . import (conic as _conic, conic_orientation as _conic_orientation, cost as _cost, directions as _directions,
-               distance_maps as _distance_maps, estimate as _estimate, from_files as _from_files,
-               from_labels as _from_labels, init as _init, labels as _labels, learned_stages as _learned_stages,
-               options as _options, perturbation as _perturbation, refine as _refine, result as _result,
-               retries as _retries, silhouette as _silhouette, start as _start, tracking as _tracking,
-               truncations as _truncations, verdict as _verdict)
-from .conic import (CirclePose, EllipseFit, circle_poses_from_conic, conic_from_ellipse, conic_from_points,
-                    fit_ellipse_ransac)
+from . import conic as _conic
+from . import conic_orientation as _conic_orientation
+from . import cost as _cost
+from . import directions as _directions
+from . import distance_maps as _distance_maps
+from . import estimate as _estimate
+from . import from_files as _from_files
+from . import from_labels as _from_labels
+from . import init as _init
+from . import labels as _labels
+from . import learned_stages as _learned_stages
+from . import options as _options
+from . import perturbation as _perturbation
+from . import refine as _refine
+from . import result as _result
+from . import retries as _retries
+from . import silhouette as _silhouette
+from . import start as _start
+from . import tracking as _tracking
+from . import truncations as _truncations
+from . import verdict as _verdict
+from .conic import (
+               CirclePose,
+               EllipseFit,
+               circle_poses_from_conic,
+               conic_from_ellipse,
+               conic_from_points,
+               fit_ellipse_ransac,
+)
 from .conic_orientation import ConicFit, ConicOrientation, default_orientation
 from .cost import OUTSIDE_DISTANCE_PX, PARALLEL_MIN_PROJECTIONS, PoseCost
 from .directions import DirectionStage, SourceDirections, check_direction_pair, unit_direction_pair
@@ -33,9 +53,22 @@ from .distance_maps import DistanceMaps, euclidean_distance_map
 from .estimate import estimate_pose
 from .from_files import frames_from_files, half_turn_reading, match_views, pose_from_files, pose_record
 from .from_labels import estimate_pose_from_labels
-from .init import (COARSE_GRID, FINE_GRID, GridSpec, InitResult, MEDIUM_GRID, PAPER_AXIAL_SEEDS_DEG,
-                   ROBUST_AXIAL_SEEDS_DEG, axial_minima, axial_search, grid_offsets, grid_search, initialise_pose,
-                   rotation_from_direction, translation_costs)
+from .init import (
+               COARSE_GRID,
+               FINE_GRID,
+               MEDIUM_GRID,
+               PAPER_AXIAL_SEEDS_DEG,
+               ROBUST_AXIAL_SEEDS_DEG,
+               GridSpec,
+               InitResult,
+               axial_minima,
+               axial_search,
+               grid_offsets,
+               grid_search,
+               initialise_pose,
+               rotation_from_direction,
+               translation_costs,
+)
 from .labels import clean_labels, segment_frames, view_distance_maps
 from .learned_stages import LEARNED_STAGE_REQUIREMENTS, default_stages, learned_stage_shortfalls
 from .options import DEFAULT_SEED, INIT_METHODS, MAP_KINDS, MODES, PoseConfig, pose_generator
@@ -45,12 +78,33 @@ from .result import PoseEstimationError, PoseResult, add_timings, refused, resul
 from .retries import Refined, refine_with_retries
 from .silhouette import SILHOUETTE_CELL_PX, segmented_occupancy, silhouette_candidates, silhouette_seed
 from .start import SILHOUETTE_POINTS, Initialisation, coarse_scorings, directions_to_try, initialise
-from .tracking import (PreparedRegions, RegionEstimator, RegionMaps, RegionOfInterest, RegionPlan, ScratchEstimator,
-                       Tracker, TrackingConfig, crop_view, frames_for_views, region_of_interest, scaled_pose_options,
-                       scratch_estimator, views_isocentre_mm, warm_up_pair)
+from .tracking import (
+               PreparedRegions,
+               RegionEstimator,
+               RegionMaps,
+               RegionOfInterest,
+               RegionPlan,
+               ScratchEstimator,
+               Tracker,
+               TrackingConfig,
+               crop_view,
+               frames_for_views,
+               region_of_interest,
+               scaled_pose_options,
+               scratch_estimator,
+               views_isocentre_mm,
+               warm_up_pair,
+)
 from .truncations import PoseCosts, pose_costs
-from .verdict import (PoseJudge, PoseVerdict, check_unexplained, check_view_agreement, judge_fit,
-                      unexplained_fraction, view_disagreement_mm)
+from .verdict import (
+               PoseJudge,
+               PoseVerdict,
+               check_unexplained,
+               check_view_agreement,
+               judge_fit,
+               unexplained_fraction,
+               view_disagreement_mm,
+)
 
 # every public name of the modules and sub-packages above, as each declares it in __all__
 __all__ = list(dict.fromkeys([*_conic.__all__, *_conic_orientation.__all__, *_cost.__all__, *_directions.__all__,
@@ -61,4 +115,3 @@ __all__ = list(dict.fromkeys([*_conic.__all__, *_conic_orientation.__all__, *_co
                               *_verdict.__all__]))
 
 # the 0.1.0 names, deprecated (CHANGELOG.md)
-__getattr__ = renamed_attributes(globals(), {'PoseOptions': 'PoseConfig', 'TrackingOptions': 'TrackingConfig'})

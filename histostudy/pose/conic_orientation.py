@@ -26,9 +26,16 @@ import numpy as np
 
 from histostudy.geometry import rotation_about_axis
 from histostudy.imaging import Frame, View
-from histostudy.learning import (OracleSegmenter, OrientationSource, angles_from_direction, default_segmenter,
-                                 default_vgg19, direction_candidates)
+from histostudy.learning import (
+    OracleSegmenter,
+    OrientationSource,
+    angles_from_direction,
+    default_segmenter,
+    default_vgg19,
+    direction_candidates,
+)
 from histostudy.transducer import Feature, TransducerModel, TransducerSpec, pose_facing
+
 from .conic import CirclePose, EllipseFit, circle_poses_from_conic, fit_ellipse_ransac
 
 __all__ = ["ConicFit", "ConicOrientation", "default_orientation"]

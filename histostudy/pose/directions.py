@@ -12,12 +12,13 @@ allows, the mirror pair of eq. 4. :class:`SourceDirections` is the stage of an
 
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from histostudy.imaging import Frame
 from histostudy.learning import direction_candidates
+
 from .distance_maps import DistanceMaps
 
 __all__ = ["DirectionStage", "SourceDirections", "check_direction_pair", "unit_direction_pair"]

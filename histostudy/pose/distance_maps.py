@@ -10,13 +10,13 @@ Frame: the view's detector, pixel centres at integer ``(u, v) = (column, row)``;
 from __future__ import annotations
 
 import copy
-from typing import Mapping
+from collections.abc import Mapping
 
 import cv2
 import numpy as np
 
 from histostudy.imaging import View
-from histostudy.transducer import FEATURE_CLASSES, Feature, LABEL_PRIORITY
+from histostudy.transducer import FEATURE_CLASSES, LABEL_PRIORITY, Feature
 
 __all__ = ["DistanceMaps", "euclidean_distance_map"]
 
@@ -153,7 +153,7 @@ class DistanceMaps:
         return {f: labels == int(f) for f in FEATURE_CLASSES if counts[int(f)] > 0}
 
     @classmethod
-    def from_maps(cls, view: View, maps: Mapping, *, occlusion_aware: bool) -> "DistanceMaps":
+    def from_maps(cls, view: View, maps: Mapping, *, occlusion_aware: bool) -> DistanceMaps:
         """Distance maps made elsewhere, wrapped for :class:`~.cost.PoseCost` without recomputing them
         (e.g. :class:`~histostudy.pose.tracking.RegionMaps`, which writes a tracking region's maps into reused
         buffers). ``maps``: ``{Feature: (rows, cols) float32}`` distances in pixels of ``view``, one
@@ -183,7 +183,7 @@ class DistanceMaps:
     def shape(self) -> tuple[int, int]:
         return self.view.shape
 
-    def truncated(self, max_distance_px: float) -> "DistanceMaps":
+    def truncated(self, max_distance_px: float) -> DistanceMaps:
         """A copy whose distances are capped at ``max_distance_px`` (beyond the paper).
 
         With it, and the same value as :class:`PoseCost`'s ``outside_distance_px``, a model point

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -32,6 +32,7 @@ from histostudy.core import check_items
 from histostudy.imaging import Frame
 from histostudy.learning import OrientationSource, Segmenter
 from histostudy.transducer import TransducerModel
+
 from .directions import SourceDirections
 from .from_labels import estimate_pose_from_labels
 from .labels import segment_frames

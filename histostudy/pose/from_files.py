@@ -13,14 +13,15 @@ from __future__ import annotations
 import functools
 import os
 import weakref
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
 from histostudy.core import to_jsonable, world_frame_keys
 from histostudy.imaging import View, load_frame, load_views
 from histostudy.transducer import HALF_TURN, TransducerModel, half_turn_symmetric
+
 from .estimate import estimate_pose
 from .result import PoseResult
 
@@ -132,7 +133,7 @@ def half_turn_reading(T_carm_transducer, model: TransducerModel | None = None) -
 
 # Whether a model is half-turn symmetric, per model object: the check queries every model point
 # (a fraction of a second), which a pose record per pair of the live stream must not pay again.
-_SYMMETRIC: "weakref.WeakKeyDictionary[TransducerModel, bool]" = weakref.WeakKeyDictionary()
+_SYMMETRIC: weakref.WeakKeyDictionary[TransducerModel, bool] = weakref.WeakKeyDictionary()
 
 
 def _model_symmetric(model: TransducerModel) -> bool:

@@ -17,13 +17,14 @@ view's pixels; every pixel threshold of the options is in those pixels.
 from __future__ import annotations
 
 import time
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
 from histostudy.core import check_items
 from histostudy.imaging import View
 from histostudy.transducer import TransducerModel
+
 from .directions import DirectionStage, check_direction_pair
 from .labels import clean_labels, view_distance_maps
 from .options import PoseConfig, pose_generator

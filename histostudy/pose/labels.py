@@ -13,13 +13,14 @@ Label images are ``(rows, cols)`` arrays indexed ``[v, u]`` in the pixels of the
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
 from histostudy.imaging import Frame, View
 from histostudy.learning import keep_largest_component
 from histostudy.transducer import check_label_image
+
 from .distance_maps import DistanceMaps
 from .result import PoseEstimationError
 

@@ -9,6 +9,7 @@ import functools
 import warnings
 
 from histostudy.learning import OracleOrientation, OracleSegmenter, OrientationSource, Segmenter, default_segmenter
+
 from .conic_orientation import default_orientation
 
 __all__ = ["LEARNED_STAGE_REQUIREMENTS", "default_stages", "learned_stage_shortfalls"]

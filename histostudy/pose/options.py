@@ -9,13 +9,14 @@ and otherwise the measured choices documented beside each field (beyond the pape
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
 from types import MappingProxyType
-from typing import Mapping
 
 import numpy as np
 
-from histostudy.core import as_generator, is_real, renamed_attributes
+from histostudy.core import as_generator, is_real
+
 from .cost import OUTSIDE_DISTANCE_PX
 from .distance_maps import feature_class
 
@@ -218,7 +219,7 @@ class PoseConfig:
         return tuple(f.name for f in fields(cls))
 
     @classmethod
-    def resolve(cls, options, overrides: dict, *, caller: str, keywords: str) -> "PoseConfig":
+    def resolve(cls, options, overrides: dict, *, caller: str, keywords: str) -> PoseConfig:
         """``options`` (default ``PoseConfig()``) with the keyword ``overrides`` of its fields
         applied, for a ``caller`` whose own keywords are ``keywords``: an unknown keyword raises
         TypeError naming it, the caller's keywords and the fields."""
@@ -233,4 +234,3 @@ class PoseConfig:
         return replace(options, **overrides) if overrides else options
 
 # the 0.1.0 name, deprecated (CHANGELOG.md)
-__getattr__ = renamed_attributes(globals(), {'PoseOptions': 'PoseConfig'})

@@ -19,14 +19,15 @@ and of the tracker's warm path: the mode's optimiser on the stage's capped costs
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 import scipy.optimize
 
 from histostudy.core import check_count, check_positive
 from histostudy.geometry import check_rigid
+
 from .cost import PoseCost
 from .perturbation import apply_left_perturbation
 from .truncations import PoseCosts

@@ -19,7 +19,7 @@ __all__ = ["PoseEstimationError", "PoseResult", "add_timings", "refused", "resul
 class PoseEstimationError(RuntimeError):
     """The frames do not support a pose: no features, or an implausible result (see ``verdict``)."""
 
-    def __init__(self, message: str, verdict: "PoseVerdict | None" = None, result: "PoseResult | None" = None):
+    def __init__(self, message: str, verdict: PoseVerdict | None = None, result: PoseResult | None = None):
         super().__init__(message)
         self.verdict = verdict
         self.result = result

@@ -13,8 +13,8 @@ is last refined by Nelder-Mead. The plausible pose of lowest cost wins. Poses ar
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 

@@ -10,13 +10,14 @@ the transducer may lie off the detectors and the coarse grid's scores are nearly
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import cv2
 import numba
 import numpy as np
 
 from histostudy.imaging import View
+
 from .init import rotation_from_direction
 
 __all__ = ["SILHOUETTE_CELL_PX", "segmented_occupancy", "silhouette_candidates", "silhouette_seed"]

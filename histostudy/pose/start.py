@@ -16,14 +16,15 @@ frame; costs in squared pixels of the label images.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Sequence
 
 import numpy as np
 
 from histostudy.imaging import View
 from histostudy.learning import select_direction
 from histostudy.transducer import Feature, TransducerModel
+
 from .init import MEDIUM_GRID, PAPER_AXIAL_SEEDS_DEG, ROBUST_AXIAL_SEEDS_DEG, InitResult, initialise_pose
 from .options import PoseConfig
 from .refine import refine_levenberg_marquardt

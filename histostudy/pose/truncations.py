@@ -8,9 +8,9 @@ transducer frame; the costs take 4x4 ``T_carm_transducer`` poses (docs/architect
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Mapping, Sequence
 
 import numpy as np
 

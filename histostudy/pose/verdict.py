@@ -18,8 +18,8 @@ the views as :class:`~histostudy.imaging.View` objects or as frames taken with t
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import cv2
 import numba
@@ -27,6 +27,7 @@ import numpy as np
 
 from histostudy.imaging import Frame, View
 from histostudy.transducer import Feature, TransducerModel
+
 from .cost import PoseCost
 from .init import COARSE_GRID
 from .options import PoseConfig

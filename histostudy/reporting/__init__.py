@@ -9,26 +9,70 @@ finished run published in the repository with its staleness check (``publish``).
 The top layer: nothing below imports it.
 """
 
-from . import (_targeting_parts, agreement as _agreement, headline as _headline, interrupts as _interrupts,
-               markdown as _markdown, paper as _paper, pipeline as _pipeline, profiles as _profiles,
-               publish as _publish, report as _report, report_html as _report_html, section_keys as _section_keys,
-               twins as _twins, viz as _viz)
+from . import _targeting_parts
+from . import agreement as _agreement
+from . import headline as _headline
+from . import interrupts as _interrupts
+from . import markdown as _markdown
+from . import paper as _paper
+from . import pipeline as _pipeline
+from . import profiles as _profiles
+from . import publish as _publish
+from . import report as _report
+from . import report_html as _report_html
+from . import section_keys as _section_keys
+from . import twins as _twins
+from . import viz as _viz
 from .agreement import AGREES, DIFFERS, FAR_OFF, FAR_OFF_SD, NOT_JUDGED, Agreement, judge
-from .headline import (CONTENTS_ANCHOR, HEADLINE_ANCHOR, HEADLINE_KEYS, SOFTWARE_ANCHOR, contents_markdown,
-                       headline_markdown, profile_banner, run_facts)
+from .headline import (
+               CONTENTS_ANCHOR,
+               HEADLINE_ANCHOR,
+               HEADLINE_KEYS,
+               SOFTWARE_ANCHOR,
+               contents_markdown,
+               headline_markdown,
+               profile_banner,
+               run_facts,
+)
 from .interrupts import StudyInterrupted, remove_temporaries, signals_interrupt, stop_kernels
 from .markdown import Markdown, dataframe_markdown, md_code, md_escape, md_link, md_table
 from .paper import PAPER, PaperValue, paper_value
 from .pipeline import NotebookFailed, discover_notebooks, run_study, select_notebooks
 from .profiles import PROFILE_NAMES, Profile, load_profile, notebook_parameters, validate_profile
-from .publish import (PUBLISHED_SUFFIXES, README_HEADLINE_BEGIN, README_HEADLINE_END, publish_run, readme_headline,
-                      replace_readme_headline, stale_parameters)
+from .publish import (
+               PUBLISHED_SUFFIXES,
+               README_HEADLINE_BEGIN,
+               README_HEADLINE_END,
+               publish_run,
+               readme_headline,
+               replace_readme_headline,
+               stale_parameters,
+)
 from .report import RESULTS_FILE, SectionWriter, build_report, format_measure, load_section
 from .report_html import CARD_COLUMNS, render_html
-from .section_keys import (KEY_FILE, SectionKey, changed_parts, code_digest, estimate_seconds, kept_section,
-                           record_key, remove_key, section_key, stored_key, weights_digest)
-from .twins import (RESULT_KEYS, TWINS_ANCHOR, TWINS_HEADING, results_coverage, section_anchor, stand_ins_anchor,
-                    status_markdown, twins_markdown)
+from .section_keys import (
+               KEY_FILE,
+               SectionKey,
+               changed_parts,
+               code_digest,
+               estimate_seconds,
+               kept_section,
+               record_key,
+               remove_key,
+               section_key,
+               stored_key,
+               weights_digest,
+)
+from .twins import (
+               RESULT_KEYS,
+               TWINS_ANCHOR,
+               TWINS_HEADING,
+               results_coverage,
+               section_anchor,
+               stand_ins_anchor,
+               status_markdown,
+               twins_markdown,
+)
 from .viz import FEATURE_COLOURS, label_rgb, model_scene, plot_frames_with_labels, plot_pose_overlay, targeting_scene
 
 # every public name of the modules above, as each module's __all__ declares it

@@ -17,6 +17,7 @@ import re
 from dataclasses import dataclass
 
 from histostudy.core import is_finite_real
+
 from .paper import PaperValue
 
 __all__ = ["AGREES", "DIFFERS", "FAR_OFF", "FAR_OFF_SD", "NOT_JUDGED", "Agreement", "judge"]

@@ -22,17 +22,17 @@ import resource
 import sys
 import tempfile
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
 
 from histostudy.core import SWEEP_CACHE_ENV, atomic_path, provenance
 from histostudy.core.provenance import REPO_ROOT
+
 from .interrupts import StudyInterrupted, remove_temporaries, signals_interrupt, stop_kernels
 from .profiles import Profile, load_profile, validate_profile
 from .report import build_report, write_run_record
-from .section_keys import (SectionKey, changed_parts, estimate_seconds, kept_section, record_key, remove_key,
-                           section_key)
+from .section_keys import SectionKey, changed_parts, estimate_seconds, kept_section, record_key, remove_key, section_key
 
 __all__ = ["NotebookFailed", "discover_notebooks", "run_study", "select_notebooks"]
 

@@ -43,9 +43,9 @@ import difflib
 import json
 import os
 import tomllib
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Sequence
 
 __all__ = ["PROFILE_NAMES", "Profile", "load_profile", "notebook_parameters", "validate_profile"]
 

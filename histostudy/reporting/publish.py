@@ -21,6 +21,7 @@ import shutil
 from pathlib import Path
 
 from histostudy.core import atomic_write_json, atomic_write_text
+
 from .headline import headline_markdown
 from .pipeline import discover_notebooks
 from .profiles import Profile, load_profile

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from histostudy.core import atomic_path, atomic_write_json, atomic_write_text, provenance, to_jsonable
+
 from .agreement import FAR_OFF, NOT_JUDGED, judge
 from .headline import SOFTWARE_ANCHOR, contents_markdown, headline_markdown, profile_banner, run_facts
 from .markdown import dataframe_markdown, md_code, md_escape, md_table

@@ -26,7 +26,7 @@ import hashlib
 import json
 import os
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 from histostudy.core import atomic_write_json, files_digest, package_digest
@@ -134,7 +134,7 @@ def record_key(section_dir: str | os.PathLike, key: SectionKey, *, notebook: str
         "key": key.key, "parts": key.parts, "notebook": notebook, "profile": profile,
         "parameters": {k: v for k, v in parameters.items() if k not in _PLACE_PARAMETERS},
         "seconds": float(seconds), "cpu_seconds": None if cpu_seconds is None else float(cpu_seconds),
-        "finished_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "finished_utc": datetime.now(UTC).isoformat(timespec="seconds"),
         "git_commit": git_commit(), "machine": machine,
     })
 

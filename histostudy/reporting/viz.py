@@ -10,13 +10,22 @@ are in :mod:`histostudy.reporting._targeting_parts`.
 from __future__ import annotations
 
 import os
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
 from histostudy.transducer import FEATURE_CLASSES, Feature
-from ._targeting_parts import (_check_pairs, _checked_points, _checked_render_options, _checked_transforms,
-                               _half_phantom, _render, _TargetingScene, _transducer_points)
+
+from ._targeting_parts import (
+    _check_pairs,
+    _checked_points,
+    _checked_render_options,
+    _checked_transforms,
+    _half_phantom,
+    _render,
+    _TargetingScene,
+    _transducer_points,
+)
 
 __all__ = ["FEATURE_COLOURS", "label_rgb", "model_scene", "plot_frames_with_labels", "plot_pose_overlay",
            "targeting_scene"]

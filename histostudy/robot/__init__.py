@@ -36,12 +36,20 @@ register handshake and commands, the arm's moves in wall-clock time with injecte
 ports, command numbers, RTDE recipes and framing).
 """
 
-from .base import (ProtectiveStopError, Robot, RobotConnectionError, RobotError, RobotState, RobotTimeout,
-                   UnreachablePoseError, Workspace, WorkspaceViolation)
+from .base import (
+                   ProtectiveStopError,
+                   Robot,
+                   RobotConnectionError,
+                   RobotError,
+                   RobotState,
+                   RobotTimeout,
+                   UnreachablePoseError,
+                   Workspace,
+                   WorkspaceViolation,
+)
 from .kinematics import UR5E, forward_kinematics, inverse_kinematics, inverse_kinematics_closest
-from .rtde import RTDERobot
-from .rtde import pose_from_transform, transform_from_pose
-from .sim import FaultPlan, HOME_JOINTS_RAD, SimulatedUR5e
+from .rtde import RTDERobot, pose_from_transform, transform_from_pose
+from .sim import HOME_JOINTS_RAD, FaultPlan, SimulatedUR5e
 
 __all__ = [
     "HOME_JOINTS_RAD",

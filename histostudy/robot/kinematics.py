@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from histostudy.core import renamed_attributes
 from histostudy.geometry import check_rigid, invert_transform, matrix_from_rotvec, rotvec_from_matrix
+
 from .base import REACH_MM, UnreachablePoseError
 
 __all__ = [
@@ -297,4 +297,3 @@ def linear_path_joints(
     return fractions, np.array(rows)
 
 # the 0.1.0 name, deprecated (CHANGELOG.md)
-__getattr__ = renamed_attributes(globals(), {'DHParameters': 'DHSpec'})

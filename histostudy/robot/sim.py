@@ -22,18 +22,37 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
 from histostudy.core import as_generator
 from histostudy.geometry import check_rigid, invert_transform, rotation_angle
-from .base import (ProtectiveStopError, ROTATION_ACCELERATION_RAD_S2, ROTATION_SPEED_RAD_S, RobotConnectionError,
-                   RobotState, RobotTimeout, UnreachablePoseError, Workspace, check_motion_parameters,
-                   linear_motion_time_s, trapezoid_fraction, trapezoid_time_s)
-from .kinematics import (DHSpec, JOINT_LIMIT_RAD, UR5E, check_joints, forward_kinematics,
-                         inverse_kinematics_closest, linear_path_joints)
+
+from .base import (
+    ROTATION_ACCELERATION_RAD_S2,
+    ROTATION_SPEED_RAD_S,
+    ProtectiveStopError,
+    RobotConnectionError,
+    RobotState,
+    RobotTimeout,
+    UnreachablePoseError,
+    Workspace,
+    check_motion_parameters,
+    linear_motion_time_s,
+    trapezoid_fraction,
+    trapezoid_time_s,
+)
+from .kinematics import (
+    JOINT_LIMIT_RAD,
+    UR5E,
+    DHSpec,
+    check_joints,
+    forward_kinematics,
+    inverse_kinematics_closest,
+    linear_path_joints,
+)
 
 __all__ = ["HOME_JOINTS_RAD", "FaultPlan", "LinearPlan", "SimulatedUR5e"]
 

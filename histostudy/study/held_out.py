@@ -13,6 +13,7 @@ from pathlib import Path
 from histostudy.core import check_count, check_positive
 from histostudy.imaging import BACKGROUNDS
 from histostudy.learning import HybridFrames, RenderConfig, default_cache_dir, shipped_model
+
 from .section import SectionConfig, SectionPart, Timer, check_bool, check_choice, check_text, timer_or_untimed
 
 __all__ = ["RECORDED_PARAMETERS", "HeldOutConfig", "held_out_frames", "resolve_weights", "weights_part",

@@ -35,11 +35,25 @@ import numpy as np
 
 from histostudy.core import atomic_write_json, to_jsonable
 from histostudy.geometry import make_transform, matrix_from_rotvec
-from histostudy.imaging import (PhantomSpec, View, add_poisson_noise, background_line_integrals, check_target,
-                                default_biplane, detector_counts, random_background, random_target,
-                                render_line_integrals, save_views, save_volume_nifti, simulate_cbct, write_xa)
+from histostudy.imaging import (
+    PhantomSpec,
+    View,
+    add_poisson_noise,
+    background_line_integrals,
+    check_target,
+    default_biplane,
+    detector_counts,
+    random_background,
+    random_target,
+    render_line_integrals,
+    save_views,
+    save_volume_nifti,
+    simulate_cbct,
+    write_xa,
+)
 from histostudy.robot import forward_kinematics, pose_from_transform
 from histostudy.transducer import TransducerModel, export_meshes
+
 from .targeting._calibration import calibration_poses
 from .targeting._setup import TargetingStudyConfig, draw_ground_truth, start_joints
 from .targeting._treatment import phantom_for
@@ -68,7 +82,7 @@ class LabScene:
 
     @classmethod
     def draw(cls, settings, views, *, rng_scene: np.random.Generator, rng_physical: np.random.Generator,
-             render_spacing_mm: float = 0.25) -> "LabScene":
+             render_spacing_mm: float = 0.25) -> LabScene:
         """The scene of ``settings`` (its ``frame_kwargs``) on ``views``: the phantom scene drawn from
         ``rng_scene``, the physical transducer's deviations from ``rng_physical``, sampled at
         ``render_spacing_mm`` (mm)."""

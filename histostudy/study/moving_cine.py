@@ -29,9 +29,9 @@ import datetime as _dt
 import json
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -39,6 +39,7 @@ from histostudy.core import atomic_write_json, check_positive, to_jsonable
 from histostudy.geometry import invert_transform
 from histostudy.imaging import View, default_biplane, detector_counts, save_views, write_xa
 from histostudy.robot import forward_kinematics
+
 from .lab_dataset import LabScene
 from .pose._geometry import margin_positions
 from .targeting._setup import TargetingStudyConfig, draw_ground_truth, start_joints

@@ -19,10 +19,10 @@ import json
 import multiprocessing
 import os
 import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pandas as pd
@@ -30,6 +30,7 @@ import pandas as pd
 from histostudy.imaging import load_views
 from histostudy.lab import FrameReceiver, stream_frames
 from histostudy.transducer import TransducerModel
+
 from .moving_cine import MovingCine
 
 __all__ = ["MovingCineRun", "count_table", "frame_table", "plot_focal_error", "stream_moving_cine"]

@@ -24,19 +24,36 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Mapping
 
 import numpy as np
 import pandas as pd
 
 from histostudy.core import as_generator
-from histostudy.learning import (LearnedOrientation, OracleSegmenter, angles_from_direction, beam_direction_of_pose,
-                                 direction_candidates, orientation_angle_error, training_summary, wrap_angle)
+from histostudy.learning import (
+    LearnedOrientation,
+    OracleSegmenter,
+    angles_from_direction,
+    beam_direction_of_pose,
+    direction_candidates,
+    orientation_angle_error,
+    training_summary,
+    wrap_angle,
+)
 from histostudy.pose import ConicOrientation
-from .held_out import (RECORDED_PARAMETERS, HeldOutConfig, HeldOutSetup, held_out_frames, prepare_held_out,
-                       resolve_weights, weights_part, weights_summary)
+
+from .held_out import (
+    RECORDED_PARAMETERS,
+    HeldOutConfig,
+    HeldOutSetup,
+    held_out_frames,
+    prepare_held_out,
+    resolve_weights,
+    weights_part,
+    weights_summary,
+)
 from .section import SectionPart, Timer, check_bool, record, timer_or_untimed
 from .stats import angle_statistics
 

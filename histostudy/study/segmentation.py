@@ -19,17 +19,26 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Mapping
 
 import numpy as np
 import pandas as pd
 
 from histostudy.learning import HybridFrames, UNetSegmenter, training_summary
 from histostudy.transducer import Feature
-from .held_out import (RECORDED_PARAMETERS, HeldOutConfig, HeldOutSetup, held_out_frames, prepare_held_out,
-                       resolve_weights, weights_part, weights_summary)
+
+from .held_out import (
+    RECORDED_PARAMETERS,
+    HeldOutConfig,
+    HeldOutSetup,
+    held_out_frames,
+    prepare_held_out,
+    resolve_weights,
+    weights_part,
+    weights_summary,
+)
 from .section import SectionPart, Timer, record, timer_or_untimed
 from .stats import anova_oneway, segmentation_metrics, tukey_hsd
 

@@ -20,8 +20,9 @@ and does not import it). Frames, units and seeding:
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Mapping, NamedTuple, Sequence
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -30,6 +31,7 @@ from histostudy.core import as_generator, check_count, check_positive
 from histostudy.geometry import fit_sphere
 from histostudy.imaging import BACKGROUNDS, default_biplane, random_background, render_frame, render_line_integrals
 from histostudy.transducer import FEATURE_CLASSES, Feature, TransducerModel, TransducerSpec, pose_facing
+
 from .section import RenderedSectionConfig, SectionPart, Timer, check_bool, check_choice, record, timer_or_untimed
 
 __all__ = [

@@ -7,14 +7,19 @@ written as such meshes (``mesh_export``); whether a model looks the same after a
 its axis (``symmetry``); and the paper's set-up pose (``placement``).
 """
 
-from . import (digital as _digital, mesh as _mesh, mesh_export as _mesh_export, physical as _physical,
-               placement as _placement, spec as _spec, symmetry as _symmetry)
+from . import digital as _digital
+from . import mesh as _mesh
+from . import mesh_export as _mesh_export
+from . import physical as _physical
+from . import placement as _placement
+from . import spec as _spec
+from . import symmetry as _symmetry
 from .digital import TransducerModel
 from .mesh import default_mesh_mu_per_mm
 from .mesh_export import export_meshes
 from .physical import ManufacturingDeviation
 from .placement import pose_facing
-from .spec import FEATURE_CLASSES, Feature, LABEL_PRIORITY, TransducerSpec, check_label_image, quadrant_index
+from .spec import FEATURE_CLASSES, LABEL_PRIORITY, Feature, TransducerSpec, check_label_image, quadrant_index
 from .symmetry import HALF_TURN, half_turn_symmetric
 
 # every public name of the modules above, as each module's __all__ declares it

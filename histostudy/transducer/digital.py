@@ -23,8 +23,15 @@ import numpy as np
 
 from .mesh import mesh_model_fields
 from .physical import ManufacturingDeviation, physical_model_fields
-from .sampling import (cap_points, check_spacing_mm, inner_wall_points, merge_parts, outer_wall_points,
-                       rim_screw_bases_mm, screw_points)
+from .sampling import (
+    cap_points,
+    check_spacing_mm,
+    inner_wall_points,
+    merge_parts,
+    outer_wall_points,
+    rim_screw_bases_mm,
+    screw_points,
+)
 from .spec import FEATURE_CLASSES, Feature, TransducerSpec
 
 __all__ = ["TransducerModel"]
@@ -85,7 +92,7 @@ class TransducerModel:
     # --- construction -------------------------------------------------------------------------
 
     @classmethod
-    def build(cls, spec: TransducerSpec | None = None, spacing_mm: float = 0.47) -> "TransducerModel":
+    def build(cls, spec: TransducerSpec | None = None, spacing_mm: float = 0.47) -> TransducerModel:
         """The digital model (§II-B.1) on a regular grid of ``spacing_mm``.
 
         Cap: a regular x-y grid (x, y multiples of the spacing), z = sqrt(R² - x² - y²), each point
@@ -107,7 +114,7 @@ class TransducerModel:
     @classmethod
     def build_physical(cls, spec: TransducerSpec | None = None, spacing_mm: float = 0.47, *,
                        deviation: ManufacturingDeviation | None = None,
-                       rng: np.random.Generator) -> "TransducerModel":
+                       rng: np.random.Generator) -> TransducerModel:
         """The physical transducer (§IV): the digital model of :meth:`build` with its quadrants moved
         and extra screws, drawn from ``rng`` as
         :func:`histostudy.transducer.physical.physical_model_fields` says."""
@@ -121,7 +128,7 @@ class TransducerModel:
     @classmethod
     def from_meshes(cls, meshes, *, spacing_mm: float = 0.47, mu_per_mm=None, units: str = "mm",
                     T_transducer_mesh=None, focal_point_mm=None,
-                    spec: TransducerSpec | None = None) -> "TransducerModel":
+                    spec: TransducerSpec | None = None) -> TransducerModel:
         """A model sampled from a lab's closed CAD surfaces (§II-B.1), as
         :mod:`histostudy.transducer.mesh` describes.
 
@@ -151,7 +158,7 @@ class TransducerModel:
         """``{Feature: number of points}``."""
         return {f: len(self.points[f]) for f in FEATURE_CLASSES}
 
-    def only(self, *features: Feature) -> "TransducerModel":
+    def only(self, *features: Feature) -> TransducerModel:
         """The same model with the points of ``features`` only (the other classes empty), e.g. to
         rasterise each class's labels alone, free of the overlap priority of §II-B.2."""
         keep = set()

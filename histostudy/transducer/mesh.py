@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from histostudy.geometry import check_rigid
+
 from .sampling import check_spacing_mm
 from .spec import FEATURE_CLASSES, Feature, TransducerSpec
 

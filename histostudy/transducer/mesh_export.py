@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from histostudy.core import atomic_path
+
 from .mesh import default_mesh_mu_per_mm
 from .sampling import rim_screw_bases_mm
 from .spec import FEATURE_CLASSES, Feature, TransducerSpec

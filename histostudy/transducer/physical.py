@@ -20,6 +20,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from histostudy.geometry import make_transform, matrix_from_rotvec
+
 from .sampling import screw_points
 from .spec import Feature, TransducerSpec, quadrant_index
 

@@ -189,7 +189,7 @@ class TransducerSpec:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict) -> "TransducerSpec":
+    def from_dict(cls, data: dict) -> TransducerSpec:
         """A spec from :meth:`to_dict`'s form; missing fields take the paper defaults."""
         if not isinstance(data, dict):
             raise TypeError(f"data must be a dict of TransducerSpec fields, got {type(data).__name__}")
@@ -204,7 +204,7 @@ class TransducerSpec:
         return atomic_write_json(path, {"format": SPEC_FORMAT, "version": SPEC_FORMAT_VERSION, "spec": self.to_dict()})
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "TransducerSpec":
+    def load(cls, path: str | os.PathLike) -> TransducerSpec:
         """Read a spec written by :meth:`save`, or a bare JSON object of fields."""
         with open(path, encoding="utf-8") as fh:
             data = json.load(fh)

@@ -5,10 +5,14 @@ clouds, the mixed phantom and the post-treatment scan (``bubble_cloud``); the pr
 its segmentation in the post-treatment CBCT (``zone``, its stages in ``_zone_stages``).
 """
 
-from . import _zone_stages, bubble_cloud as _bubble_cloud, execution as _execution, journal as _journal, plan as _plan, \
-    zone as _zone
+from . import _zone_stages
+from . import bubble_cloud as _bubble_cloud
+from . import execution as _execution
+from . import journal as _journal
+from . import plan as _plan
+from . import zone as _zone
 from .bubble_cloud import BUBBLE_CLOUD_SIZE_MM, bubble_cloud_mask, post_treatment_phantom, scan_treated_zone
-from .execution import TreatmentRun, UNCERTAIN_POLICIES, UncertainPointError, execute_treatment, load_journal
+from .execution import UNCERTAIN_POLICIES, TreatmentRun, UncertainPointError, execute_treatment, load_journal
 from .journal import JOURNAL_FORMAT, JOURNAL_VERSION, JournalError, JournalLockedError, TreatmentJournal
 from .plan import STUDY_PLAN_INSET_MM, STUDY_PLAN_SPACING_MM, TreatmentPlan, plan_treatment
 from .zone import PAPER_ZONE_DIAMETERS_MM, TreatmentZone, ZoneSegmentation, segment_treatment_zone

@@ -16,6 +16,7 @@ import numpy as np
 
 from histostudy.geometry import check_rigid
 from histostudy.imaging import Volume, check_mask, check_volume, phantom_mask, simulate_cbct, vector3_mm
+
 from .zone import segment_treatment_zone
 
 __all__ = [

@@ -19,13 +19,14 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from histostudy.geometry import check_rigid, check_rotation, make_transform, transform_points
+
 from .journal import TreatmentJournal
 from .plan import TreatmentPlan
 
@@ -78,7 +79,7 @@ class TreatmentRun:
         return len(self.indices)
 
     @classmethod
-    def load(cls, journal_path: str | os.PathLike) -> "TreatmentRun":
+    def load(cls, journal_path: str | os.PathLike) -> TreatmentRun:
         """The run recorded in a journal (``resumed_at`` = the number of points it holds)."""
         with TreatmentJournal.open_for_reading(journal_path) as journal:
             return _run_from_journal(journal, len(journal.finished))

@@ -30,12 +30,13 @@ import json
 import os
 import socket
 import sqlite3
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 
 from histostudy.core import atomic_path, to_jsonable
+
 from .plan import TreatmentPlan
 
 __all__ = ["JOURNAL_FORMAT", "JOURNAL_VERSION", "JournalError", "JournalLockedError", "TreatmentJournal"]
@@ -75,7 +76,7 @@ def _plan_fingerprint(plan_dict: dict) -> str:
 
 
 def _now() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="microseconds")
+    return datetime.now(UTC).isoformat(timespec="microseconds")
 
 
 def _dumps(value) -> str:
@@ -100,7 +101,7 @@ class TreatmentJournal:
     # -- opening -------------------------------------------------------------------------------
 
     @classmethod
-    def open_for_run(cls, path: str | os.PathLike, plan: TreatmentPlan, calibration: dict) -> "TreatmentJournal":
+    def open_for_run(cls, path: str | os.PathLike, plan: TreatmentPlan, calibration: dict) -> TreatmentJournal:
         """Lock ``path``, then create it for ``plan`` or resume it; ``calibration`` maps
         :data:`CALIBRATION_KEYS` to arrays (``T_flange_tcp`` may be None). Raises
         :class:`JournalLockedError` if another process holds it, :class:`JournalError` if it
@@ -125,7 +126,7 @@ class TreatmentJournal:
         return journal
 
     @classmethod
-    def open_for_reading(cls, path: str | os.PathLike) -> "TreatmentJournal":
+    def open_for_reading(cls, path: str | os.PathLike) -> TreatmentJournal:
         """A checked view of the journal at ``path`` (SQLite or version-1 JSON), without the lock."""
         path = Path(path)
         if not path.is_file():

@@ -23,6 +23,7 @@ import numpy as np
 from histostudy.core import to_jsonable
 from histostudy.geometry import check_rotation
 from histostudy.imaging import vector3_mm
+
 from .zone import TreatmentZone
 
 __all__ = [

@@ -20,8 +20,15 @@ import numpy as np
 
 from histostudy.geometry import as_points, check_rotation, fit_sphere
 from histostudy.imaging import Volume, check_mask, check_volume
-from ._zone_stages import _boundary_stage, _check_windows, _coarse_stage, _homogeneous_variance, _local_variance, \
-    _phantom_interior
+
+from ._zone_stages import (
+    _boundary_stage,
+    _check_windows,
+    _coarse_stage,
+    _homogeneous_variance,
+    _local_variance,
+    _phantom_interior,
+)
 
 __all__ = ["PAPER_ZONE_DIAMETERS_MM", "TreatmentZone", "ZoneSegmentation", "segment_treatment_zone"]
 

@@ -8,8 +8,8 @@ from A_i), and OpenCV's ``cv2.calibrateHandEye(..., method=cv2.CALIB_HAND_EYE_DA
 import cv2
 import numpy as np
 import pytest
-
 from handeye_chain import chain_truth, opencv_eye_to_hand, rotation_error_deg
+
 from histostudy import calibration as he
 from histostudy.calibration.axxb import _solve_null_space
 from histostudy.geometry import transforms as g

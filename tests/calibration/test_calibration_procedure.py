@@ -11,11 +11,10 @@ import json
 
 import numpy as np
 import pytest
-
 from handeye_chain import chain_truth, opencv_eye_in_hand, rotation_error_deg
+
 from histostudy import calibration as he
 from histostudy.geometry import transforms as g
-
 
 # ----------------------------------------------------------------------------- derivation of A, B
 

@@ -3,11 +3,18 @@ estimates, on an exact synthetic chain (tests/calibration/handeye_chain.py)."""
 
 import numpy as np
 import pytest
-
-from histostudy.calibration import (DOWN, HALF_TURN, DegenerateMotionError, calibrate, calibrate_half_turns,
-                                    target_orientation, tcp_for_target)
-from histostudy.geometry import transforms as g
 from handeye_chain import chain_truth
+
+from histostudy.calibration import (
+    DOWN,
+    HALF_TURN,
+    DegenerateMotionError,
+    calibrate,
+    calibrate_half_turns,
+    target_orientation,
+    tcp_for_target,
+)
+from histostudy.geometry import transforms as g
 
 
 def test_half_turned_estimates_give_the_calibration_of_the_exact_ones():

@@ -9,8 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from histostudy.core import (SWEEP_CACHE_ENV, SweepTaskError, package_digest, process_umask, resolve_sweep_cache,
-                             run_sweep)
+from histostudy.core import (
+    SWEEP_CACHE_ENV,
+    SweepTaskError,
+    package_digest,
+    process_umask,
+    resolve_sweep_cache,
+    run_sweep,
+)
 
 TABLE = np.arange(12.0).reshape(4, 3)
 

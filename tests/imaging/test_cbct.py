@@ -5,8 +5,7 @@ import numpy as np
 import pytest
 
 from histostudy.geometry import invert_transform, make_transform, rotation_about_axis, transform_points
-from histostudy.imaging import cbct
-from histostudy.imaging import Volume
+from histostudy.imaging import Volume, cbct
 
 SPEC = cbct.PhantomSpec()
 

@@ -11,7 +11,8 @@ import pytest
 itk = pytest.importorskip("itk")
 
 from histostudy.geometry import make_transform, rotation_about_axis
-from histostudy.imaging import Frame, View, render_labels, rtk_projector as rp
+from histostudy.imaging import Frame, View, render_labels
+from histostudy.imaging import rtk_projector as rp
 from histostudy.transducer import FEATURE_CLASSES, Feature, TransducerModel, TransducerSpec, pose_facing
 
 # SWIG's wrappers of ITK warn on import under Python >= 3.12-style checks; nothing of ours.

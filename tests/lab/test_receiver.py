@@ -20,13 +20,20 @@ import time
 import numpy as np
 import pydicom
 import pytest
-from receiver_stub import free_port
 from pydicom.dataset import Dataset, FileMetaDataset
 from pydicom.uid import ExplicitVRLittleEndian, generate_uid
+from receiver_stub import free_port
 
 from histostudy.geometry import transform_from_params
-from histostudy.imaging import (default_biplane, detector_counts, load_frame, random_background, render_frame,
-                                write_xa, xa_dataset)
+from histostudy.imaging import (
+    default_biplane,
+    detector_counts,
+    load_frame,
+    random_background,
+    render_frame,
+    write_xa,
+    xa_dataset,
+)
 from histostudy.lab import FrameReceiver, TLSConfig, XRayObjectRejected, decode_xray_object, listen, send_frames
 from histostudy.pose import Tracker, TrackingConfig, pose_record
 from histostudy.transducer import TransducerModel, pose_facing

@@ -19,8 +19,22 @@ import tracemalloc
 
 import numpy as np
 import pytest
-from receiver_stub import (CLIENT_TIMEOUT_S, HOSTILE, JPEG_LOSSLESS, StubTracker, associate_rq, connect, echo,
-                           huge_image, pdu, reaction, read_lines, receiver_with, run_fuzz, small_views)
+from receiver_stub import (
+    CLIENT_TIMEOUT_S,
+    HOSTILE,
+    JPEG_LOSSLESS,
+    StubTracker,
+    associate_rq,
+    connect,
+    echo,
+    huge_image,
+    pdu,
+    reaction,
+    read_lines,
+    receiver_with,
+    run_fuzz,
+    small_views,
+)
 
 from histostudy.imaging import RECEIVABLE_TRANSFER_SYNTAXES
 

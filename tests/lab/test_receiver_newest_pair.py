@@ -18,8 +18,7 @@ import pytest
 from receiver_stub import T0, StubTracker, free_port, pair_objects, read_lines, receiver_with, small_views
 
 from histostudy.imaging import save_views
-from histostudy.lab import FrameReceiver, PendingFrame, XRayObjectRejected, pose_summary, read_xray_header, \
-    send_frames
+from histostudy.lab import FrameReceiver, PendingFrame, XRayObjectRejected, pose_summary, read_xray_header, send_frames
 
 #: What ``histostudy listen`` prints per pose (listening.pose_summary).
 SUMMARY = re.compile(r"^\d\d:\d\d:\d\d\.\d{3} pair (?P<index>\d+) (?P<kind>\S+) (?P<verdict>accepted|REFUSED.*|ERROR.*) "

@@ -9,8 +9,14 @@ import pytest
 from histostudy.calibration import HALF_TURN, CalibrationError
 from histostudy.geometry import make_transform
 from histostudy.imaging import Volume
-from histostudy.lab import (TargetingPlan, calibrate_from_poses, execute_targeting, load_flange_poses,
-                            load_pose_record, plan_targeting)
+from histostudy.lab import (
+    TargetingPlan,
+    calibrate_from_poses,
+    execute_targeting,
+    load_flange_poses,
+    load_pose_record,
+    plan_targeting,
+)
 from histostudy.robot import SimulatedUR5e, UnreachablePoseError, Workspace, WorkspaceViolation, pose_from_transform
 from histostudy.study.targeting._calibration import calibration_poses
 from histostudy.study.targeting._setup import TargetingStudyConfig, draw_ground_truth, start_joints

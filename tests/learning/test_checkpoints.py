@@ -6,8 +6,15 @@ import json
 import pytest
 import torch
 
-from histostudy.learning import (UNet, checkpoints, load_checkpoint, load_network, manifest_path, save_checkpoint,
-                                 shipped_model)
+from histostudy.learning import (
+    UNet,
+    checkpoints,
+    load_checkpoint,
+    load_network,
+    manifest_path,
+    save_checkpoint,
+    shipped_model,
+)
 
 CONFIG = {"arch": "unet", "in_channels": 1, "n_classes": 6, "base_width": 2, "depth": 2}
 

@@ -6,9 +6,20 @@ import torch
 
 from histostudy.geometry import check_rigid
 from histostudy.imaging import View
-from histostudy.learning import (HybridFrames, HybridImageDataset, RenderConfig, SPLIT_CODES, angles_from_direction,
-                                 beam_direction_of_pose, flip_angles, hemisphere_directions, pool_labels, prepare_image,
-                                 random_training_pose, true_angles)
+from histostudy.learning import (
+    SPLIT_CODES,
+    HybridFrames,
+    HybridImageDataset,
+    RenderConfig,
+    angles_from_direction,
+    beam_direction_of_pose,
+    flip_angles,
+    hemisphere_directions,
+    pool_labels,
+    prepare_image,
+    random_training_pose,
+    true_angles,
+)
 from histostudy.transducer import Feature
 
 # small detector and coarse model: frames in well under a second

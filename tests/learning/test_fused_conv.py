@@ -8,8 +8,7 @@ import pytest
 import torch
 from torch import nn
 
-from histostudy.learning import ConvReLU, FastUNet, UNet, UNetSegmenter, fuse_conv_relu
-from histostudy.learning import fused_conv
+from histostudy.learning import ConvReLU, FastUNet, UNet, UNetSegmenter, fuse_conv_relu, fused_conv
 from histostudy.learning.fused_conv import reordering_bound
 
 needs_fusion = pytest.mark.skipif(fused_conv._fused_op() is None, reason="this torch has no fused oneDNN convolution")

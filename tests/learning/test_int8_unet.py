@@ -9,10 +9,21 @@ import pytest
 import torch
 
 from histostudy.imaging import Frame, default_biplane
-from histostudy.learning import (INT8_CALIBRATION_FORMAT, FastUNet, Int8UNet, UNet, UNetSegmenter, auto_precision,
-                                 calibrate_int8, default_segmenter, int8_available, int8_calibration_path,
-                                 load_int8_calibration, save_int8_calibration)
-from histostudy.learning import fast_segment
+from histostudy.learning import (
+    INT8_CALIBRATION_FORMAT,
+    FastUNet,
+    Int8UNet,
+    UNet,
+    UNetSegmenter,
+    auto_precision,
+    calibrate_int8,
+    default_segmenter,
+    fast_segment,
+    int8_available,
+    int8_calibration_path,
+    load_int8_calibration,
+    save_int8_calibration,
+)
 
 pytestmark = pytest.mark.skipif(not int8_available(), reason="this torch has no oneDNN int8 kernels")
 

@@ -5,7 +5,7 @@ import pytest
 import torch
 from torch import nn
 
-from histostudy.learning import UNet, VGG19, build_network, max_pool_2x2
+from histostudy.learning import VGG19, UNet, build_network, max_pool_2x2
 
 
 def _unet_params(c_in, n_classes, w, depth):

@@ -6,10 +6,21 @@ import torch
 
 from histostudy.geometry import make_transform, random_rotation
 from histostudy.imaging import Frame, View, default_biplane
-from histostudy.learning import (LearnedOrientation, N_ORIENTATION_CLASSES, OracleOrientation, OrientationSource,
-                                 angles_from_direction, beam_direction_of_pose, direction_candidates, hemisphere_angles,
-                                 hemisphere_directions, orientation_angle_error, orientation_class, select_direction,
-                                 wrap_angle)
+from histostudy.learning import (
+    N_ORIENTATION_CLASSES,
+    LearnedOrientation,
+    OracleOrientation,
+    OrientationSource,
+    angles_from_direction,
+    beam_direction_of_pose,
+    direction_candidates,
+    hemisphere_angles,
+    hemisphere_directions,
+    orientation_angle_error,
+    orientation_class,
+    select_direction,
+    wrap_angle,
+)
 
 
 def _random_directions(n, seed=0):

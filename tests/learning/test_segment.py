@@ -2,13 +2,22 @@
 
 import numpy as np
 import pytest
-
 import torch
 
 from histostudy.imaging import Frame, View, default_biplane, render_labels
-from histostudy.learning import (OracleSegmenter, SegmentationDegradation, Segmenter, UNet, UNetSegmenter,
-                                 build_network, checkpoints, default_segmenter, masks_from_labels, prepare_image,
-                                 save_checkpoint)
+from histostudy.learning import (
+    OracleSegmenter,
+    SegmentationDegradation,
+    Segmenter,
+    UNet,
+    UNetSegmenter,
+    build_network,
+    checkpoints,
+    default_segmenter,
+    masks_from_labels,
+    prepare_image,
+    save_checkpoint,
+)
 from histostudy.transducer import FEATURE_CLASSES, Feature, TransducerModel, pose_facing
 
 

@@ -8,9 +8,18 @@ import pytest
 
 from histostudy.cli.study import TRAINING_TABLE_NAMES
 from histostudy.imaging import default_biplane, random_background, render_frame
-from histostudy.learning import (MODELS_DIR, TRAINING_TABLES, FastUNet, TrainingConfig, UNetSegmenter,
-                                 default_segmenter, export_name, pool_labels, sha256_file,
-                                 tracking_segmenter)
+from histostudy.learning import (
+    MODELS_DIR,
+    TRAINING_TABLES,
+    FastUNet,
+    TrainingConfig,
+    UNetSegmenter,
+    default_segmenter,
+    export_name,
+    pool_labels,
+    sha256_file,
+    tracking_segmenter,
+)
 from histostudy.reporting import load_profile
 from histostudy.transducer import TransducerModel, pose_facing
 

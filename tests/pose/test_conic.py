@@ -5,8 +5,13 @@ import numpy as np
 import pytest
 
 from histostudy.imaging import View
-from histostudy.pose import (EllipseFit, circle_poses_from_conic, conic_from_ellipse, conic_from_points,
-                             fit_ellipse_ransac)
+from histostudy.pose import (
+    EllipseFit,
+    circle_poses_from_conic,
+    conic_from_ellipse,
+    conic_from_points,
+    fit_ellipse_ransac,
+)
 
 
 def circle_points(centre, normal, radius, n=240):

@@ -7,8 +7,15 @@ import numpy as np
 import pytest
 
 from histostudy.imaging import Frame, default_biplane, render_labels
-from histostudy.learning import (OracleOrientation, OracleSegmenter, OrientationSource, angles_from_direction,
-                                 beam_direction_of_pose, direction_candidates, orientation_angle_error)
+from histostudy.learning import (
+    OracleOrientation,
+    OracleSegmenter,
+    OrientationSource,
+    angles_from_direction,
+    beam_direction_of_pose,
+    direction_candidates,
+    orientation_angle_error,
+)
 from histostudy.pose import ConicFit, ConicOrientation, estimate_pose
 from histostudy.transducer import Feature, TransducerModel, pose_facing
 
@@ -108,10 +115,8 @@ def test_estimate_pose_reads_the_candidates_from_its_own_labels(frames):
 
 
 def test_the_default_orientation_is_the_conic_with_the_shipped_vgg19_as_fallback():
-    from histostudy.learning import LearnedOrientation, default_vgg19
-    from histostudy.pose import default_orientation
-    from histostudy.pose import learned_stage_shortfalls
-    from histostudy.learning import UNetSegmenter, default_segmenter
+    from histostudy.learning import LearnedOrientation, UNetSegmenter, default_segmenter, default_vgg19
+    from histostudy.pose import default_orientation, learned_stage_shortfalls
 
     vgg = default_vgg19()
     if vgg is None or default_segmenter() is None:

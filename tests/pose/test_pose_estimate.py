@@ -7,14 +7,13 @@ are passed explicitly: the defaults are the shipped networks when their weights 
 
 import numpy as np
 import pytest
+from pose_frames import POSES, focal_error, frames_of
 
 from histostudy.geometry import rotation_angle, transform_from_params
 from histostudy.imaging import Frame, default_biplane
 from histostudy.learning import OracleOrientation, OracleSegmenter, angles_from_direction, beam_direction_of_pose
 from histostudy.pose import PoseEstimationError, PoseResult, apply_left_perturbation, estimate_pose
 from histostudy.transducer import Feature, TransducerModel, pose_facing
-
-from pose_frames import POSES, focal_error, frames_of
 
 
 @pytest.fixture(scope="module")

@@ -7,8 +7,19 @@ import pytest
 from histostudy.geometry import make_transform, rotation_angle
 from histostudy.imaging import default_biplane, render_labels
 from histostudy.learning import angles_from_direction, beam_direction_of_pose, direction_candidates, select_direction
-from histostudy.pose import (COARSE_GRID, FINE_GRID, DistanceMaps, GridSpec, PoseCost, axial_minima, axial_search,
-                             grid_offsets, grid_search, initialise_pose, rotation_from_direction)
+from histostudy.pose import (
+    COARSE_GRID,
+    FINE_GRID,
+    DistanceMaps,
+    GridSpec,
+    PoseCost,
+    axial_minima,
+    axial_search,
+    grid_offsets,
+    grid_search,
+    initialise_pose,
+    rotation_from_direction,
+)
 from histostudy.transducer import TransducerModel, pose_facing
 
 T_TRUE = pose_facing((0.2, 1.0, -0.3), focal_point_mm=(22.0, -14.0, 9.0), axial_rotation_rad=0.6)

@@ -5,12 +5,11 @@ import dataclasses
 
 import numpy as np
 import pytest
+from pose_frames import POSES, frames_of
 
 from histostudy.learning import OracleOrientation, OracleSegmenter
 from histostudy.pose import PoseConfig, apply_left_perturbation, estimate_pose
 from histostudy.transducer import Feature, TransducerModel
-
-from pose_frames import POSES, frames_of
 
 ORACLES = dict(segmenter=OracleSegmenter(), orientation=OracleOrientation())
 

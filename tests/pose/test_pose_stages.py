@@ -9,15 +9,29 @@ half-resolution biplane (conftest.py's ``views``); every comparison is exact (``
 
 import numpy as np
 import pytest
+from pose_frames import POSES, frames_of, moved
 
 from histostudy.learning import OracleOrientation, OracleSegmenter, pool_labels
-from histostudy.pose import (PoseJudge, PoseConfig, SourceDirections, Tracker, TrackingConfig, apply_left_perturbation,
-                             clean_labels, coarse_scorings, estimate_pose, estimate_pose_from_labels, initialise,
-                             pose_costs, refine_pose, refine_with_retries, result_of_refinement, segment_frames,
-                             view_distance_maps)
+from histostudy.pose import (
+    PoseConfig,
+    PoseJudge,
+    SourceDirections,
+    Tracker,
+    TrackingConfig,
+    apply_left_perturbation,
+    clean_labels,
+    coarse_scorings,
+    estimate_pose,
+    estimate_pose_from_labels,
+    initialise,
+    pose_costs,
+    refine_pose,
+    refine_with_retries,
+    result_of_refinement,
+    segment_frames,
+    view_distance_maps,
+)
 from histostudy.pose.tracking._scratch import _ScaledDirections
-
-from pose_frames import POSES, frames_of, moved
 
 STEP = np.eye(4)
 STEP[:3, 3] = (0.4, -0.3, 0.2)

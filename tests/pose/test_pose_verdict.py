@@ -3,11 +3,10 @@ of exact labels (the verdict's decisions inside estimate_pose: tests/test_pose_e
 
 import numpy as np
 import pytest
+from pose_frames import POSES, frames_of
 
 from histostudy.pose import DistanceMaps, PoseCost, unexplained_fraction, view_disagreement_mm
 from histostudy.transducer import Feature, TransducerModel
-
-from pose_frames import POSES, frames_of
 
 
 @pytest.fixture(scope="module")

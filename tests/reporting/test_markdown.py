@@ -2,9 +2,8 @@
 text, in the same cell, once rendered as report.html renders it."""
 
 import html
-from html.parser import HTMLParser
-
 import re
+from html.parser import HTMLParser
 
 import numpy as np
 import pandas as pd

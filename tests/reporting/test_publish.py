@@ -8,11 +8,18 @@ import os
 import pytest
 
 from histostudy.cli import main
-from histostudy.reporting import (README_HEADLINE_BEGIN, README_HEADLINE_END, load_profile, publish_run,
-                                  readme_headline, replace_readme_headline, stale_parameters)
-from histostudy.reporting.pipeline import DEFAULT_NOTEBOOK_DIR, discover_notebooks
 from histostudy.core import process_umask
 from histostudy.core.provenance import REPO_ROOT
+from histostudy.reporting import (
+    README_HEADLINE_BEGIN,
+    README_HEADLINE_END,
+    load_profile,
+    publish_run,
+    readme_headline,
+    replace_readme_headline,
+    stale_parameters,
+)
+from histostudy.reporting.pipeline import DEFAULT_NOTEBOOK_DIR, discover_notebooks
 
 PUBLISHED = REPO_ROOT / "docs" / "results"
 

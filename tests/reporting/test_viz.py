@@ -33,8 +33,8 @@ def test_plot_has_three_panels_per_frame():
 
 def test_pose_overlay_marks_the_projected_focal_point():
     from histostudy.imaging import default_biplane
-    from histostudy.transducer import TransducerModel, pose_facing
     from histostudy.reporting import plot_pose_overlay
+    from histostudy.transducer import TransducerModel, pose_facing
 
     view = default_biplane()[0]
     model = TransducerModel.build(spacing_mm=2.0)
@@ -54,8 +54,8 @@ def test_pose_overlay_marks_the_projected_focal_point():
 
 
 def _scene_inputs():
-    from histostudy.imaging import default_biplane
     from histostudy.geometry import make_transform
+    from histostudy.imaging import default_biplane
     from histostudy.robot import HOME_JOINTS_RAD
     from histostudy.transducer import TransducerModel, pose_facing
 

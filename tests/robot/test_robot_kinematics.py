@@ -7,7 +7,8 @@ import pytest
 import ur_analytic_ik
 
 from histostudy.geometry import make_transform, matrix_from_rotvec
-from histostudy.robot import UnreachablePoseError, kinematics as k
+from histostudy.robot import UnreachablePoseError
+from histostudy.robot import kinematics as k
 
 SEEDS = range(5)
 

@@ -6,8 +6,18 @@ import numpy as np
 import pytest
 
 from histostudy.geometry import invert_transform, make_transform, matrix_from_rotvec
-from histostudy.robot import (FaultPlan, ProtectiveStopError, Robot, RobotConnectionError, RobotTimeout, SimulatedUR5e,
-                              UnreachablePoseError, Workspace, WorkspaceViolation, forward_kinematics)
+from histostudy.robot import (
+    FaultPlan,
+    ProtectiveStopError,
+    Robot,
+    RobotConnectionError,
+    RobotTimeout,
+    SimulatedUR5e,
+    UnreachablePoseError,
+    Workspace,
+    WorkspaceViolation,
+    forward_kinematics,
+)
 from histostudy.robot.base import trapezoid_time_s
 
 T_FLANGE_TCP = make_transform(matrix_from_rotvec([0.0, 0.0, 0.4]), [5.0, -3.0, 120.0])

@@ -10,8 +10,6 @@ from pathlib import Path
 import pytest
 import torch
 
-from histostudy.learning import load_network
-
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "gpu_training_run.py"
 
 

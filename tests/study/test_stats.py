@@ -5,8 +5,16 @@ import numpy as np
 import pytest
 from scipy import stats as sps
 
-from histostudy.study.stats import (angle_statistics, anova_oneway, confusion_counts, linear_fit, mean_absolute_error,
-                                    pearson, segmentation_metrics, tukey_hsd)
+from histostudy.study.stats import (
+    angle_statistics,
+    anova_oneway,
+    confusion_counts,
+    linear_fit,
+    mean_absolute_error,
+    pearson,
+    segmentation_metrics,
+    tukey_hsd,
+)
 
 
 def test_confusion_counts_and_metrics_by_hand():

@@ -16,8 +16,13 @@ import pytest
 from histostudy.imaging import default_biplane
 from histostudy.lab import SentObject
 from histostudy.study.moving_cine import write_moving_cine
-from histostudy.study.moving_cine_live import (MovingCineRun, count_table, frame_table, plot_focal_error,
-                                               stream_moving_cine)
+from histostudy.study.moving_cine_live import (
+    MovingCineRun,
+    count_table,
+    frame_table,
+    plot_focal_error,
+    stream_moving_cine,
+)
 from histostudy.transducer import TransducerModel
 
 FPS = 7.5

@@ -6,8 +6,13 @@ import numpy as np
 import pytest
 
 from histostudy.imaging import Frame, View
-from histostudy.learning import (LearnedOrientation, OracleSegmenter, angles_from_direction, beam_direction_of_pose,
-                                 wrap_angle)
+from histostudy.learning import (
+    LearnedOrientation,
+    OracleSegmenter,
+    angles_from_direction,
+    beam_direction_of_pose,
+    wrap_angle,
+)
 from histostudy.pose import ConicOrientation
 from histostudy.reporting import SectionWriter
 from histostudy.study import orientation_regression as study

@@ -4,8 +4,14 @@ import numpy as np
 import pytest
 
 from histostudy.geometry import check_rigid, rotvec_from_matrix
-from histostudy.transducer import (FEATURE_CLASSES, Feature, ManufacturingDeviation, TransducerModel, TransducerSpec,
-                                   quadrant_index)
+from histostudy.transducer import (
+    FEATURE_CLASSES,
+    Feature,
+    ManufacturingDeviation,
+    TransducerModel,
+    TransducerSpec,
+    quadrant_index,
+)
 
 SPEC = TransducerSpec()
 R = 138.7

@@ -4,7 +4,7 @@ and JSON form."""
 import numpy as np
 import pytest
 
-from histostudy.transducer import FEATURE_CLASSES, Feature, LABEL_PRIORITY, TransducerSpec
+from histostudy.transducer import FEATURE_CLASSES, LABEL_PRIORITY, Feature, TransducerSpec
 
 
 def test_enum_and_priority_match_the_paper():

@@ -3,12 +3,18 @@ that resumes where a fault stopped it (§II-D)."""
 
 import numpy as np
 import pytest
+from treatment_setup import R_CT, robot_zone_and_calibration
 
 from histostudy.geometry import transform_points
 from histostudy.robot import FaultPlan, RobotConnectionError, SimulatedUR5e
-from histostudy.treatment import (JournalError, TreatmentRun, UncertainPointError, execute_treatment, load_journal,
-                                  plan_treatment)
-from treatment_setup import R_CT, robot_zone_and_calibration
+from histostudy.treatment import (
+    JournalError,
+    TreatmentRun,
+    UncertainPointError,
+    execute_treatment,
+    load_journal,
+    plan_treatment,
+)
 
 
 def test_execution_commands_every_point_and_journals_reached_poses(tmp_path):

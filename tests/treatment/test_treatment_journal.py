@@ -11,11 +11,17 @@ from collections import Counter
 
 import numpy as np
 import pytest
+from treatment_faults import fault_plan, fired_points, treat
 
 from histostudy.robot import SimulatedUR5e
-from histostudy.treatment import (JournalError, JournalLockedError, TreatmentJournal, TreatmentRun, execute_treatment,
-                                  load_journal)
-from treatment_faults import fault_plan, fired_points, treat
+from histostudy.treatment import (
+    JournalError,
+    JournalLockedError,
+    TreatmentJournal,
+    TreatmentRun,
+    execute_treatment,
+    load_journal,
+)
 
 
 @pytest.fixture(scope="module")

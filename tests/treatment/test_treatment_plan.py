@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
+from treatment_setup import R_CT, sphere_samples
 
 from histostudy.treatment import TreatmentZone, plan_treatment
-from treatment_setup import R_CT, sphere_samples
 
 
 @pytest.mark.parametrize("diameter, spacing", [(20.0, 2.0), (25.0, 3.0), (20.0, 4.0)])

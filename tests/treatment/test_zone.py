@@ -5,10 +5,8 @@ import numpy as np
 import pytest
 
 from histostudy.geometry import make_transform, rotation_about_axis
-from histostudy.imaging import cbct
-from histostudy.imaging import Volume
-from histostudy.treatment import TreatmentZone, segment_treatment_zone
-from histostudy.treatment import post_treatment_phantom
+from histostudy.imaging import Volume, cbct
+from histostudy.treatment import TreatmentZone, post_treatment_phantom, segment_treatment_zone
 
 SPEC = cbct.PhantomSpec()
 

@@ -4,8 +4,9 @@ therapy system logs every firing to a file (the physical truth the journal is ch
 import os
 import time
 
-from histostudy.treatment import execute_treatment, plan_treatment
 from treatment_setup import R_CT, robot_zone_and_calibration
+
+from histostudy.treatment import execute_treatment, plan_treatment
 
 
 def fault_plan(spacing_mm: float = 2.5):

@@ -7,8 +7,16 @@ import time
 from pathlib import Path
 
 from ..console import Steps, add_command, elapsed_since, emit, fail, log
-from ._inputs import (FRAME_SUFFIXES, WORLD_FRAME, check_frames, check_transducer, estimate_from_files, frame_options,
-                      model_from_args, residual_options)
+from ._inputs import (
+    FRAME_SUFFIXES,
+    WORLD_FRAME,
+    check_frames,
+    check_transducer,
+    estimate_from_files,
+    frame_options,
+    model_from_args,
+    residual_options,
+)
 
 __all__ = ["add_calibrate"]
 

@@ -8,6 +8,7 @@ import argparse
 from pathlib import Path
 
 from histostudy.core import WORLD_FRAME
+
 from ..console import positive_int
 
 __all__ = ["FRAME_SUFFIXES", "WORLD_FRAME", "check_frames", "check_transducer", "estimate_from_files", "frame_options",

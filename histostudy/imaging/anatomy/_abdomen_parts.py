@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from histostudy.geometry import rotation_about_axis
+
 from ._csg import Intersection
 from ._params import AbdomenSpec, _Draw
 from ._shapes import Box, Ellipsoid, EllipticCylinder, Primitive

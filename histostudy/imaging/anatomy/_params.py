@@ -16,7 +16,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from histostudy.core import renamed_attributes
 from histostudy.core import is_real
 
 __all__ = [
@@ -226,4 +225,3 @@ class PhantomSceneSpec:
         _normalise_params(self)
 
 # the 0.1.0 name, deprecated (CHANGELOG.md)
-__getattr__ = renamed_attributes(globals(), {'AbdomenParams': 'AbdomenSpec', 'PhantomParams': 'PhantomSceneSpec'})

@@ -24,8 +24,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._abdomen_parts import _body_layers, _bowel_gas, _organs, _place_body, _ribs, _rot_y_deg, _stomach_gas, \
-    _vertebral_column
+from ._abdomen_parts import (
+    _body_layers,
+    _bowel_gas,
+    _organs,
+    _place_body,
+    _ribs,
+    _rot_y_deg,
+    _stomach_gas,
+    _vertebral_column,
+)
 from ._csg import Difference
 from ._params import AbdomenSpec, PhantomSceneSpec, _Draw, _with_overrides
 from ._scene import Anatomy

@@ -44,7 +44,7 @@ class _Rays:
                 self._prod = (x * x, y * y, z * z, x * y, x * z, y * z)
         return self._prod
 
-    def sub(self, index) -> "_Rays":
+    def sub(self, index) -> _Rays:
         """The rays at ``index`` (a tuple of slices) of these, sharing the products."""
         return _Rays(*(c[index] for c in self.d), parent=self, index=index)
 

@@ -23,9 +23,10 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from histostudy.geometry import as_points, check_rigid
+
+from ..carm import View
 from ._rays import _Rays
 from ._shapes import Primitive
-from ..carm import View
 
 __all__ = [
     "Anatomy",
@@ -104,7 +105,7 @@ class Anatomy:
             mu += np.where(p.contains(pts), p.mu_per_mm, 0.0)
         return mu
 
-    def transformed(self, T) -> "Anatomy":
+    def transformed(self, T) -> Anatomy:
         """The whole scene moved by the rigid 4x4 transform ``T`` (world <- world)."""
         T = check_rigid(T, "T")
         return dataclasses.replace(self, primitives=tuple(p.transformed(T) for p in self.primitives))

@@ -16,12 +16,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
 from histostudy.geometry import as_points, check_rigid, check_rotation
+
 from ._rays import _chord_from_interval, _Rays, _skew
 
 __all__ = [
@@ -102,7 +103,7 @@ class Primitive:
         """Boolean ``(n,)``: which world points (mm) lie inside the solid."""
         raise NotImplementedError
 
-    def transformed(self, T) -> "Primitive":
+    def transformed(self, T) -> Primitive:
         """The same solid moved by the 4x4 rigid transform ``T`` (world <- world)."""
         raise NotImplementedError
 

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from histostudy.core import atomic_path
+
 from ..volume import Volume
 from ._grid import _axis_aligned_volume, _no_spacing
 

@@ -27,9 +27,9 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from ..volume import Volume
 from ._dicom import _load_dicom_multiframe, _load_dicom_series
 from ._nifti import _load_nifti
-from ..volume import Volume
 
 __all__ = [
     "SUPPORTED_FORMATS",

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from histostudy.core import atomic_path
+
 from ..carm import View
 
 __all__ = ["XA_SOP_CLASS_UID", "detector_counts", "write_xa", "xa_dataset"]

@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from histostudy.transducer import FEATURE_CLASSES, TransducerModel
+
 from ..carm import View
 
 __all__ = ["check_device", "mark_nearest_pixels_compiled", "splat_compiled", "splat_points", "splat_torch"]

@@ -20,7 +20,7 @@ import functools
 import hashlib
 import pickle
 from collections import OrderedDict
-from typing import Iterator
+from collections.abc import Iterator
 
 import numpy as np
 

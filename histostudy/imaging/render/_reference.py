@@ -20,19 +20,19 @@ in mm² one pixel covers at the point perpendicular to the ray
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
-from typing import Iterator
 
 import cv2
 import numpy as np
 
 from histostudy.geometry import check_rigid
-from histostudy.transducer import FEATURE_CLASSES, LABEL_PRIORITY, TransducerModel
+from histostudy.transducer import LABEL_PRIORITY, TransducerModel
+
 from ..carm import View
 from ..frame import Frame
+from ._device import SEED_BOUND, check_device, mark_nearest_pixels_compiled, splat_compiled, splat_points, splat_torch
 from ._memo import memoised_frames
-from ._device import (SEED_BOUND, check_device, mark_nearest_pixels_compiled, splat_compiled, splat_points,
-                            splat_torch)
 from ._settings import check_n_splats, check_photons_per_pixel, check_splat_sigma_mm
 
 __all__ = ["add_poisson_noise", "background_line_integrals", "render_frame", "render_labels",

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from histostudy.core import check_count, check_positive, is_finite_real, renamed_attributes
+from histostudy.core import check_count, check_positive, is_finite_real
 
 __all__ = ["BACKGROUNDS", "FrameRenderConfig"]
 
@@ -72,4 +72,3 @@ def check_splat_sigma_mm(value) -> float:
 
 
 # the 0.1.0 name, deprecated (CHANGELOG.md)
-__getattr__ = renamed_attributes(globals(), {'RenderSettings': 'FrameRenderConfig'})

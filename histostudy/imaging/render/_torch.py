@@ -15,14 +15,19 @@ float32 result the same). On the CPU it runs too, slower than the compiled kerne
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from histostudy.geometry import check_rigid
 from histostudy.transducer import TransducerModel
+
 from ..carm import View
 from ._settings import check_n_splats, check_photons_per_pixel, check_splat_sigma_mm
+
+if TYPE_CHECKING:  # torch is imported where a frame is rendered on it, not with the package
+    import torch
 
 __all__ = ["TorchSplatter", "poisson_noise_torch"]
 
@@ -64,7 +69,7 @@ class TorchSplatter:
         self._weights = torch.as_tensor(weights[keep], dtype=torch.float64, device=self.device)
 
     @staticmethod
-    def device_of(device) -> "torch.device":
+    def device_of(device) -> torch.device:
         """``device`` as the ``torch.device`` a splatter made with it holds (``"cuda"`` -> ``cuda:0``)."""
         torch = _torch()
         device = torch.device(device)
@@ -72,7 +77,7 @@ class TorchSplatter:
             return torch.device("cuda", torch.cuda.current_device())
         return device
 
-    def line_integrals(self, T_carm_transducer: Sequence, views: Sequence[View], seeds: Sequence[int]) -> "torch.Tensor":
+    def line_integrals(self, T_carm_transducer: Sequence, views: Sequence[View], seeds: Sequence[int]) -> torch.Tensor:
         """``(B, rows, cols)`` float32 line integrals on the device, frame ``b`` at pose ``T[b]`` in ``views[b]``.
 
         ``T_carm_transducer`` is ``B`` 4x4 rigid poses (transducer -> C-arm, mm); the views must share
@@ -96,7 +101,7 @@ class TorchSplatter:
             out[b] = self._one(T, view, seed).view(rows, cols)
         return out
 
-    def _one(self, T: np.ndarray, view: View, seed: int) -> "torch.Tensor":
+    def _one(self, T: np.ndarray, view: View, seed: int) -> torch.Tensor:
         torch = _torch()
         rows, cols = view.shape
         dev = self.device
@@ -133,7 +138,7 @@ class TorchSplatter:
         return image.float()
 
 
-def poisson_noise_torch(line_integrals: "torch.Tensor", photons_per_pixel: float, seed: int) -> "torch.Tensor":
+def poisson_noise_torch(line_integrals: torch.Tensor, photons_per_pixel: float, seed: int) -> torch.Tensor:
     """Quantum noise on the device: ``counts ~ Poisson(N0 exp(-p))``, ``-log(max(counts, 0.5) / N0)`` float32.
 
     The numpy reference's model (:func:`~histostudy.imaging.render._reference.add_poisson_noise`), drawn by a

@@ -128,7 +128,7 @@ class VGG19(nn.Module):
             return torch.stack([torch.atan2(y[:, 1], y[:, 0]), y[:, 2]], dim=1)
         return y
 
-    def to_regressor(self, class_angles_rad=None) -> "VGG19":
+    def to_regressor(self, class_angles_rad=None) -> VGG19:
         """Turn the classifier into the regressor in place (§II-B.4) and return it.
 
         The new linear layer maps the ``n_classes`` sigmoid outputs to ``(azimuth, elevation)`` rad.

@@ -5,11 +5,19 @@ optimiser and checkpoint tensors in ``_optim``) and half- / full-precision expor
 """
 
 from . import _config, _export, _loop, _losses, _optim, _teacher
-from ._config import (FineTuneConfig, SEGMENTATION_LOSSES, TRAINING_TABLES, TrainingConfig, TrainingResult, export_name, run_frame_sets)
-from ._export import (export, full_precision_copy, half_precision_copy)
-from ._loop import (train)
-from ._losses import (angle_loss, dice_loss)
-from ._teacher import (load_teacher, teacher_labeller)
+from ._config import (
+                              SEGMENTATION_LOSSES,
+                              TRAINING_TABLES,
+                              FineTuneConfig,
+                              TrainingConfig,
+                              TrainingResult,
+                              export_name,
+                              run_frame_sets,
+)
+from ._export import export, full_precision_copy, half_precision_copy
+from ._loop import train
+from ._losses import angle_loss, dice_loss
+from ._teacher import load_teacher, teacher_labeller
 
 # every public name of the modules above, as each module's __all__ declares it
 __all__ = list(dict.fromkeys([*_config.__all__, *_export.__all__, *_loop.__all__, *_losses.__all__, *_optim.__all__,

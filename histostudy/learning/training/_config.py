@@ -19,7 +19,8 @@ from pathlib import Path
 import torch
 
 from histostudy.core import check_count, check_positive, is_real
-from ..datasets import RenderConfig, TASKS
+
+from ..datasets import TASKS, RenderConfig
 from ..nets import build_network
 
 __all__ = ["FineTuneConfig", "SEGMENTATION_LOSSES", "TRAINING_TABLES", "TrainingConfig", "TrainingResult",
@@ -90,7 +91,7 @@ class FineTuneConfig:
             raise ValueError(f"fine_tune.max_minutes must be > 0 or None, got {self.max_minutes!r}")
 
     @classmethod
-    def from_table(cls, table: dict, *, n_val: int) -> "FineTuneConfig":
+    def from_table(cls, table: dict, *, n_val: int) -> FineTuneConfig:
         """From a ``fine_tune`` table; its ``render`` sub-table is a RenderConfig, ``n_val`` defaults to the run's."""
         table = dict(table)
         known = {f.name for f in fields(cls)}
@@ -227,7 +228,7 @@ class TrainingConfig:
                              f"({self.fine_tune.n_train})")
 
     @classmethod
-    def from_table(cls, task: str, table: dict) -> "TrainingConfig":
+    def from_table(cls, task: str, table: dict) -> TrainingConfig:
         """From a profile's ``[training.<task>]`` table; its ``render`` sub-table is a RenderConfig."""
         table = dict(table)
         known = {f.name for f in fields(cls)} - {"task"}

@@ -32,16 +32,17 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
 from histostudy.core import atomic_write_json
+
 from ..checkpoints import load_checkpoint, save_checkpoint
-from ..datasets import HybridFrames, HybridImageDataset, TASKS, default_cache_dir
+from ..datasets import TASKS, HybridFrames, HybridImageDataset, default_cache_dir
 from ..nets import build_network
 from ..orientation import N_ORIENTATION_CLASSES, hemisphere_angles
 from ._config import TrainingConfig, TrainingResult, resolve_device, stage_frames, stage_names, stage_objective

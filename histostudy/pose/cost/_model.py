@@ -34,18 +34,27 @@ the tests). Outside points have a constant residual and a zero Jacobian row.
 
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numba
 import numpy as np
 
 from histostudy.geometry import check_rigid, check_rotation, make_transform, transform_from_params
 from histostudy.transducer import FEATURE_CLASSES, Feature
-from ._kernels import (BLOCK_POINTS, cost_parallel, cost_serial, costs_batch, normal_parallel, normal_serial,
-                           residual_parallel, residual_serial)
-from ._reference import reference_distances, reference_sum_of_squares
+
 from ..distance_maps import DistanceMaps, feature_class
 from ..perturbation import NormalEquations
+from ._kernels import (
+    BLOCK_POINTS,
+    cost_parallel,
+    cost_serial,
+    costs_batch,
+    normal_parallel,
+    normal_serial,
+    residual_parallel,
+    residual_serial,
+)
+from ._reference import reference_distances, reference_sum_of_squares
 
 __all__ = ["OUTSIDE_DISTANCE_PX", "PARALLEL_MIN_PROJECTIONS", "PoseCost"]
 
@@ -195,7 +204,7 @@ class PoseCost:
             return numba.get_num_threads() > 1 and len(self._tasks) * BLOCK_POINTS >= PARALLEL_MIN_PROJECTIONS
         return self.parallel
 
-    def _derive(self, points: dict, maps: list, view_indices=None) -> "PoseCost":
+    def _derive(self, points: dict, maps: list, view_indices=None) -> PoseCost:
         # Same maps and classes: share the flattened map buffer instead of copying ~50 MB again.
         shared = (self._maps, self._map_start) if maps is self.maps else None
         if view_indices is not None and len(view_indices) == 1 and self.active[view_indices[0]].any():
@@ -209,12 +218,12 @@ class PoseCost:
                         outside_distance_px=self.outside_distance_px, max_distance_px=self.max_distance_px,
                         backend=self.backend, parallel=self.parallel, _buffer=shared)
 
-    def with_outside_distance(self, outside_distance_px: float) -> "PoseCost":
+    def with_outside_distance(self, outside_distance_px: float) -> PoseCost:
         """The same cost with another constant distance for points off the map (eq. 3's 0.1 px);
         the distance maps are shared, not copied."""
         return self.capped(self.max_distance_px, outside_distance_px)
 
-    def capped(self, max_distance_px: float | None, outside_distance_px: float | None = None) -> "PoseCost":
+    def capped(self, max_distance_px: float | None, outside_distance_px: float | None = None) -> PoseCost:
         """The same points and maps with the distances capped at ``max_distance_px`` (None: no cap)
         and, if given, another constant for points off the map; the maps are shared, not copied.
 
@@ -228,7 +237,7 @@ class PoseCost:
                         max_distance_px=max_distance_px, backend=self.backend, parallel=self.parallel,
                         _buffer=(self._maps, self._map_start))
 
-    def subset(self, n_per_class: int, rng: np.random.Generator) -> "PoseCost":
+    def subset(self, n_per_class: int, rng: np.random.Generator) -> PoseCost:
         """A cheaper cost on at most ``n_per_class`` points of each class, drawn without replacement.
 
         The normalisation by ``n_k`` makes it an unbiased estimate of the full cost's per-class
@@ -246,7 +255,7 @@ class PoseCost:
             sub[f] = p if len(p) <= n else p[np.sort(rng.choice(len(p), size=n, replace=False))]
         return self._derive(sub, self.maps)
 
-    def select_views(self, indices) -> "PoseCost":
+    def select_views(self, indices) -> PoseCost:
         """The cost over a subset of the views (e.g. one view for the per-plane grid search, §II-B.4)."""
         idx = [indices] if np.isscalar(indices) else list(indices)
         for i in idx:

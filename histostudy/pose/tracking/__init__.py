@@ -8,7 +8,6 @@ its warm-up before a live stream (``_warm_up``).
 Poses are 4x4 ``T_carm_transducer`` (mm, C-arm frame; docs/tracking.md).
 """
 
-from histostudy.core import renamed_attributes
 from . import _input, _maps, _options, _pipeline, _roi, _scratch, _tracker, _warm, _warm_up
 from ._input import frames_for_views
 from ._maps import RegionMaps
@@ -25,4 +24,3 @@ __all__ = list(dict.fromkeys([*_tracker.__all__, *_input.__all__, *_maps.__all__
                               *_warm_up.__all__]))
 
 # the 0.1.0 names, deprecated (CHANGELOG.md)
-__getattr__ = renamed_attributes(globals(), {'TrackingOptions': 'TrackingConfig'})

@@ -6,7 +6,7 @@ view's detector grid (docs/architecture.md, "Frames and units").
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

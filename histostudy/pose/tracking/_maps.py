@@ -36,6 +36,7 @@ import numpy as np
 
 from histostudy.imaging import View
 from histostudy.transducer import FEATURE_CLASSES, LABEL_PRIORITY, Feature
+
 from ..distance_maps import DistanceMaps, euclidean_distance_map
 
 __all__ = ["RegionMaps"]

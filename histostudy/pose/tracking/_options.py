@@ -15,8 +15,9 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from histostudy.core import is_real, renamed_attributes
+from histostudy.core import is_real
 from histostudy.learning import FAST_UNET_PRECISIONS, UNetSegmenter
+
 from ..options import PoseConfig
 
 __all__ = ["TrackingConfig", "scaled_pose_options"]
@@ -175,4 +176,3 @@ class TrackingConfig:
         return tuple(f.name for f in fields(cls))
 
 # the 0.1.0 name, deprecated (CHANGELOG.md)
-__getattr__ = renamed_attributes(globals(), {'TrackingOptions': 'TrackingConfig'})

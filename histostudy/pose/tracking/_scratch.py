@@ -43,14 +43,15 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Sequence
 
 import numpy as np
 
 from histostudy.imaging import Frame, View
 from histostudy.learning import FastUNet, direction_candidates, pool_labels
 from histostudy.transducer import TransducerModel, check_label_image
+
 from ..conic_orientation import ConicOrientation
 from ..directions import unit_direction_pair
 from ..estimate import estimate_pose

@@ -32,13 +32,14 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
 from histostudy.core import check_items
 from histostudy.imaging import Frame, View
 from histostudy.transducer import TransducerModel
+
 from ..estimate import estimate_pose
 from ..learned_stages import default_stages
 from ..options import PoseConfig, pose_generator

@@ -33,15 +33,16 @@ determinism").
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
 from histostudy.imaging import Frame, View
 from histostudy.learning import FastUNet, UNetSegmenter, keep_largest_component, pool_labels
 from histostudy.transducer import TransducerModel, check_label_image
+
 from ..options import PoseConfig
 from ..refine import refine_pose
 from ..result import PoseEstimationError, PoseResult, result_of_refinement
@@ -274,7 +275,7 @@ class RegionEstimator:
         in_parallel = self.tracking.parallel_views if parallel_views is None else parallel_views
         return self._segment_and_map(plan, in_parallel)
 
-    def plan(self, frames: Sequence[Frame], T_roi: np.ndarray, rng, slot: int = 0) -> "RegionPlan":
+    def plan(self, frames: Sequence[Frame], T_roi: np.ndarray, rng, slot: int = 0) -> RegionPlan:
         """Step 1 (module docstring) of ``frames``: the regions where ``T_roi`` projects, and what
         :meth:`prepare_view` needs to segment and map each of them into the map buffers of
         ``slot`` (0 or 1). ``rng``: for a segmenter that draws, a Generator the views share (then
@@ -311,7 +312,7 @@ class RegionEstimator:
         plan = RegionPlan(prepared.frames, regions, [rng] * n, [2 * n + a for a in range(n)], t_start)
         return self._segment_and_map(plan, self.tracking.parallel_views)
 
-    def prepare_view(self, plan: "RegionPlan", a: int) -> tuple:
+    def prepare_view(self, plan: RegionPlan, a: int) -> tuple:
         """Steps 2-3 (module docstring) of view ``a`` of ``plan``: its region's labels and distance
         maps (in the plan's map buffer of the view), with the seconds of each. Views of one plan may
         run on different threads at once."""
@@ -323,7 +324,7 @@ class RegionEstimator:
         return labels, maps, t1 - t0, time.perf_counter() - t1
 
     @staticmethod
-    def assemble(plan: "RegionPlan", outputs: Sequence[tuple]) -> PreparedRegions:
+    def assemble(plan: RegionPlan, outputs: Sequence[tuple]) -> PreparedRegions:
         """:meth:`prepare`'s result from ``plan`` and each view's :meth:`prepare_view` output, in the
         order of the views; its ``seconds`` run from the plan to now."""
         timings = {"segmentation": sum(o[2] for o in outputs), "distance_maps": sum(o[3] for o in outputs),
@@ -331,7 +332,7 @@ class RegionEstimator:
         return PreparedRegions(regions=plan.regions, labels=[o[0] for o in outputs], maps=[o[1] for o in outputs],
                                timings_s=timings, seconds=time.perf_counter() - plan.t_start, frames=plan.frames)
 
-    def _segment_and_map(self, plan: "RegionPlan", parallel_views: bool) -> PreparedRegions:
+    def _segment_and_map(self, plan: RegionPlan, parallel_views: bool) -> PreparedRegions:
         """Labels and distance maps of each view's region, on two threads or one after the other."""
         views = range(len(plan.frames))
         if parallel_views and self.fast_unet is not None:

@@ -14,12 +14,13 @@ Poses are 4x4 ``T_carm_transducer`` (mm, C-arm frame).
 from __future__ import annotations
 
 import time
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
 from histostudy.imaging import Frame, View, render_frame
 from histostudy.transducer import TransducerModel, pose_facing
+
 from ..result import PoseEstimationError
 
 __all__ = ["views_isocentre_mm", "warm_up_pair"]

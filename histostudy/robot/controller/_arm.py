@@ -22,11 +22,19 @@ import time
 import numpy as np
 
 from ..base import RobotError
-from ._protocol import (JOINT_MODE_RUNNING, ROBOT_MODE_RUNNING, SAFETY_BIT_NORMAL, SAFETY_BIT_PROTECTIVE_STOP,
-                                  SAFETY_MODE_NORMAL, SAFETY_MODE_PROTECTIVE_STOP, STREAM_PERIOD_S, Command)
 from ..kinematics import check_joints, forward_kinematics
 from ..rtde._units import pose_from_transform, transform_from_pose
 from ..sim import FaultPlan, SimulatedUR5e
+from ._protocol import (
+    JOINT_MODE_RUNNING,
+    ROBOT_MODE_RUNNING,
+    SAFETY_BIT_NORMAL,
+    SAFETY_BIT_PROTECTIVE_STOP,
+    SAFETY_MODE_NORMAL,
+    SAFETY_MODE_PROTECTIVE_STOP,
+    STREAM_PERIOD_S,
+    Command,
+)
 
 __all__ = ["ControllerArm", "MotionInProgress"]
 

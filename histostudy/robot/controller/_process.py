@@ -35,9 +35,9 @@ import tempfile
 import time
 
 from ..base import Workspace
+from ..sim import HOME_JOINTS_RAD, FaultPlan, SimulatedUR5e
 from ._protocol import DASHBOARD_PORT, RTDE_PORT, SCRIPT_PORT, Command
 from ._server import SimulatedController
-from ..sim import FaultPlan, HOME_JOINTS_RAD, SimulatedUR5e
 
 __all__ = ["Command", "ControllerProcess", "SimulatedController", "main", "DASHBOARD_PORT", "RTDE_PORT", "SCRIPT_PORT"]
 

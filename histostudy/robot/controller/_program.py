@@ -23,11 +23,20 @@ import threading
 import time
 
 from ..base import RobotError
-from ._arm import ControllerArm
-from ._protocol import (N_REGISTERS, REG_DONE, REG_IDLE, REG_READY, ROBOT_BIT_POWER_ON,
-                                  ROBOT_BIT_PROGRAM_RUNNING, RUNTIME_PLAYING, RUNTIME_STOPPED, Command)
 from ..kinematics import check_joints, forward_kinematics
 from ..rtde._units import pose_from_transform, transform_from_pose
+from ._arm import ControllerArm
+from ._protocol import (
+    N_REGISTERS,
+    REG_DONE,
+    REG_IDLE,
+    REG_READY,
+    ROBOT_BIT_POWER_ON,
+    ROBOT_BIT_PROGRAM_RUNNING,
+    RUNTIME_PLAYING,
+    RUNTIME_STOPPED,
+    Command,
+)
 
 __all__ = ["ControlProgram"]
 

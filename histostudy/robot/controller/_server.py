@@ -19,12 +19,23 @@ import sys
 import threading
 import time
 
+from ..sim import FaultPlan, SimulatedUR5e
 from ._arm import ControllerArm
 from ._program import ControlProgram
-from ._protocol import (CONTROLLER_VERSION, DASHBOARD_PORT, POLYSCOPE_VERSION_LINE, RTDE_PORT,
-                                  RTDE_PROTOCOL_VERSION, RUNTIME_PLAYING, SCRIPT_PORT, SERIAL_NUMBER, STREAM_PERIOD_S,
-                                  RTDERecipe, recv_exact, rtde_packet)
-from ..sim import FaultPlan, SimulatedUR5e
+from ._protocol import (
+    CONTROLLER_VERSION,
+    DASHBOARD_PORT,
+    POLYSCOPE_VERSION_LINE,
+    RTDE_PORT,
+    RTDE_PROTOCOL_VERSION,
+    RUNTIME_PLAYING,
+    SCRIPT_PORT,
+    SERIAL_NUMBER,
+    STREAM_PERIOD_S,
+    RTDERecipe,
+    recv_exact,
+    rtde_packet,
+)
 
 __all__ = ["SimulatedController"]
 
@@ -123,7 +134,7 @@ class SimulatedController:
             while not self.shutdown.is_set():
                 try:
                     conn, _ = srv.accept()
-                except socket.timeout:
+                except TimeoutError:
                     continue
                 except OSError:
                     return
@@ -201,7 +212,7 @@ class SimulatedController:
                 conn.settimeout(0.05)
             try:
                 chunk = conn.recv(65536)
-            except socket.timeout:
+            except TimeoutError:
                 chunk = None
             if chunk:
                 data += chunk

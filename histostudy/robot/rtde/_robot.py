@@ -29,9 +29,19 @@ import time
 import numpy as np
 
 from histostudy.geometry import check_rigid, invert_transform, rotation_angle
-from ..base import (ProtectiveStopError, RobotError, RobotState, RobotTimeout, UnreachablePoseError, Workspace,
-                   WorkspaceViolation, check_motion_parameters, linear_motion_time_s)
-from ..kinematics import DHSpec, UR5E, forward_kinematics, inverse_kinematics_closest, linear_path_joints
+
+from ..base import (
+    ProtectiveStopError,
+    RobotError,
+    RobotState,
+    RobotTimeout,
+    UnreachablePoseError,
+    Workspace,
+    WorkspaceViolation,
+    check_motion_parameters,
+    linear_motion_time_s,
+)
+from ..kinematics import UR5E, DHSpec, forward_kinematics, inverse_kinematics_closest, linear_path_joints
 from ._connection import DASHBOARD_PORT, RTDEConnection, probe_port
 from ._units import pose_from_transform, transform_from_pose
 

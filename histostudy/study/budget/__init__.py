@@ -12,29 +12,98 @@ segmentations shared by runs whose frames are alike (``_shared``); the sources w
 measurement run at both ends of their range (``_ranges``).
 """
 
-from . import (_magnitudes, _notebook, _references, _run, _sources, _summary)
-from . import (_distribution, _labs, _labs_notebook, _ranges, _shared)
-from ._notebook import (BudgetRun, BudgetSectionConfig, BudgetSeeds, RECORDED_PARAMETERS, SECTION_TITLE,
-                        SOURCE_PROVENANCE, SectionPart, SharesSection, budget_section, budget_seeds, closing_part,
-                        closing_text, lab_model_from_parameters, prepare, prepare_budget, record, shares_section,
-                        sources_part, sources_table, stand_ins)
-from ._magnitudes import (ISO_2768_M_DEVIATION, AnnotationError, BubbleOffset, CarmReproducibility, GantrySag,
-                          PhantomMotion, ProjectionError, RegistrationError, RobotAccuracy, RobotRepeatability,
-                          TransducerReplacement)
-from ._references import (SOURCE_REFERENCES, STATUSES, SourceReference, magnitudes_at, model_at, references_table,
-                          sweep_values)
-from ._run import (BudgetSetup, ESTIMATE_SOURCES, budget_configurations, measured_reference, measured_zone,
-                   run_error_budget)
-from ._sources import (ExperimentDraw, LAB_SOURCES, LabDraw, LabErrorModel, draw_lab)
-from ._distribution import (BAND_PERCENT, MOVER_METRICS, NATIVE_READING, PAPER_FIGURES, READINGS, bias_scatter_split,
-                            lab_statistics, labs_vs_paper, paper_statistics, sign_agreement, source_movers)
-from ._labs import (LAB_MAGNITUDES, draw_labs, frames_alike, lab_magnitudes, lab_seed, labs_records, run_labs)
-from ._labs_notebook import (LabsSection, labs_figure, labs_section, labs_text, movers_table, prepare_labs)
-from ._ranges import (FRAME_SOURCES, RANGE_ENDS, RangesSection, range_bands, range_labs, ranges_section,
-                      run_ranges)
-from ._shared import (SharedSegmentations, shared_work)
-from ._summary import (STUDY_COLUMNS, budget_comparisons, configuration_table, dominant_sources, paired_errors,
-                       source_shares, waterfall_figure)
+from . import (
+                        _distribution,
+                        _labs,
+                        _labs_notebook,
+                        _magnitudes,
+                        _notebook,
+                        _ranges,
+                        _references,
+                        _run,
+                        _shared,
+                        _sources,
+                        _summary,
+)
+from ._distribution import (
+                        BAND_PERCENT,
+                        MOVER_METRICS,
+                        NATIVE_READING,
+                        PAPER_FIGURES,
+                        READINGS,
+                        bias_scatter_split,
+                        lab_statistics,
+                        labs_vs_paper,
+                        paper_statistics,
+                        sign_agreement,
+                        source_movers,
+)
+from ._labs import LAB_MAGNITUDES, draw_labs, frames_alike, lab_magnitudes, lab_seed, labs_records, run_labs
+from ._labs_notebook import LabsSection, labs_figure, labs_section, labs_text, movers_table, prepare_labs
+from ._magnitudes import (
+                        ISO_2768_M_DEVIATION,
+                        AnnotationError,
+                        BubbleOffset,
+                        CarmReproducibility,
+                        GantrySag,
+                        PhantomMotion,
+                        ProjectionError,
+                        RegistrationError,
+                        RobotAccuracy,
+                        RobotRepeatability,
+                        TransducerReplacement,
+)
+from ._notebook import (
+                        RECORDED_PARAMETERS,
+                        SECTION_TITLE,
+                        SOURCE_PROVENANCE,
+                        BudgetRun,
+                        BudgetSectionConfig,
+                        BudgetSeeds,
+                        SectionPart,
+                        SharesSection,
+                        budget_section,
+                        budget_seeds,
+                        closing_part,
+                        closing_text,
+                        lab_model_from_parameters,
+                        prepare,
+                        prepare_budget,
+                        record,
+                        shares_section,
+                        sources_part,
+                        sources_table,
+                        stand_ins,
+)
+from ._ranges import FRAME_SOURCES, RANGE_ENDS, RangesSection, range_bands, range_labs, ranges_section, run_ranges
+from ._references import (
+                        SOURCE_REFERENCES,
+                        STATUSES,
+                        SourceReference,
+                        magnitudes_at,
+                        model_at,
+                        references_table,
+                        sweep_values,
+)
+from ._run import (
+                        ESTIMATE_SOURCES,
+                        BudgetSetup,
+                        budget_configurations,
+                        measured_reference,
+                        measured_zone,
+                        run_error_budget,
+)
+from ._shared import SharedSegmentations, shared_work
+from ._sources import LAB_SOURCES, ExperimentDraw, LabDraw, LabErrorModel, draw_lab
+from ._summary import (
+                        STUDY_COLUMNS,
+                        budget_comparisons,
+                        configuration_table,
+                        dominant_sources,
+                        paired_errors,
+                        source_shares,
+                        waterfall_figure,
+)
 
 # every public name of the modules above, as each module's __all__ declares it
 __all__ = list(dict.fromkeys([*_magnitudes.__all__, *_notebook.__all__, *_references.__all__, *_run.__all__,

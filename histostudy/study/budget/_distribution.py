@@ -23,8 +23,8 @@ import numpy as np
 import pandas as pd
 from scipy import stats as sps
 
-from ._summary import STUDY_COLUMNS
 from ..pose._geometry import DIRECTIONS
+from ._summary import STUDY_COLUMNS
 
 __all__ = ["BAND_PERCENT", "MOVER_METRICS", "NATIVE_READING", "PAPER_FIGURES", "READINGS", "bias_scatter_split", "lab_statistics",
            "labs_vs_paper", "paper_statistics", "sign_agreement", "source_movers"]

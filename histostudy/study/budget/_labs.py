@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
@@ -31,6 +31,7 @@ import pandas as pd
 from histostudy.core import SweepExecutor, run_sweep
 from histostudy.imaging import View
 from histostudy.transducer import TransducerModel
+
 from ._run import BudgetSetup, _pose_task, _targeting_task
 from ._shared import shared_work
 from ._sources import LabDraw, LabErrorModel, draw_lab

@@ -11,13 +11,22 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from ._distribution import (BAND_PERCENT, MOVER_METRICS, NATIVE_READING, bias_scatter_split, lab_statistics,
-                            labs_vs_paper, paper_statistics, sign_agreement, source_movers)
+from ..pose._geometry import DIRECTIONS
+from ..section import SectionPart, Timer, timer_or_untimed
+from ._distribution import (
+    BAND_PERCENT,
+    MOVER_METRICS,
+    NATIVE_READING,
+    bias_scatter_split,
+    lab_statistics,
+    labs_vs_paper,
+    paper_statistics,
+    sign_agreement,
+    source_movers,
+)
 from ._labs import draw_labs, lab_magnitudes, labs_records, run_labs
 from ._run import BudgetSetup
 from ._sources import LabDraw
-from ..pose._geometry import DIRECTIONS
-from ..section import SectionPart, Timer, timer_or_untimed
 
 __all__ = ["LabsSection", "labs_figure", "labs_section", "labs_text", "movers_table", "prepare_labs"]
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 import numpy as np
 import pandas as pd
@@ -19,14 +19,23 @@ import pandas as pd
 from histostudy.core import check_count, check_positive
 from histostudy.imaging import BACKGROUNDS, default_biplane
 from histostudy.transducer import TransducerModel, TransducerSpec
+
+from ..pose._config import PoseStudyConfig, study_stages
+from ..section import (
+    RenderedSectionConfig,
+    SectionPart,
+    Timer,
+    check_bool,
+    check_choice,
+    check_text,
+    record,
+    timer_or_untimed,
+)
+from ..targeting._setup import TargetingStudyConfig
 from ._references import SOURCE_REFERENCES
 from ._run import BudgetSetup, run_error_budget
 from ._sources import LAB_SOURCES, LabErrorModel, draw_lab
 from ._summary import budget_comparisons, configuration_table, dominant_sources, source_shares, waterfall_figure
-from ..pose._config import PoseStudyConfig, study_stages
-from ..section import (SectionPart, Timer, check_bool, check_choice, check_text, RenderedSectionConfig, record,
-                       timer_or_untimed)
-from ..targeting._setup import TargetingStudyConfig
 
 __all__ = ["BudgetRun", "BudgetSectionConfig", "BudgetSeeds", "RECORDED_PARAMETERS", "SECTION_TITLE",
            "SOURCE_PROVENANCE", "SectionPart", "SharesSection", "budget_section", "budget_seeds", "closing_part",

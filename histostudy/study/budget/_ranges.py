@@ -17,17 +17,17 @@ segment each frame once.
 from __future__ import annotations
 
 import dataclasses
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
 
+from ..section import SectionPart, Timer, timer_or_untimed
 from ._distribution import lab_statistics
 from ._labs import run_labs
 from ._references import SOURCE_REFERENCES, model_at
 from ._run import BudgetSetup
 from ._sources import LAB_SOURCES, LabDraw, draw_lab
-from ..section import SectionPart, Timer, timer_or_untimed
 
 __all__ = ["FRAME_SOURCES", "RANGE_ENDS", "RangesSection", "range_bands", "range_labs", "ranges_section",
            "run_ranges"]

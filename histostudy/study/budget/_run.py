@@ -28,8 +28,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 import pandas as pd
@@ -37,8 +37,7 @@ import pandas as pd
 from histostudy.calibration import CalibrationError
 from histostudy.core import SweepExecutor, run_sweep
 from histostudy.transducer import TransducerModel
-from ._shared import shared_work
-from ._sources import LAB_SOURCES, ExperimentDraw, LabDraw, LabErrorModel
+
 from ..pose._config import PoseStudyConfig
 from ..pose._experiments import run_pose_study
 from ..pose._geometry import DIRECTIONS
@@ -47,6 +46,8 @@ from ..pose._reference import cbct_reference
 from ..targeting._experiment import run_targeting_experiment
 from ..targeting._robots import sim_robot
 from ..targeting._setup import TargetingError, TargetingStudyConfig
+from ._shared import shared_work
+from ._sources import ExperimentDraw, LabDraw, LabErrorModel
 
 __all__ = ["BudgetSetup", "ESTIMATE_SOURCES", "budget_configurations", "measured_reference", "measured_zone",
            "run_error_budget"]

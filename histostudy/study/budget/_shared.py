@@ -15,7 +15,7 @@ import contextlib
 import dataclasses
 import hashlib
 from collections import OrderedDict
-from typing import Iterator
+from collections.abc import Iterator
 
 import numpy as np
 

@@ -47,10 +47,21 @@ import numpy as np
 from histostudy.geometry import make_transform, matrix_from_rotvec
 from histostudy.imaging import GRAVITY_CARM, View, displaced_view, miscalibrated_view
 from histostudy.transducer import ManufacturingDeviation, TransducerModel
-from ._magnitudes import (ISO_2768_M_DEVIATION, AnnotationError, BubbleOffset, CarmReproducibility, GantrySag,
-                          PhantomMotion, ProjectionError, RegistrationError, RobotAccuracy, RobotRepeatability,
-                          TransducerReplacement)
+
 from ..targeting._robots import KinematicError
+from ._magnitudes import (
+    ISO_2768_M_DEVIATION,
+    AnnotationError,
+    BubbleOffset,
+    CarmReproducibility,
+    GantrySag,
+    PhantomMotion,
+    ProjectionError,
+    RegistrationError,
+    RobotAccuracy,
+    RobotRepeatability,
+    TransducerReplacement,
+)
 
 __all__ = ["ExperimentDraw", "LAB_SOURCES", "LabDraw", "LabErrorModel", "draw_lab"]
 
@@ -103,16 +114,16 @@ class LabErrorModel:
         if name not in LAB_SOURCES:
             raise ValueError(f"source must be one of {LAB_SOURCES}, got {name!r}")
 
-    def off(self) -> "LabErrorModel":
+    def off(self) -> LabErrorModel:
         """Every source off: the studies as they run without a lab model."""
         return dataclasses.replace(self, **{name: None for name in LAB_SOURCES})
 
-    def only(self, name: str) -> "LabErrorModel":
+    def only(self, name: str) -> LabErrorModel:
         """This model with every source but ``name`` off."""
         self._check_name(name)
         return dataclasses.replace(self.off(), **{name: getattr(self, name)})
 
-    def without(self, name: str) -> "LabErrorModel":
+    def without(self, name: str) -> LabErrorModel:
         """This model with ``name`` off."""
         self._check_name(name)
         return dataclasses.replace(self, **{name: None})
@@ -179,7 +190,7 @@ class LabDraw:
     study_physical: TransducerModel
     study_views: tuple
 
-    def variant(self, model: LabErrorModel) -> "LabDraw":
+    def variant(self, model: LabErrorModel) -> LabDraw:
         """This lab with only ``model``'s sources on: each must be on here with the same
         magnitudes. The same numbers as :func:`draw_lab` of ``model`` on this seed, without
         drawing the transducer again."""

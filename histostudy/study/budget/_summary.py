@@ -23,9 +23,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ._sources import LAB_SOURCES
 from ..pose._geometry import DIRECTIONS
 from ..pose._metrics import mean_sd
+from ._sources import LAB_SOURCES
 
 __all__ = ["STUDY_COLUMNS", "budget_comparisons", "configuration_table", "dominant_sources", "paired_errors",
            "source_shares", "waterfall_figure"]

@@ -15,10 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from histostudy.core import renamed_attributes
 from histostudy.imaging import FrameRenderConfig
 from histostudy.learning import OracleOrientation, OracleSegmenter, OrientationSource, Segmenter
 from histostudy.pose import MAP_KINDS, learned_stage_shortfalls
+
 from ..section import RenderedSectionConfig
 
 __all__ = ["PoseSectionConfig", "PoseStudyConfig", "StudyStages", "study_stages"]
@@ -127,8 +127,8 @@ def study_stages(config, learned: bool = True, *, segmenter=None, orientation=No
         return StudyStages(*oracles, learned=False, why="oracle stages: the learned stages are disabled "
                            "(learned_stages = False)")
     if segmenter is None or orientation is None:
-        from histostudy.pose import default_orientation
         from histostudy.learning import default_segmenter
+        from histostudy.pose import default_orientation
 
         segmenter = default_segmenter() if segmenter is None else segmenter
         orientation = default_orientation() if orientation is None else orientation
@@ -193,4 +193,3 @@ class PoseSectionConfig(RenderedSectionConfig):
             degradation=self.degradation, modes=tuple(self.modes), distance_maps=tuple(self.distance_maps))
 
 # the 0.1.0 name, deprecated (CHANGELOG.md)
-__getattr__ = renamed_attributes(globals(), {'PoseSectionParameters': 'PoseSectionConfig'})

@@ -15,8 +15,8 @@ C-arm (CBCT) frame, mm; rotation errors in degrees.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Sequence
 
 import numpy as np
 import pandas as pd
@@ -25,9 +25,16 @@ from histostudy.imaging import Anatomy, View, random_background, render_frame
 from histostudy.learning import OracleOrientation, OrientationSource, Segmenter
 from histostudy.pose import PoseEstimationError, estimate_pose
 from histostudy.transducer import TransducerModel
+
 from ._config import PoseStudyConfig
-from ._geometry import (DIRECTIONS, axial_symmetric_rotation_error_deg, bubble_cloud_centre_mm, experiment_pose,
-                            margin_positions, transducer_axes)
+from ._geometry import (
+    DIRECTIONS,
+    axial_symmetric_rotation_error_deg,
+    bubble_cloud_centre_mm,
+    experiment_pose,
+    margin_positions,
+    transducer_axes,
+)
 
 __all__ = ["PoseExperiment", "draw_experiments", "experiment_setups", "run_pose_study"]
 

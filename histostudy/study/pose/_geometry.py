@@ -9,7 +9,7 @@ the sweeps are drawn in the paper's training ranges (§II-B.2).
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

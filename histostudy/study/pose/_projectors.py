@@ -11,8 +11,8 @@ the pose is estimated from each; the focal errors of the two are set side by sid
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import replace
-from typing import Sequence
 
 import numpy as np
 import pandas as pd
@@ -20,6 +20,7 @@ import pandas as pd
 from histostudy.imaging import View, random_background, render_frame
 from histostudy.pose import PoseEstimationError, estimate_pose
 from histostudy.transducer import TransducerModel
+
 from ._config import PoseStudyConfig
 from ._experiments import experiment_setups
 from ._geometry import bubble_cloud_centre_mm, random_pose_in_views, sweep_visible_points

@@ -14,7 +14,7 @@ C-arm (CBCT) frame, mm; CBCT intensities in HU.
 from __future__ import annotations
 
 import time
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import pandas as pd
@@ -22,8 +22,14 @@ import pandas as pd
 from histostudy.geometry import make_transform, rotation_about_axis
 from histostudy.imaging import Anatomy, PhantomSpec, phantom_mask, phantom_volume
 from histostudy.transducer import TransducerModel
-from histostudy.treatment import (STUDY_PLAN_INSET_MM, STUDY_PLAN_SPACING_MM, TreatmentZone, plan_treatment,
-                                  scan_treated_zone)
+from histostudy.treatment import (
+    STUDY_PLAN_INSET_MM,
+    STUDY_PLAN_SPACING_MM,
+    TreatmentZone,
+    plan_treatment,
+    scan_treated_zone,
+)
+
 from ._config import PoseStudyConfig
 from ._experiments import PoseExperiment, draw_experiments
 from ._geometry import DIRECTIONS, bubble_cloud_centre_mm, transducer_axes

@@ -8,7 +8,7 @@ the learned stages beside the oracles. Errors in mm, C-arm frame.
 
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import pandas as pd
 

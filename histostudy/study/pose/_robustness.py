@@ -10,7 +10,7 @@ because a cluster's workers run it (:func:`histostudy.core.run_sweep`).
 from __future__ import annotations
 
 import time
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
@@ -20,9 +20,14 @@ from histostudy.imaging import View, random_background, render_frame
 from histostudy.learning import OracleOrientation, OrientationSource, Segmenter
 from histostudy.pose import PoseEstimationError, estimate_pose
 from histostudy.transducer import Feature, TransducerModel, half_turn_symmetric
+
 from ._config import PoseStudyConfig
-from ._geometry import (bubble_cloud_centre_mm, random_pose_in_views, rotation_error_modulo_symmetry_deg,
-                            sweep_visible_points)
+from ._geometry import (
+    bubble_cloud_centre_mm,
+    random_pose_in_views,
+    rotation_error_modulo_symmetry_deg,
+    sweep_visible_points,
+)
 
 __all__ = ["robustness_summary", "robustness_sweep"]
 

@@ -12,8 +12,8 @@ reporting layer); :mod:`~histostudy.study.pose._report_tables` shapes its tables
 from __future__ import annotations
 
 import functools
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
-from typing import Mapping
 
 import numpy as np
 import pandas as pd
@@ -22,16 +22,33 @@ from histostudy.imaging import default_biplane, random_background, render_frame,
 from histostudy.learning import OracleOrientation
 from histostudy.pose import estimate_pose
 from histostudy.transducer import TransducerModel, TransducerSpec
+
 from . import _projectors as projectors
 from ._config import PoseSectionConfig, StudyStages, study_stages
 from ._experiments import run_pose_study
 from ._geometry import experiment_pose
-from ._metrics import (experiment_metrics, mean_sd, reference_error_summary, stage_timing, table2,
-                           tracking_summary, variant_summary)
+from ._metrics import (
+    experiment_metrics,
+    mean_sd,
+    reference_error_summary,
+    stage_timing,
+    table2,
+    tracking_summary,
+    variant_summary,
+)
 from ._reference import cbct_reference
-from ._report_tables import (RECORD_COLUMNS, REFERENCE_TABLE_COLUMNS, failed_estimates, focal_error_per_dose,
-                                 focal_error_per_level, init_success_comparisons, stages_comparison_table,
-                                 table2_beside_paper, table2_both_references, table2_comparisons)
+from ._report_tables import (
+    RECORD_COLUMNS,
+    REFERENCE_TABLE_COLUMNS,
+    failed_estimates,
+    focal_error_per_dose,
+    focal_error_per_level,
+    init_success_comparisons,
+    stages_comparison_table,
+    table2_beside_paper,
+    table2_both_references,
+    table2_comparisons,
+)
 from ._robustness import robustness_summary, robustness_sweep
 from ._sweeps import degradation_sweep, noise_sweep
 

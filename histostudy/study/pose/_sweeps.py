@@ -8,15 +8,22 @@ per pixel (§II-B.2's Poisson noise). Poses as the experiments of Table II draw 
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
 
 from histostudy.imaging import View, random_background, render_frame
-from histostudy.learning import OracleOrientation, OracleSegmenter, OrientationSource, SegmentationDegradation, Segmenter
+from histostudy.learning import (
+    OracleOrientation,
+    OracleSegmenter,
+    OrientationSource,
+    SegmentationDegradation,
+    Segmenter,
+)
 from histostudy.pose import PoseEstimationError, estimate_pose
 from histostudy.transducer import TransducerModel
+
 from ._config import PoseStudyConfig
 from ._geometry import bubble_cloud_centre_mm, experiment_pose
 

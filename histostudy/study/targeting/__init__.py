@@ -64,21 +64,53 @@ the study of several (``_experiment``), §III's figures, tables and comparisons 
 (:func:`prepare`) and parts recorded by :func:`record` (``_notebook``).
 """
 
-from . import (_calibration, _experiment, _figures, _notebook, _positioning, _robots, _setup, _summary, _treatment)
-from ._calibration import (HALF_TURN, calibrate_robot, calibration_poses, config_focal_flange)
-from ._experiment import (calibration_errors, run_targeting_experiment, run_targeting_study, zone_errors)
-from ._figures import (SceneFigure, fig7_figures, plot_target_slices, scene_figure)
-from ._notebook import (RECORDED_PARAMETERS, ROBOTS, SECTION_TITLE, NotebookSeeds, SectionPart, SensitivitySection,
-                        TargetingRun, TargetingSectionConfig, TargetingSetup, calibration_part, closing_part,
-                        closing_text, config_from_parameters, experiments_section, notebook_seeds, prepare,
-                        prepare_study, record, run_prepared_study, sensitivity_section, stand_ins, targeting_part)
-from ._positioning import (DOWN, position_for_target, scene_at_target, target_orientation, tcp_for_target)
-from ._robots import (InaccurateArm, KinematicError, reported_flange_pose, robot_seed, rtde_robot, sim_robot)
-from ._setup import (GroundTruth, TargetingError, TargetingStudyConfig, draw_ground_truth, start_joints)
-from ._summary import (CALIBRATION_TABLE_CAPTION, ERROR_TABLE_CAPTION, SUMMARY_TABLE_CAPTION, calibration_table,
-                       error_table, first_robot_rows, robot_max_difference, sensitivity_caption, sensitivity_medians,
-                       calibration_sensitivity_table, summary, targeting_comparisons, targeting_values)
-from ._treatment import (learn_bubble_bias, phantom_for, treat_zone)
+from . import _calibration, _experiment, _figures, _notebook, _positioning, _robots, _setup, _summary, _treatment
+from ._calibration import HALF_TURN, calibrate_robot, calibration_poses, config_focal_flange
+from ._experiment import calibration_errors, run_targeting_experiment, run_targeting_study, zone_errors
+from ._figures import SceneFigure, fig7_figures, plot_target_slices, scene_figure
+from ._notebook import (
+                        RECORDED_PARAMETERS,
+                        ROBOTS,
+                        SECTION_TITLE,
+                        NotebookSeeds,
+                        SectionPart,
+                        SensitivitySection,
+                        TargetingRun,
+                        TargetingSectionConfig,
+                        TargetingSetup,
+                        calibration_part,
+                        closing_part,
+                        closing_text,
+                        config_from_parameters,
+                        experiments_section,
+                        notebook_seeds,
+                        prepare,
+                        prepare_study,
+                        record,
+                        run_prepared_study,
+                        sensitivity_section,
+                        stand_ins,
+                        targeting_part,
+)
+from ._positioning import DOWN, position_for_target, scene_at_target, target_orientation, tcp_for_target
+from ._robots import InaccurateArm, KinematicError, reported_flange_pose, robot_seed, rtde_robot, sim_robot
+from ._setup import GroundTruth, TargetingError, TargetingStudyConfig, draw_ground_truth, start_joints
+from ._summary import (
+                        CALIBRATION_TABLE_CAPTION,
+                        ERROR_TABLE_CAPTION,
+                        SUMMARY_TABLE_CAPTION,
+                        calibration_sensitivity_table,
+                        calibration_table,
+                        error_table,
+                        first_robot_rows,
+                        robot_max_difference,
+                        sensitivity_caption,
+                        sensitivity_medians,
+                        summary,
+                        targeting_comparisons,
+                        targeting_values,
+)
+from ._treatment import learn_bubble_bias, phantom_for, treat_zone
 
 # every public name of the modules above, as each module's __all__ declares it
 __all__ = list(dict.fromkeys([*_calibration.__all__, *_experiment.__all__, *_figures.__all__, *_notebook.__all__,

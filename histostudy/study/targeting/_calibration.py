@@ -11,18 +11,25 @@ Transforms are 4x4 ``T_<to>_<from>`` in mm (base frame: the robot's; C-arm frame
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
 
-from histostudy.calibration import HALF_TURN, R_BASE_FLANGE_DOWN, DegenerateMotionError, HandEyeCalibration, calibrate_half_turns
+from histostudy.calibration import (
+    HALF_TURN,
+    R_BASE_FLANGE_DOWN,
+    DegenerateMotionError,
+    HandEyeCalibration,
+    calibrate_half_turns,
+)
 from histostudy.geometry import make_transform, matrix_from_rotvec, rotation_about_axis
 from histostudy.imaging import View, random_background, render_frame
 from histostudy.learning import OracleOrientation
 from histostudy.pose import PoseEstimationError, estimate_pose
 from histostudy.robot import Robot
 from histostudy.transducer import TransducerModel
+
 from ._robots import InaccurateArm, reported_flange_pose
 from ._setup import GroundTruth, TargetingError, TargetingStudyConfig
 

@@ -23,8 +23,8 @@ commanded flange pose). Points are in the C-arm frame (LPS, mm).
 from __future__ import annotations
 
 import tempfile
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Callable, Sequence
 
 import numpy as np
 import pandas as pd
@@ -34,6 +34,7 @@ from histostudy.geometry import invert_transform, make_transform, rotation_angle
 from histostudy.imaging import PhantomSpec, View, check_target, random_target, simulate_cbct
 from histostudy.transducer import TransducerModel
 from histostudy.treatment import TreatmentZone, ZoneSegmentation
+
 from ..pose import DIRECTIONS, transducer_axes
 from ._calibration import calibrate_robot
 from ._positioning import target_orientation, tcp_for_target

@@ -7,8 +7,8 @@ Volumes and points are in the C-arm frame (LPS, mm); the 3-D render itself is
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator
 
 import numpy as np
 import pandas as pd
@@ -16,6 +16,7 @@ import pandas as pd
 from histostudy.imaging import Volume
 from histostudy.transducer import TransducerModel
 from histostudy.treatment import ZoneSegmentation
+
 from ._positioning import scene_at_target
 
 __all__ = ["SceneFigure", "fig7_figures", "plot_target_slices", "scene_figure"]

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Callable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -20,14 +20,24 @@ import pandas as pd
 from histostudy.core import check_count, check_positive, is_finite_real
 from histostudy.imaging import View, default_biplane
 from histostudy.transducer import TransducerModel, TransducerSpec
+
 from ..pose import StudyStages, study_stages
-from ..section import SectionPart, check_bool, check_choice, record, timer_or_untimed
-from ..section import RenderedSectionConfig
+from ..section import RenderedSectionConfig, SectionPart, check_bool, check_choice, record, timer_or_untimed
 from ._experiment import run_targeting_study
 from ._setup import TargetingStudyConfig
-from ._summary import (CALIBRATION_TABLE_CAPTION, ERROR_TABLE_CAPTION, SUMMARY_TABLE_CAPTION,
-                       calibration_sensitivity_table, calibration_table, error_table, first_robot_rows,
-                       robot_max_difference, sensitivity_caption, summary, targeting_comparisons)
+from ._summary import (
+    CALIBRATION_TABLE_CAPTION,
+    ERROR_TABLE_CAPTION,
+    SUMMARY_TABLE_CAPTION,
+    calibration_sensitivity_table,
+    calibration_table,
+    error_table,
+    first_robot_rows,
+    robot_max_difference,
+    sensitivity_caption,
+    summary,
+    targeting_comparisons,
+)
 
 __all__ = ["RECORDED_PARAMETERS", "ROBOTS", "SECTION_TITLE", "NotebookSeeds", "SectionPart", "SensitivitySection",
            "TargetingRun", "TargetingSectionConfig", "TargetingSetup", "calibration_part", "closing_part",

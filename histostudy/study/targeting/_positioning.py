@@ -13,6 +13,7 @@ import numpy as np
 from histostudy.calibration import DOWN, HandEyeCalibration, target_orientation, tcp_for_target
 from histostudy.geometry import invert_transform
 from histostudy.robot import Robot, inverse_kinematics_closest
+
 from ._setup import GroundTruth, start_joints
 
 # DOWN, target_orientation and tcp_for_target live in histostudy.calibration.targeting; named here too

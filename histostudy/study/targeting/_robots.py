@@ -24,6 +24,7 @@ import numpy as np
 
 from histostudy.robot import HOME_JOINTS_RAD, UR5E, SimulatedUR5e, forward_kinematics
 from histostudy.robot.kinematics import DHSpec
+
 from ._setup import TargetingStudyConfig
 
 __all__ = ["InaccurateArm", "KinematicError", "reported_flange_pose", "robot_seed", "rtde_robot", "sim_robot"]
@@ -40,7 +41,7 @@ class KinematicError:
     theta_rad: np.ndarray
 
     @classmethod
-    def from_normals(cls, normals, *, length_sd_mm: float, angle_sd_rad: float) -> "KinematicError":
+    def from_normals(cls, normals, *, length_sd_mm: float, angle_sd_rad: float) -> KinematicError:
         """Standard normals (4, 6: d, a, alpha, theta) scaled by the lengths' SD (mm) and the
         angles' (rad), so that a magnitude changes no draw."""
         z = np.asarray(normals, dtype=np.float64)

@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from histostudy.calibration import calibration_sensitivity
+
 from ..pose._geometry import DIRECTIONS
 from ..pose._metrics import mean_sd
 

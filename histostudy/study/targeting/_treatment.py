@@ -28,8 +28,8 @@ from histostudy.geometry import invert_transform
 from histostudy.imaging import PhantomSpec, Volume, phantom_mask, phantom_volume, random_target
 from histostudy.robot import Robot
 from histostudy.transducer import TransducerModel
-from histostudy.treatment import (TreatmentZone, ZoneSegmentation, execute_treatment, plan_treatment,
-                                  scan_treated_zone)
+from histostudy.treatment import TreatmentZone, ZoneSegmentation, execute_treatment, plan_treatment, scan_treated_zone
+
 from ._positioning import position_for_target
 from ._setup import GroundTruth, TargetingStudyConfig
 

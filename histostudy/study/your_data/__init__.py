@@ -18,14 +18,43 @@ section's set-up and parts (``_section``), and the live stream (``_live``).
 """
 
 from . import _inputs, _live, _parameters, _section
-from ._inputs import (LabInputs, accepted_focal_errors, calibration_table, cine_frame_count, lab_inputs, plan_table,
-                      plot_cbct_target, station_poses, target_plan, track_cine, transducer_model)
-from ._live import (LiveFocalFigure, LiveSection, compare_with_tracked, live_section, stream_cine, throughput_table)
-from ._parameters import (RECORDED_PARAMETERS, SECTION_TITLE, YourDataConfig)
-from ._section import (CalibrationSection, MovingCineSection, STATION_OVERLAY_CAPTION, SectionPart, StationsSection,
-                       Timer, TrackingSection, YourDataSetup, calibration_section, drive_robot, focal_error_part,
-                       moving_cine_section, plot_cine_focal_error, prepare, record, stand_ins, station_overlay,
-                       stations_section, target_part, tracking_section)
+from ._inputs import (
+                      LabInputs,
+                      accepted_focal_errors,
+                      calibration_table,
+                      cine_frame_count,
+                      lab_inputs,
+                      plan_table,
+                      plot_cbct_target,
+                      station_poses,
+                      target_plan,
+                      track_cine,
+                      transducer_model,
+)
+from ._live import LiveFocalFigure, LiveSection, compare_with_tracked, live_section, stream_cine, throughput_table
+from ._parameters import RECORDED_PARAMETERS, SECTION_TITLE, YourDataConfig
+from ._section import (
+                      STATION_OVERLAY_CAPTION,
+                      CalibrationSection,
+                      MovingCineSection,
+                      SectionPart,
+                      StationsSection,
+                      Timer,
+                      TrackingSection,
+                      YourDataSetup,
+                      calibration_section,
+                      drive_robot,
+                      focal_error_part,
+                      moving_cine_section,
+                      plot_cine_focal_error,
+                      prepare,
+                      record,
+                      stand_ins,
+                      station_overlay,
+                      stations_section,
+                      target_part,
+                      tracking_section,
+)
 
 # every public name of the modules above, as each module's __all__ declares it
 __all__ = list(dict.fromkeys([*_inputs.__all__, *_live.__all__, *_parameters.__all__, *_section.__all__]))

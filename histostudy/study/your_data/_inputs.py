@@ -19,6 +19,7 @@ from histostudy.imaging import Volume, load_views
 from histostudy.lab import TargetingPlan, accepted_stations, calibrate_from_poses, load_flange_poses, plan_targeting
 from histostudy.pose import Tracker, frames_from_files, pose_from_files, pose_record
 from histostudy.transducer import TransducerModel
+
 from ..lab_dataset import write_lab_dataset
 from ..targeting._figures import plot_target_slices
 from ..targeting._setup import TargetingStudyConfig

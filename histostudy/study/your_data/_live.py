@@ -18,9 +18,9 @@ import json
 import math
 import os
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pandas as pd
@@ -28,6 +28,7 @@ import pandas as pd
 from histostudy.lab import FrameReceiver, send_frames
 from histostudy.pose import frames_from_files
 from histostudy.transducer import TransducerModel
+
 from ._inputs import LabInputs, cine_frame_count
 from ._section import SectionPart, Timer, YourDataSetup
 

@@ -10,7 +10,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from histostudy.core import check_count, check_positive, is_finite_real
-from ..section import SectionConfig, check_bool as _check_bool
+
+from ..section import SectionConfig
+from ..section import check_bool as _check_bool
 
 __all__ = ["RECORDED_PARAMETERS", "SECTION_TITLE", "YourDataConfig"]
 

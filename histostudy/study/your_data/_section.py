@@ -6,9 +6,9 @@ move and makes it only when asked (the dry-run guard).
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 import pandas as pd
@@ -20,13 +20,24 @@ from histostudy.lab import TargetingPlan, execute_targeting
 from histostudy.pose import frames_from_files
 from histostudy.robot import Robot
 from histostudy.transducer import TransducerModel
+
 from ..moving_cine import write_moving_cine
 from ..moving_cine_live import MovingCineRun, count_table, frame_table, plot_focal_error, stream_moving_cine
 from ..section import SectionPart, Timer, record
 from ..section import timer_or_untimed as _timer
 from ..targeting._setup import TargetingStudyConfig
-from ._inputs import (LabInputs, _station_frames, calibration_table, lab_inputs, plan_table, plot_cbct_target,
-                      station_poses, target_plan, track_cine, transducer_model)
+from ._inputs import (
+    LabInputs,
+    _station_frames,
+    calibration_table,
+    lab_inputs,
+    plan_table,
+    plot_cbct_target,
+    station_poses,
+    target_plan,
+    track_cine,
+    transducer_model,
+)
 from ._parameters import YourDataConfig, _check_bool
 
 __all__ = ["CalibrationSection", "MovingCineSection", "STATION_OVERLAY_CAPTION", "SectionPart", "StationsSection",

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pydicom
 import pytest
+from xa_codecs import jpeg_ls_near
 
 from histostudy.imaging import View, XRayObjectRejected, check_xray_object, load_frame, xray_pixels
 from histostudy.lab import decode_xray_object
-from xa_codecs import jpeg_ls_near
 
 VENDOR = Path(__file__).resolve().parents[2] / "data" / "vendor_xa"
 #: SHA-256 of the stored values (uint16, little endian, 1024 x 1024) of WG-04's uncompressed

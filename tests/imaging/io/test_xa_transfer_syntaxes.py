@@ -8,11 +8,19 @@ import numpy as np
 import pydicom
 import pytest
 from pydicom.pixels import get_decoder
-
-from histostudy.imaging import (RECEIVABLE_TRANSFER_SYNTAXES, View, XRayObjectRejected, check_xray_object,
-                                detector_counts, load_frame, write_xa, xray_pixels)
-from histostudy.lab import decode_xray_object
 from xa_codecs import NEAR, compress, jpeg_ls_near
+
+from histostudy.imaging import (
+    RECEIVABLE_TRANSFER_SYNTAXES,
+    View,
+    XRayObjectRejected,
+    check_xray_object,
+    detector_counts,
+    load_frame,
+    write_xa,
+    xray_pixels,
+)
+from histostudy.lab import decode_xray_object
 
 NATIVE = ["1.2.840.10008.1.2", "1.2.840.10008.1.2.1", "1.2.840.10008.1.2.1.99", "1.2.840.10008.1.2.2"]
 COMPRESSED = ["1.2.840.10008.1.2.4.70", "1.2.840.10008.1.2.4.57", "1.2.840.10008.1.2.4.80", "1.2.840.10008.1.2.4.81",

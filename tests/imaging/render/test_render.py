@@ -3,10 +3,17 @@
 import numpy as np
 import pytest
 
-from histostudy.imaging import (Frame, View, add_poisson_noise, default_biplane, render_frame, render_labels,
-                                render_line_integrals)
+from histostudy.imaging import (
+    Frame,
+    View,
+    add_poisson_noise,
+    default_biplane,
+    render_frame,
+    render_labels,
+    render_line_integrals,
+)
 from histostudy.imaging.render._reference import ZERO_COUNT_CLAMP
-from histostudy.transducer import FEATURE_CLASSES, Feature, LABEL_PRIORITY, TransducerModel, TransducerSpec, pose_facing
+from histostudy.transducer import FEATURE_CLASSES, LABEL_PRIORITY, Feature, TransducerModel, TransducerSpec, pose_facing
 
 R = 138.7
 MU_T = 1.4 * 2.0  # element mu * thickness of the default spec

@@ -7,8 +7,16 @@ import math
 import pytest
 import torch
 
-from histostudy.learning import (LearnedOrientation, RenderConfig, TrainingConfig, export, hemisphere_angles,
-                                 load_checkpoint, load_network, train)
+from histostudy.learning import (
+    LearnedOrientation,
+    RenderConfig,
+    TrainingConfig,
+    export,
+    hemisphere_angles,
+    load_checkpoint,
+    load_network,
+    train,
+)
 
 TINY = RenderConfig(render_spacing_mm=0.47, label_spacing_mm=0.47, detector=(240, 320))
 

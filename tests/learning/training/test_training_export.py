@@ -7,8 +7,14 @@ import numpy as np
 import pytest
 import torch
 
-from histostudy.learning import (UNet, full_precision_copy, half_precision_copy, load_checkpoint, load_network,
-                                 save_checkpoint)
+from histostudy.learning import (
+    UNet,
+    full_precision_copy,
+    half_precision_copy,
+    load_checkpoint,
+    load_network,
+    save_checkpoint,
+)
 
 
 def _saved(tmp_path, scale=1.0):

@@ -8,8 +8,19 @@ import numpy as np
 import pytest
 import torch
 
-from histostudy.learning import (HybridFrames, HybridImageDataset, RenderConfig, TrainingConfig, build_network,
-                                 export, load_checkpoint, load_teacher, save_checkpoint, teacher_labeller, train)
+from histostudy.learning import (
+    HybridFrames,
+    HybridImageDataset,
+    RenderConfig,
+    TrainingConfig,
+    build_network,
+    export,
+    load_checkpoint,
+    load_teacher,
+    save_checkpoint,
+    teacher_labeller,
+    train,
+)
 
 TINY = RenderConfig(render_spacing_mm=0.47, label_spacing_mm=0.47, detector=(240, 320))
 

@@ -8,7 +8,7 @@ import pytest
 
 from histostudy.geometry import invert_transform, make_transform, params_from_transform, transform_points
 from histostudy.imaging import View, default_biplane, render_labels
-from histostudy.pose import DistanceMaps, OUTSIDE_DISTANCE_PX, PoseCost, apply_left_perturbation
+from histostudy.pose import OUTSIDE_DISTANCE_PX, DistanceMaps, PoseCost, apply_left_perturbation
 from histostudy.transducer import FEATURE_CLASSES, Feature, TransducerModel, pose_facing
 
 T_TRUE = pose_facing(focal_point_mm=(5.0, -3.0, 8.0), axial_rotation_rad=0.3)

@@ -6,13 +6,12 @@ half resolution, read by the oracle stages, so each estimate takes a fraction of
 
 import numpy as np
 import pytest
+from pose_frames import POSES, assert_jump_reacquired, focal_error, frames_of, moved
 
 from histostudy.geometry import rotation_angle, transform_from_params
 from histostudy.imaging import Frame
 from histostudy.learning import OracleOrientation, OracleSegmenter
 from histostudy.pose import ConicOrientation, PoseEstimationError, Tracker, estimate_pose
-
-from pose_frames import POSES, assert_jump_reacquired, focal_error, frames_of, moved
 
 ORACLES = dict(segmenter=OracleSegmenter(), orientation=OracleOrientation())
 

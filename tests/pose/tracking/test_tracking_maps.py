@@ -3,12 +3,11 @@ buffers reused frame after frame; and of DistanceMaps.from_maps, which wraps the
 
 import numpy as np
 import pytest
+from pose_frames import POSES
 
 from histostudy.imaging import default_biplane, render_labels
 from histostudy.pose import DistanceMaps, RegionMaps, crop_view
 from histostudy.transducer import Feature, TransducerModel
-
-from pose_frames import POSES
 
 
 @pytest.fixture(scope="module")

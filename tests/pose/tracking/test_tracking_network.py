@@ -4,13 +4,12 @@ and of the Levenberg-Marquardt step's scalar rotation (histostudy.pose.perturbat
 
 import numpy as np
 import pytest
+from pose_frames import POSES, moved
 
 from histostudy.geometry import matrix_from_rotvec, transform_from_params
 from histostudy.imaging import default_biplane, random_background, render_frame
 from histostudy.learning import OracleOrientation, OracleSegmenter, default_segmenter, tracking_segmenter
 from histostudy.pose import Tracker, TrackingConfig, apply_left_perturbation
-
-from pose_frames import POSES, moved
 
 STEP = transform_from_params(np.r_[np.deg2rad(0.2) * np.array([0.6, -0.48, 0.64]), [0.3, -0.25, 0.3]])
 

@@ -10,12 +10,11 @@ the same frames segmented again at the detector's resolution, is not.
 
 import numpy as np
 import pytest
+from pose_frames import POSES, focal_error, frames_of, moved
 
 from histostudy.geometry import transform_from_params
 from histostudy.learning import OracleOrientation, OracleSegmenter
 from histostudy.pose import PoseConfig, RegionEstimator, Tracker, TrackingConfig
-
-from pose_frames import POSES, focal_error, frames_of, moved
 
 STEP = transform_from_params(np.r_[np.deg2rad(0.2) * np.array([0.6, -0.48, 0.64]), [0.3, -0.25, 0.3]])
 #: Plane B's labels are those of a pose 6 mm and 3 deg away: no single pose explains both views.

@@ -7,12 +7,11 @@ convention (u' = s (u - u0) + (s - 1) / 2).
 
 import numpy as np
 import pytest
+from pose_frames import POSES
 
 from histostudy.imaging import default_biplane
 from histostudy.pose import RegionOfInterest, crop_view, region_of_interest
 from histostudy.transducer import TransducerModel
-
-from pose_frames import POSES
 
 
 @pytest.fixture(scope="module")

@@ -10,14 +10,12 @@ import dataclasses
 
 import numpy as np
 import pytest
+from pose_frames import POSES, focal_error, frames_of
 
 from histostudy.imaging import default_biplane, random_background, render_frame
 from histostudy.learning import FastUNet, OracleOrientation, OracleSegmenter, default_segmenter
-from histostudy.pose import (PoseConfig, ScratchEstimator, Tracker, TrackingConfig, default_stages,
-                             scaled_pose_options)
+from histostudy.pose import PoseConfig, ScratchEstimator, Tracker, TrackingConfig, default_stages, scaled_pose_options
 from histostudy.pose.tracking._options import PIXEL_OPTIONS
-
-from pose_frames import POSES, focal_error, frames_of
 
 ORACLES = dict(segmenter=OracleSegmenter(), orientation=OracleOrientation())
 

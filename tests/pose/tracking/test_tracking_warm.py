@@ -7,13 +7,12 @@ label scale 1 (the labels cropped) and 1/2 (pooled by priority, the shipped U-Ne
 
 import numpy as np
 import pytest
+from pose_frames import POSES, assert_jump_reacquired, focal_error, frames_of, moved
 
 from histostudy.geometry import transform_from_params
 from histostudy.imaging import Frame
 from histostudy.learning import OracleOrientation, OracleSegmenter
-from histostudy.pose import PoseEstimationError, PoseConfig, RegionEstimator, Tracker, TrackingConfig
-
-from pose_frames import POSES, assert_jump_reacquired, focal_error, frames_of, moved
+from histostudy.pose import PoseConfig, PoseEstimationError, RegionEstimator, Tracker, TrackingConfig
 
 ORACLES = dict(segmenter=OracleSegmenter(), orientation=OracleOrientation())
 STEP = transform_from_params(np.r_[np.deg2rad(0.2) * np.array([0.6, -0.48, 0.64]), [0.3, -0.25, 0.3]])

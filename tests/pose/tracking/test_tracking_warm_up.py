@@ -4,13 +4,12 @@ as it was, so that the poses after a warm-up are those of a tracker that never w
 
 import numpy as np
 import pytest
+from pose_frames import POSES, frames_of, moved
 
 from histostudy.geometry import transform_from_params
 from histostudy.imaging import default_biplane
 from histostudy.learning import OracleOrientation, OracleSegmenter
 from histostudy.pose import Tracker, TrackingConfig, views_isocentre_mm, warm_up_pair
-
-from pose_frames import POSES, frames_of, moved
 
 ORACLES = dict(segmenter=OracleSegmenter(), orientation=OracleOrientation())
 SCALED = TrackingConfig(scratch_label_scale=0.5)  # the fast from-scratch path, as the U-Net's

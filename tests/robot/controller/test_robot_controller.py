@@ -14,8 +14,13 @@ import time
 import numpy as np
 import pytest
 
-from histostudy.robot import (HOME_JOINTS_RAD, SimulatedUR5e, forward_kinematics, pose_from_transform,
-                              transform_from_pose)
+from histostudy.robot import (
+    HOME_JOINTS_RAD,
+    SimulatedUR5e,
+    forward_kinematics,
+    pose_from_transform,
+    transform_from_pose,
+)
 from histostudy.robot.controller._process import Command, SimulatedController, main
 
 _BLOCK = 20 + (os.getpid() + 101) % 200

@@ -26,9 +26,20 @@ import numpy as np
 import pytest
 
 from histostudy.geometry import make_transform, matrix_from_rotvec
-from histostudy.robot import (ProtectiveStopError, RTDERobot, Robot, RobotConnectionError, RobotTimeout, SimulatedUR5e,
-                              UnreachablePoseError, Workspace, WorkspaceViolation, forward_kinematics,
-                              pose_from_transform, transform_from_pose)
+from histostudy.robot import (
+    ProtectiveStopError,
+    Robot,
+    RobotConnectionError,
+    RobotTimeout,
+    RTDERobot,
+    SimulatedUR5e,
+    UnreachablePoseError,
+    Workspace,
+    WorkspaceViolation,
+    forward_kinematics,
+    pose_from_transform,
+    transform_from_pose,
+)
 from histostudy.robot.controller._process import ControllerProcess
 
 TEST_TIMEOUT_S = 30

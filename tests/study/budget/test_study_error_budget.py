@@ -7,8 +7,13 @@ import numpy as np
 import pytest
 
 from histostudy.imaging import default_biplane
-from histostudy.study.budget._run import (BudgetSetup, budget_configurations, measured_reference, measured_zone,
-                                           run_error_budget)
+from histostudy.study.budget._run import (
+    BudgetSetup,
+    budget_configurations,
+    measured_reference,
+    measured_zone,
+    run_error_budget,
+)
 from histostudy.study.budget._sources import LabErrorModel, draw_lab
 from histostudy.study.pose._config import PoseStudyConfig
 from histostudy.study.pose._experiments import run_pose_study

@@ -4,9 +4,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from histostudy.study.budget._summary import (budget_comparisons, configuration_table, dominant_sources,
-                                                   paired_errors, source_shares, waterfall_figure)
 from histostudy.study.budget._sources import LAB_SOURCES
+from histostudy.study.budget._summary import (
+    budget_comparisons,
+    configuration_table,
+    dominant_sources,
+    paired_errors,
+    source_shares,
+    waterfall_figure,
+)
 
 
 def _records(n: int = 40, seed: int = 0) -> pd.DataFrame:

@@ -7,8 +7,14 @@ import pytest
 
 from histostudy.imaging import default_biplane
 from histostudy.study import LabErrorModel
-from histostudy.study.budget._sources import (LAB_SOURCES, BubbleOffset, GantrySag, ProjectionError, RegistrationError,
-                                         draw_lab)
+from histostudy.study.budget._sources import (
+    LAB_SOURCES,
+    BubbleOffset,
+    GantrySag,
+    ProjectionError,
+    RegistrationError,
+    draw_lab,
+)
 from histostudy.transducer import ManufacturingDeviation, TransducerModel, TransducerSpec
 
 

@@ -7,8 +7,14 @@ import numpy as np
 import pytest
 
 from histostudy.study.budget import SOURCE_PROVENANCE, sources_table
-from histostudy.study.budget._references import (SOURCE_REFERENCES, STATUSES, magnitudes_at, model_at,
-                                                 references_table, sweep_values)
+from histostudy.study.budget._references import (
+    SOURCE_REFERENCES,
+    STATUSES,
+    magnitudes_at,
+    model_at,
+    references_table,
+    sweep_values,
+)
 from histostudy.study.budget._sources import LAB_SOURCES, LabErrorModel
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from histostudy.imaging import default_biplane
 from histostudy.robot import HOME_JOINTS_RAD, UR5E, SimulatedUR5e, forward_kinematics
-from histostudy.study.budget._magnitudes import (CarmReproducibility, RobotAccuracy, TransducerReplacement)
+from histostudy.study.budget._magnitudes import CarmReproducibility, RobotAccuracy, TransducerReplacement
 from histostudy.study.budget._sources import LAB_SOURCES, LabErrorModel, draw_lab
 from histostudy.study.targeting._robots import InaccurateArm, KinematicError, reported_flange_pose
 from histostudy.transducer import TransducerModel, TransducerSpec

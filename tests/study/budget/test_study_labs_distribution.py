@@ -6,9 +6,17 @@ import pandas as pd
 import pytest
 
 from histostudy.reporting.paper import PAPER
-from histostudy.study.budget._distribution import (BAND_PERCENT, PAPER_FIGURES, READINGS, bias_scatter_split,
-                                                   lab_statistics, labs_vs_paper, paper_statistics, sign_agreement,
-                                                   source_movers)
+from histostudy.study.budget._distribution import (
+    BAND_PERCENT,
+    PAPER_FIGURES,
+    READINGS,
+    bias_scatter_split,
+    lab_statistics,
+    labs_vs_paper,
+    paper_statistics,
+    sign_agreement,
+    source_movers,
+)
 from histostudy.study.budget._labs_notebook import movers_table
 from histostudy.study.budget._summary import budget_comparisons
 

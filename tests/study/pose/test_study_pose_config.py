@@ -23,8 +23,7 @@ def test_config_rejects_bad_values():
 def test_study_stages_are_learned_when_they_meet_the_requirements_else_the_oracles():
     import types
 
-    from histostudy.learning import OracleOrientation
-    from histostudy.learning import OracleSegmenter
+    from histostudy.learning import OracleOrientation, OracleSegmenter
 
     config = study.PoseStudyConfig(n_experiments=1)
     good_seg = types.SimpleNamespace(manifest={"validation": {"pixel_accuracy": 0.97}, "weights_file": "u.safetensors"})

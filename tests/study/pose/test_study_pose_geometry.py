@@ -9,7 +9,6 @@ from histostudy.imaging import default_biplane
 from histostudy.study import pose as study
 from histostudy.transducer import TransducerModel, pose_facing
 
-
 T_CENTRE = pose_facing((0.1, 1.0, -0.2), focal_point_mm=(3.0, -2.0, 5.0), axial_rotation_rad=0.4)
 
 

@@ -7,7 +7,6 @@ import pytest
 from histostudy.study import pose as study
 from histostudy.transducer import pose_facing
 
-
 T_CENTRE = pose_facing((0.1, 1.0, -0.2), focal_point_mm=(3.0, -2.0, 5.0), axial_rotation_rad=0.4)
 
 

@@ -11,7 +11,6 @@ from histostudy.imaging import Anatomy, PhantomSpec, random_background
 from histostudy.study import pose as study
 from histostudy.transducer import TransducerModel
 
-
 #: Coarse and fast: a 0.75 mm phantom (1 mm lets the 3x3x6 mm clouds alias by up to 0.6 mm) and a 1 mm CBCT,
 #: ~0.5 s per experiment.
 COARSE = dict(phantom_voxel_mm=0.75, cbct_voxel_mm=1.0)

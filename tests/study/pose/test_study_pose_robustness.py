@@ -11,8 +11,7 @@ from histostudy.transducer import TransducerModel
 
 @pytest.mark.slow
 def test_robustness_sweep_runs_the_stages_it_is_given():
-    from histostudy.learning import OracleOrientation
-    from histostudy.learning import OracleSegmenter
+    from histostudy.learning import OracleOrientation, OracleSegmenter
 
     class CountingSegmenter:
         def __init__(self):

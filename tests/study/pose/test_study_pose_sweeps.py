@@ -10,8 +10,7 @@ from histostudy.transducer import TransducerModel
 
 @pytest.mark.slow
 def test_noise_sweep_renders_each_dose_and_the_oracle_ignores_the_image():
-    from histostudy.learning import OracleOrientation
-    from histostudy.learning import OracleSegmenter
+    from histostudy.learning import OracleOrientation, OracleSegmenter
 
     model = TransducerModel.build(spacing_mm=0.47)
     physical = TransducerModel.build_physical(spacing_mm=0.47, rng=np.random.default_rng(3))

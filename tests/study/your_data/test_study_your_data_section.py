@@ -13,9 +13,9 @@ from histostudy.imaging import Volume
 from histostudy.lab import TargetingPlan, calibrate_from_poses
 from histostudy.robot import SimulatedUR5e, UnreachablePoseError
 from histostudy.study import your_data as study
-from histostudy.study.your_data import _section as section_module
 from histostudy.study.targeting._calibration import calibration_poses
 from histostudy.study.targeting._setup import TargetingStudyConfig, draw_ground_truth, start_joints
+from histostudy.study.your_data import _section as section_module
 
 #: The parameters cell of notebooks/06_your_data.ipynb as stored (its defaults).
 DEFAULTS = dict(data_dir=None, target_mm=None, n_cine_frames=4, max_tracked_frames=4, stream_cine=True,
