@@ -1,6 +1,7 @@
 # histostudy: two commands set everything up on a fresh machine.
 #   make reproduce   create .venv, install, run the study in the smoke profile -> reports/
 #   make test        create .venv if missing, run the whole test suite (papermill smoke run included)
+#   make lint        ruff over the package, tests, benchmarks and scripts (pyproject.toml, [tool.ruff])
 #   make test-avx2   the same suite with the libraries held to AVX2, as on a CPU without AVX-512,
 #                    AMX or native bfloat16 (docs/testing.md, "Every CPU")
 #
@@ -28,7 +29,7 @@ STAMP := $(VENV)/.histostudy-installed
 # ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2 NUMBA_CPU_NAME=haswell, and numpy's AVX-512 loops off)
 AVX2_ENV = $(shell $(BIN)/python -c "from histostudy.core import avx2_env_words; print(avx2_env_words())")
 
-.PHONY: all env reproduce test test-avx2 lab bench clean-reports
+.PHONY: all env reproduce lint test test-avx2 lab bench clean-reports
 
 all: test
 
@@ -46,6 +47,9 @@ reproduce: $(STAMP)
 	$(BIN)/histostudy reproduce --profile $(PROFILE) --output $(REPORTS) --workers $(WORKERS)
 
 PYTEST := $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist worksteal
+
+lint: $(STAMP)
+	$(BIN)/ruff check histostudy tests benchmarks scripts
 
 test: $(STAMP)
 	$(PYTEST) $(PYTEST_ARGS)
