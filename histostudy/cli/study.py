@@ -103,10 +103,10 @@ def add_parsers(sub, parents) -> None:
 
     cal = add_command(
         sub, "calibrate-int8", parents,
-        help="calibrate a U-Net's int8 network (FastUNet precision 'int8', an option of the tracker on a CPU "
+        help="calibrate a U-Net's int8 network (UNetRunner precision 'int8', an option of the tracker on a CPU "
              "without bfloat16) on validation frames and store it beside its weights",
         description="Calibrate the activation ranges of a U-Net's int8 network on validation frames and store them "
-                    "beside its weights (with their SHA-256), where FastUNet(precision='int8') finds them.",
+                    "beside its weights (with their SHA-256), where UNetRunner(precision='int8') finds them.",
         example="histostudy calibrate-int8 --model unet_standard --frames 24")
     cal.add_argument("--model", default="unet_standard", help="U-Net weights in data/models (default: unet_standard)")
     cal.add_argument("--frames", type=_positive_int, default=24,
@@ -114,7 +114,7 @@ def add_parsers(sub, parents) -> None:
     cal.add_argument("--profile", type=_profile, default="standard",
                      help="the profile whose seed draws the frames (default: standard)")
     cal.add_argument("--output", default=None,
-                     help="where the calibration goes (default: data/models/<model>.int8.json, where FastUNet "
+                     help="where the calibration goes (default: data/models/<model>.int8.json, where UNetRunner "
                           "finds it)")
     cal.set_defaults(run=_calibrate_int8)
 
@@ -167,7 +167,7 @@ def _publish(args) -> int:
     import os
     from pathlib import Path
 
-    from histostudy.reporting.publish import publish_run, replace_readme_headline
+    from histostudy.reporting import publish_run, replace_readme_headline
 
     try:
         report = publish_run(args.run_dir, args.to, allow_partial=args.partial)
@@ -235,12 +235,9 @@ def _train(args) -> int:
 def _calibrate_int8(args) -> int:
     import time
 
-    from histostudy.learning import (
-        MODELS_DIR,
-        HybridFrames,
-        UNetSegmenter,
+    from histostudy.learning import MODELS_DIR, HybridFrames, UNetRunner, default_cache_dir
+    from histostudy.learning.inference import (
         calibrate_int8,
-        default_cache_dir,
         int8_available,
         int8_calibration_path,
         save_int8_calibration,
@@ -250,7 +247,7 @@ def _calibrate_int8(args) -> int:
         print("histostudy calibrate-int8: this torch has no int8 (oneDNN) kernels", file=sys.stderr)
         return 2
     try:
-        segmenter = UNetSegmenter.load(MODELS_DIR / f"{args.model}.safetensors")
+        segmenter = UNetRunner.load(MODELS_DIR / f"{args.model}.safetensors")
     except (OSError, ValueError) as exc:
         print(f"histostudy calibrate-int8: --model {args.model!r}: {exc}", file=sys.stderr)
         return 2

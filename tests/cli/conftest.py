@@ -1,4 +1,4 @@
-"""The generated lab-like dataset the lab commands' tests share (histostudy.study.lab_dataset;
+"""The generated lab-like dataset the lab commands' tests share (histostudy.study.your_data.lab_dataset;
 seed 5, a 2-frame cine), made once per test process, and its synthetic truth."""
 
 import json
@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from histostudy.study.lab_dataset import write_lab_dataset
+from histostudy.study.your_data.lab_dataset import write_lab_dataset
 
 
 @pytest.fixture(scope="session")

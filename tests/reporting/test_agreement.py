@@ -2,7 +2,8 @@
 
 import pytest
 
-from histostudy.reporting import AGREES, DIFFERS, FAR_OFF, NOT_JUDGED, PAPER, PaperValue, judge
+from histostudy.reporting import PAPER, PaperValue
+from histostudy.reporting.agreement import AGREES, DIFFERS, FAR_OFF, NOT_JUDGED, judge
 
 
 def _row(ours, unit="deg", ours_text=None):

@@ -1,15 +1,10 @@
 """The report's first screen: the profile's banner, the headline of the paper's key results and
 the contents."""
 
-from histostudy.reporting import (
-    HEADLINE_KEYS,
-    PAPER,
-    contents_markdown,
-    headline_markdown,
-    load_section,
-    profile_banner,
-    results_coverage,
-)
+from histostudy.reporting import PAPER
+from histostudy.reporting.headline import HEADLINE_KEYS, contents_markdown, headline_markdown, profile_banner
+from histostudy.reporting.report import load_section
+from histostudy.reporting.twins import results_coverage
 
 
 def test_smoke_banner_says_it_is_not_a_reproduction_with_the_run_sizes(folder):

@@ -9,7 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from histostudy.reporting import Markdown, dataframe_markdown, md_code, md_escape, md_link, md_table, render_html
+from histostudy.reporting.markdown import Markdown, dataframe_markdown, md_code, md_escape, md_link, md_table
+from histostudy.reporting.report_html import render_html
 
 TRICKY = ["a | b", "x < y & z > w", "*not emphasis*", "snake_case_name", "_not emphasis_", "__init__ a_b_ _c",
           "in_channels': 1, 'n_classes", "`tick`", "[not](a link)", "back\\slash",

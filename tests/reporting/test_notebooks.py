@@ -6,8 +6,9 @@ import json
 import nbformat
 import pytest
 
-from histostudy.reporting import KEY_FILE, PROFILE_NAMES, discover_notebooks, load_profile, run_study
-from histostudy.reporting.pipeline import DEFAULT_NOTEBOOK_DIR
+from histostudy.reporting import PROFILE_NAMES, load_profile, run_study
+from histostudy.reporting.pipeline import DEFAULT_NOTEBOOK_DIR, discover_notebooks
+from histostudy.reporting.section_keys import KEY_FILE
 
 NOTEBOOKS = discover_notebooks(DEFAULT_NOTEBOOK_DIR)
 

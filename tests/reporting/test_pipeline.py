@@ -7,7 +7,8 @@ import nbformat
 import pytest
 
 from histostudy.cli import main
-from histostudy.reporting import NotebookFailed, discover_notebooks, run_study, select_notebooks
+from histostudy.reporting import NotebookFailed, run_study
+from histostudy.reporting.pipeline import discover_notebooks, select_notebooks
 
 PARAMS = 'profile = "smoke"\nseed = 0\noutput_dir = "."\nfactor = 1\n'
 
@@ -240,7 +241,7 @@ def test_workers_must_be_a_positive_integer(toy_notebooks, toy_profile, tmp_path
 
 @pytest.mark.slow
 def test_a_rerun_keeps_finished_sections_and_redoes_what_changed(toy_notebooks, toy_profile, tmp_path):
-    from histostudy.reporting import KEY_FILE
+    from histostudy.reporting.section_keys import KEY_FILE
 
     out = tmp_path / "reports"
     run_study(toy_profile, out, notebooks_dir=toy_notebooks, progress=False, log=lambda m: None)
@@ -273,7 +274,7 @@ def test_a_rerun_keeps_finished_sections_and_redoes_what_changed(toy_notebooks, 
 @pytest.mark.slow
 def test_a_run_stopped_by_a_failure_resumes_without_redoing_the_finished_section(toy_notebooks, toy_profile,
                                                                                 tmp_path):
-    from histostudy.reporting import KEY_FILE
+    from histostudy.reporting.section_keys import KEY_FILE
 
     good = (toy_notebooks / "02_second.ipynb").read_bytes()
     _notebook(toy_notebooks / "02_second.ipynb", ["raise RuntimeError('the machine went away')"])

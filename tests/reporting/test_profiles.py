@@ -4,14 +4,9 @@ profile is checked against the notebooks' parameters cells (misspelt keys and ta
 import nbformat
 import pytest
 
-from histostudy.reporting import (
-    PROFILE_NAMES,
-    Profile,
-    discover_notebooks,
-    load_profile,
-    notebook_parameters,
-    validate_profile,
-)
+from histostudy.reporting import PROFILE_NAMES, Profile, load_profile
+from histostudy.reporting.pipeline import discover_notebooks
+from histostudy.reporting.profiles import notebook_parameters, validate_profile
 
 
 @pytest.mark.parametrize("name", PROFILE_NAMES)

@@ -10,16 +10,9 @@ import pytest
 from histostudy.cli import main
 from histostudy.core import process_umask
 from histostudy.core.provenance import REPO_ROOT
-from histostudy.reporting import (
-    README_HEADLINE_BEGIN,
-    README_HEADLINE_END,
-    load_profile,
-    publish_run,
-    readme_headline,
-    replace_readme_headline,
-    stale_parameters,
-)
+from histostudy.reporting import load_profile, publish_run, replace_readme_headline
 from histostudy.reporting.pipeline import DEFAULT_NOTEBOOK_DIR, discover_notebooks
+from histostudy.reporting.publish import README_HEADLINE_BEGIN, README_HEADLINE_END, readme_headline, stale_parameters
 
 PUBLISHED = REPO_ROOT / "docs" / "results"
 

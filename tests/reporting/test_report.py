@@ -8,7 +8,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from histostudy.reporting import SectionWriter, build_report, format_measure, load_section
+from histostudy.reporting import SectionWriter, build_report
+from histostudy.reporting.report import format_measure, load_section
 
 
 def test_format_measure():
@@ -85,7 +86,8 @@ def test_report_names_a_failure(tmp_path):
 
 
 def test_report_lists_every_paper_result_and_where_it_is_reproduced(tmp_path):
-    from histostudy.reporting import PAPER, results_coverage
+    from histostudy.reporting import PAPER
+    from histostudy.reporting.twins import results_coverage
 
     w = SectionWriter(tmp_path / "04_pose", "04", "Pose", profile="smoke", seed=3)
     w.compare("table2.center_mae.overall", "Centre MAE", 0.6, unit="mm")

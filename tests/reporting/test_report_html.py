@@ -8,7 +8,8 @@ from html.parser import HTMLParser
 
 import pandas as pd
 
-from histostudy.reporting import build_report, render_html
+from histostudy.reporting import build_report
+from histostudy.reporting.report_html import render_html
 
 VOID = {"area", "base", "br", "col", "embed", "hr", "img", "input", "link", "meta", "source", "track", "wbr"}
 RAW_TABLE_LINE = re.compile(r"^\s*\|.*\|\s*$|\|\s*:?-{3,}")

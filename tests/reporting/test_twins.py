@@ -1,7 +1,10 @@
 """Every paper result and its reproduced twin: found through its key or its Table II twin, the
 primary comparison chosen, and a reason for each missing one."""
 
-from histostudy.reporting import AGREES, PAPER, RESULT_KEYS, load_section, results_coverage
+from histostudy.reporting import PAPER
+from histostudy.reporting.agreement import AGREES
+from histostudy.reporting.report import load_section
+from histostudy.reporting.twins import RESULT_KEYS, results_coverage
 
 
 def _sections(folder):

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from histostudy.imaging import Frame, View
-from histostudy.reporting import FEATURE_COLOURS, label_rgb, plot_frames_with_labels
+from histostudy.reporting import plot_frames_with_labels
+from histostudy.reporting.viz import FEATURE_COLOURS, label_rgb
 from histostudy.transducer import Feature
 
 
