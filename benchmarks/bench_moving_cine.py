@@ -2,17 +2,17 @@
 of moving cine through the receiver").
 
 Writes (or reuses, when ``--folder`` already holds one) the cine of
-:func:`histostudy.study.moving_cine.write_moving_cine`: the robot carrying the physical transducer
+:func:`histostudy.study.your_data.moving_cine.write_moving_cine`: the robot carrying the physical transducer
 between the margin points of the study at up to ``--speed-mm-s``, ``--seconds`` long at ``--fps``
 frames per second, single-frame DICOM XA per plane and frame. Then, for each of ``--modes`` (``fast``:
 the receiver's default, ``Tracker``'s fast path; ``full``: every pair on the full frames), streams it
 at its frame rate to a :class:`histostudy.lab.FrameReceiver` on loopback with ``--max-queued-pairs``
-(:func:`histostudy.study.moving_cine_live.stream_moving_cine`; ``--pipeline``: the receiver's pipeline
+(:func:`histostudy.study.your_data.moving_cine_live.stream_moving_cine`; ``--pipeline``: the receiver's pipeline
 on; ``--retries on|off``: the tracker's retries of a refused estimate from scratch;
 ``--scratch-full-frames on|off``: its second and third steps on the full frames; ``--refinement
 paper|fast``: the tracker's mode; ``--sender process|thread``: the sender in a process of its own, the
 default, or on a thread of the receiver's process) and prints the counts, rates, latency
-and focal error (:func:`~histostudy.study.moving_cine_live.count_table`), the seconds per posed pair
+and focal error (:func:`~histostudy.study.your_data.moving_cine_live.count_table`), the seconds per posed pair
 of each stage, the latency's percentiles (p50, p90, p99, max) and the pairs dropped from the
 receiver's stats, and per kind of update (warm, from scratch, re-acquired) the pose seconds, latency and
 focal error. Writes ``<mode>_frames.csv``, ``<mode>_counts.csv``, ``<mode>_stats.json`` and
@@ -35,8 +35,8 @@ import pandas as pd
 
 from histostudy.core import BENCHMARK_ISAS, atomic_write_json, machine_summary, run_restricted_to, to_jsonable
 from histostudy.pose import TrackingConfig
-from histostudy.study.moving_cine import load_moving_cine, write_moving_cine
-from histostudy.study.moving_cine_live import count_table, frame_table, plot_focal_error, stream_moving_cine
+from histostudy.study.your_data.moving_cine import load_moving_cine, write_moving_cine
+from histostudy.study.your_data.moving_cine_live import count_table, frame_table, plot_focal_error, stream_moving_cine
 from histostudy.transducer import TransducerModel
 
 

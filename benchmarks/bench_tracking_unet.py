@@ -41,7 +41,8 @@ import torch
 
 from histostudy.learning import MODELS_DIR, FastUNet, UNetSegmenter, default_segmenter, pool_labels
 from histostudy.reporting import load_profile
-from histostudy.study.segmentation import evaluate_segmentation, held_out_frames, table1
+from histostudy.study.held_out import held_out_frames
+from histostudy.study.segmentation import evaluate_segmentation, table1
 
 BOX = (256, 704, 384, 832)  # 448 x 448 frame pixels, corners on the 64 px stride of the 0.25 network
 

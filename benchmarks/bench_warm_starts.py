@@ -30,7 +30,7 @@ from histostudy.imaging import View, load_frame, load_views
 from histostudy.pose import PoseCost, RegionEstimator, Tracker, TrackingConfig
 from histostudy.pose.distance_maps import DistanceMaps
 from histostudy.pose.verdict import view_disagreement_mm
-from histostudy.study.moving_cine import load_moving_cine
+from histostudy.study.your_data.moving_cine import load_moving_cine
 from histostudy.transducer import TransducerModel
 
 

@@ -50,7 +50,7 @@ def main(argv=None) -> int:
     from histostudy.core import machine_summary
     from histostudy.learning import HybridFrames, RenderConfig, UNetSegmenter, default_cache_dir, pool_labels
     from histostudy.pose import ConicOrientation
-    from histostudy.study.orientation_regression import candidate_error_summary, candidate_errors, load_vgg19
+    from histostudy.study.orientation import candidate_error_summary, candidate_errors, load_vgg19
     from histostudy.study.segmentation import evaluate_segmentation, load_unet
     from histostudy.study.stats import segmentation_metrics
     from histostudy.transducer import Feature

@@ -178,7 +178,7 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(args.dataset) if args.dataset else Path(tmp) / "lab"
         if args.dataset is None:
-            from histostudy.study.lab_dataset import write_lab_dataset
+            from histostudy.study.your_data.lab_dataset import write_lab_dataset
 
             write_lab_dataset(folder, n_cine_frames=1)
         elif not (folder / "truth.json").is_file():

@@ -83,7 +83,7 @@ def _evaluate(task: str, weights: Path, frames, n: int) -> dict:
     import numpy as np
 
     from histostudy.learning import LearnedOrientation, UNetSegmenter, shipped_model
-    from histostudy.study.orientation_regression import direction_error_summary, evaluate_orientation
+    from histostudy.study.orientation import direction_error_summary, evaluate_orientation
     from histostudy.study.segmentation import evaluate_segmentation
 
     shipped = shipped_model("unet_standard" if task == "segmentation" else "vgg19_standard")

@@ -10,7 +10,7 @@ in ``access``; DICOM over TLS in ``tls``), the received X-ray objects checked an
 (``xray_objects``), their biplane pairing by time (``pairing``) and a sender of DICOM objects to it
 (``sender``).
 The lab-like dataset the project generates to stand in for a lab's files is the study's
-(:mod:`histostudy.study.lab_dataset`).
+(:mod:`histostudy.study.your_data.lab_dataset`).
 """
 
 from . import access as _access

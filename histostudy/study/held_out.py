@@ -1,7 +1,6 @@
-"""What notebooks 02 and 03 evaluate their shipped networks on: the parameters they share
-(:class:`HeldOutConfig`, checked), the held-out hybrid frames (:func:`held_out_frames`: split ``eval``
-of :class:`~histostudy.learning.HybridFrames`, which no training or validation frame shares a seed
-with) and the shipped checkpoints (:func:`resolve_weights`, recorded by :func:`weights_part`).
+"""What notebooks 02 and 03 share: their parameters (:class:`HeldOutConfig`), the held-out hybrid
+frames they evaluate on (:func:`held_out_frames`, split ``eval``) and the shipped checkpoints
+(:func:`resolve_weights`, recorded by :func:`weights_part`).
 """
 
 from __future__ import annotations
@@ -26,15 +25,22 @@ RECORDED_PARAMETERS = ("photons_per_pixel", "n_splats", "splat_sigma_mm", "rende
 
 @dataclass(frozen=True)
 class HeldOutConfig(SectionConfig):
-    """Notebooks 02 and 03's parameters, checked: the held-out frames' dose and splatting
-    (``photons_per_pixel``, ``n_splats``, ``splat_sigma_mm`` in mm), their model grid
-    (``render_spacing_mm``) and scene ``background`` (one of :data:`~histostudy.imaging.BACKGROUNDS`),
-    how many to evaluate (``n_eval_images``), the network's ``weights`` (a path; ``""``: the shipped
-    one), whether to cache the frames (``cache_frames``) and the processes that pre-render them
-    (``render_workers``): :class:`~.segmentation.SegmentationConfig` (notebook 02) and
-    :class:`~.orientation_regression.OrientationConfig` (notebook 03, with its own) are these.
+    """Notebooks 02 and 03's parameters, checked: :class:`histostudy.study.segmentation.SegmentationConfig`
+    is these, :class:`histostudy.study.orientation.OrientationConfig` these and one of its own.
 
-    A bad value raises ValueError naming the parameter, its value and what it must be.
+    Args:
+        photons_per_pixel: unattenuated photons per detector pixel of the frames (dose, > 0).
+        n_splats: splats per model point (>= 1).
+        splat_sigma_mm: SD of each splat's jitter, mm (> 0).
+        render_spacing_mm: grid spacing of the rendering and reference-label models, mm.
+        background: the frames' scene, one of :data:`histostudy.imaging.BACKGROUNDS`.
+        n_eval_images: held-out frames to evaluate (>= 1).
+        weights: the checkpoint to evaluate (a path); ``""``: the shipped one.
+        cache_frames: read the frames from (or render them into) the frame cache.
+        render_workers: processes that pre-render the uncached frames (>= 1).
+
+    Raises:
+        ValueError: a bad value, naming the parameter, its value and what it must be.
     """
 
     photons_per_pixel: float
@@ -68,7 +74,15 @@ class HeldOutConfig(SectionConfig):
 
 
     def frames(self, seed: int, *, timer: Timer | None = None) -> HybridFrames:
-        """:func:`held_out_frames` of ``seed`` on these parameters."""
+        """:func:`held_out_frames` of ``seed`` on these parameters.
+
+        Args:
+            seed: the study seed.
+            timer: ``timer(name)`` -> a context manager timing the pre-rendering; None: untimed.
+
+        Returns:
+            The held-out frames.
+        """
         return held_out_frames(seed, self.n_eval_images, render_spacing_mm=self.render_spacing_mm,
                                photons_per_pixel=self.photons_per_pixel, n_splats=self.n_splats,
                                splat_sigma_mm=self.splat_sigma_mm, background=self.background,
@@ -76,10 +90,19 @@ class HeldOutConfig(SectionConfig):
 
 
 def resolve_weights(weights: str | os.PathLike, shipped_name: str, network: str, train_task: str) -> Path:
-    """The checkpoint to evaluate: ``weights`` if given, else the shipped ``data/models/<shipped_name>``.
+    """The checkpoint to evaluate (notebooks 02 and 03 never train).
 
-    Raises FileNotFoundError, naming the ``histostudy train <train_task>`` command that makes
-    the weights, when neither is usable (notebooks 02 and 03 never train).
+    Args:
+        weights: a checkpoint path; ``""``: the shipped one.
+        shipped_name: the shipped checkpoint's name in ``data/models`` (without suffix).
+        network: the network's name, in the error message.
+        train_task: the ``histostudy train`` task that makes the weights, in the error message.
+
+    Returns:
+        ``Path(weights)``, or the shipped checkpoint's path.
+
+    Raises:
+        FileNotFoundError: no ``weights`` and no usable shipped checkpoint.
     """
     path = Path(weights) if weights else shipped_model(shipped_name)
     if path is None:
@@ -93,12 +116,22 @@ def held_out_frames(seed: int, n_images: int, *, render_spacing_mm: float, photo
                     splat_sigma_mm: float, background: str, cache_frames: bool = True, render_workers: int = 1,
                     timer: Timer | None = None) -> HybridFrames:
     """The evaluation split (``"eval"``) of the study's hybrid frames, which no training or
-    validation frame shares a seed with (§II-B.2; images and labels both from the
-    ``render_spacing_mm`` models).
+    validation frame shares a seed with (§II-B.2). The frames are the same cached or not.
 
-    With ``cache_frames`` the frames are read from (or rendered into) the frame cache, and with
-    ``render_workers > 1`` the first ``n_images`` are pre-rendered in that many processes
-    (``timer``, optional, times it). The frames are the same either way.
+    Args:
+        seed: the study seed.
+        n_images: the frames to pre-render (with ``render_workers`` > 1).
+        render_spacing_mm: the images' and labels' model spacing, mm.
+        photons_per_pixel: the dose, photons per detector pixel.
+        n_splats: splats per model point.
+        splat_sigma_mm: splat SD, mm.
+        background: the scene, one of :data:`histostudy.imaging.BACKGROUNDS`.
+        cache_frames: read the frames from (or render them into) the frame cache.
+        render_workers: with ``cache_frames``, processes that pre-render the first ``n_images``.
+        timer: ``timer(name)`` -> a context manager timing the pre-rendering; None: untimed.
+
+    Returns:
+        A :class:`histostudy.learning.HybridFrames` (frame ``i`` is ``frames.frame(i)``).
     """
     render = RenderConfig(render_spacing_mm=render_spacing_mm, label_spacing_mm=render_spacing_mm,
                           photons_per_pixel=photons_per_pixel, n_splats=n_splats, splat_sigma_mm=splat_sigma_mm,
@@ -111,8 +144,19 @@ def held_out_frames(seed: int, n_images: int, *, render_spacing_mm: float, photo
 
 
 def weights_part(weights_path: Path, manifest: dict) -> SectionPart:
-    """Which checkpoint the section evaluates (file, manifest, hash, configuration, training
-    record), as value ``weights``."""
+    """Which checkpoint the section evaluates.
+
+    Args:
+        weights_path: the checkpoint.
+        manifest: its manifest (the network's ``manifest``).
+
+    Returns:
+        A part with value ``weights``: file, manifest, sha256, configuration, profile, training
+        steps and validation.
+
+    Raises:
+        KeyError: the manifest lacks ``sha256`` or ``config``.
+    """
     return SectionPart(values={"weights": {
         "file": str(weights_path), "manifest": str(weights_path.with_suffix(".json")), "sha256": manifest["sha256"],
         "config": manifest["config"], "profile": manifest.get("profile"),
@@ -120,16 +164,31 @@ def weights_part(weights_path: Path, manifest: dict) -> SectionPart:
 
 
 def weights_summary(network: str, weights_path: Path, manifest: dict, input_scale: float) -> str:
-    """A one-line summary of the checkpoint for the notebook."""
+    """A one-line summary of the checkpoint for the notebook.
+
+    Args:
+        network: the network's name (``"U-Net"``, ``"VGG19"``).
+        weights_path: the checkpoint.
+        manifest: its manifest.
+        input_scale: the network's input scale.
+
+    Returns:
+        The line.
+    """
     return (f"{network} {manifest['config']} from {weights_path.name}: {manifest.get('training_steps')} steps "
             f"(profile {manifest.get('profile')}), input scale {input_scale}")
 
 
 @dataclass(frozen=True)
 class HeldOutSetup:
-    """What notebooks 02 and 03 run on: their checked ``params``, the ``seed``, the network's
-    ``weights_path`` and the held-out ``frames`` (:func:`held_out_frames`); each notebook's set-up
-    adds its network."""
+    """What notebooks 02 and 03 run on; each notebook's set-up adds its network.
+
+    Args:
+        params: the checked parameters.
+        seed: the study seed.
+        weights_path: the network's checkpoint.
+        frames: the held-out frames (:func:`held_out_frames`).
+    """
 
     params: HeldOutConfig
     seed: int
@@ -138,11 +197,23 @@ class HeldOutSetup:
 
 
 def prepare_held_out(config_class, params, seed: int, load, *, timer: Timer | None = None) -> tuple:
-    """What notebooks 02 and 03 set up alike: ``params`` checked into ``config_class`` (a
-    :class:`HeldOutConfig`, or a mapping of its fields), the network ``load(params.weights)`` gives
-    with its weights path, and the held-out frames of ``seed`` (``timer`` times their pre-rendering);
-    returned in the order of a :class:`HeldOutSetup` subclass's fields, ``(params, seed,
-    weights_path, frames, network)``."""
+    """What notebooks 02 and 03 set up alike.
+
+    Args:
+        config_class: the notebook's :class:`HeldOutConfig` subclass.
+        params: a ``config_class``, or a mapping of its fields (checked into one).
+        seed: the study seed.
+        load: ``load(weights)`` -> ``(network, weights_path)``.
+        timer: ``timer(name)`` -> a context manager timing the frames' pre-rendering; None: untimed.
+
+    Returns:
+        ``(params, seed, weights_path, frames, network)``, the order of a :class:`HeldOutSetup`
+        subclass's fields.
+
+    Raises:
+        ValueError: a bad or missing parameter.
+        FileNotFoundError: no usable checkpoint (from ``load``).
+    """
     if not isinstance(params, config_class):
         params = config_class.from_parameters(params)
     network, weights_path = load(params.weights)

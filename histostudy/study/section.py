@@ -1,12 +1,7 @@
-"""The notebooks' one section interface, shared by every notebook's module (docs/architecture.md,
-"Configuration classes"): a notebook's parameters checked into a frozen ``<Section>Config``
-(:func:`config_from_parameters`, and the checks :func:`check_bool`, :func:`check_choice`,
-:func:`check_text`), a ``prepare`` making its ``<Section>Setup``, pure functions returning
-:class:`SectionPart` objects (tables, figures, values, comparisons with the paper, paragraphs and
-stand-ins) and :func:`record`, which writes them through a ``SectionWriter``.
-
-The lowest module of :mod:`histostudy.study`: it imports nothing of the study, and nothing of
-``reporting`` (a writer is any object with ``SectionWriter``'s methods).
+"""The notebooks' one section interface: a notebook's parameters checked into a frozen
+``<Section>Config`` (:class:`SectionConfig`), the :class:`SectionPart` its part functions return, and
+:func:`record`, which writes parts through a ``SectionWriter``. It imports nothing of the study, nor of
+``reporting`` (docs/study-sections.md).
 """
 
 from __future__ import annotations
@@ -27,35 +22,87 @@ Timer = Callable[[str], contextlib.AbstractContextManager]
 
 
 def timer_or_untimed(timer: Timer | None) -> Timer:
-    """``timer``, or one that times nothing when it is None."""
+    """``timer``, or one that times nothing.
+
+    Args:
+        timer: ``timer(name)`` -> a context manager, or None.
+
+    Returns:
+        ``timer``, or a timer whose context managers do nothing.
+    """
     return timer or (lambda name: contextlib.nullcontext())
 
 
 def check_bool(value, name: str) -> bool:
-    """``value`` as a bool, if it is True or False (Python or numpy)."""
+    """``value`` as a bool, if it is True or False (Python or numpy).
+
+    Args:
+        value: the value to check.
+        name: its name, in the error message.
+
+    Returns:
+        ``value`` as a Python bool.
+
+    Raises:
+        ValueError: ``value`` is not a bool.
+    """
     if not isinstance(value, (bool, np.bool_)):
         raise ValueError(f"{name} must be True or False, got {value!r}")
     return bool(value)
 
 
 def check_choice(value, name: str, choices) -> str:
-    """``value``, if it is one of the strings ``choices``."""
+    """``value``, if it is one of the strings ``choices``.
+
+    Args:
+        value: the value to check.
+        name: its name, in the error message.
+        choices: the allowed strings.
+
+    Returns:
+        ``value``.
+
+    Raises:
+        ValueError: ``value`` is not one of ``choices``.
+    """
     if not isinstance(value, str) or value not in choices:
         raise ValueError(f"{name} must be one of {', '.join(map(repr, choices))}, got {value!r}")
     return value
 
 
 def check_text(value, name: str, what: str) -> str:
-    """``value``, if it is a string (``what`` says which, in the error message)."""
+    """``value``, if it is a string.
+
+    Args:
+        value: the value to check.
+        name: its name, in the error message.
+        what: what it must be, in the error message.
+
+    Returns:
+        ``value``.
+
+    Raises:
+        ValueError: ``value`` is not a string.
+    """
     if not isinstance(value, str):
         raise ValueError(f"{name} must be {what}, got {value!r}")
     return value
 
 
 def config_from_parameters(cls, parameters: Mapping, notebook: str):
-    """``cls`` (a dataclass) of the entries of ``parameters`` (the notebook's ``globals()``, or any
-    mapping naming every field; other entries are ignored) that name its fields; a missing one is
-    named, with the ``notebook`` whose parameters cell names it."""
+    """A ``cls`` of the entries of ``parameters`` that name its fields (other entries are ignored).
+
+    Args:
+        cls: a dataclass.
+        parameters: the notebook's ``globals()``, or any mapping naming every field.
+        notebook: the notebook whose parameters cell names the fields (in the error message).
+
+    Returns:
+        ``cls(**fields)``.
+
+    Raises:
+        ValueError: ``parameters`` lacks a field (each missing one named), or ``cls`` refuses a value.
+    """
     names = [f.name for f in dataclasses.fields(cls)]
     missing = [name for name in names if name not in parameters]
     if missing:
@@ -64,19 +111,33 @@ def config_from_parameters(cls, parameters: Mapping, notebook: str):
 
 
 class SectionConfig:
-    """What every notebook's parameters object shares (docs/architecture.md, "Configuration
-    classes"): it is built from the parameters cell by :meth:`from_parameters` and gives the
-    parameters its report records by :meth:`recorded`. A subclass is a frozen dataclass that sets
-    ``NOTEBOOK`` (its number, named when a parameter is missing) and ``RECORDED`` (the recorded
-    names, in order; empty: every field)."""
+    """What every notebook's parameters object shares: it is built from the parameters cell by
+    :meth:`from_parameters` and gives the parameters its report records by :meth:`recorded`. A
+    subclass is a frozen dataclass that sets the class attributes below and checks its fields in
+    ``__post_init__``.
+
+    Attributes:
+        NOTEBOOK: the notebook's number, named when a parameter is missing.
+        RECORDED: the recorded parameter names, in order; empty: every field.
+    """
 
     NOTEBOOK: ClassVar[str] = ""
     RECORDED: ClassVar[tuple] = ()
 
     @classmethod
     def from_parameters(cls, parameters: Mapping):
-        """The parameters of ``parameters`` (the notebook's ``globals()``, or any mapping naming every
-        field; other entries are ignored)."""
+        """The config of the entries of ``parameters`` that name its fields.
+
+        Args:
+            parameters: the notebook's ``globals()``, or any mapping naming every field (other
+                entries are ignored).
+
+        Returns:
+            The checked config.
+
+        Raises:
+            ValueError: a missing parameter (named, with the notebook) or a bad value.
+        """
         return config_from_parameters(cls, parameters, cls.NOTEBOOK)
 
     def recorded(self) -> dict:
@@ -86,9 +147,17 @@ class SectionConfig:
 
 @dataclass(frozen=True)
 class RenderedSectionConfig(SectionConfig):
-    """A :class:`SectionConfig` whose notebook renders frames (§II-B.2): the unattenuated photons per
-    pixel, the splats per model point and their jitter (mm), the pose and render models' point
-    spacings (mm) and the background scene. Each subclass checks them in its ``__post_init__``."""
+    """A :class:`SectionConfig` whose notebook renders frames (§II-B.2); each subclass checks the
+    fields in its ``__post_init__``.
+
+    Args:
+        photons_per_pixel: unattenuated photons per detector pixel.
+        n_splats: splats per model point.
+        splat_sigma_mm: splat jitter SD, mm.
+        pose_spacing_mm: the pose model's point spacing, mm.
+        render_spacing_mm: the rendering model's point spacing, mm.
+        background: the background scene.
+    """
 
     photons_per_pixel: float
     n_splats: int
@@ -100,12 +169,18 @@ class RenderedSectionConfig(SectionConfig):
 
 @dataclass(frozen=True, eq=False)
 class SectionPart:
-    """What one part of a section reports, as its function made it: ``tables`` (name ->
-    ``(DataFrame, caption)`` or ``(DataFrame, caption, options)``, ``options`` the keywords of
-    ``SectionWriter.table``, e.g. ``{"digits": 2}``), ``figures`` (name -> ``(Figure, caption)``),
-    ``values`` (key -> JSON-able), ``comparisons`` with the paper (``SectionWriter.compare``
-    keywords), ``texts`` (paragraphs of Markdown) and ``stand_ins`` (``(lab, synthetic)`` pairs).
-    Written by :func:`record`, in that order."""
+    """What one part of a section reports, as its function made it; :func:`record` writes it, in
+    the order of the fields.
+
+    Args:
+        tables: name -> ``(DataFrame, caption)`` or ``(DataFrame, caption, options)``, ``options``
+            the keywords of ``SectionWriter.table`` (e.g. ``{"digits": 2}``).
+        figures: name -> ``(Figure, caption)``.
+        values: key -> a JSON-able value.
+        comparisons: comparisons with the paper, each the keywords of ``SectionWriter.compare``.
+        texts: paragraphs of Markdown.
+        stand_ins: ``(lab, synthetic)`` pairs: what stands in for the lab's equipment.
+    """
 
     tables: dict = dataclasses.field(default_factory=dict)
     figures: dict = dataclasses.field(default_factory=dict)
@@ -115,14 +190,31 @@ class SectionPart:
     stand_ins: tuple = ()
 
     def table(self, name: str):
-        """The DataFrame of table ``name``."""
+        """The DataFrame of table ``name``.
+
+        Args:
+            name: the table's name.
+
+        Returns:
+            The DataFrame.
+
+        Raises:
+            KeyError: no such table.
+        """
         return self.tables[name][0]
 
 
 def record(writer, *parts) -> None:
-    """Write each of ``parts`` (a :class:`SectionPart`, or a section result holding one as ``part``)
-    through ``writer`` (a :class:`histostudy.reporting.SectionWriter`): its tables, figures, values,
-    comparisons, paragraphs and stand-ins."""
+    """Write each part's tables, figures, values, comparisons, paragraphs and stand-ins, in that order.
+
+    Args:
+        writer: a :class:`histostudy.reporting.SectionWriter`, or any object with its ``table``,
+            ``figure``, ``value``, ``compare``, ``text`` and ``stand_in`` methods.
+        *parts: :class:`SectionPart` objects, or section results holding one as ``part``.
+
+    Raises:
+        TypeError: a part is neither.
+    """
     for part in parts:
         part = getattr(part, "part", part)
         if not isinstance(part, SectionPart):

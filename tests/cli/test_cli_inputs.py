@@ -278,7 +278,7 @@ def test_a_calibration_on_pose_records_runs_with_either_form_and_refused_station
 @pytest.mark.slow
 def test_the_generated_lab_datasets_flange_file_is_accepted_in_both_forms(tmp_path):
     from histostudy.lab import load_flange_poses
-    from histostudy.study.lab_dataset import write_lab_dataset
+    from histostudy.study.your_data.lab_dataset import write_lab_dataset
 
     generated = write_lab_dataset(tmp_path / "lab", seed=9, n_cine_frames=1,
                                   views=default_biplane(shape=SHAPE, pixel_mm=3.08))

@@ -1,4 +1,4 @@
-"""The lab's subcommands end to end on the generated lab-like dataset (histostudy.study.lab_dataset):
+"""The lab's subcommands end to end on the generated lab-like dataset (histostudy.study.your_data.lab_dataset):
 DICOM XA stations -> ``calibrate`` -> ``target`` as a dry run, and executed on the simulated UR
 controller through ur_rtde; every result measured against the dataset's synthetic truth."""
 

@@ -27,7 +27,7 @@ from histostudy.cli import build_parser, main
 from histostudy.imaging import default_biplane, load_frame, load_views, save_views
 from histostudy.lab import send_frames
 from histostudy.pose import Tracker, TrackingConfig
-from histostudy.study.lab_dataset import write_lab_dataset
+from histostudy.study.your_data.lab_dataset import write_lab_dataset
 from histostudy.transducer import TransducerModel
 
 SEED = 3

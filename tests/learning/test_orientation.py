@@ -4,8 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from histostudy.geometry import make_transform
-from histostudy.geometry.transforms import random_rotation
+from histostudy.geometry import make_transform, random_rotation
 from histostudy.imaging import Frame, View, default_biplane
 from histostudy.learning import (
     N_ORIENTATION_CLASSES,

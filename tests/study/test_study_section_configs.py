@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from histostudy.study.budget import BudgetSectionConfig
-from histostudy.study.orientation_regression import OrientationConfig
+from histostudy.study.orientation import OrientationConfig
+from histostudy.study.projections import TransducerProjectionsConfig
 from histostudy.study.segmentation import SegmentationConfig
 from histostudy.study.targeting import TargetingSectionConfig
-from histostudy.study.transducer_projections import TransducerProjectionsConfig
 from histostudy.study.your_data import YourDataConfig
 
 #: Each notebook's section config and the notebook whose parameters cell makes it.

@@ -27,7 +27,7 @@ def add_lab_dataset(sub, parents) -> None:
 
 
 def run_lab_dataset(args) -> int:
-    from histostudy.study.lab_dataset import write_lab_dataset
+    from histostudy.study.your_data.lab_dataset import write_lab_dataset
 
     t0 = time.monotonic()
     try:

@@ -1,7 +1,6 @@
 """Notebook 06's inputs and their tables: the lab's files (or the lab-like dataset), the transducer
-from CAD meshes, the pose at each calibration station, the hand-eye calibration, the pose tracked
-over a cine, a target in the CBCT and the planned move. Lengths in mm, 4x4 ``T_<to>_<from>``
-(docs/architecture.md, "Frames and units").
+from CAD meshes, the station poses, the hand-eye calibration, the tracked cine and the planned move.
+Lengths in mm, 4x4 ``T_<to>_<from>`` (docs/architecture.md, "Frames and units").
 """
 
 from __future__ import annotations
@@ -20,18 +19,28 @@ from histostudy.lab import TargetingPlan, accepted_stations, calibrate_from_pose
 from histostudy.pose import Tracker, frames_from_files, pose_from_files, pose_record
 from histostudy.transducer import TransducerModel
 
-from ..lab_dataset import write_lab_dataset
-from ..targeting._figures import plot_target_slices
-from ..targeting._setup import TargetingStudyConfig
-
-__all__ = ["LabInputs", "accepted_focal_errors", "calibration_table", "cine_frame_count", "lab_inputs", "plan_table", "plot_cbct_target", "station_poses", "target_plan", "track_cine", "transducer_model"]
+from ..targeting import plot_target_slices
+from ..targeting.setup import TargetingStudyConfig
+from .lab_dataset import write_lab_dataset
 
 _FRAME_SUFFIXES = (".dcm", ".dicom", ".npy", ".png", ".tif", ".tiff")
 
 
 @dataclass(frozen=True)
 class LabInputs:
-    """The lab's files (paths; None where not given) and, for the generated dataset, its truth."""
+    """The lab's files (paths; None where not given) and, for the generated dataset, its truth.
+
+    Args:
+        views: the views file (``views.json``); None: the frames' DICOM geometry tags.
+        stations: one folder per calibration station (its biplane pair).
+        flange_poses: the flange poses the robot reported at the stations.
+        cine: the cine's files, one per plane.
+        cbct: the CBCT (NIfTI file or DICOM folder).
+        transducer_meshes: the folder of the transducer's meshes; None: the paper's digital model.
+        target_mm: the target (x, y, z), C-arm frame, mm.
+        truth: the generated dataset's synthetic truth (``truth.json``); None for a lab's own files.
+        generated: whether the files are the generated lab-like dataset.
+    """
 
     views: Path | None
     stations: tuple
@@ -65,7 +74,8 @@ def lab_inputs(data_dir: str | os.PathLike | None, *, output_dir: str | os.PathL
     cbct = next((p for p in (folder / "cbct.nii.gz", folder / "cbct.nii", folder / "cbct") if p.exists()), None)
     missing = [name for name, v in (("calibration/station_*", stations), ("cine/*.dcm", cine), ("cbct", cbct)) if not v]
     if missing:
-        raise FileNotFoundError(f"data_dir {str(folder)!r} lacks {missing} (see histostudy.study.lab_dataset)")
+        raise FileNotFoundError(f"data_dir {str(folder)!r} lacks {missing} "
+                                f"(see histostudy.study.your_data.lab_dataset)")
     if target_mm is None:
         if "suggested_target_mm" not in manifest:
             raise ValueError("target_mm must be given (x, y, z in the CBCT's world frame, mm): the data has no "
@@ -167,8 +177,15 @@ def track_cine(inputs: LabInputs, model: TransducerModel, seed: int,
 
 
 def plan_table(plan: TargetingPlan) -> pd.DataFrame:
-    """The planned move as a table: the target, the commanded TCP position (base frame), the
-    joints before and after (deg)."""
+    """The planned move as a table.
+
+    Args:
+        plan: the plan (:func:`drive_robot`'s).
+
+    Returns:
+        Rows ``quantity``, ``value``: the target (C-arm, mm), the commanded TCP position (robot base,
+        mm), the joints at the start and at the target (deg) and the largest joint move (deg).
+    """
     rows = [{"quantity": "target (C-arm, mm)", "value": np.round(plan.target_mm, 2).tolist()},
             {"quantity": "TCP position (robot base, mm)", "value": np.round(plan.T_base_tcp[:3, 3], 2).tolist()},
             {"quantity": "joints at the start (deg)", "value": np.round(np.degrees(plan.start_joints_rad), 1).tolist()},
@@ -179,7 +196,7 @@ def plan_table(plan: TargetingPlan) -> pd.DataFrame:
 
 def plot_cbct_target(volume: Volume, target_mm, *, half_width_mm: float = 40.0, title: str = ""):
     """Transverse, frontal and sagittal CBCT slices through ``target_mm`` (C-arm mm), the target
-    as a green dot (:func:`.targeting_figures.plot_target_slices` without a treated zone)."""
+    as a green dot (:func:`histostudy.study.targeting.plot_target_slices` without a treated zone)."""
     return plot_target_slices(volume, None, target_mm, title=title, half_width_mm=half_width_mm)
 
 
@@ -193,8 +210,17 @@ def target_plan(calibration: HandEyeCalibration, inputs: LabInputs, volume: Volu
 
 
 def accepted_focal_errors(stations: pd.DataFrame, cine: pd.DataFrame) -> tuple[float, float] | None:
-    """Mean and SD of the focal error over the accepted poses of both tables (mm), None without a
-    truth (a lab's own data) or without an accepted pose."""
+    """Mean and SD of the focal error over the accepted poses of the stations and the cine.
+
+    Args:
+        stations: the ``table`` of :func:`stations_section` (columns ``accepted`` and, with a truth,
+            ``focal_error_mm``).
+        cine: the ``table`` of :func:`tracking_section`.
+
+    Returns:
+        ``(mean, sd)`` in mm (sd 0 for one pose); None without a truth (a lab's own data) or without
+        an accepted pose.
+    """
     errors = [t.loc[t["accepted"], "focal_error_mm"] for t in (stations, cine) if "focal_error_mm" in t]
     values = pd.concat(errors).to_numpy(float) if errors else np.zeros(0)
     if len(values) == 0:

@@ -1,14 +1,6 @@
-"""Notebook 06's live section: the lab's cine streamed over DICOM to the pose receiver, as a C-arm
-streams it during tracking (§II-A, §II-B on a lab's files).
-
-:func:`stream_cine` starts a :class:`histostudy.lab.FrameReceiver` on loopback (a free port), sends
-the cine's objects to it with :func:`histostudy.lab.send_frames` and waits for a pose per frame
-pair; :class:`LiveFocalFigure` is an ``on_pose`` callback drawing each pair's focal point as it
-comes (a live figure in JupyterLab through an ``IPython.display`` handle); :func:`compare_with_tracked`
-sets each received pose beside the one :func:`.your_data.track_cine` found on the same frames given
-as arrays, and :func:`throughput_table` gives the receiver's speed (:meth:`FrameReceiver.stats`);
-:func:`live_section` does all of it for the notebook.
-Lengths in mm, the C-arm frame; times in seconds (docs/architecture.md, "Frames and units").
+"""Notebook 06's live section: the lab's cine streamed over DICOM to the pose receiver on loopback, as
+a C-arm streams it during tracking (§II-A), its poses set beside the tracked ones, and the receiver's
+throughput. Lengths in mm, the C-arm frame; times in seconds.
 """
 
 from __future__ import annotations
@@ -25,14 +17,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from histostudy.lab import FrameReceiver, send_frames
+from histostudy.lab import FrameReceiver, ReceiverConfig, send_frames
 from histostudy.pose import frames_from_files
 from histostudy.transducer import TransducerModel
 
+from ..section import SectionPart, Timer
 from ._inputs import LabInputs, cine_frame_count
-from ._section import SectionPart, Timer, YourDataSetup
-
-__all__ = ["LiveFocalFigure", "LiveSection", "compare_with_tracked", "live_section", "stream_cine", "throughput_table"]
+from ._section import YourDataSetup
 
 _AXES = "xyz"
 
@@ -44,7 +35,7 @@ def stream_cine(inputs: LabInputs, model: TransducerModel, seed: int, *, output_
 
     The receiver listens on ``127.0.0.1`` (a free port) with the cine's views (the views file's, or
     the DICOM geometry tags' named as the files) and ``model``, its tracker seeded with ``seed`` and
-    on the full frames as :func:`.your_data.track_cine`'s (``fast=False``), so that the same frames
+    on the full frames as :func:`track_cine`'s (``fast=False``), so that the same frames
     give the same poses; the cine files go to it in one association
     (:func:`histostudy.lab.send_frames`).
 
@@ -70,9 +61,10 @@ def stream_cine(inputs: LabInputs, model: TransducerModel, seed: int, *, output_
     output = Path(output_path)
     output.unlink(missing_ok=True)  # the receiver appends: start from an empty file
     views = [f.view for f in frames_from_files(inputs.cine, inputs.views, frame_index=0)]
-    receiver = FrameReceiver(views, model, output_path=output, port=0, host="127.0.0.1", seed=seed,
-                             on_pose=on_pose, fast=False,  # track_cine's full-frame path: the same poses
-                             max_queued_pairs=None)  # the cine is sent at once: every pair posed, none dropped
+    receiver = FrameReceiver(views, ReceiverConfig(output_path=output, port=0, host="127.0.0.1",
+                                                   fast=False,  # track_cine's full-frame path: the same poses
+                                                   max_queued_pairs=None),  # a cine sent at once: every pair posed
+                             model=model, seed=seed, on_pose=on_pose)
     receiver.start()
     try:
         statuses = send_frames(inputs.cine, "127.0.0.1", receiver.port, ae_title=receiver.ae_title)
@@ -97,7 +89,7 @@ class LiveFocalFigure:
 
     Args:
         n_pairs: the pairs expected (the x axis' extent).
-        reference: a table with ``frame`` and ``focal_{x,y,z}_mm`` (:func:`.your_data.track_cine`'s)
+        reference: a table with ``frame`` and ``focal_{x,y,z}_mm`` (:func:`track_cine`'s)
             drawn as grey crosses, where the received points should land; None: none.
         show: display the figure through an ``IPython.display`` handle and update it with each
             pose (a live figure in JupyterLab and in papermill's output); outside IPython nothing
@@ -157,7 +149,7 @@ class LiveFocalFigure:
 
 
 def compare_with_tracked(records: list[dict], tracked: pd.DataFrame) -> pd.DataFrame:
-    """Each received pose beside the tracked one of the same frames (:func:`.your_data.track_cine`'s
+    """Each received pose beside the tracked one of the same frames (:func:`track_cine`'s
     table, matched on its ``frame`` = the pair's first plane's frame index): the pair, how it was
     tracked, both verdicts, the received focal point and ``focal_difference_mm`` (NaN where either
     has no pose, or the frame was not tracked)."""
@@ -201,10 +193,17 @@ def throughput_table(stats: dict) -> pd.DataFrame:
 
 @dataclass(frozen=True, eq=False)
 class LiveSection:
-    """The cine streamed through the receiver (:func:`live_section`): the receiver's ``records`` and
-    ``stats``, the received poses beside the tracked ones (``received_vs_tracked``,
-    :func:`compare_with_tracked`), the ``throughput`` (:func:`throughput_table`) and the report's
-    ``part`` (the live figure, both tables, the stats and the largest focal difference, mm)."""
+    """The cine streamed through the receiver (:func:`live_section`).
+
+    Args:
+        records: the receiver's pose records, one per pair.
+        stats: the receiver's :meth:`histostudy.lab.FrameReceiver.stats`.
+        received_vs_tracked: each received pose beside the tracked one (:func:`compare_with_tracked`;
+            ``focal_difference_mm``, mm).
+        throughput: the receiver's throughput (:func:`throughput_table`).
+        part: the report's part (the live figure, both tables, the stats and the largest focal
+            difference, mm).
+    """
 
     records: list
     stats: dict
@@ -215,11 +214,23 @@ class LiveSection:
 
 def live_section(setup: YourDataSetup, tracked: pd.DataFrame, *, show: bool = True,
                  timer: Timer | None = None) -> LiveSection:
-    """Notebook 06's live section: as many pairs of the cine as ``tracked`` has rows
-    (:func:`.your_data.track_cine`'s table) streamed to the receiver (:func:`stream_cine`, timed as
-    ``"live stream"`` by ``timer``; poses to ``output_dir/live_poses.jsonl``) while a
-    :class:`LiveFocalFigure` draws them over the tracked points (``show``: live in IPython), then
-    set beside the tracked poses."""
+    """Notebook 06's live section: as many pairs of the cine as ``tracked`` has rows streamed to the
+    receiver (:func:`stream_cine`; poses to ``output_dir/live_poses.jsonl``) while a
+    :class:`LiveFocalFigure` draws them over the tracked points, then set beside the tracked poses.
+
+    Args:
+        setup: the section's set-up.
+        tracked: the ``table`` of :func:`histostudy.study.your_data.tracking_section`.
+        show: draw the figure live in IPython.
+        timer: ``timer(name)`` -> a context manager timing the stream (``"live stream"``); None: untimed.
+
+    Returns:
+        The :class:`LiveSection`.
+
+    Raises:
+        RuntimeError: the receiver refused an object.
+        TimeoutError: fewer pairs were posed than sent within the wait.
+    """
     figure = LiveFocalFigure(len(tracked), reference=tracked, show=show)
     with (timer or (lambda name: contextlib.nullcontext()))("live stream"):
         records, stats = stream_cine(setup.inputs, setup.model, setup.seed,

@@ -1,6 +1,4 @@
-"""Notebook 06's parameters, checked (§II-B to §II-D on a lab's files): :class:`YourDataConfig`
-and the parameters the report records.
-"""
+"""Notebook 06's parameters, checked (§II-B to §II-D on a lab's files): :class:`YourDataConfig`."""
 
 from __future__ import annotations
 
@@ -14,9 +12,8 @@ from histostudy.core import check_count, check_positive, is_finite_real
 from ..section import SectionConfig
 from ..section import check_bool as _check_bool
 
-__all__ = ["RECORDED_PARAMETERS", "SECTION_TITLE", "YourDataConfig"]
-
-SECTION_TITLE = "Your own data: frames, calibration, target and robot (§II-B to §II-D on a lab's files)"
+SECTION = "06_your_data"
+TITLE = "Your own data: frames, calibration, target and robot (§II-B to §II-D on a lab's files)"
 
 #: The notebook parameters the report records, in the order it records them.
 RECORDED_PARAMETERS = ("data_dir", "target_mm", "pose_spacing_mm", "robot_host", "dry_run", "stream_cine",
@@ -34,18 +31,33 @@ def _check_optional_count(value, name: str) -> int | None:
 
 @dataclass(frozen=True)
 class YourDataConfig(SectionConfig):
-    """Notebook 06's parameters (its ``parameters`` cell names and documents each), checked.
+    """Notebook 06's parameters, checked; built from the parameters cell by
+    ``YourDataConfig.from_parameters(globals())``. Numbers are kept as floats and ints, ``target_mm``
+    as a tuple of 3 floats.
 
-    The lab's files: ``data_dir`` (None: the lab-like dataset is generated), ``target_mm`` (3
-    numbers, C-arm mm; None: the dataset's suggested target), ``n_cine_frames`` (of the generated
-    cine) and ``max_tracked_frames`` (None: all). The live sections: ``stream_cine``,
-    ``moving_cine_s`` (s, 0 skips it), ``moving_cine_fps`` (frames/s), ``moving_cine_speed_mm_s``,
-    ``max_queued_pairs`` (None: keep all). The generated frames: ``photons_per_pixel``, ``n_splats``,
-    ``splat_sigma_mm``; the model grid ``pose_spacing_mm``. The robot: ``robot_host`` (None: none),
-    ``dry_run``, ``speed_mm_s``.
+    Args:
+        data_dir: the lab's folder; None: the lab-like dataset is generated.
+        target_mm: the target (x, y, z) in the CBCT's world frame (the C-arm's), mm; None: the
+            dataset's suggested target.
+        n_cine_frames: frames of the generated cine (>= 1).
+        max_tracked_frames: cine frames to track (>= 1); None: all.
+        stream_cine: stream the cine through the DICOM receiver on loopback.
+        moving_cine_s: seconds of the moving cine (>= 0; 0 skips it).
+        moving_cine_fps: its frame rate, frames/s (> 0).
+        moving_cine_speed_mm_s: the robot's peak speed between the margin points, mm/s (> 0).
+        max_queued_pairs: pairs waiting for a pose beyond which the receiver drops the oldest
+            (>= 1); None: keep all.
+        photons_per_pixel: the generated frames' dose, photons per detector pixel (> 0).
+        n_splats: splats per model point (>= 1).
+        splat_sigma_mm: splat SD, mm (> 0).
+        pose_spacing_mm: the transducer model's grid for the pose estimate, mm (> 0).
+        robot_host: the UR controller's host name or address; None: no robot.
+        dry_run: True: plan and check the move, move nothing.
+        speed_mm_s: the move's linear speed, mm/s (> 0).
 
-    A bad value raises ValueError naming the parameter, its value and what it must be. Numbers are
-    kept as floats and ints, ``target_mm`` as a tuple of 3 floats.
+    Raises:
+        ValueError: a bad value, naming the parameter, its value and what it must be (or, from
+            ``from_parameters``, the parameters the mapping lacks).
     """
 
     NOTEBOOK = "06"
@@ -95,8 +107,6 @@ class YourDataConfig(SectionConfig):
         if self.robot_host is not None and (not isinstance(self.robot_host, str) or not self.robot_host.strip()):
             raise ValueError(f"robot_host must be None or the UR controller's host name or address, "
                              f"got {self.robot_host!r}")
-
-
 
     def render(self) -> dict:
         """The generated frames' dose and splatting (:class:`~histostudy.imaging.FrameRenderConfig` fields)."""

@@ -1,6 +1,5 @@
-"""Notebook 06's section: its set-up (:func:`prepare`), one part per heading returning tables and
-figures, :func:`record` that writes a part, and :func:`drive_robot`, the one call that plans the
-move and makes it only when asked (the dry-run guard).
+"""Notebook 06's section: its set-up (:func:`prepare`), one part per heading, and
+:func:`drive_robot`, the one call that plans the move and makes it only when asked (the dry-run guard).
 """
 
 from __future__ import annotations
@@ -21,11 +20,9 @@ from histostudy.pose import frames_from_files
 from histostudy.robot import Robot
 from histostudy.transducer import TransducerModel
 
-from ..moving_cine import write_moving_cine
-from ..moving_cine_live import MovingCineRun, count_table, frame_table, plot_focal_error, stream_moving_cine
-from ..section import SectionPart, Timer, record
+from ..section import SectionPart, Timer
 from ..section import timer_or_untimed as _timer
-from ..targeting._setup import TargetingStudyConfig
+from ..targeting.setup import TargetingStudyConfig
 from ._inputs import (
     LabInputs,
     _station_frames,
@@ -39,20 +36,24 @@ from ._inputs import (
     transducer_model,
 )
 from ._parameters import YourDataConfig, _check_bool
-
-__all__ = ["CalibrationSection", "MovingCineSection", "STATION_OVERLAY_CAPTION", "SectionPart", "StationsSection",
-           "Timer", "TrackingSection", "YourDataSetup", "calibration_section", "drive_robot", "focal_error_part",
-           "moving_cine_section", "plot_cine_focal_error", "prepare", "record", "stand_ins", "station_overlay",
-           "stations_section", "target_part", "tracking_section"]
-
+from .moving_cine import write_moving_cine
+from .moving_cine_live import MovingCineRun, count_table, frame_table, plot_focal_error, stream_moving_cine
 
 # --- The notebook's section: its set-up, then one part per heading ---------------------------------
 
 
 @dataclass(frozen=True)
 class YourDataSetup:
-    """What notebook 06 runs on: its ``params``, the lab's ``inputs`` (:func:`lab_inputs`), the
-    transducer ``model`` (:func:`transducer_model`), the ``seed`` and the section's ``output_dir``."""
+    """What notebook 06 runs on (made by :func:`prepare`).
+
+    Args:
+        params: the checked parameters.
+        inputs: the lab's files, or the generated dataset's with its truth.
+        model: the transducer model the poses are estimated with (from the lab's meshes, or the
+            paper's digital model), at ``params.pose_spacing_mm``.
+        seed: the study seed.
+        output_dir: the section's report folder (the generated dataset, cines and pose files go there).
+    """
 
     params: YourDataConfig
     inputs: LabInputs
@@ -64,9 +65,23 @@ class YourDataSetup:
 def prepare(params: YourDataConfig | Mapping, seed: int, output_dir: str | os.PathLike, *,
             timer: Timer | None = None) -> YourDataSetup:
     """The section's set-up: the lab's files in ``params.data_dir`` (or the lab-like dataset generated
-    into ``output_dir/lab_data`` from ``seed``) and the transducer model on ``params.pose_spacing_mm``.
-    ``params``: a :class:`YourDataConfig` or a mapping of them. ``timer(name)``: a context manager
-    timing the set-up under ``"inputs"`` (e.g. ``SectionWriter.timer``)."""
+    into ``output_dir/lab_data`` from ``seed``) and the transducer model.
+
+    Args:
+        params: a :class:`YourDataConfig`, or a mapping naming its fields (checked into one).
+        seed: the study seed (the generated dataset's draws derive from it).
+        output_dir: the section's report folder.
+        timer: ``timer(name)`` -> a context manager timing the set-up under ``"inputs"`` (e.g.
+            ``SectionWriter.timer``); None: untimed.
+
+    Returns:
+        The :class:`YourDataSetup`.
+
+    Raises:
+        ValueError: a bad or missing parameter, or no target (``target_mm`` None and the data
+            suggests none).
+        FileNotFoundError: ``data_dir`` is not a folder or lacks the stations, the cine or the CBCT.
+    """
     if not isinstance(params, YourDataConfig):
         params = YourDataConfig.from_parameters(params)
     with _timer(timer)("inputs"):
@@ -76,10 +91,30 @@ def prepare(params: YourDataConfig | Mapping, seed: int, output_dir: str | os.Pa
     return YourDataSetup(params, inputs, model, seed, Path(output_dir))
 
 
+def inputs_part(setup: YourDataSetup) -> SectionPart:
+    """What the section runs on.
+
+    Args:
+        setup: the section's set-up.
+
+    Returns:
+        A part with values ``generated_dataset`` (whether the lab-like dataset was generated) and
+        ``model_points`` (the model's points per feature class).
+    """
+    return SectionPart(values={"generated_dataset": setup.inputs.generated,
+                               "model_points": {feature.name: n for feature, n in setup.model.n_points.items()}})
+
+
 @dataclass(frozen=True, eq=False)
 class StationsSection:
-    """The pose at each calibration station (:func:`stations_section`): the pose ``records``
-    (:func:`histostudy.pose.pose_record`), the ``table`` and the report's ``part``."""
+    """The pose at each calibration station (:func:`stations_section`).
+
+    Args:
+        records: one pose record per station (:func:`histostudy.pose.pose_record`).
+        table: one row per station: focal point (mm, C-arm frame), verdict, seconds and, with a
+            truth, the focal error (mm).
+        part: the report's part (table ``station_poses``).
+    """
 
     records: list
     table: pd.DataFrame
@@ -87,7 +122,15 @@ class StationsSection:
 
 
 def stations_section(setup: YourDataSetup, *, timer: Timer | None = None) -> StationsSection:
-    """:func:`station_poses` on the set-up, timed as ``"station poses"``."""
+    """The pose at each calibration station, from its biplane pair through the shipped learned stages.
+
+    Args:
+        setup: the section's set-up.
+        timer: ``timer(name)`` -> a context manager timing the whole (``"station poses"``); None: untimed.
+
+    Returns:
+        The :class:`StationsSection`.
+    """
     with _timer(timer)("station poses"):
         records, table = station_poses(setup.inputs, setup.model, setup.seed)
     return StationsSection(records, table, SectionPart(tables={"station_poses": (
@@ -95,9 +138,20 @@ def stations_section(setup: YourDataSetup, *, timer: Timer | None = None) -> Sta
 
 
 def station_overlay(setup: YourDataSetup, stations: StationsSection, station: int = 0) -> dict:
-    """The arguments of :func:`histostudy.reporting.plot_pose_overlay` for calibration station
-    ``station``: its frames (as its pose was estimated from), the model, the estimated pose and a
-    generator seeded with the section's seed (the points drawn)."""
+    """The arguments of :func:`histostudy.reporting.plot_pose_overlay` for one calibration station.
+
+    Args:
+        setup: the section's set-up.
+        stations: :func:`stations_section`'s result.
+        station: the station's index.
+
+    Returns:
+        ``frames`` (as the pose was estimated from), ``model``, ``T_carm_transducer`` (the estimate,
+        4x4, maps transducer -> C-arm, mm) and ``rng`` (a Generator seeded with the section's seed).
+
+    Raises:
+        IndexError: no such station.
+    """
     frames = frames_from_files(_station_frames(setup.inputs.stations[station]), setup.inputs.views)
     return dict(frames=frames, model=setup.model, T_carm_transducer=stations.records[station]["T_carm_transducer"],
                 rng=np.random.default_rng(setup.seed))
@@ -109,8 +163,14 @@ STATION_OVERLAY_CAPTION = "Station 0: the frames and the model in the estimated 
 
 @dataclass(frozen=True, eq=False)
 class CalibrationSection:
-    """The hand-eye calibration (:func:`calibration_section`): the checked ``calibration``, its
-    residual ``table`` (:func:`calibration_table`) and the report's ``part``."""
+    """The hand-eye calibration (:func:`calibration_section`).
+
+    Args:
+        calibration: the checked calibration.
+        table: its residuals per station used (focal, mm; rotation, deg) and, with a truth, the error
+            of ``T_carm_base`` at the target (mm).
+        part: the report's part.
+    """
 
     calibration: HandEyeCalibration
     table: pd.DataFrame
@@ -118,7 +178,21 @@ class CalibrationSection:
 
 
 def calibration_section(setup: YourDataSetup, stations: StationsSection) -> CalibrationSection:
-    """:func:`calibration_table` on the stations' pose records."""
+    """The hand-eye calibration (§II-C) of the stations whose pose the verdict accepted (refused
+    stations left out while 3 remain).
+
+    Args:
+        setup: the section's set-up.
+        stations: :func:`stations_section`'s result.
+
+    Returns:
+        The :class:`CalibrationSection`; its part: table ``calibration`` and value
+        ``calibration_max_focal_residual_mm``.
+
+    Raises:
+        ValueError: fewer than 3 accepted stations, or a calibration beyond its residual bounds
+            (from :func:`histostudy.lab.calibrate_from_poses`).
+    """
     calibration, table = calibration_table(stations.records, setup.inputs)
     return CalibrationSection(calibration, table, SectionPart(
         tables={"calibration": (table, "Residuals of the hand-eye calibration per station.")},
@@ -127,9 +201,14 @@ def calibration_section(setup: YourDataSetup, stations: StationsSection) -> Cali
 
 @dataclass(frozen=True, eq=False)
 class TrackingSection:
-    """The pose tracked over the cine (:func:`tracking_section`): the tracker's ``results``, the
-    ``table`` (:func:`track_cine`) and the report's ``part`` (with a truth, the focal errors and
-    their figure)."""
+    """The pose tracked over the cine (:func:`tracking_section`).
+
+    Args:
+        results: the tracker's result per frame pair.
+        table: one row per frame: focal point (mm, C-arm frame), verdict, seconds, re-acquisitions
+            and, with a truth, the focal error (mm).
+        part: the report's part (with a truth, the focal errors and their figure).
+    """
 
     results: list
     table: pd.DataFrame
@@ -150,7 +229,16 @@ def plot_cine_focal_error(cine: pd.DataFrame):
 
 
 def tracking_section(setup: YourDataSetup, *, timer: Timer | None = None) -> TrackingSection:
-    """:func:`track_cine` over ``params.max_tracked_frames`` frames, timed as ``"tracking"``."""
+    """The pose tracked over the cine's pairs (:class:`histostudy.pose.Tracker`: from scratch on the
+    first, warm-started after), at most ``params.max_tracked_frames`` of them.
+
+    Args:
+        setup: the section's set-up.
+        timer: ``timer(name)`` -> a context manager timing the whole (``"tracking"``); None: untimed.
+
+    Returns:
+        The :class:`TrackingSection`.
+    """
     with _timer(timer)("tracking"):
         results, table = track_cine(setup.inputs, setup.model, setup.seed, setup.params.max_tracked_frames)
     part = SectionPart(tables={"cine_poses": (table, "The tracked pose per cine frame (C-arm frame, mm).")})
@@ -163,10 +251,15 @@ def tracking_section(setup: YourDataSetup, *, timer: Timer | None = None) -> Tra
 
 @dataclass(frozen=True, eq=False)
 class MovingCineSection:
-    """The moving cine streamed through the receiver (:func:`moving_cine_section`): the ``run``, a
-    row per ``frames`` (:func:`.moving_cine_live.frame_table`), the ``counts`` and the report's
-    ``part`` (the tables, the figure, the receiver's stats and, with 2 or more accepted poses, the
-    comparison with Table II)."""
+    """The moving cine streamed through the receiver (:func:`moving_cine_section`).
+
+    Args:
+        run: the stream (:func:`histostudy.study.your_data.moving_cine_live.stream_moving_cine`).
+        frames: one row per cine frame (posed, dropped or refused; focal error, mm; latency, s).
+        counts: the run in numbers.
+        part: the report's part (the tables, the figure, the receiver's stats and, with 2 or more
+            accepted poses, the comparison with Table II).
+    """
 
     run: MovingCineRun
     frames: pd.DataFrame
@@ -175,11 +268,24 @@ class MovingCineSection:
 
 
 def moving_cine_section(setup: YourDataSetup, *, timer: Timer | None = None) -> MovingCineSection:
-    """The moving cine of ``setup.params`` (``moving_cine_s`` at ``moving_cine_fps``, the robot at up to
-    ``moving_cine_speed_mm_s``; rendered as the generated frames are) written into
-    ``output_dir/moving_cine`` (timed as ``"moving cine: rendering"``) and streamed at its frame
-    rate through the receiver, ``max_queued_pairs`` waiting at most (``"moving cine: streamed"``;
-    poses to ``output_dir/moving_cine_poses.jsonl``)."""
+    """A cine of the robot touring the margin points, generated and streamed at its frame rate
+    through the receiver on loopback (beyond the paper).
+
+    The cine (``moving_cine_s`` at ``moving_cine_fps``, the robot at up to ``moving_cine_speed_mm_s``,
+    rendered as the generated frames are) is written into ``output_dir/moving_cine``; at most
+    ``max_queued_pairs`` wait for a pose; the poses go to ``output_dir/moving_cine_poses.jsonl``.
+
+    Args:
+        setup: the section's set-up (its parameters say the cine).
+        timer: ``timer(name)`` -> a context manager timing ``"moving cine: rendering"`` and
+            ``"moving cine: streamed"``; None: untimed.
+
+    Returns:
+        The :class:`MovingCineSection`.
+
+    Raises:
+        ConnectionError: the sender could not reach the receiver.
+    """
     p, timer = setup.params, _timer(timer)
     render = TargetingStudyConfig(n_experiments=1, background="phantom", **p.render())
     with timer("moving cine: rendering"):
@@ -211,8 +317,14 @@ def moving_cine_section(setup: YourDataSetup, *, timer: Timer | None = None) -> 
 
 
 def focal_error_part(errors: tuple[float, float] | None) -> SectionPart:
-    """The comparison of the accepted poses' focal error (:func:`accepted_focal_errors`) with Table
-    II's overall centre error; none without a truth."""
+    """The accepted poses' focal error beside Table II's overall centre error.
+
+    Args:
+        errors: ``(mean, sd)`` in mm (:func:`accepted_focal_errors`), or None (no truth).
+
+    Returns:
+        A part with the comparison; an empty part for None.
+    """
     if errors is None:
         return SectionPart()
     return SectionPart(comparisons=(dict(
@@ -237,8 +349,22 @@ def drive_robot(calibration: HandEyeCalibration, inputs: LabInputs, volume: Volu
     :func:`histostudy.lab.execute_targeting` makes the one checked linear move at ``speed_mm_s``,
     refusing (ValueError, nothing moved) a robot no longer where the plan started.
 
-    Returns the plan and what the move reached (:func:`~histostudy.lab.execute_targeting`'s
-    record), None when nothing moved.
+    Args:
+        calibration: the hand-eye calibration (:func:`calibration_section`'s).
+        inputs: the lab's inputs (their target, C-arm mm; the generated dataset's start joints).
+        volume: the CBCT the target lies in (C-arm frame).
+        robot: None, a UR controller's host, or a connected robot.
+        dry_run: True: plan and check only.
+        speed_mm_s: the linear speed of the move, mm/s.
+
+    Returns:
+        The plan and what the move reached (:func:`histostudy.lab.execute_targeting`'s record),
+        None when nothing moved.
+
+    Raises:
+        ValueError: ``dry_run`` not a bool, ``speed_mm_s`` not > 0, a plan refused (target outside
+            the CBCT, unreachable, outside the workspace) or a robot no longer where the plan started.
+        TypeError: ``robot`` of another type.
     """
     dry_run = _check_bool(dry_run, "dry_run")
     speed_mm_s = check_positive(speed_mm_s, "speed_mm_s", unit="mm/s")
@@ -260,17 +386,39 @@ def drive_robot(calibration: HandEyeCalibration, inputs: LabInputs, volume: Volu
 
 
 def target_part(volume: Volume, plan: TargetingPlan, executed: dict | None) -> SectionPart:
-    """The target and the move: the CBCT through the target (:func:`plot_cbct_target`), the plan's
-    table and record and, when the robot moved, what it reached (:func:`drive_robot`'s)."""
+    """The target and the move (§II-D).
+
+    Args:
+        volume: the CBCT (C-arm frame).
+        plan: :func:`drive_robot`'s plan.
+        executed: what the move reached, or None when nothing moved.
+
+    Returns:
+        A part with table ``plan`` (:func:`plan_table`), figure ``cbct_target`` (the CBCT through the
+        target) and values ``plan`` and, when the robot moved, ``executed``.
+    """
     values = {"plan": plan.to_dict(), **({} if executed is None else {"executed": executed})}
     return SectionPart(tables={"plan": (plan_table(plan), "The planned move of the focal point onto the target.")},
                        figures={"cbct_target": (plot_cbct_target(volume, plan.target_mm),
                                                 "The CBCT through the target (green).")}, values=values)
 
 
+def stand_ins_part(inputs: LabInputs) -> SectionPart:
+    """What stands in for the lab's equipment (nothing, with its own files).
+
+    Args:
+        inputs: the lab's inputs (``inputs.generated`` says whether the dataset was generated).
+
+    Returns:
+        A part with one ``(lab, synthetic)`` stand-in.
+    """
+    return SectionPart(stand_ins=tuple(stand_ins(inputs)))
+
+
 def stand_ins(inputs: LabInputs) -> list[tuple[str, str]]:
     """``(lab, synthetic)``: what stands in for the lab's equipment (nothing, with its own files)."""
     return [("the lab's C-arm frames, CBCT, transducer CAD and UR5e",
-             "the lab-like dataset of histostudy.study.lab_dataset (synthetic XA frames of the physical transducer "
-             "model, a simulated CBCT, STL meshes exported from the parametric model); a dry run of the robot"
+             "the lab-like dataset of histostudy.study.your_data.lab_dataset (synthetic XA frames of the physical "
+             "transducer model, a simulated CBCT, STL meshes exported from the parametric model); a dry run of the "
+             "robot"
              if inputs.generated else "the lab's own files")]

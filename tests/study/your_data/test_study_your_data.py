@@ -12,6 +12,7 @@ import pytest
 from histostudy.imaging import Volume
 from histostudy.lab import TargetingPlan
 from histostudy.study import your_data as study
+from histostudy.study.your_data import _inputs
 
 matplotlib.use("Agg")
 
@@ -29,19 +30,19 @@ def _layout(folder, *, cbct=True, manifest=None):
 
 def test_a_lab_folder_is_read_and_its_gaps_named(tmp_path):
     folder = _layout(tmp_path / "lab", manifest={"suggested_target_mm": [1.0, 2.0, 3.0]})
-    inputs = study.lab_inputs(folder, output_dir=tmp_path / "out", seed=0)
+    inputs = _inputs.lab_inputs(folder, output_dir=tmp_path / "out", seed=0)
     assert inputs.stations == (folder / "calibration" / "station_0",) and inputs.truth is None
     np.testing.assert_array_equal(inputs.target_mm, [1.0, 2.0, 3.0])
     assert inputs.views is None and inputs.transducer_meshes is None and inputs.generated
     # A lab's own folder: no manifest, so the target must be given.
     bare = _layout(tmp_path / "bare", cbct=True)
     with pytest.raises(ValueError, match="target_mm must be given"):
-        study.lab_inputs(bare, output_dir=tmp_path / "out", seed=0)
-    assert study.lab_inputs(bare, output_dir=tmp_path, seed=0, target_mm=[0, 0, 0]).generated is False
+        _inputs.lab_inputs(bare, output_dir=tmp_path / "out", seed=0)
+    assert _inputs.lab_inputs(bare, output_dir=tmp_path, seed=0, target_mm=[0, 0, 0]).generated is False
     with pytest.raises(FileNotFoundError, match=r"lacks \['cbct'\]"):
-        study.lab_inputs(_layout(tmp_path / "nocbct", cbct=False), output_dir=tmp_path, seed=0, target_mm=[0, 0, 0])
+        _inputs.lab_inputs(_layout(tmp_path / "nocbct", cbct=False), output_dir=tmp_path, seed=0, target_mm=[0, 0, 0])
     with pytest.raises(FileNotFoundError, match="no such folder"):
-        study.lab_inputs(tmp_path / "missing", output_dir=tmp_path, seed=0)
+        _inputs.lab_inputs(tmp_path / "missing", output_dir=tmp_path, seed=0)
 
 
 def test_the_focal_errors_pool_the_accepted_poses_only():
@@ -60,7 +61,7 @@ def test_the_plan_table_and_the_cbct_figure_show_the_plan():
     table = study.plan_table(plan)
     assert table.loc[table["quantity"] == "largest joint move (deg)", "value"].item() == pytest.approx(2.0)
     volume = Volume.from_bounds([-20, -20, -20], [20, 20, 20], 1.0)
-    fig = study.plot_cbct_target(volume, [1.0, 2.0, 3.0])
+    fig = _inputs.plot_cbct_target(volume, [1.0, 2.0, 3.0])
     assert len(fig.axes) == 3
     with pytest.raises(ValueError, match="outside the volume"):
-        study.plot_cbct_target(volume, [100.0, 0.0, 0.0])
+        _inputs.plot_cbct_target(volume, [100.0, 0.0, 0.0])

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from histostudy.study.your_data import LiveFocalFigure, compare_with_tracked, throughput_table
+from histostudy.study.your_data._live import LiveFocalFigure, compare_with_tracked, throughput_table
 
 
 def record(pair, focal, *, frame=None, accepted=True, tracking="warm"):

@@ -13,8 +13,9 @@ from histostudy.imaging import Volume
 from histostudy.lab import TargetingPlan, calibrate_from_poses
 from histostudy.robot import SimulatedUR5e, UnreachablePoseError
 from histostudy.study import your_data as study
-from histostudy.study.targeting._calibration import calibration_poses
-from histostudy.study.targeting._setup import TargetingStudyConfig, draw_ground_truth, start_joints
+from histostudy.study.section import SectionPart
+from histostudy.study.targeting import calibration_poses
+from histostudy.study.targeting.setup import TargetingStudyConfig, draw_ground_truth, start_joints
 from histostudy.study.your_data import _section as section_module
 
 #: The parameters cell of notebooks/06_your_data.ipynb as stored (its defaults).
@@ -38,8 +39,8 @@ def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones()
     params = study.YourDataConfig.from_parameters(cell)
     assert {k: getattr(params, k) for k in DEFAULTS} == DEFAULTS
     assert set(cell) - set(DEFAULTS) == {"profile", "seed", "output_dir"}
-    assert list(params.recorded()) == list(study.RECORDED_PARAMETERS)
-    assert params.recorded() == {k: DEFAULTS[k] for k in study.RECORDED_PARAMETERS}
+    assert list(params.recorded()) == list(study.YourDataConfig.RECORDED)
+    assert params.recorded() == {k: DEFAULTS[k] for k in study.YourDataConfig.RECORDED}
     assert params.render() == {"photons_per_pixel": 50000.0, "n_splats": 16, "splat_sigma_mm": 0.5}
     with pytest.raises(AttributeError):
         params.dry_run = False  # frozen
@@ -64,11 +65,11 @@ class _Writer:
 
 
 def test_record_writes_tables_figures_values_and_comparisons_in_order():
-    part = study.SectionPart(tables={"a": (pd.DataFrame(), ""), "b": (pd.DataFrame(), "")},
+    part = SectionPart(tables={"a": (pd.DataFrame(), ""), "b": (pd.DataFrame(), "")},
                              figures={"f": (object(), "")}, values={"v": 1},
                              comparisons=(dict(key="k", label="", ours=1.0),))
     writer = _Writer()
-    study.record(writer, part, study.SectionPart(values={"w": 2}))
+    study.record(writer, part, SectionPart(values={"w": 2}))
     assert writer.calls == [("table", "a"), ("table", "b"), ("figure", "f"), ("value", "v"), ("compare", "k"),
                             ("value", "w")]
     assert study.focal_error_part(None).comparisons == ()

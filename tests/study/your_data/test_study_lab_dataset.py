@@ -1,4 +1,4 @@
-"""histostudy.study.lab_dataset: the generated lab-like dataset reads back through the lab's own
+"""histostudy.study.your_data.lab_dataset: the generated lab-like dataset reads back through the lab's own
 readers (DICOM XA geometry, NIfTI, STL, flange poses) and agrees with its synthetic truth."""
 
 import json
@@ -9,7 +9,7 @@ import pytest
 
 from histostudy.imaging import View, default_biplane, load_frame, load_views, load_volume
 from histostudy.lab import load_flange_poses
-from histostudy.study.lab_dataset import write_lab_dataset
+from histostudy.study.your_data.lab_dataset import write_lab_dataset
 from histostudy.transducer import TransducerModel
 
 
@@ -73,8 +73,8 @@ def test_bad_arguments_are_refused_before_anything_is_written(tmp_path):
 
 def test_the_lab_scene_renders_render_frames_images_with_the_same_draws():
     from histostudy.imaging import random_background, render_frame
-    from histostudy.study.lab_dataset import LabScene
-    from histostudy.study.targeting._setup import TargetingStudyConfig
+    from histostudy.study.targeting.setup import TargetingStudyConfig
+    from histostudy.study.your_data.lab_dataset import LabScene
     from histostudy.transducer import pose_facing
 
     config, views = TargetingStudyConfig(n_experiments=1, background="phantom"), _small_views()

@@ -1,20 +1,6 @@
-"""Notebook 01: the digital transducer model (§II-B.1) and synthetic biplane projections (§II-A
-eq. 1-2, §II-B.2).
-
-Builds the digital model at the pose-estimation and the rendering grid spacing and the physical
-transducer that makes the images, measures the built points (point counts per class, the cap's
-sphere fit, aperture and cutout sizes, in mm, transducer frame) so that the report sets measured
-geometry beside the paper's numbers, renders one biplane pair (plane A at -45°, plane B at +45°,
-§II-D) of the transducer in a known C-arm pose, tabulates the label content of the frames and the
-projection geometry (pixels), and times the renderer (seconds).
-
-The section's interface (:mod:`.section`): :class:`TransducerProjectionsConfig` (the notebook's
-parameters, checked), :func:`prepare` (the stage generators and the models, in a
-:class:`TransducerProjectionsSetup`), then the ``*_part`` functions returning each heading's
-tables, values and comparisons as a :class:`~.section.SectionPart` that :func:`~.section.record`
-writes through a :class:`histostudy.reporting.SectionWriter` (this layer sits below ``reporting``
-and does not import it). Frames, units and seeding:
-``docs/architecture.md``.
+"""Notebook 01's section (§II-A eq. 1-2, §II-B.1, §II-B.2): its parameters, the digital and physical
+transducer models, one synthetic biplane pair and its label content, and the render timing, each
+heading's part a :class:`~histostudy.study.section.SectionPart` (docs/study-sections.md, "01").
 """
 
 from __future__ import annotations
@@ -32,35 +18,7 @@ from histostudy.geometry import fit_sphere
 from histostudy.imaging import BACKGROUNDS, default_biplane, random_background, render_frame, render_line_integrals
 from histostudy.transducer import FEATURE_CLASSES, Feature, TransducerModel, TransducerSpec, pose_facing
 
-from .section import RenderedSectionConfig, SectionPart, Timer, check_bool, check_choice, record, timer_or_untimed
-
-__all__ = [
-    "RECORDED_PARAMETERS",
-    "SECTION",
-    "TITLE",
-    "BiplanePair",
-    "StageGenerators",
-    "TransducerModels",
-    "TransducerProjectionsConfig",
-    "TransducerProjectionsSetup",
-    "build_models",
-    "example_pose",
-    "label_content_part",
-    "label_fraction_table",
-    "label_percentages",
-    "model_geometry",
-    "model_geometry_part",
-    "point_count_table",
-    "point_counts_part",
-    "prepare",
-    "record",
-    "render_biplane_pair",
-    "render_timing",
-    "render_timing_part",
-    "stage_generators",
-    "stand_ins_part",
-    "view_geometry_table",
-]
+from ..section import RenderedSectionConfig, SectionPart, Timer, check_bool, check_choice, timer_or_untimed
 
 SECTION = "01_transducer_and_projections"
 TITLE = "01 · Digital transducer model and synthetic biplane fluoroscopy (§II-A, §II-B.1, §II-B.2)"
@@ -72,12 +30,22 @@ RECORDED_PARAMETERS = ("photons_per_pixel", "n_splats", "splat_sigma_mm", "pose_
 
 @dataclass(frozen=True)
 class TransducerProjectionsConfig(RenderedSectionConfig):
-    """Notebook 01's parameters, checked: the frames' dose and splatting (``photons_per_pixel``,
-    ``n_splats``, ``splat_sigma_mm`` in mm), the model grids (``pose_spacing_mm``,
-    ``render_spacing_mm``), the scene ``background`` (one of :data:`~histostudy.imaging.BACKGROUNDS`),
-    the render timing's ``timing_repeats`` and whether to draw the 3-D model (``render_3d``).
+    """Notebook 01's parameters, checked; built from the parameters cell by
+    ``TransducerProjectionsConfig.from_parameters(globals())``.
 
-    A bad value raises ValueError naming the parameter, its value and what it must be.
+    Args:
+        photons_per_pixel: unattenuated photons per detector pixel of the frames (dose, > 0).
+        n_splats: splats per model point (>= 1).
+        splat_sigma_mm: SD of each splat's jitter, mm (> 0).
+        pose_spacing_mm: grid spacing of the pose-estimation model, mm (paper: 0.47).
+        render_spacing_mm: grid spacing of the rendering (and reference-label) model, mm (paper: 0.125).
+        background: the scene behind the transducer, one of :data:`histostudy.imaging.BACKGROUNDS`.
+        timing_repeats: repeats of the render timing, whose median is reported (>= 1).
+        render_3d: whether the notebook draws the 3-D model.
+
+    Raises:
+        ValueError: a bad value, naming the parameter, its value and what it must be (or, from
+            ``from_parameters``, the parameters the mapping lacks).
     """
 
     NOTEBOOK = "01"
@@ -97,7 +65,6 @@ class TransducerProjectionsConfig(RenderedSectionConfig):
             put(name, check_count(getattr(self, name), name))
         check_choice(self.background, "background", BACKGROUNDS)
         put("render_3d", check_bool(self.render_3d, "render_3d"))
-
 
 
     def render(self) -> dict:
@@ -123,9 +90,15 @@ def stage_generators(seed: int) -> StageGenerators:
 
 @dataclass(frozen=True)
 class TransducerModels:
-    """The models of the study: the digital model at the pose-estimation spacing (``pose``) and at
-    the rendering spacing (``render``, also the reference labels), and the physical transducer
-    (``physical``, rendering spacing) that makes the images."""
+    """The transducer models of notebook 01 (§II-B.1).
+
+    Args:
+        spec: the transducer's parametric specification.
+        pose: the digital model at the pose-estimation spacing.
+        render: the digital model at the rendering spacing (also the reference labels).
+        physical: the physical transducer at the rendering spacing (manufacturing deviations
+            drawn), which makes the images.
+    """
 
     spec: TransducerSpec
     pose: TransducerModel
@@ -150,8 +123,15 @@ def build_models(pose_spacing_mm: float, render_spacing_mm: float, *, rng: np.ra
 
 @dataclass(frozen=True)
 class TransducerProjectionsSetup:
-    """What notebook 01 runs on: its ``params``, the ``seed``, the stage generators ``rngs``
-    (:func:`stage_generators`) and the ``models`` (:func:`build_models`)."""
+    """What notebook 01 runs on (made by :func:`prepare`).
+
+    Args:
+        params: the checked parameters.
+        seed: the study seed.
+        rngs: one Generator per stage (``physical``, ``background``, ``render``, ``scene``),
+            spawned from ``seed``.
+        models: the digital and physical models.
+    """
 
     params: TransducerProjectionsConfig
     seed: int
@@ -161,8 +141,21 @@ class TransducerProjectionsSetup:
 
 def prepare(params: TransducerProjectionsConfig | Mapping, seed: int, *,
             timer: Timer | None = None) -> TransducerProjectionsSetup:
-    """The section's set-up: the stage generators of ``seed`` and the models on the parameters'
-    grids (the physical transducer drawn from ``rngs.physical``; ``timer`` times each build)."""
+    """The section's set-up: a Generator per stage spawned from ``seed`` and the models on the
+    parameters' grids (the physical transducer drawn from ``rngs.physical``).
+
+    Args:
+        params: a :class:`TransducerProjectionsConfig`, or a mapping naming its fields (checked into one).
+        seed: the study seed (``SeedSequence(seed).spawn(4)``).
+        timer: ``timer(name)`` -> a context manager timing each model build (e.g.
+            ``SectionWriter.timer``); None: untimed.
+
+    Returns:
+        The :class:`TransducerProjectionsSetup`.
+
+    Raises:
+        ValueError: a bad or missing parameter.
+    """
     if not isinstance(params, TransducerProjectionsConfig):
         params = TransducerProjectionsConfig.from_parameters(params)
     rngs = stage_generators(seed)
@@ -205,19 +198,31 @@ def model_geometry(model: TransducerModel) -> dict:
 
 
 def point_counts_part(models: TransducerModels) -> SectionPart:
-    """The points per class of the three models (table ``point_counts``)."""
+    """The points per feature class of the three models.
+
+    Args:
+        models: the set-up's models.
+
+    Returns:
+        A part with table ``point_counts`` (rows: feature classes and the total; columns: the models).
+    """
     counts = point_count_table({f"{models.pose.spacing_mm} mm (pose)": models.pose,
                                 f"{models.render.spacing_mm} mm (render)": models.render,
                                 f"{models.physical.spacing_mm} mm physical": models.physical})
     return SectionPart(tables={"point_counts": (counts, "Model points per feature class")})
 
 
-
-
 def model_geometry_part(models: TransducerModels) -> SectionPart:
-    """The rendering model's measured geometry (:func:`model_geometry`, value ``model_geometry``)
-    beside the paper's (§II-B.1), the grid spacings, and the physical transducer's focal-point shift
-    from the digital one (mm)."""
+    """The rendering model's geometry measured on its points beside the paper's (§II-B.1).
+
+    Args:
+        models: the set-up's models.
+
+    Returns:
+        A part with values ``model_geometry`` (cap sphere fit, aperture, cutout and cap depth, mm,
+        transducer frame), ``spec`` and ``physical_focal_point_shift_mm`` (the physical focal point's
+        distance from the digital one, mm), and the comparisons with the paper.
+    """
     geometry = model_geometry(models.render)
     focal_shift_mm = float(np.linalg.norm(models.physical.focal_point_mm))
     comparisons = (
@@ -240,8 +245,6 @@ def model_geometry_part(models: TransducerModels) -> SectionPart:
                                "physical_focal_point_shift_mm": focal_shift_mm}, comparisons=comparisons)
 
 
-
-
 def example_pose() -> np.ndarray:
     """``T_carm_transducer`` of the example pair: the transducer above the supine patient, its
     axis tilted off the anteroposterior line, turned 0.35 rad about it, and its focal point a few
@@ -251,8 +254,14 @@ def example_pose() -> np.ndarray:
 
 @dataclass(frozen=True)
 class BiplanePair:
-    """One rendered biplane pair: the views, the true ``T_carm_transducer``, the background
-    scene (an ``Anatomy``) and the two frames (plane A, plane B)."""
+    """One rendered biplane pair (:func:`render_biplane_pair`).
+
+    Args:
+        views: the two views (plane A, plane B).
+        T_carm_transducer: the true pose, 4x4, maps transducer -> C-arm (mm).
+        anatomy: the background scene.
+        frames: the two frames (plane A, plane B), each with its reference labels.
+    """
 
     views: tuple
     T_carm_transducer: np.ndarray
@@ -263,12 +272,25 @@ class BiplanePair:
 def render_biplane_pair(models: TransducerModels, background: str, *, rng_background: np.random.Generator,
                         rng_render: np.random.Generator, T_carm_transducer=None, timer: Timer | None = None,
                         **render_kwargs) -> BiplanePair:
-    """Render the physical transducer in ``T_carm_transducer`` (default :func:`example_pose`) on
-    a random ``background`` scene (``"abdomen"``, ``"phantom"``, ``"mixed"``) in both planes of
-    :func:`~histostudy.imaging.default_biplane`, labelled by the rendering model (Fig. 5 A-C).
+    """Render the physical transducer on a random background in both planes of
+    :func:`histostudy.imaging.default_biplane` (plane A at -45°, plane B at +45°), labelled by the
+    rendering model (§II-B.2, Fig. 5 A-C).
 
-    ``render_kwargs`` go to :func:`~histostudy.imaging.render_frame` (photons_per_pixel,
-    n_splats, splat_sigma_mm); ``timer`` (optional) times the rendering of the pair.
+    Args:
+        models: the set-up's models (``physical`` makes the image, ``render`` the labels).
+        background: the scene, ``"abdomen"``, ``"phantom"`` or ``"mixed"``.
+        rng_background: draws the scene.
+        rng_render: draws the splats and the photon noise, plane A then plane B.
+        T_carm_transducer: the pose, 4x4, maps transducer -> C-arm (mm); None: :func:`example_pose`.
+        timer: ``timer(name)`` -> a context manager timing the pair's rendering; None: untimed.
+        **render_kwargs: :func:`histostudy.imaging.render_frame` keywords (``photons_per_pixel``,
+            ``n_splats``, ``splat_sigma_mm``; :meth:`TransducerProjectionsConfig.render`).
+
+    Returns:
+        The :class:`BiplanePair`.
+
+    Raises:
+        ValueError: an unknown ``background`` or a bad render keyword (from the imaging layer).
     """
     timer = timer_or_untimed(timer)
     views = default_biplane()
@@ -304,8 +326,17 @@ def view_geometry_table(frames: Sequence, T_carm_transducer) -> pd.DataFrame:
 
 
 def label_content_part(pair: BiplanePair) -> SectionPart:
-    """The label pixels per class and view (table ``label_pixels``), the feature classes visible in
-    both views, and the projection geometry of the two planes (table ``views``)."""
+    """The label content and projection geometry of a pair (eq. 1-2).
+
+    Args:
+        pair: the rendered pair.
+
+    Returns:
+        A part with table ``label_pixels`` (pixels and percent of each label class per view), table
+        ``views`` (each view's gantry angles, the focal point's pixel ``(u, v)`` and the network
+        input size) and the comparisons with the paper (feature classes visible in both views,
+        gantry angles, network input size).
+    """
     labels = label_fraction_table(pair.frames)
     n_foreground_classes = labels[labels["pixels"] > 0].groupby("view")["class"].nunique() - 1
     geometry = view_geometry_table(pair.frames, pair.T_carm_transducer)
@@ -321,10 +352,16 @@ def label_content_part(pair: BiplanePair) -> SectionPart:
 
 
 def label_percentages(labels: pd.DataFrame) -> pd.DataFrame:
-    """:func:`label_fraction_table`'s percentages as a class x view table."""
+    """The label percentages as a class x view table.
+
+    Args:
+        labels: the ``label_pixels`` table of :func:`label_content_part` (columns ``view``,
+            ``class``, ``percent``).
+
+    Returns:
+        The percent of the image each class covers, one row per class, one column per view.
+    """
     return labels.pivot(index="class", columns="view", values="percent")
-
-
 
 
 def render_timing(model: TransducerModel, T_carm_transducer, view, *, background, rng, physical=None,
@@ -360,8 +397,25 @@ def render_timing(model: TransducerModel, T_carm_transducer, view, *, background
 
 def render_timing_part(models: TransducerModels, pair: BiplanePair, *, repeats: int, rng,
                        **render_kwargs) -> SectionPart:
-    """:func:`render_timing` of plane A's frame of ``pair`` (table ``render_timing``), with the
-    splatting parameters (``n_splats``, ``splat_sigma_mm`` in ``render_kwargs``) beside the paper's."""
+    """The wall time of the stages of plane A's frame of ``pair``, the median over ``repeats``
+    (background projection, transducer splatting, the whole frame), with the splatting parameters
+    beside the paper's (§II-B.2).
+
+    Args:
+        models: the set-up's models.
+        pair: the rendered pair (its plane A view, pose and scene are timed).
+        repeats: the timing repeats (>= 1).
+        rng: a seed or a Generator drawing the splats and noise of every repeat.
+        **render_kwargs: :func:`histostudy.imaging.render_frame` keywords; ``n_splats`` and
+            ``splat_sigma_mm`` are required (compared with the paper).
+
+    Returns:
+        A part with table ``render_timing`` (seconds per stage) and the comparisons.
+
+    Raises:
+        ValueError: ``repeats`` < 1.
+        KeyError: ``render_kwargs`` lacks ``n_splats`` or ``splat_sigma_mm``.
+    """
     view = pair.views[0]
     timing = render_timing(models.render, pair.T_carm_transducer, view, background=pair.anatomy,
                            physical=models.physical, repeats=repeats, rng=rng, **render_kwargs)
@@ -373,12 +427,20 @@ def render_timing_part(models: TransducerModels, pair: BiplanePair, *, repeats: 
                           unit="mm")))
 
 
-
-
 def stand_ins_part(models: TransducerModels, *, background: str, photons_per_pixel: float,
                    n_splats: int) -> SectionPart:
     """What stands in for the lab's transducer, projections and annotation, and how the frames were
-    made."""
+    made.
+
+    Args:
+        models: the set-up's models (the physical model's spacing and points are named).
+        background: the frames' scene.
+        photons_per_pixel: the frames' dose, photons per pixel.
+        n_splats: splats per model point.
+
+    Returns:
+        A part with the stand-ins and one paragraph.
+    """
     return SectionPart(stand_ins=(
         ("the HistoSonics transducer", "a physical model: per-quadrant manufacturing offsets/tilts and "
          "probe-mount screws that the digital model lacks"),

@@ -1,18 +1,7 @@
-"""Notebook 02: the U-Net segmentation evaluated as in §II-E.1 and §III (Table I, ANOVA, Tukey HSD).
-
-Every held-out hybrid frame (§II-B.2: split ``eval`` of :class:`~histostudy.learning.HybridFrames`,
-full-resolution detector pixels) is segmented and compared with its reference labels pixel by
-pixel (:func:`histostudy.study.stats.segmentation_metrics`); Table I is the mean ± SD over images
-of each class's precision, recall, IoU and pixel accuracy (percent). The precision of the six
-classes is compared by one-way ANOVA and Tukey's HSD, as the paper does.
-
-The section's interface (:mod:`.section`): :class:`SegmentationConfig` (the notebook's parameters,
-checked), :func:`prepare` (the U-Net and the held-out frames, in a :class:`SegmentationSetup`), then
-functions returning each heading's tables, values and comparisons as a
-:class:`~.section.SectionPart` (or a result holding one as ``part``) that :func:`~.section.record`
-writes through a :class:`histostudy.reporting.SectionWriter` (this layer sits below ``reporting``
-and does not import it). The parameters, the shipped checkpoint and the held-out frames are
-:mod:`.held_out`'s, shared with notebook 03 (its names are here too).
+"""Notebook 02's section (§II-B.2, §II-E.1, §III): the U-Net on the held-out hybrid frames, scored
+pixel by pixel against the reference labels; Table I, the per-image summary, and the ANOVA and Tukey
+HSD of the classes' precision, each heading's part a :class:`~histostudy.study.section.SectionPart`
+(docs/study-sections.md, "02").
 """
 
 from __future__ import annotations
@@ -29,47 +18,9 @@ import pandas as pd
 from histostudy.learning import HybridFrames, UNetSegmenter, training_summary
 from histostudy.transducer import Feature
 
-from .held_out import (
-    RECORDED_PARAMETERS,
-    HeldOutConfig,
-    HeldOutSetup,
-    held_out_frames,
-    prepare_held_out,
-    resolve_weights,
-    weights_part,
-    weights_summary,
-)
-from .section import SectionPart, Timer, record, timer_or_untimed
-from .stats import anova_oneway, segmentation_metrics, tukey_hsd
-
-__all__ = [
-    "CLASS_KEYS",
-    "METRICS",
-    "RECORDED_PARAMETERS",
-    "SECTION",
-    "TITLE",
-    "PrecisionTests",
-    "SegmentationConfig",
-    "SegmentationEvaluation",
-    "SegmentationSetup",
-    "anova_text",
-    "background_minus_screws_ci",
-    "evaluate_segmentation",
-    "evaluation_section",
-    "held_out_frames",
-    "load_unet",
-    "precision_tests",
-    "precision_tests_section",
-    "prepare",
-    "record",
-    "resolve_weights",
-    "stand_ins_part",
-    "summary",
-    "table1",
-    "table1_part",
-    "weights_part",
-    "weights_summary",
-]
+from ..held_out import HeldOutConfig, HeldOutSetup, prepare_held_out, resolve_weights
+from ..section import SectionPart, Timer, timer_or_untimed
+from ..stats import anova_oneway, segmentation_metrics, tukey_hsd
 
 SECTION = "02_segmentation"
 TITLE = "02 · Feature segmentation with the U-Net: Table I, ANOVA and Tukey HSD (§II-B.2, §II-E.1, §III)"
@@ -87,27 +38,65 @@ SUMMARY_KEYS = {"global_accuracy": "seg.global_accuracy", "weighted_iou": "seg.w
 
 @dataclass(frozen=True)
 class SegmentationConfig(HeldOutConfig):
-    """Notebook 02's parameters, checked (:class:`~.held_out.HeldOutConfig`'s fields)."""
+    """Notebook 02's parameters, checked (the fields of :class:`histostudy.study.held_out.HeldOutConfig`);
+    built from the parameters cell by ``SegmentationConfig.from_parameters(globals())``.
+
+    Args:
+        photons_per_pixel: unattenuated photons per detector pixel of the frames (dose, > 0).
+        n_splats: splats per model point (>= 1).
+        splat_sigma_mm: SD of each splat's jitter, mm (> 0).
+        render_spacing_mm: grid spacing of the rendering and reference-label models, mm.
+        background: the frames' scene, one of :data:`histostudy.imaging.BACKGROUNDS`.
+        n_eval_images: held-out frames to evaluate (>= 1).
+        weights: the checkpoint to evaluate (a path); ``""``: the shipped one.
+        cache_frames: read the frames from (or render them into) the frame cache.
+        render_workers: processes that pre-render the uncached frames (>= 1; needs ``cache_frames``).
+
+    Raises:
+        ValueError: a bad value, naming the parameter, its value and what it must be (or, from
+            ``from_parameters``, the parameters the mapping lacks).
+    """
 
     NOTEBOOK = "02"
 
 
 def load_unet(weights: str | os.PathLike = "") -> tuple[UNetSegmenter, Path]:
-    """The U-Net of ``weights`` (default: the shipped ``unet_standard``) and its checkpoint path."""
+    """The U-Net to evaluate and its checkpoint path.
+
+    Args:
+        weights: a checkpoint path; ``""``: the shipped ``data/models/unet_standard.safetensors``.
+
+    Returns:
+        ``(segmenter, path)``.
+
+    Raises:
+        FileNotFoundError: no ``weights`` given and no usable shipped U-Net (names the
+            ``histostudy train segmentation`` command that makes it).
+    """
     path = resolve_weights(weights, "unet_standard", "U-Net", "segmentation")
     return UNetSegmenter.load(path), path
 
 
 def evaluate_segmentation(segmenter, frames: Iterable, rng: np.random.Generator | None = None, *,
                           keep: int = 3) -> tuple[pd.DataFrame, pd.DataFrame, list]:
-    """Segment ``frames`` (any iterable; a generator keeps memory flat) and measure them against
-    their reference labels.
+    """Segment ``frames`` and measure each against its reference labels, pixel by pixel (§II-E.1).
 
-    Returns ``(per_class, per_image, predictions)``: ``per_class`` has one row per image and class
-    (``image, class, precision, recall, iou, accuracy`` in percent, NaN where undefined, plus the
-    confusion counts), ``per_image`` one row per image (``global_accuracy, weighted_iou,
-    mean_precision, mean_recall`` in percent, ``seconds`` of segmentation) and ``predictions``
-    the label images of the first ``keep`` frames (for figures).
+    Args:
+        segmenter: anything with ``segment(frame, rng)`` returning a label image (e.g.
+            :class:`histostudy.learning.UNetSegmenter`).
+        frames: frames with reference labels (any iterable; a generator keeps memory flat).
+        rng: passed to ``segmenter.segment`` (None for a deterministic segmenter).
+        keep: how many of the first frames' predictions to return (for figures).
+
+    Returns:
+        ``(per_class, per_image, predictions)``: ``per_class`` one row per image and class
+        (``image, class, precision, recall, iou, accuracy`` in percent, NaN where undefined, plus
+        the confusion counts), ``per_image`` one row per image (``global_accuracy, weighted_iou,
+        mean_precision, mean_recall`` in percent, ``seconds`` of segmentation), ``predictions`` the
+        label images of the first ``keep`` frames.
+
+    Raises:
+        ValueError: a frame without reference labels, or no frame at all.
     """
     rows, images, predictions = [], [], []
     for i, frame in enumerate(frames):
@@ -133,7 +122,16 @@ def evaluate_segmentation(segmenter, frames: Iterable, rng: np.random.Generator 
 
 
 def table1(per_class: pd.DataFrame) -> pd.DataFrame:
-    """Table I: per class the mean and SD over images (percent) of each metric, and the image count."""
+    """Table I (§III): per class the mean and SD over images of each metric.
+
+    Args:
+        per_class: :func:`evaluate_segmentation`'s per-class rows.
+
+    Returns:
+        One row per class (``class``, ``<metric>_mean``, ``<metric>_sd`` in percent for precision,
+        recall, IoU and accuracy; NaN where undefined) and ``images``, the images with a defined
+        precision.
+    """
     out = []
     for cls in CLASS_KEYS:
         sub = per_class[per_class["class"] == cls]
@@ -202,22 +200,48 @@ def anova_text(anova: dict, tukey: pd.DataFrame, reference: str = "background") 
 
 @dataclass(frozen=True)
 class SegmentationSetup(HeldOutSetup):
-    """What notebook 02 runs on (:class:`~.held_out.HeldOutSetup`) and the ``segmenter``
-    (:func:`load_unet`)."""
+    """What notebook 02 runs on (made by :func:`prepare`).
+
+    Args:
+        params: the checked parameters.
+        seed: the study seed (the held-out frames derive from it).
+        weights_path: the U-Net's checkpoint.
+        frames: the held-out frames (:func:`histostudy.study.held_out.held_out_frames`).
+        segmenter: the U-Net (:func:`load_unet`).
+    """
 
     segmenter: UNetSegmenter
 
 
 def prepare(params: SegmentationConfig | Mapping, seed: int, *, timer: Timer | None = None) -> SegmentationSetup:
-    """The section's set-up: the U-Net of ``params.weights`` and the held-out frames of ``seed``
-    (``timer`` times their pre-rendering, with ``render_workers`` > 1)."""
+    """The section's set-up: the U-Net of ``params.weights`` and the held-out frames of ``seed``.
+
+    Args:
+        params: a :class:`SegmentationConfig`, or a mapping naming its fields (checked into one).
+        seed: the study seed.
+        timer: ``timer(name)`` -> a context manager timing the frames' pre-rendering (with
+            ``render_workers`` > 1); None: untimed.
+
+    Returns:
+        The :class:`SegmentationSetup`.
+
+    Raises:
+        ValueError: a bad or missing parameter.
+        FileNotFoundError: no usable checkpoint (:func:`load_unet`).
+    """
     return SegmentationSetup(*prepare_held_out(SegmentationConfig, params, seed, load_unet, timer=timer))
 
 
 @dataclass(frozen=True, eq=False)
 class SegmentationEvaluation:
-    """The held-out frames segmented (:func:`evaluation_section`): ``per_class``, ``per_image`` and
-    the first frames' ``predictions`` (:func:`evaluate_segmentation`), and the report's ``part``."""
+    """The held-out frames segmented (:func:`evaluation_section`).
+
+    Args:
+        per_class: one row per image and class (:func:`evaluate_segmentation`).
+        per_image: one row per image.
+        predictions: the label images of the first frames.
+        part: the report's part (table ``per_image``, value ``segmentation_seconds_median``).
+    """
 
     per_class: pd.DataFrame
     per_image: pd.DataFrame
@@ -227,9 +251,23 @@ class SegmentationEvaluation:
 
 def evaluation_section(segmenter, frames: HybridFrames, n_images: int, *, keep: int = 3,
                        timer: Timer | None = None) -> SegmentationEvaluation:
-    """Segment frames ``0 .. n_images-1`` of ``frames`` (:func:`evaluate_segmentation`, timed as
-    ``"render and segment <n> frames"``); its part: the per-image table and the median segmentation
-    time (s)."""
+    """Segment the first ``n_images`` held-out frames (:func:`evaluate_segmentation`).
+
+    Args:
+        segmenter: the U-Net (``setup.segmenter``).
+        frames: the held-out frames (``setup.frames``; frame ``i`` is ``frames.frame(i)``).
+        n_images: how many, from frame 0.
+        keep: how many predictions to keep for the figure.
+        timer: ``timer(name)`` -> a context manager timing the whole (``"render and segment <n>
+            frames"``); None: untimed.
+
+    Returns:
+        A :class:`SegmentationEvaluation`; its part: the per-image table and the median
+        segmentation time (s).
+
+    Raises:
+        ValueError: a frame without reference labels, or ``n_images`` 0.
+    """
     with timer_or_untimed(timer)(f"render and segment {n_images} frames"):
         per_class, per_image, predictions = evaluate_segmentation(
             segmenter, (frames.frame(i) for i in range(n_images)), keep=keep)
@@ -240,8 +278,16 @@ def evaluation_section(segmenter, frames: HybridFrames, n_images: int, *, keep: 
 
 
 def table1_part(per_class: pd.DataFrame, per_image: pd.DataFrame) -> SectionPart:
-    """Table I (table ``table1``) and the per-image summary (global accuracy, weighted IoU, mean
-    precision and recall; table ``summary``), each value beside the paper's."""
+    """Table I and the per-image summary, each value beside the paper's (§III).
+
+    Args:
+        per_class: :func:`evaluate_segmentation`'s per-class rows.
+        per_image: its per-image rows.
+
+    Returns:
+        A part with table ``table1`` (:func:`table1`), table ``summary`` (mean and SD of the global
+        accuracy, weighted IoU, mean precision and recall, percent) and the comparisons.
+    """
     n_images = int(per_image["image"].nunique())
     table = table1(per_class)
     comparisons = [dict(key=f"table1.{row['class']}.{metric}", label=f"{row['class']}: {metric}",
@@ -276,8 +322,13 @@ def background_minus_screws_ci(tukey: pd.DataFrame) -> tuple[float, float] | Non
 
 @dataclass(frozen=True, eq=False)
 class PrecisionTests:
-    """The ANOVA and Tukey HSD of the classes' precision (:func:`precision_tests_section`): the §III
-    ``paragraph`` on them, the ``tukey`` table (None when not computed) and the report's ``part``."""
+    """The ANOVA and Tukey HSD of the classes' precision (:func:`precision_tests_section`).
+
+    Args:
+        paragraph: the §III paragraph on them.
+        tukey: the Tukey HSD table (None when fewer than two classes could be tested).
+        part: the report's part.
+    """
 
     paragraph: str
     tukey: pd.DataFrame | None
@@ -285,9 +336,18 @@ class PrecisionTests:
 
 
 def precision_tests_section(per_class: pd.DataFrame) -> PrecisionTests:
-    """:func:`precision_tests` of ``per_class`` and the §III paragraph on them; its part: the Tukey
-    table, the ANOVA beside the paper's and the paragraph (with fewer than two classes, that no
-    ANOVA was computed)."""
+    """One-way ANOVA and Tukey's HSD of the per-image precision over the classes (§II-E.1, §III).
+
+    A class with fewer than two images of defined precision is left out (and named).
+
+    Args:
+        per_class: :func:`evaluate_segmentation`'s per-class rows.
+
+    Returns:
+        A :class:`PrecisionTests`; its part: table ``tukey_precision``, the ANOVA (F, degrees of
+        freedom, p) and the background-minus-screws interval beside the paper's, and the
+        paragraph (with fewer than two classes, that no ANOVA was computed).
+    """
     anova, tukey, dropped = precision_tests(per_class)
     label = "ANOVA F of precision over classes"
     if anova is None:
@@ -318,7 +378,17 @@ def precision_tests_section(per_class: pd.DataFrame) -> PrecisionTests:
 def stand_ins_part(segmenter, weights_path: Path, per_image: pd.DataFrame,
                    detector_shape: tuple[int, int]) -> SectionPart:
     """What stands in for the annotated frames and the GPU-trained U-Net, and the median time to
-    segment one full ``detector_shape`` (rows, cols) frame."""
+    segment one frame.
+
+    Args:
+        segmenter: the U-Net (its manifest and input scale are named).
+        weights_path: its checkpoint.
+        per_image: :func:`evaluate_segmentation`'s per-image rows (their count and ``seconds``).
+        detector_shape: the frames' ``(rows, cols)``, pixels.
+
+    Returns:
+        A part with the stand-ins and one paragraph.
+    """
     manifest = segmenter.manifest
     return SectionPart(stand_ins=(
         ("310 manually annotated porcine and phantom fluoroscopy frames",

@@ -1,4 +1,4 @@
-"""histostudy.study.moving_cine: the robot's tour of the study's margin points is smooth, keeps its
+"""histostudy.study.your_data.moving_cine: the robot's tour of the study's margin points is smooth, keeps its
 speed limit and lands on the margins; the cine is single-frame DICOM XA timed at the frame rate,
 its truth kept beside it and consistent with the robot's chain, and the same seed writes the same
 bytes. Small views and a coarse render model keep it quick (the receiver's run is in
@@ -12,8 +12,8 @@ import pytest
 
 from histostudy.imaging import default_biplane, load_views
 from histostudy.lab import decode_xray_object, frame_times, posix_seconds
-from histostudy.study.moving_cine import MARGIN_TOUR, T0, load_moving_cine, robot_path, write_moving_cine
-from histostudy.study.pose._geometry import margin_positions
+from histostudy.study.pose.geometry import margin_positions
+from histostudy.study.your_data.moving_cine import MARGIN_TOUR, T0, load_moving_cine, robot_path, write_moving_cine
 from histostudy.transducer import pose_facing
 
 SMALL = dict(views=default_biplane(shape=(96, 124), pixel_mm=3.08), render_spacing_mm=0.5)

@@ -1,4 +1,4 @@
-"""Notebook 02's study module: per-image metrics, Table I, the precision tests and their paragraph,
+"""histostudy.study.segmentation (notebook 02): per-image metrics, Table I, the precision tests and their paragraph,
 the shipped weights and held-out frames, the notebook's parameters checked by name, and what each part
 writes into a section through ``record``."""
 
@@ -12,7 +12,9 @@ from scipy import stats as sps
 from histostudy.imaging import Frame, View
 from histostudy.learning import OracleSegmenter, SegmentationDegradation
 from histostudy.reporting import SectionWriter
+from histostudy.study import held_out
 from histostudy.study import segmentation as study
+from histostudy.study.segmentation import _section
 from histostudy.transducer import FEATURE_CLASSES
 
 
@@ -38,7 +40,7 @@ def test_perfect_segmentation_scores_100():
     assert len(preds) == 2 and len(per_image) == 5
     assert np.allclose(per_image["global_accuracy"], 100) and np.allclose(per_image["weighted_iou"], 100)
     t = study.table1(per_class)
-    assert list(t["class"]) == list(study.CLASS_KEYS)
+    assert list(t["class"]) == list(_section.CLASS_KEYS)
     assert np.allclose(t[["precision_mean", "recall_mean", "iou_mean", "accuracy_mean"]], 100)
     assert (t["images"] == 5).all()
 
@@ -53,15 +55,15 @@ def test_table1_and_tests_on_a_degraded_oracle_match_scipy():
     row = t[t["class"] == "gaps"].iloc[0]
     assert row["recall_mean"] == pytest.approx(gaps.mean()) and row["recall_sd"] == pytest.approx(gaps.std(ddof=1))
     assert 55 < row["recall_mean"] < 85  # about the requested 70 %
-    anova, tukey, dropped = study.precision_tests(per_class)
-    groups = [per_class.loc[per_class["class"] == c, "precision"].dropna() for c in study.CLASS_KEYS]
+    anova, tukey, dropped = _section.precision_tests(per_class)
+    groups = [per_class.loc[per_class["class"] == c, "precision"].dropna() for c in _section.CLASS_KEYS]
     ref = sps.f_oneway(*groups)
     assert dropped == [] and anova["F"] == pytest.approx(ref.statistic) and anova["p"] == pytest.approx(ref.pvalue)
     assert (anova["df_between"], anova["df_within"]) == (5, 6 * 8 - 6)
     assert len(tukey) == 15
-    text = study.anova_text(anova, tukey)
+    text = _section.anova_text(anova, tukey)
     assert text.startswith(f"A one-way ANOVA over the precision of the 6 classes gives F(5, 42) = {anova['F']:.1f}")
-    overall = study.summary(per_image)
+    overall = _section.summary(per_image)
     assert overall.loc[overall["metric"] == "global_accuracy", "mean"].iloc[0] == pytest.approx(
         per_image["global_accuracy"].mean())
 
@@ -70,7 +72,7 @@ def test_anova_text_names_the_lower_classes():
     tukey = pd.DataFrame({"group1": ["background", "background"], "group2": ["gaps", "screws"],
                           "meandiff": [-1.0, -8.9], "p_adj": [0.4, 1e-6], "lower": [-3.0, -10.1],
                           "upper": [1.0, -7.7], "reject": [False, True]})
-    text = study.anova_text({"F": 85.6, "df_between": 5, "df_within": 1262, "p": 1e-9}, tukey)
+    text = _section.anova_text({"F": 85.6, "df_between": 5, "df_within": 1262, "p": 1e-9}, tukey)
     assert "F(5, 1262) = 85.6, p < 1e-5" in text
     assert "screws (by 8.9 %" in text and "[7.7, 10.1]" in text and "gaps" not in text
 
@@ -81,8 +83,8 @@ def test_a_single_predicted_class_gives_no_tests():
             return np.zeros(frame.shape, np.uint8)
 
     per_class, _, _ = study.evaluate_segmentation(Background(), _frames(3))
-    anova, tukey, dropped = study.precision_tests(per_class)
-    assert anova is None and tukey is None and set(dropped) == set(study.CLASS_KEYS) - {"background"}
+    anova, tukey, dropped = _section.precision_tests(per_class)
+    assert anova is None and tukey is None and set(dropped) == set(_section.CLASS_KEYS) - {"background"}
     with pytest.raises(ValueError, match="no reference labels"):
         study.evaluate_segmentation(Background(), [Frame(np.zeros((48, 64), np.float32), _frames(1)[0].view)])
 
@@ -103,9 +105,9 @@ def _writer(tmp_path):
 
 def test_resolve_weights_names_the_training_command(tmp_path):
     given = tmp_path / "net.safetensors"
-    assert study.resolve_weights(str(given), "unet_standard", "U-Net", "segmentation") == given
+    assert held_out.resolve_weights(str(given), "unet_standard", "U-Net", "segmentation") == given
     with pytest.raises(FileNotFoundError, match="no usable shipped VGG19 .*histostudy train orientation"):
-        study.resolve_weights("", "no_such_network", "VGG19", "orientation")
+        held_out.resolve_weights("", "no_such_network", "VGG19", "orientation")
 
 
 def test_weights_part_and_its_summary_line(tmp_path):
@@ -120,13 +122,13 @@ def test_weights_part_and_its_summary_line(tmp_path):
 
 
 def test_held_out_frames_are_the_eval_split(tmp_path, monkeypatch):
-    frames = study.held_out_frames(7, 2, render_spacing_mm=0.47, photons_per_pixel=1e4, n_splats=2,
+    frames = held_out.held_out_frames(7, 2, render_spacing_mm=0.47, photons_per_pixel=1e4, n_splats=2,
                                    splat_sigma_mm=0.3, background="phantom", cache_frames=False)
     assert frames.split == "eval" and frames.cache_dir is None
     assert (frames.config.render_spacing_mm, frames.config.label_spacing_mm, frames.config.n_splats) == (0.47, 0.47, 2)
     monkeypatch.setenv("HISTOSTUDY_CACHE", str(tmp_path))
     timed = []
-    cached = study.held_out_frames(7, 0, render_spacing_mm=0.47, photons_per_pixel=1e4, n_splats=2,
+    cached = held_out.held_out_frames(7, 0, render_spacing_mm=0.47, photons_per_pixel=1e4, n_splats=2,
                                    splat_sigma_mm=0.3, background="phantom", render_workers=2,
                                    timer=lambda name: timed.append(name) or contextlib.nullcontext())
     assert cached.cache_dir is not None and timed == ["pre-render the uncached evaluation frames (2 processes)"]
@@ -143,7 +145,7 @@ def test_evaluation_and_table1_of_a_perfect_segmenter(tmp_path):
     part = study.table1_part(per_class, per_image)
     study.record(writer, part)
     table = part.table("table1")
-    assert list(table["class"]) == list(study.CLASS_KEYS)
+    assert list(table["class"]) == list(_section.CLASS_KEYS)
     by_key = {row["key"]: row for row in writer.comparisons}
     assert len(by_key) == 6 * 4 + 4 + 1
     assert by_key["table1.screws.recall"]["ours"] == pytest.approx(100.0)
@@ -153,10 +155,10 @@ def test_evaluation_and_table1_of_a_perfect_segmenter(tmp_path):
 def test_background_minus_screws_ci_takes_the_papers_orientation():
     tukey = pd.DataFrame({"group1": ["background", "gaps"], "group2": ["screws", "screws"],
                           "lower": [-10.1, -3.0], "upper": [-7.7, 1.0]})
-    assert study.background_minus_screws_ci(tukey) == (7.7, 10.1)
+    assert _section.background_minus_screws_ci(tukey) == (7.7, 10.1)
     swapped = pd.DataFrame({"group1": ["screws"], "group2": ["background"], "lower": [7.7], "upper": [10.1]})
-    assert study.background_minus_screws_ci(swapped) == (7.7, 10.1)
-    assert study.background_minus_screws_ci(tukey.iloc[1:]) is None
+    assert _section.background_minus_screws_ci(swapped) == (7.7, 10.1)
+    assert _section.background_minus_screws_ci(tukey.iloc[1:]) is None
 
 
 def test_precision_tests_section_with_and_without_a_test(tmp_path):
@@ -195,7 +197,8 @@ def test_stand_ins_part_reports_the_detector_and_time(tmp_path):
     study.record(writer, study.stand_ins_part(Net(), tmp_path / "unet.safetensors", per_image,
                                               detector_shape=(960, 1240)))
     assert writer.stand_ins[0]["synthetic"].startswith("3 held-out synthetic hybrid frames")
-    assert "50 training steps" in writer.stand_ins[1]["synthetic"] and "(manifest unet.json)" in writer.stand_ins[1]["synthetic"]
+    synthetic = writer.stand_ins[1]["synthetic"]
+    assert "50 training steps" in synthetic and "(manifest unet.json)" in synthetic
     assert writer.paragraphs == ["Segmentation takes a median 0.20 s per full 1240x960 frame on this machine "
                                  "(downscaled by 0.5, logits upsampled to full size)."]
 
@@ -212,7 +215,7 @@ def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones(n
     params = study.SegmentationConfig.from_parameters(cell)
     assert {k: getattr(params, k) for k in DEFAULTS} == DEFAULTS
     assert set(cell) - set(DEFAULTS) == {"profile", "seed", "output_dir"}
-    assert list(params.recorded()) == list(study.RECORDED_PARAMETERS) == list(DEFAULTS)[:7]
+    assert list(params.recorded()) == list(study.SegmentationConfig.RECORDED) == list(DEFAULTS)[:7]
     with pytest.raises(AttributeError):
         params.n_eval_images = 2  # frozen
 
@@ -223,7 +226,7 @@ def test_missing_parameters_are_named_and_the_frames_are_the_held_out_ones():
     params = study.SegmentationConfig(**{**DEFAULTS, "cache_frames": False})
     frames = params.frames(7)
     assert frames.split == "eval" and frames.seed == 7 and frames.cache_dir is None
-    assert frames.config == study.held_out_frames(7, 4, render_spacing_mm=0.125, photons_per_pixel=5e4, n_splats=16,
+    assert frames.config == held_out.held_out_frames(7, 4, render_spacing_mm=0.125, photons_per_pixel=5e4, n_splats=16,
                                                   splat_sigma_mm=0.5, background="mixed").config
 
 

@@ -1,27 +1,6 @@
-"""A small lab-like dataset, generated: what a lab hands the workflow of ``histostudy.lab``, written in
-the lab's own formats, with the synthetic truth a lab never has kept beside it (§II-A to §II-D).
-
-:func:`write_lab_dataset` draws one set-up of the targeting study (:func:`draw_ground_truth`: the
-robot base in the C-arm frame, the transducer's mount, the phantom) and writes:
-
-- ``views.json``: the biplane views (:func:`histostudy.imaging.save_views`);
-- ``calibration/station_K/{A,B}.dcm``: a single-frame DICOM XA pair with the C-arm's geometry tags
-  at each of the calibration stations (:func:`calibration_poses`), and
-  ``calibration/flange_poses.json``: the flange poses the robot reported there, both as 4x4 mm
-  transforms and as UR poses (m, axis-angle rad);
-- ``cine/{A,B}.dcm``: a biplane XA cine (``FrameTime`` apart) of the transducer moving on the
-  robot, as a C-arm streams it during tracking;
-- ``cbct.nii.gz``: the pre-treatment CBCT of the layered phantom (C-arm frame, HU);
-- ``transducer/*.stl``: the transducer's meshes, one per feature class (the CAD files a lab has);
-- ``dataset.json``: what each file is, the suggested target (inside the phantom) and the seed;
-- ``truth.json``: the synthetic truth — ``T_carm_base``, ``T_flange_transducer`` and the true
-  ``T_carm_transducer`` of every station and cine frame — for measuring errors, never read by the
-  workflow.
-
-The frames are rendered from the *physical* transducer (quadrants moved, §IV) over the phantom
-scene, with the study's dose and splatting (:class:`~histostudy.imaging.FrameRenderConfig`), and
-stored as 12-bit detector counts. Every draw comes from ``seed`` through one
-``numpy.random.SeedSequence``: the same seed writes the same files.
+"""A small lab-like dataset, generated: what a lab hands the workflow of ``histostudy.lab`` (DICOM XA
+stations and cine, flange poses, a NIfTI CBCT, STL meshes), with the synthetic truth a lab never has
+kept beside it (§II-A to §II-D). The layout and how it is drawn: docs/study-sections.md, "06".
 """
 
 from __future__ import annotations
@@ -54,9 +33,8 @@ from histostudy.imaging import (
 from histostudy.robot import forward_kinematics, pose_from_transform
 from histostudy.transducer import TransducerModel, export_meshes
 
-from .targeting._calibration import calibration_poses
-from .targeting._setup import TargetingStudyConfig, draw_ground_truth, start_joints
-from .targeting._treatment import phantom_for
+from ..targeting import calibration_poses, phantom_for
+from ..targeting.setup import TargetingStudyConfig, draw_ground_truth, start_joints
 
 __all__ = ["LabDataset", "LabScene", "write_lab_dataset"]
 
@@ -69,7 +47,7 @@ class LabScene:
     splatted over the phantom scene's exact line integrals (``backgrounds``, one ``(rows, cols)``
     array per view, computed once: the scene does not move), on ``views``, with the study's dose
     and splatting (``settings``: :class:`~histostudy.imaging.FrameRenderConfig`, e.g. a
-    :class:`.targeting_setup.TargetingStudyConfig`).
+    :class:`histostudy.study.targeting.setup.TargetingStudyConfig`).
 
     :meth:`draw` makes one from two Generators; :meth:`render_pair` renders the biplane images of a
     pose. :func:`write_lab_dataset` and :mod:`.moving_cine` render through it.
@@ -146,7 +124,7 @@ def write_lab_dataset(folder: str | os.PathLike, *, seed: int = 20231125, n_cine
                       frame_time_ms: float = 66.7, cine_step_mm: float = 0.5, cine_turn_deg: float = 0.2,
                       config: TargetingStudyConfig | None = None, render_spacing_mm: float = 0.25,
                       views: tuple[View, View] | None = None) -> LabDataset:
-    """Write the lab-like dataset described in the module docstring into ``folder``; returns its
+    """Write the lab-like dataset described in docs/study-sections.md ("06") into ``folder``; returns its
     paths. ``config``: the set-up's parameters (default: the targeting study's standard ones with 4
     calibration stations); ``render_spacing_mm``: the rendered transducer's point spacing (the
     study renders at 0.125 mm; 0.25 mm draws fewer points and is enough for 0.3 mm pixels at the

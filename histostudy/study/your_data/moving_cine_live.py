@@ -1,15 +1,6 @@
-"""The moving cine (:mod:`.moving_cine`) streamed at its frame rate through the pose receiver, and
-what came out: the frames kept up with, the pairs dropped, the track lost and re-acquired, the
-latency and the focal error per frame against the truth (§II-A live frames; beyond the paper,
-which tracked nothing; docs/tracking.md, "A minute of moving cine through the receiver").
-
-:func:`stream_moving_cine` starts a :class:`histostudy.lab.FrameReceiver` on loopback (a free port,
-the tracker's fast warm path by default, ``max_queued_pairs`` so that it drops the oldest waiting
-pairs rather than fall behind) and sends the cine's objects with
-:func:`histostudy.lab.stream_frames` at the pace of their acquisition times. :func:`frame_table`
-gives one row per frame (posed, dropped or refused; the focal error against the truth),
-:func:`count_table` the counts, rates and latencies, :func:`plot_focal_error` the figure of
-notebook 06. Lengths in mm (C-arm frame), times in seconds (docs/architecture.md).
+"""The moving cine (:mod:`histostudy.study.your_data.moving_cine`) streamed at its frame rate through
+the pose receiver on loopback, and what came out: a row per frame (posed, dropped, refused; focal
+error against the truth, mm; latency, s), the counts and the figure (docs/tracking.md).
 """
 
 from __future__ import annotations
@@ -28,7 +19,7 @@ import numpy as np
 import pandas as pd
 
 from histostudy.imaging import load_views
-from histostudy.lab import FrameReceiver, stream_frames
+from histostudy.lab import FrameReceiver, ReceiverConfig, stream_frames
 from histostudy.transducer import TransducerModel
 
 from .moving_cine import MovingCine
@@ -77,9 +68,10 @@ def stream_moving_cine(cine: MovingCine, model: TransducerModel, seed: int, *, o
     """
     output = Path(output_path)
     output.unlink(missing_ok=True)  # the receiver appends: start from an empty file
-    receiver = FrameReceiver(load_views(cine.views), model, output_path=output, port=0, host="127.0.0.1", seed=seed,
-                             on_pose=on_pose, fast=fast, max_queued_pairs=max_queued_pairs,
-                             default_interval_s=1.0 / cine.fps, **receiver_options)
+    config, tracker_options = ReceiverConfig.split(receiver_options, output_path=output, port=0, host="127.0.0.1",
+                                                   fast=fast, max_queued_pairs=max_queued_pairs,
+                                                   default_interval_s=1.0 / cine.fps)
+    receiver = FrameReceiver(load_views(cine.views), config, model=model, seed=seed, on_pose=on_pose, **tracker_options)
     receiver.start()
     t0 = time.perf_counter()
     paths = [p for pair in cine.frames for p in pair]
@@ -134,10 +126,10 @@ def frame_table(run: MovingCineRun, cine: MovingCine) -> pd.DataFrame:
 def count_table(run: MovingCineRun, frames: pd.DataFrame) -> pd.DataFrame:
     """The run in numbers (``quantity``, ``value``): pairs sent, posed, dropped by the receiver
     (``max_queued_pairs``), refused (an object of the pair refused), whether they add up, and the
-    frames left unpaired (0 unless an object was refused); the tracking (warm,
-    from scratch, warm starts tried again at the rescue scale and held by that second attempt, warm
-    starts from a refused pose and held, lost, re-acquired, accepted); the rates (frames of the cine per second, poses per
-    second over the stream); the latency (median, 90th percentile, largest) and the focal error of
+    frames left unpaired (0 unless an object was refused); the tracking (warm, from scratch, warm
+    starts tried again at the rescue scale and held by that second attempt, warm starts from a
+    refused pose and held, lost, re-acquired, accepted); the rates (frames of the cine per second,
+    poses per second over the stream); the latency (median, 90th percentile, largest) and the focal error of
     the accepted poses (mean, median, 95th percentile, largest); how late the sender ran. The rates
     are over ``run.stream_s`` (the C-arm's time) and ``run.wall_s`` (the last poses come after it)."""
     s, tracker = run.stats, run.stats.get("tracker", {})

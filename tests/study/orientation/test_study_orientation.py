@@ -1,5 +1,5 @@
-"""Notebook 03's study module: per-frame angles against the true pose, the §III statistics, the figure,
-the initialiser comparison, the notebook's parameters checked by name, and what each part writes into a
+"""histostudy.study.orientation (notebook 03): per-frame angles against the true pose, the §III statistics,
+the figure, the initialiser comparison, the notebook's parameters checked by name, and what each part writes into a
 section through ``record``."""
 
 import numpy as np
@@ -15,7 +15,8 @@ from histostudy.learning import (
 )
 from histostudy.pose import ConicOrientation
 from histostudy.reporting import SectionWriter
-from histostudy.study import orientation_regression as study
+from histostudy.study import orientation as study
+from histostudy.study.orientation import _section
 from histostudy.transducer import pose_facing
 
 
@@ -46,8 +47,9 @@ def test_fixed_offsets_give_those_errors_and_a_unit_slope():
     assert len(res) == 12
     np.testing.assert_allclose(res["azimuth_error_deg"], 2.0, atol=1e-9)  # wrapped even across +-180
     np.testing.assert_allclose(res["elevation_error_deg"], -1.0, atol=1e-9)
-    t = study.angle_table(res).set_index("angle")
-    assert t.loc["azimuth", "mae_deg"] == pytest.approx(2.0) and t.loc["azimuth", "sd_deg"] == pytest.approx(0, abs=1e-9)
+    t = _section.angle_table(res).set_index("angle")
+    assert t.loc["azimuth", "mae_deg"] == pytest.approx(2.0)
+    assert t.loc["azimuth", "sd_deg"] == pytest.approx(0, abs=1e-9)
     assert t.loc["azimuth", "slope"] == pytest.approx(1.0) and t.loc["azimuth", "intercept_deg"] == pytest.approx(2.0)
     assert t.loc["elevation", "intercept_deg"] == pytest.approx(-1.0) and t.loc["elevation", "r2"] == pytest.approx(1.0)
     assert t.loc["elevation", "pearson_percent"] == pytest.approx(100.0)
@@ -160,7 +162,8 @@ def test_load_vgg19_finds_the_shipped_weights(monkeypatch):
     source, path = study.load_vgg19()
     assert isinstance(source, LearnedOrientation) and path.name == "vgg19_standard.safetensors"
     monkeypatch.setattr("histostudy.study.held_out.shipped_model", lambda name: None)
-    with pytest.raises(FileNotFoundError, match=r"VGG19 .*\(vgg19_standard\.safetensors .*histostudy train orientation"):
+    with pytest.raises(FileNotFoundError,
+                       match=r"VGG19 .*\(vgg19_standard\.safetensors .*histostudy train orientation"):
         study.load_vgg19()
 
 
@@ -196,7 +199,7 @@ def test_orientation_initialisers_and_their_keys():
     assert both["VGG19 (§II-B.4)"] is vgg
     assert all(isinstance(c, ConicOrientation) and c.fallback is vgg for c in list(both.values())[1:])
     assert list(study.orientation_initialisers(vgg)) == ["VGG19 (§II-B.4)", "conic, reference labels"]
-    assert [study.initialiser_key(name) for name in both] == ["vgg19", "conic_U-Net", "conic_reference"]
+    assert [_section.initialiser_key(name) for name in both] == ["vgg19", "conic_U-Net", "conic_reference"]
 
 
 def test_initialiser_comparison_section(tmp_path):
@@ -236,7 +239,7 @@ DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, rend
 def test_the_parameters_are_the_notebooks_with_the_geometric_initialiser(notebook_parameters):
     params = study.OrientationConfig.from_parameters(notebook_parameters("03_orientation"))
     assert {k: getattr(params, k) for k in DEFAULTS} == DEFAULTS
-    assert list(params.recorded()) == list(study.RECORDED_PARAMETERS) == list(DEFAULTS)[:7]
+    assert list(params.recorded()) == list(study.OrientationConfig.RECORDED) == list(DEFAULTS)[:7]
 
 
 def test_prepare_loads_the_shipped_vgg19_and_the_frames():

@@ -1,26 +1,6 @@
-"""A biplane cine of the transducer carried by the robot between the margin points of the study, as
-a C-arm streams it during a treatment (§II-A live frames, §II-D margins; beyond the paper, which
-tracked nothing): the input of the receiver's live-tracking run (docs/tracking.md, "A minute of
-moving cine through the receiver").
-
-:func:`robot_path` lays out the move. The robot holds the transducer pointing down over the
-phantom, as the operator jogged it (:func:`.targeting_setup.start_joints`), the focal point on the
-zone's centre; it then visits the six margin points of §II-D (:func:`.pose_geometry.margin_positions`:
-the centre moved by the zone radius along the transducer's LR, TB and depth axes) in the order
-centre, left, right, centre, top, bottom, centre, front, back, centre, and again, pausing
-``dwell_s`` at each. Each straight move follows the minimum-jerk profile
-``s(u) = 10u^3 - 15u^4 + 6u^5`` (zero speed and acceleration at both ends) whose peak speed,
-``1.875 d / T``, is ``max_speed_mm_s``. The orientation stays that of the start.
-
-:func:`write_moving_cine` samples it at ``fps`` frames per second, renders each biplane pair
-through :class:`.lab_dataset.LabScene` (the physical transducer over the phantom, the study's dose)
-and writes each frame as a single-frame DICOM XA object whose ``AcquisitionDateTime`` is the
-frame's time (``t0 + k / fps``), one folder per plane, as a C-arm streams a fluoroscopy run frame by
-frame. The truth (``truth.json``: the time, ``T_carm_transducer``, ``T_base_flange``, the focal point,
-the speed and the leg of every frame) is written beside the frames, never in them: the receiver
-reads only the DICOM objects. Every draw derives from ``seed`` (one ``numpy.random.SeedSequence``),
-so the same seed writes the same bytes. Lengths in mm, times in s, transforms 4x4
-``T_<to>_<from>`` in the C-arm frame (docs/architecture.md, "Frames and units").
+"""A biplane cine of the transducer carried by the robot between the study's margin points (§II-D), as
+single-frame DICOM XA objects timed by their acquisition times, the truth beside them (beyond the
+paper). The tour, its minimum-jerk profile and the files: docs/study-sections.md, "06".
 """
 
 from __future__ import annotations
@@ -40,9 +20,9 @@ from histostudy.geometry import invert_transform
 from histostudy.imaging import View, default_biplane, detector_counts, save_views, write_xa
 from histostudy.robot import forward_kinematics
 
+from ..pose.geometry import margin_positions
+from ..targeting.setup import TargetingStudyConfig, draw_ground_truth, start_joints
 from .lab_dataset import LabScene
-from .pose._geometry import margin_positions
-from .targeting._setup import TargetingStudyConfig, draw_ground_truth, start_joints
 
 __all__ = ["MARGIN_TOUR", "MovingCine", "RobotPath", "load_moving_cine", "robot_path", "write_moving_cine"]
 
@@ -101,7 +81,7 @@ class RobotPath:
 def robot_path(T_centre, duration_s: float, *, radius_mm: float = 12.5, max_speed_mm_s: float = 10.0,
                dwell_s: float = 1.0) -> RobotPath:
     """The robot's tour of the zone of ``radius_mm`` about ``T_centre`` (4x4 ``T_carm_transducer``,
-    mm) that lasts at least ``duration_s`` (s): the module docstring's order and profile, each leg
+    mm) that lasts at least ``duration_s`` (s): the tour's order and profile (docs/study-sections.md, "06"), each leg
     of length ``d`` taking ``1.875 d / max_speed_mm_s`` seconds (peak speed ``max_speed_mm_s``,
     mm/s), each waypoint held ``dwell_s`` (s, >= 0) first."""
     duration_s = check_positive(duration_s, "duration_s", unit="s")
@@ -168,7 +148,7 @@ def write_moving_cine(folder: str | os.PathLike, *, seed: int, duration_s: float
                       config: TargetingStudyConfig | None = None, render_spacing_mm: float = 0.25,
                       views: tuple[View, View] | None = None,
                       progress: Callable[[int, int], object] | None = None) -> MovingCine:
-    """Write the moving cine of the module docstring into ``folder``; returns its paths.
+    """Write the moving cine (docs/study-sections.md, "06") into ``folder``; returns its paths.
 
     Args:
         seed: every draw (the set-up, the scene, the physical transducer, the photon noise).
@@ -176,7 +156,8 @@ def write_moving_cine(folder: str | os.PathLike, *, seed: int, duration_s: float
         fps: the C-arm's frame rate (frames per second; 7.5 and 15 are the usual fluoroscopy rates).
         radius_mm, max_speed_mm_s, dwell_s: the tour (:func:`robot_path`).
         config: the set-up and rendering (default: the targeting study's, phantom background).
-        render_spacing_mm: the rendered models' point spacing (mm; as :func:`.lab_dataset.write_lab_dataset`).
+        render_spacing_mm: the rendered models' point spacing (mm; as
+            :func:`histostudy.study.your_data.lab_dataset.write_lab_dataset`).
         views: the biplane (default :func:`~histostudy.imaging.default_biplane`, full size: the
             shipped learned stages need it).
         progress: called as ``progress(frames_written, n_frames)`` after each frame.

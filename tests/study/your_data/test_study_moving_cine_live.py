@@ -1,4 +1,4 @@
-"""histostudy.study.moving_cine_live: the moving cine streamed at its frame rate through the pose
+"""histostudy.study.your_data.moving_cine_live: the moving cine streamed at its frame rate through the pose
 receiver on loopback. The counts add up (sent = posed + dropped + refused), a tracker slowed down
 on purpose drops pairs that are counted and never lets more than ``max_queued_pairs`` wait, the
 track's losses and re-acquisitions match the records, and the accepted poses lie within 3 mm of the
@@ -15,8 +15,8 @@ import pytest
 
 from histostudy.imaging import default_biplane
 from histostudy.lab import SentObject
-from histostudy.study.moving_cine import write_moving_cine
-from histostudy.study.moving_cine_live import (
+from histostudy.study.your_data.moving_cine import write_moving_cine
+from histostudy.study.your_data.moving_cine_live import (
     MovingCineRun,
     count_table,
     frame_table,

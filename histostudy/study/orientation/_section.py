@@ -1,23 +1,7 @@
-"""Notebook 03: the VGG19 azimuth/elevation regression evaluated as in §II-B.4, §II-E.2 and §III.
-
-For each held-out hybrid frame (:func:`histostudy.study.segmentation.held_out_frames`) the
-orientation source's angles are compared with the true pose's
-(:func:`histostudy.learning.angles_from_direction`; azimuth and elevation in the view's detector
-frame, tables in degrees): mean absolute error ± SD (azimuth differences wrapped to
-``(-180°, 180°]``), Pearson correlation, and the Moore-Penrose linear fit of prediction on
-reference with its R² (:func:`histostudy.study.stats.angle_statistics`).
-
-Beyond the paper: the direction error (angle between the predicted and the true axis) and the
-candidate directions (eq. 4's mirror pair, or a source's own pair) that the pose initialisation
-starts from, for the VGG19 and for the inner-boundary conic initialiser
-(:class:`~histostudy.pose.ConicOrientation`).
-
-The section's interface (:mod:`.section`): :class:`OrientationConfig` (the notebook's parameters,
-checked), :func:`prepare` (the VGG19 and the held-out frames of :mod:`.held_out`, in an
-:class:`OrientationSetup`), then functions returning each heading's tables, values and comparisons
-as a :class:`~.section.SectionPart` (or a result holding one as ``part``) that
-:func:`~.section.record` writes through a :class:`histostudy.reporting.SectionWriter` (this layer
-sits below ``reporting`` and does not import it).
+"""Notebook 03's section (§II-B.4 eq. 4, §II-E.2, §III): the VGG19's azimuth and elevation on the
+held-out hybrid frames against the true pose (MAE, Pearson, Moore-Penrose fit), the direction error and,
+beyond the paper, the conic initialiser beside it; each heading's part a
+:class:`~histostudy.study.section.SectionPart` (docs/study-sections.md, "03").
 """
 
 from __future__ import annotations
@@ -44,48 +28,9 @@ from histostudy.learning import (
 )
 from histostudy.pose import ConicOrientation
 
-from .held_out import (
-    RECORDED_PARAMETERS,
-    HeldOutConfig,
-    HeldOutSetup,
-    held_out_frames,
-    prepare_held_out,
-    resolve_weights,
-    weights_part,
-    weights_summary,
-)
-from .section import SectionPart, Timer, check_bool, record, timer_or_untimed
-from .stats import angle_statistics
-
-__all__ = [
-    "INITIALISER_RNG_SEED",
-    "RECORDED_PARAMETERS",
-    "SECTION",
-    "TITLE",
-    "AngleEvaluation",
-    "InitialiserComparison",
-    "OrientationConfig",
-    "OrientationSetup",
-    "angle_statistics_part",
-    "angle_table",
-    "candidate_error_summary",
-    "candidate_errors",
-    "direction_error_part",
-    "direction_error_summary",
-    "evaluate_orientation",
-    "evaluation_section",
-    "held_out_frames",
-    "initialiser_comparison_section",
-    "initialiser_key",
-    "load_vgg19",
-    "orientation_initialisers",
-    "prepare",
-    "record",
-    "scatter_figure",
-    "stand_ins_part",
-    "weights_part",
-    "weights_summary",
-]
+from ..held_out import HeldOutConfig, HeldOutSetup, prepare_held_out, resolve_weights
+from ..section import SectionPart, Timer, check_bool, timer_or_untimed
+from ..stats import angle_statistics
 
 SECTION = "03_orientation"
 TITLE = "03 · Orientation regression with VGG19: azimuth and elevation (§II-B.4, §II-E.2, §III)"
@@ -98,8 +43,25 @@ INITIALISER_RNG_SEED = 0
 
 @dataclass(frozen=True)
 class OrientationConfig(HeldOutConfig):
-    """Notebook 03's parameters, checked: :class:`~.held_out.HeldOutConfig`'s fields and whether to
-    evaluate the conic initialiser beside the VGG19 on the same frames (``geometric_initialiser``)."""
+    """Notebook 03's parameters, checked (the fields of :class:`histostudy.study.held_out.HeldOutConfig`
+    and one of its own); built from the parameters cell by ``OrientationConfig.from_parameters(globals())``.
+
+    Args:
+        photons_per_pixel: unattenuated photons per detector pixel of the frames (dose, > 0).
+        n_splats: splats per model point (>= 1).
+        splat_sigma_mm: SD of each splat's jitter, mm (> 0).
+        render_spacing_mm: grid spacing of the rendering and reference-label models, mm.
+        background: the frames' scene, one of :data:`histostudy.imaging.BACKGROUNDS`.
+        n_eval_images: held-out frames to evaluate (>= 1; the angle statistics need 3).
+        weights: the checkpoint to evaluate (a path); ``""``: the shipped one.
+        cache_frames: read the frames from (or render them into) the frame cache.
+        render_workers: processes that pre-render the uncached frames (>= 1; needs ``cache_frames``).
+        geometric_initialiser: also evaluate the conic initialiser on the same frames.
+
+    Raises:
+        ValueError: a bad value, naming the parameter, its value and what it must be (or, from
+            ``from_parameters``, the parameters the mapping lacks).
+    """
 
     geometric_initialiser: bool
 
@@ -112,31 +74,74 @@ class OrientationConfig(HeldOutConfig):
 
 
 def load_vgg19(weights: str | os.PathLike = "") -> tuple[LearnedOrientation, Path]:
-    """The VGG19 regressor of ``weights`` (default: the shipped ``vgg19_standard``) and its
-    checkpoint path."""
+    """The VGG19 regressor to evaluate and its checkpoint path.
+
+    Args:
+        weights: a checkpoint path; ``""``: the shipped ``data/models/vgg19_standard.safetensors``.
+
+    Returns:
+        ``(source, path)``, ``source`` a :class:`histostudy.learning.LearnedOrientation`.
+
+    Raises:
+        FileNotFoundError: no ``weights`` given and no usable shipped VGG19 (names the
+            ``histostudy train orientation`` command that makes it).
+    """
     path = resolve_weights(weights, "vgg19_standard", "VGG19", "orientation")
     return LearnedOrientation.load(path), path
 
 
 @dataclass(frozen=True)
 class OrientationSetup(HeldOutSetup):
-    """What notebook 03 runs on (:class:`~.held_out.HeldOutSetup`) and the VGG19 ``source``
-    (:func:`load_vgg19`)."""
+    """What notebook 03 runs on (made by :func:`prepare`).
+
+    Args:
+        params: the checked parameters.
+        seed: the study seed (the held-out frames derive from it).
+        weights_path: the VGG19's checkpoint.
+        frames: the held-out frames (:func:`histostudy.study.held_out.held_out_frames`).
+        source: the VGG19 (:func:`load_vgg19`).
+    """
 
     source: LearnedOrientation
 
 
 def prepare(params: OrientationConfig | Mapping, seed: int, *, timer: Timer | None = None) -> OrientationSetup:
-    """The section's set-up: the VGG19 of ``params.weights`` and the held-out frames of ``seed``
-    (``timer`` times their pre-rendering, with ``render_workers`` > 1)."""
+    """The section's set-up: the VGG19 of ``params.weights`` and the held-out frames of ``seed``.
+
+    Args:
+        params: an :class:`OrientationConfig`, or a mapping naming its fields (checked into one).
+        seed: the study seed.
+        timer: ``timer(name)`` -> a context manager timing the frames' pre-rendering (with
+            ``render_workers`` > 1); None: untimed.
+
+    Returns:
+        The :class:`OrientationSetup`.
+
+    Raises:
+        ValueError: a bad or missing parameter.
+        FileNotFoundError: no usable checkpoint (:func:`load_vgg19`).
+    """
     return OrientationSetup(*prepare_held_out(OrientationConfig, params, seed, load_vgg19, timer=timer))
 
 
 def evaluate_orientation(source, frames: Iterable, rng: np.random.Generator | None = None) -> pd.DataFrame:
-    """One row per frame: reference and predicted azimuth and elevation (deg), the wrapped azimuth
-    error, the elevation error and the angle between the predicted and the reference direction
-    (deg; :func:`~histostudy.learning.orientation.orientation_angle_error`), and the ``seconds`` the source
-    took."""
+    """The source's azimuth and elevation of each frame against the true pose's (§II-B.4, §II-E.2).
+
+    Args:
+        source: anything with ``estimate(frame, rng)`` returning ``(azimuth, elevation)`` in rad,
+            in the view's detector frame (e.g. :class:`histostudy.learning.LearnedOrientation`).
+        frames: frames with their true ``T_carm_transducer`` (any iterable).
+        rng: passed to ``source.estimate``.
+
+    Returns:
+        One row per frame: reference and predicted azimuth and elevation (deg), the azimuth error
+        wrapped to (-180°, 180°], the elevation error, the angle between the predicted and the
+        reference direction (deg; :func:`histostudy.learning.orientation_angle_error`) and the
+        ``seconds`` the source took.
+
+    Raises:
+        ValueError: a frame without a true pose, or no frame at all.
+    """
     rows = []
     for i, frame in enumerate(frames):
         if frame.T_carm_transducer is None:
@@ -161,7 +166,8 @@ def angle_table(results: pd.DataFrame) -> pd.DataFrame:
     """The §III statistics per angle: MAE, SD, Pearson r (percent) and p, intercept, slope, R², n."""
     rows = []
     for angle, wrap in (("azimuth", True), ("elevation", False)):
-        s = angle_statistics(np.radians(results[f"{angle}_pred_deg"]), np.radians(results[f"{angle}_ref_deg"]), wrap=wrap)
+        s = angle_statistics(np.radians(results[f"{angle}_pred_deg"]), np.radians(results[f"{angle}_ref_deg"]),
+                             wrap=wrap)
         rows.append({"angle": angle, "mae_deg": s["mae_deg"], "sd_deg": s["sd_deg"],
                      "pearson_percent": 100.0 * s["pearson_r"], "pearson_p": s["pearson_p"],
                      "intercept_deg": s["intercept_deg"], "slope": s["slope"], "r2": s["r2"], "n": s["n"]})
@@ -170,9 +176,20 @@ def angle_table(results: pd.DataFrame) -> pd.DataFrame:
 
 def direction_error_summary(results: pd.DataFrame, misread_deg: float = 30.0) -> dict:
     """The direction error of :func:`evaluate_orientation`'s rows (beyond the paper, which reports
-    the two angles only): mean ± SD, median and 90th percentile (deg), and the fraction of frames
-    misread by more than ``misread_deg``: the frames whose initialisation must lean on the other
-    view (:func:`histostudy.pose.estimate_pose`'s per-view direction starts)."""
+    the two angles only).
+
+    Args:
+        results: :func:`evaluate_orientation`'s rows (column ``direction_error_deg``).
+        misread_deg: the error beyond which a frame counts as misread, deg: its initialisation must
+            lean on the other view (:func:`histostudy.pose.estimate_pose`'s per-view direction starts).
+
+    Returns:
+        ``mean_deg``, ``sd_deg`` (NaN for one row), ``median_deg``, ``p90_deg``,
+        ``misread_fraction``, ``misread_deg`` and ``n``.
+
+    Raises:
+        ValueError: ``misread_deg`` not finite and > 0, or no rows.
+    """
     if not (np.isfinite(misread_deg) and misread_deg > 0):
         raise ValueError(f"misread_deg must be finite and > 0, got {misread_deg!r}")
     e = np.asarray(results["direction_error_deg"], dtype=np.float64)
@@ -196,14 +213,23 @@ def candidate_errors(sources: dict, frames: Iterable, rng) -> pd.DataFrame:
 
     Every source gives each view two candidate world directions of the transducer axis: eq. 4's
     mirror pair of its ``(azimuth, elevation)``, or, for a source with a ``candidates(frame, rng)``
-    method (:class:`~histostudy.pose.conic_orientation.ConicOrientation`), its own pair; the pose
-    initialisation resolves the pair across views (§II-B.4). One row per frame and source: the
-    angle (deg) between the true focal direction and the nearer candidate, that candidate's
-    azimuth and elevation errors in the view (the §III angles: the canonical mirror folded, azimuth
-    wrapped), whether the source fell back to another (``fell_back``) and its ``seconds``. For an
-    ``(azimuth, elevation)`` source the nearer candidate's angle is its direction error of
-    :func:`evaluate_orientation`. ``rng`` (a seed or a Generator) is the one stream every source
-    draws from, frame by frame in order.
+    method (:class:`histostudy.pose.ConicOrientation`), its own pair; the pose initialisation
+    resolves the pair across views (§II-B.4). For an ``(azimuth, elevation)`` source the nearer
+    candidate's angle is its direction error of :func:`evaluate_orientation`.
+
+    Args:
+        sources: ``{name: orientation source}``, in report order.
+        frames: frames with their true ``T_carm_transducer`` (any iterable).
+        rng: a seed or a Generator: the one stream every source draws from, frame by frame in order.
+
+    Returns:
+        One row per frame and source: the angle (deg) between the true focal direction and the
+        nearer candidate, that candidate's azimuth and elevation errors in the view (deg; azimuth
+        wrapped), the reference elevation, whether the source fell back to another
+        (``fell_back``) and its ``seconds``.
+
+    Raises:
+        ValueError: ``sources`` not a non-empty dict, a frame without a true pose, or no frame.
     """
     if not isinstance(sources, dict) or not sources:
         raise ValueError(f"sources must be a non-empty dict {{name: orientation source}}, got {sources!r}")
@@ -233,10 +259,21 @@ def candidate_errors(sources: dict, frames: Iterable, rng) -> pd.DataFrame:
 
 
 def candidate_error_summary(per_frame: pd.DataFrame, misread_deg: float = 30.0) -> pd.DataFrame:
-    """Per source of :func:`candidate_errors`: median, 90th percentile and mean of the nearer
-    candidate's angle (deg), the fraction of frames off by more than ``misread_deg``, the azimuth
-    and elevation MAE of the nearer candidate (deg), the fraction of frames the source fell back on,
-    the median seconds and n."""
+    """The candidate errors summarised per source.
+
+    Args:
+        per_frame: :func:`candidate_errors`' rows.
+        misread_deg: the angle beyond which a frame counts as misread, deg.
+
+    Returns:
+        One row per source: median, 90th percentile and mean of the nearer candidate's angle
+        (deg), the fraction of frames off by more than ``misread_deg``, the azimuth and elevation
+        MAE of the nearer candidate (deg), the fraction of frames the source fell back on, the
+        median seconds and n.
+
+    Raises:
+        ValueError: ``misread_deg`` not finite and > 0.
+    """
     if not (np.isfinite(misread_deg) and misread_deg > 0):
         raise ValueError(f"misread_deg must be finite and > 0, got {misread_deg!r}")
     rows = []
@@ -252,10 +289,17 @@ def candidate_error_summary(per_frame: pd.DataFrame, misread_deg: float = 30.0) 
 
 
 def scatter_figure(results: pd.DataFrame, table: pd.DataFrame | None = None):
-    """Predicted against reference azimuth and elevation with the identity line and the linear fit.
+    """Predicted against reference azimuth and elevation with the identity line and the
+    Moore-Penrose fit. Azimuth predictions are drawn on the branch nearest the reference
+    (``ref + wrapped error``), the branch the statistics use.
 
-    Azimuth predictions are drawn on the branch nearest the reference (``ref + wrapped error``),
-    the branch the statistics use.
+    Args:
+        results: :func:`evaluate_orientation`'s rows.
+        table: the ``angle_statistics`` table of :func:`angle_statistics_part` (its fit and MAE);
+            None: computed from ``results``.
+
+    Returns:
+        A matplotlib figure (pyplot-managed) of two panels, azimuth and elevation (deg).
     """
     import matplotlib.pyplot as plt
 
@@ -282,18 +326,34 @@ def scatter_figure(results: pd.DataFrame, table: pd.DataFrame | None = None):
 
 @dataclass(frozen=True, eq=False)
 class AngleEvaluation:
-    """The held-out frames' angles (:func:`evaluation_section`): the per-frame ``results``
-    (:func:`evaluate_orientation`) and the report's ``part``."""
+    """The held-out frames' angles (:func:`evaluation_section`).
+
+    Args:
+        results: the per-frame rows (:func:`evaluate_orientation`).
+        part: the report's part (table ``angles_per_frame``, value ``regression_seconds_median``).
+    """
 
     results: pd.DataFrame
     part: SectionPart
 
 
 def evaluation_section(source, frames, n_images: int, *, timer: Timer | None = None) -> AngleEvaluation:
-    """Regress the angles of frames ``0 .. n_images-1`` of ``frames`` (anything with ``frame(i)``,
-    e.g. :class:`~histostudy.learning.HybridFrames`; :func:`evaluate_orientation`, timed as
-    ``"render and regress <n> frames"``); its part: the per-frame table and the median regression
-    time (s)."""
+    """Regress the angles of the first ``n_images`` held-out frames (:func:`evaluate_orientation`).
+
+    Args:
+        source: the VGG19 (``setup.source``).
+        frames: anything with ``frame(i)``, e.g. :class:`histostudy.learning.HybridFrames`
+            (``setup.frames``).
+        n_images: how many, from frame 0.
+        timer: ``timer(name)`` -> a context manager timing the whole (``"render and regress <n>
+            frames"``); None: untimed.
+
+    Returns:
+        An :class:`AngleEvaluation`; its part: the per-frame table and the median regression time (s).
+
+    Raises:
+        ValueError: a frame without a true pose, or ``n_images`` 0.
+    """
     with timer_or_untimed(timer)(f"render and regress {n_images} frames"):
         results = evaluate_orientation(source, (frames.frame(i) for i in range(n_images)))
     return AngleEvaluation(results, SectionPart(
@@ -303,8 +363,15 @@ def evaluation_section(source, frames, n_images: int, *, timer: Timer | None = N
 
 
 def angle_statistics_part(results: pd.DataFrame) -> SectionPart:
-    """:func:`angle_table` of ``results`` (table ``angle_statistics``) and each statistic beside the
-    paper's (§III)."""
+    """The §III statistics per angle, each beside the paper's (§II-E.2).
+
+    Args:
+        results: :func:`evaluate_orientation`'s rows.
+
+    Returns:
+        A part with table ``angle_statistics`` (per angle: MAE and SD in deg, Pearson r in percent
+        and its p, the Moore-Penrose intercept in deg, slope and R², n) and the comparisons.
+    """
     table = angle_table(results)
     comparisons = []
     for row in table.itertuples():
@@ -323,7 +390,14 @@ def angle_statistics_part(results: pd.DataFrame) -> SectionPart:
 
 
 def direction_error_part(results: pd.DataFrame) -> SectionPart:
-    """:func:`direction_error_summary` of ``results`` (value ``direction_error``, beyond the paper)."""
+    """The direction error (beyond the paper).
+
+    Args:
+        results: :func:`evaluate_orientation`'s rows.
+
+    Returns:
+        A part with value ``direction_error`` (:func:`direction_error_summary`) and its comparison.
+    """
     direction = direction_error_summary(results)
     return SectionPart(values={"direction_error": direction}, comparisons=(dict(
         key="angles.direction.mae", label="direction: mean angle between predicted and reference axis",
@@ -333,10 +407,16 @@ def direction_error_part(results: pd.DataFrame) -> SectionPart:
 
 
 def orientation_initialisers(vgg19, unet=None) -> dict:
-    """The orientation initialisers compared in notebook 03, by report name: the VGG19 (§II-B.4),
-    the conic initialiser on ``unet``'s labels (left out when ``unet`` is None) and on the
-    reference labels (the bound a perfect segmentation gives); both conics fall back to the VGG19
-    in views without a usable ellipse."""
+    """The orientation initialisers compared in notebook 03, by report name.
+
+    Args:
+        vgg19: the VGG19 (§II-B.4), also the conics' fallback in views without a usable ellipse.
+        unet: the segmenter whose labels the first conic initialiser reads; None: that one is left out.
+
+    Returns:
+        ``{"VGG19 (§II-B.4)": vgg19, "conic, U-Net labels": ..., "conic, reference labels": ...}``,
+        the last on the reference labels (the bound a perfect segmentation gives).
+    """
     initialisers = {"VGG19 (§II-B.4)": vgg19}
     if unet is not None:
         initialisers["conic, U-Net labels"] = ConicOrientation(segmenter=unet, fallback=vgg19)
@@ -352,9 +432,13 @@ def initialiser_key(name: str) -> str:
 
 @dataclass(frozen=True, eq=False)
 class InitialiserComparison:
-    """The initialisers on the held-out frames (:func:`initialiser_comparison_section`): the
-    ``per_frame`` rows (:func:`candidate_errors`), their ``summary``
-    (:func:`candidate_error_summary`) and the report's ``part``."""
+    """The initialisers on the held-out frames (:func:`initialiser_comparison_section`).
+
+    Args:
+        per_frame: the rows of :func:`candidate_errors`.
+        summary: their :func:`candidate_error_summary`.
+        part: the report's part.
+    """
 
     per_frame: pd.DataFrame
     summary: pd.DataFrame
@@ -363,9 +447,22 @@ class InitialiserComparison:
 
 def initialiser_comparison_section(initialisers: dict, frames: list, *, rng,
                                    timer: Timer | None = None) -> InitialiserComparison:
-    """:func:`candidate_errors` of ``initialisers`` on ``frames`` (timed), its
-    :func:`candidate_error_summary` and each initialiser's median nearer-candidate angle (beyond
-    the paper). ``rng``: a seed or a Generator (:data:`INITIALISER_RNG_SEED` in the notebook)."""
+    """The initialisers' candidate directions on the same frames (beyond the paper).
+
+    Args:
+        initialisers: ``{name: orientation source}`` (:func:`orientation_initialisers`).
+        frames: frames with their true pose.
+        rng: a seed or a Generator, the one stream all draw from (:data:`INITIALISER_RNG_SEED` in
+            the notebook).
+        timer: ``timer(name)`` -> a context manager timing the whole; None: untimed.
+
+    Returns:
+        An :class:`InitialiserComparison`; its part: tables ``initialiser_candidates`` and
+        ``initialiser_summary`` and each initialiser's median nearer-candidate angle.
+
+    Raises:
+        ValueError: as :func:`candidate_errors`.
+    """
     with timer_or_untimed(timer)(f"candidate directions of {len(initialisers)} initialisers on {len(frames)} frames"):
         per_frame = candidate_errors(initialisers, frames, rng)
     summary = candidate_error_summary(per_frame)
@@ -386,7 +483,16 @@ def initialiser_comparison_section(initialisers: dict, frames: list, *, rng,
 
 def stand_ins_part(vgg19, weights_path: Path, n_images: int) -> SectionPart:
     """What stands in for the annotated frames and the GPU-trained VGG19, and the note on how the
-    azimuth statistics treat wrapping and elevations near 0."""
+    azimuth statistics treat wrapping and elevations near 0.
+
+    Args:
+        vgg19: the VGG19 (its manifest is named).
+        weights_path: its checkpoint.
+        n_images: the frames evaluated.
+
+    Returns:
+        A part with the stand-ins and one paragraph.
+    """
     manifest = vgg19.manifest
     return SectionPart(stand_ins=(
         ("manually annotated porcine and phantom fluoroscopy frames",
