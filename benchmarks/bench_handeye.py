@@ -49,9 +49,9 @@ def main(argv=None) -> None:
         C = [he.perturb_pose(Y @ f @ X, 0.5, 0.2, rng) for f in F]
         Ci = [np.linalg.inv(c) for c in C]
         cv_args = ([f[:3, :3] for f in F], [f[:3, 3] for f in F], [c[:3, :3] for c in Ci], [c[:3, 3] for c in Ci])
-        ours_med, ours_best = best_median(lambda: he.calibrate(F, C), args.repeats)
+        ours_med, ours_best = best_median(lambda F=F, C=C: he.calibrate(F, C), args.repeats)
         cv_med, cv_best = best_median(
-            lambda: cv2.calibrateHandEye(*cv_args, method=cv2.CALIB_HAND_EYE_DANIILIDIS), args.repeats
+            lambda cv_args=cv_args: cv2.calibrateHandEye(*cv_args, method=cv2.CALIB_HAND_EYE_DANIILIDIS), args.repeats
         )
         print(f"{n:3d} poses ({n * (n - 1) // 2:4d} motions): calibrate median {ours_med:7.3f} ms "
               f"(best {ours_best:7.3f}); OpenCV Daniilidis median {cv_med:7.3f} ms (best {cv_best:7.3f}); "

@@ -170,7 +170,8 @@ def main() -> None:
 
     print(f"\ncost evaluation ({n_proj} projections):")
     print(f"  gather floor (numpy random gather, {n_proj} float32) {ms(floor)}")
-    print(f"  gather over all {int(cost.active.sum())} active maps ({cost._maps.nbytes / 2**20:.0f} MB)          {ms(floor_all)}  "
+    print(f"  gather over all {int(cost.active.sum())} active maps ({cost._maps.nbytes / 2**20:.0f} MB)"
+          f"          {ms(floor_all)}  "
           f"-> fused cost {fast[0] / floor_all[0]:.2f}x this floor")
     print(f"  numba sum-gather, 1 value/index                   {ms(gather1)}")
     print(f"  numba sum-gather, 4 values/index (bilinear reads) {ms(gather4)}   1 thread {ms(gather4_1)}")
@@ -183,10 +184,13 @@ def main() -> None:
           f"-> batched {per_node[0] / batched[0]:.1f}x faster")
     print(f"  numpy float64 reference                           {ms(ref)}  -> {1 / ref[0]:7.0f} eval/s, "
           f"numba is {ref[0] / fast[0]:.0f}x faster")
-    print(f"  LM pass: cost + J'J + J'r fused, {threads} threads        {ms(normal)}  ({normal[0] / fast[0]:.1f}x a cost evaluation)")
-    print(f"  LM pass: cost + J'J + J'r fused, serial           {ms(normal1)}  ({normal1[0] / fast1[0]:.1f}x a cost evaluation)")
+    print(f"  LM pass: cost + J'J + J'r fused, {threads} threads        {ms(normal)}  "
+          f"({normal[0] / fast[0]:.1f}x a cost evaluation)")
+    print(f"  LM pass: cost + J'J + J'r fused, serial           {ms(normal1)}  "
+          f"({normal1[0] / fast1[0]:.1f}x a cost evaluation)")
     print(f"  residuals + n x 6 Jacobian materialised           {ms(materialised)}")
-    print(f"  capped at 1 px: evaluation                        {ms(capped_eval)}  ({capped_eval[0] / fast[0]:.2f}x uncapped)")
+    print(f"  capped at 1 px: evaluation                        {ms(capped_eval)}  "
+          f"({capped_eval[0] / fast[0]:.2f}x uncapped)")
     print(f"  capped cost built by PoseCost.capped              {ms(build_capped)}  "
           f"vs copied maps (DistanceMaps.truncated) {ms(build_copy)} -> {build_copy[0] / build_capped[0]:.0f}x faster")
 
@@ -205,9 +209,10 @@ def main() -> None:
             axis, direction = r.normal(size=3), r.normal(size=3)
             T0 = apply_left_perturbation(T_true, np.r_[axis / np.linalg.norm(axis) * np.deg2rad(3.0),
                                                        direction / np.linalg.norm(direction) * 5.0])
-            for key, fn in (("nelder-mead", lambda: refine_nelder_mead(c, T0)),
-                            ("levenberg-marquardt", lambda: refine_levenberg_marquardt(c, T0)),
-                            ("LM coarse-to-fine", lambda: refine_levenberg_marquardt(c, T0, coarse=coarse))):
+            for key, fn in (("nelder-mead", lambda c=c, T0=T0: refine_nelder_mead(c, T0)),
+                            ("levenberg-marquardt", lambda c=c, T0=T0: refine_levenberg_marquardt(c, T0)),
+                            ("LM coarse-to-fine",
+                             lambda c=c, T0=T0, coarse=coarse: refine_levenberg_marquardt(c, T0, coarse=coarse))):
                 res = fn()
                 rows[key].append((res.seconds, res.evaluations, np.linalg.norm(res.T[:3, 3] - T_true[:3, 3]),
                                   np.rad2deg(rotation_angle(res.T[:3, :3].T @ T_true[:3, :3]))))
@@ -215,7 +220,8 @@ def main() -> None:
         for key, vals in rows.items():
             a = np.array(vals)
             print(f"    {key:20s} {a[:, 0].mean():6.3f} s  {a[:, 1].mean():6.1f} evals  "
-                  f"focal err mean {a[:, 2].mean():.3f} max {a[:, 2].max():.3f} mm  rot err max {a[:, 3].max():.3f} deg")
+                  f"focal err mean {a[:, 2].mean():.3f} max {a[:, 2].max():.3f} mm  "
+                  f"rot err max {a[:, 3].max():.3f} deg")
 
 
 if __name__ == "__main__":

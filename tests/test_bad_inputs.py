@@ -9,7 +9,8 @@ between, so that the campaign can be counted in one place."""
 import numpy as np
 import pytest
 
-from histostudy.calibration import calibrate, solve_axxb
+from histostudy.calibration import calibrate
+from histostudy.calibration.axxb import solve_axxb
 from histostudy.imaging import (
     Frame,
     FrameRenderConfig,

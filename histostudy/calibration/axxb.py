@@ -1,28 +1,7 @@
-"""The AX = XB solver of §II-C (eq. 8): Daniilidis' dual quaternions (Daniilidis 1999).
-
-``A_i``, ``B_i`` and ``X`` are 4x4 rigid transforms in millimetres; which A and B the robot/C-arm
-chain gives, and what X then is, is derived in :mod:`histostudy.calibration.procedure`.
-
-With the unit dual quaternions ``ǎ = a + ε a'``, ``b̌`` of A and B, and ``q̌`` of X, ``A X = X B``
-is ``ǎ q̌ = q̌ b̌``. When the scalar parts agree (``a0 = b0``, ``a'0 = b'0``: the screw congruence
-theorem, true for the *right sign* of ``b̌``), its vector parts are the six linear equations of
-eq. 8 per motion::
-
-    [ a - b    [a + b]x    0        0_3x3    ] [q ]
-    [ a'- b'   [a'+ b']x   a - b    [a + b]x ] [q'] = 0
-
-Stacked for n motions (6n x 8), the null space is two-dimensional; its basis is the two right
-singular vectors of the smallest singular values, and the unit dual quaternion in it is fixed by
-``q.q = 1`` and ``q.q' = 0`` (a quadratic in the two coefficients).
-
-Signs: ``q̌`` and ``-q̌`` are one transform, but eq. 8 needs ``ǎ`` and ``b̌`` of each motion to be the
-*same-sign* representatives. Making both scalar parts non-negative (OpenCV's fix for issue #24871)
-decides that only when the scalar part ``cos(θ/2)`` is clearly non-zero; near θ = 180° it is
-noise. Here such motions are signed by agreement with a provisional solution from the decisive
-motions (``q b q*`` must point along ``a``), or, when too few motions are decisive, by trying the
-sign combinations and keeping the one whose eq. 8 matrix has the best two-dimensional null space;
-then everything is solved again. (OpenCV 4.14, scalar rule only, returns X off by tens of degrees
-on such data: ``tests/calibration/test_axxb.py::test_motions_near_half_turn_keep_consistent_signs``.)
+"""The AX = XB solver of §II-C (eq. 8): Daniilidis' dual quaternions (Daniilidis 1999), with the
+signs of motions near a half turn decided by agreement rather than by their scalar parts. A, B
+and X are 4x4 rigid transforms in mm; the derivation and the sign rule are in
+docs/pose-estimation.md, "The chain and AX = XB".
 """
 
 from __future__ import annotations
@@ -252,7 +231,7 @@ def solve_axxb_dual_quaternions(
     """Solve ``A_i X = X B_i`` given the motions as ``(n, 8)`` unit dual quaternions of any signs.
 
     The sign of each ``b̌_i`` is matched to ``ǎ_i`` by the scalar parts and, where those are not
-    decisive (rotations near 180°), by agreement with a provisional solution (module docstring).
+    decisive (rotations near 180°), by agreement with a provisional solution (docs/pose-estimation.md).
     Returns X (4x4) or, with ``return_details``, an :class:`AXXBSolution`.
     """
     dq_a = check_unit_dual_quaternions(dq_a, "dq_a")
@@ -295,7 +274,7 @@ def solve_axxb(
 
     ``A_list``, ``B_list``: sequences of 4x4 rigid transforms (mm). For the robot/C-arm chain use
     ``A_i = inv(T_base_flange_j) @ T_base_flange_i`` and ``B_i = inv(T_carm_transducer_j) @
-    T_carm_transducer_i``; X is then ``T_flange_transducer`` (module docstring; :func:`calibrate`
+    T_carm_transducer_i``; X is then ``T_flange_transducer`` (docs/pose-estimation.md; :func:`calibrate`
     does this). Raises :class:`DegenerateMotionError` when fewer than two motions rotate by at least
     ``min_rotation_deg`` or all their rotation axes lie within ``min_axis_angle_deg`` of each other.
     With ``return_details`` returns an :class:`AXXBSolution` (residuals, singular values).

@@ -1,15 +1,6 @@
-"""Dual quaternions of rigid transforms (§II-C, eq. 8's unknowns and motions), batched.
-
-A unit dual quaternion ``[q, q']`` (8 numbers) stands for a 4x4 rigid transform with the translation
-in millimetres: ``q`` is the rotation's quaternion ``[w, x, y, z]``, scalar first, and
-``q' = ½ (0, t) q``. Products compose like the matrices, ``dq(T1 @ T2) = dq(T1) dq(T2)`` up to sign;
-the AX = XB solver (``axxb``) builds eq. 8 from them.
-
-Public: :func:`dual_quaternion_from_transform` and :func:`transform_from_dual_quaternion` for one
-transform. The batched helpers below them work on ``(n, 4)`` quaternions, ``(n, 8)`` dual
-quaternions and ``(n, 4, 4)`` transforms, because a calibration with 12 poses has 66 motions
-(``histostudy.geometry`` has the single-matrix conversions); the solver and the calibration
-procedure import them from here.
+"""Dual quaternions of rigid transforms (§II-C, eq. 8's unknowns and motions), single and batched:
+``[q, q']`` with ``q`` the rotation's scalar-first quaternion and ``q' = ½ (0, t) q`` (t in mm);
+the batched helpers take ``(n, 4)``, ``(n, 8)`` and ``(n, 4, 4)`` arrays.
 """
 
 from __future__ import annotations
@@ -36,7 +27,8 @@ def quaternion_product(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Hamilton product of scalar-first quaternions ``[w, x, y, z]`` (broadcast over leading axes)."""
     pw, pv = p[..., :1], p[..., 1:]
     qw, qv = q[..., :1], q[..., 1:]
-    return np.concatenate([pw * qw - np.sum(pv * qv, axis=-1, keepdims=True), pw * qv + qw * pv + _cross(pv, qv)], axis=-1)
+    return np.concatenate([pw * qw - np.sum(pv * qv, axis=-1, keepdims=True), pw * qv + qw * pv + _cross(pv, qv)],
+                          axis=-1)
 
 
 def quaternion_conjugate(q: np.ndarray) -> np.ndarray:

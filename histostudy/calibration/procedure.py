@@ -1,30 +1,7 @@
-"""The robot to C-arm calibration procedure of §II-C (eq. 5-7): poses in, ``T_flange_transducer`` and
-``T_carm_base`` out, with the residuals that gate targeting and the flange pose that puts the focal
-point on a target. Lengths in mm, residual angles in degrees.
-
-The chain (frames as in docs/architecture.md, Frames and units; the paper's names in brackets)::
-
-    T_carm_transducer_i  =  T_carm_base  @  T_base_flange_i  @  T_flange_transducer
-        [hTc, eq. 5]          [rTc]          [rTe, encoders]     [eTh]
-
-``T_carm_transducer_i`` comes from the 2D/3D pose estimation, ``T_base_flange_i`` from the joint
-encoders; ``T_flange_transducer`` (X) and ``T_carm_base`` (Y) are the unknowns, fixed for one
-mounting of the transducer and one position of the cart.
-
-Which A and B (derivation; ``tests/calibration/test_calibration_procedure.py`` proves it on exact
-data). Write ``F_i = T_base_flange_i``, ``C_i = T_carm_transducer_i``. From the chain,
-``Y^-1 C_i = F_i X`` for every pose, so for two poses i, j::
-
-    (F_j X)^-1 (F_i X) = C_j^-1 C_i   =>   (F_j^-1 F_i) X = X (C_j^-1 C_i)
-
-i.e. ``A X = X B`` with ``A = T_flange_j_flange_i = F_j^-1 F_i`` (the flange motion seen from the
-flange) and ``B = T_transducer_j_transducer_i = C_j^-1 C_i`` (the same motion seen from the
-transducer), and ``X = T_flange_transducer``, solved by :mod:`histostudy.calibration.axxb`. The
-paper's eq. 6–7 read ``aTb`` as "maps a into b" (``hTc eTh rTe`` then chains to ``T_carm_base``);
-in that reading eq. 7 is the same equation inverted, ``(C_j^-1 C_i) X^-1 = X^-1 (F_j^-1 F_i)``,
-solved for ``eTh = X^-1``. (The paper says the dual quaternion q of eq. 8 describes ``rTc``; with
-eq. 7's A and B it is ``eTh``.) Y then follows from X pose by pose, ``Y_i = C_i X^-1 F_i^-1``,
-averaged.
+"""The robot to C-arm calibration of §II-C (eq. 5-7): flange and transducer poses in,
+``T_flange_transducer`` and ``T_carm_base`` out (:class:`HandEyeCalibration`), with the residuals
+that gate targeting and the flange pose that puts the focal point on a target. Lengths in mm,
+residual angles in degrees; the chain and its A and B are derived in docs/pose-estimation.md.
 """
 
 from __future__ import annotations
@@ -79,16 +56,29 @@ def _mean_rotation(Rs: np.ndarray) -> np.ndarray:
 
 @dataclass
 class HandEyeCalibration:
-    """Result of :func:`calibrate`: the transducer on the flange and the robot base in the C-arm.
+    """The result of :func:`calibrate` (§II-C): the transducer on the flange and the robot base in the C-arm.
 
-    ``T_flange_transducer`` (paper ``eTh`` as a point map) and ``T_carm_base`` (paper ``rTc``):
-    4x4, mm. Per pose i, the chain prediction ``P_i = T_carm_base @ T_base_flange_i @
-    T_flange_transducer`` is compared with the pose estimate ``C_i = T_carm_transducer_i``:
-    ``rotation_residuals_deg[i]`` = angle of ``R(P_i)^T R(C_i)``; ``translation_residuals_mm[i]`` =
-    distance between the transducer origins; ``focal_residuals_mm[i]`` = distance between the focal
-    points ``P_i @ f`` and ``C_i @ f`` with ``f = focal_point_transducer_mm`` (the origin by the
-    transducer-frame convention of docs/architecture.md, Frames and units, where the two
-    residuals coincide). ``motion_*`` are the AX = XB residuals.
+    Per pose i the chain's prediction ``P_i = T_carm_base @ T_base_flange_i @ T_flange_transducer``
+    is compared with the pose estimate ``C_i = T_carm_transducer_i`` (eq. 5).
+
+    Args:
+        T_flange_transducer: 4x4 rigid, mm: the transducer in the flange frame (X; the paper's
+            ``eTh`` read as a point map).
+        T_carm_base: 4x4 rigid, mm: the robot base in the C-arm frame (Y; the paper's ``rTc``).
+        rotation_residuals_deg: per pose, the angle of ``R(P_i)^T R(C_i)`` in degrees.
+        translation_residuals_mm: per pose, the distance between the transducer origins in mm.
+        focal_residuals_mm: per pose, the distance between the focal points ``P_i @ f`` and
+            ``C_i @ f`` in mm, ``f = focal_point_transducer_mm``.
+        motion_rotation_residuals_deg: per motion, the AX = XB rotation residual in degrees.
+        motion_translation_residuals_mm: per motion, the AX = XB translation residual in mm.
+        focal_point_transducer_mm: the focal point in the transducer frame, mm (the origin by the
+            convention of docs/architecture.md, where the two residuals coincide).
+        pairs: the motion pairs used (:func:`motion_pairs`): ``"all"`` or ``"consecutive"``.
+        method: the AX = XB solver, ``"daniilidis"``.
+
+    Raises:
+        ValueError: a transform is not rigid, the per-pose residuals differ in length, or
+            ``focal_point_transducer_mm`` is not 3 finite numbers.
     """
 
     T_flange_transducer: np.ndarray
@@ -121,7 +111,8 @@ class HandEyeCalibration:
             )
         f = np.asarray(self.focal_point_transducer_mm, dtype=np.float64).reshape(-1)
         if f.shape != (3,) or not np.all(np.isfinite(f)):
-            raise ValueError(f"focal_point_transducer_mm must be 3 finite numbers, got {self.focal_point_transducer_mm!r}")
+            raise ValueError(
+                f"focal_point_transducer_mm must be 3 finite numbers, got {self.focal_point_transducer_mm!r}")
         self.focal_point_transducer_mm = f
 
     # ---- summaries
@@ -171,11 +162,24 @@ class HandEyeCalibration:
 
     # ---- the gate targeting runs behind
     def check(self, max_focal_residual_mm: float = 2.0, max_rotation_residual_deg: float = 1.0) -> HandEyeCalibration:
-        """Raise :class:`CalibrationError` if any pose's focal-point residual exceeds
-        ``max_focal_residual_mm`` or its rotation residual ``max_rotation_residual_deg``; returns
-        ``self`` otherwise. The defaults (2 mm, 1°) are the study's bound: about the paper's
-        targeting accuracy (1.6 mm mean), far above the residuals of a sound calibration."""
-        for name, v in (("max_focal_residual_mm", max_focal_residual_mm), ("max_rotation_residual_deg", max_rotation_residual_deg)):
+        """The gate targeting runs behind: every pose's residuals within the bounds.
+
+        The defaults (2 mm, 1°) are the study's bound: about the paper's targeting accuracy (1.6 mm
+        mean), far above the residuals of a sound calibration.
+
+        Args:
+            max_focal_residual_mm: largest focal-point residual accepted, mm.
+            max_rotation_residual_deg: largest rotation residual accepted, degrees.
+
+        Returns:
+            ``self``.
+
+        Raises:
+            ValueError: a bound is not a finite number > 0.
+            CalibrationError: a pose's residual exceeds its bound (the message lists each).
+        """
+        for name, v in (("max_focal_residual_mm", max_focal_residual_mm),
+                        ("max_rotation_residual_deg", max_rotation_residual_deg)):
             if not np.isfinite(v) or v <= 0:
                 raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
         problems = []
@@ -266,22 +270,40 @@ def calibrate(
     min_rotation_deg: float = MIN_ROTATION_DEG,
     min_axis_angle_deg: float = MIN_AXIS_ANGLE_DEG,
 ) -> HandEyeCalibration:
-    """Calibrate the robot to the C-arm from n >= 3 poses (§II-C; the paper uses 4).
+    """Calibrate the robot to the C-arm from n >= 3 poses (§II-C, eq. 5-8; the paper uses 4).
 
-    ``T_base_flange_list[i]``: flange pose from the encoders (``rTe``); ``T_carm_transducer_list[i]``:
-    the pose estimate of the transducer at that flange pose (``hTc``, eq. 5). Solves
-    ``(F_j^-1 F_i) X = X (C_j^-1 C_i)`` (eq. 7) over the index ``pairs`` (:func:`motion_pairs`) for
-    ``X = T_flange_transducer`` with :func:`solve_axxb`, then ``T_carm_base`` as the chordal mean of
-    the rotations of ``C_i X^-1 F_i^-1`` and the translation that fits the focal points
-    (``focal_point_transducer_mm``, transducer frame) in least squares given that rotation.
-    Raises ``ValueError``/``TypeError`` naming the argument for bad input and
-    :class:`DegenerateMotionError` when the poses do not determine the calibration.
+    Solves ``(F_j^-1 F_i) X = X (C_j^-1 C_i)`` (eq. 7) over the index ``pairs`` for
+    ``X = T_flange_transducer`` by Daniilidis' dual quaternions (eq. 8), then ``T_carm_base`` as the
+    chordal mean of the rotations of ``C_i X^-1 F_i^-1`` and the translation that fits the focal
+    points in least squares given that rotation (docs/pose-estimation.md, "The chain and AX = XB").
+
+    Args:
+        T_base_flange_list: per pose, the flange pose from the encoders, 4x4 ``T_base_flange`` in mm
+            (the paper's ``rTe``).
+        T_carm_transducer_list: per pose, the pose estimate of the transducer at that flange pose,
+            4x4 ``T_carm_transducer`` in mm (the paper's ``hTc``, eq. 5).
+        pairs: which pose pairs make the motions: ``"all"`` (n(n-1)/2, OpenCV's choice) or
+            ``"consecutive"`` (the paper's n-1).
+        focal_point_transducer_mm: the focal point in the transducer frame, mm (3 numbers).
+        min_rotation_deg: motions rotating less than this (degrees) carry no usable axis.
+        min_axis_angle_deg: rotation axes closer than this (degrees) count as parallel.
+
+    Returns:
+        The :class:`HandEyeCalibration`, with its per-pose and per-motion residuals.
+
+    Raises:
+        TypeError: a pose list is not a list of transforms.
+        ValueError: a list holds fewer than 3 transforms or a non-rigid one, the lists differ in
+            length, ``pairs`` is unknown or ``focal_point_transducer_mm`` is not 3 finite numbers.
+        DegenerateMotionError: the poses do not determine the calibration (too few motions rotate,
+            or their rotation axes are all parallel).
     """
     F = check_transform_list(T_base_flange_list, "T_base_flange_list", 3)
     C = check_transform_list(T_carm_transducer_list, "T_carm_transducer_list", 3)
     if len(F) != len(C):
         raise ValueError(
-            f"T_base_flange_list and T_carm_transducer_list must pair up pose by pose, got {len(F)} and {len(C)} transforms"
+            f"T_base_flange_list and T_carm_transducer_list must pair up pose by pose, "
+            f"got {len(F)} and {len(C)} transforms"
         )
     f = np.asarray(focal_point_transducer_mm, dtype=np.float64).reshape(-1)
     if f.shape != (3,) or not np.all(np.isfinite(f)):
@@ -291,7 +313,8 @@ def calibrate(
     B = invert_transforms(C[j]) @ C[i]
     try:
         X, sv, flipped = solve_motion_dual_quaternions(
-            dual_quaternions_from_transforms(A), dual_quaternions_from_transforms(B), min_rotation_deg, min_axis_angle_deg
+            dual_quaternions_from_transforms(A), dual_quaternions_from_transforms(B), min_rotation_deg,
+            min_axis_angle_deg,
         )
     except DegenerateMotionError as exc:
         raise DegenerateMotionError(

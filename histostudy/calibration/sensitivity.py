@@ -1,8 +1,7 @@
 """Simulated calibrations (§II-C; the sensitivity study is beyond the paper): flange poses and the
 transducer poses they give, pose-estimation noise, and the Monte-Carlo of the calibration error
-against the number of poses and the noise (its calibrations a sweep of :func:`histostudy.core.run_sweep`,
-the same rows in this process or on a cluster). Lengths in mm in the robot base and C-arm frames
-(docs/architecture.md, Frames and units), angles in degrees where the names say so.
+against the number of poses and the noise (a sweep of :func:`histostudy.core.run_sweep`). Lengths
+in mm, angles in degrees where the names say so.
 """
 
 from __future__ import annotations
@@ -63,8 +62,20 @@ def simulate_poses(
 
 
 def perturb_pose(T, translation_sd_mm: float, rotation_sd_deg: float, rng) -> np.ndarray:
-    """``T @ dT``: noise in the pose's own frame, about its origin (the focal point for a
-    transducer pose): per-axis Gaussian translation (sd in mm) and rotation vector (sd in deg)."""
+    """``T @ dT``: noise in the pose's own frame, about its origin (the focal point for a transducer pose).
+
+    Args:
+        T: a 4x4 rigid pose (mm), e.g. ``T_carm_transducer``.
+        translation_sd_mm: per-axis Gaussian translation noise, sd in mm.
+        rotation_sd_deg: per-axis Gaussian rotation-vector noise, sd in degrees.
+        rng: an int seed or a numpy Generator.
+
+    Returns:
+        The perturbed 4x4 pose.
+
+    Raises:
+        ValueError: an sd is negative or not finite, or ``T`` is not rigid.
+    """
     rng = as_generator(rng)
     for name, v in (("translation_sd_mm", translation_sd_mm), ("rotation_sd_deg", rotation_sd_deg)):
         if not np.isfinite(v) or v < 0:
@@ -87,29 +98,40 @@ def calibration_sensitivity(
     max_tilt_deg: float = 30.0,
     executor: SweepExecutor | str | None = None,
 ):
-    """Monte-Carlo calibration errors vs number of poses and pose-estimation noise (beyond the paper).
+    """Monte-Carlo calibration errors against the number of poses and the pose noise (§II-C; beyond the paper).
 
     Per trial: a random true mounting ``T_flange_transducer`` (focal point 250 mm down the tool
     axis ± 20 mm per axis, tilted up to 10°) and cart position ``T_carm_base`` (yaw uniform ±180°,
-    tilt up to 2°, placed so that the nominal focal point lies within ±50 mm per axis of the
-    isocentre); ``n_poses`` flange poses from :func:`simulate_poses` (box ``box_mm``, tilt
-    ``max_tilt_deg``), so the default target, the isocentre, lies inside the calibrated volume;
-    the pose estimates perturbed by :func:`perturb_pose` with ``noise_levels`` entries
-    ``(translation sd mm, rotation sd deg)`` per axis; :func:`calibrate`.
-    The same poses and truth are reused across noise levels of one trial (paired comparison).
+    tilt up to 2°, the nominal focal point within ±50 mm per axis of the isocentre); ``n_poses``
+    flange poses from :func:`simulate_poses`; the pose estimates perturbed by :func:`perturb_pose`;
+    :func:`~.procedure.calibrate`. One trial's poses and truth are reused across its noise levels
+    (a paired comparison). All draws come from ``rng`` in this process; the calibrations then run on
+    ``executor``, so the rows are the same bit for bit whatever runs them.
 
-    Returns a DataFrame, one row per (n_poses, noise, trial): ``X_rotation_error_deg``,
-    ``X_translation_error_mm`` (of ``T_flange_transducer``), ``Y_rotation_error_deg``,
-    ``Y_translation_error_mm`` (of ``T_carm_base``, translation = base origin in the C-arm), and
-    ``target_error_mm``: the distance from ``target_carm_mm`` to the true focal point after moving
-    the flange to :func:`flange_pose_for_target` of the estimate (orientation: nominal downward),
-    plus ``rms_focal_residual_mm`` (what :meth:`HandEyeCalibration.check` sees).
+    Args:
+        n_poses_list: the pose counts to try, each >= 3.
+        noise_levels: ``(translation sd mm, rotation sd deg)`` pairs, per axis, each >= 0.
+        n_trials: trials per pose count, >= 1.
+        rng: an int seed or a numpy Generator.
+        target_carm_mm: the target in the C-arm frame, mm (default the isocentre).
+        pairs: the motion pairs of :func:`~.procedure.calibrate`.
+        box_mm: edge of the cube of flange origins, mm.
+        max_tilt_deg: largest flange tilt from straight down, degrees.
+        executor: where the calibrations run (:func:`histostudy.core.run_sweep`: ``"sequential"``,
+            ``"local"``, ``"local:<workers>"``, ``"tcp://host:port"``, a
+            :class:`~histostudy.core.SweepExecutor`, or None: ``$HISTOSTUDY_SCHEDULER``, else
+            sequential).
 
-    All the draws come from ``rng`` in this process, one trial after the other; the calibrations
-    then run on ``executor`` (:func:`histostudy.core.run_sweep`: ``"sequential"``, ``"local"``,
-    ``"local:<workers>"``, ``"tcp://host:port"``, a :class:`~histostudy.core.SweepExecutor`, or
-    None: ``$HISTOSTUDY_SCHEDULER``, else sequential), so the rows are the same bit for bit
-    whatever runs them.
+    Returns:
+        A DataFrame, one row per (n_poses, noise, trial): ``X_rotation_error_deg``,
+        ``X_translation_error_mm`` (of ``T_flange_transducer``), ``Y_rotation_error_deg``,
+        ``Y_translation_error_mm`` (of ``T_carm_base``), ``target_error_mm`` (the true focal point's
+        distance from the target after moving the flange to the estimate's pose for it) and
+        ``rms_focal_residual_mm`` (what :meth:`HandEyeCalibration.check` sees).
+
+    Raises:
+        ValueError: a pose count < 3, a noise level that is not a pair of finite numbers >= 0, or
+            ``n_trials`` < 1.
     """
     import pandas as pd
 

@@ -1,14 +1,7 @@
-"""The calibrated chain run forwards to a target (§II-D, Fig. 2 step 3), and the half-turn symmetry of
-the transducer that the calibration must resolve (§II-C).
-
-With a :class:`~.procedure.HandEyeCalibration`, :func:`tcp_for_target` gives the ``T_base_tcp``
-that puts the TCP (the estimated focal point, or a bias-corrected point) on a target picked in the
-CBCT (C-arm frame, LPS, mm) with a chosen transducer orientation; :func:`target_orientation` is the
-treatment's orientation, propagation straight down. :func:`calibrate_half_turns` is
-:func:`~.procedure.calibrate` for a transducer that looks the same after a half turn about its
-axis (the paper's: elliptical aperture, four quadrants, central cutout), so that a pose estimate
-may return either of two poses: it picks, pose by pose, the reading that fits one rigid chain.
-Transforms are 4x4 ``T_<to>_<from>`` in mm (docs/architecture.md, "Frames and units").
+"""The calibrated chain run forwards to a target (§II-D, Fig. 2 step 3: :func:`tcp_for_target`,
+:func:`target_orientation`), and the calibration that resolves the transducer's half-turn symmetry
+(§II-C: :func:`calibrate_half_turns`). Transforms are 4x4 ``T_<to>_<from>`` in mm, the target in
+the CBCT's C-arm frame (LPS, mm).
 """
 
 from __future__ import annotations
@@ -33,8 +26,20 @@ HALF_TURN = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 
 def target_orientation(calibration: HandEyeCalibration) -> np.ndarray:
-    """``R_carm_transducer`` of the treatment: propagation straight down (world +y), the axial
-    rotation the transducer has when the flange points straight down (the smallest turn from it)."""
+    """The treatment's transducer orientation (§II-D): propagation straight down (world +y, LPS).
+
+    The axial rotation is the transducer's when the flange points straight down, turned by the
+    smallest rotation that makes the beam point down.
+
+    Args:
+        calibration: the :class:`~.procedure.HandEyeCalibration` of the set-up.
+
+    Returns:
+        ``R_carm_transducer``, 3x3.
+
+    Raises:
+        TypeError: ``calibration`` is not a ``HandEyeCalibration``.
+    """
     if not isinstance(calibration, HandEyeCalibration):
         raise TypeError(f"calibration must be a HandEyeCalibration, got {type(calibration).__name__}")
     R0 = calibration.T_carm_base[:3, :3] @ R_BASE_FLANGE_DOWN @ calibration.T_flange_transducer[:3, :3]
@@ -46,9 +51,20 @@ def target_orientation(calibration: HandEyeCalibration) -> np.ndarray:
 
 
 def tcp_for_target(calibration: HandEyeCalibration, target_mm, R_carm_transducer, T_flange_tcp=None) -> np.ndarray:
-    """``T_base_tcp`` that puts the TCP (``T_flange_tcp``; default the estimated focal point
-    ``T_flange_transducer``) on ``target_mm`` (C-arm frame) with the transducer orientation
-    ``R_carm_transducer``."""
+    """The flange's TCP pose that puts the TCP on a target (§II-D, Fig. 2 step 3).
+
+    Args:
+        calibration: the :class:`~.procedure.HandEyeCalibration` (``T_carm_base``,
+            ``T_flange_transducer``).
+        target_mm: the target in the C-arm (CBCT) frame, mm (LPS).
+        R_carm_transducer: the transducer orientation at the target, 3x3 (e.g.
+            :func:`target_orientation`).
+        T_flange_tcp: the TCP in the flange frame, 4x4 mm; None: the estimated focal point,
+            ``T_flange_transducer`` (a bias-corrected point otherwise).
+
+    Returns:
+        ``T_base_tcp``, 4x4 mm, the pose to command.
+    """
     X = calibration.T_flange_transducer
     T_ft = X if T_flange_tcp is None else np.asarray(T_flange_tcp, float)
     # The TCP's place in the transducer frame (the focal point, or the bias-corrected point).
@@ -60,13 +76,28 @@ def tcp_for_target(calibration: HandEyeCalibration, target_mm, R_carm_transducer
 
 def calibrate_half_turns(T_base_flange_list, T_carm_transducer_list, *, nominal_T_flange_transducer=None,
                          **options) -> HandEyeCalibration:
-    """:func:`~.procedure.calibrate` with each pose estimate read as itself or its half turn
-    (:data:`HALF_TURN`): the combination whose calibration has the smallest largest rotation
-    residual wins (the first pose fixes the reading of the others), then the global half turn that
-    keeps ``T_flange_transducer`` closest to ``nominal_T_flange_transducer`` (the mount as designed;
-    None keeps the first pose's reading). A half turn about the axis through the focal point leaves
-    the focal point, and so the targeting, unchanged. ``options`` go to ``calibrate``.
-    2**(n-1) calibrations for n poses (8 for the paper's 4)."""
+    """:func:`~.procedure.calibrate` for a transducer that looks the same after a half turn (§II-C).
+
+    Each pose estimate is read as itself or its half turn (:data:`HALF_TURN`); the combination
+    whose calibration has the smallest largest rotation residual wins (the first pose fixes the
+    reading of the others), then the global half turn that keeps ``T_flange_transducer`` closest to
+    ``nominal_T_flange_transducer``. A half turn about the axis through the focal point leaves the
+    focal point, and so the targeting, unchanged. 2**(n-1) calibrations for n poses.
+
+    Args:
+        T_base_flange_list: per pose, 4x4 ``T_base_flange`` in mm.
+        T_carm_transducer_list: per pose, 4x4 ``T_carm_transducer`` in mm (either half-turn reading).
+        nominal_T_flange_transducer: the mount as designed, 4x4 mm; None keeps the first pose's
+            reading.
+        **options: passed to :func:`~.procedure.calibrate`.
+
+    Returns:
+        The :class:`~.procedure.HandEyeCalibration` of the readings chosen.
+
+    Raises:
+        TypeError, ValueError: bad pose lists (as :func:`~.procedure.calibrate`).
+        DegenerateMotionError: every reading's poses are degenerate.
+    """
     F = check_transform_list(T_base_flange_list, "T_base_flange_list", 3)
     C = check_transform_list(T_carm_transducer_list, "T_carm_transducer_list", 3)
     best = None
@@ -86,5 +117,8 @@ def calibrate_half_turns(T_base_flange_list, T_carm_transducer_list, *, nominal_
         return cal
     nominal = check_transform_list([nominal_T_flange_transducer], "nominal_T_flange_transducer", 1)[0]
     flipped = calibrate(F, [c @ HALF_TURN for c in Cs], **options)
-    angle = lambda c: rotation_angle(c.T_flange_transducer[:3, :3].T @ nominal[:3, :3])
+
+    def angle(c: HandEyeCalibration) -> float:
+        return rotation_angle(c.T_flange_transducer[:3, :3].T @ nominal[:3, :3])
+
     return flipped if angle(flipped) < angle(cal) else cal

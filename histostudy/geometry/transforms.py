@@ -1,19 +1,7 @@
-"""Rigid-body geometry: rotations in every representation the study needs, and 4x4 transforms.
-
-Conventions (docs/architecture.md, Frames and units):
-
-- Lengths in millimetres, angles in radians; degrees only in names ending ``_deg``.
-- A rigid transform is a 4x4 float64 array ``T_<to>_<from>``: ``T_carm_transducer @ [p, 1]``
-  maps a point from transducer coordinates into the C-arm (CBCT) frame.
-- Quaternions are scalar-first ``[w, x, y, z]`` with ``w >= 0`` after :func:`quaternion_from_matrix`
-  (the form Daniilidis' hand-eye paper uses). SciPy is scalar-last internally; the conversion
-  happens here and nowhere else.
-- Euler angles carry their convention by name: ``"xyz"`` (lower case) is *extrinsic* (rotations
-  about the fixed axes x, then y, then z), ``"XYZ"`` (upper case) is *intrinsic*; this is SciPy's
-  convention and the one the paper's "Euler angles within [0, 360]" is read with (extrinsic xyz).
-
-SciPy's :class:`~scipy.spatial.transform.Rotation` does the numerical work; this module fixes the
-conventions, validates input with errors that name the argument, and adds the 4x4 layer.
+"""Rigid-body geometry: 4x4 transforms ``T_<to>_<from>`` (mm) and rotations in every representation
+the study needs (radians; quaternions scalar-first ``[w, x, y, z]``; Euler ``"xyz"`` extrinsic,
+``"XYZ"`` intrinsic), on SciPy's :class:`~scipy.spatial.transform.Rotation`, with errors that name
+the argument. Conventions: docs/pose-estimation.md, "Frames, rotations and the hand-eye calibration".
 """
 
 from __future__ import annotations
@@ -50,7 +38,18 @@ RIGID_TOLERANCE = 1e-6
 
 
 def as_points(points_mm, name: str = "points_mm") -> np.ndarray:
-    """Return ``points_mm`` as a float64 ``(n, 3)`` array; a single point ``(3,)`` becomes ``(1, 3)``."""
+    """Points as a float64 ``(n, 3)`` array.
+
+    Args:
+        points_mm: ``(n, 3)`` points, or one point ``(3,)`` (which becomes ``(1, 3)``), in mm.
+        name: the argument's name in the error message.
+
+    Returns:
+        The points, ``(n, 3)`` float64, in mm.
+
+    Raises:
+        ValueError: ``points_mm`` is not ``(n, 3)`` or ``(3,)``.
+    """
     arr = np.asarray(points_mm, dtype=np.float64)
     if arr.ndim == 1 and arr.shape[0] == 3:
         arr = arr[None, :]
@@ -60,7 +59,19 @@ def as_points(points_mm, name: str = "points_mm") -> np.ndarray:
 
 
 def check_rotation(R, name: str = "R", tol: float = RIGID_TOLERANCE) -> np.ndarray:
-    """Validate a 3x3 rotation matrix (finite, orthonormal, det +1) and return it as float64."""
+    """Validate a 3x3 rotation matrix (finite, orthonormal, det +1).
+
+    Args:
+        R: the 3x3 rotation matrix.
+        name: the argument's name in the error message.
+        tol: largest deviation of ``R @ R.T`` from the identity accepted (:data:`RIGID_TOLERANCE`).
+
+    Returns:
+        ``R`` as a float64 ``(3, 3)`` array.
+
+    Raises:
+        ValueError: ``R`` is not 3x3, not finite, not orthonormal within ``tol`` or has det < 0.
+    """
     arr = np.asarray(R, dtype=np.float64)
     if arr.shape != (3, 3):
         raise ValueError(f"{name} must be a 3x3 rotation matrix, got shape {arr.shape}")
@@ -76,10 +87,19 @@ def check_rotation(R, name: str = "R", tol: float = RIGID_TOLERANCE) -> np.ndarr
 
 
 def check_rigid(T, name: str = "T", tol: float = RIGID_TOLERANCE) -> np.ndarray:
-    """Validate a 4x4 rigid transform and return it as float64.
+    """Validate a 4x4 rigid transform ``T_<to>_<from>`` (rotation, translation in mm).
 
-    Raises ``ValueError`` naming ``name`` when the array is not 4x4, not finite, its rotation
-    block is not a proper rotation, or its bottom row is not ``[0, 0, 0, 1]``.
+    Args:
+        T: the 4x4 homogeneous transform.
+        name: the argument's name in the error message.
+        tol: largest deviation from orthonormality, and of the bottom row from ``[0, 0, 0, 1]``.
+
+    Returns:
+        ``T`` as a float64 ``(4, 4)`` array.
+
+    Raises:
+        ValueError: ``T`` is not 4x4, not finite, its bottom row is not ``[0, 0, 0, 1]`` or its
+            rotation block is not a proper rotation (the message names ``name``).
     """
     arr = np.asarray(T, dtype=np.float64)
     if arr.shape != (4, 4):
@@ -93,7 +113,18 @@ def check_rigid(T, name: str = "T", tol: float = RIGID_TOLERANCE) -> np.ndarray:
 
 
 def make_transform(R=None, t_mm=None) -> np.ndarray:
-    """Build a 4x4 rigid transform from a rotation matrix and a translation in mm."""
+    """A 4x4 rigid transform from a rotation and a translation.
+
+    Args:
+        R: the 3x3 rotation matrix; None: the identity.
+        t_mm: the translation, 3 numbers in mm; None: zero.
+
+    Returns:
+        The 4x4 float64 transform ``[[R, t], [0, 1]]``.
+
+    Raises:
+        ValueError: ``R`` is not a proper rotation, or ``t_mm`` is not 3 finite numbers.
+    """
     T = np.eye(4)
     if R is not None:
         T[:3, :3] = check_rotation(R, "R")
@@ -106,7 +137,17 @@ def make_transform(R=None, t_mm=None) -> np.ndarray:
 
 
 def invert_transform(T) -> np.ndarray:
-    """Inverse of a rigid transform, exact for rigid input (``R.T, -R.T @ t``)."""
+    """The inverse of a rigid transform, exact for rigid input (``R.T``, ``-R.T @ t``).
+
+    Args:
+        T: a 4x4 rigid transform ``T_<to>_<from>`` (mm).
+
+    Returns:
+        ``T_<from>_<to>``, 4x4 float64.
+
+    Raises:
+        ValueError: ``T`` is not rigid (:func:`check_rigid`).
+    """
     T = check_rigid(T, "T")
     inv = np.eye(4)
     inv[:3, :3] = T[:3, :3].T
@@ -125,7 +166,18 @@ def compose(*transforms) -> np.ndarray:
 
 
 def transform_points(T, points_mm) -> np.ndarray:
-    """Apply a rigid transform to ``(n, 3)`` points in mm; returns ``(n, 3)``."""
+    """Map points through a transform: ``p' = R p + t``.
+
+    Args:
+        T: a 4x4 transform ``T_<to>_<from>`` (mm); its bottom row is not read.
+        points_mm: ``(n, 3)`` points, or one ``(3,)``, in mm in the ``<from>`` frame.
+
+    Returns:
+        ``(n, 3)`` float64 points in mm in the ``<to>`` frame.
+
+    Raises:
+        ValueError: ``T`` is not 4x4, or ``points_mm`` is not ``(n, 3)`` / ``(3,)``.
+    """
     T = np.asarray(T, dtype=np.float64)
     if T.shape != (4, 4):
         raise ValueError(f"T must be a 4x4 transform, got shape {T.shape}")
@@ -134,7 +186,18 @@ def transform_points(T, points_mm) -> np.ndarray:
 
 
 def rotation_about_axis(axis, angle_rad: float) -> np.ndarray:
-    """Rotation matrix for a right-handed rotation by ``angle_rad`` about ``axis`` (any length > 0)."""
+    """A right-handed rotation by ``angle_rad`` about ``axis``.
+
+    Args:
+        axis: the rotation axis, 3 numbers of any length > 0.
+        angle_rad: the angle in rad.
+
+    Returns:
+        The 3x3 float64 rotation matrix.
+
+    Raises:
+        ValueError: ``axis`` is not a non-zero finite 3-vector.
+    """
     axis = np.asarray(axis, dtype=np.float64).reshape(-1)
     norm = np.linalg.norm(axis)
     if axis.shape != (3,) or not np.isfinite(norm) or norm == 0:
@@ -143,7 +206,17 @@ def rotation_about_axis(axis, angle_rad: float) -> np.ndarray:
 
 
 def matrix_from_rotvec(rotvec) -> np.ndarray:
-    """Rotation matrix from an axis-angle (rotation) vector: direction = axis, norm = angle in rad."""
+    """The rotation matrix of an axis-angle (rotation) vector.
+
+    Args:
+        rotvec: 3 numbers: direction the axis, norm the angle in rad.
+
+    Returns:
+        The 3x3 float64 rotation matrix.
+
+    Raises:
+        ValueError: ``rotvec`` is not 3 finite numbers.
+    """
     rv = np.asarray(rotvec, dtype=np.float64).reshape(-1)
     if rv.shape != (3,) or not np.all(np.isfinite(rv)):
         raise ValueError(f"rotvec must be 3 finite numbers, got {rotvec!r}")
@@ -151,18 +224,51 @@ def matrix_from_rotvec(rotvec) -> np.ndarray:
 
 
 def rotvec_from_matrix(R) -> np.ndarray:
-    """Axis-angle vector (angle in [0, pi]) of a rotation matrix."""
+    """The axis-angle vector of a rotation matrix.
+
+    Args:
+        R: a 3x3 rotation matrix.
+
+    Returns:
+        ``(3,)`` float64: the axis scaled by the angle in rad, in [0, pi].
+
+    Raises:
+        ValueError: ``R`` is not a proper rotation (:func:`check_rotation`).
+    """
     return Rotation.from_matrix(check_rotation(R)).as_rotvec()
 
 
 def rotation_angle(R) -> float:
-    """Rotation angle in rad, in [0, pi], of a rotation matrix (e.g. of ``R_est.T @ R_true``)."""
+    """The rotation angle of a rotation matrix (e.g. of ``R_est.T @ R_true``, an orientation error).
+
+    Args:
+        R: a 3x3 rotation matrix.
+
+    Returns:
+        The angle in rad, in [0, pi].
+
+    Raises:
+        ValueError: ``R`` is not a proper rotation (:func:`check_rotation`).
+    """
     R = check_rotation(R)
     return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
 
 
 def matrix_from_euler(angles_rad, convention: str = "xyz") -> np.ndarray:
-    """Rotation matrix from three Euler angles in rad; ``convention`` as in the module docstring."""
+    """The rotation matrix of three Euler angles.
+
+    Args:
+        angles_rad: the three angles in rad.
+        convention: three axis letters, lower case extrinsic (``"xyz"``: about the fixed x, then y,
+            then z; the paper's "Euler angles within [0, 360]"), upper case intrinsic (``"ZYX"``).
+
+    Returns:
+        The 3x3 float64 rotation matrix.
+
+    Raises:
+        ValueError: ``convention`` is not three axis letters of one case with no axis twice in a row,
+            or ``angles_rad`` is not 3 finite numbers.
+    """
     _check_euler_convention(convention)
     ang = np.asarray(angles_rad, dtype=np.float64).reshape(-1)
     if ang.shape != (3,) or not np.all(np.isfinite(ang)):
@@ -225,9 +331,18 @@ def random_transform(rng: np.random.Generator, translation_range_mm: float = 100
 
 
 def transform_from_params(params) -> np.ndarray:
-    """4x4 transform from the 6 pose parameters ``[rx, ry, rz, tx, ty, tz]`` (rotvec rad, mm).
+    """The 4x4 transform of the 6 pose parameters ``[rx, ry, rz, tx, ty, tz]``.
 
-    This is the parameterisation the pose refinement (Nelder-Mead, §II-B.3) searches over.
+    The parameterisation of the pose of eq. 3 (§II-B.3): a rotation vector and a translation.
+
+    Args:
+        params: 6 numbers: the rotation vector in rad, then the translation in mm.
+
+    Returns:
+        The 4x4 float64 rigid transform (e.g. ``T_carm_transducer``).
+
+    Raises:
+        ValueError: ``params`` is not 6 finite numbers.
     """
     p = np.asarray(params, dtype=np.float64).reshape(-1)
     if p.shape != (6,) or not np.all(np.isfinite(p)):
@@ -245,11 +360,21 @@ def params_from_transform(T) -> np.ndarray:
 
 
 def fit_sphere(points_mm) -> tuple[np.ndarray, float]:
-    """Least-squares sphere through ``(n, 3)`` points: ``(centre_mm, radius_mm)``.
+    """The least-squares sphere through points (algebraic fit).
 
-    Solves the linear form ``|p|^2 = 2 c.p + (r^2 - |c|^2)`` (algebraic fit); exact for points on a
-    sphere and a good estimate for noisy ones. Used to measure the transducer cap (§II-B.1) and the
-    treated zone in the post-treatment CBCT (§II-E.3).
+    Solves the linear form ``|p|^2 = 2 c.p + (r^2 - |c|^2)``: exact for points on a sphere, a good
+    estimate for noisy ones. Measures the transducer cap (§II-B.1) and the treated zone in the
+    post-treatment CBCT (§II-E.3).
+
+    Args:
+        points_mm: ``(n, 3)`` points in mm, n >= 4.
+
+    Returns:
+        ``(centre_mm, radius_mm)``: the centre ``(3,)`` and the radius, in mm.
+
+    Raises:
+        ValueError: ``points_mm`` is not ``(n, 3)``, holds fewer than 4 points, or determines no
+            sphere (degenerate, e.g. coplanar).
     """
     pts = as_points(points_mm)
     if len(pts) < 4:

@@ -1,28 +1,7 @@
-"""A circle of known radius from its projected conic: normal and centre in closed form.
-
-The transducer's inner boundary is the 64 mm circular cutout (§II-B.1): a planar circle whose
-normal is the transducer axis. A cone-beam view images it as an ellipse, and an ellipse in the
-image and the view's projection matrix determine the circle's 3-D pose up to a two-fold ambiguity
-(the classical result of the perspective-circle problem; see e.g. Safaee-Rad et al., IEEE Trans.
-Robot. Autom. 8(5), 1992). The two solutions are, to first order, mirror images about the plane
-through the circle centre perpendicular to the ray that sees it: the same ambiguity as eq. 4's
-mirror pair of the paper's orientation network, and resolved the same way, across views.
-
-Derivation used here. With ``P = [M | p4]`` and the source ``S``, a world point ``X`` projects to
-``x ~ M (X - S)``; a conic ``x^T C x = 0`` in the image is the cone ``r^T Q r = 0`` with
-``Q = M^T C M`` and ``r = X - S``. Let ``Q``'s eigenvalues be ``l1 >= l2 > 0 > l3`` (sign of ``Q``
-chosen so) with eigenvectors ``e1, e2, e3``. ``Q - l2 I = (l1 - l2) e1 e1^T - (l2 - l3) e3 e3^T``
-factors into two planes through the apex, and every plane parallel to either cuts the cone in a
-circle; their unit normals are::
-
-    n = sqrt((l1 - l2) / (l1 - l3)) e1 +- sqrt((l2 - l3) / (l1 - l3)) e3
-
-On the plane ``n . r = 1`` the cone is a circle of centre ``c1`` and radius ``rho1``
-(:func:`_section_circle`); the circle of radius ``rho`` is that section scaled by ``rho / rho1``,
-on the side of the source the beam runs to.
-
-Units: pixels in the image (``u`` along columns, pixel centres at integers, as
-:class:`~histostudy.imaging.carm.View`), millimetres and the world (CBCT) frame in 3-D.
+"""A circle of known radius from its projected conic (the transducer's 64 mm cutout, §II-B.1): the
+ellipse fit to the inner boundary's pixels and the circle's two 3-D poses in closed form (the
+two-fold ambiguity of eq. 4). Pixels in the image, mm in the C-arm frame; the derivation is in
+docs/pose-estimation.md, "The orientation stage".
 """
 
 from __future__ import annotations
@@ -242,7 +221,7 @@ def _section_circle(Q: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, float]:
 def circle_poses_from_conic(conic, view: View, radius_mm: float) -> list[CirclePose]:
     """The two world circles of radius ``radius_mm`` that ``view`` images as ``conic`` (3x3, pixels).
 
-    Returns a list of two :class:`CirclePose` (module docstring for the derivation); raises
+    Returns a list of two :class:`CirclePose` (docs/pose-estimation.md for the derivation); raises
     ``ValueError`` when ``conic`` is not an ellipse seen in front of the source (a hyperbola, a
     degenerate conic, or a cone whose eigenvalues do not split two against one).
     """

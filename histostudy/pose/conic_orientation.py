@@ -1,21 +1,7 @@
-"""A geometric orientation initialiser: the transducer axis from its inner boundary's ellipse.
-
-Beside the paper's VGG19 regressor (§II-B.4, :class:`~histostudy.learning.orientation.LearnedOrientation`),
-and measured against it in notebooks 03 and 04. The cutout of the transducer (§II-B.1: a 6.4 cm
-circle at the apex of the spherical cap) is a circle whose normal is the transducer axis; its
-image is an ellipse that the segmentation's inner-boundary class traces. :func:`histostudy.pose.conic.
-circle_poses_from_conic` turns that ellipse into the circle's two possible 3-D poses; each gives
-the axis up to its sign, and the sign — which side of the cutout the focal point lies — is the
-side on which the projected model covers the segmented transducer (the elements run from the
-cutout towards the focus). What remains is a two-fold ambiguity per view, the counterpart of
-eq. 4's mirror pair, which the pose initialisation resolves across views as the paper does.
-
-Where a view shows no usable ellipse (the cutout off the detector, seen edge-on, or not
-segmented), the ``fallback`` orientation source answers instead (e.g. the VGG19).
-
-Frames: directions are world (CBCT) unit vectors from the transducer centre to its focal point
-(the transducer's ``-z``, :func:`~histostudy.learning.orientation.beam_direction_of_pose`); angles follow
-:func:`~histostudy.learning.orientation.angles_from_direction`.
+"""A geometric orientation initialiser beside the paper's VGG19 (§II-B.4): the transducer axis from
+its inner boundary's ellipse (:class:`ConicOrientation`), the VGG19 as fallback where a view shows
+no usable ellipse, and the pipeline's default orientation stage (:func:`default_orientation`).
+Directions are world (C-arm) unit vectors from the transducer centre to its focal point.
 """
 
 from __future__ import annotations

@@ -1,13 +1,7 @@
 """The orientation stage of :func:`~histostudy.pose.estimate_pose` (§II-B.4, eq. 4): each view's two
-candidate focal directions.
-
-:func:`~histostudy.pose.estimate_pose_from_labels` reads them through a *direction stage*, a
-callable ``(view_index, labels, maps, rng) -> (2, 3)``: the two unit world directions (C-arm frame)
-from the transducer centre to the focal point (the transducer's ``-z``) that the view's evidence
-allows, the mirror pair of eq. 4. :class:`SourceDirections` is the stage of an
-:class:`~histostudy.learning.OrientationSource` over the frames the labels came from (what
-``estimate_pose`` uses); the tracker's from-scratch estimate has its own
-(:mod:`histostudy.pose.tracking._scratch`).
+candidate focal directions (unit vectors in the C-arm frame), read through a direction stage
+``(view_index, labels, maps, rng) -> (2, 3)``; :class:`SourceDirections` is the stage of an
+orientation source over the frames.
 """
 
 from __future__ import annotations

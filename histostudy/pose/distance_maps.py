@@ -1,10 +1,6 @@
 """Distance maps of §II-B.3: for one view, the exact Euclidean distance (pixels) from every pixel to
-the nearest segmented pixel of each feature class — the ``min_j`` of eq. 3, precomputed once per
-segmentation with the Felzenszwalb-Huttenlocher transform the paper cites ([38]; OpenCV's
-``DIST_L2`` + ``DIST_MASK_PRECISE`` is that algorithm).
-
-Frame: the view's detector, pixel centres at integer ``(u, v) = (column, row)``; maps are
-``(rows, cols)`` float32 in pixels. :class:`~.cost.PoseCost` reads them by bilinear interpolation.
+the nearest segmented pixel of each feature class, the ``min_j`` of eq. 3 (:class:`DistanceMaps`).
+Maps are ``(rows, cols)`` float32 on the view's detector, pixel centres at integers.
 """
 
 from __future__ import annotations
@@ -155,7 +151,7 @@ class DistanceMaps:
     @classmethod
     def from_maps(cls, view: View, maps: Mapping, *, occlusion_aware: bool) -> DistanceMaps:
         """Distance maps made elsewhere, wrapped for :class:`~.cost.PoseCost` without recomputing them
-        (e.g. :class:`~histostudy.pose.tracking.RegionMaps`, which writes a tracking region's maps into reused
+        (e.g. :class:`~histostudy.pose.tracking._maps.RegionMaps`, which writes a tracking region's maps into reused
         buffers). ``maps``: ``{Feature: (rows, cols) float32}`` distances in pixels of ``view``, one
         per class present (as :attr:`maps`); ``occlusion_aware`` says how they were made. The
         arrays are kept, not copied."""

@@ -1,23 +1,6 @@
-"""Transducer pose estimation from fluoroscopy (paper §II-B.3, §II-B.4): :func:`estimate_pose`.
-
-Stages, each timed and each its own function: segmentation of every frame (a
-:class:`~histostudy.learning.segment.Segmenter`, :func:`~.labels.segment_frames`), then
-:func:`~.from_labels.estimate_pose_from_labels` on the labels: exact distance maps per view and
-class (:mod:`.labels`), the eq. 3 costs (:mod:`.truncations`), the orientation from each view's
-azimuth/elevation (an :class:`~histostudy.learning.orientation.OrientationSource` through
-:class:`~.directions.SourceDirections`) with the mirror ambiguity resolved across views, the
-translation grid search and the axial search (:mod:`.start`, :mod:`.init`, :mod:`.silhouette`),
-then the refinement of eq. 3 (:func:`~.refine.refine_pose`): Nelder-Mead in the paper's mode,
-Levenberg-Marquardt in the fast mode, with its verdict and retries (:mod:`.retries`). A pose that
-the data do not support — no features in a view, a final cost too high, a model pushed out of the
-views or off the search region — raises :class:`~.result.PoseEstimationError` (or comes back with
-a failed verdict, :mod:`.verdict`) instead of a confident garbage pose. How it runs is a
-:class:`~.options.PoseConfig`.
-
-Any number of views >= 1 is accepted: a biplane pair as in the paper, or a single-plane C-arm
-moved to several angles (§II-B). With one view the mirror ambiguity of eq. 4 is resolved by
-running the search for both candidates and keeping the lower cost. Poses are 4x4
-``T_carm_transducer`` (mm, C-arm/CBCT frame).
+"""Transducer pose estimation from fluoroscopy (§II-B.3, §II-B.4): :func:`estimate_pose`, the frames
+segmented, then the stages of :func:`~.from_labels.estimate_pose_from_labels`. Poses are 4x4
+``T_carm_transducer`` (mm, C-arm frame); the stages are in docs/pose-estimation.md.
 """
 
 from __future__ import annotations

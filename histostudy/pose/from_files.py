@@ -1,11 +1,7 @@
-"""The transducer pose from the lab's own files: fluoroscopic frames and their views (§II-B.3-4).
-
-What ``histostudy pose`` runs: each frame file (DICOM XA, ``.npy``, ``.png``/``.tif``) is loaded
-with its view, the view taken from a views file (:func:`~histostudy.imaging.load_views`, matched by
-order or by name) or, for DICOM, from the file's own geometry tags
-(:meth:`~histostudy.imaging.View.from_dicom`); :func:`~.estimate.estimate_pose` then runs with the
-shipped learned stages. :func:`pose_record` is the result as plain JSON (mm, 4x4 transforms
-``T_carm_transducer``, the verdict's figures, the half turn no image can tell apart).
+"""The transducer pose from the lab's own files (§II-B.3-4), what ``histostudy pose`` runs: frame files
+(DICOM XA, ``.npy``, ``.png``/``.tif``) with their views, :func:`~.estimate.estimate_pose` on the
+shipped learned stages, and the result as plain JSON (:func:`pose_record`; mm, 4x4
+``T_carm_transducer``, the verdict's figures and the half-turn reading).
 """
 
 from __future__ import annotations

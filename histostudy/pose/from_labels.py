@@ -1,17 +1,6 @@
 """Pose estimation from label images (§II-B.3-4): :func:`estimate_pose_from_labels`, the stages of
-:func:`~histostudy.pose.estimate_pose` after the segmentation, each its own function:
-
-1. labels checked, largest component kept (:func:`~.labels.clean_labels`);
-2. distance maps per view and class (:func:`~.labels.view_distance_maps`);
-3. the eq. 3 costs at their truncations (:func:`~.truncations.pose_costs`, and the robust coarse
-   scorings, :func:`~.start.coarse_scorings`);
-4. the orientation (a direction stage, :mod:`.directions`) and the initialisation
-   (:func:`~.start.initialise`), skipped for a warm start (``initial_pose``);
-5. the refinement, its verdict and the retries (:func:`~.retries.refine_with_retries`,
-   :class:`~.verdict.PoseJudge`).
-
-Poses are 4x4 ``T_carm_transducer`` (mm, C-arm/CBCT frame); label images ``(rows, cols)`` in their
-view's pixels; every pixel threshold of the options is in those pixels.
+:func:`~histostudy.pose.estimate_pose` after the segmentation, each its own function. Poses are 4x4
+``T_carm_transducer`` (mm); label images and pixel thresholds in their view's pixels.
 """
 
 from __future__ import annotations
@@ -41,7 +30,7 @@ def estimate_pose_from_labels(labels_per_view: Sequence, views: Sequence[View] |
                               orientation: DirectionStage | None = None,
                               rng: int | np.random.Generator | None = None, options: PoseConfig | None = None,
                               initial_pose=None, **option_overrides) -> PoseResult:
-    """Estimate ``T_carm_transducer`` from each view's labels (module docstring).
+    """Estimate ``T_carm_transducer`` from each view's labels (docs/pose-estimation.md).
 
     Args:
         labels_per_view: one label image per view, ``(rows, cols)`` of that view, values

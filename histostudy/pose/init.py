@@ -1,18 +1,6 @@
-"""Pose initialisation (paper §II-B.4): orientation from the regressor, translation by grid search,
-axial rotation by a linear search.
-
-1. Each view's azimuth/elevation gives two mirror candidates (eq. 4); the pair that agrees best
-   across views is averaged (:func:`histostudy.learning.orientation.select_direction`).
-2. The translation (the focal point, i.e. the translation of ``T_carm_transducer``) is searched
-   on a grid parallel to each detector: 130 points (13 x 10, 3 cm steps, about 40 x 30 cm)
-   around the isocentre for the first view; its best point centres the next view's grid; then a
-   3 x 3 cm grid at 0.5 cm (49 points) per view. Each view's grid is scored by that view's cost
-   alone, as in the paper.
-3. The axial rotation about the transducer axis: 72 equally spaced angles over [0, 180 deg),
-   scored by the cost over all views.
-
-Every stage takes plain cost callables ``T -> float`` so it can be tested and reused with any
-cost (e.g. a point subset for speed).
+"""Pose initialisation as the paper does it (§II-B.4): the translation by grid searches parallel to
+each detector, the axial rotation by a linear search, on plain cost callables ``T -> float``.
+Poses are 4x4 ``T_carm_transducer`` (mm); the steps are in docs/pose-estimation.md.
 """
 
 from __future__ import annotations
@@ -276,7 +264,7 @@ class _Search:
         # angle away from their optimum, and a wrong region can win there that loses after the
         # axial search and the polish (measured on notebook 04's robustness failures).
         finished = []
-        for score, seed, rank, R, point in chains:
+        for _score, seed, rank, R, point in chains:
             label = f"seed{seed:g}_{rank}"
             if medium is not None:
                 point = self.grids(R, point, medium, f"medium_grid_{label}")

@@ -1,14 +1,6 @@
 """The first stages of :func:`~histostudy.pose.estimate_pose` (§II-B.2-3): each view's label image
-and its distance maps, what eq. 3 reads.
-
-1. **labels**: :func:`segment_frames` runs the segmenter on each frame; :func:`clean_labels` checks
-   each label image against its view (``uint8`` :class:`~histostudy.transducer.Feature` values, the
-   view's ``(rows, cols)``) and keeps the largest connected component where the options ask;
-2. **distance maps**: :func:`view_distance_maps`, one :class:`~.distance_maps.DistanceMaps` per view
-   (per class, or occlusion-aware), refusing a view that shows no transducer feature.
-
-Label images are ``(rows, cols)`` arrays indexed ``[v, u]`` in the pixels of their view
-(docs/architecture.md, "Frames and units").
+(:func:`segment_frames`, :func:`clean_labels`) and its distance maps (:func:`view_distance_maps`).
+Label images are ``(rows, cols)`` arrays indexed ``[v, u]`` in the pixels of their view.
 """
 
 from __future__ import annotations

@@ -1,10 +1,6 @@
-"""The options of :func:`~.estimate.estimate_pose` (§II-B.3-4): one frozen, validated record; and
-the seeding rule of every pose entry point (:func:`pose_generator`).
-
-Units are in the names: ``_px`` detector pixels, ``_mm`` millimetres in the C-arm (CBCT) frame,
-``_deg`` degrees, ``_fraction`` a fraction in [0, 1]. The defaults are the paper's where it gives
-one (Nelder-Mead refinement, the 0.1 px outside constant, the search centred on the isocentre)
-and otherwise the measured choices documented beside each field (beyond the paper).
+"""The options of :func:`~.estimate.estimate_pose` (§II-B.3-4), one frozen, validated record
+(:class:`PoseConfig`), and the seeding rule of every pose entry point (:func:`pose_generator`).
+Units are in the names: ``_px`` detector pixels, ``_mm`` mm in the C-arm frame, ``_deg`` degrees.
 """
 
 from __future__ import annotations

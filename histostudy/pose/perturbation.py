@@ -1,12 +1,6 @@
-"""The pose parameterisation of the refinement (§II-B.3, beyond the paper's Nelder-Mead): the left
-perturbation about the focal point and the Gauss-Newton normal equations taken with it.
-
-The residual of point ``i`` in view ``a`` is ``r = sqrt(lambda_k / n_k) * d_a(u, v)`` (pixels), so
-``sum r² = C`` of eq. 3. Its derivative is taken for a *left perturbation about the focal point*:
-``p' = exp([w]x) (R p) + t + v`` (rotation about the current transducer origin, i.e. the focal
-point, then translation; ``w`` in rad, ``v`` in mm, both in the C-arm frame), so
-``dX/dw = -[R p]x`` and ``dX/dv = I``. :class:`~.cost.PoseCost` computes ``J = dr/d[w, v]``;
-:mod:`.refine`'s Levenberg-Marquardt steps with :func:`apply_left_perturbation`.
+"""The pose parameterisation of the refinement (§II-B.3): the left perturbation about the focal point,
+``R' = exp([w]x) R``, ``t' = t + v`` (``w`` in rad, ``v`` in mm, C-arm frame), and the
+Gauss-Newton normal equations taken with it (docs/pose-estimation.md, "The left perturbation").
 """
 
 from __future__ import annotations

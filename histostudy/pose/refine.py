@@ -1,19 +1,7 @@
-"""Iterative refinement of the transducer pose: minimise eq. 3 from an initial pose (§II-B.3).
-
-- :func:`refine_nelder_mead` is the paper's optimiser: the Nelder-Mead simplex ([39]) with at
-  most 1000 iterations and a tolerance of 0.01 on the function value and on the parameters.
-- :func:`refine_levenberg_marquardt` is a faster alternative (not in the paper) for tracking and
-  for the many refinements of a study: Levenberg-Marquardt on the residuals
-  ``r = sqrt(lambda_k / n_k) d`` of :class:`~histostudy.pose.cost.PoseCost`, whose squares sum
-  to eq. 3, with the analytic Jacobian of :meth:`~histostudy.pose.cost.PoseCost.normal_equations`.
-
-Both search over a perturbation of the current pose: ``R' = exp([w]x) R``, ``t' = t + v``
-(:func:`~histostudy.pose.perturbation.apply_left_perturbation`) — a rotation about the transducer
-origin, i.e. the focal point, in world axes, then a translation. Rotation and translation then do not
-mix: a step in ``v`` moves the focal point by exactly ``v``.
-
-:func:`refine_pose` is the refinement stage of :func:`~histostudy.pose.estimate_pose_from_labels`
-and of the tracker's warm path: the mode's optimiser on the stage's capped costs.
+"""Iterative refinement of the transducer pose, eq. 3 minimised from an initial pose (§II-B.3): the
+paper's Nelder-Mead (:func:`refine_nelder_mead`), Levenberg-Marquardt with the analytic Jacobian
+beyond the paper (:func:`refine_levenberg_marquardt`), and the stage that picks one
+(:func:`refine_pose`). Poses are 4x4 ``T_carm_transducer`` (mm).
 """
 
 from __future__ import annotations
@@ -33,6 +21,9 @@ from .perturbation import apply_left_perturbation
 from .truncations import PoseCosts
 
 __all__ = ["RefineResult", "refine_levenberg_marquardt", "refine_nelder_mead", "refine_pose"]
+
+#: Nelder-Mead's initial simplex step: 2 degrees (in rad) for the rotation, 2 mm for the translation.
+NELDER_MEAD_INITIAL_STEP = (np.deg2rad(2.0), 2.0)
 
 
 @dataclass
@@ -68,12 +59,12 @@ class RefineResult:
 
 
 def refine_nelder_mead(cost: Callable[[np.ndarray], float], T_init, *,
-                       initial_step=(np.deg2rad(2.0), 2.0), max_iter: int = 1000,
+                       initial_step=NELDER_MEAD_INITIAL_STEP, max_iter: int = 1000,
                        xatol: float = 0.01, fatol: float = 0.01) -> RefineResult:
     """The paper's refinement (§II-B.3): Nelder-Mead on eq. 3, at most 1000 iterations, tolerances 0.01.
 
     Parameters searched: ``x = [w in degrees (3), v in mm (3)]``, the perturbation
-    ``R' = exp([w]x) R_init, t' = t_init + v`` of ``T_init`` (module docstring). So ``xatol`` is
+    ``R' = exp([w]x) R_init, t' = t_init + v`` of ``T_init`` (docs/pose-estimation.md). So ``xatol`` is
     in degrees for the rotation and in mm for the translation (paper: 0.01, i.e. 0.01 deg and
     0.01 mm), and ``fatol`` is in the cost's units (px², eq. 3). SciPy stops when both the simplex
     spread in x and in the function values are within them.
@@ -167,7 +158,7 @@ def refine_levenberg_marquardt(cost: PoseCost, T_init, *, max_iter: int = 50, ft
     """Levenberg-Marquardt on eq. 3's residuals with the analytic Jacobian (fast mode, not in the paper).
 
     Each iteration solves ``(J'J + mu diag(J'J)) delta = -J'r`` for the perturbation
-    ``delta = [w (rad), v (mm)]`` (module docstring) from one fused pass of
+    ``delta = [w (rad), v (mm)]`` (docs/pose-estimation.md) from one fused pass of
     :meth:`PoseCost.normal_equations`; a step that lowers the cost is taken and ``mu`` shrinks by
     Nielsen's rule, otherwise ``mu`` grows. It stops when an accepted step is shorter than
     ``xtol_rad`` and ``xtol_mm``, when it lowers the cost by less than ``ftol`` relative, when even

@@ -60,7 +60,7 @@ class PoseResult:
 
 def add_timings(into: dict, timings: dict) -> None:
     """Adds each stage's seconds of ``timings`` (a :attr:`PoseResult.timings_s`) to ``into``, the running
-    sums of a stream of estimates (e.g. :attr:`~histostudy.pose.tracking.Tracker.stage_seconds`)."""
+    sums of a stream of estimates (e.g. the ``stage_seconds`` of :meth:`~histostudy.pose.tracking.Tracker.stats`)."""
     for stage, seconds in timings.items():
         into[stage] = into.get(stage, 0.0) + float(seconds)
 

@@ -1,13 +1,6 @@
-"""The last stages of :func:`~histostudy.pose.estimate_pose_from_labels` (§II-B.3-4): the refinement
-from the initial pose, its verdict, and the retries after a refused verdict
-(:func:`refine_with_retries`).
-
-Beyond the paper, which reports no plausibility check: when the pose refined from the best initial
-hypothesis fails the verdict (:class:`~.verdict.PoseJudge`) and ``PoseConfig.retry_hypotheses`` is
-set, the initialisation's other hypotheses are refined; then, where the views agreed on a direction,
-the searches start again from each view's own two candidates; in the fast mode the best hypothesis
-is last refined by Nelder-Mead. The plausible pose of lowest cost wins. Poses are 4x4
-``T_carm_transducer`` (mm, C-arm frame).
+"""The last stages of :func:`~histostudy.pose.estimate_pose_from_labels` (§II-B.3-4): the refinement,
+its verdict, and the retries after a refused verdict (:func:`refine_with_retries`; beyond the
+paper). Poses are 4x4 ``T_carm_transducer`` (mm, C-arm frame).
 """
 
 from __future__ import annotations
@@ -40,7 +33,7 @@ class Refined:
 def refine_with_retries(costs: PoseCosts, judge: Callable[[np.ndarray], PoseVerdict], T_init: np.ndarray,
                         initialisation: Initialisation | None, options: PoseConfig, timings: dict) -> Refined:
     """``T_init`` refined (:func:`~.refine.refine_pose` in ``options.mode``) and judged, then
-    retried as the module docstring says where the verdict refuses it and ``initialisation`` (None
+    retried as docs/pose-estimation.md says where the verdict refuses it and ``initialisation`` (None
     for a warm start: no retries) offers alternatives.
 
     Writes the seconds of ``"refinement"``, ``"verdict"`` and, when retries ran, ``"retries"``

@@ -1,11 +1,7 @@
 """The silhouette seed of the robust initialisation (beyond the paper; a start for §II-B.4's grid
-search): a translation of ``T_carm_transducer`` (mm, C-arm frame) at which the model's projected
-occupancy has the segmented occupancy's centroid in every view, and the axial angles whose seeds
-fit the segmented silhouettes best.
-
-Occupancy grids are in cells of :data:`SILHOUETTE_CELL_PX` detector pixels; centroids in detector
-pixels ``(u, v)``. Used by :func:`~.estimate.estimate_pose` with two or more views, where most of
-the transducer may lie off the detectors and the coarse grid's scores are nearly flat.
+search): a translation (mm, C-arm frame) at which the model's projected occupancy has the
+segmented occupancy's centroid in every view, and the axial angles that fit the silhouettes best.
+Occupancy grids are in cells of :data:`SILHOUETTE_CELL_PX` detector pixels.
 """
 
 from __future__ import annotations

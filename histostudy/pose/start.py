@@ -1,17 +1,7 @@
-"""The initialisation stage of :func:`~histostudy.pose.estimate_pose_from_labels` (§II-B.4): where
-the refinement starts.
-
-From each view's two direction candidates (the orientation stage, :mod:`.directions`), the
-directions to start from (:func:`directions_to_try`: the candidates' best agreement across views,
-eq. 4, or with one view both mirrors), then per direction the translation grid searches and the
-axial search of :func:`~.init.initialise_pose`, keeping the lowest cost. ``init="paper"`` runs
-them as the paper does; ``init="robust"`` (beyond the paper) scores the coarse grids with wider
-truncations (:func:`coarse_scorings`), seeds them at four axial angles, adds a silhouette seed with
-two or more views (:func:`~.silhouette.silhouette_candidates`) and polishes three axial minima by a
-short Levenberg-Marquardt (:class:`~.options.PoseConfig` says what each does).
-
-Poses are 4x4 ``T_carm_transducer`` (mm, C-arm frame); directions are unit vectors in the C-arm
-frame; costs in squared pixels of the label images.
+"""The initialisation stage of :func:`~histostudy.pose.estimate_pose_from_labels` (§II-B.4): the
+directions to start from (eq. 4), then per direction the grid and axial searches, as the paper
+(``init="paper"``) or robustly (``init="robust"``, beyond the paper). Poses are 4x4
+``T_carm_transducer`` (mm), directions unit vectors in the C-arm frame.
 """
 
 from __future__ import annotations
@@ -110,7 +100,7 @@ class Initialisation:
 def initialise(candidates: Sequence[np.ndarray], views: Sequence[View], labels: Sequence[np.ndarray],
                model: TransducerModel, costs: PoseCosts, scorings: list | None, options: PoseConfig,
                rng: np.random.Generator) -> Initialisation:
-    """The initialisation from each view's ``(2, 3)`` direction ``candidates`` (module docstring).
+    """The initialisation from each view's ``(2, 3)`` direction ``candidates`` (docs/pose-estimation.md).
 
     ``scorings``: :func:`coarse_scorings`' (robust). Draws from ``rng`` the silhouette seed's model
     points (robust, two or more views)."""

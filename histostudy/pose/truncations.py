@@ -1,9 +1,6 @@
 """The costs stage of :func:`~histostudy.pose.estimate_pose_from_labels` (§II-B.3, eq. 3): one
-flattened copy of the distance maps, and every capped or point-subset view of eq. 3 that the later
-stages read (:class:`PoseCosts`, made by :func:`pose_costs`).
-
-Distances and caps are in pixels of the maps (the label pixels); model points in mm in the
-transducer frame; the costs take 4x4 ``T_carm_transducer`` poses (docs/architecture.md).
+flattened copy of the distance maps and every capped or point-subset view of eq. 3 the later
+stages read (:class:`PoseCosts`, :func:`pose_costs`). Distances in label pixels.
 """
 
 from __future__ import annotations
@@ -62,7 +59,7 @@ def pose_costs(points: Mapping, maps: Sequence[DistanceMaps], options: PoseConfi
     Args:
         points, maps: eq. 3's model points and each view's distance maps.
         options: the pixel thresholds in the maps' pixels (for labels at a scale ``s`` of the
-            detector, :func:`~histostudy.pose.tracking.scaled_pose_options`).
+            detector, :func:`~histostudy.pose.tracking._scratch.scaled_pose_options`).
         rng: draws the ``coarse`` point subset (one draw, nothing else).
         label_scale: label pixels per detector pixel; scales only the fixed 1 px cap of the views'
             agreement check used where ``refine_truncation_px`` is None.

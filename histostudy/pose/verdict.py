@@ -1,19 +1,6 @@
-"""The verdict of :func:`histostudy.pose.estimate_pose`: is a pose one the frames support?
-
-Beyond the paper, which reports no plausibility check. Eq. 3 looks from the model to the labels;
-the checks here look both ways and across views, so that a learned segmentation's misses do not
-refuse a right pose and its confusions do not pass a wrong one (docs/learned-stages.md):
-
-- :func:`judge_fit`: per view, the capped RMS distance of the model points over the active
-  classes, the element body's own RMS distance, how much of the model projects onto the
-  detector, and the focal point's distance from the search centre;
-- :func:`unexplained_fraction`: the segmented pixels the posed model leaves unexplained;
-- :func:`view_disagreement_mm`: how far each view's evidence alone would move the focal point
-  across its ray: views that each fit a different pose disagree.
-
-:class:`PoseJudge` runs them in turn: the verdict stage of
-:func:`~histostudy.pose.estimate_pose_from_labels` and of the tracker's warm path. Each check takes
-the views as :class:`~histostudy.imaging.View` objects or as frames taken with them.
+"""The verdict of :func:`histostudy.pose.estimate_pose` (beyond the paper): is a pose one the frames
+support? The fit per view both ways and the views' agreement (:func:`judge_fit`,
+:func:`unexplained_fraction`, :func:`view_disagreement_mm`), run in turn by :class:`PoseJudge`.
 """
 
 from __future__ import annotations

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 import torch
 
-from histostudy.geometry import make_transform, random_rotation
+from histostudy.geometry import make_transform
+from histostudy.geometry.transforms import random_rotation
 from histostudy.imaging import Frame, View, default_biplane
 from histostudy.learning import (
     N_ORIENTATION_CLASSES,

@@ -22,7 +22,8 @@ def frames_of(fine, T, views=None, labels_pose=None):
     out = []
     for i, v in enumerate(views):
         T_labels = T if labels_pose is None or labels_pose[i] is None else labels_pose[i]
-        out.append(Frame(np.zeros(v.shape, np.float32), v, labels=render_labels(fine, T_labels, v), T_carm_transducer=T))
+        out.append(Frame(np.zeros(v.shape, np.float32), v, labels=render_labels(fine, T_labels, v),
+                         T_carm_transducer=T))
     return out
 
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from histostudy.imaging import View
-from histostudy.pose import (
+from histostudy.pose.conic import (
     EllipseFit,
     circle_poses_from_conic,
     conic_from_ellipse,
@@ -31,7 +31,8 @@ def test_conic_from_ellipse_vanishes_on_the_ellipse_and_is_negative_inside():
     C = conic_from_ellipse((300.0, 200.0), (80.0, 30.0), 0.4)
     t = np.linspace(0, 2 * np.pi, 50)
     c, s = np.cos(0.4), np.sin(0.4)
-    pts = np.column_stack([300 + 80 * np.cos(t) * c - 30 * np.sin(t) * s, 200 + 80 * np.cos(t) * s + 30 * np.sin(t) * c])
+    pts = np.column_stack([300 + 80 * np.cos(t) * c - 30 * np.sin(t) * s,
+                           200 + 80 * np.cos(t) * s + 30 * np.sin(t) * c])
     h = np.column_stack([pts, np.ones(len(pts))])
     assert np.allclose(np.einsum("ij,jk,ik->i", h, C, h), 0, atol=1e-9)
     assert np.array([300.0, 200.0, 1.0]) @ C @ np.array([300.0, 200.0, 1.0]) == pytest.approx(-1.0)
@@ -90,7 +91,8 @@ def test_ransac_fit_ignores_outliers_and_matches_opencv_on_clean_points():
     rng = np.random.default_rng(5)
     t = rng.uniform(0, 2 * np.pi, 600)
     c, s = np.cos(0.7), np.sin(0.7)
-    clean = np.column_stack([500 + 150 * np.cos(t) * c - 60 * np.sin(t) * s, 400 + 150 * np.cos(t) * s + 60 * np.sin(t) * c])
+    clean = np.column_stack([500 + 150 * np.cos(t) * c - 60 * np.sin(t) * s,
+                             400 + 150 * np.cos(t) * s + 60 * np.sin(t) * c])
     band = clean + rng.normal(0, 1.5, clean.shape)  # a band a few pixels wide, as segmented
     outliers = rng.uniform([200, 100], [800, 700], size=(300, 2))
     fit = fit_ellipse_ransac(np.vstack([band, outliers]), np.random.default_rng(0), tolerance_px=4.0)

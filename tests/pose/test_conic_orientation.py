@@ -16,7 +16,8 @@ from histostudy.learning import (
     direction_candidates,
     orientation_angle_error,
 )
-from histostudy.pose import ConicFit, ConicOrientation, estimate_pose
+from histostudy.pose import ConicOrientation, estimate_pose
+from histostudy.pose.conic_orientation import ConicFit
 from histostudy.transducer import Feature, TransducerModel, pose_facing
 
 POSES = [
@@ -34,8 +35,8 @@ def fine():
 @pytest.fixture(scope="module")
 def frames(fine):
     views = default_biplane()
-    return [[Frame(np.zeros(v.shape, np.float32), v, labels=render_labels(fine, T, v), T_carm_transducer=T) for v in views]
-            for T in POSES]
+    return [[Frame(np.zeros(v.shape, np.float32), v, labels=render_labels(fine, T, v), T_carm_transducer=T)
+             for v in views] for T in POSES]
 
 
 def angle_deg(a, b):
@@ -115,7 +116,7 @@ def test_estimate_pose_reads_the_candidates_from_its_own_labels(frames):
 
 
 def test_the_default_orientation_is_the_conic_with_the_shipped_vgg19_as_fallback():
-    from histostudy.learning import LearnedOrientation, UNetSegmenter, default_segmenter, default_vgg19
+    from histostudy.learning import LearnedOrientation, UNetRunner, default_segmenter, default_vgg19
     from histostudy.pose import default_orientation, learned_stage_shortfalls
 
     vgg = default_vgg19()
@@ -123,7 +124,7 @@ def test_the_default_orientation_is_the_conic_with_the_shipped_vgg19_as_fallback
         pytest.skip("the shipped networks are not in data/models")
     source = default_orientation()
     assert isinstance(source, ConicOrientation) and isinstance(source.fallback, LearnedOrientation)
-    assert isinstance(source.segmenter, UNetSegmenter)
+    assert isinstance(source.segmenter, UNetRunner)
     # the learned-stage requirements judge the VGG19 behind it
     assert source.manifest["sha256"] == vgg.manifest["sha256"]
     assert learned_stage_shortfalls(default_segmenter(), source) == []

@@ -6,7 +6,8 @@ import pytest
 from scipy.ndimage import distance_transform_edt
 
 from histostudy.imaging import View
-from histostudy.pose import DistanceMaps, euclidean_distance_map
+from histostudy.pose import DistanceMaps
+from histostudy.pose.distance_maps import euclidean_distance_map
 from histostudy.transducer import Feature
 
 

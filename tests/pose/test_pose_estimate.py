@@ -199,7 +199,8 @@ def test_views_that_disagree_by_millimetres_are_refused_although_each_fits_well(
     assert any("the views disagree" in r for r in checked.verdict.reasons), checked.verdict.reasons
     # Where the views agree, neither pulls: a few tenths of a millimetre at most.
     agree = estimate_pose(frames[0], models[0], **kwargs)
-    assert agree.verdict.ok and max(agree.verdict.view_disagreement_mm.values()) < 0.5, agree.verdict.view_disagreement_mm
+    moves = agree.verdict.view_disagreement_mm
+    assert agree.verdict.ok and max(moves.values()) < 0.5, moves
 
 
 def test_the_fast_refinement_runs_to_the_minimum_of_its_capped_cost(models, frames):
@@ -208,8 +209,8 @@ def test_the_fast_refinement_runs_to_the_minimum_of_its_capped_cost(models, fram
     (error 0.33 mm, 0.11 mm at the minimum). Run on, it ends within a few hundredths."""
     from histostudy.pose import DistanceMaps, PoseCost, refine_levenberg_marquardt
 
-    res = estimate_pose(frames[0], models[0], segmenter=OracleSegmenter.named("table1"), orientation=OracleOrientation(),
-                        rng=np.random.default_rng(3), mode="fast")
+    res = estimate_pose(frames[0], models[0], segmenter=OracleSegmenter.named("table1"),
+                        orientation=OracleOrientation(), rng=np.random.default_rng(3), mode="fast")
     maps = [DistanceMaps(f.view, lab, occlusion_aware=True) for f, lab in zip(frames[0], res.labels)]
     capped = PoseCost(models[0].points, maps).capped(1.0)
     minimum = refine_levenberg_marquardt(capped, res.T_carm_transducer, max_iter=300, ftol=1e-9, xtol_mm=1e-6,

@@ -7,12 +7,11 @@ import pytest
 from histostudy.geometry import make_transform, rotation_angle
 from histostudy.imaging import default_biplane, render_labels
 from histostudy.learning import angles_from_direction, beam_direction_of_pose, direction_candidates, select_direction
-from histostudy.pose import (
+from histostudy.pose import DistanceMaps, PoseCost
+from histostudy.pose.init import (
     COARSE_GRID,
     FINE_GRID,
-    DistanceMaps,
     GridSpec,
-    PoseCost,
     axial_minima,
     axial_search,
     grid_offsets,

@@ -9,11 +9,11 @@ from histostudy.imaging import default_biplane, render_labels
 from histostudy.pose import (
     DistanceMaps,
     PoseCost,
-    RefineResult,
     apply_left_perturbation,
     refine_levenberg_marquardt,
     refine_nelder_mead,
 )
+from histostudy.pose.refine import RefineResult
 from histostudy.transducer import FEATURE_CLASSES, TransducerModel, pose_facing
 
 T_TRUE = pose_facing(focal_point_mm=(5.0, -3.0, 8.0), axial_rotation_rad=0.3)

@@ -14,24 +14,21 @@ from pose_frames import POSES, frames_of, moved
 from histostudy.learning import OracleOrientation, OracleSegmenter, pool_labels
 from histostudy.pose import (
     PoseConfig,
-    PoseJudge,
     SourceDirections,
     Tracker,
     TrackingConfig,
     apply_left_perturbation,
-    clean_labels,
-    coarse_scorings,
     estimate_pose,
     estimate_pose_from_labels,
-    initialise,
-    pose_costs,
-    refine_pose,
-    refine_with_retries,
-    result_of_refinement,
-    segment_frames,
-    view_distance_maps,
 )
+from histostudy.pose.labels import clean_labels, segment_frames, view_distance_maps
+from histostudy.pose.refine import refine_pose
+from histostudy.pose.result import result_of_refinement
+from histostudy.pose.retries import refine_with_retries
+from histostudy.pose.start import coarse_scorings, initialise
 from histostudy.pose.tracking._scratch import _ScaledDirections
+from histostudy.pose.truncations import pose_costs
+from histostudy.pose.verdict import PoseJudge
 
 STEP = np.eye(4)
 STEP[:3, 3] = (0.4, -0.3, 0.2)
@@ -91,7 +88,8 @@ def test_estimate_pose_is_its_stages_bit_for_bit(models, views, overrides, warm)
     whole = estimate_pose(frames, model, segmenter=OracleSegmenter(), orientation=OracleOrientation(), **kwargs)
     rng = np.random.default_rng(11)
     labels = segment_frames(frames, OracleSegmenter(), rng)
-    from_labels = estimate_pose_from_labels(labels, views, model, orientation=SourceDirections(OracleOrientation(), frames),
+    from_labels = estimate_pose_from_labels(labels, views, model,
+                                            orientation=SourceDirections(OracleOrientation(), frames),
                                             **{**kwargs, "rng": rng})
     _same(whole, from_labels)
     _same(whole, _by_hand(frames, views, model, PoseConfig(raise_on_failure=False, **overrides), 11, start))
@@ -118,7 +116,8 @@ def test_the_full_frame_tracker_is_estimate_pose_from_labels_stage_by_stage(mode
     rng, T = np.random.default_rng(5), None
     for pair, result in zip(pairs, tracked):
         labels = segment_frames(pair, stages["segmenter"], rng)
-        direct = estimate_pose_from_labels(labels, views, model, orientation=SourceDirections(stages["orientation"], pair),
+        direct = estimate_pose_from_labels(labels, views, model,
+                                           orientation=SourceDirections(stages["orientation"], pair),
                                            rng=rng, initial_pose=T, mode="fast", raise_on_failure=False)
         _same(result, direct)
         T = direct.T_carm_transducer

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 from pose_frames import POSES, frames_of
 
-from histostudy.pose import DistanceMaps, PoseCost, unexplained_fraction, view_disagreement_mm
+from histostudy.pose import DistanceMaps, PoseCost
+from histostudy.pose.verdict import unexplained_fraction, view_disagreement_mm
 from histostudy.transducer import Feature, TransducerModel
 
 

@@ -6,7 +6,8 @@ import pytest
 
 from histostudy.imaging import default_biplane, render_labels
 from histostudy.learning import beam_direction_of_pose
-from histostudy.pose import rotation_from_direction, silhouette_candidates, silhouette_seed
+from histostudy.pose.init import rotation_from_direction
+from histostudy.pose.silhouette import silhouette_candidates, silhouette_seed
 from histostudy.transducer import Feature, TransducerModel, pose_facing
 
 T_TRUE = pose_facing((0.2, 1.0, -0.3), focal_point_mm=(22.0, -14.0, 9.0), axial_rotation_rad=0.6)
@@ -63,7 +64,8 @@ def test_silhouette_candidates_single_out_the_axial_angle_of_a_half_hidden_trans
 
 
 def test_silhouette_seed_rejects_bad_input_and_returns_none_on_an_empty_view(silhouettes):
-    views, masks, body, c = silhouettes["views"], silhouettes["masks"]["visible"], silhouettes["body"], silhouettes["centre"]
+    views, masks = silhouettes["views"], silhouettes["masks"]["visible"]
+    body, c = silhouettes["body"], silhouettes["centre"]
     R = T_TRUE[:3, :3]
     with pytest.raises(ValueError, match="two or more views"):
         silhouette_seed(R, views[:1], masks[:1], body, centre_local_mm=c)

@@ -1,20 +1,7 @@
-"""The fused numba kernels behind :class:`~._model.PoseCost` (§II-B.3, eq. 3 and its Jacobian).
-
-One pass over the model points does the projection (eq. 1-2), the bilinear look-up in the
-distance maps, the square and the class-weighted sum: float32 maps, float64 arithmetic and
-accumulation. Entry points, serial and on numba's threads (the same bits either way):
-:func:`cost_serial` / :func:`cost_parallel` (C), :func:`costs_batch` (C at many translations),
-:func:`normal_serial` / :func:`normal_parallel` (C, ``J^T J``, ``J^T r``) and
-:func:`residual_serial` / :func:`residual_parallel` (r and J, materialised). Units: points in mm
-(transducer frame), projections and distances in pixels of each view's detector; the Jacobian is
-with respect to the left perturbation ``[w (rad), v (mm)]`` of :mod:`histostudy.pose.perturbation`.
-
-Internal to :class:`~._model.PoseCost`, which lays out their arguments; nothing here is exported.
-
-Every entry point releases the GIL while it runs (``nogil``): :meth:`histostudy.pose.Tracker.track`
-refines one pair on the calling thread while a worker thread segments the next, whose Python
-between torch's operations would otherwise wait for each kernel call to end (docs/tracking.md
-measures what the pipeline gains).
+"""The fused numba kernels behind :class:`~._model.PoseCost` (§II-B.3, eq. 3 and its Jacobian),
+serial and on numba's threads (the same bits either way), each releasing the GIL. Points in mm
+(transducer frame), distances in pixels; the Jacobian is with respect to the left perturbation
+``[w (rad), v (mm)]`` of :mod:`histostudy.pose.perturbation`. Internal to ``PoseCost``.
 """
 
 from __future__ import annotations

@@ -1,35 +1,7 @@
-"""The pose-estimation cost function of §II-B.3 (eq. 3), its residuals and their Jacobian.
-
-.. math::
-
-    C(R, t) = \\sum_a \\sum_{k=1}^{5} \\frac{\\lambda_k}{n_k} \\sum_{i=1}^{n_k}
-              \\min_j \\lVert \\hat p_i^{(k)} - s_j^{(k)} \\rVert^2,
-    \\qquad \\hat p_i^{(k)} = H(P_a (R p_i^{(k)} + t))
-
-:class:`PoseCost` evaluates eq. 3 by bilinear interpolation of each view's
-:class:`~histostudy.pose.distance_maps.DistanceMaps` (the ``min_j``) at the projected model points (the paper's
-"distance map texture"), squaring the interpolated distance. A point that projects outside the
-map, or lies behind the X-ray source, gets the paper's constant distance of 0.1 px (0.01 px²
-before normalisation). Classes not segmented in a view contribute nothing in that view (see
-:attr:`PoseCost.weights`).
-
-Conventions: the pose is ``T_carm_transducer`` (4x4) or the 6 parameters ``[rotvec (rad), t (mm)]``
-of :func:`histostudy.geometry.transform_from_params`; model points in mm in the transducer frame;
-distances in pixels. "Inside the map" is :meth:`histostudy.imaging.carm.View.in_image`:
-``-0.5 <= u < cols - 0.5`` and ``-0.5 <= v < rows - 0.5`` (pixel centres at integer coordinates);
-in the half-pixel rim outside the outermost pixel centres the interpolation clamps to the edge
-(the rim belongs to the edge pixels).
-
-Two back-ends compute the same numbers: the fused numba kernels of :mod:`._kernels` (the
-default) and the plain numpy float64 reference of :mod:`._reference` (``backend="numpy"``,
-:meth:`PoseCost.reference_cost`), which the tests compare against. Sums run over fixed blocks of
-points, so a result does not depend on the number of threads (nor on ``parallel``).
-
-Jacobian (for Levenberg-Marquardt, :mod:`histostudy.pose.refine`): with respect to the left
-perturbation about the focal point of :mod:`histostudy.pose.perturbation`. The map gradient is the
-exact gradient of the bilinear interpolant inside the pixel cell (not interpolated central differences), so the Jacobian is the
-true derivative of the residual wherever that is differentiable (finite differences agree, see
-the tests). Outside points have a constant residual and a zero Jacobian row.
+"""The pose-estimation cost of §II-B.3 (eq. 3), its residuals and their Jacobian: :class:`PoseCost`,
+the bilinear look-up of each view's distance maps at the projected model points. Poses are 4x4
+``T_carm_transducer`` (mm), model points in mm in the transducer frame, distances in pixels; the
+cost's definition, back-ends and Jacobian are in docs/pose-estimation.md, "The cost, eq. 3".
 """
 
 from __future__ import annotations
@@ -351,7 +323,7 @@ class PoseCost:
 
     def residuals_and_jacobian(self, pose) -> tuple[np.ndarray, np.ndarray]:
         """Residuals ``r`` ``(n_views * N,)`` and their Jacobian ``(n_views * N, 6)`` with respect to the
-        left perturbation ``[w (rad), v (mm)]`` about the focal point (module docstring).
+        left perturbation ``[w (rad), v (mm)]`` about the focal point (docs/pose-estimation.md).
 
         ``r = sqrt(lambda_k / n_k) * d`` view-major, points in the order of :attr:`classes`
         (``sum r² = C``; outside points carry the constant and a zero row; absent classes 0).

@@ -1,12 +1,6 @@
-"""The plain numpy float64 reference of eq. 3 (§II-B.3) for one view and one feature class.
-
-:class:`~._model.PoseCost` runs on the fused kernels of :mod:`._kernels`; this reference
-computes the same numbers the obvious way, for the tests to compare against and for
-``PoseCost(backend="numpy")``. Points in mm in the transducer frame, the pose ``T`` a 4x4
-``T_carm_transducer``, the view's projection split as ``P3 = P[:, :3]`` and ``p4 = P[:, 3]``
-(eq. 1), distances in pixels of the view's detector. The Jacobian is with respect to the left
-perturbation ``[w (rad), v (mm)]`` of :mod:`histostudy.pose.perturbation`; the map gradient is the exact
-gradient of the bilinear interpolant inside the pixel cell, 0 across a clamped (rim) direction.
+"""The plain numpy float64 reference of eq. 3 (§II-B.3) for one view and one feature class, which
+the tests compare :class:`~._model.PoseCost`'s kernels with (and ``PoseCost(backend="numpy")``).
+Points in mm in the transducer frame, poses 4x4 ``T_carm_transducer``, distances in pixels.
 """
 
 from __future__ import annotations

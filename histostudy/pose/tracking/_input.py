@@ -1,7 +1,6 @@
-"""The frame pairs a :class:`~._tracker.Tracker` accepts (§II-A: the C-arm's biplane frames, one per
-view): :func:`frames_for_views` checks them against the tracker's views and wraps arrays as
-:class:`~histostudy.imaging.Frame`. Frames are line integrals (``-log(I / I0)``, dimensionless) on each
-view's detector grid (docs/architecture.md, "Frames and units").
+"""The frame pairs a :class:`~._tracker.Tracker` accepts (§II-A): :func:`frames_for_views` checks them
+against the tracker's views and wraps arrays as :class:`~histostudy.imaging.Frame` (line integrals,
+``-log(I / I0)``, on each view's detector grid).
 """
 
 from __future__ import annotations

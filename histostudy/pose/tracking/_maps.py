@@ -1,31 +1,6 @@
-"""Distance maps of a tracking region (§II-B.3), written into buffers reused frame after frame:
-:class:`RegionMaps`.
-
-The same maps as :class:`~histostudy.pose.distance_maps.DistanceMaps` (the exact Euclidean distance in pixels
-from every pixel of a label image to the nearest pixel of each class, or of a class of higher
-overlap priority with ``occlusion_aware``; OpenCV's Felzenszwalb-Huttenlocher transform), built
-for a stream of label images of a region (``histostudy.pose.tracking._roi``) rather than once per
-frame:
-
-- one pass per class over the labels, through a look-up table that gives OpenCV's input (0 on the
-  class, and on the classes that hide it with ``occlusion_aware``; 1 elsewhere) directly;
-- the transform and the rounding of ``d²`` to its integer (see
-  :func:`~histostudy.pose.distance_maps.euclidean_distance_map`) done in float32 in place: exact wherever
-  ``d² < 2**20`` (the float32 square of OpenCV's value is then within 0.25 of the integer), which
-  holds for every pixel of a region whose diagonal is under 1024 px. Larger regions go through
-  :func:`~histostudy.pose.distance_maps.euclidean_distance_map`'s float64 rounding. Either way the values equal
-  :class:`DistanceMaps`' (tests/pose/tracking/test_tracking_maps.py);
-- with a reach (``build(..., reach_px=)``, what :class:`~._warm.RegionEstimator` passes:
-  the largest cap at which its refinement and verdict read the maps), the transform cut at that
-  reach: the separable exact transform (a column pass, then a row pass over at most ``2 reach + 1``
-  columns, vectorised), exact up to the reach and holding the reach beyond it. A reader capped at
-  the reach or below reads the same bits as on the exact maps, and on a tracking region it is
-  several times faster than OpenCV's transform (docs/tracking.md);
-- buffers kept per view and class and reused while the region's shape stays the same, so a
-  warm update allocates no map (a :class:`~histostudy.pose.cost.PoseCost` built on them copies them once into its
-  flat buffer).
-
-Frame: the region view's detector, pixel centres at integers; maps ``(rows, cols)`` float32, pixels.
+"""Distance maps of a tracking region (§II-B.3), written into buffers reused frame after frame
+(:class:`RegionMaps`): the values of :class:`~histostudy.pose.distance_maps.DistanceMaps`, exact up to
+an optional reach. Maps ``(rows, cols)`` float32 in the region view's pixels (docs/tracking.md).
 """
 
 from __future__ import annotations

@@ -1,11 +1,6 @@
-"""How :class:`~._tracker.Tracker`'s fast warm path runs (``Tracker(..., fast=True)``; §II-B.3,
-docs/tracking.md): one frozen, validated record, :class:`TrackingConfig`; and
-:func:`scaled_pose_options`, the :class:`~histostudy.pose.options.PoseConfig` of labels at a scale
-of the detector.
-
-Units are in the names: ``_px`` full-frame detector pixels, ``_mm`` millimetres in the C-arm frame,
-``_deg`` degrees. The defaults are the choices measured in docs/tracking.md (beyond the paper,
-which tracked nothing).
+"""How :class:`~._tracker.Tracker`'s fast path runs: :class:`TrackingConfig`, and
+:func:`scaled_pose_options`, the :class:`~histostudy.pose.options.PoseConfig` of labels at a scale of
+the detector. Units are in the names (``_px`` full-frame pixels, ``_mm`` mm, ``_deg`` degrees).
 """
 
 from __future__ import annotations
@@ -16,7 +11,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from histostudy.core import is_real
-from histostudy.learning import FAST_UNET_PRECISIONS, UNetSegmenter
+from histostudy.learning import PRECISIONS, UNetRunner
 
 from ..options import PoseConfig
 
@@ -80,15 +75,15 @@ class TrackingConfig:
             False: one after the other. :meth:`~._tracker.Tracker.track` schedules the views itself
             (its worker prepares the next pair while this one is refined; the calling thread then
             segments the view the worker has not started).
-        precision: what a U-Net computes in (:class:`~histostudy.learning.FastUNet`): ``"auto"``
+        precision: what a U-Net computes in (:class:`~histostudy.learning.UNetRunner`): ``"auto"``
             (bfloat16 on a CPU with native bfloat16, else float32:
-            :func:`~histostudy.learning.auto_precision`), ``"float32"``, ``"bfloat16"`` or
+            :func:`~histostudy.learning.native_bfloat16`), ``"float32"``, ``"bfloat16"`` or
             ``"int8"`` (the checkpoint's stored calibration; faster than float32 on AVX2, single
             poses up to 0.2 mm from float32's: docs/tracking.md).
         network: the U-Net of the warm updates' regions, in place of the tracker's U-Net: None (the
             tracker's segmenter), the name of shipped weights in ``data/models`` (``"unet_tracking"``:
             :func:`~histostudy.learning.tracking_segmenter`, the U-Net trained at input scale 0.25;
-            loaded with its SHA-256 checked) or a :class:`~histostudy.learning.UNetSegmenter`. The
+            loaded with its SHA-256 checked) or a :class:`~histostudy.learning.UNetRunner`. The
             regions' labels are then at its input scale (``label_scale`` None). From-scratch estimates
             (the first update, re-acquisitions) keep the tracker's segmenter on the whole frames. It
             replaces a U-Net only: with another segmenter (an oracle) the tracker refuses it.
@@ -103,7 +98,7 @@ class TrackingConfig:
             same starts held 20 times in 23 (docs/tracking.md, "Warm starts that hold"). None: no
             second attempt.
         resume_refused: after an update whose pose the verdict refused only for its views' agreement
-            (its fit checks passed: :attr:`~histostudy.pose.verdict.PoseVerdict.view_disagreement_mm` measured), the
+            (its fit checks passed: the verdict's ``view_disagreement_mm`` measured), the
             next update first tries a warm start from that pose, and estimates from scratch only if
             that is refused too. Such poses lay within about 1 mm of the truth on the physical
             transducer, where a refused estimate from scratch costs many warm updates; False: from
@@ -163,12 +158,12 @@ class TrackingConfig:
         for name in ("parallel_views", "resume_refused", "scratch_full_frames"):
             if not isinstance(getattr(self, name), (bool, np.bool_)):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
-        if self.precision not in FAST_UNET_PRECISIONS:
-            raise ValueError(f"precision must be one of {FAST_UNET_PRECISIONS}, got {self.precision!r}")
-        if not (self.network is None or isinstance(self.network, UNetSegmenter)
+        if self.precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {PRECISIONS}, got {self.precision!r}")
+        if not (self.network is None or isinstance(self.network, UNetRunner)
                 or (isinstance(self.network, str) and self.network.isidentifier())):
             raise ValueError(f"network must be None, the name of shipped U-Net weights in data/models (e.g. "
-                             f"'unet_tracking') or a histostudy.learning.UNetSegmenter, got {self.network!r}")
+                             f"'unet_tracking') or a histostudy.learning.UNetRunner, got {self.network!r}")
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:

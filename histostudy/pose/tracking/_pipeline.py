@@ -1,18 +1,6 @@
-"""The pipeline of :meth:`~._tracker.Tracker.track` with ``fast`` (docs/tracking.md):
-:func:`pipelined_updates`.
-
-Each pair is three pieces of work: each view's region segmented and mapped
-(:meth:`~._warm.RegionEstimator.prepare_view`), then the refinement and verdict on both
-(:meth:`~._warm.RegionEstimator.finish`). While the calling thread refines and judges pair n (the
-cost's kernels serial meanwhile), pair n+1's views, boxed where the last pose accepted before pair n
-projects, wait as two tasks for one worker thread. When the calling thread needs pair n+1, it takes
-back the view the worker has not started and segments it itself, so that on two cores neither
-thread waits while the other has work: the segmentation of a pair is most of its cost on a CPU
-without bfloat16 arithmetic. Torch, OpenCV and the cost's kernels release the GIL. Which thread
-segments a view changes no bit of its labels or maps.
-
-Implementation of :class:`~._tracker.Tracker`'s method: it reads and updates the tracker's state
-(its last pose, its Generator, its counters through ``Tracker._update``).
+"""The pipeline of :meth:`~._tracker.Tracker.track` with ``fast``: pair n refined and judged on the
+calling thread while pair n+1's views are segmented on a worker thread (:func:`pipelined_updates`;
+docs/tracking.md, "The pipeline of Tracker.track").
 """
 
 from __future__ import annotations
@@ -41,7 +29,7 @@ class _BadPair:
 
 def pipelined_updates(tracker, pairs: Iterable, ready: Callable[[], bool] | None) -> Iterator[PoseResult]:
     """:meth:`~._tracker.Tracker.track`'s results for a tracker with ``fast`` (its docstring says what
-    they are; the module docstring how they are made)."""
+    they are; docs/tracking.md how they are made)."""
     source = iter(pairs)
 
     def take():

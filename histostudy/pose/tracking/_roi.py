@@ -1,25 +1,6 @@
 """The region of a frame a warm-started tracking update looks at (§II-A eq. 1-2, §II-B.3):
-:func:`region_of_interest` and the cropped, rescaled view :func:`crop_view`.
-
-Between two frames of a cine the transducer moves little, so the last accepted pose says where it
-projects now: :func:`region_of_interest` boxes the projection of the model's points at that pose,
-adds a margin for the motion, aligns the box to the U-Net's coarsest stride and clips it to the
-detector. :func:`crop_view` gives the :class:`~histostudy.imaging.carm.View` of that box at a
-label scale ``s``: with the box's top-left frame pixel ``(u0, v0)``,
-
-.. math::
-
-    P' = A P, \\qquad A = \\begin{pmatrix} s & 0 & -s u_0 + (s - 1)/2 \\\\
-                                            0 & s & -s v_0 + (s - 1)/2 \\\\ 0 & 0 & 1 \\end{pmatrix}
-
-so ``u' = s (u - u0) + (s - 1) / 2``: the pixel-centre convention of
-:meth:`~histostudy.imaging.carm.View.scaled` (centres at integers, docs/architecture.md "Frames
-and units"), shifted to the box. Pixel ``(i, j)`` of a label image of the box at scale ``s`` is
-pixel ``(i, j)`` of the cropped view, and the eq. 3 cost (:class:`~histostudy.pose.cost.PoseCost`) on maps of
-the box is the cost on maps of the frame up to that change of pixel units.
-
-Boxes are ``(row0, row1, col0, col1)``, half-open, in full-frame pixels; poses are 4x4
-``T_carm_transducer`` in mm (C-arm frame).
+:func:`region_of_interest` and the cropped, rescaled view :func:`crop_view`. Boxes are
+``(row0, row1, col0, col1)``, half-open, in full-frame pixels; poses 4x4 ``T_carm_transducer`` (mm).
 """
 
 from __future__ import annotations
@@ -63,7 +44,7 @@ class RegionOfInterest:
 
 
 def crop_view(view: View, box, scale: float = 1.0) -> View:
-    """The view of ``box`` of ``view``'s detector resampled by ``scale`` (module docstring: ``P' = A P``).
+    """The view of ``box`` of ``view``'s detector resampled by ``scale`` (``P' = A P``, docs/tracking.md).
 
     ``box`` corners must be multiples of ``1 / scale`` frame pixels, so that the box holds whole
     label pixels. The pixel size grows to ``view.pixel_mm / scale``; the name is kept."""
@@ -104,7 +85,7 @@ def region_of_interest(view: View, points_mm, T_carm_transducer, *, margin_px: f
 
     Points behind the source are ignored. When no point projects onto the detector the box is the
     whole detector (the caller then segments the frame as a whole). ``align_px`` must be a multiple
-    of ``1 / scale`` (the U-Net's coarsest stride in frame pixels, ``FastUNet.network_stride_px``,
+    of ``1 / scale`` (the U-Net's coarsest stride in frame pixels, ``UNetRunner.network_stride_px``,
     is), and the detector's rows and columns must be multiples of ``1 / scale``.
     """
     if not isinstance(view, View):

@@ -1,41 +1,6 @@
-"""The tracker's fast from-scratch estimate (``Tracker(..., fast=True)``: its first update and its
-re-acquisitions after a lost track; §II-B.2-4, docs/tracking.md "From scratch in under a second"):
-:class:`ScratchEstimator`.
-
-The stages of :func:`~histostudy.pose.estimate_pose` after the segmentation
-(:func:`~histostudy.pose.estimate_pose_from_labels`), run on labels at the label scale ``s`` (0.5:
-the shipped U-Net's own resolution) instead of the detector's:
-
-1. **labels**: the U-Net's arg-max at its input scale over the whole frame
-   (:meth:`~histostudy.learning.FastUNet.segment_region`; no upsampling of the six logit channels
-   to 960 x 1240), pooled by priority below it; any other segmenter's full-resolution labels pooled
-   to ``s`` (:func:`~histostudy.learning.pool_labels`). The two views are segmented on two threads
-   with ``TrackingConfig.parallel_views``.
-2. **views**: each view cropped to the whole detector at ``s`` (:func:`~._roi.crop_view`,
-   ``u' = s u + (s - 1) / 2``, the pixel-centre convention of ``View.scaled``): pixel ``(i, j)``
-   of the labels is pixel ``(i, j)`` of the scaled view.
-3. **options**: every pixel threshold of :class:`~histostudy.pose.options.PoseConfig` multiplied by ``s``
-   (:func:`scaled_pose_options`), so it keeps its length on the detector, as
-   :class:`~._warm.RegionEstimator` does for the warm regions.
-4. **points**: the digital model cut to ``TrackingConfig.refine_points_per_class`` points per
-   class (drawn once, seeded, when the estimator is made; the warm refinement's count): the
-   refinement and the verdict's unexplained-segmentation check run on it (41 000 points of the
-   0.47 mm model instead of 166 000). The grid and axial searches use ``init_points_per_class``
-   times ``s`` points per class (750 at 0.5): a class's features span ``s`` times the label pixels,
-   and the same points per label pixel rank the grid nodes alike (36 of 36 rendered pairs accepted
-   at the first step, focal errors as the full frames': docs/tracking.md).
-5. **orientation** (the direction stage of ``estimate_pose_from_labels``):
-   :class:`~histostudy.pose.conic_orientation.ConicOrientation` reads the ellipse in the scaled
-   labels, with its pixel thresholds scaled (RANSAC tolerance, fewest pixels, thinnest ellipse);
-   where a view shows no usable ellipse its fallback (the VGG19) reads the full-resolution frame as
-   it was trained to. Another orientation source reads the full frame.
-
-Distance maps, orientation, searches, refinement and verdict then work on a quarter of the pixels.
-The stages and their order are ``estimate_pose``'s, the very functions. A pose its verdict refuses
-is refined and judged again on the full frames, and only then estimated there from scratch, with
-``estimate_pose``'s retries (:meth:`ScratchEstimator.estimate`). Poses are 4x4
-``T_carm_transducer`` (mm, C-arm frame); random draws come from the tracker's Generator
-(docs/architecture.md, "Seeding and determinism").
+"""The tracker's fast from-scratch estimate (its first update and re-acquisitions; §II-B.2-4):
+:class:`ScratchEstimator`, ``estimate_pose``'s stages on labels at the label scale, then on the full
+frames where its verdict refuses (docs/tracking.md, "From scratch in under a second").
 """
 
 from __future__ import annotations
@@ -49,7 +14,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from histostudy.imaging import Frame, View
-from histostudy.learning import FastUNet, direction_candidates, pool_labels
+from histostudy.learning import UNetRunner, direction_candidates, pool_labels
 from histostudy.transducer import TransducerModel, check_label_image
 
 from ..conic_orientation import ConicOrientation
@@ -65,7 +30,7 @@ from ._warm import _subset_indices
 __all__ = ["ScratchEstimator", "scratch_estimator"]
 
 class _ScaledDirections:
-    """The direction stage on the scaled labels (module docstring, 5): for view ``a``, the conic with
+    """The direction stage on the scaled labels (docs/tracking.md, "From scratch in under a second"): for view ``a``, the conic with
     scaled thresholds on its labels, or the fallback (any other source) on the full frame."""
 
     def __init__(self, orientation, conics: Sequence[ConicOrientation | None], views: Sequence[View],
@@ -100,13 +65,13 @@ def _scaled_conic(conic: ConicOrientation, full_view: View, scale: float) -> Con
 
 
 class ScratchEstimator:
-    """From-scratch pose estimates at a label scale (module docstring).
+    """From-scratch pose estimates at a label scale (docs/tracking.md).
 
     Args:
         model: the digital model of eq. 3.
         views: the full-frame views, in the order of the frames; their rows and columns must be
             multiples of ``1 / scale``.
-        segmenter: a :class:`~histostudy.learning.FastUNet` (its arg-max at its input scale) or any
+        segmenter: a :class:`~histostudy.learning.UNetRunner` (its arg-max at its input scale) or any
             segmenter (``segment(frame, rng)``, full-resolution labels).
         orientation: the orientation source of :func:`~histostudy.pose.estimate.estimate_pose`.
         options: the :class:`PoseConfig` of the estimates, in frame pixels (scaled here).
@@ -126,7 +91,7 @@ class ScratchEstimator:
         k = int(round(1.0 / s)) if np.isfinite(s) and s > 0 else 0
         if k < 2 or abs(k * s - 1.0) > 1e-9:
             raise ValueError(f"scale must be 1/k for an integer k >= 2 (0.5, 0.25, ...), got {scale!r}")
-        if isinstance(segmenter, FastUNet):
+        if isinstance(segmenter, UNetRunner):
             ratio = segmenter.scale / s
             if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
                 raise ValueError(f"scratch_label_scale {scale!r} must be the U-Net's input scale {segmenter.scale} "
@@ -154,12 +119,12 @@ class ScratchEstimator:
         chosen = {f: _subset_indices(len(p), n, rng) for f, p in model.points.items()}
         self.model = dataclasses.replace(model, points={f: model.points[f][i] for f, i in chosen.items()},
                                          weights={f: model.weights[f][i] for f, i in chosen.items()})
-        threads = tracking.parallel_views and isinstance(segmenter, FastUNet) and len(views) > 1
+        threads = tracking.parallel_views and isinstance(segmenter, UNetRunner) and len(views) > 1
         self._pool = ThreadPoolExecutor(max_workers=len(views)) if threads else None
 
     def _labels(self, frame: Frame, rng) -> np.ndarray:
         """The whole frame's labels at the label scale (before the largest component is kept)."""
-        if isinstance(self.segmenter, FastUNet):
+        if isinstance(self.segmenter, UNetRunner):
             labels = self.segmenter.segment_region(frame, (0, frame.shape[0], 0, frame.shape[1]))
             ratio = self.scale / self.segmenter.scale
         else:
@@ -169,7 +134,7 @@ class ScratchEstimator:
         return np.ascontiguousarray(pool_labels(labels, ratio) if ratio != 1.0 else labels, dtype=np.uint8)
 
     def estimate(self, frames: Sequence[Frame], rng: np.random.Generator) -> PoseResult:
-        """The pose in ``frames`` (one per view, in order) from scratch (module docstring), in up to
+        """The pose in ``frames`` (one per view, in order) from scratch (docs/tracking.md), in up to
         three steps, each run only when the verdict refused the one before (:attr:`last_step` says
         which gave the result; steps 2-3 only with ``TrackingConfig.scratch_full_frames``):
 
@@ -222,11 +187,11 @@ def scratch_estimator(model: TransducerModel, views: Sequence[View], segmenter, 
     frames).
 
     ``segmenter``: what the tracker segments full frames with (a
-    :class:`~histostudy.learning.FastUNet` for a U-Net). None as the scale: the U-Net's input scale,
+    :class:`~histostudy.learning.UNetRunner` for a U-Net). None as the scale: the U-Net's input scale,
     1 for any other segmenter. Draws from ``rng`` only when an estimator is made."""
     s = tracking.scratch_label_scale
     if s is None:
-        s = segmenter.scale if isinstance(segmenter, FastUNet) else 1.0
+        s = segmenter.scale if isinstance(segmenter, UNetRunner) else 1.0
     if abs(float(s) - 1.0) < 1e-12:
         return None
     return ScratchEstimator(model, views, segmenter, orientation, options, tracking, s, rng)

@@ -1,31 +1,6 @@
-"""Tracking the transducer through a stream of biplane frames (§II-A, §II-B.3-4): :class:`Tracker`.
-
-The paper's workstation received live X-ray frames from the C-arm over Ethernet (§II-A) and
-estimated the transducer's pose from each biplane pair. A :class:`Tracker` holds what one
-estimate tells the next: the first update (and any update after the track was lost) runs
-:func:`~histostudy.pose.estimate.estimate_pose` from scratch — segmentation, orientation, the §II-B.4 searches,
-the eq. 3 refinement — and every later update starts the refinement from the last accepted pose
-(``initial_pose=``, no orientation or search), which is several times cheaper while the
-transducer moves little between frames. A warm start whose verdict fails (the transducer moved
-too far, or the refinement slid into a wrong basin) loses the track: the same frames are then
-estimated from scratch (a re-acquisition), and both events are counted.
-
-By default (``fast=True``, or ``fast=TrackingConfig(...)``) a warm update runs
-:class:`~._warm.RegionEstimator` instead: the same stages on the region where the last pose
-projects, at the segmenter's own resolution (docs/tracking.md: where the time goes, and the
-figures). From-scratch estimates and re-acquisitions run :func:`~histostudy.pose.estimate.estimate_pose` on the
-whole frames at the U-Net's label scale (:class:`~._scratch.ScratchEstimator`; the full
-frames when its verdict refuses: docs/tracking.md, "From scratch in under a second"). A fast warm
-start the verdict refuses is tried once more on the same regions at the detector's resolution
-(``TrackingConfig.rescue_scale``) before the track is lost: on the 0.5 label grid the verdict's
-view agreement reads high and refused half the warm starts of a moving cine that the
-full-resolution grid accepts (docs/tracking.md, "Warm starts that hold").
-
-Poses are 4x4 ``T_carm_transducer`` (mm, C-arm/CBCT frame, docs/architecture.md "Frames and
-units"); frames are line integrals (``-log(I / I0)``, dimensionless). Determinism: the tracker
-draws every random number from one Generator (``rng``: an int seed or a Generator; None is the fixed
-seed 0, as for :func:`~histostudy.pose.estimate_pose`), so the same frames in the same order with
-the same seed give the same poses (docs/architecture.md, "Seeding and determinism").
+"""Tracking the transducer through a stream of biplane frames (§II-A, §II-B.3-4): :class:`Tracker`,
+which warm-starts each estimate from the last accepted pose and re-acquires from scratch when the
+verdict refuses. Poses are 4x4 ``T_carm_transducer`` (mm); design and figures in docs/tracking.md.
 """
 
 from __future__ import annotations
@@ -85,7 +60,7 @@ class Tracker:
             faster than on the full frames: docs/tracking.md); a pose its verdict refuses is
             refined and judged again on the full frames (``result.labels`` are then full-resolution). With scale 1, or
             another segmenter, they segment the full frames (a U-Net through
-            :meth:`~histostudy.learning.FastUNet.segment`: 99.9 % the checkpoint's labels, 100 % in
+            :meth:`~histostudy.learning.UNetRunner.segment`: 99.9 % the checkpoint's labels, 100 % in
             float32).
             ``TrackingConfig(network="unet_tracking")`` runs the warm regions through the U-Net
             trained at input scale 0.25 instead (more warm pairs per second, focal errors
@@ -358,7 +333,7 @@ class Tracker:
         ``fast`` (:meth:`_warm` runs the fast warm path itself)."""
         if initial_pose is None and self._scratch is not None:
             return self._count_stage_seconds(self._scratch.estimate(frames, self.rng))
-        # With ``fast``, a U-Net segments the full frames through FastUNet.segment: its labels
+        # With ``fast``, a U-Net segments the full frames through UNetRunner.segment: its labels
         # (the checkpoint's upsampled arg-max, computed along the label edges only) in a
         # fraction of the time.
         segmenter = self.segmenter if self._region is None else self._region.full_frame_segmenter

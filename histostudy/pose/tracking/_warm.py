@@ -1,33 +1,6 @@
-"""The fast warm update of :class:`~._tracker.Tracker` (``fast=True``; §II-B.2-3, docs/tracking.md):
-:class:`RegionEstimator`.
-
-What :func:`~histostudy.pose.estimate_pose` does with ``initial_pose=`` (segmentation, distance
-maps, the eq. 3 refinement from the last pose, the verdict), restricted to where it matters:
-
-1. each view's region of interest, the box of the model projected at the last accepted pose plus
-   a margin (:func:`~._roi.region_of_interest`), and its view at the label scale
-   (:func:`~._roi.crop_view`);
-2. the region's labels: a U-Net through :class:`~histostudy.learning.FastUNet` (arg-max at the
-   network's resolution, folded batch norms, channels-last); any other segmenter on the whole
-   frame, its labels cut to the region (and pooled by priority below scale 1);
-3. the region's distance maps into reused buffers (:class:`~._maps.RegionMaps`);
-4. ``estimate_pose``'s costs and fast refinement (:func:`~histostudy.pose.truncations.pose_costs`,
-   :func:`~histostudy.pose.refine.refine_pose`): Levenberg-Marquardt from the last pose, coarse to
-   fine (the point subset with distances capped at ``search_truncation_px``, then the fine subset
-   capped at ``refine_truncation_px``), stopping once a step moves the pose less than the noise
-   (:class:`~._options.TrackingConfig`);
-5. ``estimate_pose``'s verdict on the region (:class:`~histostudy.pose.verdict.PoseJudge`).
-
-A refused warm start gets one more chance before the tracker re-acquires
-(:attr:`~._options.TrackingConfig.rescue_scale`): :meth:`RegionEstimator.prepare_rescue`
-segments the same regions again at the rescue scale (1: the detector's pixels, where
-``estimate_pose`` judges), and :meth:`RegionEstimator.finish` refines from the refused pose there and
-judges again (docs/tracking.md, "Warm starts that hold").
-
-Pixel thresholds of :class:`~histostudy.pose.options.PoseConfig` are multiplied by the label scale
-(:func:`~._options.scaled_pose_options`: their length on the detector is kept). Poses are 4x4 ``T_carm_transducer`` (mm, C-arm frame); random draws (the
-point subsets, drawn once) come from the tracker's Generator (docs/architecture.md, "Seeding and
-determinism").
+"""The fast warm update of :class:`~._tracker.Tracker` (§II-B.2-3): :class:`RegionEstimator`,
+``estimate_pose``'s warm stages on the region where the last pose projects, with a second attempt at
+the rescue scale (docs/tracking.md, "The warm path on the region of interest").
 """
 
 from __future__ import annotations
@@ -40,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from histostudy.imaging import Frame, View
-from histostudy.learning import FastUNet, UNetSegmenter, keep_largest_component, pool_labels
+from histostudy.learning import UNetRunner, keep_largest_component, pool_labels
 from histostudy.transducer import TransducerModel, check_label_image
 
 from ..options import PoseConfig
@@ -61,7 +34,7 @@ ROI_POINT_STRIDE = 16
 
 @dataclass
 class PreparedRegions:
-    """What :meth:`RegionEstimator.prepare` made of a frame pair (steps 1-3 of the module docstring).
+    """What :meth:`RegionEstimator.prepare` made of a frame pair (steps 1-3 of docs/tracking.md's warm path).
 
     Attributes:
         regions: each view's :class:`~._roi.RegionOfInterest`.
@@ -112,32 +85,32 @@ def _subset(points: np.ndarray, n: int | None, rng: np.random.Generator) -> np.n
     return points if n is None or len(points) <= n else points[_subset_indices(len(points), n, rng)]
 
 
-def _tracking_network(network, segmenter) -> UNetSegmenter:
-    """The :class:`UNetSegmenter` of :attr:`TrackingConfig.network` (a shipped name is loaded, its
+def _tracking_network(network, segmenter) -> UNetRunner:
+    """The :class:`UNetRunner` of :attr:`TrackingConfig.network` (a shipped name is loaded, its
     SHA-256 checked); ValueError when it cannot be loaded or the tracker's segmenter is no U-Net."""
     from histostudy.learning import MODELS_DIR
 
-    if not isinstance(segmenter, UNetSegmenter):
+    if not isinstance(segmenter, UNetRunner):
         raise ValueError(f"TrackingConfig.network {network!r} replaces the tracker's U-Net in the warm updates, "
                          f"but the tracker's segmenter is {type(segmenter).__name__}: pass network=None with it")
-    if isinstance(network, UNetSegmenter):
+    if isinstance(network, UNetRunner):
         return network
     path = MODELS_DIR / f"{network}.safetensors"
     try:
-        return UNetSegmenter.load(path)
+        return UNetRunner.load(path)
     except ValueError as exc:
         raise ValueError(f"TrackingConfig.network {network!r}: the weights {str(path)!r} cannot be used ({exc}); "
                          f"expected a U-Net checkpoint in data/models (histostudy train segmentation_tracking)") from None
 
 
 class RegionEstimator:
-    """Warm-started pose estimates on the regions where the last pose projects (module docstring).
+    """Warm-started pose estimates on the regions where the last pose projects (docs/tracking.md).
 
     Args:
         model: the digital model of eq. 3.
         views: the full-frame views, in the order of the frames.
-        segmenter: a :class:`~histostudy.learning.UNetSegmenter` (run through
-            :class:`~histostudy.learning.FastUNet`) or any segmenter (``segment(frame, rng)``).
+        segmenter: a :class:`~histostudy.learning.UNetRunner` (run at ``TrackingConfig.precision``)
+            or any segmenter (``segment(frame, rng)``).
         options: the :class:`PoseConfig` of the estimates (distance maps, caps, verdict).
         tracking: the :class:`TrackingConfig`.
         rng: draws the fixed point subsets once, here.
@@ -153,13 +126,13 @@ class RegionEstimator:
                  tracking: TrackingConfig, rng: np.random.Generator):
         self.model, self.views, self.segmenter = model, tuple(views), segmenter
         self.options, self.tracking = options, tracking
-        self.fast_unet = (FastUNet(segmenter, precision=tracking.precision) if isinstance(segmenter, UNetSegmenter)
+        self.fast_unet = (segmenter.with_precision(tracking.precision) if isinstance(segmenter, UNetRunner)
                           else None)
         # The full frames' network (from-scratch estimates) and the regions' (warm updates), which
         # TrackingConfig.network may replace by one trained for tracking.
         self._full_unet = self.fast_unet
         if tracking.network is not None:
-            self.fast_unet = FastUNet(_tracking_network(tracking.network, segmenter), precision=tracking.precision)
+            self.fast_unet = _tracking_network(tracking.network, segmenter).with_precision(tracking.precision)
         if self.fast_unet is not None:
             net_scale = self.fast_unet.scale
             s = net_scale if tracking.label_scale is None else float(tracking.label_scale)
@@ -215,7 +188,7 @@ class RegionEstimator:
     @property
     def full_frame_segmenter(self):
         """The segmenter of the tracker's from-scratch estimates on full frames: the U-Net through
-        :meth:`~histostudy.learning.FastUNet.segment`, or the segmenter as given."""
+        :meth:`~histostudy.learning.UNetRunner.segment`, or the segmenter as given."""
         return self.segmenter if self._full_unet is None else self._full_unet
 
     def _caps(self, scale: float) -> dict:
@@ -239,7 +212,7 @@ class RegionEstimator:
         """The region's labels at its scale (largest component kept if the options say so)."""
         r0, r1, c0, c1 = region.box
         if self.fast_unet is not None:
-            # above the network's scale its logits are upsampled (FastUNet.segment_region's upsample)
+            # above the network's scale its logits are upsampled (UNetRunner.segment_region's upsample)
             net_scale = self.fast_unet.scale
             upsample = int(round(region.scale / net_scale)) if region.scale > net_scale else 1
             labels = self.fast_unet.segment_region(frame, region.box, upsample)
@@ -263,7 +236,7 @@ class RegionEstimator:
 
     def prepare(self, frames: Sequence[Frame], T_roi: np.ndarray, rng: np.random.Generator | None,
                 slot: int = 0, parallel_views: bool | None = None) -> PreparedRegions:
-        """Steps 1-3 (module docstring) of ``frames``: the regions where ``T_roi`` projects, their
+        """Steps 1-3 (docs/tracking.md) of ``frames``: the regions where ``T_roi`` projects, their
         labels and distance maps. ``rng``: for a segmenter that draws (not a U-Net). ``slot`` (0 or
         1) picks the map buffers: :meth:`Tracker.track` prepares the next pair in the other slot
         while this one is refined. ``parallel_views``: the views on two threads (True) or one after
@@ -276,7 +249,7 @@ class RegionEstimator:
         return self._segment_and_map(plan, in_parallel)
 
     def plan(self, frames: Sequence[Frame], T_roi: np.ndarray, rng, slot: int = 0) -> RegionPlan:
-        """Step 1 (module docstring) of ``frames``: the regions where ``T_roi`` projects, and what
+        """Step 1 (docs/tracking.md) of ``frames``: the regions where ``T_roi`` projects, and what
         :meth:`prepare_view` needs to segment and map each of them into the map buffers of
         ``slot`` (0 or 1). ``rng``: for a segmenter that draws, a Generator the views share (then
         run them one after the other) or a sequence of one per view; None for a U-Net.
@@ -296,7 +269,7 @@ class RegionEstimator:
 
     def prepare_rescue(self, prepared: PreparedRegions, rng: np.random.Generator | None) -> PreparedRegions:
         """The regions of ``prepared`` (same boxes) segmented again and mapped at :attr:`rescue_scale`,
-        for a second attempt after a refused :meth:`finish` (module docstring). ``rng``: as for
+        for a second attempt after a refused :meth:`finish` (docs/tracking.md). ``rng``: as for
         :meth:`prepare`. Its maps have buffers of their own: a pair prepared for the next update
         in either slot is kept. ValueError when there is no second attempt (``rescue_scale`` None)."""
         t_start = time.perf_counter()
@@ -313,7 +286,7 @@ class RegionEstimator:
         return self._segment_and_map(plan, self.tracking.parallel_views)
 
     def prepare_view(self, plan: RegionPlan, a: int) -> tuple:
-        """Steps 2-3 (module docstring) of view ``a`` of ``plan``: its region's labels and distance
+        """Steps 2-3 (docs/tracking.md) of view ``a`` of ``plan``: its region's labels and distance
         maps (in the plan's map buffer of the view), with the seconds of each. Views of one plan may
         run on different threads at once."""
         t0 = time.perf_counter()
@@ -342,7 +315,7 @@ class RegionEstimator:
         return self.assemble(plan, outputs)
 
     def finish(self, prepared: PreparedRegions, T_prev: np.ndarray, parallel: bool | None = None) -> PoseResult:
-        """Steps 4-5 (module docstring): the refinement from ``T_prev`` on ``prepared``'s maps and
+        """Steps 4-5 (docs/tracking.md): the refinement from ``T_prev`` on ``prepared``'s maps and
         the verdict, at the regions' scale (pixel thresholds times it); the result's
         ``timings_s["total"]`` adds :meth:`prepare`'s seconds. Draws nothing: the point subsets were
         drawn when the estimator was made. ``parallel``: the cost's kernels on numba's threads or not,

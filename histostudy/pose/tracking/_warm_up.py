@@ -1,14 +1,6 @@
 """Warming a tracker up before its first live pair (:meth:`Tracker.warm_up
-<histostudy.pose.tracking.Tracker.warm_up>`): :func:`warm_up_pair`, :func:`warm_up`.
-
-A tracker's first pair pays for what happens once per process: numba loads (or, on a CPU it has
-not seen, compiles) its kernels, torch builds its convolution primitives for each input shape,
-the U-Net folds its batch norms. On a live stream that first pair's latency is seconds, and the
-pairs behind it are dropped. Warming up runs the whole path once — a from-scratch estimate, then
-a warm update on the region — on a synthetic pair of the tracker's own views (or the caller's),
-and then puts the tracker back as it was: the track, the counters and the Generator's state, so
-that the poses that follow are those of a tracker that never warmed up (tested bit for bit).
-Poses are 4x4 ``T_carm_transducer`` (mm, C-arm frame).
+<histostudy.pose.tracking.Tracker.warm_up>`): one from-scratch estimate and one warm update on a
+synthetic pair, then the tracker put back as it was (docs/tracking.md, "Module notes").
 """
 
 from __future__ import annotations
@@ -56,7 +48,7 @@ def warm_up_pair(model: TransducerModel, views: Sequence[View], rng: np.random.G
 
 def warm_up(tracker, frames=None, *, seed: int = 0) -> dict:
     """Run ``tracker`` over ``frames`` (default :func:`warm_up_pair` of its model and views, drawn
-    from ``seed``) twice — from scratch, then warm — and put it back as it was (module docstring).
+    from ``seed``) twice — from scratch, then warm — and put it back as it was (docs/tracking.md).
     Returns ``{"seconds": wall seconds, "kinds": [each update's kind], "accepted": [each verdict]}``."""
     if frames is None:
         frames = warm_up_pair(tracker.model, tracker.views, np.random.default_rng(seed))

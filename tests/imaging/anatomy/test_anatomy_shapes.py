@@ -4,7 +4,8 @@ composites against brute-force point sampling."""
 import numpy as np
 import pytest
 
-from histostudy.geometry import random_rotation, rotation_about_axis
+from histostudy.geometry import rotation_about_axis
+from histostudy.geometry.transforms import random_rotation
 from histostudy.imaging import Box, Difference, Ellipsoid, EllipticCylinder, Intersection
 
 

@@ -6,9 +6,11 @@ import numba
 import numpy as np
 import pytest
 
-from histostudy.geometry import invert_transform, make_transform, params_from_transform, transform_points
+from histostudy.geometry import invert_transform, make_transform, transform_points
+from histostudy.geometry.transforms import params_from_transform
 from histostudy.imaging import View, default_biplane, render_labels
-from histostudy.pose import OUTSIDE_DISTANCE_PX, DistanceMaps, PoseCost, apply_left_perturbation
+from histostudy.pose import DistanceMaps, PoseCost, apply_left_perturbation
+from histostudy.pose.cost import OUTSIDE_DISTANCE_PX
 from histostudy.transducer import FEATURE_CLASSES, Feature, TransducerModel, pose_facing
 
 T_TRUE = pose_facing(focal_point_mm=(5.0, -3.0, 8.0), axial_rotation_rad=0.3)
@@ -258,7 +260,8 @@ def test_capped_cost_equals_the_cost_on_truncated_maps_bit_for_bit(cost):
             assert np.array_equal(x, y)
         sub = capped.subset(300, np.random.default_rng(2))
         assert sub.max_distance_px == cap_px and sub.select_views(1).max_distance_px == cap_px
-        ref = PoseCost(sub.points, [m.truncated(cap_px) for m in cost.maps], outside_distance_px=sub.outside_distance_px)
+        ref = PoseCost(sub.points, [m.truncated(cap_px) for m in cost.maps],
+                       outside_distance_px=sub.outside_distance_px)
         translations = T[:3, 3] + np.random.default_rng(3).normal(scale=10.0, size=(5, 3))
         assert np.array_equal(sub.costs_at_translations(T[:3, :3], translations),
                               ref.costs_at_translations(T[:3, :3], translations))
@@ -286,7 +289,8 @@ def test_analytic_jacobian_matches_finite_differences(cost, model, maps):
     for p in range(6):
         e = np.zeros(6)
         e[p] = h[p]
-        fd[:, p] = (cost.residuals(apply_left_perturbation(T, e)) - cost.residuals(apply_left_perturbation(T, -e))) / (2 * h[p])
+        plus, minus = cost.residuals(apply_left_perturbation(T, e)), cost.residuals(apply_left_perturbation(T, -e))
+        fd[:, p] = (plus - minus) / (2 * h[p])
     scale = np.abs(J).max(axis=0)
     close = np.all(np.abs(fd - J) <= 1e-4 * scale, axis=1)
     assert close.mean() > 0.995, close.mean()  # the rest straddle a cell edge (kink of the interpolant)

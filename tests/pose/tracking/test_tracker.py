@@ -101,7 +101,8 @@ def test_a_failed_verdict_is_returned_or_raised_as_asked(models, views):
     tracker = Tracker(model, views, fast=False, rng=0, mode="fast", retry_hypotheses=False, **ORACLES)
     result = tracker.update(contradicting)
     assert not result.verdict.ok and not tracker.tracking and tracker.n_failed == 1
-    strict = Tracker(model, views, fast=False, rng=0, mode="fast", retry_hypotheses=False, raise_on_failure=True, **ORACLES)
+    strict = Tracker(model, views, fast=False, rng=0, mode="fast", retry_hypotheses=False, raise_on_failure=True,
+                     **ORACLES)
     with pytest.raises(PoseEstimationError, match="implausible pose") as err:
         strict.update(contradicting)
     assert err.value.result is not None and strict.n_failed == 1
@@ -142,7 +143,7 @@ def test_bad_input_is_refused_naming_the_argument(models, views):
 
 
 def test_add_timings_sums_stage_by_stage_and_takes_new_stages():
-    from histostudy.pose import add_timings
+    from histostudy.pose.result import add_timings
 
     sums = {}
     add_timings(sums, {"segmentation": 0.25, "total": 1.0})

@@ -1,10 +1,10 @@
-"""Tests of histostudy.pose.frames_for_views: the frame pairs a Tracker accepts."""
+"""Tests of histostudy.pose.tracking._input.frames_for_views: the frame pairs a Tracker accepts."""
 
 import numpy as np
 import pytest
 
 from histostudy.imaging import Frame, default_biplane
-from histostudy.pose import frames_for_views
+from histostudy.pose.tracking._input import frames_for_views
 
 
 def test_arrays_become_frames_of_their_views_and_frames_of_other_views_are_refused():

@@ -1,4 +1,4 @@
-"""Tests of histostudy.pose.tracking.RegionMaps (tracking/_maps.py): the same distance maps as DistanceMaps, in
+"""Tests of histostudy.pose.tracking._maps.RegionMaps: the same distance maps as DistanceMaps, in
 buffers reused frame after frame; and of DistanceMaps.from_maps, which wraps them."""
 
 import numpy as np
@@ -6,7 +6,9 @@ import pytest
 from pose_frames import POSES
 
 from histostudy.imaging import default_biplane, render_labels
-from histostudy.pose import DistanceMaps, RegionMaps, crop_view
+from histostudy.pose import DistanceMaps
+from histostudy.pose.tracking._maps import RegionMaps
+from histostudy.pose.tracking._roi import crop_view
 from histostudy.transducer import Feature, TransducerModel
 
 

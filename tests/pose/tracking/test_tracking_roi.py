@@ -10,7 +10,7 @@ import pytest
 from pose_frames import POSES
 
 from histostudy.imaging import default_biplane
-from histostudy.pose import RegionOfInterest, crop_view, region_of_interest
+from histostudy.pose.tracking._roi import RegionOfInterest, crop_view, region_of_interest
 from histostudy.transducer import TransducerModel
 
 

@@ -13,9 +13,10 @@ import pytest
 from pose_frames import POSES, focal_error, frames_of
 
 from histostudy.imaging import default_biplane, random_background, render_frame
-from histostudy.learning import FastUNet, OracleOrientation, OracleSegmenter, default_segmenter
-from histostudy.pose import PoseConfig, ScratchEstimator, Tracker, TrackingConfig, default_stages, scaled_pose_options
+from histostudy.learning import OracleOrientation, OracleSegmenter, default_segmenter
+from histostudy.pose import PoseConfig, Tracker, TrackingConfig, default_stages
 from histostudy.pose.tracking._options import PIXEL_OPTIONS
+from histostudy.pose.tracking._scratch import ScratchEstimator, scaled_pose_options
 
 ORACLES = dict(segmenter=OracleSegmenter(), orientation=OracleOrientation())
 
@@ -104,7 +105,7 @@ def test_a_scale_the_unet_cannot_give_is_refused(models):
                 orientation=OracleOrientation())
     odd = [dataclasses.replace(v, shape=(v.shape[0] - 1, v.shape[1])) for v in views]
     with pytest.raises(ValueError, match=r"views\[0\] shape \(959, 1240\) is not divisible"):
-        ScratchEstimator(models[0], odd, FastUNet(segmenter), OracleOrientation(), PoseConfig(), TrackingConfig(),
+        ScratchEstimator(models[0], odd, segmenter.with_precision("auto"), OracleOrientation(), PoseConfig(), TrackingConfig(),
                          0.5, np.random.default_rng(0))
 
 

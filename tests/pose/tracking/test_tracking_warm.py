@@ -145,8 +145,9 @@ def test_track_reacquires_after_a_jump_and_stops_on_bad_input(models, views):
         list(tracker.track([stream[0], stream[0][:1]]))
 
 
-@pytest.mark.parametrize("overrides, reach", [({}, 15.0), ({"search_truncation_px": 20.0, "verdict_truncation_px": 24.0},
-                                                            12.0), ({"refine_truncation_px": None}, None),
+@pytest.mark.parametrize("overrides, reach", [({}, 15.0),
+                                              ({"search_truncation_px": 20.0, "verdict_truncation_px": 24.0}, 12.0),
+                                              ({"refine_truncation_px": None}, None),
                                               ({"verdict_truncation_px": None}, None)])
 def test_region_maps_are_exact_up_to_the_largest_cap_they_are_read_at(models, views, sequence, overrides, reach):
     from histostudy.pose import DistanceMaps

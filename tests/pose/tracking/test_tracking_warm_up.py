@@ -9,7 +9,8 @@ from pose_frames import POSES, frames_of, moved
 from histostudy.geometry import transform_from_params
 from histostudy.imaging import default_biplane
 from histostudy.learning import OracleOrientation, OracleSegmenter
-from histostudy.pose import Tracker, TrackingConfig, views_isocentre_mm, warm_up_pair
+from histostudy.pose import Tracker, TrackingConfig
+from histostudy.pose.tracking._warm_up import views_isocentre_mm, warm_up_pair
 
 ORACLES = dict(segmenter=OracleSegmenter(), orientation=OracleOrientation())
 SCALED = TrackingConfig(scratch_label_scale=0.5)  # the fast from-scratch path, as the U-Net's
