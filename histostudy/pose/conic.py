@@ -151,7 +151,8 @@ def fit_ellipse_ransac(points_px, rng: np.random.Generator, *, tolerance_px: flo
         if not (np.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be finite and > 0, got {value!r}")
     for name, value in (("iterations", iterations), ("sample_size", sample_size), ("max_points", max_points)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < (5 if name == "sample_size" else 1):
+        least = 5 if name == "sample_size" else 1
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
             raise ValueError(f"{name} must be an integer >= {5 if name == 'sample_size' else 1}, got {value!r}")
     pts = np.asarray(points_px, dtype=np.float64).reshape(-1, 2)
     if not np.all(np.isfinite(pts)):

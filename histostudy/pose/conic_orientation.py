@@ -58,7 +58,7 @@ class ConicOrientation:
 
     Args:
         segmenter: makes the labels for :meth:`estimate` (a frame in, a label image out); None:
-            the shipped U-Net (:func:`histostudy.learning.segment.default_segmenter`), or the frame's
+            the shipped U-Net (:func:`histostudy.learning.default_segmenter`), or the frame's
             reference labels when it has them and no U-Net is shipped. :func:`histostudy.pose.
             estimate_pose` passes its own labels through :meth:`direction_candidates_from_labels`
             and never segments twice.
@@ -76,6 +76,12 @@ class ConicOrientation:
             tell; None: three times the inlier tolerance (about 28 px, an elevation near 75 deg
             for the inner boundary at the paper's geometry). On the shipped U-Net's labels of
             notebook 03's frames, 4 of 10 fits thinner than that were off by > 90 deg.
+        ransac_iterations: RANSAC draws of the ellipse fit.
+
+    Raises:
+        TypeError: ``spec`` is not a ``TransducerSpec``, or ``fallback`` not an orientation source.
+        ValueError: ``min_inlier_fraction`` not in [0, 1), a pixel threshold not finite and > 0, or
+            ``min_pixels`` / ``ransac_iterations`` not an integer >= 6.
     """
 
     segmenter: object | None = field(default=None, repr=False)
@@ -268,16 +274,20 @@ class ConicOrientation:
 
 
 def default_orientation(segmenter=None) -> OrientationSource | None:
-    """The pipeline's orientation stage, learned parts shipped in ``data/models``.
+    """The pipeline's orientation stage (§II-B.4), its learned parts shipped in ``data/models``.
 
     The geometric initialiser (:class:`ConicOrientation`: the axis from the inner boundary's
-    ellipse in the shipped U-Net's labels) with the shipped VGG19 regressor
-    (:func:`~histostudy.learning.orientation.default_vgg19`, the paper's §II-B.4 network) answering
-    for views without a usable ellipse; the VGG19 alone when no U-Net is shipped; None when the
-    VGG19 is missing or fails its check (callers then fall back to
-    :class:`~histostudy.learning.OracleOrientation` and say so). Measured against the VGG19 alone
-    in notebooks 03 and 04. ``segmenter``: the U-Net already loaded
-    (None: :func:`histostudy.learning.segment.default_segmenter`).
+    ellipse in the shipped U-Net's labels) with the shipped VGG19 regressor (the paper's §II-B.4
+    network) answering for views without a usable ellipse; the VGG19 alone when no U-Net is shipped.
+    Measured against the VGG19 alone in notebooks 03 and 04.
+
+    Args:
+        segmenter: the U-Net already loaded; None: :func:`histostudy.learning.default_segmenter`.
+
+    Returns:
+        The :class:`~histostudy.learning.OrientationSource`; None when the VGG19 is missing or fails
+        its check (callers then fall back to :class:`~histostudy.learning.OracleOrientation` and say
+        so).
     """
     vgg = default_vgg19()
     if vgg is None:

@@ -36,12 +36,21 @@ def unit_direction_pair(pair, who: str) -> np.ndarray:
 
 
 class SourceDirections:
-    """The direction stage of an orientation source over ``frames`` (one per view, in order).
+    """The direction stage (§II-B.4, eq. 4) of an orientation source over ``frames``.
 
-    A source with a ``direction_candidates_from_labels(frame, labels, rng, maps=)`` method (the
-    geometric :class:`~histostudy.pose.conic_orientation.ConicOrientation`) reads the labels and
-    distance maps already made and returns the view's pair itself (no second segmentation); any
-    other source gives eq. 4's mirror pair of its ``estimate(frame, rng) -> (azimuth, elevation)``.
+    Called as ``stage(view_index, labels, maps, rng)``, it returns that view's two candidate focal
+    directions, ``(2, 3)`` unit vectors in the C-arm frame from the transducer centre to the focal
+    point. A source with a ``direction_candidates_from_labels(frame, labels, rng, maps=)`` method
+    (the geometric :class:`~histostudy.pose.conic_orientation.ConicOrientation`) reads the labels and
+    distance maps already made (no second segmentation); any other source gives eq. 4's mirror pair
+    of its ``estimate(frame, rng) -> (azimuth, elevation)`` (rad).
+
+    Args:
+        orientation: the orientation source (an :class:`~histostudy.learning.OrientationSource`).
+        frames: the frames the labels came from, one per view, in the views' order.
+
+    Raises:
+        ValueError: (when called) the source's pair is not two finite directions.
     """
 
     def __init__(self, orientation, frames: Sequence[Frame]):

@@ -93,6 +93,12 @@ class DistanceMaps:
         present: the classes with at least one segmented pixel, in enum order.
         absent: the other classes; they carry no information in this view and :class:`PoseCost`
             gives them weight 0 here.
+
+    Raises:
+        TypeError: ``view`` is not a ``View``.
+        ValueError: ``view`` is smaller than 2x2 pixels, ``segmentation`` is neither a label image
+            of Feature values nor a dict of boolean masks of the view's shape, or
+            ``occlusion_aware`` is not True or False.
     """
 
     def __init__(self, view: View, segmentation, *, occlusion_aware: bool = False):

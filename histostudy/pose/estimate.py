@@ -57,8 +57,15 @@ def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter:
             ``options``. An unknown keyword raises TypeError.
 
     Returns:
-        :class:`~.result.PoseResult`. Raises :class:`~.result.PoseEstimationError` when a view
-        shows no feature, or on a failed verdict when ``options.raise_on_failure``.
+        :class:`~.result.PoseResult`: ``T_carm_transducer`` (4x4, mm), the focal point (eq. 5), the
+        cost, the seconds per stage and the verdict.
+
+    Raises:
+        TypeError: ``frames`` holds something other than frames, ``model`` is not a
+            ``TransducerModel``, ``options`` is not a ``PoseConfig`` or an override is unknown.
+        ValueError: ``frames`` is empty, or an option override is out of its range.
+        PoseEstimationError: a view shows no transducer feature, or the verdict refuses the pose
+            and ``options.raise_on_failure`` is set.
     """
     t_start = time.perf_counter()
     frames = check_items(frames, "frames", Frame, type_name="histostudy.imaging.frame.Frame")

@@ -50,9 +50,16 @@ def estimate_pose_from_labels(labels_per_view: Sequence, views: Sequence[View] |
             initialisation, no retries.
 
     Returns:
-        :class:`~.result.PoseResult`, ``labels`` the labels after step 1. Raises
-        :class:`~.result.PoseEstimationError` when a view shows no feature, or on a failed
-        verdict when ``options.raise_on_failure``.
+        :class:`~.result.PoseResult`: ``T_carm_transducer`` (4x4, mm), the cost, the seconds per
+        stage, the verdict, and ``labels`` the labels after step 1.
+
+    Raises:
+        TypeError: ``views`` holds something other than views, ``model`` is not a
+            ``TransducerModel`` or an option override is unknown.
+        ValueError: neither ``orientation`` nor ``initial_pose`` is given, or a label image does
+            not match its view.
+        PoseEstimationError: a view shows no transducer feature, or the verdict refuses the pose
+            and ``options.raise_on_failure`` is set.
     """
     t_start = time.perf_counter()
     views = check_items(views, "views", View, type_name="histostudy.imaging.View")

@@ -172,7 +172,8 @@ def initialise_pose(direction, views: Sequence[View], view_costs: Sequence[CostF
     """
     views = list(views)
     if len(views) != len(view_costs) or not views:
-        raise ValueError(f"views and view_costs must be non-empty and of equal length, got {len(views)} and {len(view_costs)}")
+        raise ValueError(f"views and view_costs must be non-empty and of equal length, "
+                         f"got {len(views)} and {len(view_costs)}")
     seeds = [float(a) for a in axial_seeds_deg]
     if not seeds:
         raise ValueError("axial_seeds_deg must hold at least one angle")

@@ -31,8 +31,17 @@ def _validation(stage) -> dict:
 
 
 def learned_stage_shortfalls(segmenter, orientation) -> list[str]:
-    """Why these learned stages fall short of :data:`LEARNED_STAGE_REQUIREMENTS` (empty when they meet
-    them), judged on their manifests' validation figures; None stands for a missing network."""
+    """Why these learned stages fall short of :data:`LEARNED_STAGE_REQUIREMENTS` (§II-B.2 U-Net, §II-B.4 VGG19).
+
+    Judged on their manifests' validation figures (``manifest["validation"]``).
+
+    Args:
+        segmenter: the shipped U-Net segmenter, or None for a missing network.
+        orientation: the shipped orientation source (its VGG19's manifest), or None for a missing one.
+
+    Returns:
+        One sentence per shortfall (the figure and its bound); empty when both meet the requirements.
+    """
     reasons = []
     if segmenter is None:
         reasons.append("no usable shipped U-Net")
@@ -54,14 +63,21 @@ def learned_stage_shortfalls(segmenter, orientation) -> list[str]:
 
 @functools.lru_cache(maxsize=1)
 def default_stages() -> tuple[Segmenter, OrientationSource]:
-    """The segmenter and orientation source :func:`estimate_pose` uses when none is given.
+    """The segmenter and orientation source :func:`~.estimate.estimate_pose` uses when none is given.
 
-    The learned stages shipped in ``data/models`` (:func:`histostudy.learning.segment.default_segmenter`,
-    :func:`histostudy.pose.conic_orientation.default_orientation`) where their weights are present, pass
-    their hash and configuration check, and their manifests' validation figures meet
-    :data:`LEARNED_STAGE_REQUIREMENTS`; otherwise the oracles (synthetic frames only), with a
-    warning that says why. Loaded once per process. Pass ``segmenter=`` / ``orientation=`` to
-    :func:`estimate_pose` to choose explicitly (e.g. a network of your own).
+    The learned stages shipped in ``data/models`` (:func:`histostudy.learning.default_segmenter`, the
+    U-Net of §II-B.2, and :func:`~.conic_orientation.default_orientation`, §II-B.4) where their
+    weights are present, pass their hash and configuration check, and their manifests' validation
+    figures meet :data:`LEARNED_STAGE_REQUIREMENTS`; otherwise the oracles (synthetic frames only),
+    with a warning that says why. Loaded once per process. Pass ``segmenter=`` / ``orientation=`` to
+    ``estimate_pose`` to choose explicitly.
+
+    Args:
+        (none)
+
+    Returns:
+        ``(segmenter, orientation)``: the shipped stages, or ``OracleSegmenter()`` and
+        ``OracleOrientation()``.
     """
     segmenter = default_segmenter()
     orientation = default_orientation(segmenter)  # its conic initialiser reads this U-Net's labels

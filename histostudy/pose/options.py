@@ -44,7 +44,7 @@ class PoseConfig:
     field is checked when the record is made: a bad value raises a ValueError naming the field,
     the value and what was expected.
 
-    Attributes:
+    Args:
         mode: ``"paper"`` (Nelder-Mead, 1000 iterations, tolerances 0.01) or ``"fast"``
             (Levenberg-Marquardt with analytic Jacobian, coarse-to-fine).
         init: ``"paper"`` runs §II-B.4 as written: the translation grids at one axial angle, scored
@@ -140,6 +140,10 @@ class PoseConfig:
             views agree but the pose fails the verdict (both misread alike) and ``retry_hypotheses``
             is set, the per-view starts are tried then. ``init.stages["direction_starts"]``
             records how many directions were started from.
+
+    Raises:
+        ValueError: a field out of its range or of the wrong kind (the message names the field,
+            the value and what was expected).
     """
 
     mode: str = "paper"

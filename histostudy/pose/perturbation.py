@@ -27,11 +27,21 @@ class NormalEquations:
 
 
 def apply_left_perturbation(T, delta) -> np.ndarray:
-    """``T'`` with ``R' = exp([w]x) R`` and ``t' = t + v`` for ``delta = [w (rad), v (mm)]``.
+    """The pose after a left perturbation about the focal point (§II-B.3): ``R' = exp([w]x) R``, ``t' = t + v``.
 
     The rotation turns the transducer about its own origin (the focal point) in world axes, so
     rotation and translation steps do not mix; this is the perturbation the Jacobians of
-    :class:`~.cost.PoseCost` are taken with.
+    :class:`~.cost.PoseCost` are taken with, and Levenberg-Marquardt's step.
+
+    Args:
+        T: a 4x4 pose ``T_carm_transducer`` (mm).
+        delta: 6 numbers ``[w (rad), v (mm)]``, both in the C-arm frame.
+
+    Returns:
+        The perturbed 4x4 pose ``T_carm_transducer``.
+
+    Raises:
+        ValueError: ``delta`` is not 6 finite numbers.
     """
     T = np.asarray(T, dtype=np.float64)
     d = np.asarray(delta, dtype=np.float64).reshape(-1)

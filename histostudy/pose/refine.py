@@ -79,7 +79,18 @@ def refine_nelder_mead(cost: Callable[[np.ndarray], float], T_init, *,
         initial_step: ``(rotation in rad, translation in mm)`` of the initial simplex; default 2 deg
             and 2 mm, about the accuracy of the initialisation.
         max_iter: simplex iterations (paper: 1000).
-        xatol, fatol: SciPy's absolute tolerances (above).
+        xatol: SciPy's absolute tolerance on the parameters (deg for the rotation, mm for the
+            translation; paper: 0.01).
+        fatol: SciPy's absolute tolerance on the cost (px², eq. 3; paper: 0.01).
+
+    Returns:
+        :class:`RefineResult`: the refined 4x4 ``T_carm_transducer``, its cost, iterations,
+        evaluations and seconds.
+
+    Raises:
+        ValueError: ``T_init`` is not rigid, ``initial_step`` is not two numbers > 0, or
+            ``max_iter`` / a tolerance is not positive.
+        TypeError: ``cost`` is not callable.
     """
     T0 = check_rigid(T_init, "T_init")
     step = np.asarray(initial_step, dtype=np.float64).reshape(-1)
@@ -171,6 +182,19 @@ def refine_levenberg_marquardt(cost: PoseCost, T_init, *, max_iter: int = 50, ft
             the previous result.
         coarse: an optional cheaper cost (e.g. ``cost.subset(2000, rng)``) to converge on first,
             at most ``coarse_max_iter`` iterations, before the full cost (coarse-to-fine).
+        max_iter: iterations on ``cost``.
+        ftol: relative decrease of the cost below which it stops.
+        xtol_rad: rotation step (rad) below which it stops (with ``xtol_mm``).
+        xtol_mm: translation step (mm) below which it stops (with ``xtol_rad``).
+        coarse_max_iter: iterations on ``coarse``.
+
+    Returns:
+        :class:`RefineResult`: the refined 4x4 ``T_carm_transducer``, its cost (px²), iterations,
+        evaluations, seconds, and ``info["damping"]`` (the last ``mu``, for the next warm start).
+
+    Raises:
+        TypeError: ``cost`` or ``coarse`` is not a :class:`~histostudy.pose.cost.PoseCost`.
+        ValueError: ``T_init`` is not rigid, or a count or tolerance is not positive.
     """
     T = check_rigid(T_init, "T_init")
     for name, c in (("cost", cost), ("coarse", coarse)):

@@ -17,7 +17,13 @@ __all__ = ["PoseEstimationError", "PoseResult", "add_timings", "refused", "resul
 
 
 class PoseEstimationError(RuntimeError):
-    """The frames do not support a pose: no features, or an implausible result (see ``verdict``)."""
+    """The frames do not support a pose (§II-B.3-4): no transducer feature, or an implausible result.
+
+    Args:
+        message: what was refused, and why.
+        verdict: the failed :class:`~histostudy.pose.verdict.PoseVerdict`, where a pose was judged.
+        result: the refused :class:`PoseResult`, where one was refined.
+    """
 
     def __init__(self, message: str, verdict: PoseVerdict | None = None, result: PoseResult | None = None):
         super().__init__(message)
@@ -27,20 +33,22 @@ class PoseEstimationError(RuntimeError):
 
 @dataclass
 class PoseResult:
-    """What :func:`~.estimate.estimate_pose` found.
+    """What :func:`~.estimate.estimate_pose` found (§II-B.3-4).
 
-    Attributes:
-        T_carm_transducer: 4x4 pose, transducer -> C-arm (CBCT) frame.
-        focal_point_mm: the model's geometric focal point in CBCT mm (eq. 5, ``f_c = hTc f_h``).
+    Args:
+        T_carm_transducer: 4x4 pose, transducer -> C-arm (CBCT) frame, mm.
+        focal_point_mm: the model's geometric focal point in the C-arm frame, mm (eq. 5,
+            ``f_c = hTc f_h``).
         cost: eq. 3 at the pose (px², summed over views).
-        iterations, evaluations: of the refinement (evaluations also count the initialisation's).
+        iterations: of the refinement.
+        evaluations: of the cost, by the refinement and the initialisation.
         timings_s: seconds per stage: segmentation, distance_maps, orientation, initialisation,
             refinement, verdict, total.
-        verdict: the plausibility checks.
+        verdict: the plausibility checks (:class:`~histostudy.pose.verdict.PoseVerdict`).
         mode: ``"paper"`` or ``"fast"``.
         init: the initialisation's record (None for a warm start).
-        refine: the refinement's record.
-        labels: the segmentation of each frame the cost was built on.
+        refine: the refinement's record (:class:`~histostudy.pose.refine.RefineResult`).
+        labels: the segmentation of each frame the cost was built on, in that view's pixels.
         retries: initial hypotheses refined after the first failed the verdict.
     """
 

@@ -69,7 +69,8 @@ def segmented_occupancy(views: Sequence[View], masks: Sequence[np.ndarray], cell
 
 def silhouette_seed(R: np.ndarray, views: Sequence[View], masks: Sequence[np.ndarray], points_mm: np.ndarray,
                     *, centre_local_mm, cell_px: int = SILHOUETTE_CELL_PX, max_iter: int = 12,
-                    tol_mm: float = 0.5, occupancy: Sequence[np.ndarray] | None = None) -> tuple[np.ndarray, float] | None:
+                    tol_mm: float = 0.5,
+                    occupancy: Sequence[np.ndarray] | None = None) -> tuple[np.ndarray, float] | None:
     """A translation of ``T_carm_transducer`` whose projected silhouettes have the segmented
     silhouettes' centroids in every view (beyond the paper; a seed for the grid search).
 

@@ -44,7 +44,8 @@ def coarse_scorings(costs: PoseCosts, options: PoseConfig, n_views: int, rng: np
     # A 3 cm grid needs no more than a few hundred points per class to rank its nodes.
     subset = costs.coarse.subset(max(1, options.init_points_per_class // 5), rng)
     full = subset.capped(tau_coarse, outside_distance_px=tau_coarse)
-    return [([c.select_views(i) for i in range(n_views)], c) for c in (full, full.with_outside_distance(0.5 * tau_coarse))]
+    return [([c.select_views(i) for i in range(n_views)], c)
+            for c in (full, full.with_outside_distance(0.5 * tau_coarse))]
 
 
 def directions_to_try(candidates: Sequence[np.ndarray], options: PoseConfig) -> tuple[list, list, float | None]:

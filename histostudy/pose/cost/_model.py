@@ -72,7 +72,16 @@ class PoseCost:
             from that view's segmentation (it then contributes nothing there).
         active: ``(n_views, n_classes)`` bool, the classes that contribute in each view.
 
-    Call it with a 4x4 ``T_carm_transducer`` or 6 parameters ``[rotvec (rad), t (mm)]``.
+    Call it with a 4x4 ``T_carm_transducer`` or 6 parameters ``[rotvec (rad), t (mm)]``: it returns
+    eq. 3's ``C`` in px² (float).
+
+    Raises:
+        TypeError: ``points`` is not a dict, or ``maps`` holds something other than
+            :class:`~histostudy.pose.distance_maps.DistanceMaps`.
+        ValueError: a class's points are not a finite ``(n, 3)`` array, no class has points,
+            ``maps`` is empty, a class weight or ``outside_distance_px`` is negative or not finite,
+            ``max_distance_px`` is not None or a finite number > 0, or ``backend`` / ``parallel``
+            is not one of its choices.
     """
 
     def __init__(self, points: Mapping, maps: Sequence[DistanceMaps], *,

@@ -24,8 +24,22 @@ PIXEL_OPTIONS = ("outside_distance_px", "search_truncation_px", "coarse_truncati
 
 
 def scaled_pose_options(options: PoseConfig, scale: float) -> PoseConfig:
-    """``options`` with every pixel threshold (:data:`PIXEL_OPTIONS`, those not None) multiplied by
-    ``scale`` (label pixels per frame pixel), so that each keeps its length on the detector."""
+    """``options`` for labels at a scale of the detector: every pixel threshold multiplied by ``scale``.
+
+    The thresholds are :data:`PIXEL_OPTIONS` (those not None), so that each keeps its length on the
+    detector (docs/tracking.md, "From scratch in under a second").
+
+    Args:
+        options: the :class:`~histostudy.pose.options.PoseConfig` at the detector's pixels.
+        scale: label pixels per frame pixel, in (0, 1].
+
+    Returns:
+        The scaled :class:`~histostudy.pose.options.PoseConfig`.
+
+    Raises:
+        TypeError: ``options`` is not a ``PoseConfig``.
+        ValueError: ``scale`` is not a number in (0, 1].
+    """
     if not isinstance(options, PoseConfig):
         raise TypeError(f"options must be a histostudy.pose.PoseConfig, got {type(options).__name__}")
     s = float(scale) if not isinstance(scale, bool) else float("nan")
@@ -47,7 +61,7 @@ class TrackingConfig:
     (the first update, re-acquisitions) run :func:`~histostudy.pose.estimate.estimate_pose` on the whole frames at
     ``scratch_label_scale`` (:mod:`._scratch`).
 
-    Attributes:
+    Args:
         roi_margin_px: frame pixels added on each side of the box of the model projected at the last
             pose. It must cover the motion between two frames (0.5 mm at the isocentre is about
             2.5 px in the default views) plus the reach of the coarse refinement stage's 30 px cap,
@@ -120,6 +134,10 @@ class TrackingConfig:
             pose is the result, and a from-scratch estimate costs one step at the label scale (a
             live stream, whose next pair is a fraction of a second away, then starts warm from it
             where ``resume_refused`` allows: :class:`histostudy.lab.FrameReceiver`'s default).
+
+    Raises:
+        ValueError: a field out of its range or of the wrong kind (the message names the field and
+            what was expected), or ``network`` names no usable U-Net weights.
     """
 
     roi_margin_px: float = 48.0

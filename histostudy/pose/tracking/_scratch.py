@@ -30,8 +30,9 @@ from ._warm import _subset_indices
 __all__ = ["ScratchEstimator", "scratch_estimator"]
 
 class _ScaledDirections:
-    """The direction stage on the scaled labels (docs/tracking.md, "From scratch in under a second"): for view ``a``, the conic with
-    scaled thresholds on its labels, or the fallback (any other source) on the full frame."""
+    """The direction stage on the scaled labels (docs/tracking.md, "From scratch in under a second"):
+    for view ``a``, the conic with scaled thresholds on its labels, or the fallback (any other
+    source) on the full frame."""
 
     def __init__(self, orientation, conics: Sequence[ConicOrientation | None], views: Sequence[View],
                  frames: Sequence[Frame], executor=None):

@@ -29,7 +29,7 @@ from ._warm_up import warm_up
 __all__ = ["Tracker"]
 
 class Tracker:
-    """The transducer's pose, frame pair after frame pair: warm-started :func:`~histostudy.pose.estimate.estimate_pose`.
+    """The transducer's pose, pair after pair (§II-A, §II-B.3-4): warm-started :func:`~histostudy.pose.estimate_pose`.
 
     ``Tracker(model, views).update(frames)`` returns a :class:`~histostudy.pose.result.PoseResult` per call.
 
@@ -103,6 +103,12 @@ class Tracker:
         update_seconds: wall seconds spent in :meth:`update`, input checks included.
         tracking_options: the :class:`~._options.TrackingConfig` of the fast warm path (None
             without ``fast``).
+
+    Raises:
+        TypeError: ``model`` is not a ``TransducerModel``, ``views`` holds something other than
+            views, ``fast`` is not True, False or a ``TrackingConfig``, ``options`` is not a
+            ``PoseConfig`` or an override is unknown.
+        ValueError: ``views`` is empty, or an option override is out of its range.
     """
 
     #: The counters above, in the order of :meth:`stats`; :meth:`reset` zeroes them.
@@ -184,13 +190,23 @@ class Tracker:
                 "update_seconds": self.update_seconds}
 
     def warm_up(self, frames=None, *, seed: int = 0) -> dict:
-        """Run the whole path once before the first real pair — from scratch, then warm — on
-        ``frames`` (as :meth:`update` takes them; default a synthetic pair of :attr:`model` at the
-        views' isocentre, :func:`~._warm_up.warm_up_pair`, drawn from ``seed``), then put the
-        tracker back as it was: the track, the counters and the Generator's state, so the poses
-        that follow are the same as without it. Loads or compiles the kernels and builds the
-        network's primitives that a live stream's first pair would otherwise wait for.
-        Returns ``{"seconds", "kinds", "accepted"}`` of the two warm-up updates."""
+        """Run the whole path once before the first real pair, then put the tracker back as it was.
+
+        From scratch, then warm, on ``frames``; the track, the counters and the Generator's state are
+        restored, so the poses that follow are the same as without it. Loads or compiles the kernels and
+        builds the network's primitives that a live stream's first pair would otherwise wait for.
+
+        Args:
+            frames: a pair as :meth:`update` takes it; None: a synthetic pair of :attr:`model` at the
+                views' isocentre (:func:`~._warm_up.warm_up_pair`).
+            seed: the seed of the synthetic pair's draws.
+
+        Returns:
+            ``{"seconds", "kinds", "accepted"}`` of the two warm-up updates.
+
+        Raises:
+            ValueError: ``frames`` do not match the tracker's views.
+        """
         return warm_up(self, frames, seed=seed)
 
     # --- the update -----------------------------------------------------------------------------
@@ -219,27 +235,27 @@ class Tracker:
         return self._update(frames, None, t_start)
 
     def track(self, pairs: Iterable, *, ready: Callable[[], bool] | None = None) -> Iterator[PoseResult]:
-        """:meth:`update` of each frame pair of ``pairs`` (an iterable, e.g. a live stream), yielded in order.
+        """:meth:`update` of each frame pair of ``pairs`` (e.g. a live stream), yielded in order.
 
-        Without ``fast`` this is ``update`` in a loop. With ``fast`` the stages overlap across
-        pairs: while a pair is refined and judged on the calling thread, the next pair's regions
-        are segmented and mapped on a worker thread, one view after the other whatever
-        ``TrackingConfig.parallel_views`` (torch, OpenCV and the cost's kernels release the GIL), from the
-        last pose accepted before it (one pair older than :meth:`update` would use; the region's
-        margin covers the motion). After a lost track the prepared regions are dropped and the
-        next pair is prepared again from the new pose. Counters, :attr:`last_kind` and the
-        results are as :meth:`update`'s; the poses are the same as ``update``'s wherever the two
-        regions are.
+        Without ``fast`` this is ``update`` in a loop. With ``fast`` the stages overlap across pairs:
+        while a pair is refined and judged on the calling thread, the next pair's regions are segmented
+        and mapped on a worker thread, from the last pose accepted before it (one pair older than
+        :meth:`update` would use; the region's margin covers the motion). After a lost track the
+        prepared regions are dropped. Counters, :attr:`last_kind` and the results are as ``update``'s;
+        the poses are the same as ``update``'s wherever the two regions are (docs/tracking.md).
 
-        ``ready``: for a live source whose next pair may not have arrived, a callable that says
-        whether taking the next pair now would not wait (e.g. a queue is not empty). When it says
-        False the current pair is posed first and the next taken after its result (no overlap for
-        that pair, and no result held back waiting for the stream). None: the next pair is always
-        taken ahead.
+        Args:
+            pairs: an iterable of frame pairs, each as :meth:`update` takes it.
+            ready: for a live source whose next pair may not have arrived, a callable that says whether
+                taking the next pair now would not wait (e.g. a queue is not empty); when False the
+                current pair is posed first. None: the next pair is always taken ahead.
 
-        An error (bad input, :class:`~histostudy.pose.result.PoseEstimationError`) ends the iteration at the pair
-        that caused it, after the results of every pair before it: a pair taken ahead is checked
-        when its turn comes.
+        Returns:
+            An iterator of :class:`~histostudy.pose.result.PoseResult`, one per pair.
+
+        Raises:
+            ValueError, PoseEstimationError: as :meth:`update`; the error ends the iteration at the pair
+                that caused it, after the results of every pair before it.
         """
         if self._region is None:
             for frames in pairs:

@@ -39,7 +39,8 @@ class PreparedRegions:
     Attributes:
         regions: each view's :class:`~._roi.RegionOfInterest`.
         labels: each region's ``uint8`` labels at the label scale.
-        maps: each region's :class:`~histostudy.pose.distance_maps.DistanceMaps` (in the estimator's buffers of the slot).
+        maps: each region's :class:`~histostudy.pose.distance_maps.DistanceMaps` (in the estimator's
+            buffers of the slot).
         timings_s: ``segmentation`` and ``distance_maps`` seconds (summed over views).
         seconds: wall seconds of the preparation.
         frames: the frames the regions were cut from (:meth:`RegionEstimator.prepare_rescue`
@@ -100,14 +101,15 @@ def _tracking_network(network, segmenter) -> UNetRunner:
         return UNetRunner.load(path)
     except ValueError as exc:
         raise ValueError(f"TrackingConfig.network {network!r}: the weights {str(path)!r} cannot be used ({exc}); "
-                         f"expected a U-Net checkpoint in data/models (histostudy train segmentation_tracking)") from None
+                         f"expected a U-Net checkpoint in data/models "
+                         f"(histostudy train segmentation_tracking)") from None
 
 
 class RegionEstimator:
-    """Warm-started pose estimates on the regions where the last pose projects (docs/tracking.md).
+    """Warm-started pose estimates on the regions where the last pose projects (§II-B.2-3; docs/tracking.md).
 
     Args:
-        model: the digital model of eq. 3.
+        model: the digital model of eq. 3 (points in mm, transducer frame).
         views: the full-frame views, in the order of the frames.
         segmenter: a :class:`~histostudy.learning.UNetRunner` (run at ``TrackingConfig.precision``)
             or any segmenter (``segment(frame, rng)``).
@@ -120,6 +122,11 @@ class RegionEstimator:
         rescue_scale: the label scale of :meth:`prepare_rescue` (``TrackingConfig.rescue_scale``),
             None where there is no second attempt (not set, or not above ``label_scale``).
         last_regions: the :class:`~._roi.RegionOfInterest` of each view at the last call.
+
+    Raises:
+        ValueError: the label or rescue scale is not 1/k of the frame, the regions' alignment does
+            not hold whole pixels of the rescue grid, a view's shape is not divisible by
+            1/label_scale, or ``TrackingConfig.network`` names no usable weights.
     """
 
     def __init__(self, model: TransducerModel, views: Sequence[View], segmenter, options: PoseConfig,
