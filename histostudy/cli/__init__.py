@@ -1,14 +1,7 @@
-"""The ``histostudy`` command. The study: ``reproduce`` (the notebooks under a profile), ``train``,
-``report`` and ``profiles`` (``cli/study.py``). The lab's own data (``cli/lab/``): ``pose`` (frames
--> pose), ``calibrate`` (poses + flange poses -> hand-eye calibration), ``target`` (a target in the
-CBCT -> a checked robot move, planned or, with ``--execute``, made), ``listen`` (a DICOM receiver
-of live C-arm frames -> poses as they come), ``send`` (DICOM files to a receiver) and
-``lab-dataset`` (a generated dataset to try them on). ``--version``, ``-q`` and ``-v`` on every
-subcommand; results on stdout, talk on stderr (``cli/console.py``).
-
-Exit status: 0 done, 1 done but refused (a pose verdict, a calibration beyond its bound, a
-failing notebook), 2 bad input (named in the message), 130/143 interrupted.
-"""
+"""The command line, `histostudy`: the study's subcommands (``study``: reproduce, train, report, publish,
+profiles) and the lab's (``lab``: pose, calibrate, target, listen, send, lab-dataset), with what they
+share with the terminal (``console``: results on stdout, talk on stderr). Exit status: 0 done, 1 done
+but refused, 2 bad input, 130/143 interrupted (README.md, "Command line")."""
 
 from __future__ import annotations
 
@@ -23,6 +16,11 @@ __all__ = ["build_parser", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``histostudy`` parser with every subcommand; each sets ``run``, the function that runs it.
+
+    Returns:
+        The parser; ``build_parser().parse_args(argv).run(args)`` runs a command (:func:`main`).
+    """
     from histostudy import __version__
 
     common = common_parent(__version__)
@@ -38,6 +36,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    """Run one ``histostudy`` command: parse ``argv``, route the loggers to stderr at the level ``-q`` /
+    ``-v`` ask for, and run the subcommand.
+
+    Args:
+        argv: the arguments after ``histostudy`` (``["reproduce", "--profile", "smoke"]``); None reads
+            ``sys.argv[1:]``.
+
+    Returns:
+        The exit status: 0 done, 1 done but refused (a pose verdict, a calibration beyond its bound, a
+        failing notebook), 2 bad input (named in the message), 130/143 interrupted (SIGINT/SIGTERM).
+
+    Raises:
+        SystemExit: argparse's, for ``--help``, ``--version`` (status 0) or unparsable arguments (2).
+    """
     args = build_parser().parse_args(argv)
     configure_logging(args)
     return args.run(args)

@@ -1,15 +1,7 @@
-"""What every ``histostudy`` command shares with the terminal, in the habits of dcmtk and git.
-
-- **stdout carries results**: each lab command ends with one line of JSON, its summary
-  (:func:`emit`); ``listen`` writes a JSON line per event. A script reads them with ``jq``.
-- **stderr carries talk**: the commands' own lines go through the ``histostudy.cli`` logger
-  (INFO by default), the library's through ``histostudy.*`` (WARNING by default). ``-q`` keeps
-  errors only; ``-v`` shows the library's INFO, ``-vv`` everything (DEBUG).
-- **Progress** (:class:`Steps`): a bar on stderr for work longer than a couple of seconds, only
-  when stderr is a terminal and not ``-q``; its elapsed time ticks while a step runs.
-- **Errors** (:func:`fail`): ``histostudy <command>: <message>`` on stderr, exit status 2 for bad
-  input (the message names the flag or file), 1 for a refusal (a verdict, a bound).
-"""
+"""What every ``histostudy`` command shares with the terminal, in the habits of dcmtk and git: results
+on stdout (one JSON line, :func:`emit`), talk on stderr through the ``histostudy.cli`` logger (``-q``
+errors only, ``-v``/``-vv`` more), a progress bar on a terminal (:class:`Steps`), and errors as
+``histostudy <command>: <message>`` with exit status 2 for bad input, 1 for a refusal (:func:`fail`)."""
 
 from __future__ import annotations
 
@@ -30,7 +22,14 @@ _HANDLER_NAME = "histostudy-cli-stderr"
 
 
 def common_parent(version: str) -> argparse.ArgumentParser:
-    """The options of every subcommand: ``--version``, ``-q/--quiet`` and ``-v/--verbose``."""
+    """The options of every subcommand: ``--version``, ``-q/--quiet`` and ``-v/--verbose``.
+
+    Args:
+        version: the package's version, printed by ``--version``.
+
+    Returns:
+        A parent parser (no ``--help``) to pass in ``parents=``.
+    """
     parent = argparse.ArgumentParser(add_help=False)
     parent.add_argument("--version", action="version", version=f"histostudy {version}")
     talk = parent.add_mutually_exclusive_group()
@@ -42,15 +41,32 @@ def common_parent(version: str) -> argparse.ArgumentParser:
 
 
 def add_command(sub, name: str, parents, *, help: str, description: str, example: str):
-    """A subcommand whose ``--help`` shows its ``description`` and an ``example`` (shell lines)."""
+    """Add a subcommand whose ``--help`` shows its ``description`` and an ``example``.
+
+    Args:
+        sub: the subparsers of the ``histostudy`` parser.
+        name: the subcommand's name.
+        parents: parent parsers (:func:`common_parent`).
+        help: its line in ``histostudy --help``.
+        description: its paragraph in ``histostudy <name> --help``.
+        example: shell lines, shown indented under "example:".
+
+    Returns:
+        The subcommand's parser.
+    """
     return sub.add_parser(name, parents=parents, help=help, description=description,
                           epilog="example:\n" + "\n".join("  " + line for line in example.strip().splitlines()),
                           formatter_class=argparse.RawDescriptionHelpFormatter)
 
 
 def configure_logging(args) -> None:
-    """Route the ``histostudy`` loggers to stderr at the levels ``-q``/``-v`` ask for (idempotent:
-    ``main`` may be called many times in one process, e.g. by tests)."""
+    """Route the ``histostudy`` loggers to stderr at the levels ``-q``/``-v`` ask for, and set
+    ``args.progress`` (a bar only on a terminal, not with ``-q``). Idempotent: ``main`` may run many
+    times in one process.
+
+    Args:
+        args: the parsed arguments (``quiet``, ``verbose``; missing ones read as unset).
+    """
     quiet, verbose = bool(getattr(args, "quiet", False)), int(getattr(args, "verbose", 0) or 0)
     own = logging.ERROR if quiet else (logging.DEBUG if verbose else logging.INFO)
     library = logging.ERROR if quiet else {0: logging.WARNING, 1: logging.INFO}.get(verbose, logging.DEBUG)
@@ -79,7 +95,17 @@ class _StderrHandler(logging.StreamHandler):
 
 
 def positive_int(value: str) -> int:
-    """An argument that must be an integer >= 1."""
+    """An argparse ``type`` for an integer argument >= 1.
+
+    Args:
+        value: the argument's text.
+
+    Returns:
+        The integer.
+
+    Raises:
+        argparse.ArgumentTypeError: ``value`` is not an integer >= 1.
+    """
     try:
         number = int(value)
     except ValueError:
@@ -90,22 +116,41 @@ def positive_int(value: str) -> int:
 
 
 def emit(summary: dict) -> None:
-    """The command's summary as one line of JSON on stdout."""
+    """Print the command's summary as one line of JSON on stdout.
+
+    Args:
+        summary: JSON-able after :func:`histostudy.core.to_jsonable` (numpy arrays, paths; NaN and
+            infinity become null).
+    """
     from histostudy.core import to_jsonable
 
     print(json.dumps(to_jsonable(summary), allow_nan=False), flush=True)
 
 
 def fail(command: str, exc: BaseException | str, code: int = 2) -> int:
-    """Report a bad input (2) or a refusal (1) on stderr; returns the exit status."""
+    """Report a bad input or a refusal on stderr as ``histostudy <command>: <message>``.
+
+    Args:
+        command: the subcommand's name.
+        exc: the error or message.
+        code: the exit status: 2 bad input, 1 refusal.
+
+    Returns:
+        ``code``.
+    """
     print(f"histostudy {command}: {exc}", file=sys.stderr, flush=True)
     return code
 
 
 class Steps:
-    """A progress bar over ``total`` named steps (tqdm, on stderr), off unless ``enabled``; the bar
-    redraws every half second so that a long step shows its elapsed time. Use as a context manager
-    and call :meth:`step` with each step's name before it."""
+    """A progress bar over named steps (tqdm, on stderr) that redraws every half second, so that a long
+    step shows its elapsed time. Use as a context manager and call :meth:`step` before each step.
+
+    Args:
+        total: the number of steps.
+        enabled: draw the bar (``args.progress``); otherwise every call does nothing.
+        label: the bar's label.
+    """
 
     def __init__(self, total: int, *, enabled: bool, label: str):
         self.total = int(total)
@@ -123,6 +168,11 @@ class Steps:
         return self
 
     def step(self, name: str) -> None:
+        """Mark the previous step done and show ``name`` as the one running.
+
+        Args:
+            name: the step's name.
+        """
         if self._bar is None:
             return
         if self._started:
@@ -150,5 +200,12 @@ class Steps:
 
 
 def elapsed_since(t0: float) -> float:
-    """Seconds since ``t0`` (``time.monotonic``), for summaries' ``wall_s``."""
+    """Seconds since ``t0``, for summaries' ``wall_s``.
+
+    Args:
+        t0: a :func:`time.monotonic` reading (s).
+
+    Returns:
+        The elapsed seconds, rounded to ms.
+    """
     return round(time.monotonic() - t0, 3)

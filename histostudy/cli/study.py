@@ -31,7 +31,12 @@ _positive_int = positive_int  # the one check of a count argument (cli/console.p
 
 
 def add_parsers(sub, parents) -> None:
-    """The study's subcommands on the ``histostudy`` parser's ``sub``."""
+    """Add the study's subcommands (reproduce, publish, train, calibrate-int8, report, profiles).
+
+    Args:
+        sub: the subparsers of the ``histostudy`` parser.
+        parents: parent parsers every subcommand takes (:func:`~.console.common_parent`).
+    """
     rep = add_command(
         sub, "reproduce", parents, help="run the study notebooks through papermill and write the report",
         description="Run the study's notebooks (notebooks/NN_*.ipynb) in order through papermill under a profile, "
@@ -54,7 +59,8 @@ def add_parsers(sub, parents) -> None:
     rep.set_defaults(run=_reproduce)
 
     pub = add_command(
-        sub, "publish", parents, help="publish a finished reproduce folder into the repository (docs/results/<profile>)",
+        sub, "publish", parents,
+        help="publish a finished reproduce folder into the repository (docs/results/<profile>)",
         description="Copy a finished `histostudy reproduce` run's report, run record, sections' results, tables and "
                     "figures (not the executed notebooks) into a folder of the repository, replaced whole, and "
                     "put its headline table into the README between its markers.",
@@ -81,7 +87,8 @@ def add_parsers(sub, parents) -> None:
                          "at 0.25, exported as unet_tracking_fine) or segmentation_gpu / orientation_gpu (the study's "
                          "networks as the prepared GPU run trains them, scripts/gpu_training_run.py)")
     tr.add_argument("--profile", type=_profile, default="standard",
-                    help=f"one of {', '.join(PROFILE_NAMES)} or a .toml file with [training.<task>] (default: standard)")
+                    help=f"one of {', '.join(PROFILE_NAMES)} or a .toml file with [training.<task>] "
+                         "(default: standard)")
     tr.add_argument("--run-dir", default=None,
                     help="checkpoint folder (default: <cache>/runs/<task>-<profile>; an interrupted run resumes there)")
     tr.add_argument("--models-dir", default=None, help="where the best weights are exported (default: data/models)")

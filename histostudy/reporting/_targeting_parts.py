@@ -1,11 +1,6 @@
-"""The parts of :func:`~histostudy.reporting.viz.targeting_scene`, the 3-D targeting set-up (§II-C,
-§II-D, Fig. 2): its input checks, its content (:class:`_TargetingScene`), the drawing of each of
-its parts and the two-panel off-screen render.
-
-Everything is in the C-arm (CBCT, world) frame, LPS, mm. pyvista is imported inside the drawing
-helpers only: :func:`~histostudy.reporting.viz.targeting_scene` prepares the off-screen
-rendering before VTK loads.
-"""
+"""The parts of :func:`~histostudy.reporting.viz.targeting_scene` (§II-C, §II-D, Fig. 2): its input
+checks, its content (:class:`_TargetingScene`), the drawing of each part and the two-panel off-screen
+render. C-arm (CBCT, world) frame, LPS, mm; pyvista is imported inside the drawing helpers only."""
 
 from __future__ import annotations
 

@@ -1,15 +1,6 @@
-"""How a reproduced number stands against the paper's: the difference and one status.
-
-The rule, for §III's means ± SD (docs/architecture.md, reporting layer): the difference is the
-reproduced mean minus the paper's, in the paper's unit. It is judged against a tolerance: the
-paper's SD of that number; for a number the paper prints without SD but whose Table II twin has one
-(§III's biases), the twin's SD; otherwise half a unit of the paper's last printed digit. Within the
-tolerance the number **agrees**; beyond it, it **differs**; beyond :data:`FAR_OFF_SD` SDs it is
-**far off** (flagged). Two intervals (the Tukey CI) agree when they overlap; a value agrees with a
-bound the paper gives (the ANOVA's "p < 1e-5") when it satisfies it. Other text, a missing value or
-a unit that does not match is not judged, with the reason. Only the reproduced mean enters: its own
-SD says how variable the run was, not how far it is from the paper.
-"""
+"""How a reproduced number stands against the paper's (:func:`judge`): the difference, in the
+paper's unit, and one status (agrees, differs, far off, not judged) against a tolerance taken from
+the paper's SD or its printed digits (docs/report.md, "How the status is decided")."""
 
 from __future__ import annotations
 

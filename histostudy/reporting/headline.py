@@ -1,13 +1,6 @@
-"""The report's first screen: what kind of run it is, the paper's key results beside their
-reproduction, and the contents.
-
-The banner says what the profile is (a smoke run exercises the pipeline and is not a
-reproduction) with the run's study sizes against the paper's. The headline table holds
-:data:`HEADLINE_KEYS`, the results a reader of the paper looks for first (§III: global accuracy and
-Table I's screws row, the angle MAEs, Table II's centre error, the targeting error), each with the
-reproduced value, the difference and the status of
-:func:`~histostudy.reporting.twins.status_markdown` (docs/architecture.md, reporting layer).
-"""
+"""The report's first screen: the profile's banner (what kind of run it is, its study sizes against
+the paper's), the headline table of the paper's key results (:data:`HEADLINE_KEYS`) beside their
+reproduction, and the contents (docs/report.md, "The first screen")."""
 
 from __future__ import annotations
 

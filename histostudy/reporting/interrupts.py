@@ -1,16 +1,6 @@
-"""Stopping a batch run cleanly on SIGINT or SIGTERM: no kernel left running, no temporary file left.
-
-:func:`~histostudy.reporting.pipeline.run_study` runs inside :func:`signals_interrupt`: SIGTERM (a
-scheduler's or ``kill``'s stop) and SIGINT (Ctrl-C) raise :class:`StudyInterrupted` in the main
-thread, so the run unwinds through its ``finally`` blocks (the executed notebook's temporary file
-goes). SIGINT gets the same handler rather than Python's default ``KeyboardInterrupt``: with the
-default one installed, asyncio (under papermill's notebook client) swaps in its own handler that
-cancels the running task instead, and a kernel client that waits through that cancellation could
-leave the run hanging after Ctrl-C (seen once in CI: no exit within 60 s). Then :func:`stop_kernels` ends the notebook kernels this
-process started (papermill's own clean-up does not run when a signal interrupts its event loop),
-and :func:`remove_temporaries` removes what a killed kernel left half-written. The interrupted
-section is marked ``"interrupted"`` in ``run.json`` and the report.
-"""
+"""Stopping a batch run cleanly on SIGINT or SIGTERM: the signal raised as :class:`StudyInterrupted`,
+no notebook kernel left running, no temporary file left half-written (docs/report.md, "Stopping a
+run")."""
 
 from __future__ import annotations
 
@@ -25,7 +15,11 @@ __all__ = ["StudyInterrupted", "remove_temporaries", "signals_interrupt", "stop_
 
 
 class StudyInterrupted(Exception):
-    """The batch run was stopped by a signal (``signal_name``: ``"SIGTERM"``, ``"SIGINT"``)."""
+    """The batch run was stopped by a signal (raised inside :func:`signals_interrupt`).
+
+    Args:
+        signal_name: the signal's name, ``"SIGTERM"`` or ``"SIGINT"`` (kept as ``signal_name``).
+    """
 
     def __init__(self, signal_name: str):
         super().__init__(f"interrupted by {signal_name}")

@@ -1,13 +1,6 @@
-"""Markdown for the report: the one escaping function, and the tables, links and code built on it.
-
-Every piece of plain text that goes into ``REPORT.md`` (a table cell or header, a caption, a label
-recorded by a notebook) goes through :func:`md_escape`, so that a ``|`` in a column name cannot
-break a table, a ``<`` cannot open an HTML tag and a ``*`` or ``_`` cannot start emphasis, on
-GitHub and in the HTML that ``report_html`` makes of the same text (docs/architecture.md, the
-reporting layer). Text that is Markdown already (a link, a code span, a paragraph a notebook wrote
-with :meth:`~histostudy.reporting.report.SectionWriter.text`) is marked by wrapping it in
-:class:`Markdown`, and passes through the tables unchanged.
-"""
+"""Markdown for the report: the one escaping function (:func:`md_escape`) and the tables, links and
+code built on it; text that is Markdown already is wrapped in :class:`Markdown` and passes through
+unchanged (docs/report.md, "Text and escaping")."""
 
 from __future__ import annotations
 

@@ -1,16 +1,6 @@
-"""The values Wagner et al. (IEEE TBME 2023) report, as data: what every reproduced figure is set beside.
-
-Keys are dotted names used by the study notebooks when they record a comparison
-(:meth:`histostudy.reporting.report.SectionWriter.compare`). Each value keeps the paper's own rounding and
-the place it comes from, so the report can cite it. Percentages are in percent, lengths in mm,
-angles in degrees, as printed in the paper.
-
-Some numbers are printed twice: §III's pose paragraph gives the centre MAE and bias per direction,
-the margin distance and the radius MAE that Table II breaks down again. Such a number names the
-Table II value it repeats (``twin``), so the report sets the one reproduced value beside both. A
-number the study can only compute under a condition names the reproduced value it depends on
-(``needs``) and why, so a run that cannot compute it says so instead of leaving a gap.
-"""
+"""The values Wagner et al. (IEEE TBME 2023) report, as data (:data:`PAPER`): what every reproduced
+number is set beside, with the paper's own rounding, unit (percent, mm, degrees) and the place it
+comes from (docs/report.md, "The paper's results and their twins")."""
 
 from __future__ import annotations
 
@@ -21,12 +11,18 @@ __all__ = ["PAPER", "PaperValue", "paper_value"]
 
 @dataclass(frozen=True)
 class PaperValue:
-    """One reported number: ``mean`` (± ``sd`` where the paper gives one), its unit and source.
+    """One number the paper reports.
 
-    ``label`` names it for a reader ("screws precision"). ``twin`` is the key of the paper value that
-    reports the same quantity elsewhere in the paper (§III's pose paragraph -> Table II), whose
-    reproduction stands for this one too. ``needs`` is ``(key, why)``: the reproduced value this one
-    cannot be computed without, and the reason, shown when a run lacks it.
+    Args:
+        mean: the value as printed (a number, or text such as ``"< 1e-5"`` or an interval).
+        sd: its standard deviation where the paper gives one (same unit), else None.
+        unit: ``"%"``, ``"mm"``, ``"deg"``, ``"px"`` or ``""``.
+        where: the place in the paper (``"Table II"``, ``"§III"``), cited by the report.
+        label: its name for a reader (``"screws precision"``).
+        twin: the key of the value that reports the same quantity elsewhere in the paper (§III's pose
+            paragraph -> Table II), whose reproduction stands for this one too; ``""`` for none.
+        needs: ``(key, why)``: the reproduced value this one cannot be computed without, and the
+            reason, shown when a run lacks it; None for none.
     """
 
     mean: float | str
@@ -39,6 +35,14 @@ class PaperValue:
     needs: tuple[str, str] | None = None
 
     def format(self, digits: int | None = None) -> str:
+        """The value as the report prints it: ``"1.38 ± 0.54 mm"``.
+
+        Args:
+            digits: decimals; None prints each number in its shortest form (``:g``).
+
+        Returns:
+            The text (a text ``mean`` unchanged).
+        """
         if isinstance(self.mean, str):
             return self.mean
         fmt = (lambda x: f"{x:.{digits}f}") if digits is not None else (lambda x: f"{x:g}")
@@ -85,6 +89,8 @@ def _table2() -> dict[str, PaperValue]:
     return out
 
 
+#: Every value the paper reports that the study reproduces or uses, by dotted key
+#: (``"table1.<class>.<metric>"``, ``"table2.<row>.<direction>"``, ``"seg.*"``, ``"pose.*"``, ...).
 PAPER: dict[str, PaperValue] = {
     # §II-B.1 digital model and §II-B.2 rendering, §II-D set-up.
     "model.radius_mm": PaperValue(138.7, None, "mm", "§II-B.1", label="cap sphere radius"),
@@ -159,7 +165,17 @@ PAPER: dict[str, PaperValue] = {
 
 
 def paper_value(key: str) -> PaperValue:
-    """The paper's value for ``key``; a KeyError lists near keys when it is unknown."""
+    """The paper's value for ``key``.
+
+    Args:
+        key: a key of :data:`PAPER` (``"table2.center_mae.overall"``).
+
+    Returns:
+        Its :class:`PaperValue`.
+
+    Raises:
+        KeyError: ``key`` is unknown (the message lists known keys with its prefix).
+    """
     try:
         return PAPER[key]
     except KeyError:

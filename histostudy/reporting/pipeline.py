@@ -1,17 +1,6 @@
-"""The batch study: run the notebooks in order through papermill (``workers`` of them at once),
-then assemble the report.
-
-``histostudy reproduce`` calls :func:`run_study`. Each notebook ``notebooks/NN_name.ipynb`` runs
-with the profile's parameters plus ``output_dir = <output>/NN_name``, where it records its
-results (:class:`histostudy.reporting.report.SectionWriter`); the executed notebook lands in
-``<output>/notebooks/``. A section whose content key (:mod:`.section_keys`: notebook, parameters,
-code, weights, libraries) matches the one stored when it last finished is kept, not run again, so
-that a rerun or a run after an interruption only does what changed (``force`` redoes all). The kernel is the running interpreter (a kernelspec written to a
-temporary Jupyter path), so the notebooks see exactly the installed package the CLI runs from.
-Before anything runs or is written, the profile is checked against every notebook of the folder
-(:func:`histostudy.reporting.profiles.validate_profile`), so a misspelt table or key stops the
-run at once instead of being ignored.
-"""
+"""The batch study (``histostudy reproduce``): the notebooks of a profile run through papermill,
+each into its section folder, kept where its content key is unchanged, then the report assembled
+(docs/report.md, "The batch run")."""
 
 from __future__ import annotations
 
@@ -44,7 +33,16 @@ SWEEP_CACHE_FOLDER = ".sweep-cache"
 
 
 class NotebookFailed(RuntimeError):
-    """A notebook raised during the batch run; names the notebook, the cell and the error."""
+    """A notebook raised during the batch run; the message names the notebook, the cell and the error.
+
+    Args:
+        notebook: the notebook's stem (``"04_pose_estimation"``).
+        cell_index: the failed cell, as ``"<index> ('<first line>')"`` counted in the source notebook
+            (papermill's injected cells left out), or papermill's own index where the executed copy
+            cannot be read.
+        error: ``"<exception name>: <value>"``.
+        executed_notebook: the executed copy kept with the traceback (``<output>/notebooks/``).
+    """
 
     def __init__(self, notebook: str, cell_index, error: str, executed_notebook: Path):
         self.notebook = notebook
@@ -56,7 +54,17 @@ class NotebookFailed(RuntimeError):
 
 
 def discover_notebooks(notebooks_dir: str | os.PathLike = DEFAULT_NOTEBOOK_DIR) -> list[Path]:
-    """The study notebooks ``NN_name.ipynb`` of a folder, in order."""
+    """The study notebooks ``NN_name.ipynb`` of a folder, in order.
+
+    Args:
+        notebooks_dir: the folder (default: the repository's ``notebooks/``).
+
+    Returns:
+        Their paths, sorted by name.
+
+    Raises:
+        ValueError: ``notebooks_dir`` is not a folder, or holds no ``NN_name.ipynb``.
+    """
     folder = Path(notebooks_dir)
     if not folder.is_dir():
         raise ValueError(f"notebooks_dir {str(folder)!r} is not a folder (expected the repository's notebooks/)")
@@ -67,7 +75,18 @@ def discover_notebooks(notebooks_dir: str | os.PathLike = DEFAULT_NOTEBOOK_DIR) 
 
 
 def select_notebooks(notebooks: Sequence[Path], only: Sequence[str] | None) -> list[Path]:
-    """The notebooks named by ``only`` (full stem, its number ``"01"``, or its name part), in run order."""
+    """The notebooks named by ``only``, in run order.
+
+    Args:
+        notebooks: the notebooks of the folder (:func:`discover_notebooks`).
+        only: names, each a full stem, its number (``"01"``) or its name part; None or empty for all.
+
+    Returns:
+        The chosen paths in the order of ``notebooks``, each once.
+
+    Raises:
+        ValueError: a name of ``only`` matches no notebook (the message lists those available).
+    """
     if not only:
         return list(notebooks)
     chosen = []
@@ -81,6 +100,9 @@ def select_notebooks(notebooks: Sequence[Path], only: Sequence[str] | None) -> l
 
 @dataclass
 class StudyRun:
+    """What :func:`run_study` returns: the run's folder, its ``REPORT.md`` and ``report.html`` and
+    the run record written to ``run.json``."""
+
     output_dir: Path
     report_md: Path
     report_html: Path
@@ -93,27 +115,42 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
               force: bool = False) -> StudyRun:
     """Run the study notebooks of ``profile`` into ``output_dir`` and assemble the report.
 
-    ``workers``: how many notebooks run at once, each in its own kernel (1: one after the other).
-    The notebooks are independent (each writes its own section; the frame cache is written
-    atomically), and each takes its seed from the profile, so the numbers do not depend on it;
-    ``run.json`` lists them in their order either way. A failed notebook stops new ones from
-    starting; those already running finish.
+    Each notebook ``NN_name.ipynb`` runs with the profile's parameters plus ``output_dir =
+    <output>/NN_name`` in a kernel of the running interpreter; its executed copy lands in
+    ``<output>/notebooks/``. A section whose content key (:func:`~.section_keys.section_key`) equals
+    the one stored when it last finished is kept (``"kept": true`` in ``run.json``); the sweeps keep
+    their finished tasks in ``<output>/.sweep-cache`` (:mod:`histostudy.core.sweep_cache`). The log
+    estimates each notebook's wall time from the last finished run with the same parameters.
 
-    The sweeps inside the notebooks keep their finished tasks in ``output_dir/.sweep-cache``
-    (:mod:`histostudy.core.sweep_cache`), so a section stopped half-way redoes only what did not
-    finish. A section whose content key (:func:`~.section_keys.section_key`) equals the one stored when it
-    last finished in ``output_dir`` is kept (``"kept": true`` in ``run.json``, its wall time that of
-    the run that made it); ``force`` runs every notebook again. Before each notebook the log gives
-    the estimate of its wall time and of the run's time left, from the last finished run with the
-    same parameters here or in the published run ``docs/results/<profile>``.
+    Args:
+        profile: a built-in profile's name (``"smoke"``, ``"standard"``, ``"paper"``), the path of a
+            profile's TOML file, or a loaded :class:`~.profiles.Profile`.
+        output_dir: the run's folder (created); ``run.json``, ``REPORT.md``, ``report.html`` and one
+            folder per section go there.
+        only: the notebooks to run, each by full stem, number (``"04"``) or name part; None runs all.
+        notebooks_dir: the folder of the ``NN_name.ipynb`` notebooks (default: the repository's
+            ``notebooks/``).
+        progress: show papermill's progress bar per notebook.
+        log: where the run's lines go (default: stderr).
+        workers: how many notebooks run at once, each in its own kernel (1: one after the other).
+            The numbers do not depend on it: each notebook takes its seed from the profile.
+        force: run every notebook again, even one whose finished section is unchanged.
 
-    Raises ValueError, before executing or writing anything, when the profile does not fit the
-    notebooks of ``notebooks_dir`` (:func:`~histostudy.reporting.profiles.validate_profile`).
-    Raises :class:`NotebookFailed` (after writing the report of what ran, with the failure named)
-    when a notebook raises; the executed copy of the failed notebook is kept. On SIGINT or SIGTERM
-    the running notebooks' kernels are stopped, their temporary files removed, their sections marked
-    ``"interrupted"`` in ``run.json`` and the report, and ``KeyboardInterrupt`` /
-    :class:`~histostudy.reporting.interrupts.StudyInterrupted` raised after the report is written.
+    Returns:
+        A ``StudyRun``: ``output_dir`` (resolved), ``report_md`` and ``report_html`` (the paths of
+        ``REPORT.md`` and ``report.html``) and ``record`` (the contents of ``run.json``).
+
+    Raises:
+        ValueError: ``workers`` is not a positive integer; ``profile`` is unknown or its file is
+            malformed (:func:`~.profiles.load_profile`); ``notebooks_dir`` holds no notebook; the
+            profile does not fit its notebooks (:func:`~.profiles.validate_profile`); ``only`` names
+            no notebook. All before anything runs or is written.
+        NotebookFailed: a notebook raised; raised after the report of what ran is written (the
+            failure named in it). A failed notebook stops new ones from starting; those already
+            running finish.
+        StudyInterrupted: SIGTERM or SIGINT (likewise ``KeyboardInterrupt``) stopped the run:
+            the running kernels are stopped, their temporary files removed, their sections marked
+            ``"interrupted"``, and the report written before it is raised.
     """
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be a positive integer (notebooks run at once), got {workers!r}")

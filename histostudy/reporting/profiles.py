@@ -1,40 +1,6 @@
-"""Study profiles: the parameter sets that papermill injects into the notebooks.
-
-A profile is a TOML file (``histostudy/reporting/profiles/<name>.toml`` for the built-in ``smoke``,
-``standard`` and ``paper``; any path for a user's own). Its layout::
-
-    name = "smoke"
-    description = "..."
-    seed = 20230119
-
-    [common]                 # parameters every notebook receives
-    ...
-
-    [notebooks.01_transducer_and_projections]
-    render_spacing_mm = 0.125
-    ...
-
-    [training.segmentation]  # `histostudy train segmentation` (see histostudy.learning.training)
-    network = { arch = "unet", base_width = 12, depth = 4 }
-    ...
-
-A notebook receives ``profile``, ``seed``, the ``[common]`` table and its own table, in that
-order of precedence (its own wins). A notebook opened by hand in JupyterLab uses the defaults of
-its ``parameters`` cell, which are the smoke profile's.
-
-Validation. :func:`load_profile` refuses a file whose layout is wrong: a top-level key or table
-other than the six above, a ``seed`` that is not a non-negative integer (``1.7`` and ``true``
-included), a ``name`` or ``description`` that is not a string, a ``[common]``, ``[notebooks.*]``
-or ``[training.*]`` that is not a table. :func:`validate_profile` checks the profile against the
-notebooks of the run's folder, whose parameters are the names assigned in their cell tagged
-``parameters`` (:func:`notebook_parameters`): every ``[notebooks.<stem>]`` must name one of them;
-each of its keys must be a parameter of that notebook; each ``[common]`` key must be a parameter
-of at least one of them (it still goes to every notebook; papermill injects it, with a warning,
-where the cell lacks it, as it always has). ``profile``, ``seed`` and ``output_dir`` are set by
-the run itself, so no table may set them. Each error names the file, the table, the key and the
-nearest valid name. The ``[training.<task>]`` tables are checked by ``histostudy train``
-(:meth:`histostudy.learning.TrainingConfig.from_table`).
-"""
+"""Study profiles: the parameter sets that papermill injects into the notebooks, read from TOML
+(``histostudy/reporting/profiles/<name>.toml`` for the built-in ones, any path for a user's own) and
+checked against the notebooks' ``parameters`` cells (docs/report.md, "Profiles")."""
 
 from __future__ import annotations
 
@@ -50,6 +16,7 @@ from pathlib import Path
 __all__ = ["PROFILE_NAMES", "Profile", "load_profile", "notebook_parameters", "validate_profile"]
 
 PROFILE_DIR = Path(__file__).with_name("profiles")
+#: The built-in profiles (``profiles/<name>.toml``), from a first look to the paper's study sizes.
 PROFILE_NAMES = ("smoke", "standard", "paper")
 
 #: The top-level keys and tables of a profile file.
@@ -61,7 +28,18 @@ RUN_PARAMETERS = ("profile", "seed", "output_dir")
 
 @dataclass(frozen=True)
 class Profile:
-    """A named parameter set; see the module docstring for the file layout."""
+    """A named parameter set, as :func:`load_profile` reads it (docs/report.md, "Profiles").
+
+    Args:
+        name: the profile's name (the file's ``name``, else its stem).
+        seed: the run's seed, a non-negative integer, given to every notebook.
+        description: one line on what the profile is for (the report's banner quotes it).
+        common: the ``[common]`` table: parameters every notebook receives.
+        notebooks: ``{notebook stem: table}``, each notebook's own parameters (they win over
+            ``common``).
+        source: the TOML file it was read from ("" for one built in code).
+        training: ``{task: table}``, the ``[training.<task>]`` tables of ``histostudy train``.
+    """
 
     name: str
     seed: int
@@ -72,7 +50,15 @@ class Profile:
     training: dict = field(default_factory=dict)
 
     def parameters_for(self, notebook: str) -> dict:
-        """The papermill parameters for the notebook with stem ``notebook``."""
+        """The papermill parameters for one notebook: ``profile``, ``seed``, ``common``, then its
+        own table (later wins).
+
+        Args:
+            notebook: the notebook's stem (``"04_pose_estimation"``).
+
+        Returns:
+            A new dict of parameter name -> value.
+        """
         params = {"profile": self.name, "seed": self.seed}
         params.update(self.common)
         params.update(self.notebooks.get(notebook, {}))
@@ -80,7 +66,22 @@ class Profile:
 
 
 def load_profile(name_or_path: str | os.PathLike) -> Profile:
-    """A built-in profile by name (``smoke``, ``standard``, ``paper``) or a TOML file by path."""
+    """Read a built-in profile by name or a profile's TOML file by path, checking its layout.
+
+    Args:
+        name_or_path: ``"smoke"``, ``"standard"``, ``"paper"``, or the path of an existing ``.toml``
+            file.
+
+    Returns:
+        The :class:`Profile`, with ``source`` the file read.
+
+    Raises:
+        ValueError: ``name_or_path`` is neither a built-in name nor an existing ``.toml`` file; the
+            file is not valid TOML; or its layout is wrong (a top-level key other than ``name``,
+            ``description``, ``seed``, ``common``, ``notebooks``, ``training``; ``seed`` missing or not
+            a non-negative integer; ``name`` or ``description`` not a string; a table that is not
+            one). All problems are named at once.
+    """
     text = os.fspath(name_or_path)
     if text in PROFILE_NAMES:
         path = PROFILE_DIR / f"{text}.toml"
@@ -125,12 +126,19 @@ def load_profile(name_or_path: str | os.PathLike) -> Profile:
 
 
 def notebook_parameters(notebook: str | os.PathLike) -> tuple[str, ...]:
-    """The names assigned in the cell tagged ``parameters`` of ``notebook`` (an .ipynb path), in order.
+    """The names assigned in the cell tagged ``parameters`` of a notebook, in order.
 
-    Empty when the notebook has no such cell (papermill then injects its parameters at the top).
-    The cell is parsed with :mod:`ast`, which reads any Python assignment exactly (tuple targets,
-    annotations, values over several lines) without asking for a kernel; a cell that is not plain
-    Python (an IPython magic) falls back to papermill's own line-based reader.
+    The cell is parsed with :mod:`ast` (tuple targets, annotations, values over several lines); a
+    cell that is not plain Python (an IPython magic) falls back to papermill's line-based reader.
+
+    Args:
+        notebook: the ``.ipynb`` path.
+
+    Returns:
+        The names; empty when the notebook has no such cell.
+
+    Raises:
+        ValueError: the file cannot be read as a ``.ipynb`` (JSON) file.
     """
     path = Path(notebook)
     try:
@@ -162,12 +170,19 @@ def notebook_parameters(notebook: str | os.PathLike) -> tuple[str, ...]:
 
 
 def validate_profile(profile: Profile, notebooks: Iterable[str | os.PathLike]) -> None:
-    """Raise ValueError unless ``profile`` fits ``notebooks`` (the .ipynb paths a run would find).
+    """Check that ``profile`` fits the notebooks a run would find.
 
-    The rules are the module docstring's: every ``[notebooks.<stem>]`` names one of the notebooks,
-    its keys are that notebook's parameters, each ``[common]`` key is a parameter of at least one
-    notebook, no table sets ``profile``, ``seed`` or ``output_dir``, and ``seed`` is a non-negative
-    integer. All problems are reported at once, each with the nearest valid name.
+    Every ``[notebooks.<stem>]`` names one of the notebooks, its keys are that notebook's parameters
+    (:func:`notebook_parameters`), each ``[common]`` key is a parameter of at least one notebook, no
+    table sets ``profile``, ``seed`` or ``output_dir``, and ``seed`` is a non-negative integer.
+
+    Args:
+        profile: the profile to check.
+        notebooks: the ``.ipynb`` paths of the run's folder.
+
+    Raises:
+        ValueError: ``notebooks`` is empty, or any rule above is broken (all problems at once, each
+            with the nearest valid name); or a notebook cannot be read.
     """
     paths = [Path(p) for p in notebooks]
     if not paths:

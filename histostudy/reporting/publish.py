@@ -1,16 +1,6 @@
-"""A finished run published in the repository (``docs/results/<profile>``), and the checks that keep
-it honest.
-
-:func:`publish_run` copies what a reader needs from a ``histostudy reproduce`` folder: ``run.json``
-(its paths made relative), each section's ``results.json``, ``section_key.json``, tables and
-figures, and rebuilds ``REPORT.md`` and ``report.html`` there (the page is left out when it would
-exceed ``max_html_bytes``; REPORT.md says so). Executed notebooks and caches stay behind. The folder is
-replaced as a whole, never half-written.
-
-:func:`stale_parameters` lists where a published run's parameters differ from the current profile's
-(a test fails on any), and :func:`readme_headline` gives the README's copy of the published headline,
-whose links lead into the published REPORT.md.
-"""
+"""A finished run published in the repository (``docs/results/<profile>``), its headline in the
+README, and the check that its parameters are still the profile's (docs/report.md, "Published
+runs")."""
 
 from __future__ import annotations
 
@@ -86,12 +76,27 @@ def _copy_section(source: Path, target: Path) -> None:
 
 def publish_run(run_dir: str | os.PathLike, destination: str | os.PathLike, *, allow_partial: bool = False,
                 notebooks_dir: str | os.PathLike | None = None, max_html_bytes: int = 10 * 1024 * 1024) -> Path:
-    """Publish the finished run of ``run_dir`` into ``destination`` (replaced whole); returns the
-    published REPORT.md.
+    """Publish the finished run of ``run_dir`` into ``destination``, replaced whole, never half-written.
 
-    Raises ValueError, before writing anything, when ``run_dir`` holds no run record, a section it
-    lists did not finish, or (unless ``allow_partial``) a notebook of ``notebooks_dir`` (default:
-    the repository's) did not run.
+    Copies what a reader needs: ``run.json`` (its paths made relative), each section's
+    ``results.json``, ``section_key.json``, tables and figures (up to 4 MiB a file), and rebuilds
+    ``REPORT.md`` and ``report.html`` there. Executed notebooks and caches stay behind.
+
+    Args:
+        run_dir: a ``histostudy reproduce`` output folder.
+        destination: the published folder (``docs/results/<profile>``); not ``run_dir`` itself.
+        allow_partial: publish a run that left notebooks of ``notebooks_dir`` out; the report names
+            them "not run".
+        notebooks_dir: the notebooks a complete run runs (default: the repository's ``notebooks/``).
+        max_html_bytes: ``report.html`` is left out above this size (bytes); ``REPORT.md`` says so.
+
+    Returns:
+        The path of the published ``REPORT.md``.
+
+    Raises:
+        ValueError: before writing anything, when ``destination`` is ``run_dir``, ``run_dir`` holds no
+            readable ``run.json``, a section it lists did not finish or has no ``results.json``, or
+            (unless ``allow_partial``) a notebook of ``notebooks_dir`` did not run.
     """
     from .pipeline import DEFAULT_NOTEBOOK_DIR
 
@@ -133,10 +138,22 @@ def publish_run(run_dir: str | os.PathLike, destination: str | os.PathLike, *, a
 
 
 def stale_parameters(published_dir: str | os.PathLike, profile: str | Profile | None = None) -> list[str]:
-    """Where the run published in ``published_dir`` differs from ``profile`` (default: the profile it
-    names): per notebook, each parameter added, removed or changed, and the seed. Empty when the
-    published numbers are those the current profile makes (the code may still differ: its commit
-    is in the report)."""
+    """Where the run published in ``published_dir`` differs from a profile's parameters.
+
+    Args:
+        published_dir: a folder :func:`publish_run` wrote.
+        profile: a profile's name or file, or a :class:`~.profiles.Profile`; None takes the one the
+            run names.
+
+    Returns:
+        One line per difference (the seed; per notebook, each parameter added, removed or changed);
+        empty when the published numbers are those the profile makes (the code may still differ:
+        its commit is in the report).
+
+    Raises:
+        ValueError: ``published_dir`` holds no readable ``run.json``, or the profile is unknown or
+            malformed.
+    """
     folder = Path(published_dir)
     run = _load_run(folder)
     prof = profile if isinstance(profile, Profile) else load_profile(profile or run["profile"])
@@ -160,8 +177,19 @@ def stale_parameters(published_dir: str | os.PathLike, profile: str | Profile | 
 
 
 def readme_headline(published_dir: str | os.PathLike, link_prefix: str) -> str:
-    """The headline table of the published run, its links pointing into ``link_prefix`` (the path of
-    the published REPORT.md as seen from the README)."""
+    """The headline table of a published run, for the README.
+
+    Args:
+        published_dir: a folder :func:`publish_run` wrote.
+        link_prefix: the path of the published ``REPORT.md`` as seen from the README; the table's
+            ``#anchor`` links are made to point into it.
+
+    Returns:
+        The table's Markdown, ending with a newline.
+
+    Raises:
+        ValueError: ``published_dir`` holds no readable ``run.json``.
+    """
     folder = Path(published_dir)
     run = _load_run(folder)
     sections = {n["name"]: load_section(folder / n["name"]) for n in run.get("notebooks", [])
@@ -171,7 +199,22 @@ def readme_headline(published_dir: str | os.PathLike, link_prefix: str) -> str:
 
 
 def replace_readme_headline(readme: str | os.PathLike, published_dir: str | os.PathLike, link_prefix: str) -> Path:
-    """Put :func:`readme_headline` between the README's markers (both must be there, once each)."""
+    """Put the published run's headline (:func:`readme_headline`) between the README's markers
+    ``<!-- published-headline:begin -->`` and ``<!-- published-headline:end -->`` (atomically).
+
+    Args:
+        readme: the README file.
+        published_dir: a folder :func:`publish_run` wrote.
+        link_prefix: the path of the published ``REPORT.md`` as seen from the README.
+
+    Returns:
+        The README's path.
+
+    Raises:
+        ValueError: the README does not hold each marker exactly once, or ``published_dir`` holds no
+            readable ``run.json``.
+        OSError: the README cannot be read.
+    """
     path = Path(readme)
     text = path.read_text(encoding="utf-8")
     if text.count(README_HEADLINE_BEGIN) != 1 or text.count(README_HEADLINE_END) != 1:

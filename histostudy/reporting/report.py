@@ -1,14 +1,6 @@
-"""Results and report: what a study notebook records, and the report assembled from those records.
-
-A notebook never relies on its own cell outputs to reach the report. It records through a
-:class:`SectionWriter` — values, comparisons with the paper, tables (CSV + Markdown), figures
-(PNG), text, and what stands in for the lab — and :meth:`SectionWriter.save` writes
-``<output>/<section>/results.json``. After the run, :func:`build_report` reads every section's
-``results.json`` and writes ``REPORT.md`` and the self-contained ``report.html`` (its first screen
-from ``headline``, the closing table from ``twins``, the page from ``report_html``; the reporting
-layer of docs/architecture.md).
-Every file is written atomically; every piece of plain text is escaped by ``markdown.md_escape``.
-"""
+"""Results and report: a notebook records through a :class:`SectionWriter` into
+``<output>/<section>/results.json``, and :func:`build_report` assembles ``REPORT.md`` and
+``report.html`` from those records (docs/report.md). Every file is written atomically."""
 
 from __future__ import annotations
 
@@ -37,7 +29,18 @@ RUN_FILE = "run.json"
 
 
 def format_measure(mean, sd=None, unit: str = "", digits: int = 2) -> str:
-    """``"1.38 ± 0.54 mm"``; strings pass through; None/NaN read as ``"n/a"``."""
+    """A measured value as the report prints it: ``"1.38 ± 0.54 mm"``.
+
+    Args:
+        mean: a number, a string (passed through, ``unit`` appended unless it ends with it), a bool,
+            or None.
+        sd: the standard deviation (same unit), or None; left out when not finite.
+        unit: appended after a space ("" for none).
+        digits: decimals of a float ``mean`` and ``sd`` (an int without ``sd`` prints whole).
+
+    Returns:
+        The text; ``"n/a"`` for None or a non-finite ``mean``.
+    """
     if mean is None:
         return "n/a"
     if isinstance(mean, str):
@@ -62,14 +65,17 @@ class _Entry:
 
 
 class SectionWriter:
-    """Collects one notebook's results and writes them under ``output_dir``.
+    """Collects one notebook's results and writes them under ``output_dir``: values, comparisons
+    with the paper, tables (CSV + Markdown), figures (PNG), text and what stands in for the lab;
+    :meth:`save` writes ``results.json``.
 
     Args:
         output_dir: the section's folder (papermill passes ``reports/<notebook stem>``).
         section: the notebook stem, e.g. ``"01_transducer_and_projections"``.
         title: the report heading.
-        profile, seed: the run's profile name and seed (recorded).
-        parameters: the notebook's parameters (recorded).
+        profile: the run's profile name (recorded).
+        seed: the run's seed (recorded).
+        parameters: the notebook's parameters (recorded; copied).
     """
 
     def __init__(self, output_dir, section: str, title: str, *, profile: str, seed: int,
@@ -93,7 +99,11 @@ class SectionWriter:
 
     @contextlib.contextmanager
     def timer(self, name: str):
-        """Record the wall time of the block, in seconds, under ``name``."""
+        """Context manager: record the wall time of the block (s) under ``name`` in ``timings_s``.
+
+        Args:
+            name: the timing's name in the report.
+        """
         t0 = time.perf_counter()
         try:
             yield
@@ -101,15 +111,35 @@ class SectionWriter:
             self.timings_s[name] = time.perf_counter() - t0
 
     def value(self, key: str, value) -> None:
-        """Record a measured value (any JSON-able structure) under ``key``."""
+        """Record a measured value under ``key`` in ``results.json``'s ``values``.
+
+        Args:
+            key: the value's name.
+            value: any structure :func:`histostudy.core.to_jsonable` can write.
+        """
         self.values[key] = value
 
     def compare(self, key: str, label: str, ours, *, ours_sd=None, unit: str = "", digits: int = 2,
                 paper_key: str | None = None, note: str = "") -> dict:
-        """Set a reproduced number beside the paper's value ``paper_key`` (default ``key``).
+        """Set a reproduced number beside the paper's value (a row of the section's comparison table).
 
-        ``ours`` may be a number, ``(mean, sd)`` or a string. ``paper_key=""`` records a figure
-        the paper does not report (the report shows "not reported").
+        Args:
+            key: the comparison's key.
+            label: the row's quantity, for a reader.
+            ours: a number, ``(mean, sd)`` or a string.
+            ours_sd: the SD (same unit as ``ours``), when ``ours`` is a number.
+            unit: the unit of ``ours`` (``"mm"``, ``"deg"``, ``"%"``), which the paper's must match to
+                be judged.
+            digits: decimals in the printed value.
+            paper_key: the key of :data:`~.paper.PAPER` to compare with (default ``key``); ``""`` for a
+                figure the paper does not report (shown "not reported").
+            note: a remark for the row.
+
+        Returns:
+            The recorded row (a dict).
+
+        Raises:
+            KeyError: ``paper_key`` (or ``key``) is not a key of :data:`~.paper.PAPER`.
         """
         if isinstance(ours, tuple) and len(ours) == 2 and ours_sd is None:
             ours, ours_sd = ours
@@ -131,16 +161,38 @@ class SectionWriter:
         return row
 
     def text(self, markdown: str) -> None:
-        """A paragraph of Markdown for the report."""
+        """Add a paragraph to the section.
+
+        Args:
+            markdown: the paragraph, Markdown already (not escaped).
+        """
         self.paragraphs.append(markdown.strip())
 
     def stand_in(self, lab: str, synthetic: str) -> None:
-        """Name what in this synthetic study stands in for what the paper had in the lab."""
+        """Name what in this synthetic study stands in for what the paper had in the lab.
+
+        Args:
+            lab: what the paper had (plain text).
+            synthetic: what stands in for it here (plain text).
+        """
         self.stand_ins.append({"lab": lab, "synthetic": synthetic})
 
     def table(self, name: str, df, caption: str = "", *, index: bool = False, digits: int = 3):
-        """Write a pandas DataFrame as ``tables/<name>.csv`` and ``.md`` (``dataframe_markdown``: floats
-        with ``digits`` decimals, every cell and column name escaped); returns the DataFrame."""
+        """Write a table as ``tables/<name>.csv`` and ``tables/<name>.md`` for the report.
+
+        Args:
+            name: the file name (letters, digits, ``_``, ``-``, ``.``).
+            df: a pandas DataFrame.
+            caption: shown above the table ("": ``name``).
+            index: write the DataFrame's index as a column.
+            digits: decimals of floats in the Markdown (:func:`~.markdown.dataframe_markdown`).
+
+        Returns:
+            ``df``, unchanged.
+
+        Raises:
+            ValueError: ``name`` is empty or holds another character.
+        """
         _check_name(name)
         tables = self.output_dir / "tables"
         csv_path, md_path = tables / f"{name}.csv", tables / f"{name}.md"
@@ -151,7 +203,20 @@ class SectionWriter:
         return df
 
     def figure(self, name: str, fig, caption: str = "", *, dpi: int = 110) -> Path:
-        """Save a matplotlib figure as ``figures/<name>.png``."""
+        """Save a matplotlib figure as ``figures/<name>.png`` for the report.
+
+        Args:
+            name: the file name (letters, digits, ``_``, ``-``, ``.``).
+            fig: a matplotlib figure.
+            caption: shown under the figure ("": none).
+            dpi: dots per inch of the PNG.
+
+        Returns:
+            The PNG's path.
+
+        Raises:
+            ValueError: ``name`` is empty or holds another character.
+        """
         _check_name(name)
         path = self.output_dir / "figures" / f"{name}.png"
         with atomic_path(path) as tmp:
@@ -160,7 +225,20 @@ class SectionWriter:
         return path
 
     def image(self, name: str, rgb: np.ndarray, caption: str = "") -> Path:
-        """Save an RGB uint8 array (e.g. a pyvista screenshot) as ``figures/<name>.png``."""
+        """Save an image (e.g. a pyvista screenshot) as ``figures/<name>.png`` for the report.
+
+        Args:
+            name: the file name (letters, digits, ``_``, ``-``, ``.``).
+            rgb: ``(rows, cols, 3 | 4)`` uint8 RGB(A) pixels (alpha dropped).
+            caption: shown under the figure ("": none).
+
+        Returns:
+            The PNG's path.
+
+        Raises:
+            ValueError: ``name`` is empty or holds another character, or ``rgb`` is not such an image.
+            RuntimeError: OpenCV fails to encode the PNG.
+        """
         import cv2
 
         _check_name(name)
@@ -179,7 +257,12 @@ class SectionWriter:
     # --- output -------------------------------------------------------------------------------
 
     def save(self) -> Path:
-        """Write ``results.json`` (atomically) and return its path."""
+        """Write ``results.json`` (atomically), with the timings (``"total"`` since construction,
+        unless timed already) and the provenance.
+
+        Returns:
+            The path of ``results.json``.
+        """
         self.timings_s.setdefault("total", time.perf_counter() - self._started)
         record = {
             "section": self.section,
@@ -205,7 +288,18 @@ def _check_name(name: str) -> None:
 
 
 def load_section(section_dir) -> dict:
-    """The ``results.json`` of one section folder."""
+    """Read the ``results.json`` of one section folder.
+
+    Args:
+        section_dir: the section's folder.
+
+    Returns:
+        The record :meth:`SectionWriter.save` wrote.
+
+    Raises:
+        OSError: there is no readable ``results.json``.
+        ValueError: it is not JSON.
+    """
     path = Path(section_dir) / RESULTS_FILE
     with open(path, encoding="utf-8") as fh:
         return json.load(fh)
@@ -220,12 +314,22 @@ RUN_ANCHOR = "this-run"
 def build_report(output_dir, run: dict | None = None) -> tuple[Path, Path]:
     """Assemble ``REPORT.md`` and the self-contained ``report.html`` in ``output_dir``.
 
-    ``run`` is the pipeline's run record (profile, notebook order, timings, failure); by default it
-    is read from ``output_dir/run.json``. The report opens with the profile's banner, the paper's
-    key results beside their reproduction (``headline``) and the contents; then each section in the
-    run's order (a section whose notebook did not finish is named with its failure), every paper
-    result with its reproduced twin (``twins``) and the software versions. ``REPORT.md`` links its
-    figures relatively (GitHub); ``report.html`` embeds them (``report_html``).
+    The report opens with the profile's banner, the paper's key results beside their reproduction
+    and the contents; then each section in the run's order (one whose notebook did not finish is
+    named with its status), every paper result with its reproduced twin and the software versions.
+    ``REPORT.md`` links its figures relatively; ``report.html`` embeds them.
+
+    Args:
+        output_dir: the run's folder, holding one folder per section.
+        run: the pipeline's run record (profile, notebook order, timings, failure); None reads
+            ``output_dir/run.json``.
+
+    Returns:
+        ``(REPORT.md path, report.html path)``.
+
+    Raises:
+        OSError: ``run`` is None and ``output_dir/run.json`` cannot be read.
+        ValueError: that file is not JSON.
     """
     out = Path(output_dir)
     if run is None:
@@ -361,5 +465,13 @@ def _read_text(path: Path) -> str | None:
 
 
 def write_run_record(output_dir, run: dict) -> Path:
-    """Write the pipeline's run record ``run.json``."""
+    """Write the pipeline's run record ``run.json`` (atomically).
+
+    Args:
+        output_dir: the run's folder.
+        run: the record.
+
+    Returns:
+        The path of ``run.json``.
+    """
     return atomic_write_json(Path(output_dir) / RUN_FILE, run)

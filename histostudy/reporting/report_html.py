@@ -1,15 +1,6 @@
-"""``report.html``: the report's Markdown as one self-contained page, readable on a phone.
-
-The page is ``REPORT.md`` converted by Python-Markdown (tables, fenced code), then made to stand
-alone: every figure the Markdown links (a path relative to the report's folder) is embedded as a
-base64 ``data:`` URI, so the file can be sent by itself; every table sits in a
-``<div class="table-scroll">`` that scrolls sideways instead of widening the page; GitHub alerts
-(``> [!WARNING]``, ``> [!NOTE]``, ``> [!CAUTION]``) become coloured banners. A viewport meta tag
-and a max-width stylesheet keep it readable from 390 px (a phone) to a desktop: below 600 px a
-table of at most :data:`CARD_COLUMNS` columns (the headline, the sections' comparisons) shows each
-row as a card of "column: value" lines, and a wider one scrolls. See the reporting layer of
-docs/architecture.md.
-"""
+"""``report.html``: the report's Markdown as one self-contained page (figures embedded, tables that
+scroll, GitHub alerts as banners), readable from a phone to a desktop (docs/report.md, "The HTML
+page")."""
 
 from __future__ import annotations
 

@@ -1,24 +1,7 @@
-"""A section's content key: what a study section's numbers depend on, so that a rerun or a resumed
-run keeps a finished section instead of redoing it.
-
-A section (one notebook's output folder, ``<output>/NN_name``) depends on the notebook, its
-parameters (the profile's table for it, the seed among them), the package's code, the shipped
-weights (``data/models``) and the numerical libraries' versions. :func:`section_key` hashes each of
-these parts and the whole; the runner writes the key to ``<section>/section_key.json`` when the
-notebook finishes, with its wall and CPU time and the machine, and removes it before the notebook
-starts, so that an interrupted or failed section never carries a key (it is redone). A section is
-kept (:func:`kept_section`) only when its stored key equals the new one and its results and executed
-notebook are still there.
-
-The code part is the whole package, not the modules a notebook imports: worker processes import
-lazily, so the parent's imports under-count, and a key that misses a change would keep a wrong
-result, where one that sees too many only costs a rerun. The profiles' files are left out of it:
-a section's own parameters are a part of their own, so an edit to another notebook's table keeps it.
-
-The same record gives the estimate of a section's wall time (:func:`estimate_seconds`): the last
-finished run of the same notebook with the same parameters, in this output folder or in a published
-run (``docs/results/<profile>``).
-"""
+"""A section's content key (:func:`section_key`): the digest of what its numbers depend on (the
+notebook, its parameters, the package's code, the shipped weights, the libraries' versions), so that
+a rerun keeps a finished section (:func:`kept_section`), and the estimate of its wall time
+(docs/report.md, "Reruns, resumed runs and the time left")."""
 
 from __future__ import annotations
 

@@ -1,14 +1,6 @@
-"""Every result of the paper and its reproduced twin: which section reproduces it, the value, the
-difference and the status, or why this run has none.
-
-A result is a value of :data:`~histostudy.reporting.paper.PAPER` from §III, Tables I-II or the
-abstract (77 numbers). Its twin is the comparison a section recorded against it
-(:meth:`~histostudy.reporting.report.SectionWriter.compare` with that ``paper_key``); where several
-sections or rows compare the same number, the row recorded under the paper's own key comes first
-(the CBCT-referenced Table II, the targeting error without bias correction), otherwise the first
-in run order. A §III number that repeats a Table II value (``PaperValue.twin``) takes that value's
-twin (docs/architecture.md, reporting layer).
-"""
+"""Every result of the paper (:data:`RESULT_KEYS`, 77 numbers) and its reproduced twin: which section
+reproduces it, the value, the difference and the status, or why this run has none (docs/report.md,
+"The paper's results and their twins")."""
 
 from __future__ import annotations
 

@@ -1,11 +1,6 @@
-"""Figures the notebooks share: colour-coded label maps (Fig. 5 style) and 3-D scenes (pyvista).
-
-Matplotlib figures are returned, never shown or saved here; the notebook records them through
-:class:`histostudy.reporting.report.SectionWriter`. 3-D scenes render off-screen: on a machine without a
-display VTK renders through EGL (``VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow``), set here
-before VTK loads when no ``DISPLAY`` is present. The targeting scene's checks, content and drawing
-are in :mod:`histostudy.reporting._targeting_parts`.
-"""
+"""Figures the notebooks share: colour-coded label maps (Fig. 5), the pose overlay (Fig. 6) and
+off-screen 3-D scenes (pyvista; EGL where there is no display). Figures are returned, never shown or
+saved here: a notebook records them through a :class:`~histostudy.reporting.report.SectionWriter`."""
 
 from __future__ import annotations
 
@@ -52,7 +47,14 @@ FEATURE_NAMES = {
 
 
 def label_rgb(labels: np.ndarray) -> np.ndarray:
-    """``(rows, cols, 3)`` uint8 colour image of a label map (colours of :data:`FEATURE_COLOURS`)."""
+    """Colour a label map with the paper's Fig. 5 colours (:data:`FEATURE_COLOURS`).
+
+    Args:
+        labels: ``(rows, cols)`` class indices (:class:`~histostudy.transducer.Feature`, 0-255).
+
+    Returns:
+        ``(rows, cols, 3)`` uint8 RGB image; classes without a colour are black.
+    """
     labels = np.asarray(labels)
     lut = np.zeros((256, 3), np.uint8)
     for k, colour in FEATURE_COLOURS.items():
@@ -69,7 +71,17 @@ def plot_frames_with_labels(frames: Sequence, predictions: Sequence[np.ndarray] 
                             titles: Sequence[str] | None = None, panel_inches: float = 3.6):
     """Fig. 5 A-C for each frame (one row per view): the X-ray image (line integrals, dark =
     attenuating), the reference labels, and the predicted labels (or, without predictions, the
-    reference labels blended over the image)."""
+    reference labels blended over the image).
+
+    Args:
+        frames: :class:`~histostudy.imaging.Frame` objects (``image``, ``labels`` or None, ``view``).
+        predictions: one ``(rows, cols)`` label map per frame, or None.
+        titles: one title per frame (default ``"plane <view name>"``).
+        panel_inches: the height of one panel (inches).
+
+    Returns:
+        The matplotlib figure (not shown).
+    """
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
 
@@ -105,9 +117,21 @@ def plot_pose_overlay(frames: Sequence, model, T_carm_transducer, *, rng: np.ran
                       max_points_per_class: int = 4000, titles: Sequence[str] | None = None,
                       panel_inches: float = 3.6):
     """Fig. 6, columns 1-2, for each frame (one row per view): the X-ray image, and the image with
-    the digital model's points projected in the estimated pose ``T_carm_transducer`` (coloured
-    by class, a random subset of at most ``max_points_per_class`` per class drawn from ``rng``)
-    and the projected focal point (red cross)."""
+    the digital model's points projected in the estimated pose (coloured by class) and the
+    projected focal point (red cross).
+
+    Args:
+        frames: :class:`~histostudy.imaging.Frame` objects (``image``, ``view``).
+        model: the :class:`~histostudy.transducer.TransducerModel` (points in transducer mm).
+        T_carm_transducer: 4x4 estimated pose, mapping transducer -> C-arm (mm).
+        rng: draws the subset of each class's points.
+        max_points_per_class: at most this many points drawn per class.
+        titles: one title per frame (default ``"plane <view name>"``).
+        panel_inches: the height of one panel (inches).
+
+    Returns:
+        The matplotlib figure (not shown).
+    """
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
@@ -153,10 +177,20 @@ def _prepare_offscreen() -> None:
 def model_scene(model, *, rng: np.random.Generator, max_points_per_class: int = 60000,
                 window_size: tuple[int, int] = (1000, 760), point_size: float = 2.0,
                 camera_elevation_deg: float = 35.0, camera_azimuth_deg: float = 30.0) -> np.ndarray:
-    """Off-screen pyvista render of a transducer model's points coloured by class; RGB uint8.
+    """Off-screen pyvista render of a transducer model's points coloured by class, its focal point
+    as a red sphere and its axis as a line.
 
-    Each class is subsampled (``rng``) to ``max_points_per_class`` so a 0.125 mm model renders in
-    about a second. The focal point is drawn as a red sphere, the axis as a line.
+    Args:
+        model: the :class:`~histostudy.transducer.TransducerModel` (transducer frame, mm).
+        rng: draws the subset of each class's points.
+        max_points_per_class: at most this many points drawn per class.
+        window_size: ``(width, height)`` of the image (pixels).
+        point_size: the points' size on screen (pixels).
+        camera_elevation_deg: the camera's elevation from the x-z view (deg).
+        camera_azimuth_deg: the camera's azimuth from the x-z view (deg).
+
+    Returns:
+        ``(height, width, 3)`` uint8 RGB image.
     """
     _prepare_offscreen()
     import pyvista as pv
@@ -192,35 +226,49 @@ def targeting_scene(views, *, T_carm_base=None, joints_rad=None, model=None, T_c
                     window_size: tuple[int, int] = (1600, 800), max_points_per_class: int = 20000,
                     point_size: float = 2.0, camera_direction=(-0.55, -0.5, -1.0), zoom: float = 1.0,
                     close_up: bool = True) -> np.ndarray:
-    """Off-screen pyvista render of the targeting set-up (§II-C, §II-D, Fig. 2); RGB uint8
-    ``(rows, cols, 3)`` with ``(cols, rows) = window_size``.
+    """Off-screen pyvista render of the targeting set-up (§II-C, §II-D, Fig. 2), drawn in the C-arm
+    (CBCT, world) frame, LPS, mm, anterior (world -y) up. With ``close_up`` (and a transducer,
+    phantom, target or zone to show) the window is split: the whole scene on the left, on the right
+    the same scene from the same direction framed on the transducer, phantom, target and zone.
 
-    Everything is drawn in the C-arm (CBCT, world) frame, LPS, mm, anterior (world -y) up:
+    Args:
+        views: the C-arm views (:class:`~histostudy.imaging.carm.View`, e.g.
+            :func:`~histostudy.imaging.carm.default_biplane`): each drawn as its X-ray source (a
+            sphere), its detector (a thin rectangle) and the beam's frustum, one colour per plane.
+        T_carm_base: 4x4 pose of the robot base, mapping base -> C-arm (mm); with ``joints_rad`` the
+            arm is drawn as tubes between its DH frames' origins
+            (:func:`histostudy.robot.kinematics.joint_frames`).
+        joints_rad: the 6 UR5e joint angles (rad); given with ``T_carm_base`` or not at all.
+        model: the :class:`~histostudy.transducer.TransducerModel`, drawn with ``T_carm_transducer``
+            as its points coloured by class (:data:`FEATURE_COLOURS`), its focal point as a red
+            sphere and, with the robot, the mount from the flange to the cap's apex.
+        T_carm_transducer: 4x4 pose, mapping transducer -> C-arm (mm); given with ``model``.
+        rng: draws the subset of each class's points; required with ``model``.
+        phantom_spec: the phantom cube (default :class:`~histostudy.imaging.cbct.PhantomSpec`);
+            needs ``T_carm_phantom``.
+        T_carm_phantom: 4x4 pose, mapping phantom -> C-arm (mm); the phantom drawn as a
+            semi-transparent box.
+        target_mm: the target, 3 C-arm coordinates (mm), drawn as a green sphere.
+        zone_centre_mm: the treated zone's centre, 3 C-arm coordinates (mm); given with
+            ``zone_radius_mm``, drawn as a semi-transparent cyan sphere.
+        zone_radius_mm: the zone's radius (mm, finite, > 0).
+        window_size: ``(width, height)`` of the image (pixels, each at least 16).
+        max_points_per_class: at most this many model points drawn per class (>= 1).
+        point_size: the points' size on screen (pixels).
+        camera_direction: world vector from the scene's centre towards the camera (non-zero; default:
+            from the patient's right, anterior and feet).
+        zoom: the camera's zoom after framing the whole scene.
+        close_up: split the window into the whole scene and a close-up.
 
-    - each view of ``views`` (:class:`~histostudy.imaging.carm.View`, e.g. :func:`~histostudy.imaging.carm.default_biplane`):
-      the X-ray source as a sphere, the detector as a thin rectangle and the beam's frustum from the
-      source to the detector corners (semi-transparent), one colour per plane;
-    - with ``T_carm_base`` (4x4, C-arm <- robot base) and ``joints_rad`` (6 UR5e joint angles,
-      rad): the arm as tubes between the origins of its DH frames
-      (:func:`histostudy.robot.kinematics.joint_frames`), the base as a disc;
-    - with ``model`` (:class:`~histostudy.transducer.TransducerModel`) and ``T_carm_transducer``
-      (4x4, C-arm <- transducer): the model's points coloured by class (:data:`FEATURE_COLOURS`),
-      at most ``max_points_per_class`` per class drawn from ``rng``, its focal point as a red sphere
-      and, with the robot, the mount from the flange to the cap's apex;
-    - with ``T_carm_phantom`` (4x4, C-arm <- phantom; the cube of ``phantom_spec``, default
-      :class:`~histostudy.imaging.cbct.PhantomSpec`): the phantom as a semi-transparent box;
-    - ``target_mm`` (3, C-arm mm) as a green sphere; ``zone_centre_mm`` with ``zone_radius_mm``
-      (mm) as a semi-transparent cyan sphere (e.g. the segmented treated zone).
+    Returns:
+        ``(height, width, 3)`` uint8 RGB image.
 
-    The camera looks at the whole scene from ``camera_direction`` (world vector from the scene's
-    centre towards the camera; default: from the patient's right, anterior and feet), then
-    zooms by ``zoom``. With ``close_up`` (and a transducer, phantom, target or zone to show) the
-    window is split: the whole scene on the left, on the right the same scene from the same
-    direction framed on the transducer, the phantom, the target and the zone. About 2 s for the
-    default window and 20000 points per class.
-
-    Raises ``ValueError`` naming the argument for malformed input (a transform that is not 4x4
-    rigid, not 6 joint angles, a point that is not 3 finite numbers, half of a pair given).
+    Raises:
+        ValueError: naming the argument: half of a pair given (``T_carm_base``/``joints_rad``,
+            ``model``/``T_carm_transducer``, ``zone_centre_mm``/``zone_radius_mm``, ``phantom_spec``
+            without ``T_carm_phantom``), ``model`` without ``rng``, a transform that is not 4x4 rigid,
+            not 6 joint angles, a point that is not 3 finite numbers, a radius that is not > 0, a
+            window under 16 x 16 pixels, a zero ``camera_direction`` or ``max_points_per_class`` < 1.
     """
     from histostudy.imaging.carm import views_from_sequence
 
