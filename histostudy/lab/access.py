@@ -43,7 +43,7 @@ import socket
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-from .sender import check_ae_title, check_host, check_port
+from histostudy.core.checks import check_ae_title, check_host, check_port
 
 __all__ = ["AllowList", "AssociationGate", "Modality", "check_listening_address", "load_modalities",
            "parse_allow"]
@@ -52,9 +52,14 @@ log = logging.getLogger("histostudy.lab.receiver")  # the receiver's log, where 
 
 #: A-ASSOCIATE-RJ reasons (source 1, DICOM UL service user; PS3.8 §9.3.4) the gate answers with.
 REJECT_REASONS = {1: "no reason given", 3: "calling AE title not recognised", 7: "called AE title not recognised"}
-#: The largest PDU a connection may announce (bytes): 256 times the 16 KiB the receiver negotiates
-#: for P-DATA (pynetdicom's default), ample for an A-ASSOCIATE-RQ proposing every storage class.
-MAX_PDU_BYTES = 4 << 20
+#: The largest P-DATA PDU the receiver announces to its senders (bytes; the maximum length of its
+#: A-ASSOCIATE-AC, :func:`.xray_objects.storage_application_entity`): a frame in a few PDUs rather than
+#: pynetdicom's default of 16 KiB each, since every PDU is parsed in Python on both sides.
+RECEIVER_MAX_PDU_BYTES = 1 << 20
+#: The largest PDU a connection may announce (bytes; :class:`ConnectionGuard`): 4 times the 1 MiB the
+#: receiver announces (:data:`RECEIVER_MAX_PDU_BYTES`), room for a sender that overshoots it, and ample
+#: for an A-ASSOCIATE-RQ proposing every storage class, which no announced maximum bounds.
+MAX_PDU_BYTES = 4 * RECEIVER_MAX_PDU_BYTES
 #: The largest data set one message may bring (bytes): a cine of 500 frames of 1024 x 1024 at 16 bits.
 MAX_OBJECT_BYTES = 1 << 30
 

@@ -6,14 +6,13 @@ short human line it can report per pose as it goes (:func:`pose_summary`).
 from __future__ import annotations
 
 import datetime as _dt
-import os
 from collections.abc import Callable, Sequence
 
 from histostudy.imaging import View
 from histostudy.transducer import TransducerModel
 
 from .access import check_listening_address
-from .receiver import FrameReceiver
+from .receiver import FrameReceiver, ReceiverConfig
 
 __all__ = ["listen", "pose_summary"]
 
@@ -49,27 +48,40 @@ def _short(text: str) -> str:
     return text if len(text) <= _REASON_CHARS else text[:_REASON_CHARS - 3] + "..."
 
 
-def listen(views: Sequence[View], *, port: int = 11112, output_path: str | os.PathLike = "poses.jsonl",
-           host: str = "127.0.0.1", ae_title: str = "HISTOSTUDY", max_pairs: int | None = None,
+def listen(views: Sequence[View], config: ReceiverConfig | None = None, *, max_pairs: int | None = None,
            timeout_s: float | None = None, model: TransducerModel | None = None, seed=0,
            on_pose: Callable[[dict], object] | None = None, on_start: Callable[[int], object] | None = None,
-           on_summary: Callable[[str], object] | None = None, **receiver_options) -> dict:
+           on_summary: Callable[[str], object] | None = None, **tracker_options) -> dict:
     """Receive live C-arm frames and write a pose per biplane pair until Ctrl-C, ``max_pairs`` lines
-    or ``timeout_s`` seconds (what ``histostudy listen`` runs); returns :meth:`FrameReceiver.stats`.
-
-    ``on_start(port)`` is called once listening (the bound port, useful with ``port=0``);
-    ``on_summary(text)`` after each pose line, after ``on_pose``, with its :func:`pose_summary`
-    (the pairs dropped so far: the stats' ``pairs_skipped``); the other arguments are
-    :class:`FrameReceiver`'s (``max_queued_pairs`` default 1: the newest pair only; ``allow``, who
-    may send; ``tls``).
+    or ``timeout_s`` seconds (what ``histostudy listen`` runs).
 
     The address is tried first (:func:`.access.check_listening_address`): one in use raises an
-    OSError naming the host and port at once, before the models load and before ``output_path``
-    is created.
+    OSError naming the host and port at once, before the models load and before the output is created.
+
+    Args:
+        views: one view per plane, as :class:`.receiver.FrameReceiver`'s.
+        config: the receiver's settings (:class:`.receiver.ReceiverConfig`: address, output, who may
+            send, ``max_queued_pairs`` ...); None: its defaults.
+        max_pairs: stop once this many pairs have their line; None: no limit.
+        timeout_s: stop after this many seconds (s); None: no limit.
+        model, seed, on_pose, **tracker_options: as :class:`.receiver.FrameReceiver`'s.
+        on_start: called once listening, with the bound port (useful with port 0).
+        on_summary: called after each pose line, after ``on_pose``, with its :func:`pose_summary`
+            (the pairs dropped so far: the stats' ``pairs_skipped``).
+
+    Returns:
+        :meth:`.receiver.FrameReceiver.stats` at the end.
+
+    Raises:
+        TypeError: ``on_summary`` not callable (or ``on_pose``, without ``on_summary``).
+        ValueError: ``max_pairs`` not None or an integer >= 1, ``timeout_s`` not None or a finite
+            number > 0, or views the receiver refuses.
+        OSError: the address cannot be bound.
     """
     if on_summary is not None and not callable(on_summary):
         raise TypeError(f"on_summary must be callable (text -> None) or None, got {type(on_summary).__name__}")
-    check_listening_address(host, port)
+    config = ReceiverConfig() if config is None else config
+    check_listening_address(config.host, config.port)
     receiver = None
 
     def posed(record: dict) -> None:
@@ -79,8 +91,8 @@ def listen(views: Sequence[View], *, port: int = 11112, output_path: str | os.Pa
         finally:  # the summary line even when the caller's on_pose fails (the receiver logs that)
             on_summary(pose_summary(record, receiver.stats()["pairs_skipped"]))
 
-    receiver = FrameReceiver(views, model, output_path=output_path, ae_title=ae_title, port=port, host=host,
-                             seed=seed, on_pose=posed if on_summary is not None else on_pose, **receiver_options)
+    receiver = FrameReceiver(views, config, model=model, seed=seed,
+                             on_pose=posed if on_summary is not None else on_pose, **tracker_options)
     bound = receiver.start()
     if on_start is not None:
         try:

@@ -33,6 +33,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from histostudy.core.checks import check_count, check_positive, is_finite_real
+
 __all__ = ["BiplanePairer", "DEFAULT_FRAME_INTERVAL_S", "Pairing", "PlaneFrame", "frame_times", "posix_seconds"]
 
 #: The frame interval assumed for single-frame objects (no FrameTime): 15 frames/s, the XA
@@ -61,10 +63,9 @@ class PlaneFrame:
     def __post_init__(self):
         if not isinstance(self.plane, str):
             raise TypeError(f"plane must be a str (a view name), got {type(self.plane).__name__}: {self.plane!r}")
-        if not _finite(self.time_s):
+        if not is_finite_real(self.time_s):
             raise ValueError(f"time_s must be a finite time in seconds, got {self.time_s!r}")
-        if self.interval_s is not None and not (_finite(self.interval_s) and self.interval_s > 0):
-            raise ValueError(f"interval_s must be None or a finite interval > 0 s, got {self.interval_s!r}")
+        check_positive(self.interval_s, "interval_s", optional=True, what="a finite interval > 0 s")
 
 
 @dataclass
@@ -100,12 +101,9 @@ class BiplanePairer:
             raise ValueError(f"planes must be a non-empty sequence of plane names (str), got {planes!r}")
         if len(set(planes)) != len(planes):
             raise ValueError(f"planes must be unique names, got {planes!r}")
-        if tolerance_s is not None and not (_finite(tolerance_s) and tolerance_s > 0):
-            raise ValueError(f"tolerance_s must be None or a finite time > 0 s, got {tolerance_s!r}")
-        if not (_finite(default_interval_s) and default_interval_s > 0):
-            raise ValueError(f"default_interval_s must be a finite interval > 0 s, got {default_interval_s!r}")
-        if isinstance(max_pending, bool) or not isinstance(max_pending, int) or max_pending < 1:
-            raise ValueError(f"max_pending must be an integer >= 1, got {max_pending!r}")
+        check_positive(tolerance_s, "tolerance_s", optional=True, what="a finite time > 0 s")
+        check_positive(default_interval_s, "default_interval_s", what="a finite interval > 0 s")
+        max_pending = check_count(max_pending, "max_pending")
         self.planes = planes
         self.tolerance_s = None if tolerance_s is None else float(tolerance_s)
         self.default_interval_s = float(default_interval_s)
@@ -218,10 +216,6 @@ def posix_seconds(t: _dt.datetime) -> float:
     if t.tzinfo is None:
         t = t.replace(tzinfo=_dt.UTC)
     return (t - _EPOCH).total_seconds()
-
-
-def _finite(x) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
 
 
 def _number_of_frames(ds) -> int:

@@ -1,62 +1,7 @@
-"""Live C-arm frames received over DICOM (C-STORE), paired across the planes and tracked (§II-A).
-
-The paper's workstation received the C-arm's live X-ray frames over Ethernet and estimated the
-transducer's pose from each biplane pair (§II-A, §II-B). :class:`FrameReceiver` is that end of the
-cable: a DICOM Storage SCP (``pynetdicom``) that a C-arm or a PACS sends X-ray angiography objects
-to — single frames or cines, each frame of a cine one frame — and that writes one pose per biplane
-pair to a JSON-lines file as it comes.
-
-The chain, per object:
-
-1. The C-STORE handler (pynetdicom's association thread) reads and checks the object's header and
-   gives each frame its plane (:func:`.xray_objects.read_c_store` over
-   :func:`~.xray_objects.read_xray_header`: the SOP class, the geometry tags checked against the
-   views, the frame times, the pixel module's tags and length). It answers at once and converts
-   no pixels: nothing heavy runs on the network thread.
-2. The frames are paired by acquisition time (:mod:`.pairing`: ``AcquisitionDateTime`` + frame
-   index x ``FrameTime``; two planes' frames pair when less than half a frame interval apart).
-3. Live, the newest pair: a completed pair waits for the pose worker, and a newer one arriving
-   while ``max_queued_pairs`` (default 1) wait pushes the oldest waiting one out, dropped unposed
-   (counted: ``pairs_dropped_stale``, and among ``pairs_skipped``). So the worker always takes the
-   newest complete pair, and a pair's latency stays bounded (the pose in progress, then its own)
-   whatever the stream's rate: a live stream that falls behind is worse than one that drops pairs.
-   ``max_queued_pairs=None`` keeps every pair (batch use: a cine sent at once, each pair posed).
-4. The pose worker (:mod:`.pose_worker`) converts the pair's pixels to line integrals
-   (:meth:`.xray_objects.PendingFrame.decode`: a dropped pair's never are) and runs
-   :class:`histostudy.pose.Tracker` through :meth:`~histostudy.pose.Tracker.track` (each estimate
-   warm-started from the last accepted pose, by default on the region where it projects: ``fast``,
-   docs/tracking.md; a lost track re-acquired from scratch). With ``pipeline`` (and ``fast``),
-   while a pair is refined, the next waiting pair's regions are segmented on another thread (taken
-   from the queue only when one waits, so that no pose waits for the stream); by default each pair
-   is posed before the next is taken. It then writes the record and calls ``on_pose(record)``
-   (e.g. a notebook's live figure, or ``histostudy listen``'s line per pose).
-
-Each pair's JSON line (:func:`.pose_lines.pose_line`: the pose, or the error its pose or its pixels
-raised, and where and when the pair came from) is appended and flushed one by one. :meth:`FrameReceiver.stats`
-gives the counts and the latency's percentiles (:mod:`.receiver_counts`).
-
-Rejections: the C-STORE failure status of :mod:`.xray_objects` (``0x0122`` not an X-ray image,
-``0xA900`` unreadable as one, ``0xC000`` unusable; :data:`.xray_objects.REJECTION_STATUSES`), or
-``0xA700`` while the receiver is stopping, with the reason as its ErrorComment and in the log; the
-other objects are unaffected. What only the pixels can tell (a frame without signal, a compressed
-stream that does not decode) is found when the worker takes the pair: that pair's line holds the
-error (``XRayObjectRejected: ...``). The receiver accepts every storage SOP class at association time so
-that an object that is not an X-ray image gets its 0x0122 answer rather than a refused
-presentation context.
-
-Who may send (:mod:`.access`): ``allow`` (an :class:`~.access.AllowList` of calling AE titles, each
-with the IP address it must call from, or none) and the receiver's own AE title as the called one
-are checked at association negotiation; an association that fails is rejected there (A-ASSOCIATE-RJ,
-logged with the peer and both AE titles, counted in ``associations_rejected``) before any object is
-read. With ``tls`` (:mod:`.tls`) the senders connect over TLS, and with a CA must present a
-certificate it signed (``tls_refused`` counts those refused). :meth:`FrameReceiver.start` binds its
-address before it opens the output: an address in use raises an OSError naming the host and port,
-and no file is created.
-
-A sender that aborts or drops its connection mid-association loses only that association's unfinished
-object (each association runs on its own thread; frames already read stay in the pairing); one that
-stalls mid-PDU, or sends a PDU or a data set beyond bounds, is cut off (:class:`.access.ConnectionGuard`).
-:func:`histostudy.lab.send_frames` (:mod:`.sender`) is a sender. Units: mm, seconds; frames as in docs/architecture.md.
+"""Live C-arm frames received over DICOM (C-STORE), paired across the planes and posed (§II-A):
+:class:`FrameReceiver`, a Storage SCP that writes one pose per biplane pair to a JSON-lines file as it
+comes, set up by a :class:`ReceiverConfig`. The chain per object, the newest-pair rule, the
+rejections and who may send are in docs/receiver.md. Units: mm, seconds.
 """
 
 from __future__ import annotations
@@ -70,6 +15,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from histostudy.core.checks import check_ae_title, check_count, check_host, check_port, check_positive
 from histostudy.imaging import View
 from histostudy.pose import Tracker, TrackingConfig
 from histostudy.transducer import TransducerModel
@@ -78,7 +24,6 @@ from .access import MAX_OBJECT_BYTES, MAX_PDU_BYTES, AllowList, AssociationGate,
 from .pairing import DEFAULT_FRAME_INTERVAL_S, BiplanePairer, PlaneFrame
 from .pose_worker import PoseWorker
 from .receiver_counts import ReceiverCounts
-from .sender import check_ae_title, check_count, check_host, check_port, check_positive
 from .tls import ServerTLS, tls_context
 from .xray_objects import (
     STATUS_OUT_OF_RESOURCES,
@@ -89,116 +34,184 @@ from .xray_objects import (
     storage_application_entity,
 )
 
-__all__ = ["FrameReceiver"]
+__all__ = ["FrameReceiver", "ReceiverConfig"]
 
 log = logging.getLogger(__name__)
+
+
+#: The settings of :class:`ReceiverConfig`, by name (those :meth:`ReceiverConfig.split` takes).
+_SETTINGS = ("output_path", "ae_title", "port", "host", "network_timeout_s", "allow", "tls", "air_value",
+             "match_tolerance_mm", "tolerance_s", "default_interval_s", "max_queued_pairs", "pipeline", "warm_up",
+             "fast")
+
+
+@dataclasses.dataclass(frozen=True)
+class ReceiverConfig:
+    """The settings of a :class:`FrameReceiver`: where it listens and writes, who may send, how frames
+    are paired and queued, and how the tracker starts. Checked on construction.
+
+    Args:
+        output_path: the JSON-lines file the poses are appended to (one line per pair, flushed).
+        ae_title: the receiver's AE title (the senders' "called AE title"), 1-16 ASCII characters.
+        port: TCP port to listen on; 0: a free one (:meth:`FrameReceiver.start` returns it).
+        host: the address to bind (default loopback; ``"0.0.0.0"`` for every interface).
+        network_timeout_s: how long an idle or half-open association, or a PDU begun, is kept (s;
+            :class:`~.access.ConnectionGuard`).
+        allow: who may send: an :class:`~.access.AllowList` (e.g. :func:`~.access.load_modalities`),
+            or :class:`~.access.Modality` objects and ``"AE[@IP]"`` texts (kept as an AllowList); an
+            association from another calling AE title, or from another address than its modality's,
+            is rejected at negotiation. None: any calling AE title may send, with a warning in the
+            log. The called AE title must be ``ae_title`` either way.
+        tls: None (plain TCP), a :class:`~.tls.TLSConfig` (the receiver's ``cert`` and ``key``; with
+            ``ca``, every sender must present a certificate that CA signed) or a server-side
+            ``ssl.SSLContext`` (a TLSConfig is kept as the context it loads).
+        air_value: ``I0`` for the line integrals (modality units); None: each frame's maximum.
+        match_tolerance_mm: how far (mm at the isocentre) the tags' geometry may project from a
+            plane's view (:func:`.xray_objects.decode_xray_object`); None: not checked.
+        tolerance_s: the largest time difference of a pair's two frames (s; None: half the frame
+            interval), as :class:`~.pairing.BiplanePairer`'s.
+        default_interval_s: the frame interval assumed for a frame without one (s), as
+            :class:`~.pairing.BiplanePairer`'s.
+        max_queued_pairs: the most pairs waiting for the pose; beyond, the oldest is dropped (counted
+            in ``pairs_dropped_stale`` and ``pairs_skipped``, no line) so that the poses follow a live
+            stream that outpaces them. 1: the newest complete pair only; None: every pair waits for
+            its line (batch use), however far behind the stream.
+        pipeline: overlap the next waiting pair's segmentation with the current pair's refinement
+            (:meth:`~histostudy.pose.Tracker.track`). Off by default: the pair taken ahead can no
+            longer be dropped for a newer one (docs/tracking-alternatives.md, "The receiver").
+        warm_up: :meth:`FrameReceiver.start` runs :meth:`~histostudy.pose.Tracker.warm_up` once
+            listening, before the pose worker starts, so that the first pair does not wait for
+            compiled kernels; the poses are the same either way (``stats()["warm_up_s"]``).
+        fast: the tracker's warm path (:class:`~histostudy.pose.Tracker`'s ``fast``): True or a
+            :class:`~histostudy.pose.TrackingConfig`. True is ``TrackingConfig(scratch_full_frames=False)``
+            here: a refused estimate from scratch is not tried again on the full frames, which held
+            the stream seconds for few accepted poses (docs/tracking.md, "Warm starts that hold").
+            False: every update on the full frames, as :func:`~histostudy.pose.estimate_pose`.
+
+    Raises:
+        ValueError: a setting out of its range (the message names it, its value and what was
+            expected): an empty ``output_path``, an AE title, port or host that is not one, a
+            ``network_timeout_s``, ``air_value``, ``match_tolerance_mm``, ``tolerance_s`` or
+            ``default_interval_s`` that is not a finite number > 0, a ``max_queued_pairs`` that is
+            not an integer >= 1 or None, ``pipeline`` or ``warm_up`` not a bool, or an ``allow`` or
+            ``tls`` of another kind.
+    """
+
+    output_path: str | os.PathLike = "poses.jsonl"
+    ae_title: str = "HISTOSTUDY"
+    port: int = 11112
+    host: str = "127.0.0.1"
+    network_timeout_s: float = 30.0
+    allow: object = None
+    tls: object = None
+    air_value: float | None = None
+    match_tolerance_mm: float | None = 5.0
+    tolerance_s: float | None = None
+    default_interval_s: float = DEFAULT_FRAME_INTERVAL_S
+    max_queued_pairs: int | None = 1
+    pipeline: bool = False
+    warm_up: bool = True
+    fast: object = True
+
+    def __post_init__(self):
+        if not isinstance(self.output_path, (str, os.PathLike)) or not str(self.output_path):
+            raise ValueError(f"output_path must be a file path, got {self.output_path!r}")
+        checked = {
+            "ae_title": check_ae_title(self.ae_title), "port": check_port(self.port), "host": check_host(self.host),
+            "network_timeout_s": check_positive(self.network_timeout_s, "network_timeout_s",
+                                                what="a finite number of seconds > 0"),
+            "allow": AllowList.of(self.allow), "tls": tls_context(self.tls, server=True),
+        }
+        check_positive(self.air_value, "air_value", optional=True, what="a finite intensity > 0")
+        check_positive(self.match_tolerance_mm, "match_tolerance_mm", optional=True,
+                       what="a finite number > 0 (mm at the isocentre)")
+        check_positive(self.tolerance_s, "tolerance_s", optional=True, what="a finite time > 0 s")
+        check_positive(self.default_interval_s, "default_interval_s", what="a finite interval > 0 s")
+        check_count(self.max_queued_pairs, "max_queued_pairs", optional=True)
+        for name in ("pipeline", "warm_up"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
+        for name, value in checked.items():
+            object.__setattr__(self, name, value)
+
+    @classmethod
+    def split(cls, options: dict, **settings) -> tuple[ReceiverConfig, dict]:
+        """A config from keyword arguments that mix its settings with others (e.g. the tracker's).
+
+        Args:
+            options: keyword arguments; those named as a setting of this class go to the config.
+            **settings: more settings (``options`` overrides them).
+
+        Returns:
+            The config, and the rest of ``options`` (a new dict).
+
+        Raises:
+            ValueError: as the constructor.
+        """
+        mine = {**settings, **{k: v for k, v in options.items() if k in _SETTINGS}}
+        return cls(**mine), {k: v for k, v in options.items() if k not in _SETTINGS}
 
 
 class FrameReceiver(PoseWorker):
     """A DICOM C-STORE receiver of live C-arm frames that writes a pose per biplane pair (§II-A).
 
-    ``with FrameReceiver(views, output_path="poses.jsonl", port=0) as rx: ...`` — or
-    :meth:`start` / :meth:`stop`, or :meth:`serve_forever`; :func:`listen` for the command line.
+    ``with FrameReceiver(views, ReceiverConfig(output_path="poses.jsonl", port=0)) as rx: ...`` — or
+    :meth:`start` / :meth:`stop`, or :meth:`serve_forever`; :func:`.listening.listen` for the command line.
 
     Args:
         views: one view per plane (the paper: planes A and B, §II-D), named as the planes'
             ``SeriesDescription``; the pose uses these views (e.g. calibrated ones), the objects'
             tags only pick and check the plane. Unique names.
+        config: the receiver's settings (:class:`ReceiverConfig`); None: its defaults.
         model: the digital model of eq. 3; None: ``TransducerModel.build(spacing_mm=0.47)`` (the
             paper's).
-        output_path: the JSON-lines file the poses are appended to (one line per pair, flushed).
-        ae_title: this receiver's AE title (the senders' "called AE title"), 1-16 characters.
-        port: TCP port to listen on; 0: a free one (:meth:`start` returns it).
-        host: the address to bind (default loopback; ``"0.0.0.0"`` for every interface).
-        seed: the tracker's random draws (an int or a Generator): the same frames and seed give
-            the same poses.
-        segmenter, orientation, options, **option_overrides: the pose stages and
-            :class:`~histostudy.pose.PoseConfig` for :class:`~histostudy.pose.Tracker`. Without
-            ``options``, ``retry_hypotheses`` defaults to False and ``mode`` to ``"fast"``
-            (Levenberg-Marquardt): live, the next pair is 0.13 s away, where a refused estimate's
-            retries held the stream 8-13 s and Nelder-Mead's refinement from scratch takes several
-            times Levenberg-Marquardt's (docs/tracking.md, "A minute of moving cine").
-        fast: the tracker's warm path (:class:`~histostudy.pose.Tracker`'s ``fast``): True
-            (default) or a :class:`~histostudy.pose.TrackingConfig`: warm updates on the region of
-            the last pose, a refused one tried again at the detector's resolution before a
-            re-acquisition (docs/tracking.md, "Warm starts that hold"). True is
-            ``TrackingConfig(scratch_full_frames=False)`` here: a refused estimate from scratch is
-            not tried again on the full frames, which held the stream seconds for few accepted
-            poses. False: every update on the full frames, as the study's
-            :func:`~histostudy.pose.estimate_pose`.
+        seed: the tracker's random draws (an int or a ``numpy.random.Generator``): the same frames and
+            seed give the same poses.
         on_pose: called with each record (a dict, as written) on the worker thread; its errors are
             logged, not raised.
-        air_value: ``I0`` for the line integrals (modality units); None: each frame's maximum.
-        tolerance_s, default_interval_s: the pairing's (:class:`~.pairing.BiplanePairer`).
-        match_tolerance_mm: how far (mm at the isocentre) the tags' geometry may project from a
-            plane's view (:func:`.xray_objects.decode_xray_object`).
-        max_queued_pairs: the most pairs waiting for the pose; beyond, the oldest is dropped
-            (counted in ``pairs_dropped_stale`` and ``pairs_skipped``, no line) so that the poses
-            follow a live stream that outpaces them. 1 (default): the newest complete pair only;
-            None: every pair waits for its line (batch use), however far behind the stream.
-        network_timeout_s: how long an idle or half-open association, or a PDU begun, is kept (s;
-            :class:`~.access.ConnectionGuard`, with the attributes ``max_pdu_bytes`` and ``max_object_bytes``).
-        allow: who may send: an :class:`~.access.AllowList` (e.g. :func:`~.access.load_modalities`),
-            or :class:`~.access.Modality` objects and ``"AE[@IP]"`` texts; an association from
-            another calling AE title, or from another address than its modality's, is rejected at
-            negotiation. None (default): any calling AE title may send, with a warning in the log.
-            The called AE title must be ``ae_title`` either way.
-        tls: None (plain TCP), a :class:`~.tls.TLSConfig` (the receiver's ``cert`` and ``key``;
-            with ``ca``, every sender must present a certificate that CA signed) or a server-side
-            ``ssl.SSLContext``.
-        pipeline: overlap the next waiting pair's segmentation with the current pair's refinement
-            (:meth:`~histostudy.pose.Tracker.track`). Off by default: the pair taken ahead can no
-            longer be dropped for a newer one (docs/tracking-alternatives.md, "The receiver").
-        warm_up: :meth:`start` runs :meth:`~histostudy.pose.Tracker.warm_up` once listening, before
-            the pose worker starts, so that the first pair does not wait for compiled kernels and
-            network primitives; the poses are the same either way (``stats()["warm_up_s"]``).
+        **tracker_options: :class:`~histostudy.pose.Tracker`'s ``segmenter``, ``orientation`` and
+            ``options`` (a :class:`~histostudy.pose.PoseConfig`), and PoseConfig fields. Without
+            ``options``, ``retry_hypotheses`` defaults to False and ``mode`` to ``"fast"``
+            (Levenberg-Marquardt): live, the next pair is a frame interval away (docs/tracking.md,
+            "A minute of moving cine").
+
+    Raises:
+        ValueError: ``views`` empty, not :class:`~histostudy.imaging.View` objects or with repeated
+            names; ``config`` not a ReceiverConfig.
+        TypeError: ``on_pose`` not callable.
     """
 
-    def __init__(self, views: Sequence[View], model: TransducerModel | None = None, *,
-                 output_path: str | os.PathLike, ae_title: str = "HISTOSTUDY", port: int = 11112,
-                 host: str = "127.0.0.1", seed=0, segmenter=None, orientation=None, options=None,
-                 on_pose: Callable[[dict], object] | None = None, air_value: float | None = None,
-                 tolerance_s: float | None = None, default_interval_s: float = DEFAULT_FRAME_INTERVAL_S,
-                 match_tolerance_mm: float | None = 5.0, max_queued_pairs: int | None = 1,
-                 network_timeout_s: float = 30.0, fast=True, pipeline: bool = False, allow=None, tls=None,
-                 warm_up: bool = True, **option_overrides):
+    def __init__(self, views: Sequence[View], config: ReceiverConfig | None = None, *,
+                 model: TransducerModel | None = None, seed=0, on_pose: Callable[[dict], object] | None = None,
+                 **tracker_options):
         views = [views] if isinstance(views, View) else list(views)
         if not views or not all(isinstance(v, View) for v in views):
             raise ValueError(f"views must be a non-empty sequence of histostudy.imaging.View, got {views!r}")
         names = [v.name for v in views]
         if len(set(names)) != len(names):
             raise ValueError(f"views must have unique names (the planes' SeriesDescription), got {names!r}")
-        if not isinstance(output_path, (str, os.PathLike)) or not str(output_path):
-            raise ValueError(f"output_path must be a file path, got {output_path!r}")
-        ae_title, port, host = check_ae_title(ae_title), check_port(port), check_host(host)
-        check_positive("air_value", air_value, "a finite intensity > 0")
-        check_positive("match_tolerance_mm", match_tolerance_mm, "a finite number > 0 (mm at the isocentre)")
-        check_count("max_queued_pairs", max_queued_pairs)
-        for name, flag in (("pipeline", pipeline), ("warm_up", warm_up)):
-            if not isinstance(flag, bool):
-                raise ValueError(f"{name} must be True or False, got {flag!r}")
-        check_positive("network_timeout_s", network_timeout_s, "a finite number of seconds > 0", optional=False)
-        self.allow = AllowList.of(allow)
-        self.tls = tls_context(tls, server=True)
+        config = ReceiverConfig() if config is None else config
+        if not isinstance(config, ReceiverConfig):
+            raise ValueError(f"config must be a histostudy.lab.ReceiverConfig or None, got {config!r}")
         if on_pose is not None and not callable(on_pose):
             raise TypeError(f"on_pose must be callable (record -> None) or None, got {type(on_pose).__name__}")
+        self.config = config
+        self.allow, self.tls = config.allow, config.tls
         self.views = tuple(views)
         self.model = TransducerModel.build(spacing_mm=0.47) if model is None else model
-        if options is None:
-            option_overrides.setdefault("retry_hypotheses", False)
-            option_overrides.setdefault("mode", "fast")
-        if fast is True:
-            fast = TrackingConfig(scratch_full_frames=False)
-        self.tracker = Tracker(self.model, self.views, segmenter=segmenter, orientation=orientation, rng=seed,
-                               options=options, fast=fast, **option_overrides)
-        self.pairer = BiplanePairer(names, tolerance_s=tolerance_s, default_interval_s=default_interval_s)
-        self.output_path = Path(output_path)
-        self.ae_title, self.host, self.port = ae_title, host, port
+        if tracker_options.get("options") is None:
+            tracker_options.setdefault("retry_hypotheses", False)
+            tracker_options.setdefault("mode", "fast")
+        fast = TrackingConfig(scratch_full_frames=False) if config.fast is True else config.fast
+        self.tracker = Tracker(self.model, self.views, rng=seed, fast=fast, **tracker_options)
+        self.pairer = BiplanePairer(names, tolerance_s=config.tolerance_s, default_interval_s=config.default_interval_s)
+        self.output_path = Path(config.output_path)
+        self.ae_title, self.host, self.port = config.ae_title, config.host, config.port
         self.on_pose = on_pose
-        self.air_value, self.match_tolerance_mm = air_value, match_tolerance_mm
-        self.max_queued_pairs, self.network_timeout_s = max_queued_pairs, float(network_timeout_s)
+        self.air_value, self.match_tolerance_mm = config.air_value, config.match_tolerance_mm
+        self.max_queued_pairs, self.network_timeout_s = config.max_queued_pairs, config.network_timeout_s
         self.max_pdu_bytes, self.max_object_bytes = MAX_PDU_BYTES, MAX_OBJECT_BYTES  # ConnectionGuard's bounds
-        self.pipeline, self.warm_up = bool(pipeline), bool(warm_up)
+        self.pipeline, self.warm_up = config.pipeline, config.warm_up
 
         self._cv = threading.Condition()  # guards the pairer, the queue and the counters
         self._queue: collections.deque = collections.deque()
@@ -213,8 +226,16 @@ class FrameReceiver(PoseWorker):
 
     def start(self) -> int:
         """Listen (non-blocking), warm the tracker up (``warm_up``), then open the output and start
-        the pose worker; returns the bound port. An address that cannot be bound (in use, not this machine's) raises an OSError naming
-        the host and port before the output is opened: nothing is created or written."""
+        the pose worker.
+
+        Returns:
+            The bound port (a free one where the config's ``port`` is 0).
+
+        Raises:
+            RuntimeError: this receiver was started already.
+            OSError: the address cannot be bound (in use, not this machine's); it names the host and
+                port, and is raised before the output is opened: nothing is created or written.
+        """
         from pynetdicom import evt
 
         if self._server is not None or self._stopped:
@@ -293,8 +314,8 @@ class FrameReceiver(PoseWorker):
         """Receive (starting if needed) until Ctrl-C, until ``max_pairs`` pairs have their line, or
         for ``timeout_s`` seconds; then stop and return :meth:`stats`. On a timeout the pairs
         already received still get their poses; on Ctrl-C only the one in progress does."""
-        check_count("max_pairs", max_pairs)
-        check_positive("timeout_s", timeout_s, "a finite number of seconds > 0")
+        check_count(max_pairs, "max_pairs", optional=True)
+        check_positive(timeout_s, "timeout_s", optional=True, what="a finite number of seconds > 0")
         with self._cv:
             self._max_pairs = max_pairs
         if self._server is None:

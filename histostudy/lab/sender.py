@@ -12,62 +12,19 @@ fluoroscopy run: each object is stored once its last frame has been taken (its
 first object's first frame), and it reports when each object went out and how late. Objects given
 as paths are read when they are stored (their headers before the association), so a long run
 never sits in memory. With ``tls`` (:mod:`.tls`) both send over TLS.
-
-The ``check_*`` functions are the argument checks of both ends (AE titles, ports, hosts, counts,
-timeouts), which the receiver shares; each raises ValueError naming the argument and its value.
 """
 
 from __future__ import annotations
 
-import math
 import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
+from histostudy.core.checks import check_ae_title, check_host, check_port, check_positive
 
 __all__ = ["SentObject", "send_frames", "stream_frames"]
-
-
-def check_ae_title(value, name: str = "ae_title") -> str:
-    """A DICOM AE title (1-16 ASCII characters, no backslash), stripped; else ValueError naming ``name``."""
-    if not isinstance(value, str) or not 1 <= len(value.strip()) <= 16 or not value.isascii() or "\\" in value:
-        raise ValueError(f"{name} must be 1-16 ASCII characters without a backslash, got {value!r}")
-    return value.strip()
-
-
-def check_port(value, name: str = "port", *, allow_zero: bool = True) -> int:
-    """A TCP port (0..65535; 0, any free one, only where ``allow_zero``); else ValueError naming ``name``."""
-    low = 0 if allow_zero else 1
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not low <= value <= 65535:
-        raise ValueError(f"{name} must be an integer in {low}..65535" + (" (0: any free port)" if allow_zero else "")
-                         + f", got {value!r}")
-    return int(value)
-
-
-def check_host(value, name: str = "host") -> str:
-    """A host name or address (a non-empty string); else ValueError naming ``name``."""
-    if not isinstance(value, str) or not value.strip():
-        raise ValueError(f"{name} must be a host name or address, e.g. '127.0.0.1', got {value!r}")
-    return value.strip()
-
-
-def check_positive(name: str, value, what: str = "a finite number > 0", *, optional: bool = True) -> None:
-    """ValueError naming ``name`` unless ``value`` is a finite real number > 0 (or None where
-    ``optional``); ``what`` says what it must be (with its unit) in the message."""
-    if value is None and optional:
-        return
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or not math.isfinite(value) \
-            or value <= 0:
-        raise ValueError(f"{name} must be {'None or ' if optional else ''}{what}, got {value!r}")
-
-
-def check_count(name: str, value) -> None:
-    """ValueError naming ``name`` unless ``value`` is None or an integer >= 1."""
-    if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1):
-        raise ValueError(f"{name} must be None or an integer >= 1, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -133,7 +90,7 @@ def stream_frames(paths: Sequence, host: str, port: int, *, pace: float = 1.0, a
     ValueError for an object without an acquisition time (naming it) or a ``pace`` that is not a
     finite number > 0.
     """
-    check_positive("pace", pace, "a finite speed-up > 0 (1.0: the acquisition's own pace)", optional=False)
+    check_positive(pace, "pace", what="a finite speed-up > 0 (1.0: the acquisition's own pace)")
     return _store(paths, host, port, ae_title=ae_title, calling_ae_title=calling_ae_title, timeout_s=timeout_s,
                   pace=float(pace), tls=tls)
 
@@ -200,7 +157,7 @@ def _store(paths, host: str, port: int, *, ae_title: str, calling_ae_title: str,
         raise ValueError("paths must name at least one DICOM object, got none")
     host, port = check_host(host), check_port(port, allow_zero=False)
     ae_title, calling_ae_title = check_ae_title(ae_title), check_ae_title(calling_ae_title, "calling_ae_title")
-    check_positive("timeout_s", timeout_s, "a finite number of seconds > 0", optional=False)
+    check_positive(timeout_s, "timeout_s", what="a finite number of seconds > 0")
     context = tls_context(tls, server=False)
     headers, names = _read(items)
     due = [0.0] * len(items) if pace is None else _due_s(headers, names, pace)

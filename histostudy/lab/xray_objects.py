@@ -52,17 +52,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from histostudy.imaging import (
+from histostudy.imaging import View, line_integrals_from_pixels
+from histostudy.imaging.io import (
     RECEIVABLE_TRANSFER_SYNTAXES,
     X_RAY_SOP_CLASSES,
-    View,
     XRayObjectRejected,
     check_sop_class,
     check_xray_object,
-    line_integrals_from_pixels,
     xray_pixels,
 )
 
+from .access import RECEIVER_MAX_PDU_BYTES
 from .pairing import frame_times, posix_seconds
 
 __all__ = ["PendingFrame", "REJECTION_STATUSES", "ReceivedFrame", "X_RAY_SOP_CLASSES", "XRayObjectRejected",
@@ -255,11 +255,6 @@ def rejection_response(status: int, reason: str):
     return response
 
 
-#: The largest P-DATA PDU the receiver announces (bytes; A-ASSOCIATE-RQ's maximum length), below
-#: the connection guard's bound on any PDU (:data:`.access.MAX_PDU_BYTES`).
-RECEIVER_MAX_PDU_BYTES = 1 << 20
-
-
 def storage_application_entity(ae_title: str, network_timeout_s: float):
     """pynetdicom's application entity of a Storage SCP that C-arms send X-ray objects to: every
     storage SOP class accepted at negotiation, so that an object that is not an X-ray image reaches
@@ -276,8 +271,7 @@ def storage_application_entity(ae_title: str, network_timeout_s: float):
     ae.add_supported_context(Verification)
     # an idle association, and a connection that sends no A-ASSOCIATE-RQ (its thread waits for one)
     ae.network_timeout = ae.acse_timeout = network_timeout_s
-    # a frame in a few P-DATA PDUs rather than pynetdicom's default of 16 KiB each: every PDU is
-    # parsed in Python on both sides, holding the interpreter lock the tracker needs
+    # a frame in a few P-DATA PDUs (access.RECEIVER_MAX_PDU_BYTES: why, and the guard's bound on any PDU)
     ae.maximum_pdu_size = RECEIVER_MAX_PDU_BYTES
     return ae
 

@@ -13,7 +13,8 @@ from nibabel.affines import apply_affine
 from histostudy.calibration import HandEyeCalibration
 from histostudy.cli import main
 from histostudy.core import WORLD_FRAME
-from histostudy.lab import READINGS, plan_targeting
+from histostudy.lab import plan_targeting
+from histostudy.lab.workflow import READINGS
 from histostudy.transducer import HALF_TURN
 
 VOXEL = (36, 37, 31)

@@ -17,8 +17,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from histostudy.imaging import default_biplane, xa_dataset
-from histostudy.lab import FrameReceiver
+from histostudy.imaging import default_biplane
+from histostudy.imaging.io._xa import xa_dataset
+from histostudy.lab import FrameReceiver, ReceiverConfig
 
 T0 = dt.datetime(2024, 5, 6, 10, 30, 0)
 INTERVAL_S = 0.1  # between pairs: more than the pairing's tolerance, so each pair is its own
@@ -76,7 +77,8 @@ def pair_objects(views, k: int, blank: bool = False) -> list:
 def receiver_with(views, tmp_path, tracker, **options) -> FrameReceiver:
     """A receiver on a free loopback port writing ``tmp_path/poses.jsonl``, its tracker ``tracker``."""
     options.setdefault("warm_up", False)  # a stub tracker has nothing to warm up
-    receiver = FrameReceiver(views, output_path=tmp_path / "poses.jsonl", port=0, tolerance_s=0.02, **options)
+    receiver = FrameReceiver(views, ReceiverConfig(output_path=tmp_path / "poses.jsonl", port=0, tolerance_s=0.02,
+                                                   **options))
     receiver.tracker = tracker
     return receiver
 
@@ -408,7 +410,7 @@ def huge_image(port, rng, views, limits) -> str:
     pixel data, or (JPEG Lossless, where no length is implied) up to 2**30 frames in two fragments."""
     from pydicom.encaps import encapsulate
 
-    from histostudy.imaging import RECEIVABLE_TRANSFER_SYNTAXES
+    from histostudy.imaging.io import RECEIVABLE_TRANSFER_SYNTAXES
 
     ds = hostile_object(views, rng)
     if rng.random() < 0.5 or JPEG_LOSSLESS not in RECEIVABLE_TRANSFER_SYNTAXES:

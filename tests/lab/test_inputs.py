@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 
 from histostudy.geometry import make_transform
-from histostudy.lab import FLANGE_DISTANCE_MM, FLANGE_UNIT_SPLIT, check_flange_pose_units, load_flange_poses
+from histostudy.lab import check_flange_pose_units, load_flange_poses
+from histostudy.lab.inputs import FLANGE_DISTANCE_MM, FLANGE_UNIT_SPLIT
 from histostudy.robot import forward_kinematics, pose_from_transform
 from histostudy.study.targeting._calibration import calibration_poses
-from histostudy.study.targeting._setup import TargetingStudyConfig, draw_ground_truth
+from histostudy.study.targeting.setup import TargetingStudyConfig, draw_ground_truth
 
 #: Joint angles (rad) where a UR5e's flange is nearest its base (elbow folded, wrist turned back)
 #: and farthest from it (stretched up and out): found by minimising and maximising the distance.

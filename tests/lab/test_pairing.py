@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 from pydicom.dataset import Dataset
 
-from histostudy.imaging import default_biplane, xa_dataset
-from histostudy.lab import BiplanePairer, PlaneFrame, frame_times, posix_seconds
+from histostudy.imaging import default_biplane
+from histostudy.imaging.io._xa import xa_dataset
+from histostudy.lab.pairing import BiplanePairer, PlaneFrame, frame_times, posix_seconds
 
 T0 = dt.datetime(2024, 5, 6, 10, 30, 0)
 

@@ -4,7 +4,7 @@ import datetime
 import json
 from types import SimpleNamespace
 
-from histostudy.lab import pose_line
+from histostudy.lab.pose_lines import pose_line
 
 
 def _frame(plane: str, index: int, received_at: float):

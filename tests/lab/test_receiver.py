@@ -25,16 +25,11 @@ from pydicom.uid import ExplicitVRLittleEndian, generate_uid
 from receiver_stub import free_port
 
 from histostudy.geometry import transform_from_params
-from histostudy.imaging import (
-    default_biplane,
-    detector_counts,
-    load_frame,
-    random_background,
-    render_frame,
-    write_xa,
-    xa_dataset,
-)
-from histostudy.lab import FrameReceiver, TLSConfig, XRayObjectRejected, decode_xray_object, listen, send_frames
+from histostudy.imaging import default_biplane, detector_counts, load_frame, random_background, render_frame, write_xa
+from histostudy.imaging.io import XRayObjectRejected
+from histostudy.imaging.io._xa import xa_dataset
+from histostudy.lab import FrameReceiver, ReceiverConfig, TLSConfig, listen, send_frames
+from histostudy.lab.xray_objects import decode_xray_object
 from histostudy.pose import Tracker, TrackingConfig, pose_record
 from histostudy.transducer import TransducerModel, pose_facing
 
@@ -227,33 +222,33 @@ def test_decode_refuses_what_it_cannot_use_with_the_status_to_answer(small_views
 def test_receiver_arguments_are_checked(views, tmp_path):
     out = tmp_path / "p.jsonl"
     with pytest.raises(ValueError, match="port must be an integer in 0..65535"):
-        FrameReceiver(views, output_path=out, port=70000)
+        ReceiverConfig(output_path=out, port=70000)
     with pytest.raises(ValueError, match="ae_title must be 1-16 ASCII"):
-        FrameReceiver(views, output_path=out, ae_title="A_VERY_LONG_AE_TITLE")
+        ReceiverConfig(output_path=out, ae_title="A_VERY_LONG_AE_TITLE")
     with pytest.raises(ValueError, match="views must have unique names"):
-        FrameReceiver([views[0], views[0]], output_path=out)
+        FrameReceiver([views[0], views[0]], ReceiverConfig(output_path=out))
     with pytest.raises(ValueError, match="output_path must be a file path"):
-        FrameReceiver(views, output_path=None)
+        ReceiverConfig(output_path=None)
     workers_before = {t for t in threading.enumerate() if t.name == "histostudy-pose-worker"}
     with pytest.raises(ValueError, match="max_pairs must be None or an integer >= 1"):
-        listen(views, port=0, output_path=out, max_pairs=0)
+        listen(views, ReceiverConfig(output_path=out, port=0), max_pairs=0)
     # the receiver listen started is stopped again: no worker left waiting, nobody listening
     assert {t for t in threading.enumerate() if t.name == "histostudy-pose-worker"} <= workers_before
     with pytest.raises(TypeError, match="unexpected keyword argument 'speed'"):
-        FrameReceiver(views, output_path=out, speed=1)
+        FrameReceiver(views, ReceiverConfig(output_path=out), speed=1)
     with pytest.raises(ValueError, match="pipeline must be True or False, got 'yes'"):
-        FrameReceiver(views, output_path=out, pipeline="yes")
+        ReceiverConfig(output_path=out, pipeline="yes")
     with pytest.raises(ValueError, match="warm_up must be True or False, got 1"):
-        FrameReceiver(views, output_path=out, warm_up=1)
+        ReceiverConfig(output_path=out, warm_up=1)
 
 
 def test_the_receivers_estimates_from_scratch_do_not_retry_unless_asked(views, tmp_path):
     from histostudy.pose import PoseConfig
 
     out = tmp_path / "p.jsonl"
-    assert not FrameReceiver(views, output_path=out).tracker.options.retry_hypotheses
-    assert FrameReceiver(views, output_path=out, retry_hypotheses=True).tracker.options.retry_hypotheses
-    given = FrameReceiver(views, output_path=out, options=PoseConfig(), mode="fast").tracker.options
+    assert not FrameReceiver(views, ReceiverConfig(output_path=out)).tracker.options.retry_hypotheses
+    assert FrameReceiver(views, ReceiverConfig(output_path=out), retry_hypotheses=True).tracker.options.retry_hypotheses
+    given = FrameReceiver(views, ReceiverConfig(output_path=out), options=PoseConfig(), mode="fast").tracker.options
     assert given.retry_hypotheses and given.mode == "fast"  # options given: taken as they are
 
 
@@ -272,7 +267,7 @@ def test_listen_serves_until_its_timeout_and_answers_c_echo(views, tmp_path):
         assoc.release()
 
     t0 = time.perf_counter()
-    stats = listen(views, port=0, output_path=tmp_path / "p.jsonl", timeout_s=0.5, on_start=echo)
+    stats = listen(views, ReceiverConfig(output_path=tmp_path / "p.jsonl", port=0), timeout_s=0.5, on_start=echo)
     assert 0.5 <= time.perf_counter() - t0 < 10
     assert ports[0] > 0 and ports[1] == 0x0000 and stats["port"] == ports[0]
     assert stats["pairs_processed"] == 0 and stats["associations"] == 1 and stats["frames_per_s"] is None
@@ -334,8 +329,8 @@ def test_a_cine_sent_gets_a_pose_per_pair_as_a_direct_tracker(cine, views, model
     paths = [str(cine["paths"][v.name]) for v in views]
     pki = request.getfixturevalue("tls_files") if sender == "send_frames_tls" else None
     tls = {} if pki is None else {"tls": TLSConfig(pki.server_cert, pki.server_key, pki.ca)}
-    with FrameReceiver(views, model, output_path=out, port=0, seed=SEED, on_pose=seen.append,
-                       max_queued_pairs=None, **tls) as receiver:  # a cine sent at once: every pair posed
+    with FrameReceiver(views, ReceiverConfig(output_path=out, port=0, max_queued_pairs=None, **tls), model=model,
+                       seed=SEED, on_pose=seen.append) as receiver:  # a cine sent at once: every pair posed
         if sender == "storescu":
             done = subprocess.run(["storescu", "-aec", "HISTOSTUDY", "127.0.0.1", str(receiver.port), *paths],
                                   capture_output=True, text=True, timeout=60)
@@ -379,7 +374,7 @@ def test_refused_objects_get_failure_statuses_and_the_other_frames_still_get_pos
     short.PixelData = short.PixelData[:-2 * views[1].shape[1]]
     short.SOPInstanceUID = generate_uid(entropy_srcs=["short"])
     out = tmp_path / "poses.jsonl"
-    with FrameReceiver(views, model, output_path=out, port=0, seed=SEED, max_queued_pairs=None) as receiver:
+    with FrameReceiver(views, ReceiverConfig(output_path=out, port=0, max_queued_pairs=None), model=model, seed=SEED) as receiver:
         statuses = send(receiver.port, [ct_dataset(), cine["paths"]["A"], bad_geometry, short, cine["paths"]["B"]])
         assert receiver.wait_for_pairs(N_FRAMES, timeout_s=120)
     assert statuses == [0x0122, 0x0000, 0xC000, 0xA900, 0x0000]
@@ -399,7 +394,7 @@ def test_an_aborted_association_and_a_dropped_connection_leave_the_receiver_serv
     an A-ASSOCIATE-RQ PDU and closes; plane B's frame, in the next association, still pairs with
     A's and gets its pose."""
     out = tmp_path / "poses.jsonl"
-    with FrameReceiver(views, model, output_path=out, port=0, seed=SEED) as receiver:
+    with FrameReceiver(views, ReceiverConfig(output_path=out, port=0), model=model, seed=SEED) as receiver:
         assert send_and_abort(receiver.port, cine["paths"]["A0"]) == 0
         with socket.create_connection(("127.0.0.1", receiver.port), timeout=5) as raw:
             # PDU type 0x01 (A-ASSOCIATE-RQ) announcing 200 bytes, then only 10 of them
@@ -422,7 +417,7 @@ def test_a_pair_whose_pose_fails_is_a_line_with_the_error(views, tmp_path):
     out = tmp_path / "poses.jsonl"
     flat = np.full(views[0].shape, 3000, np.uint16)
     objects = [xa_dataset(v, flat, acquisition_time=T0, uid_seed=f"flat/{v.name}") for v in views]
-    with FrameReceiver(views, output_path=out, port=0, seed=SEED, on_pose=broken_callback) as receiver:
+    with FrameReceiver(views, ReceiverConfig(output_path=out, port=0), seed=SEED, on_pose=broken_callback) as receiver:
         assert send(receiver.port, objects) == [0, 0]
         assert receiver.wait_for_pairs(1, timeout_s=60)
     (line,) = read_lines(out)
@@ -442,8 +437,8 @@ def test_the_pipeline_poses_as_a_direct_tracker_and_a_failed_pair_does_not_end_t
     before = T0 - dt.timedelta(seconds=1)
     objects = [xa_dataset(v, flat, acquisition_time=before, uid_seed=f"flat-first/{v.name}") for v in views]
     out = tmp_path / "poses.jsonl"
-    with FrameReceiver(views, model, output_path=out, port=0, seed=SEED, pipeline=True,
-                       max_queued_pairs=None) as receiver:
+    with FrameReceiver(views, ReceiverConfig(output_path=out, port=0, pipeline=True, max_queued_pairs=None),
+                       model=model, seed=SEED) as receiver:
         assert send(receiver.port, objects + [cine["paths"][v.name] for v in views]) == [0] * 4
         assert receiver.wait_for_pairs(1 + N_FRAMES, timeout_s=180)
     stats = receiver.stats()
@@ -461,11 +456,10 @@ def test_the_receiver_announces_pdus_of_a_mebibyte_under_the_guards_bound(small_
     # a 2.4 MB frame in three P-DATA PDUs rather than 150 of pynetdicom's default 16 KiB
     from pynetdicom import AE
 
-    from histostudy.lab.access import MAX_PDU_BYTES
-    from histostudy.lab.xray_objects import RECEIVER_MAX_PDU_BYTES
+    from histostudy.lab.access import MAX_PDU_BYTES, RECEIVER_MAX_PDU_BYTES
 
     assert RECEIVER_MAX_PDU_BYTES == 1 << 20 and RECEIVER_MAX_PDU_BYTES < MAX_PDU_BYTES
-    with FrameReceiver(small_views, output_path=tmp_path / "p.jsonl", port=0, warm_up=False) as receiver:
+    with FrameReceiver(small_views, ReceiverConfig(output_path=tmp_path / "p.jsonl", port=0, warm_up=False)) as receiver:
         ae = AE(ae_title="TESTSCU")
         ae.add_requested_context("1.2.840.10008.1.1")
         assoc = ae.associate("127.0.0.1", receiver.port, ae_title="HISTOSTUDY")

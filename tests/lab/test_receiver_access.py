@@ -16,7 +16,16 @@ import threading
 import pytest
 from receiver_stub import StubTracker, pair_objects, read_lines, receiver_with, small_views, wait_for_count
 
-from histostudy.lab import AllowList, FrameReceiver, Modality, listen, load_modalities, parse_allow, send_frames
+from histostudy.lab import (
+    AllowList,
+    FrameReceiver,
+    Modality,
+    ReceiverConfig,
+    listen,
+    load_modalities,
+    parse_allow,
+    send_frames,
+)
 
 #: What send_frames says of an association rejected with reason 3 or 7 (result 1, source 1).
 CALLING_NOT_RECOGNISED = r"rejected the association \(A-ASSOCIATE-RJ result 1, source 1, reason 3: calling AE"
@@ -163,9 +172,9 @@ def test_a_bad_modalities_file_is_refused_naming_the_file_and_the_entry(tmp_path
 def test_bad_allow_arguments_are_refused_naming_them(views, tmp_path):
     out = tmp_path / "p.jsonl"
     with pytest.raises(ValueError, match=r"modality 'CARM_A@carm' host must be an IP address .* got 'carm'"):
-        FrameReceiver(views, output_path=out, allow=["CARM_A@carm"])
+        ReceiverConfig(output_path=out, allow=["CARM_A@carm"])
     with pytest.raises(ValueError, match=r"allow must be None, an AllowList, or Modality objects .* got \[\]"):
-        FrameReceiver(views, output_path=out, allow=[])
+        ReceiverConfig(output_path=out, allow=[])
     with pytest.raises(ValueError, match=r"allow must be 'AE_TITLE' or 'AE_TITLE@IP_ADDRESS', got ' '"):
         parse_allow(" ")
     with pytest.raises(ValueError, match="modality 'x' ae_title must be 1-16 ASCII"):
@@ -181,11 +190,11 @@ def test_an_address_in_use_is_an_error_naming_it_and_no_file_is_created(views, t
         taken.bind(("127.0.0.1", 0))
         taken.listen(1)
         port = taken.getsockname()[1]
-        receiver = FrameReceiver(views, output_path=tmp_path / "poses.jsonl", port=port)
+        receiver = FrameReceiver(views, ReceiverConfig(output_path=tmp_path / "poses.jsonl", port=port))
         with pytest.raises(OSError, match=rf"cannot listen on 127.0.0.1:{port}: .*in use \(another receiver"):
             receiver.start()
         with pytest.raises(OSError, match=rf"cannot listen on 127.0.0.1:{port}: .*in use") as err:
-            listen(views, port=port, output_path=tmp_path / "listen.jsonl", timeout_s=1)
+            listen(views, ReceiverConfig(output_path=tmp_path / "listen.jsonl", port=port), timeout_s=1)
     assert err.value.errno == errno.EADDRINUSE
     assert not (tmp_path / "poses.jsonl").exists() and not (tmp_path / "listen.jsonl").exists()
     assert {t for t in threading.enumerate() if t.name == "histostudy-pose-worker"} <= workers

@@ -36,7 +36,7 @@ from receiver_stub import (
     small_views,
 )
 
-from histostudy.imaging import RECEIVABLE_TRANSFER_SYNTAXES
+from histostudy.imaging.io import RECEIVABLE_TRANSFER_SYNTAXES
 
 SEED = 20240506
 N_HOSTILE = 96

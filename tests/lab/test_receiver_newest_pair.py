@@ -18,7 +18,10 @@ import pytest
 from receiver_stub import T0, StubTracker, free_port, pair_objects, read_lines, receiver_with, small_views
 
 from histostudy.imaging import save_views
-from histostudy.lab import FrameReceiver, PendingFrame, XRayObjectRejected, pose_summary, read_xray_header, send_frames
+from histostudy.imaging.io import XRayObjectRejected
+from histostudy.lab import ReceiverConfig, send_frames
+from histostudy.lab.listening import pose_summary
+from histostudy.lab.xray_objects import PendingFrame, read_xray_header
 
 #: What ``histostudy listen`` prints per pose (listening.pose_summary).
 SUMMARY = re.compile(r"^\d\d:\d\d:\d\d\.\d{3} pair (?P<index>\d+) (?P<kind>\S+) (?P<verdict>accepted|REFUSED.*|ERROR.*) "
@@ -141,7 +144,7 @@ def test_the_header_is_read_without_the_pixels_and_short_pixel_data_is_refused_t
 @pytest.mark.parametrize("value", [0, -1, 1.5, True, "2"])
 def test_a_bad_max_queued_pairs_raises_naming_it(views, tmp_path, value):
     with pytest.raises(ValueError, match=rf"max_queued_pairs must be None or an integer >= 1, got {re.escape(repr(value))}"):
-        FrameReceiver(views, output_path=tmp_path / "p.jsonl", max_queued_pairs=value)
+        ReceiverConfig(output_path=tmp_path / "p.jsonl", max_queued_pairs=value)
 
 
 def test_pose_summary_says_kind_verdict_focal_point_latency_and_drops():

@@ -146,18 +146,18 @@ def test_the_sender_checks_the_receivers_certificate(views, tmp_path, tls_files)
 
 
 def test_tls_arguments_are_checked(views, tmp_path, tls_files):
-    from histostudy.lab import FrameReceiver
+    from histostudy.lab import ReceiverConfig
 
     with pytest.raises(FileNotFoundError, match=r"tls cert '.*missing.pem': no such file"):
         TLSConfig(tmp_path / "missing.pem", tls_files.server_key)
     with pytest.raises(ValueError, match="tls key .* was given without its certificate"):
         TLSConfig(key=tls_files.server_key)
     with pytest.raises(ValueError, match="tls cert must be given for the receiver"):
-        FrameReceiver(views, output_path=tmp_path / "p.jsonl", tls=TLSConfig(ca=tls_files.ca))
+        ReceiverConfig(output_path=tmp_path / "p.jsonl", tls=TLSConfig(ca=tls_files.ca))
     with pytest.raises(ValueError, match=r"cannot be loaded .*PEM"):
         TLSConfig(tls_files.ca, tls_files.server_key).server_context()  # a key that is not the certificate's
     with pytest.raises(ValueError, match=r"tls must be an ssl.SSLContext for the server \(ssl.PROTOCOL_TLS_SERVER\)"):
-        FrameReceiver(views, output_path=tmp_path / "p.jsonl", tls=ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT))
+        ReceiverConfig(output_path=tmp_path / "p.jsonl", tls=ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT))
     with pytest.raises(ValueError, match=r"tls must be None, a histostudy.lab.TLSConfig or an ssl.SSLContext"):
         send_frames(pair_objects(views, 0), "127.0.0.1", 104, tls="yes")
     assert not (tmp_path / "p.jsonl").exists()

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from pynetdicom import AE, evt
 
-from histostudy.imaging import XA_SOP_CLASS_UID, default_biplane, xa_dataset
+from histostudy.imaging import default_biplane
+from histostudy.imaging.io._xa import XA_SOP_CLASS_UID, xa_dataset
 from histostudy.lab import send_frames, stream_frames
 
 T0 = dt.datetime(2024, 5, 6, 10, 30, 0)

@@ -19,7 +19,7 @@ from histostudy.lab import (
 )
 from histostudy.robot import SimulatedUR5e, UnreachablePoseError, Workspace, WorkspaceViolation, pose_from_transform
 from histostudy.study.targeting._calibration import calibration_poses
-from histostudy.study.targeting._setup import TargetingStudyConfig, draw_ground_truth, start_joints
+from histostudy.study.targeting.setup import TargetingStudyConfig, draw_ground_truth, start_joints
 
 
 @pytest.fixture(scope="module")

@@ -11,11 +11,12 @@ import pytest
 import histostudy.pose.from_files as from_files
 from histostudy.core import WORLD_FRAME
 from histostudy.geometry import matrix_from_rotvec
-from histostudy.lab import READINGS, calibrate_from_poses, plan_targeting, plan_targeting_either_reading
+from histostudy.lab import calibrate_from_poses, plan_targeting, plan_targeting_either_reading
+from histostudy.lab.workflow import READINGS
 from histostudy.pose import half_turn_reading, pose_record
 from histostudy.robot import UnreachablePoseError, Workspace, WorkspaceViolation
 from histostudy.study.targeting._calibration import calibration_poses
-from histostudy.study.targeting._setup import TargetingStudyConfig, draw_ground_truth, start_joints
+from histostudy.study.targeting.setup import TargetingStudyConfig, draw_ground_truth, start_joints
 from histostudy.transducer import HALF_TURN, Feature, TransducerModel
 
 

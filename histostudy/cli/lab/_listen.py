@@ -73,7 +73,7 @@ def _queue_bound(text: str) -> int | None:
 
 def run_listen(args) -> int:
     from histostudy.imaging import load_views
-    from histostudy.lab import AllowList, TLSConfig, listen, load_modalities, parse_allow
+    from histostudy.lab import AllowList, ReceiverConfig, TLSConfig, listen, load_modalities, parse_allow
 
     t0 = time.monotonic()
 
@@ -96,14 +96,15 @@ def run_listen(args) -> int:
             raise ValueError("--tls-key and --tls-ca need --tls-cert: the certificate this receiver presents")
         if args.tls_cert:
             tls = TLSConfig(args.tls_cert, args.tls_key, args.tls_ca)
+        config = ReceiverConfig(output_path=args.output, ae_title=args.ae_title, port=args.port, host=args.host,
+                                max_queued_pairs=args.max_queued_pairs, fast=args.fast, warm_up=args.warm_up,
+                                allow=allow, tls=tls)
         views = load_views(args.views)
         model = model_from_args(args)
         with Steps(1, enabled=args.progress and args.warm_up, label="listen") as steps:
             steps.step("loading the models and warming up")
-            stats = listen(views, model=model, port=args.port, host=args.host, ae_title=args.ae_title,
-                           output_path=args.output, max_pairs=args.max_pairs, timeout_s=args.timeout_s, seed=args.seed,
-                           max_queued_pairs=args.max_queued_pairs, fast=args.fast, warm_up=args.warm_up,
-                           on_start=_after(started, steps), on_summary=log.info, allow=allow, tls=tls)
+            stats = listen(views, config, model=model, max_pairs=args.max_pairs, timeout_s=args.timeout_s,
+                           seed=args.seed, on_start=_after(started, steps), on_summary=log.info)
     except (ValueError, TypeError, FileNotFoundError, OSError) as exc:
         return fail("listen", exc)
     latency = stats["latency_s"]
