@@ -30,16 +30,9 @@ import tracemalloc
 import numpy as np
 
 from histostudy.core import machine_summary
-from histostudy.imaging import (
-    TorchSplatter,
-    default_biplane,
-    poisson_noise_torch,
-    random_background,
-    render_frame,
-    render_labels,
-    render_line_integrals,
-)
-from histostudy.imaging.render import _splat_chunks
+from histostudy.imaging import default_biplane, random_background, render_frame, render_labels, render_line_integrals
+from histostudy.imaging.render import TorchSplatter, poisson_noise_torch
+from histostudy.imaging.render._reference import _splat_chunks  # the splat alone, as the renderer runs it
 from histostudy.transducer import FEATURE_CLASSES, TransducerModel, pose_facing
 
 

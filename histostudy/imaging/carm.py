@@ -190,11 +190,11 @@ class View:
         Unequal row and column spacings give unequal focal lengths; ``pixel_mm`` is the column
         spacing. A missing attribute raises a ValueError naming it and its tag.
         """
-        from .io._geometry import gantry_from_dicom
+        from .io.geometry import gantry_from_dicom
 
         source = "the DICOM object"
         if isinstance(dataset, (str, os.PathLike)):
-            from .io._xray import read_dicom_file
+            from .io.xray import read_dicom_file
 
             source = str(dataset)
             dataset = read_dicom_file(dataset, stop_before_pixels=True)  # its failures name the file

@@ -40,7 +40,7 @@ from histostudy.transducer import FEATURE_CLASSES, TransducerModel
 
 from .carm import View
 from .frame import Frame
-from .render._reference import add_poisson_noise, background_line_integrals, render_labels
+from .render import add_poisson_noise, background_line_integrals, render_labels
 
 __all__ = ["forward_project", "render_frame_rtk", "rtk_available", "rtk_geometry", "voxelise_model"]
 

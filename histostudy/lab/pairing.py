@@ -38,7 +38,7 @@ from histostudy.core.checks import check_count, check_positive, is_finite_real
 __all__ = ["BiplanePairer", "DEFAULT_FRAME_INTERVAL_S", "Pairing", "PlaneFrame", "frame_times", "posix_seconds"]
 
 #: The frame interval assumed for single-frame objects (no FrameTime): 15 frames/s, the XA
-#: writer's default cine rate (:func:`histostudy.imaging.xa_dataset`).
+#: writer's default cine rate (:func:`histostudy.imaging.io._xa.xa_dataset`).
 DEFAULT_FRAME_INTERVAL_S = 0.0667
 
 _EPOCH = _dt.datetime(1970, 1, 1, tzinfo=_dt.UTC)

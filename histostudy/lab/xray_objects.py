@@ -2,9 +2,9 @@
 
 What the live receiver (:mod:`.receiver`) does with each object a C-arm or a PACS sends it, in two
 steps: :func:`read_xray_header` checks the object as every reader of the lab's frames does
-(:func:`histostudy.imaging.check_xray_object`, which ``histostudy pose`` and ``calibrate`` apply
+(:func:`histostudy.imaging.io.check_xray_object`, which ``histostudy pose`` and ``calibrate`` apply
 through :func:`~histostudy.imaging.load_frame`: the SOP class, the transfer syntax among
-:data:`histostudy.imaging.RECEIVABLE_TRANSFER_SYNTAXES`, the image size and, uncompressed, the pixel
+:data:`histostudy.imaging.io.RECEIVABLE_TRANSFER_SYNTAXES`, the image size and, uncompressed, the pixel
 data's length), then the geometry tags, the frame times and the pixel module's tags, and gives one
 :class:`PendingFrame` per frame (a cine's frames each one), all that pairing and the C-STORE answer
 need; :meth:`PendingFrame.decode` converts one frame's pixels into a :class:`ReceivedFrame`, done by
@@ -260,7 +260,7 @@ def storage_application_entity(ae_title: str, network_timeout_s: float):
     storage SOP class accepted at negotiation, so that an object that is not an X-ray image reaches
     the C-STORE handler and gets a failure status naming why (:func:`rejection_response`), and
     Verification (C-ECHO, the C-arm's connection test). Each storage context accepts the transfer
-    syntaxes the readers decode (:data:`histostudy.imaging.RECEIVABLE_TRANSFER_SYNTAXES`: native,
+    syntaxes the readers decode (:data:`histostudy.imaging.io.RECEIVABLE_TRANSFER_SYNTAXES`: native,
     JPEG Lossless, JPEG-LS, JPEG 2000, RLE), so that a C-arm may send its frames compressed."""
     from pynetdicom import AE, AllStoragePresentationContexts
     from pynetdicom.sop_class import Verification

@@ -14,7 +14,8 @@ from pynetdicom import AE, evt
 
 from histostudy.cli import build_parser, main
 from histostudy.cli.console import Steps
-from histostudy.imaging import XA_SOP_CLASS_UID, default_biplane, write_xa
+from histostudy.imaging import default_biplane, write_xa
+from histostudy.imaging.io._xa import XA_SOP_CLASS_UID
 
 
 def subcommands():

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from histostudy.cli import main
-from histostudy.imaging import default_biplane, save_views, write_xa, xa_dataset
+from histostudy.imaging import default_biplane, save_views, write_xa
+from histostudy.imaging.io._xa import xa_dataset
 from histostudy.robot import pose_from_transform
 from histostudy.study.targeting._calibration import calibration_poses
 from histostudy.study.targeting._setup import TargetingStudyConfig, draw_ground_truth

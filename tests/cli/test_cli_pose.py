@@ -100,7 +100,8 @@ NOT_X_RAY = (f"SOP class {CT_IMAGE_STORAGE} (CT Image Storage) is not an X-ray a
 def test_xa_pixels_stored_as_a_ct_image_are_refused_alike_by_pose_calibrate_and_listen(xa_pair, tmp_path, capsys):
     import pydicom
 
-    from histostudy.imaging import XRayObjectRejected, load_views
+    from histostudy.imaging import load_views
+    from histostudy.imaging.io import XRayObjectRejected
     from histostudy.lab.xray_objects import read_c_store
 
     station = tmp_path / "station"

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from histostudy.geometry import make_transform, matrix_from_rotvec
-from histostudy.imaging import View, default_biplane, displaced_view, miscalibrated_view
+from histostudy.imaging import View, default_biplane
+from histostudy.imaging.carm_errors import displaced_view, miscalibrated_view
 
 
 @pytest.fixture(scope="module")

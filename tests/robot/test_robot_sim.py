@@ -7,7 +7,6 @@ import pytest
 
 from histostudy.geometry import invert_transform, make_transform, matrix_from_rotvec
 from histostudy.robot import (
-    FaultPlan,
     ProtectiveStopError,
     Robot,
     RobotConnectionError,
@@ -19,6 +18,7 @@ from histostudy.robot import (
     forward_kinematics,
 )
 from histostudy.robot.base import trapezoid_time_s
+from histostudy.robot.sim import FaultPlan
 
 T_FLANGE_TCP = make_transform(matrix_from_rotvec([0.0, 0.0, 0.4]), [5.0, -3.0, 120.0])
 

@@ -4,14 +4,8 @@ import numpy as np
 import pytest
 
 from histostudy.geometry import check_rigid, rotvec_from_matrix
-from histostudy.transducer import (
-    FEATURE_CLASSES,
-    Feature,
-    ManufacturingDeviation,
-    TransducerModel,
-    TransducerSpec,
-    quadrant_index,
-)
+from histostudy.transducer import FEATURE_CLASSES, Feature, ManufacturingDeviation, TransducerModel, TransducerSpec
+from histostudy.transducer.spec import quadrant_index
 
 SPEC = TransducerSpec()
 R = 138.7

@@ -7,15 +7,8 @@ from treatment_setup import R_CT, robot_zone_and_calibration
 
 from histostudy.geometry import invert_transform, make_transform, rotation_about_axis
 from histostudy.imaging import Volume, cbct
-from histostudy.treatment import (
-    BUBBLE_CLOUD_SIZE_MM,
-    TreatmentZone,
-    bubble_cloud_mask,
-    execute_treatment,
-    plan_treatment,
-    post_treatment_phantom,
-    segment_treatment_zone,
-)
+from histostudy.treatment import TreatmentZone, execute_treatment, plan_treatment, segment_treatment_zone
+from histostudy.treatment.bubble_cloud import BUBBLE_CLOUD_SIZE_MM, bubble_cloud_mask, post_treatment_phantom
 
 
 def test_bubble_cloud_is_a_3x3x6_ellipsoid_along_the_propagation_axis():

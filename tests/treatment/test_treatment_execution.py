@@ -6,15 +6,11 @@ import pytest
 from treatment_setup import R_CT, robot_zone_and_calibration
 
 from histostudy.geometry import transform_points
-from histostudy.robot import FaultPlan, RobotConnectionError, SimulatedUR5e
-from histostudy.treatment import (
-    JournalError,
-    TreatmentRun,
-    UncertainPointError,
-    execute_treatment,
-    load_journal,
-    plan_treatment,
-)
+from histostudy.robot import RobotConnectionError, SimulatedUR5e
+from histostudy.robot.sim import FaultPlan
+from histostudy.treatment import execute_treatment, plan_treatment
+from histostudy.treatment.execution import TreatmentRun, UncertainPointError, load_journal
+from histostudy.treatment.journal import JournalError
 
 
 def test_execution_commands_every_point_and_journals_reached_poses(tmp_path):

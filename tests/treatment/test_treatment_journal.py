@@ -14,14 +14,9 @@ import pytest
 from treatment_faults import fault_plan, fired_points, treat
 
 from histostudy.robot import SimulatedUR5e
-from histostudy.treatment import (
-    JournalError,
-    JournalLockedError,
-    TreatmentJournal,
-    TreatmentRun,
-    execute_treatment,
-    load_journal,
-)
+from histostudy.treatment import execute_treatment
+from histostudy.treatment.execution import TreatmentRun, load_journal
+from histostudy.treatment.journal import JournalError, JournalLockedError, TreatmentJournal
 
 
 @pytest.fixture(scope="module")
@@ -121,7 +116,8 @@ def _finished_journal(tmp_path, name="j.sqlite", stop_after=None):
     path = tmp_path / name
     robot = SimulatedUR5e(1)
     if stop_after is not None:
-        from histostudy.robot import FaultPlan, RobotConnectionError
+        from histostudy.robot import RobotConnectionError
+        from histostudy.robot.sim import FaultPlan
 
         with pytest.raises(RobotConnectionError):
             execute_treatment(SimulatedUR5e(1, faults=FaultPlan(disconnect_after_moves=stop_after)), plan,

@@ -6,7 +6,8 @@ import pytest
 
 from histostudy.geometry import make_transform, rotation_about_axis
 from histostudy.imaging import Volume, cbct
-from histostudy.treatment import TreatmentZone, post_treatment_phantom, segment_treatment_zone
+from histostudy.treatment import TreatmentZone, segment_treatment_zone
+from histostudy.treatment.bubble_cloud import post_treatment_phantom
 
 SPEC = cbct.PhantomSpec()
 

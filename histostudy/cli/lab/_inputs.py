@@ -87,7 +87,7 @@ def check_frames(frames, args, *, label: str = "FRAMES") -> None:
     estimate reads it by (:func:`histostudy.pose.frames_from_files`): it exists and has a frame
     format; it has a view (``--views``'s, by order or by name = the file's stem, or a DICOM file's
     geometry tags); a DICOM file is one whole X-ray object
-    (:func:`~histostudy.imaging.check_xray_object`); ``--frame-index`` picks a frame each file
+    (:func:`~histostudy.imaging.io.check_xray_object`); ``--frame-index`` picks a frame each file
     holds; each image has its view's size unless ``--resample``. ``label`` starts the messages
     about one file (the argument that named it). Raises ValueError (XRayObjectRejected among them)
     or OSError naming the flag, the argument or the file."""
@@ -145,7 +145,8 @@ def _views_of(paths: list, args, label: str) -> list:
 def _dicom_shape(path: Path, view, args) -> tuple[tuple[int, int], int]:
     """A DICOM frame file's image size and frame count, the file read whole and checked as the
     estimate checks it; its view from its tags too when ``view`` is None."""
-    from histostudy.imaging import View, XRayObjectRejected, check_xray_object, read_dicom_file
+    from histostudy.imaging import View
+    from histostudy.imaging.io import XRayObjectRejected, check_xray_object, read_dicom_file
 
     ds = read_dicom_file(path)  # to its pixel data: a truncated or corrupt file is named here
     n_frames = int(getattr(ds, "NumberOfFrames", 1) or 1)

@@ -1,19 +1,9 @@
-"""Synthetic patient and phantom scenes, the backgrounds of the hybrid fluoroscopy frames (§II-B.2).
+"""Random abdomen and phantom scenes, the backgrounds of the hybrid fluoroscopy frames (§II-B.2):
+drawn in ``_random`` from the ranges of ``_params`` (the abdomen's parts in ``_abdomen_parts``), built
+of analytic solids (``_shapes``) and their set operations (``_csg``) over a shared ray algebra
+(``_rays``), and projected to line integrals by the scene (``_scene``). See docs/imaging.md."""
 
-Random scenes (``_random``) built from primitives (``_shapes``), their set operations (``_csg``), the
-parameter ranges they draw from (``_params``), the ray/primitive intersections (``_rays``) and the
-scene that projects them (``_scene``); the random abdomen's parts (body, organs, spine, ribs,
-gas) are built in ``_abdomen_parts``.
-"""
+from ._random import random_background
+from ._scene import Anatomy
 
-from . import _abdomen_parts, _csg, _params, _random, _scene, _shapes
-from ._csg import Difference, Intersection
-from ._params import AbdomenSpec, PhantomSceneSpec
-from ._random import MIXED_ABDOMEN_PROBABILITY, random_abdomen, random_background, random_phantom_setup
-from ._scene import Anatomy, Background, StaticBackground
-from ._shapes import Box, Ellipsoid, EllipticCylinder, Primitive
-
-# every public name of the modules above, as each module's __all__ declares it
-__all__ = list(dict.fromkeys([*_abdomen_parts.__all__, *_csg.__all__, *_params.__all__, *_random.__all__, *_scene.__all__, *_shapes.__all__]))
-
-# the 0.1.0 name, deprecated (CHANGELOG.md)
+__all__ = ["Anatomy", "random_background"]

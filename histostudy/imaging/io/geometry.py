@@ -86,10 +86,10 @@ def gantry_from_dicom(ds, frame_index: int | None = None, source: str = "the DIC
     acquisition (``PositionerPrimaryAngleIncrement``) is refused: the standard leaves it open
     whether its increments are per frame or cumulative, and a wrong guess moves every view. An
     object of a SOP class that is not an X-ray image (CT, secondary capture, ...) is refused first,
-    as every reader of the lab's frames refuses it (:func:`~._xray.check_sop_class`; a data set
+    as every reader of the lab's frames refuses it (:func:`~.xray.check_sop_class`; a data set
     without SOPClassUID is a bare set of tags, read).
     """
-    from ._xray import check_sop_class
+    from .xray import check_sop_class
 
     check_sop_class(getattr(ds, "SOPClassUID", None), source=source)
     if frame_index is not None and (isinstance(frame_index, bool) or not isinstance(frame_index, int)

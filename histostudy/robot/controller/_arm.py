@@ -23,7 +23,7 @@ import numpy as np
 
 from ..base import RobotError
 from ..kinematics import check_joints, forward_kinematics
-from ..rtde._units import pose_from_transform, transform_from_pose
+from ..units import pose_from_transform, transform_from_pose
 from ..sim import FaultPlan, SimulatedUR5e
 from ._protocol import (
     JOINT_MODE_RUNNING,

@@ -24,7 +24,7 @@ import time
 
 from ..base import RobotError
 from ..kinematics import check_joints, forward_kinematics
-from ..rtde._units import pose_from_transform, transform_from_pose
+from ..units import pose_from_transform, transform_from_pose
 from ._arm import ControllerArm
 from ._protocol import (
     N_REGISTERS,

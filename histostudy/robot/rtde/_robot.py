@@ -43,7 +43,7 @@ from ..base import (
 )
 from ..kinematics import UR5E, DHSpec, forward_kinematics, inverse_kinematics_closest, linear_path_joints
 from ._connection import DASHBOARD_PORT, RTDEConnection, probe_port
-from ._units import pose_from_transform, transform_from_pose
+from ..units import pose_from_transform, transform_from_pose
 
 __all__ = ["RTDERobot", "UR_RTDE_VERSION"]
 

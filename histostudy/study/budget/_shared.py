@@ -65,7 +65,7 @@ def shared_work(setup, config, *, max_frames: int = 32) -> Iterator[tuple]:
     """A scope for the runs of one experiment: yields ``(setup', frames, segmentations)``, the
     set-up (a :class:`~._run.BudgetSetup`) with its segmenter (``config.segmenter()`` where it has
     none, as the studies default) wrapped in :class:`SharedSegmentations`, the active
-    :class:`~histostudy.imaging.FrameMemo` and the wrapper; ``max_frames`` bounds each."""
+    :class:`~histostudy.imaging.render._memo.FrameMemo` and the wrapper; ``max_frames`` bounds each."""
     segmenter = setup.segmenter if setup.segmenter is not None else config.segmenter()
     segmentations = SharedSegmentations(segmenter, max_frames)
     with shared_frames(max_frames) as frames:

@@ -45,7 +45,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from histostudy.geometry import make_transform, matrix_from_rotvec
-from histostudy.imaging import GRAVITY_CARM, View, displaced_view, miscalibrated_view
+from histostudy.imaging import View
+from histostudy.imaging.carm_errors import GRAVITY_CARM, displaced_view, miscalibrated_view
 from histostudy.transducer import ManufacturingDeviation, TransducerModel
 
 from ..targeting._robots import KinematicError

@@ -46,7 +46,7 @@ def phantom_placement(scene: Anatomy, centre_mm=(0.0, 0.0, 0.0)) -> tuple[Phanto
     """The layered phantom of a scene as :mod:`histostudy.imaging.cbct` models it (§II-D.1):
     ``(PhantomSpec, T_carm_phantom)``.
 
-    A phantom scene (:func:`histostudy.imaging.anatomy.random_phantom_setup`) records its cube's edge,
+    A phantom scene (:func:`histostudy.imaging.anatomy._random.random_phantom_setup`) records its cube's edge,
     centre, yaw about the vertical axis and layer thickness; its layers are stacked vertically as
     poured, so the phantom frame's +z (the stacking axis of :class:`PhantomSpec`) is world ``-y``
     (up). The layers' phase is :class:`PhantomSpec`'s (from the bottom face), not the scene's: the

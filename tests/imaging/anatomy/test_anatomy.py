@@ -4,16 +4,9 @@ set-up scenes, their seeding, landmarks, overrides and plausible line integrals.
 import numpy as np
 import pytest
 
-from histostudy.imaging import (
-    MIXED_ABDOMEN_PROBABILITY,
-    AbdomenSpec,
-    Anatomy,
-    View,
-    default_biplane,
-    random_abdomen,
-    random_background,
-    random_phantom_setup,
-)
+from histostudy.imaging import Anatomy, View, default_biplane, random_background
+from histostudy.imaging.anatomy._params import AbdomenSpec
+from histostudy.imaging.anatomy._random import MIXED_ABDOMEN_PROBABILITY, random_abdomen, random_phantom_setup
 
 SMALL = dict(shape=(96, 124), pixel_mm=3.08)     # a 1240x960 detector binned 10x
 

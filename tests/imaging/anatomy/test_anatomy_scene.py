@@ -6,15 +6,10 @@ import numpy as np
 import pytest
 
 from histostudy.geometry import make_transform, rotation_about_axis
-from histostudy.imaging import (
-    Anatomy,
-    Ellipsoid,
-    StaticBackground,
-    View,
-    default_biplane,
-    random_abdomen,
-    random_phantom_setup,
-)
+from histostudy.imaging import Anatomy, View, default_biplane
+from histostudy.imaging.anatomy._random import random_abdomen, random_phantom_setup
+from histostudy.imaging.anatomy._scene import StaticBackground
+from histostudy.imaging.anatomy._shapes import Ellipsoid
 
 SMALL = dict(shape=(96, 124), pixel_mm=3.08)     # a 1240x960 detector binned 10x
 

@@ -6,7 +6,8 @@ import pytest
 
 from histostudy.geometry import rotation_about_axis
 from histostudy.geometry.transforms import random_rotation
-from histostudy.imaging import Box, Difference, Ellipsoid, EllipticCylinder, Intersection
+from histostudy.imaging.anatomy._csg import Difference, Intersection
+from histostudy.imaging.anatomy._shapes import Box, Ellipsoid, EllipticCylinder
 
 
 def numeric_chord(contains, origin, direction, t_range=(0.0, 1200.0), dt=0.01):

@@ -6,7 +6,8 @@ ValueError or an OSError, as callers catch it."""
 import numpy as np
 import pytest
 
-from histostudy.imaging import View, default_biplane, load_frame, read_dicom_file, write_xa
+from histostudy.imaging import View, default_biplane, load_frame, write_xa
+from histostudy.imaging.io import read_dicom_file
 
 SHAPE = (48, 62)
 

@@ -7,7 +7,8 @@ import numpy as np
 import pydicom
 import pytest
 
-from histostudy.imaging import View, detector_counts, load_frame, write_xa, xa_dataset
+from histostudy.imaging import View, detector_counts, load_frame, write_xa
+from histostudy.imaging.io._xa import xa_dataset
 
 
 @pytest.fixture

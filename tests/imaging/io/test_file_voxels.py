@@ -12,7 +12,8 @@ from nibabel.affines import apply_affine
 from pydicom.dataset import FileDataset, FileMetaDataset
 from pydicom.uid import ExplicitVRLittleEndian, generate_uid
 
-from histostudy.imaging import LPS_FROM_RAS, Volume, load_volume, lps_from_ras, ras_from_lps, save_volume_nifti
+from histostudy.imaging import Volume, load_volume, lps_from_ras, ras_from_lps, save_volume_nifti
+from histostudy.imaging.volume import LPS_FROM_RAS
 
 SHAPE_IJK = (5, 6, 7)
 # RAS-increasing (as FSL and many converters write), and a permuted, flipped grid.

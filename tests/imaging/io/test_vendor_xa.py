@@ -13,8 +13,9 @@ import pydicom
 import pytest
 from xa_codecs import jpeg_ls_near
 
-from histostudy.imaging import View, XRayObjectRejected, check_xray_object, load_frame, xray_pixels
-from histostudy.lab import decode_xray_object
+from histostudy.imaging import View, load_frame
+from histostudy.imaging.io import XRayObjectRejected, check_xray_object, xray_pixels
+from histostudy.lab.xray_objects import decode_xray_object
 
 VENDOR = Path(__file__).resolve().parents[2] / "data" / "vendor_xa"
 #: SHA-256 of the stored values (uint16, little endian, 1024 x 1024) of WG-04's uncompressed

@@ -10,17 +10,9 @@ import pytest
 from pydicom.pixels import get_decoder
 from xa_codecs import NEAR, compress, jpeg_ls_near
 
-from histostudy.imaging import (
-    RECEIVABLE_TRANSFER_SYNTAXES,
-    View,
-    XRayObjectRejected,
-    check_xray_object,
-    detector_counts,
-    load_frame,
-    write_xa,
-    xray_pixels,
-)
-from histostudy.lab import decode_xray_object
+from histostudy.imaging import View, detector_counts, load_frame, write_xa
+from histostudy.imaging.io import RECEIVABLE_TRANSFER_SYNTAXES, XRayObjectRejected, check_xray_object, xray_pixels
+from histostudy.lab.xray_objects import decode_xray_object
 
 NATIVE = ["1.2.840.10008.1.2", "1.2.840.10008.1.2.1", "1.2.840.10008.1.2.1.99", "1.2.840.10008.1.2.2"]
 COMPRESSED = ["1.2.840.10008.1.2.4.70", "1.2.840.10008.1.2.4.57", "1.2.840.10008.1.2.4.80", "1.2.840.10008.1.2.4.81",

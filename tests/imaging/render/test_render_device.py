@@ -17,19 +17,16 @@ import torch
 from scipy import stats
 
 from histostudy.imaging import (
-    TorchSplatter,
     View,
     add_poisson_noise,
-    check_device,
     default_biplane,
-    poisson_noise_torch,
     random_background,
     render_frame,
     render_labels,
     render_line_integrals,
-    splat_compiled,
-    splat_points,
 )
+from histostudy.imaging.render import TorchSplatter, poisson_noise_torch
+from histostudy.imaging.render._device import check_device, splat_compiled, splat_points
 from histostudy.imaging.render._reference import _nearest_pixel
 from histostudy.imaging.render._splat_kernels import _R, standard_normals
 from histostudy.transducer import Feature, TransducerModel, pose_facing

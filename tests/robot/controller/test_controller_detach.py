@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from histostudy.robot.controller import DASHBOARD_PORT, RTDE_PORT, SCRIPT_PORT
+from histostudy.robot.controller._protocol import DASHBOARD_PORT, RTDE_PORT, SCRIPT_PORT
 
 HOST = "127.0.0.73"
 

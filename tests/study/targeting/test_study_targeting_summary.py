@@ -126,7 +126,8 @@ def test_calibration_sensitivity_table_is_the_seeded_monte_carlo():
 @pytest.fixture(scope="module")
 def treated():
     from histostudy.imaging import phantom_mask, phantom_volume, simulate_cbct
-    from histostudy.treatment import TreatmentZone, post_treatment_phantom, segment_treatment_zone
+    from histostudy.treatment import TreatmentZone, segment_treatment_zone
+    from histostudy.treatment.bubble_cloud import post_treatment_phantom
 
     truth = phantom_volume(spacing_mm=1.0)
     roi = phantom_mask(truth)
