@@ -105,8 +105,8 @@ def test_a_scale_the_unet_cannot_give_is_refused(models):
                 orientation=OracleOrientation())
     odd = [dataclasses.replace(v, shape=(v.shape[0] - 1, v.shape[1])) for v in views]
     with pytest.raises(ValueError, match=r"views\[0\] shape \(959, 1240\) is not divisible"):
-        ScratchEstimator(models[0], odd, segmenter.with_precision("auto"), OracleOrientation(), PoseConfig(), TrackingConfig(),
-                         0.5, np.random.default_rng(0))
+        ScratchEstimator(models[0], odd, segmenter.with_precision("auto"), OracleOrientation(), PoseConfig(),
+                         TrackingConfig(), 0.5, np.random.default_rng(0))
 
 
 @pytest.fixture(scope="module")
