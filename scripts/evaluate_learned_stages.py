@@ -48,7 +48,7 @@ def main(argv=None) -> int:
     import numpy as np
 
     from histostudy.core import machine_summary
-    from histostudy.learning import HybridFrames, RenderConfig, UNetSegmenter, default_cache_dir, pool_labels
+    from histostudy.learning import HybridFrames, RenderConfig, UNetRunner, default_cache_dir, pool_labels
     from histostudy.pose import ConicOrientation
     from histostudy.study.orientation import candidate_error_summary, candidate_errors, load_vgg19
     from histostudy.study.segmentation import evaluate_segmentation, load_unet
@@ -59,7 +59,7 @@ def main(argv=None) -> int:
     frames = HybridFrames("eval", args.seed, RenderConfig(), cache_dir=default_cache_dir())
     frames.prerender(args.frames, workers=args.workers)
     unet, path = load_unet(args.weights)
-    flips = UNetSegmenter(unet.network, scale=unet.scale, manifest=unet.manifest, test_time_flips=True)
+    flips = UNetRunner(unet.network, test_time_flips=True, scale=unet.scale, manifest=unet.manifest)
     print(f"{path} ({unet.manifest['sha256'][:12]}), {args.frames} frames of split 'eval', seed {args.seed}")
 
     def table(segmenter) -> dict:

@@ -82,7 +82,7 @@ def _evaluate(task: str, weights: Path, frames, n: int) -> dict:
     """The held-out figures of ``weights`` and of the shipped network of ``task`` on the same frames."""
     import numpy as np
 
-    from histostudy.learning import LearnedOrientation, UNetSegmenter, shipped_model
+    from histostudy.learning import LearnedOrientation, UNetRunner, shipped_model
     from histostudy.study.orientation import direction_error_summary, evaluate_orientation
     from histostudy.study.segmentation import evaluate_segmentation
 
@@ -92,7 +92,7 @@ def _evaluate(task: str, weights: Path, frames, n: int) -> dict:
         if path is None:
             continue
         if task == "segmentation":
-            per_class, per_image, _ = evaluate_segmentation(UNetSegmenter.load(path), (frames.frame(i) for i in range(n)))
+            per_class, per_image, _ = evaluate_segmentation(UNetRunner.load(path), (frames.frame(i) for i in range(n)))
             table = per_class.groupby("class")[["iou", "recall", "precision"]].mean()
             out[label] = {"per_class_percent": {c: {k: (None if np.isnan(v) else float(v)) for k, v in row.items()}
                                                 for c, row in table.iterrows()},

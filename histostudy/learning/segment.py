@@ -1,21 +1,12 @@
-"""Feature segmentation of fluoroscopic frames (paper §II-B.2): the interface and the oracle.
-
-A :class:`Segmenter` turns a :class:`~histostudy.imaging.frame.Frame` into a label image: ``uint8
-(rows, cols)`` of :class:`~histostudy.transducer.Feature` values, one class per pixel, overlaps
-resolved by the paper's priority (what the U-Net's arg-max gives). The learned U-Net implements
-the same interface (:class:`UNetSegmenter`, with the shipped weights from :func:`default_segmenter`).
-
-:class:`OracleSegmenter` returns the frame's reference labels, optionally degraded the way a
-network errs (:class:`SegmentationDegradation`): each class keeps only a fraction of its pixels
-(recall) in spatially correlated blobs — thin features lose pixels to the element underneath —
-and gains false positives next to its true pixels (precision), so that a pose study can run with
-segmentation errors of the size of the paper's Table I.
+"""Feature segmentation of fluoroscopic frames (paper §II-B.2): the :class:`Segmenter` interface, the
+oracle that errs as the paper's Table I (:class:`OracleSegmenter`) and the shipped U-Nets
+(:func:`default_segmenter`, run by :class:`~histostudy.learning.inference.runner.UNetRunner`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import cv2
 import numpy as np
@@ -23,8 +14,11 @@ import numpy as np
 from histostudy.imaging import Frame
 from histostudy.transducer import FEATURE_CLASSES, Feature
 
-__all__ = ["keep_largest_component", "OracleSegmenter", "SegmentationDegradation", "Segmenter", "UNetSegmenter", "default_segmenter",
-           "masks_from_labels", "tracking_segmenter"]
+if TYPE_CHECKING:
+    from .inference import UNetRunner
+
+__all__ = ["ORACLE_DEGRADATIONS", "OracleSegmenter", "SegmentationDegradation", "Segmenter", "default_segmenter",
+           "degrade_labels", "keep_largest_component", "masks_from_labels", "tracking_segmenter"]
 
 
 @runtime_checkable
@@ -196,89 +190,32 @@ def degrade_labels(labels: np.ndarray, degradation: SegmentationDegradation, rng
     return out
 
 
-# --- the learned segmenter (§II-B.2) ----------------------------------------------------------
+# --- the shipped U-Nets (§II-B.2) -------------------------------------------------------------
 
 
-@dataclass(frozen=True, eq=False)
-class UNetSegmenter:
-    """The U-Net of §II-B.2 as a :class:`Segmenter`.
+def default_segmenter() -> UNetRunner | None:
+    """The shipped U-Net (``data/models/unet_standard``), run as trained (precision ``"reference"``).
 
-    Inference on a whole frame in one pass at the network's input scale: the line-integral image
-    is area-downscaled by ``scale`` and standardised (:func:`histostudy.learning.preprocess.prepare_image`,
-    the transform of training), the U-Net's logits are upsampled bilinearly (pixel centres
-    aligned as in :meth:`~histostudy.imaging.carm.View.scaled`) to the frame's full resolution and the
-    arg-max class of each pixel is returned, so labels always have the frame's shape. ``rng`` is
-    accepted for the protocol and unused (inference is deterministic).
-
-    With ``test_time_flips`` the logits are the mean of the network's on the image and on its three
-    mirror images (left-right, up-down, both), each flipped back: the labels then mirror exactly as
-    the frame does. It costs four passes for a few points of IoU on the thin classes
-    (docs/learned-stages.md, "The learned stages at a new seed"), so it is offered, not the default.
-
-    Build it with :meth:`load` from a checkpoint (:mod:`histostudy.learning.checkpoints`), or get the
-    shipped one from :func:`default_segmenter`.
+    Returns:
+        Its :class:`~histostudy.learning.inference.runner.UNetRunner`, or None (with a warning) when
+        the weights are missing or fail their hash or configuration check (callers then fall back to
+        :class:`OracleSegmenter` and say so).
     """
-
-    network: object = field(repr=False)
-    scale: float = 0.5
-    manifest: dict | None = field(default=None, repr=False)
-    test_time_flips: bool = False
-
-    def __post_init__(self):
-        if not isinstance(self.test_time_flips, bool):
-            raise TypeError(f"test_time_flips must be True or False, got {self.test_time_flips!r}")
-
-    @classmethod
-    def load(cls, path, *, test_time_flips: bool = False) -> UNetSegmenter:
-        """From a U-Net checkpoint (hash and configuration checked)."""
-        from .checkpoints import load_network
-
-        net, manifest = load_network(path)
-        if net.config.get("arch") != "unet" or net.config.get("n_classes") != len(Feature):
-            raise ValueError(f"checkpoint {str(path)!r} holds {net.config}, expected a U-Net with {len(Feature)} classes")
-        return cls(network=net, scale=float(manifest.get("input_scale", 0.5)), manifest=manifest,
-                   test_time_flips=test_time_flips)
-
-    def segment(self, frame: Frame, rng: np.random.Generator | None = None) -> np.ndarray:
-        import torch
-        from torch.nn import functional as F
-
-        from .preprocess import prepare_image
-
-        if not isinstance(frame, Frame):
-            raise TypeError(f"frame must be a histostudy.imaging.frame.Frame, got {type(frame).__name__}")
-        try:
-            x = prepare_image(frame.image, self.scale)
-        except ValueError as exc:
-            raise ValueError(f"frame of view {frame.view.name!r} with shape {frame.image.shape} cannot be "
-                             f"segmented at scale {self.scale}: {exc}") from None
-        self.network.eval()
-        with torch.no_grad():
-            x = torch.from_numpy(x)[None, None]
-            logits = self.network(x)
-            if self.test_time_flips:
-                for dims in ((-1,), (-2,), (-2, -1)):
-                    logits = logits + torch.flip(self.network(torch.flip(x, dims)), dims)
-                logits = logits / 4.0
-            if logits.shape[-2:] != frame.image.shape:
-                logits = F.interpolate(logits, size=frame.image.shape, mode="bilinear", align_corners=False)
-            return logits[0].argmax(dim=0).to(torch.uint8).numpy()
-
-
-def default_segmenter() -> UNetSegmenter | None:
-    """The shipped U-Net (``data/models/unet_standard``) as a :class:`UNetSegmenter`, or None when
-    the weights are missing or fail their hash or configuration check (callers then fall back to
-    :class:`OracleSegmenter` and say so)."""
     from .checkpoints import load_shipped
+    from .inference import UNetRunner
 
-    return load_shipped("unet_standard", UNetSegmenter.load, "U-Net")
+    return load_shipped("unet_standard", UNetRunner.load, "U-Net")
 
 
-def tracking_segmenter() -> UNetSegmenter | None:
+def tracking_segmenter() -> UNetRunner | None:
     """The shipped U-Net trained for tracking (``data/models/unet_tracking``: input scale 0.25,
-    ``histostudy train segmentation_tracking``; docs/tracking.md, "A network trained for tracking")
-    as a :class:`UNetSegmenter`, or None when the weights are missing or fail their hash or
-    configuration check (with a warning then)."""
-    from .checkpoints import load_shipped
+    ``histostudy train segmentation_tracking``; docs/tracking.md, "A network trained for tracking").
 
-    return load_shipped("unet_tracking", UNetSegmenter.load, "tracking U-Net")
+    Returns:
+        Its :class:`~histostudy.learning.inference.runner.UNetRunner` (precision ``"reference"``), or
+        None (with a warning) when the weights are missing or fail their hash or configuration check.
+    """
+    from .checkpoints import load_shipped
+    from .inference import UNetRunner
+
+    return load_shipped("unet_tracking", UNetRunner.load, "tracking U-Net")

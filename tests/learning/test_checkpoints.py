@@ -6,15 +6,9 @@ import json
 import pytest
 import torch
 
-from histostudy.learning import (
-    UNet,
-    checkpoints,
-    load_checkpoint,
-    load_network,
-    manifest_path,
-    save_checkpoint,
-    shipped_model,
-)
+from histostudy.learning import checkpoints, shipped_model
+from histostudy.learning.checkpoints import load_checkpoint, load_network, manifest_path, save_checkpoint
+from histostudy.learning.nets.unet import UNet
 
 CONFIG = {"arch": "unet", "in_channels": 1, "n_classes": 6, "base_width": 2, "depth": 2}
 

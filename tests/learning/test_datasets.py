@@ -6,20 +6,16 @@ import torch
 
 from histostudy.geometry import check_rigid
 from histostudy.imaging import View
-from histostudy.learning import (
+from histostudy.learning import HybridFrames, RenderConfig, angles_from_direction, beam_direction_of_pose, pool_labels
+from histostudy.learning.datasets import (
     SPLIT_CODES,
-    HybridFrames,
     HybridImageDataset,
-    RenderConfig,
-    angles_from_direction,
-    beam_direction_of_pose,
     flip_angles,
-    hemisphere_directions,
-    pool_labels,
-    prepare_image,
     random_training_pose,
     true_angles,
 )
+from histostudy.learning.orientation import hemisphere_directions
+from histostudy.learning.preprocess import prepare_image
 from histostudy.transducer import Feature
 
 # small detector and coarse model: frames in well under a second

@@ -1,4 +1,4 @@
-"""Tests of histostudy.learning.fused_conv: Conv2d -> ReLU in one oneDNN call, within float32
+"""Tests of histostudy.learning.inference._fused_conv: Conv2d -> ReLU in one oneDNN call, within float32
 rounding of the pair run eagerly (the bound of reordering_bound) on every shape, the same labels
 away from near-ties, and left alone wherever that does not hold."""
 
@@ -8,8 +8,10 @@ import pytest
 import torch
 from torch import nn
 
-from histostudy.learning import ConvReLU, FastUNet, UNet, UNetSegmenter, fuse_conv_relu, fused_conv
-from histostudy.learning.fused_conv import reordering_bound
+from histostudy.learning import UNetRunner
+from histostudy.learning.inference import _fused_conv as fused_conv
+from histostudy.learning.inference._fused_conv import ConvReLU, fuse_conv_relu, reordering_bound
+from histostudy.learning.nets.unet import UNet
 
 needs_fusion = pytest.mark.skipif(fused_conv._fused_op() is None, reason="this torch has no fused oneDNN convolution")
 
@@ -129,10 +131,10 @@ def test_the_bound_holds_for_a_reordered_sum_and_fails_for_a_wrong_layer():
 
 
 @needs_fusion
-def test_fast_unet_fuses_every_pair_and_keeps_the_checkpoint():
+def test_the_inference_network_fuses_every_pair_and_keeps_the_checkpoint():
     net = UNet(base_width=4, depth=3).eval()
-    segmenter = UNetSegmenter(net, scale=0.5)
-    fast = FastUNet(segmenter, precision="float32")
+    segmenter = UNetRunner(net, scale=0.5)
+    fast = segmenter.with_precision("float32")
     if fast.n_fused_layers == 0:
         pytest.skip("on this CPU no float32 pair has a fused call that keeps the bound")
     assert fast.n_fused_layers <= 2 * (4 + 3)

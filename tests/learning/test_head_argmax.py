@@ -1,11 +1,11 @@
-"""Tests of histostudy.learning.head_argmax: the U-Net's 1x1 head and the arg-max over its classes in
+"""Tests of histostudy.learning.inference._head_argmax: the U-Net's 1x1 head and the arg-max over its classes in
 one pass, against torch's convolution and arg-max."""
 
 import numpy as np
 import pytest
 import torch
 
-from histostudy.learning.head_argmax import head_argmax
+from histostudy.learning.inference._head_argmax import head_argmax
 
 
 def _torch_labels(features, weight, bias):

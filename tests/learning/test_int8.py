@@ -1,6 +1,6 @@
-"""Tests of histostudy.learning.int8_unet: the U-Net in 8-bit integers, rebuilt from a stored
+"""Tests of histostudy.learning.inference._int8: the U-Net in 8-bit integers, rebuilt from a stored
 calibration, checked against the float network (its labels against the checkpoint's are in
-test_fast_segment.py, precision "int8")."""
+test_runner.py, precision "int8")."""
 
 import json
 
@@ -9,21 +9,18 @@ import pytest
 import torch
 
 from histostudy.imaging import Frame, default_biplane
-from histostudy.learning import (
+from histostudy.learning import UNetRunner, default_segmenter
+from histostudy.learning.inference import runner
+from histostudy.learning.inference._int8 import (
     INT8_CALIBRATION_FORMAT,
-    FastUNet,
-    Int8UNet,
-    UNet,
-    UNetSegmenter,
-    auto_precision,
+    Int8Features,
     calibrate_int8,
-    default_segmenter,
-    fast_segment,
     int8_available,
     int8_calibration_path,
     load_int8_calibration,
     save_int8_calibration,
 )
+from histostudy.learning.nets.unet import UNet
 
 pytestmark = pytest.mark.skipif(not int8_available(), reason="this torch has no oneDNN int8 kernels")
 
@@ -32,7 +29,7 @@ pytestmark = pytest.mark.skipif(not int8_available(), reason="this torch has no 
 def small_unet():
     torch.manual_seed(1)
     net = UNet(base_width=4, depth=2).eval()
-    return UNetSegmenter(net, scale=0.5, manifest={"sha256": "ab" * 32, "weights_file": "small.safetensors"})
+    return UNetRunner(net, scale=0.5, manifest={"sha256": "ab" * 32, "weights_file": "small.safetensors"})
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +46,7 @@ def frames():
 
 
 def _network_input(segmenter, frame):
-    from histostudy.learning import prepare_image
+    from histostudy.learning.preprocess import prepare_image
 
     x = torch.from_numpy(prepare_image(frame.image, segmenter.scale))[None, None]
     return x[..., :112, :152].contiguous(memory_format=torch.channels_last)
@@ -62,7 +59,7 @@ def test_int8_features_follow_the_float_network_and_rebuild_exactly(small_unet, 
     assert calibration["format"] == INT8_CALIBRATION_FORMAT and calibration["frames"] == 3
     assert calibration["checkpoint_sha256"] == "ab" * 32
     assert calibration["float_modules"][0] == "n.down.0.0" and all("up" in n for n in calibration["float_modules"][1:])
-    int8 = Int8UNet(small_unet, calibration)
+    int8 = Int8Features(small_unet, calibration)
     x = _network_input(small_unet, frames[0])
     with torch.no_grad():
         reference = small_unet.network.features(x)
@@ -71,7 +68,7 @@ def test_int8_features_follow_the_float_network_and_rebuild_exactly(small_unet, 
     span = float(reference.max() - reference.min())
     error = (features - reference).abs()
     assert float(error.mean()) < 0.01 * span and float(error.max()) < 0.15 * span
-    again = Int8UNet(small_unet, json.loads(json.dumps(calibration))).features(x)
+    again = Int8Features(small_unet, json.loads(json.dumps(calibration))).features(x)
     torch.testing.assert_close(again, features, rtol=0, atol=0)
 
 
@@ -80,19 +77,19 @@ def test_calibrations_are_stored_beside_the_weights_and_checked(small_unet, fram
     path = save_int8_calibration(calibration, tmp_path / "small.int8.json")
     assert json.loads(path.read_text()) == calibration
     assert int8_calibration_path(small_unet).name == "small.int8.json"
-    assert int8_calibration_path(UNetSegmenter(small_unet.network)) is None  # no manifest: nowhere
+    assert int8_calibration_path(UNetRunner(small_unet.network)) is None  # no manifest: nowhere
     with pytest.raises(ValueError, match=r"calibration is of the checkpoint with SHA-256 'cd"):
-        Int8UNet(small_unet, calibration | {"checkpoint_sha256": "cd" * 32})
+        Int8Features(small_unet, calibration | {"checkpoint_sha256": "cd" * 32})
     with pytest.raises(ValueError, match=r"calibration must be a dict of format 'histostudy.int8-calibration/1'"):
-        Int8UNet(small_unet, calibration | {"format": "other/1"})
+        Int8Features(small_unet, calibration | {"format": "other/1"})
     with pytest.raises(ValueError, match=r"calibration holds 2 activations"):
-        Int8UNet(small_unet, calibration | {"activation_qparams": calibration["activation_qparams"][:2]})
+        Int8Features(small_unet, calibration | {"activation_qparams": calibration["activation_qparams"][:2]})
     with pytest.raises(ValueError, match=r"activation_qparams'\] must be a list of \[scale > 0"):
-        Int8UNet(small_unet, calibration | {"activation_qparams": [[0.0, 3]]})
+        Int8Features(small_unet, calibration | {"activation_qparams": [[0.0, 3]]})
     with pytest.raises(ValueError, match="frames must be a non-empty sequence of Frames"):
         calibrate_int8(small_unet, [])
     with pytest.raises(ValueError, match=r"precision 'int8' needs the calibration of this checkpoint"):
-        FastUNet(small_unet, precision="int8")
+        small_unet.with_precision("int8")
 
 
 def test_the_shipped_unet_has_its_calibration_and_int8_is_asked_for_by_name(small_unet, monkeypatch):
@@ -104,10 +101,10 @@ def test_the_shipped_unet_has_its_calibration_and_int8_is_asked_for_by_name(smal
     calibration = load_int8_calibration(shipped)
     assert calibration is not None and calibration["checkpoint_sha256"] == shipped.manifest["sha256"]
     assert calibration["frames"] >= 8
-    monkeypatch.setattr(fast_segment, "native_bfloat16", lambda: False)
-    assert auto_precision(shipped) == auto_precision(small_unet) == "float32"
-    assert FastUNet(shipped).precision == "float32" and FastUNet(shipped, precision="int8").precision == "int8"
-    monkeypatch.setattr(fast_segment, "native_bfloat16", lambda: True)
-    assert auto_precision(shipped) == "bfloat16"
-    with pytest.raises(TypeError, match="segmenter must be a histostudy.learning.UNetSegmenter"):
-        auto_precision("unet")
+    monkeypatch.setattr(runner, "native_bfloat16", lambda: False)
+    assert shipped.with_precision("auto").precision == small_unet.with_precision("auto").precision == "float32"
+    assert shipped.with_precision("int8").precision == "int8"
+    monkeypatch.setattr(runner, "native_bfloat16", lambda: True)
+    assert shipped.with_precision("auto").precision == "bfloat16"
+    with pytest.raises(TypeError, match="runner must be a histostudy.learning.UNetRunner"):
+        calibrate_int8("unet", [])

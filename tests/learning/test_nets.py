@@ -5,7 +5,9 @@ import pytest
 import torch
 from torch import nn
 
-from histostudy.learning import VGG19, UNet, build_network, max_pool_2x2
+from histostudy.learning import build_network
+from histostudy.learning.nets.unet import UNet, max_pool_2x2
+from histostudy.learning.nets.vgg import VGG19
 
 
 def _unet_params(c_in, n_classes, w, depth):
@@ -111,7 +113,8 @@ def test_vgg19_cos_sin_regressor_starts_as_the_classes_vote_and_wraps_smoothly()
     """With angle_encoding="cos_sin" the regressor's (c, s) rows start as the classes' (cos, sin):
     a network sure of one class returns that class's azimuth; the azimuth is atan2(s, c), so
     outputs on either side of +-pi are neighbours, not 2 pi apart."""
-    from histostudy.learning import hemisphere_angles, wrap_angle
+    from histostudy.learning import wrap_angle
+    from histostudy.learning.orientation import hemisphere_angles
 
     torch.manual_seed(3)
     angles = hemisphere_angles(36)

@@ -8,19 +8,21 @@ from histostudy.geometry import make_transform
 from histostudy.geometry.transforms import random_rotation
 from histostudy.imaging import Frame, View, default_biplane
 from histostudy.learning import (
-    N_ORIENTATION_CLASSES,
     LearnedOrientation,
     OracleOrientation,
     OrientationSource,
     angles_from_direction,
     beam_direction_of_pose,
     direction_candidates,
-    hemisphere_angles,
-    hemisphere_directions,
     orientation_angle_error,
-    orientation_class,
     select_direction,
     wrap_angle,
+)
+from histostudy.learning.orientation import (
+    N_ORIENTATION_CLASSES,
+    hemisphere_angles,
+    hemisphere_directions,
+    orientation_class,
 )
 
 

@@ -1,12 +1,15 @@
-"""Tests of histostudy.learning.FastUNet: the U-Net with folded batch norms, channels-last, on a
-region, checked against the torch checkpoint run eagerly (the source of truth)."""
+"""Tests of histostudy.learning.UNetRunner: the inference network (folded batch norms, channels-last,
+on a region) at each precision, checked against the torch checkpoint run eagerly (precision
+"reference", the source of truth); docs/inference.md's parity table names these tests."""
 
 import numpy as np
 import pytest
 import torch
 
 from histostudy.imaging import Frame, default_biplane, random_background, render_frame
-from histostudy.learning import FastUNet, UNet, UNetSegmenter, default_segmenter, prepare_image
+from histostudy.learning import PRECISIONS, UNetRunner, default_segmenter
+from histostudy.learning.nets.unet import UNet
+from histostudy.learning.preprocess import prepare_image
 from histostudy.transducer import TransducerModel, pose_facing
 
 
@@ -28,11 +31,11 @@ def random_unet(request):
                 m.running_var.uniform_(0.5, 2.0)
                 m.weight.uniform_(0.5, 1.5)
                 m.bias.uniform_(-0.2, 0.2)
-    return UNetSegmenter(net, scale=0.5)
+    return UNetRunner(net, scale=0.5)
 
 
 def test_folded_channels_last_network_gives_the_eager_logits(random_unet):
-    fast = FastUNet(random_unet, precision="float32")
+    fast = random_unet.with_precision("float32")
     x = torch.randn(1, 1, 64, 96)
     with torch.no_grad():
         reference = random_unet.network(x)
@@ -46,7 +49,7 @@ def test_region_labels_are_the_network_resolution_labels_of_the_box(random_unet)
     view = default_biplane()[0].scaled(0.25)  # 240 x 310
     image = np.random.default_rng(1).standard_normal(view.shape).astype(np.float32)
     frame = Frame(image, view)
-    fast = FastUNet(random_unet, precision="float32")
+    fast = random_unet.with_precision("float32")
     full = fast.segment_region(frame, (0, 240, 0, 310))
     np.testing.assert_array_equal(full, _eager_labels(random_unet, frame))
     part = fast.segment_region(frame, (32, 160, 64, 224))
@@ -59,7 +62,7 @@ def test_upsampled_region_labels_are_the_interpolated_logits_arg_max_and_reuse_t
 
     view = default_biplane()[0].scaled(0.25)
     frame = Frame(np.random.default_rng(2).standard_normal(view.shape).astype(np.float32), view)
-    fast = FastUNet(random_unet, precision="float32")
+    fast = random_unet.with_precision("float32")
     box = (32, 224, 64, 288)
     logits = fast._logits(frame, box)
     reference = F.interpolate(logits[None], scale_factor=2, mode="bilinear", align_corners=False)[0]
@@ -95,7 +98,7 @@ def test_fast_labels_agree_with_the_checkpoint_on_a_rendered_frame(shipped_and_f
     resolution: on the whole frame, and on a tracking region (the crop changes the context near its
     edges). "auto" is bfloat16 on a CPU with native bfloat16; "int8" the stored calibration's network."""
     segmenter, frame = shipped_and_frame
-    fast = FastUNet(segmenter, precision=precision)
+    fast = segmenter.with_precision(precision)
     reference = _eager_labels(segmenter, frame)
     whole = fast.segment_region(frame, (0, 960, 0, 1240))
     assert whole.shape == reference.shape == (480, 620)
@@ -113,10 +116,10 @@ def test_fast_labels_agree_with_the_checkpoint_on_a_rendered_frame(shipped_and_f
 
 @pytest.mark.parametrize("precision", ["auto", "float32", "int8"])
 def test_full_frame_labels_are_the_checkpoints_upsampled_labels(shipped_and_frame, precision):
-    """FastUNet.segment (a Segmenter of whole frames) against UNetSegmenter.segment, which upsamples
+    """UNetRunner.segment at a precision against the reference's, which upsamples
     all six logit channels before the arg-max: the same labels in float32, 99.9 % in bfloat16 and int8."""
     segmenter, frame = shipped_and_frame
-    fast = FastUNet(segmenter, precision=precision)
+    fast = segmenter.with_precision(precision)
     reference = segmenter.segment(frame)
     labels = fast.segment(frame, np.random.default_rng(0))
     assert labels.shape == frame.shape and labels.dtype == np.uint8
@@ -127,7 +130,7 @@ def test_full_frame_labels_are_the_checkpoints_upsampled_labels(shipped_and_fram
 
 
 def test_bad_input_is_refused_naming_the_argument(random_unet):
-    fast = FastUNet(random_unet)
+    fast = random_unet.with_precision("auto")
     view = default_biplane()[0].scaled(0.25)
     frame = Frame(np.zeros(view.shape, np.float32), view)
     with pytest.raises(ValueError, match=r"box must be 4 integers"):
@@ -144,7 +147,29 @@ def test_bad_input_is_refused_naming_the_argument(random_unet):
     odd_frame = Frame(np.zeros((239, 310), np.float32), type(odd).from_matrix(odd.P, (239, 310), odd.pixel_mm))
     with pytest.raises(ValueError, match="not divisible by 1/scale = 2"):
         fast.segment(odd_frame)
-    with pytest.raises(TypeError, match="segmenter must be a histostudy.learning.UNetSegmenter"):
-        FastUNet("unet")
     with pytest.raises(ValueError, match="precision must be one of"):
-        FastUNet(random_unet, precision="float16")
+        random_unet.with_precision("float16")
+    with pytest.raises(ValueError, match="test_time_flips runs with precision 'reference' only"):
+        UNetRunner(random_unet.network, "float32", test_time_flips=True)
+    with pytest.raises(ValueError, match="without test-time flips"):
+        UNetRunner(random_unet.network, test_time_flips=True).segment_region(frame, (0, 64, 0, 64))
+
+
+def test_the_reference_runs_the_checkpoint_as_trained_on_frames_and_regions(random_unet):
+    """Precision "reference" (the default, and default_segmenter's) runs the network itself: its
+    region labels are the eager network's on the box; nothing is folded or fused."""
+    assert PRECISIONS[0] == random_unet.precision == "reference" and random_unet.n_fused_layers == 0
+    view = default_biplane()[0].scaled(0.25)
+    frame = Frame(np.random.default_rng(4).standard_normal(view.shape).astype(np.float32), view)
+    np.testing.assert_array_equal(random_unet.segment_region(frame, (0, 240, 0, 310)),
+                                  _eager_labels(random_unet, frame))
+    assert random_unet.segment(frame).shape == frame.shape
+    assert "reference" in repr(random_unet) and random_unet.with_precision("float32").precision == "float32"
+
+
+def test_the_default_segmenter_is_the_reference():
+    segmenter = default_segmenter()
+    if segmenter is None:
+        pytest.skip("the shipped U-Net (data/models/unet_standard) is not available")
+    assert isinstance(segmenter, UNetRunner) and segmenter.precision == "reference"
+    assert not segmenter.test_time_flips and segmenter.manifest["sha256"]

@@ -9,15 +9,15 @@ from histostudy.learning import (
     OracleSegmenter,
     SegmentationDegradation,
     Segmenter,
-    UNet,
-    UNetSegmenter,
+    UNetRunner,
     build_network,
     checkpoints,
     default_segmenter,
-    masks_from_labels,
-    prepare_image,
-    save_checkpoint,
 )
+from histostudy.learning.checkpoints import save_checkpoint
+from histostudy.learning.nets.unet import UNet
+from histostudy.learning.preprocess import prepare_image
+from histostudy.learning.segment import masks_from_labels
 from histostudy.transducer import FEATURE_CLASSES, Feature, TransducerModel, pose_facing
 
 
@@ -123,7 +123,7 @@ def _step_frame(shape=(64, 96), edge=40):
 
 def test_unet_segmenter_keeps_geometry_at_full_resolution():
     frame = _step_frame()
-    seg = UNetSegmenter(_ThresholdNet(), scale=0.5)
+    seg = UNetRunner(_ThresholdNet(), scale=0.5)
     assert isinstance(seg, Segmenter)
     out = seg.segment(frame, np.random.default_rng(0))
     assert out.shape == frame.shape and out.dtype == np.uint8
@@ -139,7 +139,7 @@ def test_test_time_flips_make_the_labels_mirror_with_the_frame():
     rng = np.random.default_rng(0)
     view = View.from_gantry(0.0, 0.0, shape=(64, 96))
     image = rng.normal(0.0, 1.0, (64, 96)).astype(np.float32)
-    plain, flips = UNetSegmenter(net, scale=0.5), UNetSegmenter(net, scale=0.5, test_time_flips=True)
+    plain, flips = UNetRunner(net, scale=0.5), UNetRunner(net, scale=0.5, test_time_flips=True)
     labels = flips.segment(Frame(image, view))
     for axis in (0, 1):
         mirrored = flips.segment(Frame(np.ascontiguousarray(np.flip(image, axis)), view))
@@ -149,11 +149,11 @@ def test_test_time_flips_make_the_labels_mirror_with_the_frame():
     assert np.mean(plain.segment(Frame(np.ascontiguousarray(np.flip(image, 1)), view))
                    != np.flip(plain.segment(Frame(image, view)), 1)) > 0.05
     with pytest.raises(TypeError, match="test_time_flips"):
-        UNetSegmenter(net, test_time_flips="yes")
+        UNetRunner(net, test_time_flips="yes")
 
 
 def test_unet_segmenter_rejects_bad_frames():
-    seg = UNetSegmenter(_ThresholdNet(), scale=0.5)
+    seg = UNetRunner(_ThresholdNet(), scale=0.5)
     with pytest.raises(ValueError, match="scale 0.5"):
         seg.segment(_step_frame(shape=(63, 96)))
     with pytest.raises(TypeError, match="Frame"):
@@ -166,7 +166,7 @@ def test_unet_segmenter_from_checkpoint_and_default(tmp_path, monkeypatch):
     save_checkpoint(tmp_path / "unet_standard", {f"model.{k}": v for k, v in net.state_dict().items()},
                     net.config, input_scale=0.5)
     frame = _step_frame()
-    seg = UNetSegmenter.load(tmp_path / "unet_standard.safetensors")
+    seg = UNetRunner.load(tmp_path / "unet_standard.safetensors")
     with torch.no_grad():
         small = net(torch.from_numpy(prepare_image(frame.image, 0.5))[None, None])[0].argmax(0).numpy()
     out = seg.segment(frame)
@@ -174,13 +174,13 @@ def test_unet_segmenter_from_checkpoint_and_default(tmp_path, monkeypatch):
     # the full-resolution labels are the upsampled low-resolution arg-max: most agree pixel for pixel
     assert np.mean(out[::2, ::2] == small) > 0.9
     monkeypatch.setattr(checkpoints, "MODELS_DIR", tmp_path)
-    assert isinstance(default_segmenter(), UNetSegmenter)
+    assert isinstance(default_segmenter(), UNetRunner)
     monkeypatch.setattr(checkpoints, "MODELS_DIR", tmp_path / "none")
     assert default_segmenter() is None
     v = build_network({"arch": "vgg19", "width": 1 / 32, "head": "regressor"})
     save_checkpoint(tmp_path / "vgg", {f"model.{k}": t for k, t in v.state_dict().items()}, v.config)
     with pytest.raises(ValueError, match="expected a U-Net"):
-        UNetSegmenter.load(tmp_path / "vgg.safetensors")
+        UNetRunner.load(tmp_path / "vgg.safetensors")
 
 
 def test_keep_largest_component_drops_the_smaller_separate_patches():

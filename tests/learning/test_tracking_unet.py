@@ -11,15 +11,14 @@ from histostudy.imaging import default_biplane, random_background, render_frame
 from histostudy.learning import (
     MODELS_DIR,
     TRAINING_TABLES,
-    FastUNet,
     TrainingConfig,
-    UNetSegmenter,
+    UNetRunner,
     default_segmenter,
     export_name,
     pool_labels,
-    sha256_file,
     tracking_segmenter,
 )
+from histostudy.learning.checkpoints import sha256_file
 from histostudy.reporting import load_profile
 from histostudy.transducer import TransducerModel, pose_facing
 
@@ -79,9 +78,9 @@ def test_tracking_labels_agree_with_the_shipped_network_on_a_rendered_frame(netw
     frame = render_frame(TransducerModel.build(spacing_mm=0.47), T, default_biplane()[0], rng=rng,
                          background=random_background(rng, "phantom"))
     whole = (0, 960, 0, 1240)
-    labels = FastUNet(tracking, precision="float32").segment_region(frame, whole)
-    reference = pool_labels(FastUNet(shipped, precision="float32").segment_region(frame, whole), 0.5)
-    untrained = FastUNet(UNetSegmenter(network=shipped.network, scale=0.25), precision="float32")
+    labels = tracking.with_precision("float32").segment_region(frame, whole)
+    reference = pool_labels(shipped.with_precision("float32").segment_region(frame, whole), 0.5)
+    untrained = UNetRunner(network=shipped.network, scale=0.25).with_precision("float32")
     off_scale = untrained.segment_region(frame, whole)
     assert labels.shape == reference.shape == (240, 310)
 
@@ -100,6 +99,6 @@ def test_tracking_labels_agree_with_the_shipped_network_on_a_rendered_frame(netw
     # every class the shipped network finds, the tracking network finds too
     assert set(np.unique(reference)) <= set(np.unique(labels))
     # labels at 0.5 from the 0.25 network (logits upsampled) have the frame's half-resolution shape
-    assert FastUNet(tracking).segment_region(frame, (0, 448, 0, 448), upsample=2).shape == (224, 224)
+    assert tracking.with_precision("auto").segment_region(frame, (0, 448, 0, 448), upsample=2).shape == (224, 224)
     with pytest.raises(ValueError, match="upsample must be an integer in \\[1, 4\\]"):
-        FastUNet(tracking).segment_region(frame, (0, 448, 0, 448), upsample=8)
+        tracking.with_precision("auto").segment_region(frame, (0, 448, 0, 448), upsample=8)

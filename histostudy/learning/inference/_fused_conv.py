@@ -1,36 +1,6 @@
-"""A convolution and the ReLU after it in one oneDNN call, for :class:`~.fast_segment.FastUNet`:
-:func:`fuse_conv_relu`.
-
-Eager torch runs a U-Net block's ``Conv2d -> ReLU`` as two passes over the activations: the
-convolution writes them, the ReLU reads and writes them again. oneDNN, torch's CPU convolution
-library, applies the ReLU to each output as the convolution produces it (a "post-op"), so the
-second pass disappears: on the shipped U-Net at a tracking region (448 x 448 network pixels,
-channels-last bfloat16) its layers took about a fifth less time (docs/tracking.md, "Fifteen pairs
-a second on two cores").
-
-The fused call computes the same function up to the order of its float32 sums, not always the
-same bits. Eager torch chooses its convolution's implementation per call, by the input's size and
-the number of threads (oneDNN for large inputs, its own im2col and matrix product for small ones
-or a 1x1 kernel on one thread), and which one sums in which order depends on the CPU's instruction
-set: on an AVX-512 machine without AMX the fused and eager float32 layers agree to the bit on a
-448 x 448 region and differ by up to 4 ulp on a 96 x 160 one. The contract is therefore a bound:
-every output of the fused call lies within
-
-    2 * gamma_k * (|W| * |x| + |b|)  (+ one bfloat16 ulp of the output, in bfloat16)
-
-of the eager pair's, where ``gamma_k = k u / (1 - k u)`` is the forward-error constant of a sum of
-``k = in_channels / groups * kernel_rows * kernel_cols + 1`` float32 terms in any order
-(``u = 2**-24``; Higham, *Accuracy and Stability of Numerical Algorithms*, §3.1) and ``|W| * |x|``
-is the convolution of the absolute values: two orders of the same sum each lie within
-``gamma_k * sum |terms|`` of the exact sum, and a ReLU (1-Lipschitz) and a rounding to bfloat16
-(monotone) do not widen that beyond the extra ulp. A wrong padding, weight or layout breaks the
-bound by orders of magnitude; a reordering cannot. :func:`fuse_conv_relu` checks every pair on a
-probe input and leaves it unfused where the fused call is missing from this build of torch,
-fails, or breaks the bound. Downstream, the labels are the eager network's except where two
-classes' logits are within such rounding of each other (tests/learning/test_fused_conv.py checks
-the labels away from those near-ties, on every CPU it runs on).
-
-Inference only (no autograd through the fused call).
+"""A convolution and the ReLU after it in one oneDNN call, within float32 rounding of the eager pair:
+:func:`fuse_conv_relu`, for the inference network of :class:`~.runner.UNetRunner`. The bound it
+checks each pair against (:func:`reordering_bound`) and why: docs/inference.md, "Fused layers".
 """
 
 from __future__ import annotations
@@ -53,7 +23,7 @@ def _fused_op():
 
 
 class ConvReLU(nn.Module):
-    """``relu(conv(x))`` of a ``Conv2d`` in one oneDNN call (module docstring); ``x`` as the
+    """``relu(conv(x))`` of a ``Conv2d`` in one oneDNN call (docs/inference.md); ``x`` as the
     convolution takes it (its dtype, channels-last or not). ``op``: the fused call
     (:func:`fuse_conv_relu` finds it)."""
 
@@ -79,7 +49,7 @@ _FLOAT32_UNIT_ROUNDOFF = 2.0 ** -24
 def reordering_bound(conv, x):
     """Per output of ``relu(conv(x))`` (a float64 tensor of its shape): how far two evaluations that
     sum the same float32 products in different orders can lie apart, ``2 gamma_k (|W| * |x| + |b|)``,
-    plus one bfloat16 ulp of the output where ``x`` is bfloat16 (module docstring). ``conv``: a
+    plus one bfloat16 ulp of the output where ``x`` is bfloat16 (docs/inference.md, "Fused layers"). ``conv``: a
     zero-padded ``Conv2d``; ``x``: its input (any memory format)."""
     import torch.nn.functional as F
 
@@ -99,7 +69,7 @@ def reordering_bound(conv, x):
 
 def _agrees(conv, relu, fused, probe_rows: int = 24) -> bool:
     """Whether ``fused`` gives ``relu(conv(x))`` within :func:`reordering_bound` on a seeded random
-    probe (channels-last, as :class:`~.fast_segment.FastUNet` runs it)."""
+    probe (channels-last, as :class:`~.runner.UNetRunner` runs it)."""
     generator = torch.Generator().manual_seed(0)
     x = torch.randn((1, conv.in_channels, probe_rows, probe_rows + 8), generator=generator)
     x = x.to(conv.weight.dtype).contiguous(memory_format=torch.channels_last)

@@ -1,18 +1,6 @@
-"""The U-Net's last 1x1 convolution and the arg-max over its classes in one pass, for
-:meth:`~.fast_segment.FastUNet.segment_region`: :func:`head_argmax`.
-
-Torch runs the head as a convolution that writes six float32 logit channels per pixel, then reads
-them again for the arg-max: two passes over memory on a tracking region (docs/tracking.md,
-"Fifteen pairs a second on two cores", has the figures). Here the features are read once, block by
-block of pixels (copied into channel planes, so that the loops over a block's pixels vectorise),
-and only the labels are written.
-
-The logits are summed as oneDNN's convolution sums them on the machines this was written on: the
-products in channel order, each added to the float32 accumulator by a fused multiply-add (LLVM
-contracts ``acc + f * w`` where the CPU has one), the bias last. On a tracking region of a rendered
-frame that gave oneDNN's logits bit for bit; a CPU whose oneDNN sums in another order differs by an
-ulp, which moves an arg-max only at an exact tie (tests/learning/test_head_argmax.py checks the
-labels against torch's away from ties).
+"""The U-Net's 1x1 head and the arg-max over its classes in one pass over the features, for
+:meth:`~.runner.UNetRunner.segment_region`: :func:`head_argmax` (its summation order and ties:
+docs/inference.md, "Head and arg-max").
 """
 
 from __future__ import annotations
@@ -72,7 +60,7 @@ def _head_argmax(features, bfloat16_bits, weight, bias, out):
 
 def head_argmax(features: np.ndarray, weight: np.ndarray, bias: np.ndarray) -> np.ndarray:
     """``uint8`` labels ``(rows, cols)``: per pixel the arg-max over classes ``k`` of
-    ``bias[k] + sum_c weight[k, c] * features[..., c]`` (module docstring).
+    ``bias[k] + sum_c weight[k, c] * features[..., c]`` (docs/inference.md, "Head and arg-max").
 
     Args:
         features: ``(rows, cols, n_in)``, the last decoder block's output (channels innermost, as a

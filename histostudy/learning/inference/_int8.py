@@ -1,26 +1,6 @@
-"""The U-Net of §II-B.2 in 8-bit integers, for CPUs without bfloat16 arithmetic:
-:class:`Int8UNet` and its calibration (:func:`calibrate_int8`).
-
-On a CPU with AVX2 only (most lab workstations), :class:`~.fast_segment.FastUNet`'s float32
-convolutions are most of a tracking update (docs/tracking.md, "Fifteen pairs a second on every
-CPU"). Integer convolutions do four times the multiply-adds per instruction there. The network is
-quantised after training (post-training static quantisation, torch's FX graph mode, oneDNN's
-kernels, which run on AVX2 as on AVX-512 and AMX):
-
-- each convolution's weights per output channel, symmetric int8; each activation per tensor,
-  unsigned 8-bit, over the range that a histogram of the calibration frames' activations keeps
-  (torch's ``HistogramObserver``: the range that least distorts them);
-- the first convolution (one input channel: the standardised image, whose fine contrast the
-  thin classes live in; a negligible share of the work) and the 2x2 transposed convolutions stay
-  float32. Quantised, oneDNN's transposed convolutions lost a quarter of the foreground labels
-  (docs/tracking-alternatives.md), where the float ones keep 99.8 % of them;
-- batch norms fold into the convolutions and each convolution and its ReLU run as one call.
-
-The calibration is data, not a fit to a target: the quantisation parameters of every activation,
-read from frames of the checkpoint's own validation split (``histostudy calibrate-int8``), stored
-beside the weights as ``<checkpoint>.int8.json`` with the checkpoint's SHA-256, so that the int8
-network is rebuilt exactly, without frames, wherever the weights are. The torch checkpoint stays
-the source of truth: tests/learning/test_int8_unet.py checks the int8 labels against it.
+"""The U-Net's int8 inference network (precision ``"int8"`` of a
+:class:`~histostudy.learning.inference.runner.UNetRunner`) and its calibration, stored beside the
+weights with their SHA-256 (docs/inference.md, "int8").
 """
 
 from __future__ import annotations
@@ -36,9 +16,7 @@ import numpy as np
 
 from histostudy.imaging import Frame
 
-from .segment import UNetSegmenter
-
-__all__ = ["INT8_CALIBRATION_FORMAT", "INT8_ENGINE", "Int8UNet", "calibrate_int8", "int8_available",
+__all__ = ["INT8_CALIBRATION_FORMAT", "INT8_ENGINE", "Int8Features", "calibrate_int8", "int8_available",
            "int8_calibration_path", "load_int8_calibration", "save_int8_calibration"]
 
 #: The quantised engine whose kernels the int8 network runs on (oneDNN's: AVX2, AVX-512 VNNI, AMX).
@@ -49,9 +27,12 @@ INT8_CALIBRATION_FORMAT = "histostudy.int8-calibration/1"
 
 
 def int8_available() -> bool:
-    """Whether this torch has :data:`INT8_ENGINE`'s quantised kernels (x86-64 builds do) and FX graph
-    mode quantisation (``torch.ao.quantization``, which torch deprecates in favour of the separate
-    torchao package: where a later torch drops it, ``precision="auto"`` falls back to float32)."""
+    """Whether this torch can run precision ``"int8"``.
+
+    Returns:
+        True where torch has :data:`INT8_ENGINE`'s quantised kernels (x86-64 builds do) and FX graph
+        mode quantisation (``torch.ao.quantization``, which torch deprecates in favour of torchao).
+    """
     import torch
 
     try:
@@ -123,25 +104,44 @@ def _activation_observers(prepared) -> list:
     return [m for _, m in prepared.named_modules() if isinstance(m, ObserverBase)]
 
 
-def _network_input(segmenter: UNetSegmenter, frame: Frame):
+def _check_runner(runner) -> None:
+    from .runner import UNetRunner
+
+    if not isinstance(runner, UNetRunner):
+        raise TypeError(f"runner must be a histostudy.learning.UNetRunner, got {type(runner).__name__}")
+
+
+def _network_input(segmenter, frame: Frame):
     """``frame`` as the network reads it: standardised at its input scale, padded as the U-Net pads."""
     import torch
 
-    from .preprocess import prepare_image
+    from ..preprocess import prepare_image
 
     return segmenter.network.pad(torch.from_numpy(prepare_image(frame.image, segmenter.scale))[None, None])
 
 
-def calibrate_int8(segmenter: UNetSegmenter, frames: Sequence[Frame]) -> dict:
-    """The quantisation parameters of ``segmenter``'s activations on ``frames`` (full frames as the
-    network sees them): a dict for :class:`Int8UNet` and :func:`save_int8_calibration`, with the
-    checkpoint's SHA-256, torch's version and the number of frames."""
+def calibrate_int8(segmenter, frames: Sequence[Frame]) -> dict:
+    """The quantisation parameters of a U-Net's activations on frames (docs/inference.md, "int8").
+
+    Args:
+        segmenter: the :class:`~histostudy.learning.UNetRunner` of the checkpoint (any precision;
+            its network, input scale and manifest are read).
+        frames: full frames, as the network sees them (e.g. of the checkpoint's validation split).
+
+    Returns:
+        The calibration: a dict for ``UNetRunner(..., precision="int8", int8_calibration=...)`` and
+        :func:`save_int8_calibration`, with the checkpoint's SHA-256, torch's version and the number of frames.
+
+    Raises:
+        TypeError: ``segmenter`` is not a :class:`~histostudy.learning.UNetRunner`.
+        ValueError: ``frames`` is empty or holds something other than
+            :class:`~histostudy.imaging.frame.Frame` objects.
+    """
     import torch
 
     with _engine():
         from torch.ao.quantization.observer import HistogramObserver
-    if not isinstance(segmenter, UNetSegmenter):
-        raise TypeError(f"segmenter must be a histostudy.learning.UNetSegmenter, got {type(segmenter).__name__}")
+    _check_runner(segmenter)
     frames = list(frames)
     if not frames or not all(isinstance(f, Frame) for f in frames):
         raise ValueError(f"frames must be a non-empty sequence of Frames, got {len(frames)} items")
@@ -156,20 +156,18 @@ def calibrate_int8(segmenter: UNetSegmenter, frames: Sequence[Frame]) -> dict:
             "float_modules": _float_module_names(segmenter.network), "activation_qparams": qparams}
 
 
-class Int8UNet:
-    """The int8 feature extractor of a :class:`UNetSegmenter` (module docstring), rebuilt from its
-    calibration (:func:`calibrate_int8` or :func:`load_int8_calibration`).
+class Int8Features:
+    """The int8 feature extractor of a U-Net (docs/inference.md, "int8"), rebuilt from its calibration
+    (:func:`calibrate_int8` or :func:`load_int8_calibration`).
 
     ``features(x)``: float32 ``(1, channels, rows, cols)`` features of the last decoder block (the
     input to the head) of a float32 ``(1, 1, rows, cols)`` network input whose sides are multiples
     of the U-Net's ``pad_multiple``. Safe to call from several threads at once.
     """
 
-    def __init__(self, segmenter: UNetSegmenter, calibration: dict):
+    def __init__(self, segmenter, calibration: dict):
         import torch
 
-        if not isinstance(segmenter, UNetSegmenter):
-            raise TypeError(f"segmenter must be a histostudy.learning.UNetSegmenter, got {type(segmenter).__name__}")
         if not int8_available():
             raise ValueError(f"this torch ({torch.__version__}) has no {INT8_ENGINE!r} quantised engine: "
                              f"use precision 'float32'")
@@ -207,7 +205,7 @@ def _stored(scale: float, zero_point: int):
     return calculate_qparams
 
 
-def _check_calibration(calibration, segmenter: UNetSegmenter) -> None:
+def _check_calibration(calibration, segmenter) -> None:
     if not isinstance(calibration, dict) or calibration.get("format") != INT8_CALIBRATION_FORMAT:
         raise ValueError(f"calibration must be a dict of format {INT8_CALIBRATION_FORMAT!r} (calibrate_int8), "
                          f"got {type(calibration).__name__} of format "
@@ -223,18 +221,30 @@ def _check_calibration(calibration, segmenter: UNetSegmenter) -> None:
         raise ValueError("calibration['activation_qparams'] must be a list of [scale > 0, zero point in 0..255]")
 
 
-def int8_calibration_path(segmenter: UNetSegmenter) -> Path | None:
-    """Where the calibration of ``segmenter``'s checkpoint lives: ``<weights>.int8.json`` beside its
-    weights in ``data/models`` (None for a network without a manifest)."""
-    from .checkpoints import MODELS_DIR
+def int8_calibration_path(segmenter) -> Path | None:
+    """Where the calibration of a checkpoint lives: ``<weights>.int8.json`` beside its weights.
+
+    Args:
+        segmenter: the :class:`~histostudy.learning.UNetRunner` of the checkpoint (its manifest is read).
+
+    Returns:
+        The path in ``data/models`` (it may not exist), or None for a network without a manifest.
+    """
+    from ..checkpoints import MODELS_DIR
 
     weights = (segmenter.manifest or {}).get("weights_file")
     return None if not weights else MODELS_DIR / (Path(weights).name.split(".")[0] + ".int8.json")
 
 
-def load_int8_calibration(segmenter: UNetSegmenter) -> dict | None:
-    """The stored calibration of ``segmenter``'s checkpoint, or None where there is none or it is of
-    another checkpoint (another SHA-256)."""
+def load_int8_calibration(segmenter) -> dict | None:
+    """The stored calibration of a checkpoint.
+
+    Args:
+        segmenter: the :class:`~histostudy.learning.UNetRunner` of the checkpoint.
+
+    Returns:
+        The calibration, or None where there is none or it is of another checkpoint (another SHA-256).
+    """
     path = int8_calibration_path(segmenter)
     if path is None or not path.is_file():
         return None
@@ -244,7 +254,18 @@ def load_int8_calibration(segmenter: UNetSegmenter) -> dict | None:
 
 
 def save_int8_calibration(calibration: dict, path) -> Path:
-    """Write ``calibration`` as JSON to ``path`` (atomically, honouring the umask)."""
+    """Write a calibration as JSON, atomically, honouring the umask.
+
+    Args:
+        calibration: the dict of :func:`calibrate_int8`.
+        path: the file to write (:func:`int8_calibration_path` is where runners look).
+
+    Returns:
+        ``path`` as a :class:`~pathlib.Path`.
+
+    Raises:
+        OSError: the file cannot be written.
+    """
     from histostudy.core import atomic_write_json
 
     path = Path(path)

@@ -9,14 +9,26 @@
 
 from __future__ import annotations
 
-from .unet import UNet, max_pool_2x2
+from .unet import UNet
 from .vgg import VGG19
 
-__all__ = ["UNet", "VGG19", "build_network", "max_pool_2x2"]
+__all__ = ["UNet", "VGG19", "build_network"]
 
 
 def build_network(config: dict):
-    """A fresh network from its ``config`` (``{"arch": "unet" | "vgg19", ...}``)."""
+    """A fresh network from its configuration, so that a checkpoint is rebuilt without pickle.
+
+    Args:
+        config: ``{"arch": "unet" | "vgg19", ...}``, the rest the network's constructor arguments
+            (the dict each network records in ``.config`` and a checkpoint manifest stores).
+
+    Returns:
+        A new :class:`UNet` or :class:`VGG19` (random weights, training mode).
+
+    Raises:
+        ValueError: ``config`` is not a dict with an ``"arch"`` key, names another architecture, or
+            holds arguments that architecture does not take or rejects.
+    """
     if not isinstance(config, dict) or "arch" not in config:
         raise ValueError(f"config must be a dict with an 'arch' key, got {config!r}")
     kwargs = {k: v for k, v in config.items() if k != "arch"}

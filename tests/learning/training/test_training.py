@@ -7,16 +7,9 @@ import math
 import pytest
 import torch
 
-from histostudy.learning import (
-    LearnedOrientation,
-    RenderConfig,
-    TrainingConfig,
-    export,
-    hemisphere_angles,
-    load_checkpoint,
-    load_network,
-    train,
-)
+from histostudy.learning import LearnedOrientation, RenderConfig, TrainingConfig, export, train
+from histostudy.learning.checkpoints import load_checkpoint, load_network
+from histostudy.learning.orientation import hemisphere_angles
 
 TINY = RenderConfig(render_spacing_mm=0.47, label_spacing_mm=0.47, detector=(240, 320))
 
@@ -220,7 +213,8 @@ def test_adam_runs_resume_bit_for_bit_and_keep_their_moments(tmp_path, cache):
 
 
 def test_crops_per_frame_makes_longer_epochs_of_distinct_crops(tmp_path, cache):
-    from histostudy.learning import HybridFrames, HybridImageDataset
+    from histostudy.learning import HybridFrames
+    from histostudy.learning.datasets import HybridImageDataset
 
     frames = HybridFrames("train", 5, TINY, cache_dir=cache)
     ds = HybridImageDataset("segmentation", frames, 2, scale=0.5, crop=32, seed=5, repeats=3)

@@ -7,14 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from histostudy.learning import (
-    UNet,
-    full_precision_copy,
-    half_precision_copy,
-    load_checkpoint,
-    load_network,
-    save_checkpoint,
-)
+from histostudy.learning import full_precision_copy, half_precision_copy
+from histostudy.learning.checkpoints import load_checkpoint, load_network, save_checkpoint
+from histostudy.learning.nets.unet import UNet
 
 
 def _saved(tmp_path, scale=1.0):

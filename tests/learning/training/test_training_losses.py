@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from histostudy.learning import angle_loss, dice_loss
+from histostudy.learning.training._losses import angle_loss, dice_loss
 
 
 def test_angle_loss_wraps_azimuth_and_weights_it_by_sin_elevation():

@@ -8,19 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from histostudy.learning import (
-    HybridFrames,
-    HybridImageDataset,
-    RenderConfig,
-    TrainingConfig,
-    build_network,
-    export,
-    load_checkpoint,
-    load_teacher,
-    save_checkpoint,
-    teacher_labeller,
-    train,
-)
+from histostudy.learning import HybridFrames, RenderConfig, TrainingConfig, build_network, export, train
+from histostudy.learning.checkpoints import load_checkpoint, save_checkpoint
+from histostudy.learning.datasets import HybridImageDataset
+from histostudy.learning.training._teacher import load_teacher, teacher_labeller
 
 TINY = RenderConfig(render_spacing_mm=0.47, label_spacing_mm=0.47, detector=(240, 320))
 
