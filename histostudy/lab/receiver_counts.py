@@ -98,10 +98,10 @@ class ReceiverCounts:
         line); ``connections``, ``associations``,
         ``associations_aborted``, ``associations_rejected`` at negotiation (with
         ``last_association_rejections``: peer, AE titles, reason) and ``tls_refused`` (TLS
-        handshakes failed: no certificate, or one the CA did not sign); ``stage_seconds`` summed (``decode`` in the handlers, the pose
-        stages of :attr:`histostudy.pose.Tracker.stage_seconds`) and ``seconds_per_pair`` (those over
-        ``pairs_processed``, plus ``pose`` and ``latency``); ``frames_per_s``: the frames of the
-        processed pairs over the time from the first frame received to the last line written;
+        handshakes failed: no certificate, or one the CA did not sign); ``stage_seconds``
+        summed (``decode`` in the handlers, the pose stages of :meth:`histostudy.pose.Tracker.stats`)
+        and ``seconds_per_pair`` (those over ``pairs_processed``, plus ``pose`` and ``latency``);
+        ``frames_per_s``: the frames of the processed pairs over the time from the first frame received to the last line written;
         ``pose_frames_per_s``: the same frames over the pose worker's busy time; ``tracker``: the
         tracker's counters (:meth:`histostudy.pose.Tracker.stats`) at the last line; ``port``;
         ``elapsed_s`` since the server started; ``warm_up_s``: the tracker's warm-up at the start

@@ -45,7 +45,7 @@ def test_written_files_honour_the_umask_like_a_plain_open(tmp_path, umask, mode)
     import os
     import stat
 
-    from histostudy.core import process_umask
+    from histostudy.core.io import process_umask
 
     old = os.umask(umask)
     try:

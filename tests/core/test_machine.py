@@ -8,16 +8,8 @@ import sys
 import pytest
 import torch
 
-from histostudy.core import (
-    AVX2_RESTRICTION,
-    ISA_RESTRICTION_ENV,
-    avx2_env_words,
-    avx2_restriction,
-    isa_flags,
-    isa_restriction,
-    machine_summary,
-    run_restricted_to,
-)
+from histostudy.core import avx2_env_words, avx2_restriction, machine_summary, run_restricted_to
+from histostudy.core.machine import AVX2_RESTRICTION, ISA_RESTRICTION_ENV, isa_flags, isa_restriction
 
 linux = pytest.mark.skipif(not os.path.exists("/proc/cpuinfo"), reason="no /proc/cpuinfo on this system")
 

@@ -9,14 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from histostudy.core import (
-    SWEEP_CACHE_ENV,
-    SweepTaskError,
-    package_digest,
-    process_umask,
-    resolve_sweep_cache,
-    run_sweep,
-)
+from histostudy.core import SWEEP_CACHE_ENV, SweepTaskError, package_digest, run_sweep
+from histostudy.core.io import process_umask
+from histostudy.core.sweep_cache import resolve_sweep_cache
 
 TABLE = np.arange(12.0).reshape(4, 3)
 

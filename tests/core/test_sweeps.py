@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from histostudy.core import SCHEDULER_ENV, SweepExecutor, SweepTaskError, resolve_executor, run_sweep
+from histostudy.core import SweepExecutor, SweepTaskError, resolve_executor, run_sweep
+from histostudy.core.sweeps import SCHEDULER_ENV
 
 N_TASKS = 12
 

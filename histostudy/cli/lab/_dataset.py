@@ -1,5 +1,6 @@
 """``histostudy lab-dataset``: a generated lab-like dataset (XA stations and cine, flange poses, a
-CBCT, the transducer's meshes) to try the lab's commands on (:func:`histostudy.study.write_lab_dataset`)."""
+CBCT, the transducer's meshes) to try the lab's commands on
+(:func:`histostudy.study.your_data.lab_dataset.write_lab_dataset`)."""
 
 from __future__ import annotations
 
