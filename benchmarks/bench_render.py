@@ -154,7 +154,8 @@ def renderers(n_frames: int, batch: int) -> None:
         times = frame_seconds(device)
         median = float(np.median(times))
         baseline = median if baseline is None else baseline
-        print(f"  frame  {('numpy' if device is None else device):6s}: median {median:6.3f} s, best {min(times):6.3f} s; "
+        label = "numpy" if device is None else device
+        print(f"  frame  {label:6s}: median {median:6.3f} s, best {min(times):6.3f} s; "
               f"ratio numpy / this {baseline / median:5.2f}x")
 
     # the splatting alone: numpy reference, compiled, torch's CPU path (what CUDA runs, on the CPU)
@@ -170,7 +171,8 @@ def renderers(n_frames: int, batch: int) -> None:
                                       device=None if name == "numpy" else "cpu")
             times.append(time.perf_counter() - t0)
         splat[name] = float(np.median(times))
-        print(f"  splat  {name:9s}: median {splat[name]:6.3f} s; ratio numpy / this {splat['numpy'] / splat[name]:5.2f}x")
+        print(f"  splat  {name:9s}: median {splat[name]:6.3f} s; "
+              f"ratio numpy / this {splat['numpy'] / splat[name]:5.2f}x")
 
     if torch.cuda.is_available():
         splatter = TorchSplatter(physical, "cuda")

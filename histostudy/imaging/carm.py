@@ -185,7 +185,7 @@ class View:
         """The view a DICOM XA/RF object records (a pydicom dataset or a file path).
 
         Reads the positioner angles, the source distances, ``ImagerPixelSpacing`` and the image
-        size (:mod:`.dicom_geometry`, which documents the conventions: those of
+        size (:mod:`.io.geometry`, which documents the conventions: those of
         :meth:`from_gantry`), from frame ``frame_index``'s functional groups in an enhanced object.
         Unequal row and column spacings give unequal focal lengths; ``pixel_mm`` is the column
         spacing. A missing attribute raises a ValueError naming it and its tag.

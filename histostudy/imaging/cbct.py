@@ -97,7 +97,8 @@ class PhantomSpec:
     def layer_values(self, z_phantom_mm) -> np.ndarray:
         """HU of the layer at phantom-frame heights ``z`` (mm), ignoring the cube's extent."""
         idx = self.layer_index(z_phantom_mm)
-        first, second = (self.agarose_hu, self.barium_hu) if self.first_layer == "agarose" else (self.barium_hu, self.agarose_hu)
+        first, second = ((self.agarose_hu, self.barium_hu) if self.first_layer == "agarose"
+                         else (self.barium_hu, self.agarose_hu))
         return np.where(idx % 2 == 0, first, second)
 
     def contains_local(self, points_phantom_mm, margin_mm: float = 0.0) -> np.ndarray:
@@ -152,7 +153,8 @@ def phantom_volume(
     hi = world.max(axis=0) + margin_mm
     vol = Volume.from_bounds(lo, hi, sp)
     offsets = (np.arange(supersample) + 0.5) / supersample - 0.5
-    first, second = (spec.agarose_hu, spec.barium_hu) if spec.first_layer == "agarose" else (spec.barium_hu, spec.agarose_hu)
+    first, second = ((spec.agarose_hu, spec.barium_hu) if spec.first_layer == "agarose"
+                     else (spec.barium_hu, spec.agarose_hu))
     acc = np.zeros(vol.data.shape)
     for ox in offsets:
         for oy in offsets:
@@ -179,7 +181,8 @@ def _grid_in_frame(volume: Volume, T_world_frame: np.ndarray, offset_mm=(0.0, 0.
     ]
 
 
-def phantom_mask(volume: Volume, spec: PhantomSpec = PhantomSpec(), T_carm_phantom=None, margin_mm: float = 0.0) -> np.ndarray:
+def phantom_mask(volume: Volume, spec: PhantomSpec = PhantomSpec(), T_carm_phantom=None,
+                 margin_mm: float = 0.0) -> np.ndarray:
     """Boolean ``[z, y, x]`` mask of the voxels whose centre lies in the phantom cube shrunk by ``margin_mm``."""
     volume = check_volume(volume)
     T = _check_T(T_carm_phantom)

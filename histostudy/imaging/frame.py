@@ -56,7 +56,8 @@ class Frame:
         if image.ndim != 2 or not np.issubdtype(image.dtype, np.number):
             raise ValueError(f"image must be a 2-D numeric array, got shape {image.shape} dtype {image.dtype}")
         if image.shape != self.view.shape:
-            raise ValueError(f"image shape {image.shape} does not match view {self.view.name!r} shape {self.view.shape}")
+            raise ValueError(f"image shape {image.shape} does not match view {self.view.name!r} "
+                             f"shape {self.view.shape}")
         image = image.astype(np.float32, copy=False)
         if not np.all(np.isfinite(image)):
             raise ValueError("image must be finite (line integrals); found NaN or inf")
@@ -96,8 +97,8 @@ def load_frame(path: str | os.PathLike, view: View, *, line_integrals: bool = Tr
             when shrinking, bilinear when enlarging); without it such an image is refused.
 
     DICOM: the object must be an X-ray image in a transfer syntax this install decodes
-    (:func:`~histostudy.imaging.check_xray_object`, which the live receiver applies too: a refusal
-    is an :class:`~histostudy.imaging.XRayObjectRejected`, a ValueError); the stored values are
+    (:func:`~histostudy.imaging.io.check_xray_object`, which the live receiver applies too: a refusal
+    is an :class:`~histostudy.imaging.io.XRayObjectRejected`, a ValueError); the stored values are
     inverted first for ``MONOCHROME1`` (low values white), so that a larger value is always more
     X-ray intensity; then ``RescaleSlope`` / ``RescaleIntercept``
     (finite, or refused naming the tag) give the modality values

@@ -6,8 +6,9 @@ the posed point model is voxelised into a world grid of linear attenuation (nump
 is ray cast by ``JosephForwardProjectionImageFilter`` of RTK (``itk-rtk``) in a cone-beam geometry
 rebuilt from each :class:`~histostudy.imaging.carm.View`'s ``P``. It shares no code with
 :mod:`histostudy.imaging.render._reference`'s projection; a frame takes only its reference labels
-(:func:`~histostudy.imaging.render._reference.render_labels`), its background and quantum noise (:func:`~histostudy.imaging.render._reference.add_poisson_noise`)
-from there, so it differs from :func:`~histostudy.imaging.render._reference.render_frame`'s in the projector alone.
+(:func:`~histostudy.imaging.render.render_labels`), its background and quantum noise
+(:func:`~histostudy.imaging.render.add_poisson_noise`) from there, so it differs from
+:func:`~histostudy.imaging.render.render_frame`'s in the projector alone.
 itk-rtk is optional (``pip install 'histostudy[rtk]'``, ~1.8 GB) and imported lazily (~30 s of CPU).
 
 RTK conventions used here (RTK 2.7, ITK 5.4):

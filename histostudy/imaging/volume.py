@@ -106,7 +106,8 @@ class Volume:
         hi = vector3_mm(upper_mm, "upper_mm")
         sp = vector3_mm(spacing_mm, "spacing_mm", positive=True)
         if np.any(hi < lo):
-            raise ValueError(f"upper_mm must be >= lower_mm on every axis, got lower_mm={lo.tolist()}, upper_mm={hi.tolist()}")
+            raise ValueError(f"upper_mm must be >= lower_mm on every axis, got lower_mm={lo.tolist()}, "
+                             f"upper_mm={hi.tolist()}")
         n = np.floor((hi - lo) / sp + 1e-9).astype(int) + 1
         return cls(np.full((n[2], n[1], n[0]), fill, dtype=np.float32), sp, lo)
 
@@ -199,7 +200,8 @@ def check_mask(mask, volume: Volume, name: str) -> np.ndarray:
     """``mask`` as a bool ``[z, y, x]`` array of ``volume``'s shape; ValueError naming ``name`` otherwise."""
     arr = np.asarray(mask)
     if arr.shape != volume.data.shape:
-        raise ValueError(f"{name} must be a boolean array of the volume's shape {volume.data.shape} ([z, y, x]), got {arr.shape}")
+        raise ValueError(f"{name} must be a boolean array of the volume's shape {volume.data.shape} ([z, y, x]), "
+                         f"got {arr.shape}")
     if arr.dtype != bool:
         raise ValueError(f"{name} must be a boolean array, got dtype {arr.dtype}")
     return arr

@@ -388,10 +388,10 @@ class SimulatedUR5e:
         No repeatability noise is added: joint moves serve to set start configurations.
         """
         q = check_joints(q_rad, "q_rad", JOINT_LIMIT_RAD)
-        if not (math.isfinite(speed_rad_s) and speed_rad_s > 0 and math.isfinite(acceleration_rad_s2) and acceleration_rad_s2 > 0):
-            raise ValueError(
-                f"speed_rad_s and acceleration_rad_s2 must be finite and > 0, got {speed_rad_s!r}, {acceleration_rad_s2!r}"
-            )
+        if not (math.isfinite(speed_rad_s) and speed_rad_s > 0
+                and math.isfinite(acceleration_rad_s2) and acceleration_rad_s2 > 0):
+            raise ValueError(f"speed_rad_s and acceleration_rad_s2 must be finite and > 0, "
+                             f"got {speed_rad_s!r}, {acceleration_rad_s2!r}")
         self._require_connected("move_joints")
         if self._protective_stop:
             raise ProtectiveStopError("move_joints refused: the arm is in a protective stop; clear it first")

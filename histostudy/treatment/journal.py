@@ -143,7 +143,8 @@ class TreatmentJournal:
         if meta.get("format") != JOURNAL_FORMAT:
             raise JournalError(f"journal {self.path} is not a treatment journal (format {meta.get('format')!r})")
         if meta.get("version") != str(JOURNAL_VERSION):
-            raise JournalError(f"journal {self.path} has version {meta.get('version')!r}; this code reads {JOURNAL_VERSION}")
+            raise JournalError(f"journal {self.path} has version {meta.get('version')!r}; "
+                               f"this code reads {JOURNAL_VERSION}")
         plan = json.loads(meta["plan"])
         if _plan_fingerprint(plan) != meta["plan_fingerprint"] or len(plan["points_mm"]) != self.n_planned:
             raise JournalError(f"journal {self.path}: its plan does not match its recorded fingerprint (edited?)")

@@ -170,7 +170,8 @@ def plan_treatment(
     if not isinstance(zone, TreatmentZone):
         raise TypeError(f"zone must be a histostudy.treatment.zone.TreatmentZone, got {type(zone).__name__}")
     sp = vector3_mm(spacing_mm, "spacing_mm", positive=True)
-    if isinstance(pulses_per_point, bool) or not isinstance(pulses_per_point, (int, np.integer)) or pulses_per_point < 1:
+    if (isinstance(pulses_per_point, bool) or not isinstance(pulses_per_point, (int, np.integer))
+            or pulses_per_point < 1):
         raise ValueError(f"pulses_per_point must be an integer >= 1, got {pulses_per_point!r}")
     R = np.eye(3) if axes is None else check_rotation(axes, "axes")
     inset = vector3_mm(inset_mm, "inset_mm")

@@ -53,7 +53,8 @@ class TreatmentZone:
             raise ValueError(f"centre_mm must be 3 finite numbers (world mm), got {self.centre_mm!r}")
         object.__setattr__(self, "centre_mm", c)
         d = self.diameter_mm
-        if isinstance(d, bool) or not isinstance(d, (int, float, np.integer, np.floating)) or not (math.isfinite(d) and d > 0):
+        if (isinstance(d, bool) or not isinstance(d, (int, float, np.integer, np.floating))
+                or not (math.isfinite(d) and d > 0)):
             raise ValueError(f"diameter_mm must be a finite number > 0 (paper: 20 or 25 mm), got {d!r}")
         object.__setattr__(self, "diameter_mm", float(d))
 
@@ -201,7 +202,8 @@ def segment_treatment_zone(
     half in the zone (partial volume, scanner blur) by half that: the deviation ``|V - mu|`` in
     units of the nearer material's distance (its median level in untreated phantom), averaged
     over a box of about one layer (``boundary_window_mm``), is linear in the window's untreated
-    fraction, from ``e_h`` (noise, inside the zone) to ``e_l`` (untreated phantom). The boundary is put where the window's treated fraction equals the fraction the box
+    fraction, from ``e_h`` (noise, inside the zone) to ``e_l`` (untreated phantom). The boundary is
+    put where the window's treated fraction equals the fraction the box
     filter of the segmented shape itself takes on its surface (a self-consistent threshold,
     ``n_refinements`` passes from 1/2): 1/2 on a flat boundary, less on a curved one, so that the
     window's curvature bias cancels.
@@ -216,11 +218,13 @@ def segment_treatment_zone(
     Levels: ``v_l`` and ``e_l`` are medians over the phantom eroded by half a window and without
     the zone grown by a window; ``v_h`` = ``noise_variance`` if given, else the median local
     variance of the water outside ``roi_mask`` grown by a whole window (so the volume needs about
-    ``window_mm`` + a few mm of water around the phantom: :func:`~histostudy.imaging.cbct.phantom_volume`'s default margin
+    ``window_mm`` + a few mm of water around the phantom:
+    :func:`~histostudy.imaging.cbct.phantom_volume`'s default margin
     gives it); ``e_h`` the median inside the coarse zone eroded by a boundary window. Gaussian
     smoothing (``smoothing_sigma_mm``) against noise first.
 
-    ``roi_mask``: bool ``[z, y, x]``, the phantom (e.g. :func:`~histostudy.imaging.cbct.phantom_mask`). Raises ValueError
+    ``roi_mask``: bool ``[z, y, x]``, the phantom (e.g. :func:`~histostudy.imaging.cbct.phantom_mask`).
+    Raises ValueError
     when nothing is found or the levels cannot be estimated.
     """
     volume = check_volume(volume)

@@ -77,7 +77,8 @@ def test_decomposition_recovers_intrinsics_and_axes():
     assert np.allclose(K, [[1200 / 0.308, 0, 619.5], [0, 1200 / 0.308, 479.5], [0, 0, 1]])
     assert np.allclose(R @ R.T, np.eye(3)) and np.isclose(np.linalg.det(R), 1)
     assert np.allclose(R[2], view.principal_direction)
-    assert np.allclose(view.P / np.linalg.norm(view.P), (K @ np.hstack([R, -R @ C[:, None]])) / np.linalg.norm(K @ np.hstack([R, -R @ C[:, None]])))
+    P = K @ np.hstack([R, -R @ C[:, None]])
+    assert np.allclose(view.P / np.linalg.norm(view.P), P / np.linalg.norm(P))
 
 
 def test_rays_pass_through_their_points():
@@ -133,7 +134,8 @@ def test_views_round_trip_through_json(tmp_path):
 
 def test_views_from_a_users_bare_matrix_list(tmp_path):
     P = default_biplane()[0].P.tolist()
-    (tmp_path / "cal.json").write_text(json.dumps([{"name": "plane A", "P": P, "shape": [960, 1240], "pixel_mm": 0.308}]))
+    (tmp_path / "cal.json").write_text(
+        json.dumps([{"name": "plane A", "P": P, "shape": [960, 1240], "pixel_mm": 0.308}]))
     (view,) = load_views(tmp_path / "cal.json")
     assert view.name == "plane A" and np.allclose(view.project([0, 0, 0]), [[619.5, 479.5]])
     (tmp_path / "bad.json").write_text(json.dumps([{"P": P, "shape": [960, 1240]}]))

@@ -8,12 +8,12 @@ itk-rtk costs ~30 s of CPU once per session (in the first test that needs it, no
 import numpy as np
 import pytest
 
-itk = pytest.importorskip("itk")
-
 from histostudy.geometry import make_transform, rotation_about_axis
 from histostudy.imaging import Frame, View, render_labels
 from histostudy.imaging import rtk_projector as rp
 from histostudy.transducer import FEATURE_CLASSES, Feature, TransducerModel, TransducerSpec, pose_facing
+
+itk = pytest.importorskip("itk")  # rtk_projector imports itk only when it projects
 
 # SWIG's wrappers of ITK warn on import under Python >= 3.12-style checks; nothing of ours.
 pytestmark = pytest.mark.filterwarnings("ignore:builtin type .* has no __module__ attribute:DeprecationWarning")

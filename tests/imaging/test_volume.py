@@ -37,7 +37,8 @@ def test_trilinear_sampling_reproduces_a_trilinear_field_exactly():
     # Trilinear interpolation is exact for any function a + bx + cy + dz + exy + fyz + gxz + hxyz.
     vol = Volume.from_bounds((-4.0, -3.0, -2.0), (4.0, 3.0, 6.0), (0.7, 0.5, 1.1))
     wp = vol.world_points()
-    f = lambda p: 1 + 2 * p[..., 0] - 3 * p[..., 1] + 0.5 * p[..., 2] + 0.01 * p[..., 0] * p[..., 1] * p[..., 2]
+    def f(p):
+        return 1 + 2 * p[..., 0] - 3 * p[..., 1] + 0.5 * p[..., 2] + 0.01 * p[..., 0] * p[..., 1] * p[..., 2]
     vol = vol.with_data(f(wp))
     rng = np.random.default_rng(1)
     pts = rng.uniform(vol.lower_mm, vol.upper_mm, size=(200, 3))

@@ -40,7 +40,8 @@ def test_workspace_rejects_bad_configuration(kwargs, word):
         b.Workspace(**kwargs)
 
 
-@pytest.mark.parametrize("v, a", [(0, 1000), (3001, 1000), (100, 0), (100, 150001), (float("nan"), 1), (1, float("inf"))])
+@pytest.mark.parametrize("v, a", [(0, 1000), (3001, 1000), (100, 0), (100, 150001), (float("nan"), 1),
+                                  (1, float("inf"))])
 def test_motion_parameters_outside_the_ur_rtde_range_are_rejected(v, a):
     with pytest.raises(ValueError, match="speed_mm_s|acceleration_mm_s2"):
         b.check_motion_parameters(v, a)
@@ -49,7 +50,8 @@ def test_motion_parameters_outside_the_ur_rtde_range_are_rejected(v, a):
 def test_trapezoid_time_is_continuous_and_matches_closed_form():
     v, a = 250.0, 1200.0
     d_switch = v * v / a  # where the triangle becomes a trapezoid
-    assert math.isclose(b.trapezoid_time_s(d_switch * (1 - 1e-9), v, a), b.trapezoid_time_s(d_switch, v, a), rel_tol=1e-6)
+    assert math.isclose(b.trapezoid_time_s(d_switch * (1 - 1e-9), v, a), b.trapezoid_time_s(d_switch, v, a),
+                        rel_tol=1e-6)
     assert math.isclose(b.trapezoid_time_s(100.0, v, a), 100 / v + v / a)
     assert math.isclose(b.trapezoid_time_s(10.0, v, a), 2 * math.sqrt(10 / a))
     assert b.trapezoid_time_s(0.0, v, a) == 0.0
@@ -79,6 +81,7 @@ def test_linear_motion_time_takes_the_slower_of_translation_and_rotation():
 
 
 def test_error_hierarchy():
-    for cls in (b.RobotConnectionError, b.ProtectiveStopError, b.UnreachablePoseError, b.WorkspaceViolation, b.RobotTimeout):
+    for cls in (b.RobotConnectionError, b.ProtectiveStopError, b.UnreachablePoseError, b.WorkspaceViolation,
+                b.RobotTimeout):
         assert issubclass(cls, b.RobotError)
     assert issubclass(b.RobotTimeout, TimeoutError)

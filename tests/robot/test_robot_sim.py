@@ -28,7 +28,8 @@ def random_targets(robot, rng, n, step_mm=40.0, tilt_rad=0.15):
     T = robot.tcp_pose()
     out = []
     for _ in range(n):
-        T = make_transform(T[:3, :3] @ matrix_from_rotvec(rng.uniform(-tilt_rad, tilt_rad, 3)), T[:3, 3] + rng.uniform(-step_mm, step_mm, 3))
+        T = make_transform(T[:3, :3] @ matrix_from_rotvec(rng.uniform(-tilt_rad, tilt_rad, 3)),
+                           T[:3, 3] + rng.uniform(-step_mm, step_mm, 3))
         out.append(T)
     return out
 

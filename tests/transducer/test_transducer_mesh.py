@@ -10,10 +10,16 @@ pv = pytest.importorskip("pyvista")
 
 from scipy.spatial import cKDTree  # noqa: E402
 
-from histostudy.core import process_umask  # noqa: E402
+from histostudy.core.io import process_umask  # noqa: E402
 from histostudy.geometry import make_transform, rotation_about_axis  # noqa: E402
-from histostudy.transducer import FEATURE_CLASSES, Feature, TransducerModel, TransducerSpec, export_meshes
-from histostudy.transducer.mesh import default_mesh_mu_per_mm
+from histostudy.transducer import (  # noqa: E402
+    FEATURE_CLASSES,
+    Feature,
+    TransducerModel,
+    TransducerSpec,
+    export_meshes,
+)
+from histostudy.transducer.mesh import default_mesh_mu_per_mm  # noqa: E402
 
 S = 0.47  # the paper's pose-estimation spacing (mm)
 

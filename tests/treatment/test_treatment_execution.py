@@ -17,7 +17,8 @@ def test_execution_commands_every_point_and_journals_reached_poses(tmp_path):
     robot, zone, T_base_carm, R_base_tcp = robot_zone_and_calibration()
     plan = plan_treatment(zone, 4.0, pulses_per_point=7, axes=R_CT)
     fired = []
-    run = execute_treatment(robot, plan, T_base_carm, R_base_tcp, tmp_path / "j.sqlite", deliver=lambda i, n: fired.append((i, n)))
+    run = execute_treatment(robot, plan, T_base_carm, R_base_tcp, tmp_path / "j.sqlite",
+                            deliver=lambda i, n: fired.append((i, n)))
     assert run.completed and run.n_treated == len(plan) and run.resumed_at == 0
     assert fired == [(i, 7) for i in range(len(plan))]
     assert robot.state().moves_completed == len(plan)
@@ -48,7 +49,8 @@ def test_interrupted_treatment_resumes_without_repeating_or_skipping(tmp_path, f
     k = 17
     path = tmp_path / "journal.sqlite"
     fired = []
-    deliver = lambda i, n: fired.append(i)
+    def deliver(i, n):
+        fired.append(i)
     faulty = SimulatedUR5e(1, faults=faults(k))
     with pytest.raises(RobotConnectionError) as info:
         execute_treatment(faulty, plan, T_base_carm, R_base_tcp, path, deliver=deliver)
@@ -121,7 +123,8 @@ def test_journal_refuses_another_plan_or_calibration(tmp_path):
     plan = plan_treatment(zone, 5.0, axes=R_CT)
     path = tmp_path / "j.sqlite"
     with pytest.raises(RobotConnectionError):
-        execute_treatment(SimulatedUR5e(1, faults=FaultPlan(disconnect_after_moves=3)), plan, T_base_carm, R_base_tcp, path)
+        execute_treatment(SimulatedUR5e(1, faults=FaultPlan(disconnect_after_moves=3)), plan, T_base_carm, R_base_tcp,
+                          path)
     other = plan_treatment(zone, 4.0, axes=R_CT)
     with pytest.raises(ValueError, match="another plan"):
         execute_treatment(robot, other, T_base_carm, R_base_tcp, path)

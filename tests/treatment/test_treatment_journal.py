@@ -87,7 +87,7 @@ def test_fifty_random_sigkills_skip_nothing_and_refire_nothing_silently(tmp_path
         child = forkserver.Process(target=treat, args=(journal, fired, kill))
         child.start()
         # kill while it treats: after its first new firing, at a random moment of the next ~3 points
-        _wait_for(lambda: len(fired_points(fired)) > fired_before or not child.is_alive())
+        _wait_for(lambda n=fired_before, c=child: len(fired_points(fired)) > n or not c.is_alive())
         time.sleep(rng.uniform(0.0, 0.04))
         child.kill()  # SIGKILL: no handler, no cleanup
         child.join()

@@ -1,6 +1,6 @@
 """Composite solids: the intersection and the difference of convex analytic shapes.
 
-Built from the convex solids of :mod:`.anatomy_shapes` by combining their entry and exit
+Built from the convex solids of :mod:`._shapes` by combining their entry and exit
 distances along each ray, so the chord stays exact: a body flattened against the table
 (:class:`Intersection` of an elliptic cylinder and a box), the water of a bath pressed onto the
 curved abdomen or a tank's walls (:class:`Difference`). Part of the synthetic scenes that stand

@@ -7,11 +7,11 @@ phantom in a degassed water bath on the patient table). Instead of recorded proj
 project a random analytic 3-D scene exactly, so that both biplane views see one consistent body.
 
 A random scene is an :class:`~histostudy.imaging.anatomy._scene.Anatomy`: a list of the analytic
-solids of :mod:`.anatomy_shapes` and :mod:`.anatomy_csg`, each with a linear attenuation
+solids of :mod:`._shapes` and :mod:`._csg`, each with a linear attenuation
 ``mu_per_mm`` [1/mm] that is the *difference* to whatever else is there (bowel gas inside soft
 tissue is about -0.02 /mm, bone inside soft tissue about +0.02..0.03 /mm), so that a line
 integral is the dimensionless ``sum(mu * chord length in mm)``. The ranges the scenes draw from
-are in :mod:`.anatomy_params`. Same Generator state, same scene: the draws' order is part of the
+are in :mod:`._params`. Same Generator state, same scene: the draws' order is part of the
 result.
 
 World frame: the CBCT frame, millimetres, origin at the isocentre, DICOM LPS axes (+x patient

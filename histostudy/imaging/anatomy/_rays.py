@@ -1,6 +1,6 @@
 """Bundles of X-ray rays from one common origin, and the algebra the analytic shapes share on them.
 
-The primitives of :mod:`.anatomy_shapes` and :mod:`.anatomy_csg` compute exact chord lengths for
+The primitives of :mod:`._shapes` and :mod:`._csg` compute exact chord lengths for
 all pixel rays of a C-arm view at once (§II-B.2, the virtual projections: a line integral is
 ``sum(mu * chord length)``). All rays start at the X-ray source, so per-ray work reduces to linear
 and quadratic forms in the unit direction ``d``; this module holds those forms. Directions are

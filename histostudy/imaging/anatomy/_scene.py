@@ -1,6 +1,6 @@
 """A synthetic X-ray scene and its line-integral image in a C-arm view.
 
-An :class:`Anatomy` is a list of analytic solids (:mod:`.anatomy_shapes`, :mod:`.anatomy_csg`)
+An :class:`Anatomy` is a list of analytic solids (:mod:`._shapes`, :mod:`._csg`)
 whose attenuations add; :meth:`Anatomy.line_integrals` projects it exactly into the detector of a
 :class:`~histostudy.imaging.carm.View` (eq. 1-2), giving the dimensionless line integrals
 ``sum(mu * chord length in mm)`` = ``-log(I / I0)`` that the C-arm's preprocessing delivers and

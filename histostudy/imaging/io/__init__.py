@@ -3,10 +3,10 @@ applies and the decoding of its pixels (``xray``), a C-arm's geometry from DICOM
 objects written as a C-arm writes them (``_xa``), and CBCT volumes from DICOM or NIfTI (``_volumes``,
 over ``_dicom``, ``_nifti`` and the voxel grid checks of ``_grid``). See docs/imaging.md."""
 
-from .geometry import gantry_from_dicom
 from ._nifti import save_volume_nifti
 from ._volumes import load_volume
 from ._xa import detector_counts, write_xa
+from .geometry import gantry_from_dicom
 from .xray import (
     RECEIVABLE_TRANSFER_SYNTAXES,
     X_RAY_SOP_CLASSES,

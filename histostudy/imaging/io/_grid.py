@@ -1,6 +1,6 @@
 """A volume file's voxel grid put onto the :class:`~histostudy.imaging.volume.Volume` layout.
 
-Shared by the NIfTI (:mod:`.nifti_io`) and DICOM (:mod:`.dicom_io`) readers of §II-A/§II-D CBCT
+Shared by the NIfTI (:mod:`._nifti`) and DICOM (:mod:`._dicom`) readers of §II-A/§II-D CBCT
 volumes. A reader hands over its 3-D array, the LPS step (mm) of each array axis and the LPS
 position (mm) of voxel ``[0, 0, 0]``; a grid axis-aligned in any order or direction (a signed
 permutation of the LPS axes) is reordered and flipped onto the Volume's ``[z, y, x]`` layout with

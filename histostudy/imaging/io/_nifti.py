@@ -39,7 +39,7 @@ def save_volume_nifti(volume: Volume, path: str | os.PathLike) -> Path:
     """Write ``volume`` to ``path`` (``.nii`` or ``.nii.gz``) atomically; returns the path.
 
     The data are stored as float32 without scaling and the affine maps voxel indices to RAS mm
-    (the LPS world frame with x and y negated), so :func:`~.volume_io.load_volume` gives back the same data,
+    (the LPS world frame with x and y negated), so :func:`~._volumes.load_volume` gives back the same data,
     spacing and origin bit for bit. NIfTI-1 keeps its affine in float32; when the spacing or
     origin is not exactly a float32 the file is written as NIfTI-2 (float64 affine) instead,
     so the round trip stays exact. Nothing is ever half-written: the file is written beside

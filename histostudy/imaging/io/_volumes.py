@@ -6,8 +6,8 @@ interpolation, :meth:`Volume.sample`), §II-D (the pre-treatment CBCT in which t
 and the post-treatment CBCT in which the treated zone is segmented). The synthetic study makes
 these volumes with :func:`~histostudy.imaging.cbct.simulate_cbct`; :func:`load_volume` lets the
 lab's own volumes take their place in the same code path. It picks the reader by the path:
-NIfTI in :mod:`.nifti_io` (which also writes), DICOM in :mod:`.dicom_io`; both put the file's
-grid onto the Volume's layout with :mod:`.volume_io_grid`.
+NIfTI in :mod:`._nifti` (which also writes), DICOM in :mod:`._dicom`; both put the file's
+grid onto the Volume's layout with :mod:`._grid`.
 
 Frames and units: the world frame is the CBCT/C-arm frame in DICOM patient coordinates (LPS:
 +x towards the patient's left, +y posterior, +z superior), millimetres. A :class:`Volume` is

@@ -2,7 +2,7 @@
 for a C-arm's export and its live stream (§II-A, §II-B.2).
 
 :func:`xa_dataset` makes one XA object (a single frame, or a cine of several) with the geometry
-tags :meth:`~histostudy.imaging.View.from_dicom` reads (:mod:`.dicom_geometry`: positioner angles
+tags :meth:`~histostudy.imaging.View.from_dicom` reads (:mod:`.geometry`: positioner angles
 in degrees, source distances and the detector pitch in mm), the detector's intensities stored as
 unsigned integers of ``bits_stored`` bits, MONOCHROME2, and the timing a receiver pairs biplane
 frames by (``AcquisitionDateTime`` of the first frame and ``FrameTime`` in ms between frames).

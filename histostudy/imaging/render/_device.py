@@ -5,14 +5,14 @@ differ in where the jitter comes from and how the copies are binned:
 
 - ``device=None``: the numpy reference of :func:`~histostudy.imaging.render._reference.render_line_integrals`
   (the jitter from the caller's ``numpy.random.Generator``); the study renders this way.
-- ``device="cpu"``: one compiled pass per copy (:mod:`.splat_kernels`), its jitter from per-point
+- ``device="cpu"``: one compiled pass per copy (:mod:`._splat_kernels`), its jitter from per-point
   counter-based streams seeded by one draw of the caller's Generator.
-- ``device="cuda"`` (or ``"cuda:N"``, or a ``torch.device``): torch (:mod:`.render_torch`), a batch
+- ``device="cuda"`` (or ``"cuda:N"``, or a ``torch.device``): torch (:mod:`._torch`), a batch
   of frames per call; its jitter from a ``torch.Generator`` seeded the same way.
 
 The three draw the same distribution, not the same numbers: a seed gives the same image again on
 the same renderer, and the renderers' images agree to float rounding where nothing is drawn (zero jitter)
-and, in distribution, elsewhere (tests/imaging/test_render_device.py).
+and, in distribution, elsewhere (tests/imaging/render/test_render_device.py).
 """
 
 from __future__ import annotations
@@ -72,7 +72,7 @@ def splat_points(model: TransducerModel, T_carm_transducer: np.ndarray, view: Vi
 def splat_compiled(model: TransducerModel, T_carm_transducer: np.ndarray, view: View, *, seed: int, n_splats: int,
                    splat_sigma_mm: float) -> np.ndarray:
     """The ``view.shape`` float32 line integrals of ``model`` at ``T_carm_transducer``, by the compiled
-    kernel (:func:`.splat_kernels.splat_into`, class by class; the arguments already checked).
+    kernel (:func:`._splat_kernels.splat_into`, class by class; the arguments already checked).
 
     The kernel projects the points itself (from ``A = P [R t]``, the source taken into the
     transducer frame), so nothing per point is built in numpy; point ``i`` of the classes in enum
@@ -102,7 +102,7 @@ def splat_torch(model: TransducerModel, T_carm_transducer: np.ndarray, view: Vie
                 n_splats: int, splat_sigma_mm: float) -> np.ndarray:
     """The ``view.shape`` float32 line integrals of one frame by torch on ``device`` (arguments checked).
 
-    The :class:`~.render_torch.TorchSplatter` of the last call is kept while the model, device and
+    The :class:`~._torch.TorchSplatter` of the last call is kept while the model, device and
     splatting stay the same, so that a run of frames moves the model's points to the GPU once.
     """
     from ._torch import TorchSplatter  # torch only for a torch render
@@ -122,7 +122,7 @@ def mark_nearest_pixels_compiled(points: np.ndarray, T_carm_transducer: np.ndarr
                                  view: View) -> tuple[np.ndarray, float]:
     """The flat ``(rows * cols,)`` uint8 mask of the pixels ``points`` (mm, transducer frame) land in
     at ``T_carm_transducer``, and their smallest pixel footprint in mm² (inf: none lands), by the
-    compiled kernel (:func:`.splat_kernels.mark_nearest_pixels`)."""
+    compiled kernel (:func:`._splat_kernels.mark_nearest_pixels`)."""
     from ._splat_kernels import mark_nearest_pixels  # numba compiles on first use
 
     rows, cols = view.shape

@@ -172,7 +172,7 @@ def render_labels(model: TransducerModel, T_carm_transducer, view: View, *, devi
     which also fills concavities narrower than the kernel.
 
     ``device`` None projects in numpy; any other device of :func:`render_frame` projects with the
-    compiled kernel (:func:`.splat_kernels.mark_nearest_pixels`, the same float64 arithmetic in
+    compiled kernel (:func:`._splat_kernels.mark_nearest_pixels`, the same float64 arithmetic in
     another order: a point within rounding of a pixel edge may fall on its other side).
     """
     _check_model(model, "model")

@@ -143,7 +143,7 @@ def standard_normals(seed, n_points, per_point):
 def splat_into(partial, points, weights, first_index, A, det_M, source, M, sigma, n_splats, seed, rows, cols):
     """Add one class's splat copies to the ``(N_PARTS, rows * cols)`` float64 ``partial`` images.
 
-    Per point ``p`` (mm, transducer frame) of non-zero weight, as :func:`~.render_device.splat_points`
+    Per point ``p`` (mm, transducer frame) of non-zero weight, as :func:`~._device.splat_points`
     and the numpy reference: ``uvw = A [p, 1]`` (``A = P [R t]``, float64); points with ``w <= 0``
     are skipped; the footprint is ``|w|^3 / (|det M| |p - source|)`` mm² (``source`` in the
     transducer frame) and a copy adds ``weight / (n_splats * footprint)``. Copy ``k`` is jittered

@@ -8,7 +8,7 @@ footprint)`` per copy), with the jitter drawn by a ``torch.Generator`` seeded pe
 frame's image depends on its seed, not on the batch it was rendered in. Copies are binned with
 ``index_add_`` into a float64 image (on CUDA the atomic adds come in any order; float64 keeps the
 float32 result the same). On the CPU it runs too, slower than the compiled kernel of
-:mod:`.splat_kernels`; it is there so that the CUDA code is the code tested on every machine.
+:mod:`._splat_kernels`; it is there so that the CUDA code is the code tested on every machine.
 
 :func:`poisson_noise_torch` is :func:`~histostudy.imaging.render._reference.add_poisson_noise` on the device.
 """

@@ -4,8 +4,8 @@ take wall-clock time, can be stopped, and fail as the :class:`FaultPlan` says.
 Poses inside are millimetres and 4x4 transforms ``T_base_tcp`` in the robot base frame; the
 controller's output fields (:meth:`ControllerArm.values`) and its move parameters are in SI units
 and axis-angle (metres, radians), converted at this boundary with
-:func:`histostudy.robot.rtde._units.pose_from_transform` and
-:func:`~histostudy.robot.rtde._units.transform_from_pose`.
+:func:`histostudy.robot.units.pose_from_transform` and
+:func:`~histostudy.robot.units.transform_from_pose`.
 
 ``moveJ``, ``moveJ_IK`` and ``moveL_FK`` are executed as linear moves to the target pose (the robot
 layer only needs linear moves). A move the arm cannot make ends in a protective stop, as on the
@@ -23,8 +23,8 @@ import numpy as np
 
 from ..base import RobotError
 from ..kinematics import check_joints, forward_kinematics
-from ..units import pose_from_transform, transform_from_pose
 from ..sim import FaultPlan, SimulatedUR5e
+from ..units import pose_from_transform, transform_from_pose
 from ._protocol import (
     JOINT_MODE_RUNNING,
     ROBOT_MODE_RUNNING,

@@ -11,10 +11,10 @@ and ``rtde_receive.RTDEReceiveInterface`` need from a UR e-Series controller, ba
 :class:`~histostudy.robot.sim.SimulatedUR5e` (lengths in mm inside, metres and axis-angle on the
 wire). The parts, one job each:
 
-- ``controller_protocol``: ports, status codes, command numbers, RTDE field types, recipes, framing;
-- ``controller_arm``: the arm whose moves take wall-clock time, and the injected faults;
-- ``controller_program``: the register handshake and what each command does;
-- ``controller_server``: :class:`SimulatedController`, the dashboard, RTDE and script servers.
+- ``_protocol``: ports, status codes, command numbers, RTDE field types, recipes, framing;
+- ``_arm``: the arm whose moves take wall-clock time, and the injected faults;
+- ``_program``: the register handshake and what each command does;
+- ``_server``: :class:`SimulatedController`, the dashboard, RTDE and script servers.
 
 Faults (``--disconnect-after-moves K``, ``--disconnect-during-move K``,
 ``--protective-stop-during-move K``, ``--command-delay-s S``) follow
@@ -68,7 +68,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="drop every connection halfway through move K")
     p.add_argument("--protective-stop-during-move", type=_positive_int, default=None, metavar="K",
                    help="protective stop halfway through move K")
-    p.add_argument("--command-delay-s", type=float, default=0.0, help="answer every command this late (slow controller)")
+    p.add_argument("--command-delay-s", type=float, default=0.0,
+                   help="answer every command this late (slow controller)")
     p.add_argument("--max-lifetime-s", type=float, default=3600.0, help="exit after this many seconds")
     p.add_argument("--parent-pid", type=int, default=None, help="exit when this process is gone")
     p.add_argument("--verbose", action="store_true")
@@ -105,7 +106,8 @@ def main(argv=None) -> int:
         print(f"simulated UR controller: cannot serve on {args.host!r}: {exc}", file=sys.stderr)
         return 2
     signal.signal(signal.SIGTERM, lambda *_: ctrl.shutdown.set())
-    print(f"simulated UR controller ready on {args.host} (ports {DASHBOARD_PORT}, {RTDE_PORT}, {SCRIPT_PORT})", flush=True)
+    print(f"simulated UR controller ready on {args.host} (ports {DASHBOARD_PORT}, {RTDE_PORT}, {SCRIPT_PORT})",
+          flush=True)
     try:
         ctrl.serve_forever(args.max_lifetime_s, args.parent_pid)
     except KeyboardInterrupt:
@@ -163,7 +165,8 @@ class ControllerProcess:
                 )
             if time.monotonic() > deadline:
                 self.kill()
-                raise TimeoutError(f"simulated controller on {host} did not open ports {pending} within {start_timeout_s} s")
+                raise TimeoutError(f"simulated controller on {host} did not open ports {pending} "
+                                   f"within {start_timeout_s} s")
             try:
                 with socket.create_connection((host, pending[0]), timeout=0.2):
                     pass

@@ -226,5 +226,6 @@ class RTDEConnection:
                 continue
             self._require_connected(what)
             if time.monotonic() - t0 > self.settle_timeout_s:
-                raise RobotTimeout(f"{what}: no fresh data from the UR controller at {self.host} in {self.settle_timeout_s} s")
+                raise RobotTimeout(f"{what}: no fresh data from the UR controller at {self.host} "
+                                   f"in {self.settle_timeout_s} s")
             time.sleep(0.001)

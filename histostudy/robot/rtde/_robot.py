@@ -1,7 +1,7 @@
 """`RTDERobot`: a real UR5e (or the simulated controller) through ur_rtde, behind the `Robot` protocol.
 
 The library speaks millimetres and 4x4 transforms ``T_base_tcp`` in the robot base frame, ur_rtde
-metres and axis-angle poses ``[x, y, z, rx, ry, rz]``; :mod:`histostudy.robot.rtde._units`
+metres and axis-angle poses ``[x, y, z, rx, ry, rz]``; :mod:`histostudy.robot.units`
 converts at the boundary.
 
 What it guards against (observed with ur-rtde 1.6.5 and written into the code below):
@@ -42,8 +42,8 @@ from ..base import (
     linear_motion_time_s,
 )
 from ..kinematics import UR5E, DHSpec, forward_kinematics, inverse_kinematics_closest, linear_path_joints
-from ._connection import DASHBOARD_PORT, RTDEConnection, probe_port
 from ..units import pose_from_transform, transform_from_pose
+from ._connection import DASHBOARD_PORT, RTDEConnection, probe_port
 
 __all__ = ["RTDERobot", "UR_RTDE_VERSION"]
 
@@ -224,7 +224,8 @@ class RTDERobot(RTDEConnection):
         """Linear move of the TCP to ``T_base_tcp`` (mm, base frame); returns the settled ``T_base_tcp``.
 
         Checks the pose first (:meth:`check_pose`) and the straight path for joint limits and
-        singularities (:func:`~histostudy.robot.kinematics.linear_path_joints`), runs ``moveL`` under a watchdog of twice the
+        singularities (:func:`~histostudy.robot.kinematics.linear_path_joints`), runs ``moveL`` under a
+        watchdog of twice the
         expected motion time plus ``move_timeout_margin_s``, then waits until the received pose is
         steady and within the settle tolerances of the target.
         """

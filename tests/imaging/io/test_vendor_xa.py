@@ -24,8 +24,8 @@ REFERENCE_SHA256 = "797b3375a2d1f94ccac04c657b5b5d90d9b4051f76508c867f2dea465d1a
 LOSSLESS = {"XA1_JPLL": "1.2.840.10008.1.2.4.70", "XA1_JLSL": "1.2.840.10008.1.2.4.80",
             "XA1_J2KR": "1.2.840.10008.1.2.4.90", "XA1_RLE": "1.2.840.10008.1.2.5"}
 LOSSY = {"XA1_JLSN": "1.2.840.10008.1.2.4.81", "XA1_J2KI": "1.2.840.10008.1.2.4.91"}
-SECONDARY_CAPTURE = r"SOP class 1\.2\.840\.10008\.5\.1\.4\.1\.1\.7 \(Secondary Capture Image Storage\) is not an X-ray " \
-                    r"angiographic or RF image"
+SECONDARY_CAPTURE = (r"SOP class 1\.2\.840\.10008\.5\.1\.4\.1\.1\.7 \(Secondary Capture Image Storage\) "
+                     r"is not an X-ray angiographic or RF image")
 
 
 def _pixels(name):

@@ -102,8 +102,8 @@ def test_irreversible_jpeg_2000_is_refused_and_reversible_read(cine, tmp_path):
 
 
 @pytest.mark.parametrize("syntax, reason", [
-    ("1.2.840.10008.1.2.4.50", r"transfer syntax 1\.2\.840\.10008\.1\.2\.4\.50 \(JPEG Baseline.*lossy JPEG \(baseline\) "
-                               "is refused"),
+    ("1.2.840.10008.1.2.4.50", r"transfer syntax 1\.2\.840\.10008\.1\.2\.4\.50 \(JPEG Baseline.*"
+                               r"lossy JPEG \(baseline\) is refused"),
     ("1.2.840.10008.1.2.4.51", r"lossy JPEG \(extended\) is refused"),
     ("1.2.3.4", r"transfer syntax 1\.2\.3\.4: not one this reader decodes"),
 ])

@@ -146,7 +146,8 @@ def test_a_points_copies_spread_as_the_projected_gaussian(model, view, renderer)
     point = _one_point_model(model, where)
     n, sigma, T = 200_000, 0.5, np.eye(4)
     if renderer == "torch":
-        image = TorchSplatter(point, "cpu", n_splats=n, splat_sigma_mm=sigma).line_integrals([T], [view], [5])[0].numpy()
+        splatter = TorchSplatter(point, "cpu", n_splats=n, splat_sigma_mm=sigma)
+        image = splatter.line_integrals([T], [view], [5])[0].numpy()
     else:
         image = render_line_integrals(point, T, view, rng=np.random.default_rng(5), n_splats=n, splat_sigma_mm=sigma,
                                       device=None if renderer == "numpy" else "cpu")

@@ -91,7 +91,8 @@ class RawRTDE:
         self.sock.close()
 
 
-FMT = {"DOUBLE": "d", "VECTOR6D": "6d", "UINT32": "I", "INT32": "i", "UINT64": "Q", "VECTOR6INT32": "6i", "VECTOR3D": "3d"}
+FMT = {"DOUBLE": "d", "VECTOR6D": "6d", "UINT32": "I", "INT32": "i", "UINT64": "Q", "VECTOR6INT32": "6i",
+       "VECTOR3D": "3d"}
 
 
 def decode(types, payload):
@@ -128,7 +129,8 @@ def test_handshake_version_and_recipe_types(ctrl):
     rid_bad, types_bad = c.setup_outputs(["timestamp", "no_such_field"])
     assert types_bad == ["DOUBLE", "NOT_FOUND"]  # makes the client raise, as a real controller does
     # Input recipes get ids 1..N in the order requested (the client hard-codes them).
-    ids = [c.setup_inputs(["input_int_register_0"] + [f"input_double_register_{i}" for i in range(k)])[0] for k in range(4)]
+    ids = [c.setup_inputs(["input_int_register_0"] + [f"input_double_register_{i}" for i in range(k)])[0]
+           for k in range(4)]
     assert ids == [1, 2, 3, 4]
     c.send("S")
     assert c.recv_type("S") == b"\x01"
@@ -159,7 +161,8 @@ def _upload_script(host):
 
 def test_register_protocol_ready_command_done(ctrl):
     c = RawRTDE(ctrl.host)
-    _, out_types = c.setup_outputs(["runtime_state", "output_int_register_0", "output_int_register_1"] + [f"output_double_register_{i}" for i in range(6)])
+    _, out_types = c.setup_outputs(["runtime_state", "output_int_register_0", "output_int_register_1"]
+                                   + [f"output_double_register_{i}" for i in range(6)])
     in_names = ["input_int_register_0"] + [f"input_double_register_{i}" for i in range(8)]
     rid, _ = c.setup_inputs(in_names)
     c.send("S")

@@ -105,7 +105,8 @@ def time_limit():
 
 @pytest.fixture
 def controller(request):
-    """A fresh controller; extra CLI arguments via ``@pytest.mark.parametrize('controller', [[...]], indirect=True)``."""
+    """A fresh controller; extra CLI arguments via
+    ``@pytest.mark.parametrize('controller', [[...]], indirect=True)``."""
     args = getattr(request, "param", ["--repeatability-mm", "0"])
     proc = ControllerProcess(new_host(), *args, max_lifetime_s=120)
     yield proc
@@ -130,7 +131,8 @@ def walk(T_start, rng, n, step_mm=40.0, tilt_rad=0.15):
     T = T_start
     out = []
     for _ in range(n):
-        T = make_transform(T[:3, :3] @ matrix_from_rotvec(rng.uniform(-tilt_rad, tilt_rad, 3)), T[:3, 3] + rng.uniform(-step_mm, step_mm, 3))
+        T = make_transform(T[:3, :3] @ matrix_from_rotvec(rng.uniform(-tilt_rad, tilt_rad, 3)),
+                           T[:3, 3] + rng.uniform(-step_mm, step_mm, 3))
         out.append(T)
     return out
 
@@ -187,7 +189,8 @@ def test_connect_set_tcp_move_and_read_back(robot):
 @pytest.mark.parametrize("repeatability", [0.0, 0.03])
 def test_same_seeded_sequence_same_poses_as_the_in_process_simulation(repeatability):
     seed = 7
-    proc = ControllerProcess(new_host(), "--seed", str(seed), "--repeatability-mm", str(repeatability), max_lifetime_s=120)
+    proc = ControllerProcess(new_host(), "--seed", str(seed), "--repeatability-mm", str(repeatability),
+                             max_lifetime_s=120)
     try:
         real = RTDERobot(proc.host)
         sim = SimulatedUR5e(seed, repeatability_mm=repeatability)
@@ -233,7 +236,8 @@ def test_every_pose_is_checked_before_moving(robot):
     assert np.array_equal(robot.joints(), q0)
 
 
-@pytest.mark.parametrize("controller", [["--repeatability-mm", "0", "--workspace-box", "-700", "-400", "450", "-200", "400", "700"]], indirect=True)
+@pytest.mark.parametrize("controller", [["--repeatability-mm", "0", "--workspace-box",
+                                          "-700", "-400", "450", "-200", "400", "700"]], indirect=True)
 def test_controller_safety_limits_are_consulted(controller):
     robot = RTDERobot(controller.host)  # the client's own workspace allows the pose ...
     T = robot.tcp_pose()
@@ -289,7 +293,8 @@ def test_a_move_answered_false_for_a_protective_stop_says_where_the_arm_stopped(
     robot.close()
 
 
-@pytest.mark.parametrize("controller", [["--repeatability-mm", "0", "--time-scale", "1", "--protective-stop-during-move", "1"]], indirect=True)
+@pytest.mark.parametrize("controller", [["--repeatability-mm", "0", "--time-scale", "1",
+                                          "--protective-stop-during-move", "1"]], indirect=True)
 def test_injected_protective_stop_during_a_move(controller):
     robot = RTDERobot(controller.host)
     start = robot.tcp_pose()
@@ -322,7 +327,8 @@ def test_disconnect_after_k_moves_then_reconnect(controller):
     robot.close()
 
 
-@pytest.mark.parametrize("controller", [["--repeatability-mm", "0", "--time-scale", "1", "--disconnect-during-move", "1"]], indirect=True)
+@pytest.mark.parametrize("controller", [["--repeatability-mm", "0", "--time-scale", "1",
+                                          "--disconnect-during-move", "1"]], indirect=True)
 @isolated
 def test_disconnect_mid_move_gives_no_stale_pose(controller):
     robot = RTDERobot(controller.host)
