@@ -206,7 +206,12 @@ class HandEyeCalibration:
 
     # ---- persistence
     def to_dict(self) -> dict:
-        """Plain-JSON dict (lists of floats), with a schema tag and the summary for human readers."""
+        """The calibration as plain JSON.
+
+        Returns:
+            A dict of lists of floats: ``schema``, ``units`` (mm, deg), ``method``, ``pairs``, the two
+            transforms, the focal point and the residuals, and the :meth:`summary` for human readers.
+        """
         return to_jsonable(
             {
                 "schema": SCHEMA,
@@ -227,6 +232,18 @@ class HandEyeCalibration:
 
     @classmethod
     def from_dict(cls, d: dict) -> HandEyeCalibration:
+        """The calibration of a :meth:`to_dict` dict.
+
+        Args:
+            d: the dict (its ``schema`` this one's or an earlier one).
+
+        Returns:
+            The :class:`HandEyeCalibration`.
+
+        Raises:
+            TypeError: ``d`` is not a dict.
+            ValueError: ``d``'s schema is unknown, a key is missing, or a value is invalid.
+        """
         if not isinstance(d, dict):
             raise TypeError(f"d must be a dict from HandEyeCalibration.to_dict, got {type(d).__name__}")
         if d.get("schema") not in (SCHEMA, *LEGACY_SCHEMAS):
@@ -250,11 +267,30 @@ class HandEyeCalibration:
         )
 
     def save(self, path) -> Path:
-        """Write :meth:`to_dict` as JSON atomically (whole file or none); returns the path."""
+        """Write :meth:`to_dict` as JSON atomically (the whole file or none).
+
+        Args:
+            path: the file to write.
+
+        Returns:
+            The path written.
+        """
         return atomic_write_json(path, self.to_dict())
 
     @classmethod
     def load(cls, path) -> HandEyeCalibration:
+        """The calibration saved by :meth:`save`.
+
+        Args:
+            path: the JSON file.
+
+        Returns:
+            The :class:`HandEyeCalibration`.
+
+        Raises:
+            FileNotFoundError: no file at ``path``.
+            TypeError, ValueError: the file's content is not a calibration (:meth:`from_dict`).
+        """
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"path {str(path)!r}: no hand-eye calibration file there")
