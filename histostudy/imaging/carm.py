@@ -325,15 +325,35 @@ class View:
 
 
 def default_biplane(**kwargs) -> tuple[View, View]:
-    """The paper's set-up (§II-D): plane A at -45 deg (RAO 45) and plane B at +45 deg (LAO 45).
+    """The paper's biplane set-up (§II-D): plane A at -45 deg (RAO 45) and plane B at +45 deg (LAO 45).
 
-    Keyword arguments go to :meth:`View.from_gantry` for both planes (SOD, SID, shape, pixel).
+    Args:
+        **kwargs: passed to :meth:`View.from_gantry` for both planes (source-object and
+            source-image distances in mm, detector shape in pixels, pixel size in mm).
+
+    Returns:
+        The views ``(A, B)``.
+
+    Raises:
+        ValueError: a keyword argument out of range (as :meth:`View.from_gantry` raises it).
     """
     return (View.from_gantry(-45.0, 0.0, name="A", **kwargs), View.from_gantry(45.0, 0.0, name="B", **kwargs))
 
 
 def save_views(path: str | os.PathLike, views: Iterable[View]) -> Path:
-    """Write views as JSON (atomically): ``{"format", "version", "views": [...]}``."""
+    """Views written as JSON, atomically: ``{"format", "version", "views": [...]}``.
+
+    Args:
+        path: the file to write.
+        views: the :class:`View` objects.
+
+    Returns:
+        The path written.
+
+    Raises:
+        TypeError: an element of ``views`` is not a View.
+        OSError: the file cannot be written.
+    """
     views = list(views)
     for i, v in enumerate(views):
         if not isinstance(v, View):
@@ -343,8 +363,20 @@ def save_views(path: str | os.PathLike, views: Iterable[View]) -> Path:
 
 
 def load_views(path: str | os.PathLike) -> list[View]:
-    """Read views from JSON: the file :func:`save_views` writes, or a bare list of view objects
-    (e.g. ``[{"name": "A", "P": [[...], [...], [...]], "shape": [960, 1240], "pixel_mm": 0.308}]``)."""
+    """Views read from JSON.
+
+    Args:
+        path: the file :func:`save_views` writes, or a bare list of view objects (e.g.
+            ``[{"name": "A", "P": [[...], [...], [...]], "shape": [960, 1240], "pixel_mm": 0.308}]``;
+            ``P`` is the 3x4 projection of eq. 1-2, C-arm mm -> pixels).
+
+    Returns:
+        The views, in the file's order.
+
+    Raises:
+        OSError: the file cannot be read.
+        ValueError: the JSON is invalid, names another format, holds no views, or a view is invalid.
+    """
     with open(path, encoding="utf-8") as fh:
         data = json.load(fh)
     if isinstance(data, dict):

@@ -39,21 +39,23 @@ __all__ = [
 class PhantomSpec:
     """The layered agarose / agarose-barium phantom of §II-D.1, in water.
 
-    Geometry (phantom frame: origin at the cube centre, axes along the cube edges, layers stacked
-    along +z): a cube of ``size_mm`` (paper: 5x5x5 cm mold) of layers ``layer_thickness_mm``
-    thick (paper: "approximately 4 mm"), starting at the bottom face (z = -size/2) with
-    ``first_layer`` ("agarose" or "barium"), alternating.
+    Phantom frame: origin at the cube centre, axes along the cube edges, layers stacked along +z from
+    the bottom face (z = -size/2), alternating. The gray values are assumptions of this study (the
+    paper gives recipes, not CT numbers); the 420 HU between layers is what makes the mixed zone
+    visible (a medium value, ~240 HU, without layer texture). See docs/imaging.md, "The phantom".
 
-    Gray values, HU — assumptions of this study (the paper gives recipes, not CT numbers):
+    Args:
+        size_mm: the cube's edge in mm (paper: a 5x5x5 cm mold).
+        layer_thickness_mm: each layer's thickness in mm (paper: "approximately 4 mm"); at most
+            ``size_mm``.
+        first_layer: ``"agarose"`` or ``"barium"``, the bottom layer.
+        water_hu: the saline bath, HU (0 by the definition of the scale).
+        agarose_hu: 1.5 % agarose in saline with 5 % red blood cells, HU.
+        barium_hu: the same with ~2.4 % w/v BaSO4, HU.
 
-    - ``water_hu = 0``: saline bath, by the definition of the HU scale;
-    - ``agarose_hu = 30``: 1.5 % agarose in saline with 5 % red blood cells, a little denser than
-      water (soft-tissue-like);
-    - ``barium_hu = 450``: the same with 10 g BaSO4 in ~420 mL (~2.4 % w/v), in the range of dilute
-      barium suspensions used as CT contrast (~15-20 HU per mg/mL at 120 kVp).
-
-    The contrast between layers (420 HU) is what makes the mixed zone visible (a medium value,
-    ~240 HU, without layer texture).
+    Raises:
+        ValueError: a size not finite and > 0, a layer thicker than the cube, an unknown
+            ``first_layer``, or a gray value not finite.
     """
 
     size_mm: float = 50.0
@@ -135,10 +137,21 @@ def phantom_volume(
 ) -> Volume:
     """The phantom set-up rasterised on a world-aligned grid: the "true" attenuation (§II-D.1).
 
-    The grid covers the phantom's bounding box plus ``margin_mm`` of water on every side, with
-    voxel size ``spacing_mm`` (scalar or (3,)). Each voxel is the mean of ``supersample**3``
-    sub-voxel samples, so that layer and cube edges get partial-volume values as a scanner's
-    detector integration would give them.
+    Each voxel is the mean of ``supersample**3`` sub-voxel samples, so that layer and cube edges get
+    partial-volume values as a scanner's detector integration would give them.
+
+    Args:
+        spec: the phantom.
+        T_carm_phantom: (4, 4) rigid transform phantom -> C-arm (mm); None for the identity.
+        spacing_mm: voxel size in mm, scalar or ``(3,)``, > 0.
+        margin_mm: water around the phantom's bounding box on every side, mm, >= 0.
+        supersample: sub-voxel samples per axis, an integer >= 1.
+
+    Returns:
+        A :class:`~.volume.Volume` of HU values.
+
+    Raises:
+        ValueError: ``margin_mm``, ``supersample``, ``spacing_mm`` or ``T_carm_phantom`` out of range.
     """
     T = _check_T(T_carm_phantom)
     if not (math.isfinite(margin_mm) and margin_mm >= 0):
@@ -183,7 +196,21 @@ def _grid_in_frame(volume: Volume, T_world_frame: np.ndarray, offset_mm=(0.0, 0.
 
 def phantom_mask(volume: Volume, spec: PhantomSpec = PhantomSpec(), T_carm_phantom=None,
                  margin_mm: float = 0.0) -> np.ndarray:
-    """Boolean ``[z, y, x]`` mask of the voxels whose centre lies in the phantom cube shrunk by ``margin_mm``."""
+    """The voxels of a volume whose centre lies in the phantom cube.
+
+    Args:
+        volume: the grid (world mm).
+        spec: the phantom.
+        T_carm_phantom: (4, 4) rigid transform phantom -> C-arm (mm); None for the identity.
+        margin_mm: shrink the cube by this much on every face (mm; negative grows it).
+
+    Returns:
+        Boolean ``[z, y, x]`` mask of ``volume``'s shape.
+
+    Raises:
+        TypeError: ``volume`` is not a Volume.
+        ValueError: ``T_carm_phantom`` is not rigid.
+    """
     volume = check_volume(volume)
     T = _check_T(T_carm_phantom)
     h = 0.5 * spec.size_mm - margin_mm
@@ -204,14 +231,26 @@ def simulate_cbct(
     noise_sd_hu: float = 20.0,
     voxel_mm=None,
 ) -> Volume:
-    """A reconstructed CBCT of the true attenuation ``truth`` (the scanner stand-in, §II-D).
+    """A reconstructed CBCT of the true attenuation (the scanner stand-in, §II-D).
 
-    The scanner's point-spread function is an isotropic Gaussian of standard deviation
-    ``blur_sigma_mm`` (``scipy.ndimage.gaussian_filter``); the volume is then resampled
-    (trilinearly) onto voxels of ``voxel_mm`` (scalar or (3,); default: ``truth``'s grid) over the
-    same extent, and white Gaussian noise of ``noise_sd_hu`` is added per voxel — a stand-in for
-    reconstruction noise, whose real spectrum is not white (an assumption). ``rng``: a Generator
-    or int seed.
+    The scanner's point-spread function is an isotropic Gaussian (``scipy.ndimage.gaussian_filter``);
+    the volume is then resampled (trilinearly) over the same extent, and white Gaussian noise is added
+    per voxel, a stand-in for reconstruction noise, whose real spectrum is not white (an assumption).
+
+    Args:
+        truth: the true attenuation, e.g. :func:`phantom_volume`'s (HU).
+        rng: a ``numpy.random.Generator`` or an int seed.
+        blur_sigma_mm: the PSF's standard deviation, mm, >= 0.
+        noise_sd_hu: the noise's standard deviation, HU, >= 0.
+        voxel_mm: the output voxel size, mm, scalar or ``(3,)``; None keeps ``truth``'s grid.
+
+    Returns:
+        The simulated CBCT, a :class:`~.volume.Volume` in HU.
+
+    Raises:
+        TypeError: ``truth`` is not a Volume, or ``rng`` is neither a Generator nor an int.
+        ValueError: ``blur_sigma_mm`` or ``noise_sd_hu`` is not finite and >= 0, or ``voxel_mm`` is
+            not > 0.
     """
 
     truth = check_volume(truth, "truth")
@@ -250,11 +289,25 @@ def check_target(
     volume: Volume | None = None,
     margin_mm: float = 0.0,
 ) -> np.ndarray:
-    """Validate a target the user picked in the pre-treatment CBCT; return it as float64 (3,) mm.
+    """A target picked in the pre-treatment CBCT (§II-D), checked to lie in the phantom.
 
-    The target (world, mm) must lie inside the phantom cube at least ``margin_mm`` from its faces
-    (pass the zone radius to keep the whole zone in the phantom) and, when ``volume`` is given,
-    inside that volume. Raises ValueError naming ``target_mm``, its value and the violated bound.
+    Args:
+        target_mm: world (C-arm) point ``(x, y, z)`` in mm.
+        spec: the phantom.
+        T_carm_phantom: (4, 4) rigid transform phantom -> C-arm (mm); None for the identity.
+        volume: when given, the target must also lie inside this :class:`~.volume.Volume`'s voxel
+            centres.
+        margin_mm: how far inside the cube's faces the target must be (pass the zone radius to keep
+            the whole zone in the phantom), >= 0.
+
+    Returns:
+        The target as a float64 ``(3,)`` array, mm.
+
+    Raises:
+        ValueError: ``target_mm`` is not 3 finite numbers, ``margin_mm`` is not finite and >= 0,
+            ``T_carm_phantom`` is not rigid, or the target lies outside the volume or the shrunk
+            cube (the message gives its value and the bound).
+        TypeError: ``volume`` is not a Volume.
     """
     t = np.asarray(target_mm, dtype=np.float64).reshape(-1)
     if t.shape != (3,) or not np.all(np.isfinite(t)):
@@ -280,10 +333,21 @@ def check_target(
 
 
 def random_target(rng, spec: PhantomSpec = PhantomSpec(), T_carm_phantom=None, border_mm: float = 15.0) -> np.ndarray:
-    """A target drawn uniformly inside the phantom at least ``border_mm`` from every face (world, mm).
+    """A target drawn uniformly inside the phantom, away from its faces (§II-D).
 
-    For the study: ``border_mm`` >= the zone radius plus a safety margin keeps the whole
-    treatment zone (and the segmentation window) inside the phantom. ``rng``: Generator or seed.
+    Args:
+        rng: a ``numpy.random.Generator`` or an int seed.
+        spec: the phantom.
+        T_carm_phantom: (4, 4) rigid transform phantom -> C-arm (mm); None for the identity.
+        border_mm: least distance from every face, mm; for the study, the zone radius plus a safety
+            margin keeps the whole treatment zone (and the segmentation window) inside the phantom.
+
+    Returns:
+        The target, world (C-arm) ``(3,)`` float64, mm.
+
+    Raises:
+        ValueError: ``border_mm`` is not in ``[0, size_mm / 2]``, or ``T_carm_phantom`` is not rigid.
+        TypeError: ``rng`` is neither a Generator nor an int.
     """
 
     gen = as_generator(rng)

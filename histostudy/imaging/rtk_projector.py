@@ -229,13 +229,33 @@ def forward_project(volume, views, *, n_threads: int | None = None) -> list[np.n
 def render_frame_rtk(digital: TransducerModel, physical: TransducerModel, T_carm_transducer, view: View, *,
                      rng: np.random.Generator, background=None, photons_per_pixel: float | None = 5e4,
                      voxel_mm: float = 0.5, n_threads: int | None = None) -> Frame:
-    """A synthetic frame as :func:`~histostudy.imaging.render._reference.render_frame` makes it, projected by RTK.
+    """A synthetic frame as :func:`~histostudy.imaging.render.render_frame` makes it, projected by RTK.
 
-    Image: ``background`` (None: zeros; a ``view.shape`` array of line integrals; or an object with
-    ``line_integrals(view)``) plus the Joseph projection of ``physical`` voxelised at
-    ``voxel_mm`` (:func:`voxelise_model`), then Poisson noise of ``photons_per_pixel`` drawn from
-    ``rng`` (None: no noise). Labels: ``render_labels(digital, T, view)`` — the digital model in
-    its true pose, the project's reference. ``rng`` is used for the noise only.
+    Image: the background plus the Joseph projection of ``physical`` voxelised at ``voxel_mm``
+    (:func:`voxelise_model`), then Poisson noise. Labels: ``render_labels(digital, T, view)``, the
+    digital model in its true pose, the project's reference.
+
+    Args:
+        digital: the digital model, for the labels.
+        physical: the physical model, for the image.
+        T_carm_transducer: (4, 4) rigid pose, transducer -> C-arm, mm.
+        view: the C-arm view.
+        rng: the Generator of the noise (used for nothing else).
+        background: None (zeros), a ``view.shape`` array of line integrals, or an object with
+            ``line_integrals(view)``.
+        photons_per_pixel: ``N0`` of the Poisson noise, > 0; None for no noise.
+        voxel_mm: the voxel size of the voxelised model, mm, > 0.
+        n_threads: RTK's threads; None for its default.
+
+    Returns:
+        The :class:`~histostudy.imaging.frame.Frame` (``meta["projector"] == "rtk-joseph"``).
+
+    Raises:
+        ImportError: itk-rtk is not installed.
+        TypeError: a model, ``view`` or ``rng`` of the wrong type, or ``background`` of none of the
+            three kinds.
+        ValueError: ``T_carm_transducer`` is not rigid, or ``voxel_mm``, ``photons_per_pixel`` or the
+            background out of range.
     """
     _itk_rtk()
     _check_model(digital, "digital")

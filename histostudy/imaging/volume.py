@@ -26,17 +26,49 @@ LPS_FROM_RAS = np.diag([-1.0, -1.0, 1.0])
 
 
 def lps_from_ras(points_ras_mm) -> np.ndarray:
-    """World points (LPS mm, ``(n, 3)``) of points in RAS mm (as nibabel's affine or 3D Slicer gives them)."""
+    """World points (LPS) of points in RAS, as nibabel's affine or 3D Slicer gives them.
+
+    Args:
+        points_ras_mm: ``(n, 3)`` or ``(3,)`` points in RAS mm.
+
+    Returns:
+        ``(n, 3)`` float64 points in LPS mm (x and y negated).
+
+    Raises:
+        ValueError: ``points_ras_mm`` is not ``(n, 3)`` or ``(3,)``.
+    """
     return as_points(points_ras_mm, "points_ras_mm") @ LPS_FROM_RAS.T
 
 
 def ras_from_lps(points_lps_mm) -> np.ndarray:
-    """Points in RAS mm (``(n, 3)``, as nibabel and 3D Slicer show them) of world points (LPS mm)."""
+    """Points in RAS, as nibabel and 3D Slicer show them, of world points (LPS).
+
+    Args:
+        points_lps_mm: ``(n, 3)`` or ``(3,)`` world points in LPS mm.
+
+    Returns:
+        ``(n, 3)`` float64 points in RAS mm (x and y negated).
+
+    Raises:
+        ValueError: ``points_lps_mm`` is not ``(n, 3)`` or ``(3,)``.
+    """
     return as_points(points_lps_mm, "points_lps_mm") @ LPS_FROM_RAS.T
 
 
 def vector3_mm(value, name: str, positive: bool = False) -> np.ndarray:
-    """``value`` as a finite float64 (3,) vector (a scalar is broadcast); errors name ``name``."""
+    """A length in mm per axis, checked.
+
+    Args:
+        value: 3 numbers in mm, ``(x, y, z)`` order, or a scalar (broadcast to all three).
+        name: what the error message calls ``value``.
+        positive: require every component > 0.
+
+    Returns:
+        A finite float64 ``(3,)`` array.
+
+    Raises:
+        ValueError: ``value`` is None, not 3 finite numbers, or (with ``positive``) not > 0.
+    """
     if value is None:
         raise ValueError(f"{name} is required (3 numbers in mm, x, y, z order), got None")
     arr = np.asarray(value, dtype=np.float64)
@@ -59,13 +91,22 @@ def vector3_mm(value, name: str, positive: bool = False) -> np.ndarray:
 class Volume:
     """A CBCT (or phantom) volume on an axis-aligned grid in the C-arm (world) frame (§II-A).
 
-    ``data``: float32 array indexed ``[iz, iy, ix]``. ``spacing_mm``: voxel size ``(dx, dy, dz)``
-    in mm, required and > 0 (a volume without spacing has no geometry and is refused).
-    ``origin_mm``: world position ``(x, y, z)`` of the centre of voxel ``[0, 0, 0]``.
     Voxel coordinates ``(i, j, k)`` are continuous indices in ``(x, y, z)`` order:
-    ``world = origin_mm + (i, j, k) * spacing_mm``. ``T_world_file_voxel``: 4x4, the voxel indices
-    of the file the volume was read from (which may run along other axes or directions) to world
-    mm (:meth:`file_voxel_to_world`); None for a volume not read from a file.
+    ``world = origin_mm + (i, j, k) * spacing_mm``.
+
+    Args:
+        data: 3-D array of real numbers indexed ``[iz, iy, ix]``; stored as contiguous float32.
+        spacing_mm: voxel size ``(dx, dy, dz)`` in mm (a scalar is broadcast), required and > 0: a
+            volume without spacing has no geometry.
+        origin_mm: world position ``(x, y, z)`` in mm of the centre of voxel ``[0, 0, 0]``.
+        T_world_file_voxel: (4, 4) affine from the voxel indices of the file the volume was read from
+            (which may run along other axes or directions) to world mm (:meth:`file_voxel_to_world`);
+            None for a volume not read from a file.
+
+    Raises:
+        ValueError: ``data`` is not a non-empty 3-D real array; ``spacing_mm`` is None, not finite or
+            not > 0; ``origin_mm`` is not 3 finite numbers; ``T_world_file_voxel`` is not a finite,
+            invertible 4x4 affine with last row ``0 0 0 1``.
     """
 
     data: np.ndarray
@@ -190,14 +231,37 @@ class Volume:
 
 
 def check_volume(volume, name: str = "volume") -> Volume:
-    """``volume`` itself if it is a :class:`Volume`; TypeError naming ``name`` otherwise."""
+    """An argument checked to be a :class:`Volume`.
+
+    Args:
+        volume: the object to check.
+        name: what the error message calls ``volume``.
+
+    Returns:
+        ``volume`` itself.
+
+    Raises:
+        TypeError: ``volume`` is not a :class:`Volume`.
+    """
     if not isinstance(volume, Volume):
         raise TypeError(f"{name} must be a histostudy.imaging.volume.Volume, got {type(volume).__name__}")
     return volume
 
 
 def check_mask(mask, volume: Volume, name: str) -> np.ndarray:
-    """``mask`` as a bool ``[z, y, x]`` array of ``volume``'s shape; ValueError naming ``name`` otherwise."""
+    """A mask checked against a volume's grid.
+
+    Args:
+        mask: boolean array indexed ``[z, y, x]``.
+        volume: the :class:`Volume` whose shape ``mask`` must have.
+        name: what the error message calls ``mask``.
+
+    Returns:
+        ``mask`` as a bool ndarray.
+
+    Raises:
+        ValueError: ``mask``'s shape is not ``volume.data.shape`` or its dtype is not bool.
+    """
     arr = np.asarray(mask)
     if arr.shape != volume.data.shape:
         raise ValueError(f"{name} must be a boolean array of the volume's shape {volume.data.shape} ([z, y, x]), "

@@ -96,12 +96,22 @@ class RobotState:
 
 @dataclass(frozen=True)
 class Workspace:
-    """Safety workspace in the robot base frame, checked before every move by both robots.
+    """Safety workspace in the robot base frame, checked before every move by both robots (§II-C).
 
-    A pose is accepted when its TCP position lies inside the box ``[lower_mm, upper_mm]`` (if
-    given) and inside the sphere ``center_mm``/``radius_mm`` (if given), and its flange lies within
-    ``reach_mm`` of the shoulder (the UR5e's 850 mm reach, measured from the shoulder joint at
-    ``shoulder_mm`` above the base). Millimetres, base frame.
+    A pose is accepted when its TCP position lies inside the box (if given) and inside the sphere (if
+    given), and its flange lies within ``reach_mm`` of the shoulder.
+
+    Args:
+        lower_mm: the box's lower corner ``(x, y, z)``, mm, base frame; given with ``upper_mm``.
+        upper_mm: its upper corner, above ``lower_mm`` on every axis.
+        center_mm: the sphere's centre, mm, base frame; given with ``radius_mm``.
+        radius_mm: its radius, mm, > 0.
+        reach_mm: the arm's reach from the shoulder, mm (the UR5e's 850 mm).
+        shoulder_mm: the shoulder joint's position in the base frame, mm.
+
+    Raises:
+        ValueError: a corner or centre not 3 finite numbers, a pair given alone, a box inverted, or a
+            radius or reach not finite and > 0.
     """
 
     lower_mm: tuple[float, float, float] | None = None

@@ -98,7 +98,18 @@ def _inv(T: np.ndarray) -> np.ndarray:
 
 
 def forward_kinematics(q_rad, dh: DHSpec = UR5E) -> np.ndarray:
-    """``T_base_flange`` (mm) for joint angles ``q_rad`` (rad, shape (6,))."""
+    """The flange pose of joint angles (§II-C): the UR5e's DH chain.
+
+    Args:
+        q_rad: 6 joint angles, rad.
+        dh: the arm's DH parameters (mm, rad).
+
+    Returns:
+        ``T_base_flange``, (4, 4), mm.
+
+    Raises:
+        ValueError: ``q_rad`` is not 6 finite numbers.
+    """
     q = np.asarray(q_rad, dtype=np.float64).reshape(-1)
     if q.shape != (6,) or not np.all(np.isfinite(q)):
         raise ValueError(f"q_rad must be 6 finite joint angles in rad, got {q_rad!r}")
@@ -216,10 +227,23 @@ def _unwrap_towards(q: np.ndarray, q_ref: np.ndarray, limit_rad: float) -> np.nd
 def inverse_kinematics_closest(
     T_base_flange, q_near_rad, dh: DHSpec = UR5E, limit_rad: float = JOINT_LIMIT_RAD
 ) -> np.ndarray:
-    """The joint solution reaching ``T_base_flange`` closest (Euclidean, rad) to ``q_near_rad``.
+    """The joint solution reaching a flange pose closest (Euclidean, rad) to given joints (§II-C).
 
     Each joint is unwrapped by multiples of 2 pi towards ``q_near_rad`` within +-``limit_rad``.
-    Raises :class:`UnreachablePoseError` when no solution exists within the limits.
+
+    Args:
+        T_base_flange: (4, 4) rigid flange pose in the base frame, mm.
+        q_near_rad: 6 joint angles, rad, within +-``limit_rad``.
+        dh: the arm's DH parameters (mm, rad), of the UR structure.
+        limit_rad: the joint limit, rad (+-360 deg).
+
+    Returns:
+        6 joint angles, rad.
+
+    Raises:
+        UnreachablePoseError: no solution within the limits.
+        ValueError: ``q_near_rad`` invalid, ``T_base_flange`` not rigid, or ``dh`` not of the UR
+            structure.
     """
     q_near = check_joints(q_near_rad, "q_near_rad", limit_rad)
     sols = inverse_kinematics(T_base_flange, dh, theta6_free=float(q_near[5]))

@@ -46,12 +46,20 @@ class Feature(enum.IntEnum):
 
 
 def check_label_image(labels, shape: tuple[int, int] | None = None, name: str = "labels") -> np.ndarray:
-    """``labels`` as a ``(rows, cols)`` uint8 label image of :class:`Feature` values (0..5).
+    """A label image checked to hold :class:`Feature` values (0..5).
 
-    Integer or boolean arrays, or floats holding whole numbers, are accepted; anything else, or a
-    value outside 0..5 (which a plain ``astype(uint8)`` would wrap silently: 300 -> 44, -1 -> 255),
-    raises a ValueError naming ``name``, the offending values and what was expected. ``shape``:
-    the ``(rows, cols)`` it must have (the image's), if given.
+    Args:
+        labels: ``(rows, cols)`` array: integers, booleans, or floats holding whole numbers.
+        shape: the ``(rows, cols)`` it must have (the image's), or None.
+        name: what the error message calls ``labels``.
+
+    Returns:
+        ``(rows, cols)`` uint8 label image.
+
+    Raises:
+        ValueError: not 2-D or not ``shape``; another dtype; or a value outside 0..5 (which a plain
+            ``astype(uint8)`` would wrap silently: 300 -> 44, -1 -> 255), named with the offending
+            values.
     """
     arr = np.asarray(labels)
     if arr.ndim != 2 or (shape is not None and arr.shape != tuple(shape)):
@@ -85,31 +93,44 @@ LABEL_PRIORITY: tuple[Feature, ...] = (
 
 @dataclass(frozen=True)
 class TransducerSpec:
-    """Geometry and x-ray attenuation of the transducer; defaults are the paper's transducer.
+    """Geometry and x-ray attenuation of the transducer (§II-B.1, §II-D); defaults are the paper's.
 
-    From the paper (§II-B.1, §II-D):
+    The four quadrants, fabricated separately, are split along the x = 0 and y = 0 planes. Fields
+    marked "assumed" are not in the paper; each is a field so that a user can replace it. Lengths in
+    mm, attenuation in 1/mm at ~70 keV.
+
+    Args:
         radius_mm: radius of the spherical cap, 138.7 mm; its centre is the geometric focal point.
-        aperture_x_mm, aperture_y_mm: full widths of the elliptical active aperture along x (LR)
-            and y (TB), "approximately 24 x 17 cm"; measured in the x-y plane (plan view).
+        aperture_x_mm: full width of the elliptical active aperture along x (LR), in plan view
+            (paper: "approximately 24 x 17 cm").
+        aperture_y_mm: the same along y (TB).
         cutout_diameter_mm: central circular cutout for the imaging probe, 6.4 cm.
-        The four quadrants, fabricated separately, are split along the x = 0 and y = 0 planes.
+        gap_width_mm: assumed 1.5, width of the gap between quadrants (the GAPS stripes
+            ``|x|, |y| < w/2``).
+        outer_band_mm: assumed 3.0, width in plan view of the boundary band at the elliptical edge
+            (its inner edge is the ellipse of half-axes a - w, b - w, within 0.1 mm of a true offset
+            curve here).
+        inner_band_mm: assumed 3.0, the same at the cutout edge.
+        element_thickness_mm: assumed 2.0, the elements as one PZT shell.
+        element_mu_per_mm: assumed 1.4, its effective attenuation (lead-based ceramic: about
+            1.2-1.7 /mm).
+        rim_thickness_mm: assumed 2.0, the housing rim at both edges: a flange under the boundary band
+            (the band carries element + flange) and a cylindrical wall rising in +z from the cap edge,
+            so the boundaries show as lines when seen edge-on.
+        rim_mu_per_mm: assumed 0.2, between aluminium (~0.06) and brass (~1).
+        outer_wall_height_mm: assumed 8.0, height of the outer wall along +z.
+        inner_wall_height_mm: assumed 8.0, height of the inner wall along +z.
+        screw_count: assumed 8, steel screws in the middle of the outer band, axis along +z from the
+            cap surface into the rim, at ellipse parameter angles (k + 1/2) 360/n deg (so none falls
+            in a gap); an integer >= 0.
+        screw_diameter_mm: assumed 3.0.
+        screw_length_mm: assumed 8.0.
+        screw_mu_per_mm: assumed 0.4 (steel: effective 0.3-0.5 /mm).
 
-    Assumptions (not in the paper; each a field so a user can replace it):
-        gap_width_mm = 1.5: width of the gap between quadrants (the GAPS stripes |x|, |y| < w/2).
-        outer_band_mm = 3.0, inner_band_mm = 3.0: width, in plan view, of the boundary bands at the
-            elliptical edge and at the cutout edge. (The outer band's inner edge is the ellipse of
-            half-axes a - w, b - w, which is within 0.1 mm of a true offset curve here.)
-        element_thickness_mm = 2.0, element_mu_per_mm = 1.4: the elements as one PZT shell of
-            effective attenuation at ~70 keV (lead-based ceramic: about 1.2-1.7 /mm).
-        rim_thickness_mm = 2.0, rim_mu_per_mm = 0.2: the housing rim at both edges — a flange
-            under the boundary band (the band carries element + flange) and a cylindrical wall
-            rising in +z from the cap edge, so the boundaries show as lines when seen edge-on.
-            0.2 /mm is an effective value between aluminium (~0.06) and brass (~1) at ~70 keV.
-        outer_wall_height_mm = 8.0, inner_wall_height_mm = 8.0: height of those walls along +z.
-        screw_count = 8, screw_diameter_mm = 3.0, screw_length_mm = 8.0, screw_mu_per_mm = 0.4:
-            steel screws (effective mu 0.3-0.5 /mm) in the middle of the outer band, axis along
-            +z from the cap surface into the rim, at ellipse parameter angles (k + 1/2) 360/n deg
-            (so none falls in a gap).
+    Raises:
+        TypeError: a field is not a number.
+        ValueError: a field not finite or out of range, or a geometry that does not fit (see the
+            messages).
     """
 
     radius_mm: float = 138.7

@@ -23,9 +23,21 @@ HALF_TURN = np.diag([-1.0, -1.0, 1.0])
 
 
 def half_turn_symmetric(model: TransducerModel, tolerance_mm: float | None = None) -> bool:
-    """True when every point of every feature class of ``model``, turned half about the z axis,
-    lies within ``tolerance_mm`` (default: half the model's grid spacing, mm) of a point of the
-    same class, and the classes keep their point counts."""
+    """Whether a model looks the same after a half turn about its axis (z).
+
+    Args:
+        model: the transducer model.
+        tolerance_mm: how far, in mm, a turned point may lie from a point of its class; None for half
+            the model's grid spacing.
+
+    Returns:
+        True when every point of every feature class, turned by :data:`HALF_TURN`, lies within
+        ``tolerance_mm`` of a point of the same class.
+
+    Raises:
+        TypeError: ``model`` is not a TransducerModel.
+        ValueError: ``tolerance_mm`` is not a finite number > 0 or None.
+    """
     if not isinstance(model, TransducerModel):
         raise TypeError(f"model must be a histostudy.transducer.TransducerModel, got {type(model).__name__}")
     tol = 0.5 * model.spacing_mm if tolerance_mm is None else tolerance_mm

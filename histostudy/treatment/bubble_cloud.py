@@ -100,13 +100,29 @@ def scan_treated_zone(phantom: Volume, roi_mask, T_carm_transducer_reached, foca
     """The post-treatment CBCT of a treatment and its segmented zone (§II-D.1, §II-E.3).
 
     The chain every study runs after a treatment: bubble clouds at the reached poses
-    (:func:`bubble_cloud_mask`; ``T_carm_transducer_reached`` ``(n, 4, 4)``, the physical
-    transducer's ``focal_point_mm`` plus ``bubble_offset_mm`` in its frame), the layers mixed there
-    (:func:`post_treatment_phantom` inside ``roi_mask``), the CBCT simulated
-    (:func:`histostudy.imaging.cbct.simulate_cbct` with ``blur_sigma_mm``, ``noise_sd_hu``, ``voxel_mm``)
-    and the zone segmented inside the phantom ``spec`` placed by ``T_carm_phantom``
-    (:func:`histostudy.treatment.zone.segment_treatment_zone`). Returns ``(ZoneSegmentation, post-treatment
-    CBCT Volume)``.
+    (:func:`bubble_cloud_mask`), the layers mixed there (:func:`post_treatment_phantom` inside
+    ``roi_mask``), the CBCT simulated (:func:`histostudy.imaging.cbct.simulate_cbct`) and the zone
+    segmented inside the phantom (:func:`histostudy.treatment.zone.segment_treatment_zone`).
+
+    Args:
+        phantom: the true phantom volume (HU, mm).
+        roi_mask: bool ``[z, y, x]`` of ``phantom``'s shape, where the layers may mix.
+        T_carm_transducer_reached: ``(n, 4, 4)`` reached poses, transducer -> C-arm, mm.
+        focal_point_mm: the physical transducer's focal point in its frame, mm.
+        bubble_offset_mm: the cloud's offset from the focal point in the transducer frame, mm.
+        spec: the :class:`~histostudy.imaging.cbct.PhantomSpec`.
+        T_carm_phantom: (4, 4) rigid, phantom -> C-arm, mm.
+        rng: the Generator of the CBCT's noise.
+        blur_sigma_mm: the CBCT's PSF, mm.
+        noise_sd_hu: its noise, HU.
+        voxel_mm: its voxel size, mm.
+
+    Returns:
+        ``(ZoneSegmentation, post-treatment CBCT Volume)``.
+
+    Raises:
+        TypeError: a volume or ``rng`` of the wrong type.
+        ValueError: an argument out of range, or no zone found.
     """
     treated = bubble_cloud_mask(phantom, T_carm_transducer_reached, focal_point_mm, bubble_offset_mm)
     post = simulate_cbct(post_treatment_phantom(phantom, treated, roi_mask), rng, blur_sigma_mm=blur_sigma_mm,

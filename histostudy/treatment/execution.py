@@ -135,28 +135,44 @@ def execute_treatment(
     deliver: Callable[[int, int], None] | None = None,
     on_uncertain: str | Callable[[int], str] = "refuse",
 ) -> TreatmentRun:
-    """Move the focal point through ``plan`` on ``robot`` and treat each point; journal every point.
+    """Move the focal point through a plan on the robot and treat each point, journaling every point
+    (§II-D); resumable, never firing a point twice unless told.
 
-    ``T_base_carm``: the calibration (C-arm frame into the robot base frame). ``R_base_tcp``: the
-    transducer orientation the targeting chose (3x3, base frame), kept for every point: point ``p``
-    (world mm) is commanded as ``T_base_tcp = [R_base_tcp | T_base_carm @ p]``, a linear move at
-    ``speed_mm_s`` / ``acceleration_mm_s2``. ``T_flange_tcp``: if given, set on the robot first
-    (the focal point in the flange frame) and recorded; a resume must use the same.
-    ``deliver(index, pulses)``: fires the plan's pulses at the reached point (the therapy
-    sub-system; the simulation has nothing to fire, so the default does nothing).
-
-    Journal (``journal_path``, :mod:`.journal`): created for this plan and calibration, or resumed
-    (its plan and calibration must match; a completed journal returns at once; a version-1 JSON
-    journal is migrated). Another process holding it raises
-    :class:`~.journal.JournalLockedError` before the robot moves. Per point: move, commit the
-    intent, fire, commit the done. ``on_uncertain`` settles a point left with an intent and no done
-    (:data:`UNCERTAIN_POLICIES`, or a callable ``index -> policy`` that asks someone); the default
-    ``"refuse"`` raises :class:`UncertainPointError` before the robot moves, so no point is fired
-    twice unless the caller says so, and the returned run lists the points re-fired or skipped. A
-    :class:`~histostudy.robot.RobotError` propagates unchanged, with a note saying how far the
-    journal got; running again with the same journal resumes. A resumed run moves straight from
+    Point ``p`` (world mm) is commanded as ``T_base_tcp = [R_base_tcp | T_base_carm @ p]``, a linear
+    move. Per point: move, commit the intent, fire, commit the done. A resumed run moves straight from
     wherever the arm is to the next point; the robot's workspace checks apply, an approach path is
-    the caller's.
+    the caller's. The journal: docs/robot.md.
+
+    Args:
+        robot: a :class:`~histostudy.robot.Robot` (mm, base frame).
+        plan: the :class:`~.plan.TreatmentPlan` (world mm).
+        T_base_carm: (4, 4) rigid calibration, C-arm -> robot base, mm.
+        R_base_tcp: (3, 3) rotation, the transducer orientation the targeting chose, base frame, kept
+            for every point.
+        journal_path: the SQLite journal (:mod:`.journal`): created for this plan and calibration, or
+            resumed (its plan and calibration must match; a completed journal returns at once; a
+            version-1 JSON journal is migrated).
+        T_flange_tcp: (4, 4) rigid, the focal point in the flange frame, mm; if given, set on the
+            robot first and recorded (a resume must use the same).
+        speed_mm_s: the linear moves' speed, mm/s, > 0.
+        acceleration_mm_s2: their acceleration, mm/s^2, > 0.
+        deliver: ``deliver(index, pulses)`` fires the plan's pulses at the reached point (the therapy
+            sub-system); None fires nothing (the simulation).
+        on_uncertain: how to settle a point left with an intent and no done: one of
+            :data:`UNCERTAIN_POLICIES`, or a callable ``index -> policy`` that asks someone.
+
+    Returns:
+        The :class:`TreatmentRun`, listing the points re-fired or skipped.
+
+    Raises:
+        TypeError: ``plan`` is not a TreatmentPlan, or ``deliver`` is not callable.
+        ValueError: a pose not rigid, a speed, acceleration or policy out of range.
+        JournalError: the journal belongs to another plan or calibration, or cannot be trusted.
+        JournalLockedError: another process holds the journal (before the robot moves).
+        UncertainPointError: with ``"refuse"`` (the default), a point may have been fired (before
+            the robot moves).
+        RobotError: from the robot, unchanged, with a note saying how far the journal got; running
+            again with the same journal resumes.
     """
     if not isinstance(plan, TreatmentPlan):
         raise TypeError(f"plan must be a TreatmentPlan, got {type(plan).__name__}")

@@ -148,24 +148,33 @@ def plan_treatment(
     axes=None,
     inset_mm=0.0,
 ) -> TreatmentPlan:
-    """Plan the focal points that treat ``zone`` (§II-D): a rectangular lattice clipped to the zone.
+    """The focal points that treat a zone (§II-D): a rectangular lattice clipped to the zone.
 
-    The lattice (``spacing_mm``: scalar or (LR, TB, depth)-ordered (3,), mm, > 0) is centred on
-    the zone centre with its axes along the columns of ``axes`` (3x3 rotation, default the world
-    axes; pass ``T_carm_transducer[:3, :3]`` so that layers are perpendicular to the propagation).
-    It fills the ellipsoid of semi-axes ``radius - inset_mm`` (``inset_mm``: scalar or (3,),
-    >= 0; e.g. the bubble cloud's half-size (1.5, 1.5, 3) so that the union of clouds, rather than
-    the cloud centres, fills the sphere). Lattice points outside it whose cell (the box of
-    +-spacing/2 around them) meets it are moved onto its surface (to their closest point on it):
-    since the projection
-    onto a convex set never increases distances to points inside it, every point of the ellipsoid
-    lies within ``|spacing|/2`` of a plan point, and every plan point lies inside the ellipsoid.
-    Rim points can be closer than ``spacing`` to each other and to lattice points.
+    The lattice is centred on the zone centre with its axes along the columns of ``axes``. It fills
+    the ellipsoid of semi-axes ``radius - inset_mm``; lattice points outside it whose cell (the box of
+    +-spacing/2 around them) meets it are moved onto its surface, so that every point of the ellipsoid
+    lies within ``|spacing|/2`` of a plan point and every plan point lies inside it (rim points can be
+    closer than ``spacing`` to each other). Order: layer by layer from the most negative lattice z
+    (with the transducer's axes: the deepest layer first, so that the residual bubbles of treated
+    points never shadow untreated ones), serpentine within each layer.
 
-    Order: layer by layer from the most negative lattice z (with the transducer's axes: the
-    deepest layer first, so that the residual bubbles of treated points never shadow untreated
-    ones), serpentine within each layer. ``pulses_per_point``: integer >= 1 (the paper's "fixed
-    number of histotripsy pulses per focal location").
+    Args:
+        zone: the :class:`~.zone.TreatmentZone`.
+        spacing_mm: the lattice step, mm, > 0: a scalar or (LR, TB, depth)-ordered ``(3,)``.
+        pulses_per_point: an integer >= 1 (the paper's "fixed number of histotripsy pulses per focal
+            location").
+        axes: (3, 3) rotation whose columns are the lattice axes; None for the world axes (pass
+            ``T_carm_transducer[:3, :3]`` so that layers are perpendicular to the propagation).
+        inset_mm: scalar or ``(3,)``, >= 0, mm: e.g. the bubble cloud's half-size (1.5, 1.5, 3) so
+            that the union of clouds, rather than the cloud centres, fills the sphere.
+
+    Returns:
+        The :class:`TreatmentPlan` (world mm).
+
+    Raises:
+        TypeError: ``zone`` is not a TreatmentZone.
+        ValueError: ``spacing_mm``, ``pulses_per_point``, ``axes`` or ``inset_mm`` out of range, or an
+            inset that leaves nothing of the zone.
     """
     if not isinstance(zone, TreatmentZone):
         raise TypeError(f"zone must be a histostudy.treatment.zone.TreatmentZone, got {type(zone).__name__}")

@@ -38,10 +38,15 @@ PAPER_ZONE_DIAMETERS_MM = (20.0, 25.0)
 
 @dataclass(frozen=True)
 class TreatmentZone:
-    """The prescribed spherical treatment zone (§II-D): centre (world, mm) and diameter (mm).
+    """The prescribed spherical treatment zone (§II-D).
 
-    The paper's studies use 20 and 25 mm (:data:`PAPER_ZONE_DIAMETERS_MM`); any diameter > 0 is
-    accepted here.
+    Args:
+        centre_mm: the zone's centre, world (C-arm) ``(x, y, z)``, mm.
+        diameter_mm: its diameter, mm, > 0 (the paper's studies use 20 and 25 mm,
+            :data:`PAPER_ZONE_DIAMETERS_MM`).
+
+    Raises:
+        ValueError: ``centre_mm`` not 3 finite numbers, or ``diameter_mm`` not a finite number > 0.
     """
 
     centre_mm: np.ndarray
@@ -93,19 +98,29 @@ class TreatmentZone:
 
 @dataclass(frozen=True, eq=False)
 class ZoneSegmentation:
-    """The treated (mixed) zone found in a post-treatment CBCT, world mm.
+    """The treated (mixed) zone found in a post-treatment CBCT (§II-E.3-4), world mm; made by
+    :func:`segment_treatment_zone`.
 
-    ``mask``: bool ``[z, y, x]`` on the CBCT grid. ``centroid_mm``: mean voxel-centre position
-    of the mask (the paper's reference point, §II-E.3-4). ``sphere_centre_mm`` /
-    ``sphere_radius_mm``: least-squares sphere (:func:`histostudy.geometry.fit_sphere`) through
-    the mask's boundary faces. ``equivalent_radius_mm``: radius of the ball of the mask's volume.
-    ``layered_variance`` / ``homogeneous_variance`` / ``threshold_variance``: the local-variance
-    levels (HU^2) of untreated phantom, of homogeneous material, and the threshold between them
-    (the coarse stage). ``zone_level_hu``: the mixed material's gray value;
-    ``layered_deviation`` / ``homogeneous_deviation``: the local mean deviation from it, in units
-    of each layer material's own distance from it (1 on an untreated voxel, 0 on a mixed one), in
-    untreated phantom and inside the zone; ``treated_fraction_threshold``: the treated fraction of
-    the boundary window at which the boundary was put (the boundary stage).
+    Args:
+        mask: bool ``[z, y, x]`` on the CBCT grid.
+        centroid_mm: mean voxel-centre position of the mask (the paper's reference point), mm.
+        sphere_centre_mm: centre of the least-squares sphere (:func:`histostudy.geometry.fit_sphere`)
+            through the mask's boundary faces, mm.
+        sphere_radius_mm: its radius, mm.
+        equivalent_radius_mm: radius of the ball of the mask's volume, mm.
+        volume_mm3: the mask's volume, mm^3.
+        layered_variance: local variance of untreated phantom, HU^2 (the coarse stage).
+        homogeneous_variance: local variance of homogeneous material, HU^2.
+        threshold_variance: the threshold between the two, HU^2.
+        spacing_mm: the CBCT's voxel size ``(dx, dy, dz)``, mm.
+        origin_mm: the CBCT's origin (centre of voxel ``[0, 0, 0]``), mm.
+        zone_level_hu: the mixed material's gray value, HU.
+        layered_deviation: the local mean deviation from ``zone_level_hu`` in untreated phantom, in
+            units of each layer material's own distance from it (1 on an untreated voxel, 0 on a mixed
+            one).
+        homogeneous_deviation: the same inside the zone.
+        treated_fraction_threshold: the treated fraction of the boundary window at which the boundary
+            was put (the boundary stage).
     """
 
     mask: np.ndarray
@@ -184,48 +199,35 @@ def segment_treatment_zone(
     noise_variance: float | None = None,
     n_refinements: int = 2,
 ) -> ZoneSegmentation:
-    """Segment the mixed (treated) zone in a post-treatment CBCT of the layered phantom (§II-E.3-4).
+    """The mixed (treated) zone in a post-treatment CBCT of the layered phantom (§II-E.3-4).
 
-    The automatic stand-in for the paper's manual annotation, in two stages.
+    The automatic stand-in for the paper's manual annotation, in two stages: a coarse stage finds
+    the zone by its low local variance over one layer period (``window_mm``), then a boundary stage
+    puts its surface where the local deviation from the mixed material's gray value, averaged over
+    ``boundary_window_mm``, says the window is treated by the fraction the box filter of the shape
+    itself takes on its surface (``n_refinements`` passes). The method, its levels and its measured
+    accuracy: docs/robot.md, "Segmenting the treated zone".
 
-    **Coarse stage: where is the zone.** In a window spanning one layer period (``window_mm``,
-    default 8 mm = 2 x 4 mm layers) untreated phantom holds both materials, so its local variance
-    is ``v_l ~ (contrast/2)^2 + noise``; the mixed zone is homogeneous, its local variance the
-    noise alone, ``v_h``. Voxels below ``(v_l + v_h) / 2`` inside the phantom, largest component.
-    This finds the zone robustly but puts its boundary up to a voxel inside: a window straddling
-    the boundary parallel to the layers holds one layer, whose variance is not that of the layer
-    texture, and on a convex zone the half-treated window lies inside the surface.
+    Args:
+        volume: the post-treatment CBCT (HU, mm); it needs about ``window_mm`` + a few mm of water
+            around the phantom (:func:`~histostudy.imaging.cbct.phantom_volume`'s default margin gives
+            it).
+        roi_mask: bool ``[z, y, x]`` of ``volume``'s shape, the phantom (e.g.
+            :func:`~histostudy.imaging.cbct.phantom_mask`).
+        window_mm: the coarse stage's window, one layer period (8 mm = 2 x 4 mm layers), mm.
+        boundary_window_mm: the boundary stage's box, about one layer, mm.
+        smoothing_sigma_mm: Gaussian smoothing against noise first, mm.
+        noise_variance: the homogeneous material's local variance, HU^2; None estimates it from the
+            water outside ``roi_mask``.
+        n_refinements: passes of the self-consistent boundary threshold, from 1/2.
 
-    **Boundary stage: where exactly does it end.** The mixed material's gray value ``mu`` (median
-    inside the coarse zone) lies between the two layer materials, so every untreated voxel
-    deviates from it by that material's distance from it whatever the layer's phase, and a voxel
-    half in the zone (partial volume, scanner blur) by half that: the deviation ``|V - mu|`` in
-    units of the nearer material's distance (its median level in untreated phantom), averaged
-    over a box of about one layer (``boundary_window_mm``), is linear in the window's untreated
-    fraction, from ``e_h`` (noise, inside the zone) to ``e_l`` (untreated phantom). The boundary is
-    put where the window's treated fraction equals the fraction the box
-    filter of the segmented shape itself takes on its surface (a self-consistent threshold,
-    ``n_refinements`` passes from 1/2): 1/2 on a flat boundary, less on a curved one, so that the
-    window's curvature bias cancels.
+    Returns:
+        The :class:`ZoneSegmentation`.
 
-    Measured on 1 mm CBCTs of the rotated layered phantom treated in 20 and 25 mm spheres (6 per
-    level, default parameters; ``tests/treatment/test_zone.py`` checks the 0.5 mm / 20 HU level): fitted
-    sphere radius bias -0.02, +0.07, +0.11 and +0.44 mm at blur/noise 0/0, 0.5 mm/20 HU,
-    1 mm/40 HU and 1.5 mm/80 HU (the coarse stage alone: -0.46, -0.31, -0.18, -0.10); largest
-    radius error along an oblique axis 0.27, 0.30, 0.66, 1.00 mm (coarse stage: 0.93, 0.55, 0.53,
-    1.18); centroid error 0.04-0.07 mm up to 1 mm/40 HU, 0.16 mm at 1.5 mm/80 HU.
-
-    Levels: ``v_l`` and ``e_l`` are medians over the phantom eroded by half a window and without
-    the zone grown by a window; ``v_h`` = ``noise_variance`` if given, else the median local
-    variance of the water outside ``roi_mask`` grown by a whole window (so the volume needs about
-    ``window_mm`` + a few mm of water around the phantom:
-    :func:`~histostudy.imaging.cbct.phantom_volume`'s default margin
-    gives it); ``e_h`` the median inside the coarse zone eroded by a boundary window. Gaussian
-    smoothing (``smoothing_sigma_mm``) against noise first.
-
-    ``roi_mask``: bool ``[z, y, x]``, the phantom (e.g. :func:`~histostudy.imaging.cbct.phantom_mask`).
-    Raises ValueError
-    when nothing is found or the levels cannot be estimated.
+    Raises:
+        TypeError: ``volume`` is not a Volume.
+        ValueError: ``roi_mask`` not a bool mask of the volume's shape, a window or count out of
+            range, nothing found, or the levels cannot be estimated.
     """
     volume = check_volume(volume)
     roi = check_mask(roi_mask, volume, "roi_mask")

@@ -193,8 +193,20 @@ def random_phantom_setup(rng: np.random.Generator, params: PhantomSceneSpec | No
 
 
 def random_background(rng: np.random.Generator, kind: str = "abdomen") -> Anatomy:
-    """A random scene of ``kind``: ``"abdomen"``, ``"phantom"``, or ``"mixed"`` (abdomen with
-    probability 156/212, the paper's animal-to-phantom image ratio of §III-A, else phantom)."""
+    """A random background scene (§II-B.2).
+
+    Args:
+        rng: the Generator the scene is drawn from.
+        kind: ``"abdomen"``, ``"phantom"``, or ``"mixed"`` (abdomen with probability 156/212, the
+            paper's animal-to-phantom image ratio of §III-A, else phantom).
+
+    Returns:
+        The scene, an :class:`~histostudy.imaging.anatomy.Anatomy`.
+
+    Raises:
+        TypeError: ``rng`` is not a ``numpy.random.Generator``.
+        ValueError: ``kind`` is none of the three.
+    """
     if not isinstance(rng, np.random.Generator):
         raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
     if kind == "mixed":

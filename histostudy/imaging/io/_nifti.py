@@ -36,14 +36,24 @@ _NIFTI_UNIT_TO_MM = {"mm": 1.0, "unknown": 1.0, "meter": 1000.0, "micron": 1e-3}
 
 
 def save_volume_nifti(volume: Volume, path: str | os.PathLike) -> Path:
-    """Write ``volume`` to ``path`` (``.nii`` or ``.nii.gz``) atomically; returns the path.
+    """A volume written as NIfTI, atomically, so that :func:`~._volumes.load_volume` reads it back bit
+    for bit.
 
-    The data are stored as float32 without scaling and the affine maps voxel indices to RAS mm
-    (the LPS world frame with x and y negated), so :func:`~._volumes.load_volume` gives back the same data,
-    spacing and origin bit for bit. NIfTI-1 keeps its affine in float32; when the spacing or
-    origin is not exactly a float32 the file is written as NIfTI-2 (float64 affine) instead,
-    so the round trip stays exact. Nothing is ever half-written: the file is written beside
-    ``path`` under a temporary name and renamed into place.
+    The data are stored as float32 without scaling and the affine maps voxel indices to RAS mm (the
+    LPS world frame with x and y negated). NIfTI-1 keeps its affine in float32; when the spacing or
+    origin is not exactly a float32 the file is written as NIfTI-2 (float64 affine) instead.
+
+    Args:
+        volume: the :class:`~histostudy.imaging.volume.Volume` (mm).
+        path: a ``.nii`` or ``.nii.gz`` file.
+
+    Returns:
+        The path written.
+
+    Raises:
+        TypeError: ``volume`` is not a Volume.
+        ValueError: ``path`` does not end in ``.nii`` or ``.nii.gz``.
+        OSError: the file cannot be written.
     """
     import nibabel as nib
 

@@ -44,12 +44,18 @@ SUPPORTED_FORMATS = (
 
 
 def load_volume(path: str | os.PathLike) -> Volume:
-    """Read a CBCT volume (§II-A, §II-D) into a :class:`Volume` in the LPS C-arm frame (mm, HU).
+    """A CBCT volume (§II-A, §II-D) read into a :class:`~histostudy.imaging.volume.Volume` in the LPS
+    C-arm frame (mm, HU).
 
-    Dispatch on ``path``: a ``.nii``/``.nii.gz`` file is NIfTI (read with nibabel); a folder is a
-    DICOM series (every file in it that pydicom reads as an image; one series only); a
-    ``.dcm``/``.dicom`` file is an enhanced multi-frame DICOM image. See the module docstring
-    for what is reoriented and what is refused.
+    What is reoriented and what is refused: docs/imaging.md, "Volume files".
+
+    Args:
+        path: a ``.nii``/``.nii.gz`` file (NIfTI, read with nibabel); a folder (a DICOM series:
+            every file in it that pydicom reads as an image, one series only); or a
+            ``.dcm``/``.dicom`` file (an enhanced multi-frame DICOM image).
+
+    Returns:
+        The volume.
 
     Raises:
         FileNotFoundError: ``path`` does not exist.

@@ -32,8 +32,20 @@ XA_SOP_CLASS_UID = "1.2.840.10008.5.1.4.1.1.12.1"
 
 
 def detector_counts(line_integrals, *, i0: float = 4095.0, bits_stored: int = 12) -> np.ndarray:
-    """The detector's counts ``round(i0 exp(-L))``, clipped to ``bits_stored`` bits, as uint16;
-    ``line_integrals`` ``(..., rows, cols)`` dimensionless (a rendered :class:`Frame`'s image)."""
+    """The counts a detector stores for a line-integral image: ``round(i0 exp(-L))``.
+
+    Args:
+        line_integrals: ``(..., rows, cols)`` line integrals ``L`` (dimensionless, a rendered
+            :class:`~histostudy.imaging.frame.Frame`'s image), finite.
+        i0: the unattenuated count, in ``(0, 2**bits_stored - 1]``.
+        bits_stored: the stored bits, an integer in 8..16.
+
+    Returns:
+        uint16 counts of ``line_integrals``' shape, clipped to ``bits_stored`` bits.
+
+    Raises:
+        ValueError: ``line_integrals`` not finite, or ``i0`` or ``bits_stored`` out of range.
+    """
     bits = _bits(bits_stored)
     L = np.asarray(line_integrals, dtype=np.float64)
     if not np.all(np.isfinite(L)):
@@ -119,8 +131,29 @@ def xa_dataset(view: View, intensities, *, bits_stored: int = 12, uid_seed: str 
 
 
 def write_xa(path: str | os.PathLike, view: View, intensities, **options) -> Path:
-    """Write :func:`xa_dataset` ``(view, intensities, **options)`` to ``path`` as a DICOM file
-    (Part 10, explicit VR little endian), atomically; returns the path."""
+    """An XA object written as a C-arm writes it (§II-D): a DICOM Part 10 file, explicit VR little
+    endian, written atomically.
+
+    Args:
+        path: the file to write.
+        view: the C-arm view, with its gantry parameters (made by ``View.from_gantry`` or
+            ``View.from_dicom``); its geometry becomes the object's tags, its name the
+            ``SeriesDescription``.
+        intensities: ``(rows, cols)`` or a cine ``(n, rows, cols)`` of detector counts (pixels), e.g.
+            :func:`detector_counts`'s.
+        **options: ``bits_stored``, ``uid_seed``, ``instance_number``, ``series_number``,
+            ``acquisition_time``, ``frame_time_ms`` (ms), ``patient_id`` (see ``xa_dataset`` in
+            this module).
+
+    Returns:
+        The path written.
+
+    Raises:
+        TypeError: ``view`` is not a View.
+        ValueError: the view carries no gantry parameters, or ``intensities`` or an option is out of
+            range.
+        OSError: the file cannot be written.
+    """
     ds = xa_dataset(view, intensities, **options)
     path = Path(path)
     with atomic_path(path) as tmp:

@@ -78,16 +78,29 @@ def _number(value, keyword: str, source: str) -> float:
 
 
 def gantry_from_dicom(ds, frame_index: int | None = None, source: str = "the DICOM object") -> dict:
-    """The view parameters a DICOM XA/RF object records for frame ``frame_index``.
+    """The view parameters a DICOM XA/RF object records for one frame (§II-A).
 
-    Returns ``primary_deg``, ``secondary_deg``, ``source_isocenter_mm``, ``source_detector_mm``,
-    ``shape`` ``(rows, cols)`` and ``pixel_mm`` ``(row spacing, column spacing)``. Raises a
-    ValueError naming ``source`` and the first missing attribute with its tag. A rotational
-    acquisition (``PositionerPrimaryAngleIncrement``) is refused: the standard leaves it open
-    whether its increments are per frame or cumulative, and a wrong guess moves every view. An
+    A rotational acquisition (``PositionerPrimaryAngleIncrement``) is refused: the standard leaves it
+    open whether its increments are per frame or cumulative, and a wrong guess moves every view. An
     object of a SOP class that is not an X-ray image (CT, secondary capture, ...) is refused first,
     as every reader of the lab's frames refuses it (:func:`~.xray.check_sop_class`; a data set
     without SOPClassUID is a bare set of tags, read).
+
+    Args:
+        ds: the pydicom data set.
+        frame_index: the frame whose functional groups (in an enhanced object) to read, an integer
+            >= 0, or None.
+        source: what the messages call the object.
+
+    Returns:
+        ``primary_deg``, ``secondary_deg`` (deg), ``source_isocenter_mm``, ``source_detector_mm``
+        (mm), ``shape`` ``(rows, cols)`` (pixels) and ``pixel_mm`` ``(row spacing, column spacing)``
+        (mm).
+
+    Raises:
+        XRayObjectRejected: the object is not an X-ray image.
+        ValueError: ``frame_index`` invalid, a rotational acquisition, or an attribute missing or out
+            of range (the message names it and its tag).
     """
     from .xray import check_sop_class
 

@@ -94,11 +94,21 @@ def _named(uid: str) -> str:
 
 
 def check_sop_class(sop_class_uid, *, stored=None, source: str | None = None) -> None:
-    """Refuses (:class:`XRayObjectRejected`) an object that is not an X-ray image: ``stored`` (the
-    SOP class it was stored as: a C-STORE's affected SOP class) or else ``sop_class_uid`` (its data
-    set's SOPClassUID) not in :data:`X_RAY_SOP_CLASSES` (0x0122), or the two differing (0xA900).
-    ``sop_class_uid`` None or empty with ``stored`` None: a bare image, not refused. ``source``
-    starts the message (e.g. ``"path 'A.dcm'"``)."""
+    """Refuses an object that is not an X-ray image.
+
+    Args:
+        sop_class_uid: the data set's SOPClassUID; None or empty, with ``stored`` None, is a bare
+            image and is not refused.
+        stored: the SOP class it was stored as (a C-STORE's affected SOP class), or None.
+        source: what the message starts with (e.g. ``"path 'A.dcm'"``), or None.
+
+    Returns:
+        None.
+
+    Raises:
+        XRayObjectRejected: the class (``stored``, else ``sop_class_uid``) is not in
+            :data:`X_RAY_SOP_CLASSES` (status 0x0122), or the two differ (0xA900).
+    """
     prefix = "" if not source else f"{source}: "
     sop = str(sop_class_uid or "")
     expected = sop if stored is None else str(stored or "")
@@ -158,10 +168,17 @@ def _lossy(ds, syntax: str) -> str | None:
 
 
 def check_xray_object(ds, *, sop_class_uid=None, source: str | None = None) -> None:
-    """The checks every reader of an X-ray object applies before its pixels (module docstring):
-    the SOP class (:func:`check_sop_class`, ``sop_class_uid`` the one it was stored as), the
-    transfer syntax, lossless pixels, the image size, one sample per pixel and, native, the pixel
-    data's length.
+    """The checks every reader of an X-ray object applies before its pixels (docs/imaging.md, "X-ray
+    objects"): the SOP class (:func:`check_sop_class`), the transfer syntax, lossless pixels, the
+    image size, one sample per pixel and, native, the pixel data's length.
+
+    Args:
+        ds: the pydicom data set.
+        sop_class_uid: the SOP class it was stored as (a C-STORE's), or None.
+        source: what the message starts with, or None.
+
+    Returns:
+        None.
 
     Raises:
         XRayObjectRejected: with the C-STORE status and the reason, starting with ``source``.
@@ -196,11 +213,21 @@ def check_xray_object(ds, *, sop_class_uid=None, source: str | None = None) -> N
 
 
 def read_dicom_file(path, *, stop_before_pixels: bool = False):
-    """The pydicom data set of the DICOM file ``path`` (its header only with ``stop_before_pixels``).
+    """The pydicom data set of a DICOM file, every failure naming the file and what is wrong (pydicom
+    reads a file cut short without complaint and words its own errors without the file's name).
 
-    pydicom reads a file cut short without complaint and words its own errors without the file's
-    name; here every failure names ``path`` and what is wrong. Raises FileNotFoundError (no such
-    file), IsADirectoryError (a folder) or ValueError (not DICOM, truncated or corrupt)."""
+    Args:
+        path: the file.
+        stop_before_pixels: read its header only.
+
+    Returns:
+        The pydicom data set.
+
+    Raises:
+        FileNotFoundError: no such file.
+        IsADirectoryError: ``path`` is a folder.
+        ValueError: not DICOM, truncated or corrupt.
+    """
     from pathlib import Path
 
     from ._dicom import _read_dicom
@@ -219,10 +246,20 @@ def read_dicom_file(path, *, stop_before_pixels: bool = False):
 
 
 def xray_pixels(ds, frame_index: int | None = None, *, source: str | None = None):
-    """The stored values of frame ``frame_index`` (``(rows, cols)``), or of every frame (None:
-    ``(frames, rows, cols)``, or ``(rows, cols)`` for a single frame), decoded by pydicom's plugin
-    for the object's transfer syntax. Raises :class:`XRayObjectRejected` (0xA900) for a stream that
-    does not decode or decodes to another size."""
+    """The stored values of an X-ray object, decoded by pydicom's plugin for its transfer syntax.
+
+    Args:
+        ds: the pydicom data set (checked with :func:`check_xray_object` first).
+        frame_index: the frame to decode, or None for every frame.
+        source: what the message starts with, or None.
+
+    Returns:
+        ``(rows, cols)`` for one frame; for None, ``(frames, rows, cols)``, or ``(rows, cols)`` for a
+        single-frame object (pixels, the stored dtype).
+
+    Raises:
+        XRayObjectRejected: (0xA900) a stream that does not decode or decodes to another size.
+    """
     import numpy as np
     from pydicom.pixels import get_decoder
 

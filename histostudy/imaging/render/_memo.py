@@ -68,9 +68,19 @@ _ACTIVE: contextvars.ContextVar[FrameMemo | None] = contextvars.ContextVar("hist
 
 @contextlib.contextmanager
 def shared_frames(max_frames: int = 32) -> Iterator[FrameMemo]:
-    """A scope in which :func:`~._reference.render_frame` renders each distinct frame once (module
-    docstring); yields its :class:`FrameMemo`. Scopes nest (the inner one answers) and are local
-    to a thread or task (a context variable)."""
+    """A scope in which :func:`~histostudy.imaging.render.render_frame` renders each distinct frame once.
+
+    Scopes nest (the inner one answers) and are local to a thread or task (a context variable).
+
+    Args:
+        max_frames: how many frames the scope keeps (the most recently used).
+
+    Yields:
+        The scope's :class:`FrameMemo`.
+
+    Raises:
+        ValueError: ``max_frames`` is not an integer >= 1.
+    """
     token = _ACTIVE.set(FrameMemo(max_frames))
     try:
         yield _ACTIVE.get()

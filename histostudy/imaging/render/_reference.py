@@ -51,27 +51,34 @@ ZERO_COUNT_CLAMP = 0.5
 def render_line_integrals(model: TransducerModel, T_carm_transducer, view: View, *,
                           rng: np.random.Generator, n_splats: int = 16,
                           splat_sigma_mm: float = 0.5, device=None) -> np.ndarray:
-    """Line-integral image ``(rows, cols)`` float32 of ``model`` at pose ``T_carm_transducer``.
+    """Line-integral image of the transducer by point splatting (§II-B.2).
 
-    Point splatting (§II-B.2): each point with non-zero weight is copied ``n_splats`` times, each
-    copy moved by an independent ``N(0, splat_sigma_mm²)`` offset per world axis (mm) and
-    projected (eq. 1-2) to its nearest pixel, where it adds ``weight / (n_splats * footprint)``.
-    The footprint is taken at the un-jittered point (it changes by ~sigma/distance, < 0.1 %).
-    Copies behind the source (w <= 0) or off the detector add nothing. Accumulation is
-    ``np.bincount`` over flat pixel indices, chunk by chunk. ``splat_sigma_mm = 0`` draws nothing
-    and projects each point once per copy unmoved.
+    Each point with non-zero weight is copied ``n_splats`` times, each copy moved by an independent
+    ``N(0, splat_sigma_mm²)`` offset per world axis and projected (eq. 1-2) to its nearest pixel,
+    where it adds ``weight / (n_splats * footprint)`` (the footprint taken at the un-jittered point).
+    Copies behind the source or off the detector add nothing. The draws depend only on the model,
+    ``n_splats`` and ``rng``: the same seed gives a bit-identical image. Splat noise and the choice of
+    the 0.125 mm model: docs/imaging.md, "Splatting".
 
-    The random draws depend only on the model (its points in enum order), ``n_splats`` and
-    ``rng``: the same seed gives a bit-identical image.
+    Args:
+        model: the transducer model (the physical model, for synthetic frames).
+        T_carm_transducer: (4, 4) rigid pose, transducer -> C-arm, mm.
+        view: the C-arm view.
+        rng: the Generator of the jitter.
+        n_splats: copies per point, an integer >= 1.
+        splat_sigma_mm: the jitter's standard deviation per axis, mm, >= 0 (0 projects each copy
+            unmoved).
+        device: None, this numpy reference; ``"cpu"``, the compiled kernel; ``"cuda"`` or
+            ``"cuda:N"``, torch. The last two take one draw from ``rng`` as their jitter's seed, so
+            their images match this one in distribution, not bits.
 
-    Splat noise: a pixel's value is a sum over the few copies landing in it, so it fluctuates by
-    about 1/sqrt(copies per pixel) — measured ~10-20 % per pixel for the 0.125 mm model with 16
-    splats in the biplane set-up, ~40-65 % for the 0.47 mm model, against ~1 % quantum noise at
-    5e4 photons. Render images from the 0.125 mm model, as the paper did.
+    Returns:
+        ``(rows, cols)`` float32 image of line integrals.
 
-    ``device`` picks the renderer (:mod:`~histostudy.imaging.render._device`): None, this numpy
-    reference; ``"cpu"``, the compiled kernel; ``"cuda"``, torch. The last two take one draw from
-    ``rng`` as their jitter's seed, so their images match this one in distribution, not bits.
+    Raises:
+        TypeError: ``model``, ``view`` or ``rng`` of the wrong type.
+        ValueError: ``T_carm_transducer`` is not rigid, ``n_splats`` or ``splat_sigma_mm`` out of
+            range, or ``device`` unknown or unavailable.
     """
     rows, cols = _check_view(view).shape
     device = check_device(device)
@@ -155,25 +162,29 @@ def _nearest_pixel(uw: np.ndarray, vw: np.ndarray, w: np.ndarray, rows: int,
 
 
 def render_labels(model: TransducerModel, T_carm_transducer, view: View, *, device=None) -> np.ndarray:
-    """Reference label image ``(rows, cols)`` uint8 (values of :class:`~histostudy.transducer.Feature`).
+    """Reference label image of the transducer (§II-B.2): the values of :class:`~histostudy.transducer.Feature`.
 
-    Each class's points are projected without jitter to their nearest pixel; classes are painted
-    from the lowest to the highest priority of :data:`~histostudy.transducer.LABEL_PRIORITY`, so a
-    screw in front of an element is labelled SCREWS (§II-B.2).
+    Each class's points are projected (eq. 1-2) without jitter to their nearest pixel; classes are
+    painted from the lowest to the highest priority of :data:`~histostudy.transducer.LABEL_PRIORITY`,
+    so a screw in front of an element is labelled SCREWS. Each class mask is closed (OpenCV, an
+    elliptical kernel sized by the class's projected grid step) so that no pixel between its points
+    stays empty, and pixels left empty on the seams between classes take the highest-priority class
+    among their neighbours (docs/imaging.md, "Label holes").
 
-    Hole closing: a grid whose projected step ``d`` (pixels) exceeds ``1/sqrt(2)`` can leave
-    pixels no point falls in (a rotated lattice leaves empty squares of side up to ``sqrt(2) d``).
-    Each class mask is then closed (OpenCV, elliptical kernel of radius
-    ``ceil((ceil(sqrt(2) d) - 1) / 2)``), with ``d`` the class's largest grid step
-    (``model.grid_step_mm``) over the smallest pixel footprint among its points — a conservative,
-    pose-independent bound. Pixels left empty on the seam between two classes are then found by
-    closing the union of all classes and take the highest-priority class among their neighbours.
-    For the 0.125 mm model this is a 3x3 closing at most; coarse models (0.47 mm) get up to ~9x9,
-    which also fills concavities narrower than the kernel.
+    Args:
+        model: the transducer model (the digital model, for the reference labels).
+        T_carm_transducer: (4, 4) rigid pose, transducer -> C-arm, mm.
+        view: the C-arm view.
+        device: None projects in numpy; any other device of :func:`render_frame` projects with the
+            compiled kernel (the same float64 arithmetic in another order: a point within rounding of
+            a pixel edge may fall on its other side).
 
-    ``device`` None projects in numpy; any other device of :func:`render_frame` projects with the
-    compiled kernel (:func:`._splat_kernels.mark_nearest_pixels`, the same float64 arithmetic in
-    another order: a point within rounding of a pixel edge may fall on its other side).
+    Returns:
+        ``(rows, cols)`` uint8 label image.
+
+    Raises:
+        TypeError: ``model`` or ``view`` of the wrong type.
+        ValueError: ``T_carm_transducer`` is not rigid, or ``device`` is unknown or unavailable.
     """
     _check_model(model, "model")
     T = check_rigid(T_carm_transducer, "T_carm_transducer")
@@ -253,12 +264,23 @@ for _rank, _feature in enumerate(reversed(LABEL_PRIORITY), start=1):
 
 
 def add_poisson_noise(line_integrals, photons_per_pixel: float, rng: np.random.Generator) -> np.ndarray:
-    """Quantum noise: ``counts ~ Poisson(N0 exp(-p))``, returns ``-log(counts / N0)`` as float32.
+    """Quantum noise on a line-integral image (§II-B.2): ``counts ~ Poisson(N0 exp(-p))``.
 
-    ``photons_per_pixel`` is ``N0``, the unattenuated photons per pixel (finite, > 0). A pixel
-    with 0 counts has no finite log; it is set to ``ZERO_COUNT_CLAMP`` = 0.5 counts, the midpoint
-    between the observable 0 and 1, which caps the image at ``log(2 N0)`` (11.5 at N0 = 5e4)
-    instead of infinity and biases those pixels less than clamping to 1 would.
+    A pixel with 0 counts has no finite log; it is set to ``ZERO_COUNT_CLAMP`` = 0.5 counts, the
+    midpoint between the observable 0 and 1, which caps the image at ``log(2 N0)`` (11.5 at
+    N0 = 5e4) and biases those pixels less than clamping to 1 would.
+
+    Args:
+        line_integrals: image ``p`` of line integrals (dimensionless, any shape), finite.
+        photons_per_pixel: ``N0``, the unattenuated photons per pixel, finite and > 0.
+        rng: the Generator the counts are drawn from.
+
+    Returns:
+        ``-log(counts / N0)`` as float32, of ``line_integrals``' shape.
+
+    Raises:
+        ValueError: ``line_integrals`` is not finite, or ``photons_per_pixel`` is out of range.
+        TypeError: ``rng`` is not a ``numpy.random.Generator``.
     """
     p = np.asarray(line_integrals, dtype=np.float64)
     if not np.all(np.isfinite(p)):
@@ -341,9 +363,20 @@ def render_frame(model: TransducerModel, T_carm_transducer, view: View, *, rng: 
 
 
 def background_line_integrals(background, view: View) -> np.ndarray:
-    """The ``view.shape`` float64 line integrals of a frame's background: zeros for None, an array
-    as it is, or ``background.line_integrals(view)`` (an :mod:`~histostudy.imaging.anatomy._random` scene); checked
-    for shape and finiteness."""
+    """The line integrals of a frame's background, checked.
+
+    Args:
+        background: None (zeros), a ``view.shape`` array of line integrals, or an object with
+            ``line_integrals(view)`` (an :class:`~histostudy.imaging.anatomy.Anatomy` scene).
+        view: the C-arm view whose detector the background covers.
+
+    Returns:
+        ``view.shape`` float64 array (rows, cols).
+
+    Raises:
+        TypeError: ``background`` is none of the three.
+        ValueError: its shape is not ``view.shape`` or it is not finite.
+    """
     if background is None:
         return np.zeros(view.shape)
     source = background

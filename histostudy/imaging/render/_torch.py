@@ -139,10 +139,22 @@ class TorchSplatter:
 
 
 def poisson_noise_torch(line_integrals: torch.Tensor, photons_per_pixel: float, seed: int) -> torch.Tensor:
-    """Quantum noise on the device: ``counts ~ Poisson(N0 exp(-p))``, ``-log(max(counts, 0.5) / N0)`` float32.
+    """Quantum noise on the device: ``counts ~ Poisson(N0 exp(-p))`` (§II-B.2).
 
-    The numpy reference's model (:func:`~histostudy.imaging.render._reference.add_poisson_noise`), drawn by a
+    The numpy reference's model (:func:`~histostudy.imaging.render.add_poisson_noise`), drawn by a
     ``torch.Generator`` seeded with ``seed`` on the tensor's device.
+
+    Args:
+        line_integrals: tensor of line integrals (any shape), finite.
+        photons_per_pixel: ``N0``, the unattenuated photons per pixel, finite and > 0.
+        seed: the generator's seed.
+
+    Returns:
+        ``-log(max(counts, 0.5) / N0)`` as a float32 tensor on the same device.
+
+    Raises:
+        TypeError: ``line_integrals`` is not a ``torch.Tensor``.
+        ValueError: it is not finite, or ``photons_per_pixel`` is out of range.
     """
     torch = _torch()
     if not isinstance(line_integrals, torch.Tensor):

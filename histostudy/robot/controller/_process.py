@@ -81,6 +81,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    """The command line ``python -m histostudy.robot.controller``: serve a simulated UR controller.
+
+    Args:
+        argv: the arguments (``--help`` lists them); None reads ``sys.argv``.
+
+    Returns:
+        The exit status: 0 after serving, 2 when it cannot serve (a bad address or argument, a port
+        in use); with ``--detach``, that of starting the controller in the background.
+    """
     args = build_parser().parse_args(argv)
     if args.detach:
         return _detach(list(sys.argv[1:] if argv is None else argv))
@@ -130,14 +139,26 @@ def _detach(argv: list[str]) -> int:
 
 
 class ControllerProcess:
-    """The simulated controller in a child process (for tests, benchmarks and notebooks).
+    """The simulated UR controller in a child process (for tests, benchmarks and notebooks; §II-C).
 
     ``ControllerProcess("127.0.0.2", "--repeatability-mm", "0")`` starts
-    ``python -m histostudy.robot.controller --host 127.0.0.2 ...`` and waits (at most
-    ``start_timeout_s``) until its three ports accept connections. Use as a context manager or
-    call :meth:`stop`; :meth:`kill` simulates a crashed controller (SIGKILL). ``tied_to_parent``
-    (default): the controller exits when this process is gone; False: it runs in a session of its
-    own until stopped or ``max_lifetime_s`` (``--detach``).
+    ``python -m histostudy.robot.controller --host 127.0.0.2 ...`` and waits until its three ports
+    accept connections. Use as a context manager or call :meth:`stop`; :meth:`kill` simulates a
+    crashed controller (SIGKILL).
+
+    Args:
+        host: a loopback address (127.0.0.0/8): one address per controller, the client's ports being
+            fixed.
+        *args: further command-line arguments of the controller (``--help`` lists them).
+        start_timeout_s: how long to wait for the ports, s.
+        max_lifetime_s: the controller exits after this long, s.
+        tied_to_parent: the controller exits when this process is gone; False: it runs in a session
+            of its own until stopped or ``max_lifetime_s`` (``--detach``).
+
+    Raises:
+        ValueError: ``host`` is not a loopback address.
+        RuntimeError: the controller exited while starting (its output in the message).
+        TimeoutError: its ports did not open within ``start_timeout_s``.
     """
 
     def __init__(self, host: str, *args: str, start_timeout_s: float = 20.0, max_lifetime_s: float = 600.0,
