@@ -53,9 +53,10 @@ def report(name: str, sweep, address: str, workers: int) -> None:
     cold, t_cold = timed(lambda: sweep(f"local:{workers}"))
     print(f"{name}: {len(sequential)} rows")
     print(f"  sequential                      {t_seq:8.2f} s")
-    print(f"  LocalCluster, {workers} workers (warm)    {t_warm:8.2f} s   ratio sequential/cluster {t_seq / t_warm:5.2f}")
-    print(f"  LocalCluster, {workers} workers (cold)    {t_cold:8.2f} s   ratio sequential/cluster {t_seq / t_cold:5.2f}"
-          "   (starts and closes its cluster)")
+    print(f"  LocalCluster, {workers} workers (warm)    {t_warm:8.2f} s   "
+          f"ratio sequential/cluster {t_seq / t_warm:5.2f}")
+    print(f"  LocalCluster, {workers} workers (cold)    {t_cold:8.2f} s   "
+          f"ratio sequential/cluster {t_seq / t_cold:5.2f}   (starts and closes its cluster)")
     print(f"  same rows bit for bit: warm {same_rows(sequential, warm)}, cold {same_rows(sequential, cold)}")
 
 

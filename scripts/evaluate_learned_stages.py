@@ -72,8 +72,10 @@ def main(argv=None) -> int:
     for i in range(args.frames):
         ref = frames.frame(i).labels
         pooled = np.repeat(np.repeat(pool_labels(ref, unet.scale), k, 0), k, 1)
-        bound_rows.append(segmentation_metrics(pooled, ref, len(Feature), class_names=names)["per_class"].set_index("class"))
-    bound = {c: {m: 100.0 * float(np.nanmean([r.loc[c, m] for r in bound_rows])) for m in ("iou", "recall", "precision")}
+        metrics = segmentation_metrics(pooled, ref, len(Feature), class_names=names)
+        bound_rows.append(metrics["per_class"].set_index("class"))
+    bound = {c: {m: 100.0 * float(np.nanmean([r.loc[c, m] for r in bound_rows]))
+                 for m in ("iou", "recall", "precision")}
              for c in CLASSES}
 
     results = {"as shipped": table(unet), "test-time flips": table(flips), f"labels pooled to {unet.scale:g}": bound}

@@ -139,7 +139,8 @@ def main(argv=None) -> int:
     print(f"torch {torch.__version__}, device {device}"
           + (f" ({torch.cuda.get_device_name()})" if device == "cuda" else "") + f", commit {git_commit()}")
     if device == "cpu" and not args.toy:
-        print("gpu_training_run: torch sees no CUDA device; run it on a GPU machine (or --toy on a CPU)", file=sys.stderr)
+        print("gpu_training_run: torch sees no CUDA device; run it on a GPU machine (or --toy on a CPU)",
+              file=sys.stderr)
         return 2
 
     profile = load_profile(args.profile)
@@ -192,7 +193,8 @@ def main(argv=None) -> int:
         record["tables"][name].update(
             train_minutes=round((time.monotonic() - t0) / 60.0, 2), max_minutes=cfg.max_minutes, steps=result.steps,
             epochs=result.epochs, stopped=result.stopped, validation=result.validation,
-            weights=half.with_suffix(".safetensors").name, weights_bytes=half.with_suffix(".safetensors").stat().st_size)
+            weights=half.with_suffix(".safetensors").name,
+            weights_bytes=half.with_suffix(".safetensors").stat().st_size)
         print(f"{name}: {result.steps} steps, stopped {result.stopped}; best validation {result.validation}")
         configs[name] = (cfg, widened.with_suffix(".safetensors"))
 

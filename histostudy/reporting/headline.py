@@ -99,8 +99,8 @@ def run_facts(run: dict) -> list[str]:
         flags = machine.get("isa_flags") or {}
         isa = ", ".join(name for name, present in flags.items() if present) or "none of " + ", ".join(flags)
         restriction = machine.get("isa_restriction") or {}
-        lines.append(f"- Machine: {md_escape(machine.get('cpu_model', 'unknown CPU'))}, {md_escape(machine.get('cpus'))} "
-                     f"cores; ISA {md_escape(isa)}"
+        lines.append(f"- Machine: {md_escape(machine.get('cpu_model', 'unknown CPU'))}, "
+                     f"{md_escape(machine.get('cpus'))} cores; ISA {md_escape(isa)}"
                      + (f" (held to {md_escape(' '.join(f'{k}={v}' for k, v in restriction.items()))})"
                         if restriction else ""))
     timed = [n for n in run.get("notebooks", []) if isinstance(n.get("seconds"), (int, float))]

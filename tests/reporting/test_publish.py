@@ -8,7 +8,7 @@ import os
 import pytest
 
 from histostudy.cli import main
-from histostudy.core import process_umask
+from histostudy.core.io import process_umask
 from histostudy.core.provenance import REPO_ROOT
 from histostudy.reporting import load_profile, publish_run, replace_readme_headline
 from histostudy.reporting.pipeline import DEFAULT_NOTEBOOK_DIR, discover_notebooks
@@ -133,4 +133,5 @@ def test_the_repository_s_published_runs_match_today_s_profiles(published):
 def test_the_readme_shows_the_published_headline(published):
     block = readme_headline(published, f"{published.relative_to(REPO_ROOT).as_posix()}/REPORT.md")
     assert block in (REPO_ROOT / "README.md").read_text(), (
-        f"README.md's headline differs from {published.relative_to(REPO_ROOT)}: histostudy publish ... --readme README.md")
+        f"README.md's headline differs from {published.relative_to(REPO_ROOT)}: "
+        "histostudy publish ... --readme README.md")

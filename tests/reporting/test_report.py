@@ -80,7 +80,8 @@ def test_report_is_assembled_from_results_files(tmp_path):
 
 def test_report_names_a_failure(tmp_path):
     run = {"profile": "smoke", "seed": 1, "notebooks": [{"name": "01_x", "status": "failed"}],
-           "failure": {"notebook": "01_x", "cell_index": 4, "error": "ValueError: boom", "executed_notebook": "e.ipynb"}}
+           "failure": {"notebook": "01_x", "cell_index": 4, "error": "ValueError: boom",
+                       "executed_notebook": "e.ipynb"}}
     md, _ = build_report(tmp_path, run)
     assert "Run failed" in md.read_text() and "ValueError: boom" in md.read_text()
 
