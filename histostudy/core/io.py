@@ -1,9 +1,6 @@
-"""Atomic file output: every file the study writes appears whole or not at all.
-
-A writer gets a temporary path in the destination folder (same file system, so the final
-``os.replace`` is atomic), writes there, and the file is renamed into place only when the writer
-finished without an exception. A crash or a failing notebook leaves at most a ``.tmp`` file that
-no reader ever opens, never a half-written report, table, checkpoint or journal.
+"""Atomic file output: every file the study writes appears whole or not at all. A writer writes a
+temporary file beside the destination (same file system), renamed into place by ``os.replace`` only
+when it finished without an exception; a crash leaves at most a ``.tmp`` file no reader opens.
 """
 
 from __future__ import annotations
@@ -17,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_json", "atomic_write_text", "process_umask", "to_jsonable"]
+__all__ = ["atomic_path", "atomic_write_bytes", "atomic_write_json", "atomic_write_text", "process_umask",
+           "to_jsonable"]
 
 
 def process_umask() -> int:
@@ -36,12 +34,23 @@ def process_umask() -> int:
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; rename it onto ``path`` if the block succeeds.
+    """A temporary path beside ``path`` (a context manager), renamed onto ``path`` if the block succeeds.
 
-    ``suffix`` is kept on the temporary name (default: that of ``path``) for writers that pick a
-    format from the file extension (matplotlib, safetensors). The file gets the mode a plain
-    ``open(path, "w")`` would give (0o666 less the umask: 0644 under umask 022), not the private
-    0600 of the temporary file, so colleagues and web servers can read reports and results.
+    The file gets the mode a plain ``open(path, "w")`` would give (0o666 less the umask: 0644 under
+    umask 022), not the private 0600 of the temporary file, so others can read reports and results.
+
+    Args:
+        path: the destination file; its folder is created if missing.
+        suffix: the extension kept on the temporary name, for writers that pick a format from it
+            (matplotlib, safetensors); default: that of ``path``.
+
+    Returns:
+        A context manager yielding the temporary ``Path`` to write; on leaving the block without an
+        exception the file is synced and renamed onto ``path``, and removed otherwise.
+
+    Raises:
+        OSError: the folder cannot be created or the file not written or renamed (and whatever the
+            block raises, after the temporary file is removed).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -68,14 +77,30 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
-    """Write UTF-8 ``text`` to ``path`` atomically; returns the path."""
+    """Write UTF-8 ``text`` to ``path`` atomically (:func:`atomic_path`).
+
+    Args:
+        path: the destination file.
+        text: the text.
+
+    Returns:
+        ``path``, as a ``Path``.
+
+    Raises:
+        OSError: the file cannot be written.
+    """
     return atomic_write_bytes(path, text.encode("utf-8"))
 
 
 def to_jsonable(obj):
-    """Convert numpy scalars/arrays, paths and tuples inside ``obj`` to plain JSON types.
+    """``obj`` with its numpy scalars and arrays, paths and tuples, at any depth, as plain JSON types.
 
-    Non-finite floats become ``None`` (JSON has no NaN), so a missing measurement reads as null.
+    Args:
+        obj: a dict, list, tuple, numpy array or scalar, path or plain value (dict keys become str).
+
+    Returns:
+        The converted object; non-finite floats become None (JSON has no NaN), so a missing
+        measurement reads as null. Other objects are returned as they are.
     """
     if isinstance(obj, dict):
         return {str(k): to_jsonable(v) for k, v in obj.items()}
@@ -96,5 +121,17 @@ def to_jsonable(obj):
 
 
 def atomic_write_json(path: str | os.PathLike, obj) -> Path:
-    """Write ``obj`` (converted by :func:`to_jsonable`) as indented JSON, atomically."""
+    """Write ``obj`` as indented JSON, atomically (:func:`atomic_path`).
+
+    Args:
+        path: the destination file.
+        obj: what to write, converted by :func:`to_jsonable`.
+
+    Returns:
+        ``path``, as a ``Path``.
+
+    Raises:
+        TypeError: ``obj`` holds something JSON cannot represent.
+        OSError: the file cannot be written.
+    """
     return atomic_write_text(path, json.dumps(to_jsonable(obj), indent=2, sort_keys=False) + "\n")

@@ -1,14 +1,6 @@
 """Which CPU a run had, and which of its instruction sets the numerical libraries were allowed to
-use: the line a benchmark, a test session and CI print first, and part of every result's
-provenance.
-
-The numbers this project computes on CPU depend on the instruction set in two ways (docs/testing.md,
-"Every CPU"): speed (AVX-512 and its bfloat16 instructions or AMX tiles against AVX2 alone), and
-the order in which oneDNN and torch sum a convolution's products, which moves results by float32
-rounding. The libraries can be held to a lower instruction set than the machine has, so that one
-machine reproduces another's case; :data:`ISA_RESTRICTION_ENV` names the variables that do it and
-:func:`avx2_restriction` their values for an AVX2-only CPU (``make test-avx2`` sets them, printed by
-:func:`avx2_env_words`).
+use (docs/testing.md, "Every CPU"): the line a benchmark, a test session and CI print first, part of
+every result's provenance, and the environment that holds the libraries to AVX2 (``make test-avx2``).
 """
 
 from __future__ import annotations
@@ -70,9 +62,17 @@ def isa_flags() -> dict[str, bool]:
 
 
 def avx2_restriction() -> dict[str, str]:
-    """:data:`AVX2_RESTRICTION` plus ``NPY_DISABLE_CPU_FEATURES``: the installed numpy's dispatch
-    targets beyond AVX2 (their names change between numpy versions, and naming one it lacks makes
-    numpy warn at import)."""
+    """The environment that makes the libraries compute as on an AVX2-only CPU (a Haswell).
+
+    The numbers depend on the instruction set through the order in which oneDNN and torch sum a
+    convolution's products (float32 rounding); these variables hold the libraries below the CPU's
+    own (:data:`ISA_RESTRICTION_ENV`) so that one machine reproduces another's case.
+
+    Returns:
+        :data:`AVX2_RESTRICTION` plus ``NPY_DISABLE_CPU_FEATURES``: the installed numpy's dispatch
+        targets beyond AVX2 (their names change between numpy versions, and naming one it lacks
+        makes numpy warn at import), as ``{variable: value}``.
+    """
     try:
         from numpy._core._multiarray_umath import __cpu_dispatch__
     except ImportError:  # numpy 1.x
@@ -82,8 +82,12 @@ def avx2_restriction() -> dict[str, str]:
 
 
 def avx2_env_words() -> str:
-    """:func:`avx2_restriction` as shell words ``VAR=value ...``, as ``make test-avx2`` puts them
-    before its command."""
+    """:func:`avx2_restriction` for a shell.
+
+    Returns:
+        Shell words ``VAR=value ...`` (values quoted), as ``make test-avx2`` puts them before its
+        command.
+    """
     import shlex
 
     return " ".join(f"{name}={shlex.quote(value)}" for name, value in avx2_restriction().items())
@@ -95,8 +99,13 @@ def isa_restriction() -> dict[str, str]:
 
 
 def machine_summary() -> str:
-    """Three lines: the CPU (model, cores, ISA flags), the restriction in force (or "none"), and the
-    numerical libraries' versions with torch's kernel level. Imports torch only if installed."""
+    """The machine a benchmark or a test session ran on, as it prints it first.
+
+    Returns:
+        Three lines: the CPU (model, cores, ISA flags), the restriction in force (or "none"), and
+        the numerical libraries' versions with torch's kernel level (torch imported only if
+        installed).
+    """
     flags = " ".join(f"{name}={'yes' if present else 'no'}" for name, present in isa_flags().items())
     restriction = " ".join(f"{k}={v}" for k, v in isa_restriction().items()) or "none"
     # provenance.package_versions' loop, which cannot be imported here: provenance imports this module
@@ -120,12 +129,20 @@ def machine_summary() -> str:
 def run_restricted_to(isa: str, argv: list[str] | None = None) -> None:
     """Make this process compute as a CPU of instruction set ``isa`` would (a benchmark's ``--isa``).
 
-    ``"native"``: nothing. ``"avx2"``: unless :func:`avx2_restriction`'s variables already hold
-    their values, replace this process by the same command (``argv``, default ``sys.argv``, run by
-    ``sys.executable``) with them in its environment, since oneDNN, ATen and numba read them
-    once, when first loaded. It then prints the same results as on an AVX2-only CPU, bfloat16
-    included (:func:`histostudy.learning.native_bfloat16` is False there). Does not return when it
-    re-executes. ValueError for another ``isa``."""
+    With ``"avx2"``, unless :func:`avx2_restriction`'s variables already hold their values, the
+    process is replaced by the same command with them in its environment (oneDNN, ATen and numba
+    read them once, when first loaded); it then prints the same results as on an AVX2-only CPU.
+
+    Args:
+        isa: ``"native"`` (nothing done) or ``"avx2"`` (:data:`BENCHMARK_ISAS`).
+        argv: the command to run again (by ``sys.executable``); default ``sys.argv``.
+
+    Returns:
+        None; does not return when it re-executes.
+
+    Raises:
+        ValueError: another ``isa``.
+    """
     import sys
 
     if isa not in BENCHMARK_ISAS:

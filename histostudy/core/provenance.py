@@ -32,7 +32,15 @@ def package_versions(packages=_PACKAGES) -> dict[str, str]:
 
 
 def git_commit(repo: str | os.PathLike = REPO_ROOT) -> str:
-    """HEAD's commit hash, with ``-dirty`` if tracked files differ from it; ``"unknown"`` outside git."""
+    """The commit a result came from.
+
+    Args:
+        repo: the repository's folder (default: this package's checkout).
+
+    Returns:
+        HEAD's commit hash, with ``-dirty`` if tracked files differ from it; ``"unknown"`` outside
+        git or without the ``git`` command.
+    """
     try:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=repo, capture_output=True, text=True,
                                 timeout=10, check=True).stdout.strip()
@@ -44,7 +52,13 @@ def git_commit(repo: str | os.PathLike = REPO_ROOT) -> str:
 
 
 def provenance() -> dict:
-    """Everything needed to tell two runs apart: time, versions, commit, machine."""
+    """Everything needed to tell two runs apart, recorded beside every result.
+
+    Returns:
+        A JSON-ready dict: ``created_utc`` (ISO time), ``git_commit`` (:func:`git_commit`),
+        ``versions`` (the Python and key packages' versions) and ``machine`` (platform, CPU count,
+        interpreter, CPU model, instruction-set flags and any restriction to AVX2).
+    """
     return {
         "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
         "git_commit": git_commit(),

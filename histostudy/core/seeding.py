@@ -1,7 +1,5 @@
-"""Random-number plumbing: every random draw in the package takes a seed or a Generator.
-
-See docs/architecture.md, Seeding and determinism.
-"""
+"""Random-number plumbing: every random draw in the package takes a seed or a Generator (see
+docs/architecture.md, "Seeding and determinism")."""
 
 from __future__ import annotations
 
@@ -11,7 +9,17 @@ __all__ = ["as_generator"]
 
 
 def as_generator(rng) -> np.random.Generator:
-    """A Generator from a seed (int) or a Generator; anything else raises TypeError naming ``rng``."""
+    """The random generator of a seed or a generator.
+
+    Args:
+        rng: an int seed (Python or numpy, not bool) or a ``numpy.random.Generator``.
+
+    Returns:
+        ``rng`` itself if a Generator, else ``numpy.random.default_rng(rng)``.
+
+    Raises:
+        TypeError: ``rng`` is neither; the message names ``rng``.
+    """
     if isinstance(rng, np.random.Generator):
         return rng
     if isinstance(rng, (int, np.integer)) and not isinstance(rng, bool):

@@ -1,18 +1,6 @@
-"""The results of finished sweep tasks kept on disk, so that a sweep stopped half-way (a lost
-machine, a stopped study run) does not redo them (no paper section: the study's long sweeps,
-e.g. notebook 07's labs, which take hours on 2 cores).
-
-A task's result is stored under its content key: the task function's module and name, the task's
-argument and seed, the sweep's shared inputs, the package's code (:func:`package_digest`), the
-numerical libraries' versions, the instruction-set restriction in force and how the executor runs
-it (sequential, or the workers' thread count: torch's kernels may round differently with other
-thread pools). A change in any of these misses the cache and runs the task; what is found was made
-by the same code on the same inputs. The keys hash pickled bytes, so inputs that pickle differently
-in another process (a set of strings under another hash seed) only miss, never mislead.
-
-The folder is :data:`SWEEP_CACHE_ENV` (``HISTOSTUDY_SWEEP_CACHE``) when a sweep's ``cache`` is left
-unset: ``histostudy reproduce`` points it into its output folder. Entries are pickles written
-atomically (one file per task); a file that cannot be read is a miss.
+"""The results of finished sweep tasks kept on disk under their content key, so that a sweep stopped
+half-way (a lost machine, a stopped study run) does not redo them (:class:`SweepCache`). The folder is
+``HISTOSTUDY_SWEEP_CACHE`` (:data:`SWEEP_CACHE_ENV`) when a sweep's ``cache`` is left unset.
 """
 
 from __future__ import annotations
@@ -42,8 +30,20 @@ def _package_files(root: Path):
 
 
 def files_digest(paths, root: str | os.PathLike) -> str:
-    """SHA-256 of ``paths`` (files under ``root``): each one's name relative to ``root`` and the
-    SHA-256 of its bytes, in name order."""
+    """The digest of a set of files: their names and their bytes.
+
+    Args:
+        paths: the files (``Path`` objects under ``root``).
+        root: the folder their names are taken relative to.
+
+    Returns:
+        SHA-256 (hex) of each file's name relative to ``root`` and the SHA-256 of its bytes, in
+        name order.
+
+    Raises:
+        ValueError: a path not under ``root``.
+        OSError: a file that cannot be read.
+    """
     base = Path(root)
     digest = hashlib.sha256()
     for path in sorted(paths, key=lambda p: p.relative_to(base).as_posix()):
@@ -58,8 +58,16 @@ def _digest(root: str, stamp: tuple) -> str:
 
 
 def package_digest(package: str | os.PathLike | None = None) -> str:
-    """SHA-256 of the package's files (names and bytes; default: this ``histostudy``), its profiles'
-    ``.toml`` files left out (a study section keys its own parameters)."""
+    """The digest of a package's code.
+
+    Args:
+        package: the package's folder; default: this ``histostudy``.
+
+    Returns:
+        SHA-256 (hex, :func:`files_digest`) of the package's files, its profiles' ``.toml`` files
+        left out (a study section keys its own parameters); computed again only when a file's size
+        or time changes.
+    """
     root = Path(package) if package is not None else Path(__file__).resolve().parents[1]
     # hashed again when a file's size or time changes; otherwise once per process
     stamp = tuple(sorted((p.as_posix(), p.stat().st_size, p.stat().st_mtime_ns) for p in _package_files(root)))
@@ -76,8 +84,23 @@ def resolve_sweep_cache(cache: str | os.PathLike | None = None) -> Path | None:
 
 
 class SweepCache:
-    """The finished tasks of one sweep (module docstring) in ``folder``; ``context`` holds what else
-    the results depend on (the executor's kind and threads)."""
+    """The finished tasks of one sweep, kept in ``folder``.
+
+    A task's result is stored under its content key: the task function's module and name, the
+    task's argument and seed, the sweep's shared inputs, the package's code (:func:`package_digest`),
+    the numerical libraries' versions, the instruction-set restriction in force and ``context``. A
+    change in any of these misses the cache and runs the task; what is found was made by the same
+    code on the same inputs. The keys hash pickled bytes, so inputs that pickle differently in
+    another process only miss, never mislead. Entries are pickles written atomically (one file per
+    task); a file that cannot be read is a miss.
+
+    Args:
+        folder: where the entries are kept.
+        task_fn: the sweep's task function.
+        shared: the sweep's shared inputs.
+        context: what else the results depend on (the executor's kind and threads: torch's kernels
+            may round differently with other thread pools).
+    """
 
     def __init__(self, folder: str | os.PathLike, task_fn: Callable, shared: dict, context: tuple = ()):
         import cloudpickle

@@ -1,24 +1,5 @@
-"""Monte-Carlo sweeps run in this process or on ``dask.distributed`` (no paper section: the
-study's sweeps, e.g. the pose robustness sweep and the calibration sensitivity).
-
-A sweep is a list of independent tasks, each a pure function of its argument, its own child of
-one ``numpy.random.SeedSequence`` and read-only shared inputs (docs/architecture.md, "Seeding
-and determinism"). :func:`run_sweep` returns the results in task order, the same bit for bit
-whatever runs them:
-
-- ``"sequential"``: one after the other in this process (the default);
-- ``"local"`` / ``"local:<workers>"``: a ``dask.distributed.LocalCluster`` of that many worker
-  processes (2 by default) started for the sweep and closed after it;
-- ``"tcp://host:port"`` (or ``tls://``): the scheduler of a running cluster, whose workers must
-  have ``histostudy`` installed.
-
-Left unset, the executor is read from the environment variable ``HISTOSTUDY_SCHEDULER``
-(:data:`SCHEDULER_ENV`, same strings), so that a study can be pointed at a cluster without
-editing its notebooks. A worker that dies mid-sweep loses nothing: the scheduler runs its tasks
-again elsewhere (a task is a pure function of its seed, so a re-run gives the same result), and
-each result is collected once, by its task's future. A task whose workers die more than
-``allowed_failures`` times, or that raises, makes the sweep raise :class:`SweepTaskError`
-naming the task's index. ``dask`` is imported only when a cluster is used.
+"""Monte-Carlo sweeps run in this process or on ``dask.distributed``, the same results bit for bit
+whichever runs them (:func:`run_sweep`; the executors in :func:`resolve_executor`; docs/sweeps.md).
 """
 
 from __future__ import annotations
@@ -48,7 +29,12 @@ _SPEC_HELP = "'sequential', 'local', 'local:<workers>' or a scheduler address 't
 
 
 class SweepTaskError(RuntimeError):
-    """A sweep task raised, or its workers kept dying; ``index`` is the task's position."""
+    """A sweep task raised, or its workers kept dying (more than ``allowed_failures`` times).
+
+    Args:
+        index: the task's position in the sweep's ``tasks`` (kept as ``index``).
+        message: what happened to it.
+    """
 
     def __init__(self, index: int, message: str):
         super().__init__(message)
@@ -62,11 +48,23 @@ class SweepTaskError(RuntimeError):
 class SweepExecutor:
     """Where :func:`run_sweep` runs its tasks.
 
-    ``kind`` is ``"sequential"``, ``"local"`` (a LocalCluster of ``n_workers`` processes with
-    ``threads_per_worker`` threads each) or ``"scheduler"`` (the running cluster at
-    ``address``). ``threads_per_worker`` also caps the torch, numba and BLAS thread pools inside
-    each worker. ``allowed_failures``: how many worker deaths a task survives before the sweep
-    fails (LocalCluster only; a running scheduler keeps its own setting).
+    A worker that dies mid-sweep loses nothing: the scheduler runs its tasks again elsewhere (a task
+    is a pure function of its seed), and each result is collected once, by its task's future.
+
+    Args:
+        kind: ``"sequential"`` (in this process), ``"local"`` (a ``dask.distributed.LocalCluster``
+            started for the sweep and closed after it) or ``"scheduler"`` (the running cluster at
+            ``address``, whose workers must have ``histostudy`` installed).
+        address: the scheduler's ``"tcp://host:port"`` (or ``tls://``); only with ``"scheduler"``.
+        n_workers: the LocalCluster's worker processes.
+        threads_per_worker: threads per worker; also caps the torch, numba and BLAS thread pools
+            inside each worker.
+        allowed_failures: how many worker deaths a task survives before the sweep fails
+            (LocalCluster only; a running scheduler keeps its own setting).
+
+    Raises:
+        ValueError: an unknown ``kind``, a count out of range, or an ``address`` that is not a
+            scheduler address (or given with another kind).
     """
 
     kind: str = "sequential"
@@ -92,9 +90,20 @@ class SweepExecutor:
 
     @classmethod
     def parse(cls, spec: str, *, name: str = "executor", **options) -> SweepExecutor:
-        """The executor a string names (``"sequential"``, ``"local"``, ``"local:<workers>"``,
-        ``"tcp://host:port"``); ``options`` fill the other fields.
-        A bad string raises ValueError naming ``name`` (the argument or variable it came from)."""
+        """The executor a string names.
+
+        Args:
+            spec: ``"sequential"``, ``"local"``, ``"local:<workers>"`` or ``"tcp://host:port"``.
+            name: the argument or variable ``spec`` came from, for the message.
+            **options: the other fields.
+
+        Returns:
+            The executor.
+
+        Raises:
+            TypeError: ``spec`` is not a string.
+            ValueError: ``spec`` names no executor (the message names ``name``).
+        """
         if not isinstance(spec, str):
             raise TypeError(f"{name} must be a string, a SweepExecutor or None, got {type(spec).__name__}: {spec!r}")
         text = spec.strip()
@@ -113,9 +122,21 @@ class SweepExecutor:
 
 
 def resolve_executor(executor: SweepExecutor | str | None = None) -> SweepExecutor:
-    """``executor`` as a :class:`SweepExecutor`: a string is parsed (:meth:`SweepExecutor.parse`);
-    None reads :data:`SCHEDULER_ENV` (``HISTOSTUDY_SCHEDULER``), sequential when it is unset or
-    empty. This is the one place that reads the variable."""
+    """The executor of a sweep; the one place that reads :data:`SCHEDULER_ENV`.
+
+    Args:
+        executor: a :class:`SweepExecutor`; a string, parsed by :meth:`SweepExecutor.parse`
+            (``"sequential"``, ``"local"``, ``"local:<workers>"``, ``"tcp://host:port"``); or None:
+            the environment variable ``HISTOSTUDY_SCHEDULER`` (same strings), sequential when it is
+            unset or empty, so that a study can be pointed at a cluster without editing its notebooks.
+
+    Returns:
+        The executor.
+
+    Raises:
+        TypeError: ``executor`` of another type.
+        ValueError: a string (or the variable) that names no executor.
+    """
     if isinstance(executor, SweepExecutor):
         return executor
     if executor is None:
@@ -127,24 +148,36 @@ def resolve_executor(executor: SweepExecutor | str | None = None) -> SweepExecut
 def run_sweep(task_fn: Callable[..., Any], tasks: Sequence, *, seed: int | np.random.SeedSequence | None = None,
               executor: SweepExecutor | str | None = None, shared: dict | None = None,
               chunk_size: int | None = None, progress: bool = False, cache: str | os.PathLike | None = None) -> list:
-    """Run ``task_fn`` on every element of ``tasks``; the results in task order.
+    """Run ``task_fn`` on every element of ``tasks``; the results in task order, the same bit for
+    bit whatever runs them (docs/architecture.md, "Seeding and determinism").
 
-    Task ``i`` is called ``task_fn(tasks[i], seeds[i], **shared)`` with ``seeds =
-    SeedSequence(seed).spawn(len(tasks))`` (an int seed) or ``seed.spawn(len(tasks))`` (a
-    SeedSequence, which advances as numpy's spawn does), or ``task_fn(tasks[i], **shared)`` when
-    ``seed`` is None (the tasks then carry all their randomness). ``shared`` holds read-only
-    inputs common to all tasks: on a cluster they are sent once to every worker, not with each
-    task. ``task_fn`` must be importable by its module path on the workers (a module-level
-    function). ``executor``: see :func:`resolve_executor`. On a cluster, consecutive tasks go in
-    chunks of ``chunk_size`` (default: about 4 chunks per worker thread), one dask task each, so
-    that tasks of milliseconds do not pay dask's overhead one by one; the results do not depend
-    on it. ``progress`` shows a tqdm bar (per chunk on a cluster). ``cache``: a folder where each
-    finished task's result is kept under its content key and found again by a later sweep of the
-    same task (:mod:`.sweep_cache`; default: ``HISTOSTUDY_SWEEP_CACHE``, else nothing kept), so that
-    a sweep stopped half-way redoes only what did not finish.
+    Task ``i`` is called ``task_fn(tasks[i], seeds[i], **shared)``, or ``task_fn(tasks[i],
+    **shared)`` when ``seed`` is None (the tasks then carry all their randomness).
 
-    Raises :class:`SweepTaskError` naming the first task that raised (by completion) or whose
-    workers died more than ``allowed_failures`` times.
+    Args:
+        task_fn: a module-level function (importable by its module path on the workers).
+        tasks: the tasks' arguments.
+        seed: an int (``seeds = SeedSequence(seed).spawn(len(tasks))``), a ``SeedSequence``
+            (``seed.spawn(len(tasks))``, which advances it as numpy's spawn does) or None.
+        executor: where to run (:func:`resolve_executor`).
+        shared: read-only inputs common to all tasks, sent once to every worker on a cluster.
+        chunk_size: on a cluster, consecutive tasks per dask task (default: about 4 chunks per
+            worker thread), so that tasks of milliseconds do not pay dask's overhead one by one;
+            the results do not depend on it.
+        progress: show a tqdm bar (per chunk on a cluster).
+        cache: a folder where each finished task's result is kept under its content key and found
+            again by a later sweep of the same task (:class:`.sweep_cache.SweepCache`; default:
+            ``HISTOSTUDY_SWEEP_CACHE``, else nothing kept), so that a sweep stopped half-way redoes
+            only what did not finish.
+
+    Returns:
+        The results, in the order of ``tasks``.
+
+    Raises:
+        TypeError: ``task_fn`` not callable, or ``seed`` of another type.
+        ValueError: a bad ``chunk_size`` or executor.
+        SweepTaskError: the first task that raised (by completion) or whose workers died more
+            than ``allowed_failures`` times, by its index.
     """
     if not callable(task_fn):
         raise TypeError(f"task_fn must be callable, got {type(task_fn).__name__}")
@@ -156,7 +189,8 @@ def run_sweep(task_fn: Callable[..., Any], tasks: Sequence, *, seed: int | np.ra
     elif isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
         seeds = np.random.SeedSequence(int(seed)).spawn(len(tasks))
     else:
-        raise TypeError(f"seed must be an int, a numpy.random.SeedSequence or None, got {type(seed).__name__}: {seed!r}")
+        raise TypeError(f"seed must be an int, a numpy.random.SeedSequence or None, "
+                        f"got {type(seed).__name__}: {seed!r}")
     if chunk_size is not None and (isinstance(chunk_size, bool) or not isinstance(chunk_size, (int, np.integer))
                                    or chunk_size < 1):
         raise ValueError(f"chunk_size must be an integer >= 1 or None, got {chunk_size!r}")

@@ -1,34 +1,7 @@
-"""Who may send frames to the live receiver (:class:`.receiver.FrameReceiver`, §II-A), and where
-it listens: the hospital network's side of the cable.
-
-:class:`AllowList` holds the modalities allowed to send (:class:`Modality`: a calling AE title and,
-optionally, the IP address it must call from), as Orthanc's ``DicomModalities`` or dcm4chee's
-"validate calling AE hostname" do. It is read from a JSON file (:func:`load_modalities`)::
-
-    {"modalities": {"carm_a": {"ae_title": "CARM_A", "host": "192.168.10.21"},
-                    "carm_b": {"ae_title": "CARM_B", "host": "192.168.10.22"},
-                    "pacs":   {"ae_title": "PACS"}}}
-
-or from ``AE[@HOST]`` texts (:func:`parse_allow`, ``histostudy listen --allow``).
-
-:class:`AssociationGate` applies it at association negotiation, before any object is read: the
-called AE title must be the receiver's own (pynetdicom's ``require_called_aet``), the calling AE
-title one of the list's (``require_calling_aet``), and a modality given with a host must call from
-that address (an ``EVT_REQUESTED`` handler). An association that fails is rejected with the
-standard A-ASSOCIATE-RJ: result 1 (permanent), source 1 (service user), reason 3 (calling AE title
-not recognised; also for a listed title calling from another address, as dcm4chee does) or 7
-(called AE title not recognised). Each rejection is logged with the peer's address and both AE
-titles, and reported to the receiver (its ``associations_rejected`` count). Without a list any
-calling AE title may send (the called AE title is still checked), and a warning says so.
-
-:class:`ConnectionGuard` bounds what one connection may hold, whoever it is from (the checks above
-come only once a whole A-ASSOCIATE-RQ is read): a PDU begun and left unfinished, or answers left
-unread, for ``network_timeout_s`` (pynetdicom reads an accepted connection blocking, without one); a
-PDU announcing more than :data:`MAX_PDU_BYTES` (a length of 0xFFFFFFFF); a message's data set beyond
-:data:`MAX_OBJECT_BYTES`. Each closes the connection (logged) before more is read or kept.
-
-:func:`check_listening_address` tells, before anything is written, whether the receiver can bind
-its address; :func:`listening_error` words a failed bind with the host and port.
+"""Who may send frames to the live receiver, and where it listens (§II-A): the allow-list of
+modalities (:class:`AllowList`, :func:`load_modalities`, :func:`parse_allow`) checked at association
+negotiation (:class:`AssociationGate`), the bounds of every connection (:class:`ConnectionGuard`) and
+the listening address tried before anything is written (docs/receiver.md, "Who may send").
 """
 
 from __future__ import annotations
@@ -77,8 +50,18 @@ def _address(value: str, name: str) -> str:
 
 @dataclasses.dataclass(frozen=True)
 class Modality:
-    """One sender allowed: its ``name`` (the config's key, for the log), its calling ``ae_title``
-    (1-16 characters) and ``host``: the IP address it must call from, or None (any address)."""
+    """One sender allowed to send frames to the receiver.
+
+    Args:
+        name: its name (the allow-list's key, for the log); a non-empty string.
+        ae_title: the calling AE title it sends as, 1-16 ASCII characters (stripped).
+        host: the IP address it must call from (an address, not a host name; an IPv4-mapped IPv6
+            address is kept as IPv4), or None: any address.
+
+    Raises:
+        ValueError: an empty ``name``, an AE title that is not one, or a ``host`` that is not an IP
+            address (the message names the modality).
+    """
 
     name: str
     ae_title: str
@@ -108,8 +91,14 @@ def _peer(address: str) -> str | None:
 
 @dataclasses.dataclass(frozen=True)
 class AllowList:
-    """The modalities allowed to send (at least one): a peer may send when one of them
-    :meth:`Modality.allows` it."""
+    """The modalities allowed to send: a peer may send when one of them :meth:`Modality.allows` it.
+
+    Args:
+        modalities: one :class:`Modality` or several (kept as a tuple); at least one.
+
+    Raises:
+        ValueError: no modality, or an item that is not a Modality.
+    """
 
     modalities: tuple[Modality, ...]
 
@@ -139,7 +128,18 @@ class AllowList:
 
     @classmethod
     def of(cls, allow) -> AllowList | None:
-        """An AllowList from ``allow``: one, a Modality, ``AE[@HOST]`` texts and Modalities, or None (no list)."""
+        """An AllowList from any of the forms the receiver's ``allow`` takes.
+
+        Args:
+            allow: an AllowList (returned as is), a :class:`Modality`, an ``"AE[@IP]"`` text
+                (:func:`parse_allow`), an iterable of Modalities and texts, or None.
+
+        Returns:
+            The AllowList; None where ``allow`` is None (no list: any calling AE title may send).
+
+        Raises:
+            ValueError: an empty iterable, or an item of another kind.
+        """
         if allow is None or isinstance(allow, AllowList):
             return allow
         items = [allow] if isinstance(allow, (Modality, str)) else list(allow) if isinstance(allow, Iterable) else None
@@ -150,7 +150,17 @@ class AllowList:
 
 
 def parse_allow(text: str) -> Modality:
-    """``"AE"`` or ``"AE@HOST"`` (HOST an IP address) as a :class:`Modality` named after it."""
+    """A :class:`Modality` from its ``AE[@IP]`` text (``histostudy listen --allow``), named after it.
+
+    Args:
+        text: ``"AE"`` (any address) or ``"AE@IP"`` (an IP address, not a host name).
+
+    Returns:
+        The modality.
+
+    Raises:
+        ValueError: an empty text, an AE title that is not one, or a host that is not an IP address.
+    """
     if not isinstance(text, str) or not text.strip():
         raise ValueError(f"allow must be 'AE_TITLE' or 'AE_TITLE@IP_ADDRESS', got {text!r}")
     title, _, host = text.strip().rpartition("@") if "@" in text else (text.strip(), "", "")
@@ -158,10 +168,23 @@ def parse_allow(text: str) -> Modality:
 
 
 def load_modalities(path: str | os.PathLike) -> AllowList:
-    """The :class:`AllowList` of a JSON file ``{"modalities": {name: {"ae_title": ..., "host": ...}}}``
-    (``host`` optional; ``port``, the modality's own SCP port in Orthanc's lists, is accepted and
-    not used: the receiver never calls back). Raises FileNotFoundError, or ValueError naming the
-    file and the entry at fault."""
+    """The :class:`AllowList` of a JSON file, as Orthanc's ``DicomModalities``.
+
+    The file holds ``{"modalities": {name: {"ae_title": ..., "host": ...}, ...}}``; ``host`` is
+    optional, and ``port`` (the modality's own SCP port in Orthanc's lists) is accepted and not used:
+    the receiver never calls back.
+
+    Args:
+        path: the JSON file.
+
+    Returns:
+        The allow-list, one :class:`Modality` per entry.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: not JSON, not that shape, or an entry with a bad AE title, host or port (the
+            message names the file and the entry).
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"modalities file {str(path)!r}: no such file")

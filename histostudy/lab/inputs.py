@@ -1,10 +1,5 @@
 """The lab's inputs judged plausible before any work is done on them: the units of the flange poses
 a robot reported at the calibration stations (:func:`check_flange_pose_units`).
-
-A hand-eye calibration on flange poses in the wrong unit fails only at its end, with residuals of
-metres that read as bad pose estimates. The unit shows in the poses themselves, though: a UR5e's
-flange lies between :data:`FLANGE_DISTANCE_MM` of its base origin, so that a translation's norm
-tells millimetres from metres, and a UR pose's axis-angle never turns more than half a turn.
 """
 
 from __future__ import annotations
@@ -34,12 +29,21 @@ _FULL_TURN_RAD = 2.0 * math.pi
 def check_flange_pose_units(data: dict, path: str | os.PathLike) -> None:
     """Refuse flange poses in the wrong unit, with the unit they look like and the fix.
 
-    ``data``: the flange poses file's JSON (:func:`~histostudy.lab.load_flange_poses`, whose entries
-    have been checked for shape and finiteness already): ``T_base_flange`` (4x4, mm), read when
-    present, else ``ur_pose`` (``[x, y, z]`` m, ``[rx, ry, rz]`` axis-angle rad). ``path`` names
-    the file in the message. Poses a UR5e can take in the stated units are never refused: a
-    translation of norm below :data:`FLANGE_UNIT_SPLIT` given as mm, or above it given as m, or a
-    rotation vector of norm above 2 pi, is.
+    A hand-eye calibration on flange poses in the wrong unit fails only at its end, with residuals of
+    metres that read as bad pose estimates. The unit shows in the poses themselves: a UR5e's flange
+    lies within :data:`FLANGE_DISTANCE_MM` of its base origin, and a UR pose's axis-angle never turns
+    more than half a turn. Poses a UR5e can take in the stated units are never refused: a translation
+    of norm below :data:`FLANGE_UNIT_SPLIT` given as mm, or above it given as m, or a rotation vector
+    of norm above 2 pi, is.
+
+    Args:
+        data: the flange poses file's JSON (:func:`~histostudy.lab.load_flange_poses`, whose entries
+            have been checked for shape and finiteness already): ``T_base_flange`` (4x4, mm), read
+            when present, else ``ur_pose`` (``[x, y, z]`` m, ``[rx, ry, rz]`` axis-angle rad).
+        path: the file, named in the message.
+
+    Returns:
+        None.
 
     Raises:
         ValueError: naming the file, the key, the stations and the unit the values look like.

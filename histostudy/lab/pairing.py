@@ -1,27 +1,6 @@
 """Biplane frames paired by acquisition time (§II-A, §II-D): which frame of plane B was taken with
-which frame of plane A.
-
-A biplane C-arm (the paper's set-up, planes A and B at -45/+45 deg, §II-D) exposes both planes at
-each pulse and sends each plane's frames on its own, as single-frame XA objects or as cines. The
-receiver (:mod:`.receiver`) gives each decoded frame to a :class:`BiplanePairer`, which emits a
-set of one frame per plane as soon as every plane has a frame taken at the same time.
-
-Times (:func:`frame_times`): a frame's acquisition time is its object's ``AcquisitionDateTime``
-(0008,002A) plus the frame's offset in a cine — ``frame index x FrameTime`` (0018,1063, ms), or the
-running sum of ``FrameTimeVector`` (0018,1065, ms) where ``FrameIncrementPointer`` points to it — or,
-in an enhanced object, each frame's own ``FrameAcquisitionDateTime`` (0018,9074). Without an
-``AcquisitionDateTime`` the ``AcquisitionDate``/``AcquisitionTime`` pair, then ``ContentDate``/
-``ContentTime``, give the first frame's time. A time without a UTC offset is read as UTC: both planes
-of one C-arm share its clock, and only differences between times matter here. Times are float
-seconds (the POSIX epoch), frame intervals float seconds.
-
-Matching rule (:meth:`BiplanePairer.add`): two frames of different planes belong together when
-their times differ by less than half a frame interval (strictly), the interval being the shorter
-of the two frames' cine intervals (``FrameTime``), or ``default_interval_s`` (66.7 ms, 15 frames/s)
-for single-frame objects; ``tolerance_s`` overrides the half interval. A frame whose partner in
-another plane can no longer come — that plane's frames have moved on past it by the tolerance —
-is dropped as unpaired, as is the oldest frame of a plane holding more than ``max_pending``.
-Frames of one plane are assumed to arrive in time order (as a C-arm sends them).
+which frame of plane A (:class:`BiplanePairer`; the frames' times from their tags, :func:`frame_times`;
+the rule in docs/receiver.md, "Pairing").
 """
 
 from __future__ import annotations

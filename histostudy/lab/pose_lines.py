@@ -1,15 +1,5 @@
-"""The JSON line the pose receiver (:class:`.receiver.FrameReceiver`, §II-A) writes per biplane pair:
-:func:`pose_line`.
-
-Each JSON line holds the fields of :func:`histostudy.pose.pose_record` (``T_carm_transducer`` 4x4
-in mm, C-arm/CBCT frame; ``focal_point_mm``; ``cost``; ``accepted`` and the ``verdict``;
-``timings_s`` per stage) and the pair's ``pair_index``, ``planes``, ``instance_uids``,
-``frame_indices``, ``frame_times`` (ISO 8601), ``tracking`` (``from_scratch``, ``warm`` or
-``reacquired``) and ``seconds`` (``decode``; ``queue``, from queued to taken by the tracker;
-``pose``, the worker's time on it since the previous line or since it was taken, whichever is later:
-the lines' ``pose`` seconds sum to the worker's busy time; ``latency`` from the pair's last frame
-received to its line written). A pair whose pose work raised gets a line with ``accepted`` false
-and ``error``. Lines are appended and flushed one by one.
+"""The JSON line the live receiver writes per biplane pair (:func:`pose_line`, §II-A; its fields in
+docs/receiver.md, "The pose line").
 """
 
 from __future__ import annotations

@@ -1,15 +1,6 @@
-"""The pose worker of the live receiver (:class:`.receiver.FrameReceiver`, §II-A): the thread that
-takes the waiting biplane pairs, converts their pixels, poses them through
-:meth:`histostudy.pose.Tracker.track` and writes each pair's JSON line (:mod:`.pose_lines`).
-
-:class:`PoseWorker` is the receiver's half that runs on that thread (a base class of
-:class:`~.receiver.FrameReceiver`, which holds the state it reads: the lock ``_cv``, the queue of
-waiting pairs, the counters, the tracker and the output). A pair's pixels are converted
-(:meth:`.xray_objects.PendingFrame.decode`) only when the worker takes it, so that a pair dropped
-for a newer one costs no pixel decoding; a pair whose pixels cannot be used (a frame without
-signal, a compressed stream that does not decode) gets an error line naming why, as a pair whose
-pose raised does. With ``pipeline`` such a line can precede the line of the pair posed before it.
-Times are ``time.perf_counter`` seconds.
+"""The pose worker of the live receiver (§II-A): the thread that takes the waiting biplane pairs,
+converts their pixels, poses them through :meth:`histostudy.pose.Tracker.track` and writes each pair's
+line (:class:`PoseWorker`, a base class of :class:`~.receiver.FrameReceiver`; docs/receiver.md).
 """
 
 from __future__ import annotations

@@ -1,12 +1,5 @@
-"""What the pose receiver (:class:`.receiver.FrameReceiver`, §II-A) counts and times:
-:class:`ReceiverCounts`.
-
-The counts of objects, frames and pairs (the pairs dropped for newer ones among them), the
-rejections by status, the seconds spent decoding and posing, and the latency (its mean, and its
-percentiles over the last :data:`LATENCY_WINDOW` lines), kept in one place so that the receiver's
-network and worker threads add to them (under the receiver's lock) and
-:meth:`ReceiverCounts.stats` reports them. Times in seconds
-(``time.perf_counter``).
+"""What the live receiver counts and times (§II-A): objects, frames, pairs, rejections, seconds per
+stage and the latency's percentiles, kept under the receiver's lock (:class:`ReceiverCounts`).
 """
 
 from __future__ import annotations
@@ -101,9 +94,9 @@ class ReceiverCounts:
         handshakes failed: no certificate, or one the CA did not sign); ``stage_seconds``
         summed (``decode`` in the handlers, the pose stages of :meth:`histostudy.pose.Tracker.stats`)
         and ``seconds_per_pair`` (those over ``pairs_processed``, plus ``pose`` and ``latency``);
-        ``frames_per_s``: the frames of the processed pairs over the time from the first frame received to the last line written;
-        ``pose_frames_per_s``: the same frames over the pose worker's busy time; ``tracker``: the
-        tracker's counters (:meth:`histostudy.pose.Tracker.stats`) at the last line; ``port``;
+        ``frames_per_s``: the frames of the processed pairs over the time from the first frame received
+        to the last line written; ``pose_frames_per_s``: the same frames over the pose worker's busy
+        time; ``tracker``: the tracker's counters (:meth:`histostudy.pose.Tracker.stats`) at the last line; ``port``;
         ``elapsed_s`` since the server started; ``warm_up_s``: the tracker's warm-up at the start
         (None without one).
         """

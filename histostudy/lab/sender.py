@@ -1,17 +1,7 @@
-"""X-ray objects sent to a DICOM Storage SCP (C-STORE): the C-arm's end of the cable, for tests,
-demonstrations and replaying a lab's recorded cines to :class:`~.receiver.FrameReceiver` (§II-A).
-
-:func:`send_frames` opens one association (pynetdicom's SCU) with the receiver, proposes each
-object's SOP class with its own transfer syntax (and the uncompressed little-endian ones), stores
-the objects in order (a compressed one in its own context, sent as it is) and releases the
-association; it returns the C-STORE status of each object
-(0x0000 success; the receiver's refusals in :data:`.xray_objects.REJECTION_STATUSES`).
-:func:`stream_frames` does the same at the pace of the acquisition, as a C-arm streams a
-fluoroscopy run: each object is stored once its last frame has been taken (its
-``AcquisitionDateTime`` plus its cine offset, :func:`.pairing.frame_times`, counted from the
-first object's first frame), and it reports when each object went out and how late. Objects given
-as paths are read when they are stored (their headers before the association), so a long run
-never sits in memory. With ``tls`` (:mod:`.tls`) both send over TLS.
+"""X-ray objects sent to a DICOM Storage SCP (C-STORE), the C-arm's end of the cable (§II-A): for
+tests, demonstrations and replaying a lab's recorded cines to the receiver, at once
+(:func:`send_frames`) or at the pace of the acquisition (:func:`stream_frames`; docs/receiver.md,
+"The sender").
 """
 
 from __future__ import annotations
@@ -29,10 +19,17 @@ __all__ = ["SentObject", "send_frames", "stream_frames"]
 
 @dataclass(frozen=True)
 class SentObject:
-    """One object :func:`stream_frames` stored: its ``index`` in the input, the C-STORE ``status``;
-    ``due_s``: when its last frame was taken (s from the first frame, over the pace); ``sent_s`` and
-    ``answered_s``: when its C-STORE request went out and its response came back (s from the
-    start of the sending); ``late_s = sent_s - due_s`` (> 0: the sender fell behind the C-arm)."""
+    """One object :func:`stream_frames` stored, and when.
+
+    Args:
+        index: its position in the input.
+        status: the receiver's C-STORE status (0x0000 success).
+        due_s: when its last frame was taken (s from the first object's first frame, over the pace).
+        sent_s: when its C-STORE request went out (s from the start of the sending).
+        answered_s: when its response came back (s from the start of the sending).
+
+    ``late_s`` (property) is ``sent_s - due_s``: > 0 where the sender fell behind the C-arm.
+    """
 
     index: int
     status: int
@@ -80,15 +77,31 @@ def send_frames(paths: Sequence, host: str, port: int, *, ae_title: str = "HISTO
 
 def stream_frames(paths: Sequence, host: str, port: int, *, pace: float = 1.0, ae_title: str = "HISTOSTUDY",
                   calling_ae_title: str = "HISTOSTUDY_SCU", timeout_s: float = 30.0, tls=None) -> list[SentObject]:
-    """:func:`send_frames` at the pace of the acquisition: each object is stored no earlier than
-    its last frame's acquisition time (:func:`.pairing.frame_times`) after the first object's first
-    frame, divided by ``pace`` (1.0: real time; 2.0: twice as fast). An object whose time has passed
-    (the SCP answered the one before late) goes at once: the sender never skips. The objects should
-    be given in acquisition order (e.g. plane A's frame k, plane B's frame k, then frame k + 1).
+    """:func:`send_frames` at the pace of the acquisition, as a C-arm streams a fluoroscopy run.
 
-    Returns one :class:`SentObject` per object, in order. Raises as :func:`send_frames` does, and
-    ValueError for an object without an acquisition time (naming it) or a ``pace`` that is not a
-    finite number > 0.
+    Each object is stored no earlier than its last frame's acquisition time
+    (:func:`.pairing.frame_times`) after the first object's first frame, divided by ``pace``. An
+    object whose time has passed (the receiver answered the one before late) goes at once: the
+    sender never skips. Objects given as paths are read when they are stored.
+
+    Args:
+        paths: the objects in acquisition order (e.g. plane A's frame k, plane B's frame k, then
+            frame k + 1): file paths or pydicom Datasets.
+        host: the receiver's host name or address.
+        port: its TCP port (1-65535).
+        pace: the speed-up (1.0: real time; 2.0: twice as fast); a finite number > 0.
+        ae_title: the receiver's AE title (the called one).
+        calling_ae_title: this sender's AE title.
+        timeout_s: the association's network timeout (s).
+        tls: None (plain TCP) or a :class:`~.tls.TLSConfig` (or a client-side ``ssl.SSLContext``).
+
+    Returns:
+        One :class:`SentObject` per object, in order.
+
+    Raises:
+        ValueError: an object without an acquisition time (named), a ``pace`` that is not a finite
+            number > 0, or what :func:`send_frames` refuses.
+        ConnectionError: as :func:`send_frames`.
     """
     check_positive(pace, "pace", what="a finite speed-up > 0 (1.0: the acquisition's own pace)")
     return _store(paths, host, port, ae_title=ae_title, calling_ae_title=calling_ae_title, timeout_s=timeout_s,

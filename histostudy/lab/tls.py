@@ -1,16 +1,6 @@
-"""DICOM over TLS for the live receiver and its sender (§II-A; DICOM PS3.15 Annex B, the secure
-transport connection profiles): :class:`TLSConfig`, the PEM files of one end.
-
-The receiver (:class:`.receiver.FrameReceiver`, ``tls=``) presents its certificate and, given a CA,
-asks each client for one signed by that CA (mutual authentication): a client without one is refused
-during the handshake, before any DICOM is read. The sender (:func:`.sender.send_frames`, ``tls=``)
-checks the receiver's certificate against its CA and the address it calls, and presents its own
-certificate where it has one. TLS 1.2 at least.
-
-Each connection's handshake is made on that connection's own thread
-(:meth:`ServerTLS.handshake`, bound to pynetdicom's ``EVT_CONN_OPEN``), not on the server's accept
-loop, where pynetdicom would make it: a client that connects and stays silent then holds only its
-own connection, for at most the receiver's network timeout, and never the other senders'.
+"""DICOM over TLS for the live receiver and its sender (§II-A; DICOM PS3.15 Annex B):
+:class:`TLSConfig`, the PEM files of one end, each connection's handshake on its own thread
+(docs/receiver.md, "TLS").
 """
 
 from __future__ import annotations
@@ -29,15 +19,19 @@ log = logging.getLogger("histostudy.lab.receiver")  # the receiver's log, where 
 
 @dataclasses.dataclass(frozen=True)
 class TLSConfig:
-    """The PEM files of one end of a TLS connection (paths; checked to exist when made).
+    """The PEM files of one end of a TLS connection (DICOM PS3.15 Annex B; TLS 1.2 at least).
 
-    Attributes:
+    Args:
         cert: this end's certificate (chain); the receiver needs one, a sender only for mutual
             authentication.
         key: its private key (unencrypted PEM), given with ``cert`` (None: in ``cert``'s file).
-        ca: the CA certificate(s) that sign the other end's: for the receiver, the clients'
-            (given: every client must present a certificate it signed); for a sender, the
-            receiver's (None: the system's trusted CAs).
+        ca: the CA certificate(s) that sign the other end's: for the receiver, the clients' (given:
+            every client must present a certificate it signed); for a sender, the receiver's (None:
+            the system's trusted CAs).
+
+    Raises:
+        ValueError: a path that is not a non-empty string or path, or a ``key`` without ``cert``.
+        FileNotFoundError: a file that does not exist.
     """
 
     cert: str | os.PathLike | None = None

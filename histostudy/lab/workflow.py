@@ -1,25 +1,6 @@
-"""The lab's workflow on its own files and robot (§II-C, §II-D, Fig. 2): pose estimates and flange
-poses in, a checked hand-eye calibration out; a target in the CBCT in, a checked robot move out —
-planned (a dry run) unless the caller asks, explicitly, to execute it.
-
-The files, all JSON (mm, 4x4 ``T_<to>_<from>``; docs/architecture.md, "Frames and units"):
-
-- a pose record, as ``histostudy pose`` writes it (:func:`histostudy.pose.pose_record`):
-  ``T_carm_transducer``, ``focal_point_mm``, ``accepted`` and the verdict;
-- the flange poses, read from the robot at each calibration station (:func:`load_flange_poses`):
-  ``{"T_base_flange": [4x4, ...]}`` in mm, or ``{"ur_pose": [[x, y, z, rx, ry, rz], ...]}`` as the
-  UR pendant and ``getActualTCPPose`` give them (m, axis-angle rad; with the TCP offset at zero);
-- the calibration, :meth:`~histostudy.calibration.HandEyeCalibration.save`'s schema;
-- the targeting plan, :meth:`TargetingPlan.to_dict`.
-
-Every position is in the C-arm (CBCT world) frame, DICOM LPS axes, mm
-(:data:`histostudy.core.WORLD_FRAME`), and every file says so (``frame``, ``units``). A pose of a
-transducer that looks the same after a half turn about its axis has two readings no image tells
-apart; :func:`plan_targeting_either_reading` plans with the one the robot reaches with less travel.
-
-A robot never moves on a pose this module has not checked: :func:`plan_targeting` runs the
-inverse kinematics from the robot's present joints and the workspace check, and
-:func:`execute_targeting` moves only on a plan that passed them (the robot checks again).
+"""The lab's workflow on its own files and robot (§II-C, §II-D, Fig. 2): pose records and flange
+poses in, a checked hand-eye calibration out; a target in the CBCT in, a checked robot move out,
+planned unless the caller asks to execute it (the files: docs/your-data.md, "The workflow's files").
 """
 
 from __future__ import annotations
@@ -69,8 +50,20 @@ def _read_json(path: str | os.PathLike, what: str):
 
 
 def load_pose_record(path: str | os.PathLike) -> dict:
-    """A pose record of ``histostudy pose`` (:func:`histostudy.pose.pose_record`), checked: its
-    ``T_carm_transducer`` rigid (mm) and its ``accepted`` flag present."""
+    """A pose record of ``histostudy pose`` (:func:`histostudy.pose.pose_record`), checked.
+
+    Args:
+        path: the JSON file.
+
+    Returns:
+        The record (a dict) with ``T_carm_transducer`` as a rigid 4x4 numpy array (transducer ->
+        C-arm, mm) and its ``accepted`` flag.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: not JSON, without ``T_carm_transducer`` or ``accepted``, or a
+            ``T_carm_transducer`` that is not a finite rigid 4x4 transform.
+    """
     record = _read_json(path, "pose record")
     if not isinstance(record, dict) or "T_carm_transducer" not in record or "accepted" not in record:
         raise ValueError(f"pose record {str(path)!r} must be a JSON object with 'T_carm_transducer' and "
@@ -81,9 +74,21 @@ def load_pose_record(path: str | os.PathLike) -> dict:
 
 
 def load_flange_poses(path: str | os.PathLike) -> list[np.ndarray]:
-    """The flange poses ``T_base_flange`` (4x4, mm) of a calibration, one per station, from a JSON
-    file holding ``T_base_flange`` (4x4 transforms in mm) or ``ur_pose`` (UR poses ``[x, y, z, rx,
-    ry, rz]`` in m and axis-angle rad, read with the TCP offset at zero)."""
+    """The flange poses a robot reported at the calibration stations, checked.
+
+    Args:
+        path: a JSON file holding ``T_base_flange`` (4x4 transforms, flange -> robot base, mm; read
+            when present) or ``ur_pose`` (UR poses ``[x, y, z, rx, ry, rz]`` in m and axis-angle rad,
+            as the pendant and ``getActualTCPPose`` give them, with the TCP offset at zero).
+
+    Returns:
+        ``T_base_flange`` per station (4x4 numpy arrays, mm).
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: not JSON, neither key, a pose that is not a finite rigid transform, or values in
+            the wrong unit (:func:`~histostudy.lab.inputs.check_flange_pose_units`).
+    """
     data = _read_json(path, "flange poses file")
     if not isinstance(data, dict) or not ({"T_base_flange", "ur_pose"} & set(data)):
         raise ValueError(f"flange poses file {str(path)!r} must be a JSON object with 'T_base_flange' "
@@ -102,14 +107,33 @@ def load_flange_poses(path: str | os.PathLike) -> list[np.ndarray]:
 def calibrate_from_poses(pose_records: Sequence[dict], T_base_flange_list: Sequence, *,
                          nominal_T_flange_transducer=None, max_focal_residual_mm: float = 2.0,
                          max_rotation_residual_deg: float = 1.0, on_refused: str = "raise") -> HandEyeCalibration:
-    """The hand-eye calibration of §II-C from the pose estimates at n >= 3 stations and the flange
-    poses the robot reported there, each estimate read as itself or its half turn
-    (:func:`~histostudy.calibration.calibrate_half_turns`), then checked against the residual bound
-    (:meth:`~histostudy.calibration.HandEyeCalibration.check`, raising
-    :class:`~histostudy.calibration.CalibrationError` beyond it). A station whose pose the verdict
-    refused is never calibrated on: ``on_refused="raise"`` (the default) refuses the calibration,
-    naming the stations (re-acquire their frames); ``"exclude"`` leaves them out, as long as at
-    least 3 stations remain (:func:`accepted_stations` says which)."""
+    """The hand-eye calibration of §II-C from the pose estimates at n >= 3 stations and the flange poses.
+
+    Each estimate is read as itself or its half turn
+    (:func:`~histostudy.calibration.calibrate_half_turns`), then the calibration is checked against
+    the residual bounds (:meth:`~histostudy.calibration.HandEyeCalibration.check`). A station whose
+    pose the verdict refused is never calibrated on.
+
+    Args:
+        pose_records: the stations' pose records (:func:`load_pose_record`), with
+            ``T_carm_transducer`` (transducer -> C-arm, mm) and ``accepted``.
+        T_base_flange_list: the flange poses at the same stations (flange -> robot base, 4x4, mm).
+        nominal_T_flange_transducer: the mounting's nominal transform (transducer -> flange, 4x4,
+            mm), which picks among the half-turn readings; None: none.
+        max_focal_residual_mm: the bound on the focal point's residual (mm).
+        max_rotation_residual_deg: the bound on the rotation's residual (deg).
+        on_refused: ``"raise"`` (refuse the calibration, naming the refused stations: re-acquire their
+            frames) or ``"exclude"`` (leave them out while at least 3 stations remain;
+            :func:`accepted_stations` says which).
+
+    Returns:
+        The checked :class:`~histostudy.calibration.HandEyeCalibration`.
+
+    Raises:
+        ValueError: the lists differ in length, a bad ``on_refused``, or refused stations (with
+            ``"raise"``, or fewer than 3 left).
+        histostudy.calibration.CalibrationError: residuals beyond the bounds.
+    """
     records = list(pose_records)
     flanges = list(T_base_flange_list)
     if len(records) != len(flanges):
@@ -130,23 +154,38 @@ def calibrate_from_poses(pose_records: Sequence[dict], T_base_flange_list: Seque
 
 
 def accepted_stations(pose_records: Sequence[dict]) -> list[int]:
-    """Indices of the pose records whose verdict accepted the fit (those a calibration uses)."""
+    """The stations a calibration uses.
+
+    Args:
+        pose_records: the stations' pose records.
+
+    Returns:
+        The indices of the records whose verdict accepted the fit (``accepted`` true).
+    """
     return [i for i, r in enumerate(pose_records) if r.get("accepted", False)]
 
 
 @dataclass(frozen=True, eq=False)
 class TargetingPlan:
-    """A checked move of the focal point onto a target (§II-D, Fig. 2 step 3); mm, rad, 4x4.
+    """A checked move of the focal point onto a target (§II-D, Fig. 2 step 3); mm, rad, 4x4 transforms.
 
-    ``target_mm`` (C-arm frame), ``R_carm_transducer`` (the orientation at the target),
-    ``T_flange_tcp`` (the TCP the move aims: the calibrated focal point), ``T_base_tcp`` and
-    ``T_base_flange`` (the commanded poses), ``start_joints_rad`` (where the plan starts from: the
-    robot's joints, or the home configuration for a plan made without a robot) and
-    ``joints_rad`` (the inverse-kinematics solution nearest them), ``joint_travel_rad`` (largest
-    joint move) and ``workspace_ok`` (always True: a plan outside the workspace is not made);
-    ``orientation_reading`` (one of :data:`READINGS`, None for an orientation not read off a pose)
-    and ``orientation_reason`` (why, :func:`plan_targeting_either_reading`). :meth:`to_dict` adds
-    the ``frame`` and ``target_ras_mm``, the target with RAS axes (as nibabel and 3D Slicer show it).
+    Made by :func:`plan_targeting` (never outside the workspace); :meth:`to_dict` gives its JSON, with
+    the ``frame`` and ``target_ras_mm`` (the target with RAS axes, as nibabel and 3D Slicer show it).
+
+    Args:
+        target_mm: the target (C-arm frame, mm).
+        R_carm_transducer: the transducer's orientation at the target (transducer -> C-arm, 3x3).
+        T_flange_tcp: the TCP the move aims, the calibrated focal point (TCP -> flange).
+        T_base_tcp: the commanded TCP pose (TCP -> robot base).
+        T_base_flange: the commanded flange pose (flange -> robot base).
+        start_joints_rad: where the plan starts from: the robot's joints, or the home configuration
+            for a plan made without a robot (rad).
+        joints_rad: the inverse-kinematics solution nearest them (rad).
+        joint_travel_rad: the largest joint move (rad).
+        workspace_ok: always True (a plan outside the workspace is not made).
+        orientation_reading: one of ``READINGS`` (:mod:`.workflow`), None for an orientation not read
+            off a pose.
+        orientation_reason: why that reading (:func:`plan_targeting_either_reading`).
     """
 
     target_mm: np.ndarray
@@ -181,15 +220,28 @@ def _orientation(calibration: HandEyeCalibration, orientation) -> np.ndarray:
 
 def plan_targeting(calibration: HandEyeCalibration, target_mm, *, volume: Volume | None = None,
                    orientation="down", start_joints_rad=None, workspace: Workspace | None = None) -> TargetingPlan:
-    """Plan the move that puts the calibrated focal point on ``target_mm`` (C-arm frame, mm; the
-    CBCT's world coordinates, the CBCT being taken by the same C-arm, §II-D).
+    """Plan the move that puts the calibrated focal point on ``target_mm`` (§II-D).
 
-    ``volume``: the CBCT, when given the target must lie inside it. ``orientation``: ``"down"``
-    (propagation straight down, :func:`~histostudy.calibration.target_orientation`), or a 3x3
-    ``R_carm_transducer`` / 4x4 ``T_carm_transducer`` to keep (e.g. the present pose).
-    ``start_joints_rad``: the robot's present joints (default: the home configuration). Raises
-    :class:`~histostudy.robot.UnreachablePoseError` or
-    :class:`~histostudy.robot.WorkspaceViolation` for a move the robot cannot or must not make.
+    Args:
+        calibration: the hand-eye calibration (:func:`calibrate_from_poses`).
+        target_mm: the target, 3 numbers (C-arm frame, mm: the CBCT's world coordinates, the CBCT
+            being taken by the same C-arm).
+        volume: the CBCT; when given, the target must lie inside it.
+        orientation: ``"down"`` (propagation straight down,
+            :func:`~histostudy.calibration.target_orientation`), or a 3x3 ``R_carm_transducer`` / 4x4
+            ``T_carm_transducer`` to keep (e.g. the present pose).
+        start_joints_rad: the robot's present joints (rad; default: the home configuration).
+        workspace: the workspace the move must stay in; default ``Workspace()``.
+
+    Returns:
+        The :class:`TargetingPlan`.
+
+    Raises:
+        TypeError: ``calibration`` not a HandEyeCalibration.
+        ValueError: a target that is not 3 finite numbers or lies outside ``volume``, or a bad
+            ``orientation``.
+        histostudy.robot.UnreachablePoseError: no joint solution reaches the pose.
+        histostudy.robot.WorkspaceViolation: the move leaves the workspace.
     """
     if not isinstance(calibration, HandEyeCalibration):
         raise TypeError(f"calibration must be a HandEyeCalibration, got {type(calibration).__name__}")
@@ -219,16 +271,31 @@ def plan_targeting(calibration: HandEyeCalibration, target_mm, *, volume: Volume
 def plan_targeting_either_reading(calibration: HandEyeCalibration, target_mm, T_carm_transducer, *,
                                   symmetric: bool | None = True, volume: Volume | None = None,
                                   start_joints_rad=None, workspace: Workspace | None = None) -> TargetingPlan:
-    """:func:`plan_targeting` keeping a recorded pose's orientation (``T_carm_transducer`` 4x4 or
-    ``R_carm_transducer`` 3x3, C-arm frame), read as recorded or turned half about the transducer's
-    axis (:data:`~histostudy.transducer.HALF_TURN`, §II-B.4). ``symmetric``: whether the transducer
-    looks the same both ways (a pose record's ``half_turn.symmetric``; None where the record does
-    not say: read as symmetric, as the paper's transducer is). Then no image told the readings
-    apart, and both keep the beam axis and put the focal point on the target: of those the robot
-    can reach (inverse kinematics, workspace) the one of smaller joint travel from
-    ``start_joints_rad`` is planned (as recorded on a tie). With ``symmetric=False`` the orientation
-    is planned as recorded. The plan's ``orientation_reading`` says which reading, and
-    ``orientation_reason`` why. Raises as :func:`plan_targeting` when no reading can be reached."""
+    """:func:`plan_targeting` keeping a recorded pose's orientation, read as recorded or turned half
+    about the transducer's axis (:data:`~histostudy.transducer.HALF_TURN`, §II-B.4).
+
+    Where the transducer looks the same both ways no image told the readings apart, and both keep the
+    beam axis and put the focal point on the target: of those the robot can reach (inverse kinematics,
+    workspace), the one of smaller joint travel from ``start_joints_rad`` is planned (as recorded on a
+    tie). The plan's ``orientation_reading`` says which reading, and ``orientation_reason`` why.
+
+    Args:
+        calibration: the hand-eye calibration.
+        target_mm: the target (C-arm frame, mm).
+        T_carm_transducer: the recorded pose (4x4, transducer -> C-arm, mm) or rotation (3x3).
+        symmetric: whether the transducer looks the same after a half turn (a pose record's
+            ``half_turn.symmetric``); None where the record does not say (read as symmetric, as the
+            paper's transducer is); False: planned as recorded.
+        volume, start_joints_rad, workspace: as :func:`plan_targeting`'s.
+
+    Returns:
+        The :class:`TargetingPlan` of the reading chosen.
+
+    Raises:
+        ValueError: a bad ``symmetric`` or ``T_carm_transducer``, or as :func:`plan_targeting`.
+        histostudy.robot.UnreachablePoseError, histostudy.robot.WorkspaceViolation: no reading can be
+            reached (the message gives each reading's reason).
+    """
     if symmetric not in (True, False, None):
         raise ValueError(f"symmetric must be True, False or None (not recorded), got {symmetric!r}")
     if isinstance(T_carm_transducer, str):
@@ -265,10 +332,21 @@ def execute_targeting(plan: TargetingPlan, robot: Robot, *, speed_mm_s: float = 
                       max_start_deviation_rad: float = 1e-3) -> dict:
     """Move ``robot`` along ``plan``: set the TCP, then one linear move onto ``plan.T_base_tcp``.
 
-    Refuses (ValueError, nothing moved) when the robot is no longer where the plan started
-    (joints differ by more than ``max_start_deviation_rad``): the plan's checks were made from
-    there. Returns the reached ``T_base_tcp``, its distance from the commanded one (mm) and the
-    joints after the move."""
+    Args:
+        plan: a :class:`TargetingPlan` (:func:`plan_targeting`).
+        robot: the robot (a :class:`~histostudy.robot.Robot`).
+        speed_mm_s: the linear move's speed (mm/s).
+        max_start_deviation_rad: how far (rad, any joint) the robot may be from the plan's start.
+
+    Returns:
+        A JSON-ready dict: ``T_base_tcp_reached`` (4x4, mm), ``position_error_mm`` (its distance from
+        the commanded one) and ``joints_rad`` after the move.
+
+    Raises:
+        TypeError: ``plan`` not a TargetingPlan.
+        ValueError: the robot is no longer where the plan started (nothing moved): plan again from
+            where it is.
+    """
     if not isinstance(plan, TargetingPlan):
         raise TypeError(f"plan must be a TargetingPlan, got {type(plan).__name__}")
     joints = np.asarray(robot.joints(), dtype=np.float64)

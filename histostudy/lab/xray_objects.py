@@ -1,45 +1,7 @@
-"""Received DICOM X-ray objects decoded and checked: frames of line integrals, each with its plane (§II-A).
-
-What the live receiver (:mod:`.receiver`) does with each object a C-arm or a PACS sends it, in two
-steps: :func:`read_xray_header` checks the object as every reader of the lab's frames does
-(:func:`histostudy.imaging.io.check_xray_object`, which ``histostudy pose`` and ``calibrate`` apply
-through :func:`~histostudy.imaging.load_frame`: the SOP class, the transfer syntax among
-:data:`histostudy.imaging.io.RECEIVABLE_TRANSFER_SYNTAXES`, the image size and, uncompressed, the pixel
-data's length), then the geometry tags, the frame times and the pixel module's tags, and gives one
-:class:`PendingFrame` per frame (a cine's frames each one), all that pairing and the C-STORE answer
-need; :meth:`PendingFrame.decode` converts one frame's pixels into a :class:`ReceivedFrame`, done by
-the receiver only for the pairs it poses. :func:`decode_xray_object` does both for every frame;
-:func:`read_c_store` and :func:`decode_c_store` run them on a pynetdicom C-STORE request, and
-:func:`rejection_response` is the answer to a refused one.
-
-- **The plane.** Each frame goes to a plane (a view): the view named as the object's
-  ``SeriesDescription`` — whose geometry the tags (:meth:`histostudy.imaging.View.from_dicom`) must
-  confirm within ``match_tolerance_mm``, so that a gantry moved since the views were calibrated is
-  refused, not silently mis-posed — else the view the tags' geometry matches. Two views are
-  compared by their projections of the isocentre region (the isocentre and the corners of a 100 mm
-  cube around it), in mm at the isocentre.
-- **The times.** ``AcquisitionDateTime`` plus frame index x ``FrameTime`` (:func:`.pairing.frame_times`).
-- **The pixels.** Line integrals ``-log(I / I0)`` by :func:`histostudy.imaging.line_integrals_from_pixels`,
-  as :func:`histostudy.imaging.load_frame` makes them (MONOCHROME1 inverted, rescale applied, ``I0``
-  = ``air_value`` or the frame's maximum).
-
-Refusals raise :class:`XRayObjectRejected` with the C-STORE failure status to answer
-(:data:`REJECTION_STATUSES`):
-
-- ``0x0122`` Refused: SOP Class not supported — not an X-ray image (e.g. CT Image Storage).
-- ``0xA900`` Error: Data Set does not match SOP Class — an X-ray object that cannot be read as
-  one: undecodable, pixel data of the wrong length (compressed: fewer fragments than frames), the
-  data set's SOP class differing from the request's.
-- ``0xC000`` Error: Cannot understand — a readable X-ray object that cannot be used: missing
-  geometry tags, no acquisition time, colour pixels, a bad rescale, a frame without signal, a plane
-  matching no view.
-
-A frame without signal and a compressed stream that does not decode are found only by
-:meth:`PendingFrame.decode` (0xC000, 0xA900): the receiver, which has answered by then, writes
-the pair's error line instead.
-- ``0xA700`` Refused: Out of resources — the receiver is stopping (answered by the receiver).
-
-Units: mm, seconds; frames and transforms as in docs/architecture.md.
+"""Received DICOM X-ray objects checked and decoded into frames of line integrals, each with its plane
+(§II-A): the header read and checked at once (:func:`read_xray_header`), the pixels converted only for
+the pairs posed (:meth:`PendingFrame.decode`), and the C-STORE failure statuses of refused objects
+(docs/receiver.md, "X-ray objects").
 """
 
 from __future__ import annotations

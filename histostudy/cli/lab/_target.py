@@ -1,10 +1,7 @@
-"""``histostudy target``: a target in the CBCT -> a checked move of the focal point onto it,
-planned (a dry run, the default) or, only with ``--execute`` and a robot, made (§II-D).
-
-The target is in the C-arm (CBCT world) frame, DICOM LPS axes, mm; ``--target-frame ras`` takes a
-point with RAS axes (as nibabel's affine and 3D Slicer show it) and ``--target-voxel`` a voxel of
-the CBCT as its file indexes it. With ``--pose``, the pose's orientation is kept, read as recorded
-or turned half about the transducer's axis, whichever the robot reaches with less travel."""
+"""``histostudy target``: a target in the CBCT (C-arm frame, LPS, mm; ``--target-frame ras`` or
+``--target-voxel`` otherwise) -> a checked move of the focal point onto it, planned (a dry run, the
+default) or, only with ``--execute`` and a robot, made (§II-D); with ``--pose`` its orientation is
+kept, in the half-turn reading the robot reaches with less travel."""
 
 from __future__ import annotations
 
