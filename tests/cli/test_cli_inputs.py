@@ -18,7 +18,7 @@ from histostudy.imaging import default_biplane, save_views, write_xa
 from histostudy.imaging.io._xa import xa_dataset
 from histostudy.robot import pose_from_transform
 from histostudy.study.targeting._calibration import calibration_poses
-from histostudy.study.targeting._setup import TargetingStudyConfig, draw_ground_truth
+from histostudy.study.targeting.setup import TargetingStudyConfig, draw_ground_truth
 
 SHAPE = (96, 124)
 

@@ -1,20 +1,7 @@
-"""The labs' figures beside the paper's (§III, Table II): per lab and study the bias, SD and MAE of
-the signed error along depth, TB and LR, the Euclidean error and the bias's share of the squared
-error; their distribution over the labs with the paper's value placed in it; and which systematic
-sources move them.
-
-**Sign.** The paper gives its biases without saying which difference they are. The records are
-signed as the code measures them: Table II as the prediction minus the annotated zone
-(:func:`~histostudy.study.pose._metrics.experiment_metrics`), targeting as the zone minus the
-target (:func:`~histostudy.study.targeting._experiment.zone_errors`). :data:`READINGS` names the
-two readings that treat both studies alike, "prediction minus zone" (the target is the targeting
-study's prediction) and "zone minus prediction"; :func:`labs_vs_paper` turns the labs' biases into
-either and leaves the paper's as printed. SDs, MAEs and the Euclidean error do not depend on it.
-
-**Bias share.** Per study ``sum_d bias_d² / sum_d (bias_d² + SD_d²)`` with sample SDs (``n - 1``),
-the form the paper's Table II allows (bias ± SD per direction). The paper's targeting study gives
-no SD per direction: it is derived from its MAE ± SD and bias, ``SD² = n/(n-1) (MAE² - bias²) +
-SD_MAE²`` (sample SDs, ``n = 6``), marked ``derived``. Units: mm, mm², fractions.
+"""The labs' figures beside the paper's (§III, Table II): per lab and study the bias, SD and MAE per
+direction, the Euclidean error and the bias's share of the squared error, their distribution over
+the labs in both sign readings, and which systematic sources move them (mm, mm², fractions;
+docs/error-budget.md, "Many labs").
 """
 
 from __future__ import annotations
@@ -23,7 +10,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats as sps
 
-from ..pose._geometry import DIRECTIONS
+from ..pose.geometry import DIRECTIONS
 from ._summary import STUDY_COLUMNS
 
 __all__ = ["BAND_PERCENT", "MOVER_METRICS", "NATIVE_READING", "PAPER_FIGURES", "READINGS", "bias_scatter_split", "lab_statistics",

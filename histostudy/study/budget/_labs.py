@@ -1,22 +1,6 @@
-"""Many labs (§III, §IV): the lab error model drawn for several labs, each lab's pose and targeting
-experiments run with all its sources on, on :func:`histostudy.core.run_sweep`.
-
-A lab is one draw of the systematic sources (the transducer's tolerances, the bubble offset, the
-C-arm's calibration error and sag) with its own per-experiment draws; the paper's figures are one
-lab's. Lab 0 is the notebook's single lab (:func:`~._sources.draw_lab` on the lab seed, its
-transducer from the study's physical seed); lab ``k >= 1`` draws everything, its transducer
-included, from :func:`lab_seed` ``(seed, k)``. Every lab runs the same experiments (the study seed:
-poses, scenes, noise, robot landings), so the labs differ only in what the lab model draws.
-
-Work is shared where it is exact. The frames of an experiment depend on the transducer that makes
-them, the true views and, for the targeting calibration, the arm (``manufacturing``,
-``gantry_sag``, ``robot_accuracy``), not on what the estimator is told (``projection``,
-``carm_reproducibility``) nor on the bubble offset or the CBCT readings: labs whose frames are
-alike (:func:`frames_alike`) render each frame once and segment it once
-(:func:`~._shared.shared_work`: the same inputs and
-Generator state give the same output and leave the Generator where the first call left it), and
-the estimate (distance maps included) runs per lab, as its views differ. Labs whose frames differ
-share nothing. C-arm frame, mm.
+"""Many labs (§III, §IV): the lab error model drawn for several labs (lab 0 the notebook's, lab
+``k`` from :func:`lab_seed`), each lab's experiments run with all its sources on, frames shared
+between labs whose frames are alike. C-arm frame, mm (docs/error-budget.md, "Many labs").
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Notebook 07's many labs (§III, §IV): the labs drawn from the set-up (:func:`prepare_labs`), run
 and set beside the paper (:func:`labs_section`): the table "paper vs labs (median, 5-95 %)" per
 study, metric and direction in both sign readings, the bias/scatter split, the signs, and which
-systematic sources move each figure; each part recorded by :func:`~..section.record`.
+systematic sources move each figure; each part recorded by :func:`~histostudy.study.section.record`.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from ..pose._geometry import DIRECTIONS
+from ..pose.geometry import DIRECTIONS
 from ..section import SectionPart, Timer, timer_or_untimed
 from ._distribution import (
     BAND_PERCENT,

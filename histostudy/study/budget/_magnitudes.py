@@ -1,10 +1,7 @@
 """The magnitudes of the lab's error sources (§IV): one frozen dataclass per source of
-:class:`~histostudy.study.budget._sources.LabErrorModel`, every field a documented SD.
-
-Each default says where it comes from; the literature behind it, its plausible range and how the
-figure maps onto the model are in :data:`~histostudy.study.budget._references.SOURCE_REFERENCES`.
-None was fitted to the paper's figures. Lengths in mm (the frame named per field), angles in
-degrees where named.
+:class:`~histostudy.study.budget.LabErrorModel`, every field a documented SD (lengths in mm, the
+frame named per field; angles in degrees where named). Where each default comes from:
+:data:`~histostudy.study.budget.SOURCE_REFERENCES`; none was fitted to the paper's figures.
 """
 
 from __future__ import annotations

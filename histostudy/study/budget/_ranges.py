@@ -1,17 +1,6 @@
-"""The magnitudes without a measurement, swept over their plausible range (§IV; docs/error-budget.md,
-"Every magnitude cited or swept").
-
-A source whose reference is ``swept`` (:data:`~._references.SOURCE_REFERENCES`) has no published
-figure that fits this set-up: its default is a plausible point of a range. Here lab 0 (the lab the
-configurations run on) runs again with one such source at each end of its range, every other
-source and every draw as lab 0 has them (the draws are standard normals scaled by the magnitudes,
-so only that source moves), and the figures at the two ends give the band that this source's
-unknown magnitude puts around lab 0's. C-arm frame, mm.
-
-Work is shared as :func:`~._labs.run_labs` shares it: a source that does not change the frames
-(every source but ``manufacturing``, ``gantry_sag`` and, for the targeting calibration,
-``robot_accuracy``) leaves lab 0's transducer and true views as they were, and its runs render and
-segment each frame once.
+"""The magnitudes without a measurement swept over their plausible range (§IV): lab 0 run again
+with one ``swept`` source at each end of its range, everything else as lab 0 has it. C-arm frame,
+mm (docs/error-budget.md, "The swept sources as bands").
 """
 
 from __future__ import annotations

@@ -1,19 +1,6 @@
-"""Where every magnitude of the lab's error sources comes from (§IV; docs/error-budget.md).
-
-Per source of :data:`~._sources.LAB_SOURCES`: its default ``value`` (the source's headline
-magnitude, in ``unit``), a plausible range (``low``, ``high``), the ``reference`` (authors, journal,
-year, DOI where confirmed), how the published figure maps onto the model (``mapping``), what of
-the figure was confirmed against the reference's abstract or table (``checked``) and a ``status``:
-
-- ``cited``: a published figure used as it is;
-- ``derived``: computed from published figures or a standard by a stated rule;
-- ``swept``: no measurement fits this set-up (or the figure could not be confirmed): the value is
-  a plausible point of the range, and the range is to be swept (:func:`sweep_values`).
-
-:func:`magnitudes_at` and :func:`model_at` build a source, or a :class:`~._sources.LabErrorModel`,
-at another headline magnitude: every scaled field of the default multiplied by
-``value / default value``, so that the source keeps its shape (e.g. the bubble offset's
-LR : TB : depth ratio). None of these values was fitted to the paper's figures.
+"""Where every magnitude of the lab's error sources comes from (§IV): per source its default value,
+range, reference, mapping and status (``cited``, ``derived``, ``swept``), and a source or a model
+built at another magnitude (docs/error-budget.md, "The sources").
 """
 
 from __future__ import annotations

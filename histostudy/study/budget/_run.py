@@ -1,27 +1,7 @@
 """The error budget (§III, §IV): Table II and the targeting study run under a lab's error sources,
-all on, each alone and all but one, on the same draws.
-
-A lab (:func:`~histostudy.study.budget._sources.draw_lab`) is drawn once; every configuration of
-:func:`budget_configurations` is a sub-model of it, so the configurations differ only in which
-sources are on (common random numbers). The work is shared where the physics allows:
-
-- the frames and the estimates depend only on the transducer (``manufacturing``), the views
-  (``projection``, ``gantry_sag``, ``carm_reproducibility``) and the robot (``robot``,
-  ``robot_accuracy``): each combination of those that a configuration needs runs once per
-  experiment;
-- the post-treatment CBCT reference of Table II depends on the transducer, the bubble offset (the
-  lab's and its per-experiment ``replacement``) and the robot; the targeting treatment on all of
-  these;
-- ``registration``, ``annotation`` and ``phantom_motion`` act on what the lab reads from its
-  CBCTs (:class:`~histostudy.study.budget._sources.ExperimentDraw`): applied to the reference and to
-  the treated zone, no re-run needed;
-- the frames alone depend on fewer of them (not ``projection`` nor ``carm_reproducibility``, which
-  act on what the estimator is told): runs of one experiment whose frames are alike render and
-  segment them once (:func:`~histostudy.study.budget._shared.shared_work`, exact).
-
-One task per (study, experiment) runs through :func:`histostudy.core.run_sweep`, so the budget
-runs sequentially, on local processes or on a dask cluster with the same numbers. C-arm frame,
-mm; errors along depth/TB/LR as §II-E.
+all on, each alone and all but one, on the same draws, sharing work where it is exact; one task
+per (study, experiment) on :func:`histostudy.core.run_sweep`. C-arm frame, mm; errors along
+depth/TB/LR (docs/error-budget.md, "The design").
 """
 
 from __future__ import annotations
@@ -38,14 +18,14 @@ from histostudy.calibration import CalibrationError
 from histostudy.core import SweepExecutor, run_sweep
 from histostudy.transducer import TransducerModel
 
-from ..pose._config import PoseStudyConfig
-from ..pose._experiments import run_pose_study
-from ..pose._geometry import DIRECTIONS
-from ..pose._metrics import experiment_metrics
-from ..pose._reference import cbct_reference
-from ..targeting._experiment import run_targeting_experiment
-from ..targeting._robots import sim_robot
-from ..targeting._setup import TargetingError, TargetingStudyConfig
+from ..pose.experiments import PoseStudyConfig
+from ..pose.experiments import run_pose_study
+from ..pose.geometry import DIRECTIONS
+from ..pose.metrics import experiment_metrics
+from ..pose.reference import cbct_reference
+from ..targeting.experiment import run_targeting_experiment
+from ..targeting.robots import sim_robot
+from ..targeting.setup import TargetingError, TargetingStudyConfig
 from ._shared import shared_work
 from ._sources import ExperimentDraw, LabDraw, LabErrorModel
 
@@ -84,7 +64,7 @@ class BudgetSetup:
     ``pose_config.bubble_offset_mm`` and ``targeting_config.bubble_offset_mm`` must be zeros (the
     lab's offset replaces them); the budget predicts without a bias correction, as the paper did.
     Made by notebook 07's ``prepare``, it also holds the notebook's checked ``params`` and its
-    ``seeds`` (:class:`~._notebook.BudgetSectionConfig`, :class:`~._notebook.BudgetSeeds`).
+    ``seeds`` (:class:`~._section.BudgetSectionConfig`, :class:`~._section.BudgetSeeds`).
     """
 
     lab: LabDraw
@@ -226,7 +206,7 @@ def run_error_budget(setup: BudgetSetup, *, seed: int, configurations: list[tupl
     pose experiments and the targeting experiments of ``setup``'s configurations.
 
     One row per (study, configuration, experiment): for ``study == "pose"`` the columns of
-    :func:`~histostudy.study.pose._metrics.experiment_metrics` against the lab's reading of the
+    :func:`~histostudy.study.pose.metrics.experiment_metrics` against the lab's reading of the
     CBCT reference (``centre_err_<d>``, ``centre_err_euclidean``, ``radius_err_<d>``, ...) and
     ``n_failed`` (estimates refused by the verdict); for ``"targeting"`` the measured zone's
     ``err_<d>``, ``err_euclidean``, ``radius_err_mm``, ``cal_error_at_target_mm``, and ``ok`` /

@@ -1,9 +1,7 @@
-"""Notebook 07's parameters, set-up and parts: its parameters checked (:class:`BudgetSectionConfig`)
-and made a :class:`~._run.BudgetSetup` (the lab error model, the two studies' configurations, the
-models, the stages, the seeds; :func:`prepare`), the sources' table, the runs, the shares and what
-stands in for what (§III, §IV), each part recorded by :func:`~..section.record`.
-
-Every random draw of the notebook comes from one integer ``seed`` (:func:`budget_seeds`).
+"""Notebook 07's section: its parameters (:class:`BudgetSectionConfig`), set-up (:func:`prepare`,
+every draw from one ``seed``) and parts — the sources, the runs, the shares, the stand-ins — each
+returning a :class:`~histostudy.study.section.SectionPart` that
+:func:`~histostudy.study.section.record` writes (§III, §IV).
 """
 
 from __future__ import annotations
@@ -20,7 +18,7 @@ from histostudy.core import check_count, check_positive
 from histostudy.imaging import BACKGROUNDS, default_biplane
 from histostudy.transducer import TransducerModel, TransducerSpec
 
-from ..pose._config import PoseStudyConfig, study_stages
+from ..pose.experiments import PoseStudyConfig, study_stages
 from ..section import (
     RenderedSectionConfig,
     SectionPart,
@@ -28,18 +26,17 @@ from ..section import (
     check_bool,
     check_choice,
     check_text,
-    record,
     timer_or_untimed,
 )
-from ..targeting._setup import TargetingStudyConfig
+from ..targeting.setup import TargetingStudyConfig
 from ._references import SOURCE_REFERENCES
 from ._run import BudgetSetup, run_error_budget
 from ._sources import LAB_SOURCES, LabErrorModel, draw_lab
 from ._summary import budget_comparisons, configuration_table, dominant_sources, source_shares, waterfall_figure
 
 __all__ = ["BudgetRun", "BudgetSectionConfig", "BudgetSeeds", "RECORDED_PARAMETERS", "SECTION_TITLE",
-           "SOURCE_PROVENANCE", "SectionPart", "SharesSection", "budget_section", "budget_seeds", "closing_part",
-           "closing_text", "lab_model_from_parameters", "prepare", "prepare_budget", "record", "shares_section",
+           "SOURCE_PROVENANCE", "SharesSection", "budget_section", "budget_seeds", "closing_part",
+           "closing_text", "lab_model_from_parameters", "prepare", "prepare_budget", "shares_section",
            "sources_part", "sources_table", "stand_ins"]
 
 SECTION_TITLE = "07 · The error budget: the lab's error sources and their shares (§III, §IV)"

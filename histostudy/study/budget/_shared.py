@@ -1,12 +1,6 @@
-"""Work shared between runs of one experiment whose frames are alike: the error budget's
-configurations (whose sources act on what the estimator is told, or after the estimate) and the
-labs (:mod:`._labs`). Exact: a frame or a segmentation is handed out again only for the same inputs
-and the same Generator state, and the Generator is left where the first call left it, so every run
-gets the numbers it would have made (tested against the runs without sharing).
-
-:func:`shared_work` opens a :func:`histostudy.imaging.shared_frames` scope (the renders) and wraps
-the set-up's segmenter in :class:`SharedSegmentations`; the estimate itself (distance maps, costs,
-initialisation, refinement) runs per run, on the views that run's estimator is told.
+"""Work shared between runs of one experiment whose frames are alike (the budget's configurations,
+the labs): a frame rendered and segmented once per distinct input and Generator state, the
+Generator left where the first call left it, so every run gets its own numbers (exact).
 """
 
 from __future__ import annotations

@@ -1,40 +1,7 @@
-"""The lab's error sources (§IV), each a named, documented, switchable part of :class:`LabErrorModel`.
-
-The synthetic studies of notebooks 04 and 05 are cleaner than a lab. §IV names the suspects
-behind the paper's 1.4 mm (Table II) and 1.6 mm (targeting): the digital model against the
-physical transducer, the bubble cloud's offset from the geometric focus, the calibration; a
-lab adds its C-arm's geometric calibration, gantry sag, the CBCT-to-fluoroscopy registration,
-the manual annotation of the treated zone, the robot and the phantom moving. Each is one field
-of :class:`LabErrorModel`; ``None`` turns it off. Every default is stated with where it comes
-from; none was fitted to the paper's figures.
-
-A source acts where it acts in the lab (:class:`LabDraw`):
-
-- ``manufacturing``: the physical transducer the frames show and whose focus makes the bubble
-  clouds, drawn with these tolerances instead of the study's own (transducer frame, mm);
-- ``bubble_offset``: the bubble cloud's centre off the physical focal point, one offset per
-  transducer (transducer frame: x = LR, y = TB, z = -depth), unknown to the estimator;
-- ``projection``: the views the estimator is given differ from the C-arm's (the frames are made
-  with the true geometry): source position and principal point, one error per plane;
-- ``gantry_sag``: the true geometry of each plane is its calibration moved rigidly along gravity;
-- ``registration``: the CBCT's coordinates differ from the fluoroscopy's by a small rigid
-  transform, per experiment; every point read from a CBCT (the target, the treated zone) carries
-  it;
-- ``annotation``: the observer's hand segmentation of the treated zone: its centroid and radii;
-- ``robot``: the UR5e's landing noise (both studies' robot);
-- ``phantom_motion``: the phantom shifts between the treatment and the post-treatment CBCT;
-- ``replacement``: the bubble cloud's offset varies about the lab's from one experiment to the
-  next (the transducer re-placed, a new phantom in the path; transducer frame);
-- ``carm_reproducibility``: each acquisition's projection shifted on the detector (the gantry
-  returning to its angles), applied to the views the estimator is told;
-- ``robot_accuracy``: the arm's true kinematics differ from its controller's nominal table (one
-  arm per lab): the calibration poses and every move land off their commands, pose by pose.
-
-The magnitudes are :mod:`._magnitudes`' dataclasses; their references, ranges and statuses
-:mod:`._references`'. The last three sources were added after the first eight: each draws from its
-own stream (appended to :data:`LAB_SOURCES`), so with them off every number is what it was.
-
-Frames: C-arm (LPS) mm for points, transducer frame for the bubble offset, degrees where named.
+"""The lab's error sources (§IV), each a named, documented, switchable field of
+:class:`LabErrorModel` (``None``: off), one lab's draws of them (:func:`draw_lab`, :class:`LabDraw`)
+and each experiment's (:class:`ExperimentDraw`). C-arm (LPS) mm for points, transducer frame for the
+bubble offset (docs/error-budget.md, "The sources").
 """
 
 from __future__ import annotations
@@ -49,7 +16,7 @@ from histostudy.imaging import View
 from histostudy.imaging.carm_errors import GRAVITY_CARM, displaced_view, miscalibrated_view
 from histostudy.transducer import ManufacturingDeviation, TransducerModel
 
-from ..targeting._robots import KinematicError
+from ..targeting.robots import KinematicError
 from ._magnitudes import (
     ISO_2768_M_DEVIATION,
     AnnotationError,

@@ -1,21 +1,6 @@
 """The error budget's figures (§III, §IV): each configuration's Table II and targeting numbers, the
-sources' shares of the error, the waterfall, and the "lab" row beside the paper.
-
-The shares decompose the mean squared Euclidean error (MSE, mm²) over the experiments, which adds
-up where sources are independent: MSE(lab) = MSE(baseline) + Σ (first-order increments) +
-interactions. For source ``i``:
-
-- **alone** (first order): ``MSE(only i) - MSE(baseline)``;
-- **total**: ``MSE(lab) - MSE(lab without i)``, its first-order part plus every interaction it
-  takes part in;
-
-each also as a share of the lab's increment ``MSE(lab) - MSE(baseline)``. Both are the
-"one-at-a-time" and "all-but-one" designs of a toggle (radial) sensitivity analysis on common
-random numbers; for the two levels of a switch they are the first-order and total Sobol indices
-of the squared error when the sources act independently, without a Saltelli sample's
-``N (2 d + 2)`` pipeline runs (docs/architecture.md, study layer). Only experiments with a finite
-error in every configuration enter (paired differences); the rest are counted. Biases: the mean
-signed error per direction (depth/TB/LR, mm).
+sources' shares of the mean squared error (alone and total), the waterfall and the "lab" row
+beside the paper (mm, mm²; docs/error-budget.md, "The design").
 """
 
 from __future__ import annotations
@@ -23,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ..pose._geometry import DIRECTIONS
-from ..pose._metrics import mean_sd
+from ..pose.geometry import DIRECTIONS
+from ..pose.metrics import mean_sd
 from ._sources import LAB_SOURCES
 
 __all__ = ["STUDY_COLUMNS", "budget_comparisons", "configuration_table", "dominant_sources", "paired_errors",

@@ -1,11 +1,6 @@
-"""The pose pipeline on frames of an independent projector (beyond the paper; notebook 04).
-
-The study's frames come from the project's own splatting renderer (:mod:`histostudy.imaging.render`,
-§II-B.2). A pipeline trained and tuned on those frames could exploit something of that renderer
-that a real C-arm does not share. Here the same poses, scenes and noise are made a second way —
-RTK's Joseph ray caster on the voxelised physical transducer
-(:func:`histostudy.imaging.rtk_projector.render_frame_rtk`, optional dependency ``histostudy[rtk]``) — and
-the pose is estimated from each; the focal errors of the two are set side by side.
+"""Beyond the paper: the pose pipeline on frames of an independent projector, RTK's Joseph ray
+caster on the voxelised physical transducer (optional ``histostudy[rtk]``), beside the study's own
+splatting renderer on the same poses, scenes and noise (docs/pose-study.md).
 """
 
 from __future__ import annotations
@@ -21,9 +16,8 @@ from histostudy.imaging import View, random_background, render_frame
 from histostudy.pose import PoseEstimationError, estimate_pose
 from histostudy.transducer import TransducerModel
 
-from ._config import PoseStudyConfig
-from ._experiments import experiment_setups
-from ._geometry import bubble_cloud_centre_mm, random_pose_in_views, sweep_visible_points
+from .experiments import PoseStudyConfig, experiment_setups
+from .geometry import bubble_cloud_centre_mm, random_pose_in_views, sweep_visible_points
 
 __all__ = ["PROJECTORS", "comparison_poses", "projector_comparison", "projector_summary"]
 
@@ -34,7 +28,7 @@ PROJECTORS = ("splatting", "rtk-joseph")
 def comparison_poses(config: PoseStudyConfig, seed: int, *, n_study: int, n_random: int, views: Sequence[View],
                      pose_model: TransducerModel) -> list[dict]:
     """The poses of the comparison: the centre poses of the first ``n_study`` experiments of the
-    pose study (:func:`~histostudy.study.pose._experiments.experiment_setups`, their phantom scenes),
+    pose study (:func:`~histostudy.study.pose.experiments.experiment_setups`, their phantom scenes),
     then ``n_random`` random poses in the paper's training ranges with the transducer centre and
     focal point in every view (mixed backgrounds), as the robustness sweep draws them. Each item:
     ``{"kind", "index", "T", "scene"}``."""

@@ -1,9 +1,6 @@
-"""The tables and comparison rows of notebook 04's report (§III, Table II), shaped from the study's results.
-
-Pure functions of :mod:`~histostudy.study.pose._experiments`' records and of the sweeps' rows:
-Table II beside the paper's values, the ``writer.compare`` keyword arguments of Table II and of
-the initialisation success, the failures, the focal error per degradation level and per dose,
-the learned stages beside the oracles. Errors in mm, C-arm frame.
+"""The tables and comparison rows of notebook 04's report (§III, Table II), shaped from the study's
+records and the sweeps' rows: Table II beside the paper, the ``writer.compare`` keyword arguments,
+the failures, the focal error per degradation level and per dose. Errors in mm, C-arm frame.
 """
 
 from __future__ import annotations

@@ -1,10 +1,6 @@
 """Beyond the paper: how often the initialisation of §II-B.4 finds the pose from anywhere in the
-paper's training ranges (§II-B.2: Euler angles in [0, 360) deg, translations ±10 cm per axis).
-
-One row per (random pose, initialisation): the focal-point error (mm, C-arm frame), the
-verdict of :func:`histostudy.pose.estimate_pose` and its per-view statistics (px, mm), seconds.
-The pose task of :func:`robustness_sweep` stays at module level, importable by its path,
-because a cluster's workers run it (:func:`histostudy.core.run_sweep`).
+paper's training ranges (§II-B.2); one row per (random pose, initialisation). The pose task stays
+at module level because a cluster's workers run it (:func:`histostudy.core.run_sweep`).
 """
 
 from __future__ import annotations
@@ -21,8 +17,8 @@ from histostudy.learning import OracleOrientation, OrientationSource, Segmenter
 from histostudy.pose import PoseEstimationError, estimate_pose
 from histostudy.transducer import Feature, TransducerModel, half_turn_symmetric
 
-from ._config import PoseStudyConfig
-from ._geometry import (
+from .experiments import PoseStudyConfig
+from .geometry import (
     bubble_cloud_centre_mm,
     random_pose_in_views,
     rotation_error_modulo_symmetry_deg,

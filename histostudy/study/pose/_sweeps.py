@@ -1,9 +1,6 @@
-"""Beyond the paper: focal-point error vs segmentation quality and vs fluoroscopic dose.
-
-:func:`degradation_sweep` scales the oracle segmenter's losses of Table I (§III) from perfect
-labels to the paper's U-Net; :func:`noise_sweep` renders the same poses at several photon counts
-per pixel (§II-B.2's Poisson noise). Poses as the experiments of Table II draw their centre pose
-(:func:`~histostudy.study.pose._geometry.experiment_pose`); errors in mm, C-arm frame.
+"""Beyond the paper: focal-point error vs segmentation quality (:func:`degradation_sweep`, Table I's
+losses scaled) and vs fluoroscopic dose (:func:`noise_sweep`, §II-B.2's Poisson noise); errors in
+mm, C-arm frame.
 """
 
 from __future__ import annotations
@@ -24,8 +21,8 @@ from histostudy.learning import (
 from histostudy.pose import PoseEstimationError, estimate_pose
 from histostudy.transducer import TransducerModel
 
-from ._config import PoseStudyConfig
-from ._geometry import bubble_cloud_centre_mm, experiment_pose
+from .experiments import PoseStudyConfig
+from .geometry import bubble_cloud_centre_mm, experiment_pose
 
 __all__ = ["degradation_sweep", "noise_sweep"]
 

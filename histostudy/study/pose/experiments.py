@@ -1,16 +1,7 @@
-"""Notebook 04's phantom experiments of Table II (§II-D, §II-E.3, §III): draw, render, estimate.
-
-Each experiment places the transducer with its focal point near the phantom centre, then moves
-it by ``r`` (10 or 12.5 mm: a 20 or 25 mm treatment sphere) along the robot's axes to the six
-margin points (top/bottom = TB, left/right = LR, front/back = depth). At the centre and each
-margin a biplane pair is rendered (the physical transducer, a phantom scene, Poisson noise) and
-the pose is estimated (:func:`histostudy.pose.estimate_pose`). Errors are decomposed along the
-transducer's depth, TB and LR axes (:func:`~histostudy.study.pose._geometry.transducer_axes`), as §II-E.
-
-The robot's axes are taken along the transducer's own LR, TB and depth axes at the centre pose
-(the transducer hanging from the UR5e's flange with its axes along the base axes), so that the
-radius per direction of Table II is the half distance between opposite margin predictions.
-C-arm (CBCT) frame, mm; rotation errors in degrees.
+"""Notebook 04's experiment layer, shared by notebooks 05 and 07: the pose study's parameters
+(:class:`PoseStudyConfig`), its segmentation and orientation stages (:func:`study_stages`) and the
+phantom experiments of Table II drawn, rendered and estimated (:func:`run_pose_study`; §II-D,
+§II-E.3). C-arm (CBCT) frame, mm; rotation errors in degrees (docs/pose-study.md).
 """
 
 from __future__ import annotations
@@ -21,13 +12,12 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from histostudy.imaging import Anatomy, View, random_background, render_frame
-from histostudy.learning import OracleOrientation, OrientationSource, Segmenter
-from histostudy.pose import PoseEstimationError, estimate_pose
+from histostudy.imaging import Anatomy, FrameRenderConfig, View, random_background, render_frame
+from histostudy.learning import OracleOrientation, OracleSegmenter, OrientationSource, Segmenter
+from histostudy.pose import MAP_KINDS, PoseEstimationError, estimate_pose, learned_stage_shortfalls
 from histostudy.transducer import TransducerModel
 
-from ._config import PoseStudyConfig
-from ._geometry import (
+from .geometry import (
     DIRECTIONS,
     axial_symmetric_rotation_error_deg,
     bubble_cloud_centre_mm,
@@ -36,7 +26,132 @@ from ._geometry import (
     transducer_axes,
 )
 
-__all__ = ["PoseExperiment", "draw_experiments", "experiment_setups", "run_pose_study"]
+__all__ = ["PoseExperiment", "PoseStudyConfig", "StudyStages", "draw_experiments", "experiment_setups",
+           "run_pose_study", "study_stages"]
+
+
+@dataclass(frozen=True)
+class PoseStudyConfig(FrameRenderConfig):
+    """Parameters of the pose-estimation study (defaults: the standard profile's).
+
+    The rendering (``photons_per_pixel``, ``n_splats``, ``splat_sigma_mm``, §II-B.2, and the
+    ``background`` behind the transducer, the paper's pose studies: agarose phantoms) is the
+    shared :class:`~histostudy.imaging.FrameRenderConfig`, checks included.
+
+    Attributes:
+        n_experiments: phantom experiments (paper: 10).
+        margin_mm: radii drawn per experiment (paper: 10 or 12.5 mm, spheres of 2.0 or 2.5 cm).
+        degradation: ``"table1"`` (oracle errs as the paper's U-Net, Table I) or ``"none"``.
+        modes: refinement modes to run on the same frames (``"paper"``, ``"fast"``).
+        distance_maps: map kinds to run on the same frames (``"occlusion_aware"``, ``"per_class"``,
+            see :func:`histostudy.pose.estimate_pose`); every mode runs with every kind.
+        track: also re-estimate each margin pose warm-started from the centre's estimate (fast
+            mode), as live tracking of a 10-12.5 mm move would.
+        tilt_sd_deg: tilt of the transducer axis from vertical (anterior-posterior), per axis.
+        focal_jitter_mm: focal point uniform within ± this of the phantom centre, per axis.
+        robot_repeatability_mm: SD of the robot's positioning noise (UR5e: ±0.03 mm).
+        bubble_offset_mm: offset of the bubble cloud from the acoustic focal point, transducer frame.
+        assumed_bubble_offset_mm: the offset the prediction adds to the estimated focal point
+            (transducer frame); None: ``bubble_offset_mm``, known as after a test pulse. A lab
+            that did not calibrate it (:class:`~histostudy.study.budget.LabErrorModel`)
+            assumes zeros.
+    """
+
+    n_experiments: int = 10
+    margin_mm: tuple = (10.0, 12.5)
+    degradation: str = "table1"
+    modes: tuple = ("paper", "fast")
+    distance_maps: tuple = ("occlusion_aware",)
+    track: bool = True
+    tilt_sd_deg: float = 10.0
+    focal_jitter_mm: float = 5.0
+    robot_repeatability_mm: float = 0.01
+    bubble_offset_mm: tuple = (0.0, 0.0, 0.0)
+    assumed_bubble_offset_mm: tuple | None = None
+
+    def __post_init__(self):
+        super().__post_init__()
+        for name in ("bubble_offset_mm", "assumed_bubble_offset_mm"):
+            value = getattr(self, name)
+            if value is not None and (np.shape(value) != (3,) or not np.all(np.isfinite(np.asarray(value, float)))):
+                raise ValueError(f"{name} must be 3 finite numbers (transducer frame, mm), got {value!r}")
+        if self.n_experiments < 1:
+            raise ValueError(f"n_experiments must be >= 1, got {self.n_experiments!r}")
+        if not self.margin_mm or any(not (np.isfinite(r) and r > 0) for r in self.margin_mm):
+            raise ValueError(f"margin_mm must hold positive radii in mm, got {self.margin_mm!r}")
+        OracleSegmenter.named(self.degradation)  # a clear error now for an unknown name
+        if not self.modes or any(m not in ("paper", "fast") for m in self.modes):
+            raise ValueError(f"modes must be a non-empty subset of ('paper', 'fast'), got {self.modes!r}")
+        if not self.distance_maps or any(m not in MAP_KINDS for m in self.distance_maps):
+            raise ValueError(f"distance_maps must be a non-empty subset of {MAP_KINDS}, got {self.distance_maps!r}")
+
+    @property
+    def variants(self) -> list[tuple[str, str]]:
+        """Every (mode, distance-map kind) pair the study runs on each pair of frames."""
+        return [(mode, maps) for mode in self.modes for maps in self.distance_maps]
+
+    def segmenter(self) -> OracleSegmenter:
+        """The oracle segmenter of ``degradation``."""
+        return OracleSegmenter.named(self.degradation)
+
+    @property
+    def predicted_bubble_offset_mm(self) -> np.ndarray:
+        """The offset the prediction adds to the estimated focal point (transducer frame, mm)."""
+        offset = self.bubble_offset_mm if self.assumed_bubble_offset_mm is None else self.assumed_bubble_offset_mm
+        return np.asarray(offset, dtype=np.float64)
+
+
+@dataclass(frozen=True, eq=False)
+class StudyStages:
+    """The segmenter and orientation source a pose study runs on, and why those (:func:`study_stages`).
+
+    ``shipped_segmenter`` / ``shipped_orientation`` are the learned networks that were considered
+    (None when missing or not asked for), whether or not the study runs on them.
+    """
+
+    segmenter: Segmenter
+    orientation: OrientationSource
+    learned: bool
+    why: str
+    shipped_segmenter: Segmenter | None = None
+    shipped_orientation: OrientationSource | None = None
+
+
+def study_stages(config, learned: bool = True, *, segmenter=None, orientation=None) -> StudyStages:
+    """The stages of a study's pose estimates: learned by default, the oracles where the learned ones
+    fall short. ``config``: a :class:`PoseStudyConfig` or any study config with a ``segmenter()``
+    giving its oracle (notebook 05's :class:`~histostudy.study.targeting.TargetingStudyConfig`).
+
+    With ``learned``, the shipped U-Net and VGG19 (:func:`histostudy.learning.segment.default_segmenter`,
+    :func:`histostudy.pose.conic_orientation.default_orientation`, or the ``segmenter`` / ``orientation``
+    given) when their manifests meet :data:`histostudy.pose.LEARNED_STAGE_REQUIREMENTS`;
+    otherwise, or without ``learned``, the config's oracles (Table I degradation, the paper's
+    angle MAE). ``why`` says which and why, for the report.
+    """
+    oracles = (config.segmenter(), OracleOrientation())
+    if not learned:
+        return StudyStages(*oracles, learned=False, why="oracle stages: the learned stages are disabled "
+                           "(learned_stages = False)")
+    if segmenter is None or orientation is None:
+        from histostudy.learning import default_segmenter
+        from histostudy.pose import default_orientation
+
+        segmenter = default_segmenter() if segmenter is None else segmenter
+        orientation = default_orientation() if orientation is None else orientation
+    shipped = dict(shipped_segmenter=segmenter, shipped_orientation=orientation)
+    shortfalls = learned_stage_shortfalls(segmenter, orientation)
+    if shortfalls:
+        return StudyStages(*oracles, learned=False, why="oracle stages (Table I degradation, the paper's angle "
+                           "MAE), because " + "; ".join(shortfalls), **shipped)
+    names = [(getattr(stage, "manifest", None) or {}).get("weights_file", type(stage).__name__)
+             for stage in (segmenter, orientation)]
+    if getattr(orientation, "fallback", None) is not None:  # the geometric initialiser
+        orientation_text = f"the inner-boundary conic initialiser (VGG19 {names[1]} where it finds no ellipse)"
+    else:
+        orientation_text = f"the VGG19 {names[1]}"
+    return StudyStages(segmenter, orientation, learned=True,
+                       why=f"learned stages: the U-Net {names[0]} and {orientation_text}", **shipped)
+
 
 
 @dataclass(frozen=True, eq=False)

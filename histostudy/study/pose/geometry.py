@@ -1,10 +1,7 @@
-"""Where the transducer sits in notebook 04's experiments and which way its errors point (§II-D, §II-E.3).
-
-C-arm (CBCT) frame, mm and radians unless a name says deg. The error directions of §II-E are
-the transducer's own axes: depth (the direction of ultrasound propagation, the transducer's
-``-z``), top-bottom TB (``y``) and left-right LR (``x``). Each experiment moves the transducer
-by the treatment radius ``r`` along them to the six margin points of §II-D. The random poses of
-the sweeps are drawn in the paper's training ranges (§II-B.2).
+"""Where the transducer sits in notebook 04's experiments and which way its errors point (§II-D,
+§II-E.3): the error directions depth/TB/LR (the transducer's ``-z``, ``y``, ``x``), the six margin
+poses, the experiments' and the sweeps' random poses. C-arm (CBCT) frame, mm and radians unless a
+name says deg (docs/pose-study.md).
 """
 
 from __future__ import annotations
@@ -42,14 +39,30 @@ MARGINS = {
 
 
 def transducer_axes(T_carm_transducer) -> dict[str, np.ndarray]:
-    """World unit vectors of §II-E's directions for a pose: depth (propagation, ``-z``), TB (``y``), LR (``x``)."""
+    """World unit vectors of §II-E's error directions for a pose.
+
+    Args:
+        T_carm_transducer: the pose (4x4, mm; transducer -> C-arm).
+
+    Returns:
+        ``{"depth": -z, "tb": y, "lr": x}``: the transducer's axes in the C-arm frame, each (3,).
+    """
     R = np.asarray(T_carm_transducer, dtype=np.float64)[:3, :3]
     return {"depth": -R[:, 2], "tb": R[:, 1], "lr": R[:, 0]}
 
 
 def margin_positions(T_centre, radius_mm: float) -> dict[str, np.ndarray]:
-    """The centre pose and the six margin poses: the transducer translated by ``radius_mm`` along
-    the robot's axes (here the transducer's own LR/TB/depth axes at the centre pose)."""
+    """The centre pose and the six margin poses of §II-D: the transducer translated by ``radius_mm``
+    along the robot's axes (here the transducer's own LR/TB/depth axes at the centre pose).
+
+    Args:
+        T_centre: the centre pose ``T_carm_transducer`` (4x4, mm).
+        radius_mm: the treatment radius ``r`` (mm).
+
+    Returns:
+        ``{"centre", "top", "bottom", "left", "right", "front", "back"}`` -> pose (4x4, mm), in that
+        order (:data:`MARGINS`).
+    """
     axes = transducer_axes(T_centre)
     out = {"centre": np.array(T_centre, dtype=np.float64)}
     for name, (direction, sign) in MARGINS.items():
@@ -61,12 +74,20 @@ def margin_positions(T_centre, radius_mm: float) -> dict[str, np.ndarray]:
 
 def experiment_pose(rng: np.random.Generator, config, centre_mm) -> np.ndarray:
     """An experiment's commanded centre pose ``T_carm_transducer``: the transducer axis tilted from
-    vertical by ``config.tilt_sd_deg`` (SD per axis), the focal point uniform within
-    ``± config.focal_jitter_mm`` of ``centre_mm`` (world mm) per axis, a uniform turn about the axis.
+    vertical, the focal point jittered about ``centre_mm``, a uniform turn about the axis.
 
-    ``config``: a :class:`~histostudy.study.pose._config.PoseStudyConfig` (or anything with those two
-    attributes). The draws (two tilts, three jitters, one turn) keep
-    this order: every seeded study result depends on it.
+    The draws (two tilts, three jitters, one turn) keep this order: every seeded study result
+    depends on it.
+
+    Args:
+        rng: the stream drawn from.
+        config: a :class:`~histostudy.study.pose.experiments.PoseStudyConfig` (or anything with
+            ``tilt_sd_deg``, the tilt's SD per axis in deg, and ``focal_jitter_mm``, the focal
+            point's uniform half-range per axis in mm).
+        centre_mm: the phantom centre (C-arm frame, mm).
+
+    Returns:
+        The pose (4x4, mm; transducer -> C-arm).
     """
     tilt = np.deg2rad(config.tilt_sd_deg)
     direction = (np.tan(rng.normal(0, tilt)), 1.0, np.tan(rng.normal(0, tilt)))
@@ -75,17 +96,33 @@ def experiment_pose(rng: np.random.Generator, config, centre_mm) -> np.ndarray:
 
 
 def bubble_cloud_centre_mm(physical: TransducerModel, T_carm_transducer, offset_mm) -> np.ndarray:
-    """World position (mm) of the bubble cloud for a pose: the physical transducer's acoustic focal
-    point plus ``offset_mm`` (transducer frame), mapped by ``T_carm_transducer``."""
+    """World position of the bubble cloud for a pose: the physical transducer's acoustic focal point
+    plus ``offset_mm``, mapped by ``T_carm_transducer``.
+
+    Args:
+        physical: the physical transducer model.
+        T_carm_transducer: the pose (4x4, mm; transducer -> C-arm).
+        offset_mm: the bubble cloud's offset from the focal point (3, transducer frame, mm).
+
+    Returns:
+        The centre (3, C-arm frame, mm).
+    """
     local = np.asarray(physical.focal_point_mm, float) + np.asarray(offset_mm, float)
     return T_carm_transducer[:3, :3] @ local + T_carm_transducer[:3, 3]
 
 
 def axial_symmetric_rotation_error_deg(T_estimate, T_true) -> float:
-    """Rotation error (deg) between two poses, up to a half turn about the transducer axis.
+    """Rotation error between two poses, up to a half turn about the transducer axis.
 
     The aperture, quadrant gaps and cutout are symmetric under a half turn about the axis, and
     §II-B.4's axial search covers [0, 180 deg) only: a half-turn flip moves no focal point.
+
+    Args:
+        T_estimate: the estimated pose (4x4, mm; transducer -> C-arm).
+        T_true: the true pose (4x4, mm).
+
+    Returns:
+        The smaller of the two rotation angles (deg).
     """
     R_est = np.asarray(T_estimate, dtype=np.float64)[:3, :3]
     R_true = np.asarray(T_true, dtype=np.float64)[:3, :3]
@@ -94,10 +131,18 @@ def axial_symmetric_rotation_error_deg(T_estimate, T_true) -> float:
 
 
 def rotation_error_modulo_symmetry_deg(T_estimate, T_true, *, half_turn: bool) -> tuple[float, bool]:
-    """``(error_deg, half_turned)``: the rotation error between two poses (deg) and whether the
-    estimate is nearer the half-turned truth. With ``half_turn`` (the model looks the same after a
-    half turn about its axis, :func:`histostudy.transducer.half_turn_symmetric`) the error is taken
-    up to that turn (:func:`axial_symmetric_rotation_error_deg`); without it, plainly."""
+    """The rotation error between two poses and whether the estimate is nearer the half-turned truth.
+
+    Args:
+        T_estimate: the estimated pose (4x4, mm; transducer -> C-arm).
+        T_true: the true pose (4x4, mm).
+        half_turn: the model looks the same after a half turn about its axis
+            (:func:`histostudy.transducer.half_turn_symmetric`): the error is taken up to that turn
+            (:func:`axial_symmetric_rotation_error_deg`); otherwise plainly.
+
+    Returns:
+        ``(error_deg, half_turned)``.
+    """
     R_est = np.asarray(T_estimate, dtype=np.float64)[:3, :3]
     R_true = np.asarray(T_true, dtype=np.float64)[:3, :3]
     plain = float(np.rad2deg(rotation_angle(R_est.T @ R_true)))
@@ -108,8 +153,22 @@ def rotation_error_modulo_symmetry_deg(T_estimate, T_true, *, half_turn: bool) -
 def random_pose_in_views(rng: np.random.Generator, views: Sequence[View], *, translation_mm: float = 100.0,
                          visible_points_mm=((0.0, 0.0, 0.0),), max_tries: int = 1000) -> np.ndarray:
     """A pose in the paper's training ranges (§II-B.2: Euler angles in [0, 360) deg, translations
-    in ±10 cm per axis) whose ``visible_points_mm`` (transducer frame; default the focal point)
-    all project onto every detector, in front of the source (rejection sampling)."""
+    within ± ``translation_mm`` per axis) whose ``visible_points_mm`` all project onto every
+    detector, in front of the source (rejection sampling).
+
+    Args:
+        rng: the stream drawn from.
+        views: the C-arm views.
+        translation_mm: the translations' half-range per axis (mm).
+        visible_points_mm: transducer-frame points (n, 3, mm; default the focal point).
+        max_tries: draws before giving up.
+
+    Returns:
+        The pose ``T_carm_transducer`` (4x4, mm).
+
+    Raises:
+        RuntimeError: no draw of ``max_tries`` shows the points in every view.
+    """
     local = np.asarray(visible_points_mm, dtype=np.float64).reshape(-1, 3)
     for _ in range(max_tries):
         R = matrix_from_euler(rng.uniform(0, 2 * np.pi, 3), "xyz")
@@ -122,8 +181,15 @@ def random_pose_in_views(rng: np.random.Generator, views: Sequence[View], *, tra
 
 
 def sweep_visible_points(pose_model: TransducerModel) -> np.ndarray:
-    """``(2, 3)`` transducer-frame points a random pose of the sweeps must show in every view: the
-    focal point and the transducer's centre (the centroid of the model's element points)."""
+    """The transducer-frame points a random pose of the sweeps must show in every view.
+
+    Args:
+        pose_model: the digital transducer model.
+
+    Returns:
+        ``(2, 3)`` (mm): the focal point and the transducer's centre (the centroid of the model's
+        element points).
+    """
     centre = np.mean(pose_model.points[Feature.TRANSDUCER], axis=0)
     return np.stack([np.asarray(pose_model.focal_point_mm, float), centre])
 

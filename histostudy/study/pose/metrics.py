@@ -1,10 +1,6 @@
-"""Table II and the other summaries of notebook 04's pose estimates (§II-E.3, §III; mm, mean ± SD).
-
-From :func:`~histostudy.study.pose._experiments.run_pose_study`'s rows: the per-experiment
-quantities of Table II against the ground truth or the post-treatment CBCT
-(:func:`experiment_metrics`), Table II itself (:func:`table2`), the modes and distance maps side
-by side, time per stage, warm-start tracking, and the error of the CBCT reference itself.
-Errors are along the centre pose's depth/TB/LR axes of §II-E (C-arm frame, mm); times in s.
+"""Table II and the other summaries of notebook 04's pose estimates (§II-E.3, §III; mm, mean ± SD),
+from :func:`~histostudy.study.pose.experiments.run_pose_study`'s rows, against the ground truth or
+the post-treatment CBCT; errors along the centre pose's depth/TB/LR axes (C-arm frame, mm), times in s.
 """
 
 from __future__ import annotations
@@ -12,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ._geometry import DIRECTIONS, MARGINS
-from ._reference import reference_by_experiment
+from .geometry import DIRECTIONS, MARGINS
+from .reference import reference_by_experiment
 
 __all__ = ["experiment_metrics", "mean_sd", "reference_error_summary", "stage_timing", "table2",
            "tracking_summary", "variant_summary"]

@@ -1,14 +1,7 @@
-"""The paper's reference of Table II: the treated zone in a post-treatment CBCT (§II-D, §II-E.3).
-
-After the fluoroscopy of each experiment (:mod:`~histostudy.study.pose._experiments`) the paper
-treated a sphere of radius ``r`` about the centre position, acquired a CBCT and segmented the
-treated zone by hand; the predicted centre was compared with the zone's centroid, the margin
-points with its surface, the radius with its radii along depth/TB/LR. Here the treatment is
-simulated about the true centre pose (:func:`histostudy.treatment.plan_treatment`, bubble clouds at
-the physical transducer's focal point), the layered phantom mixed there, a CBCT simulated and
-the zone segmented automatically (:func:`histostudy.treatment.scan_treated_zone`). The difference
-between this reference and the ground truth is the error of the reference itself.
-C-arm (CBCT) frame, mm; CBCT intensities in HU.
+"""The paper's reference of Table II (§II-D, §II-E.3): each experiment's treatment simulated about
+its true centre pose, the post-treatment CBCT simulated and the treated zone segmented
+automatically (the stand-in for the paper's manual annotation). C-arm (CBCT) frame, mm; CBCT
+intensities in HU (docs/pose-study.md, "The CBCT reference").
 """
 
 from __future__ import annotations
@@ -30,9 +23,8 @@ from histostudy.treatment import (
     scan_treated_zone,
 )
 
-from ._config import PoseStudyConfig
-from ._experiments import PoseExperiment, draw_experiments
-from ._geometry import DIRECTIONS, bubble_cloud_centre_mm, transducer_axes
+from .experiments import PoseExperiment, PoseStudyConfig, draw_experiments
+from .geometry import DIRECTIONS, bubble_cloud_centre_mm, transducer_axes
 
 __all__ = ["REFERENCE_COLUMNS", "cbct_reference", "phantom_placement", "reference_by_experiment"]
 

@@ -1,12 +1,7 @@
-"""The targeting study's hand-eye calibration phase (§II-C, eq. 3-5 for the pose estimates).
-
-The robot moves the flange to ``n_calibration_poses`` preprogrammed poses about the start pose
-above the phantom; at each the encoders' ``T_base_flange`` is read and a biplane pair is
-rendered from the TRUE transducer pose (``T_carm_base_true @ T_base_flange_reached @
-T_flange_transducer_true``); the pose is estimated and
-:func:`histostudy.calibration.calibrate` (AX = XB, Daniilidis) run on the pairs. Its residuals
-are checked against a stated bound: targeting refuses to run on a calibration that fails it.
-Transforms are 4x4 ``T_<to>_<from>`` in mm (base frame: the robot's; C-arm frame: LPS).
+"""The targeting study's hand-eye calibration (§II-C; eq. 3-5 for the pose estimates): the
+preprogrammed flange poses, a biplane pair rendered from the true pose at each, the poses
+estimated and AX = XB solved, its residuals checked against a bound. Transforms ``T_<to>_<from>``,
+mm (base frame: the robot's; C-arm frame: LPS).
 """
 
 from __future__ import annotations
@@ -30,8 +25,8 @@ from histostudy.pose import PoseEstimationError, estimate_pose
 from histostudy.robot import Robot
 from histostudy.transducer import TransducerModel
 
-from ._robots import InaccurateArm, reported_flange_pose
-from ._setup import GroundTruth, TargetingError, TargetingStudyConfig
+from .robots import InaccurateArm, reported_flange_pose
+from .setup import GroundTruth, TargetingError, TargetingStudyConfig
 
 # HALF_TURN lives in histostudy.calibration.targeting; named here too for the study's users.
 __all__ = ["HALF_TURN", "calibrate_robot", "calibration_poses", "config_focal_flange"]

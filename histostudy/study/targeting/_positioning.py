@@ -1,9 +1,6 @@
-"""Automatic positioning of the focal point on a target (§II-D, Fig. 2 step 3).
-
-With a hand-eye calibration, the TCP (the estimated focal point, or the bias-corrected point) is
-put on a target picked in the CBCT (C-arm frame, LPS, mm) with the transducer pointing straight
-down; :func:`scene_at_target` gives the true physical set-up at that pose for the 3-D figure.
-Transforms are 4x4 ``T_<to>_<from>`` in mm.
+"""Automatic positioning of the focal point on a target (§II-D, Fig. 2 step 3): the TCP put on a
+CBCT target with the transducer pointing down, and the true set-up at that pose for the 3-D figure.
+Transforms are 4x4 ``T_<to>_<from>`` in mm (C-arm frame: LPS).
 """
 
 from __future__ import annotations
@@ -14,7 +11,7 @@ from histostudy.calibration import DOWN, HandEyeCalibration, target_orientation,
 from histostudy.geometry import invert_transform
 from histostudy.robot import Robot, inverse_kinematics_closest
 
-from ._setup import GroundTruth, start_joints
+from .setup import GroundTruth, start_joints
 
 # DOWN, target_orientation and tcp_for_target live in histostudy.calibration.targeting; named here too
 # because the study's users have imported them from here.

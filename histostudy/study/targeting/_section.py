@@ -1,17 +1,13 @@
-"""Notebook 05's parameters, set-up and prose: its parameters checked (:class:`TargetingSectionConfig`)
-and made a :class:`TargetingStudyConfig`, the transducer models (spacings in mm), the views and the
-pose-estimation stages, the seeds of its random draws (:func:`prepare`), and what the report says
-stands in for the lab (§II-C, §II-D, §III).
-
-Every random draw of the notebook comes from one integer ``seed`` through
-:func:`notebook_seeds`, so a profile's seed fixes every number of the section.
+"""Notebook 05's section: its parameters (:class:`TargetingSectionConfig`), set-up (:func:`prepare`,
+every draw from one ``seed``) and parts — the experiments, the calibration, §III's figures, the
+calibration sensitivity, the stand-ins — each returning a :class:`~histostudy.study.section.SectionPart`
+that :func:`~histostudy.study.section.record` writes (§II-C, §II-D, §III).
 """
-
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,10 +17,8 @@ from histostudy.core import check_count, check_positive, is_finite_real
 from histostudy.imaging import View, default_biplane
 from histostudy.transducer import TransducerModel, TransducerSpec
 
-from ..pose import StudyStages, study_stages
-from ..section import RenderedSectionConfig, SectionPart, check_bool, check_choice, record, timer_or_untimed
-from ._experiment import run_targeting_study
-from ._setup import TargetingStudyConfig
+from ..pose.experiments import StudyStages, study_stages
+from ..section import RenderedSectionConfig, SectionPart, Timer, check_bool, check_choice, timer_or_untimed
 from ._summary import (
     CALIBRATION_TABLE_CAPTION,
     ERROR_TABLE_CAPTION,
@@ -38,11 +32,13 @@ from ._summary import (
     summary,
     targeting_comparisons,
 )
+from .experiment import run_targeting_study
+from .setup import TargetingStudyConfig
 
-__all__ = ["RECORDED_PARAMETERS", "ROBOTS", "SECTION_TITLE", "NotebookSeeds", "SectionPart", "SensitivitySection",
-           "TargetingRun", "TargetingSectionConfig", "TargetingSetup", "calibration_part", "closing_part",
-           "closing_text", "config_from_parameters", "experiments_section", "notebook_seeds", "prepare",
-           "prepare_study", "record", "run_prepared_study", "sensitivity_section", "stand_ins", "targeting_part"]
+__all__ = ["RECORDED_PARAMETERS", "ROBOTS", "SECTION_TITLE", "NotebookSeeds", "SensitivitySection", "TargetingRun",
+           "TargetingSectionConfig", "TargetingSetup", "calibration_part", "closing_part", "closing_text",
+           "experiments_section", "notebook_seeds", "prepare", "prepare_study", "run_prepared_study",
+           "sensitivity_section", "stand_ins", "study_config_from_parameters", "targeting_part"]
 
 SECTION_TITLE = "05 · Automated targeting: calibration, positioning, treatment (§II-C, §II-D, §II-E.4, §III)"
 
@@ -66,19 +62,37 @@ def _numbers(value, name: str, what: str, *, length: int | None = None, check=is
 
 @dataclass(frozen=True)
 class TargetingSectionConfig(RenderedSectionConfig):
-    """Notebook 05's parameters (its ``parameters`` cell names and documents each), checked.
+    """Notebook 05's parameters (its ``parameters`` cell names and documents each), checked; values
+    are kept as given, lists as tuples.
 
-    The frames' dose and splatting and the model grids (``photons_per_pixel``, ``n_splats``,
-    ``splat_sigma_mm``, ``pose_spacing_mm``, ``render_spacing_mm``, ``background``), the experiments
-    (:class:`TargetingStudyConfig`'s fields of the same names, :meth:`study_config`;
-    ``learned_stages``: the calibration's pose estimates on the shipped networks), the ``robot``
-    (one of :data:`ROBOTS`), the figures (``n_figure_experiments``, ``render_3d``) and the
-    calibration-sensitivity Monte-Carlo (``sensitivity_poses``, ``sensitivity_noise`` as
-    (translation SD mm, rotation SD deg) pairs, ``sensitivity_trials``).
+    Args:
+        photons_per_pixel: dose of the calibration frames, photons per unattenuated pixel (§II-B.2).
+        n_splats: splats per model point.
+        splat_sigma_mm: splat SD (mm).
+        pose_spacing_mm: grid of the digital model the pose is estimated with (mm).
+        render_spacing_mm: grid of the models the frames are rendered from (mm).
+        background: the scene behind the transducer (``"phantom"``, ``"abdomen"``, ``"mixed"``, ``"none"``).
+        n_experiments: phantom experiments (paper: 6).
+        zone_diameters_mm: target sphere diameters drawn per experiment (mm, each in (0, 30]).
+        n_calibration_poses: robot poses of the hand-eye calibration (>= 3; paper: 4).
+        pose_mode: refinement of the pose estimate (``"paper"`` or ``"fast"``).
+        degradation: the oracle segmenter's errors where the learned stages fall short.
+        learned_stages: the calibration's pose estimates on the shipped U-Net and VGG19.
+        phantom_voxel_mm: grid of the true phantom (mm).
+        cbct_voxel_mm: grid of the simulated CBCTs (mm).
+        treatment_spacing_mm: treatment lattice spacing (LR, TB, depth; mm).
+        bubble_offset_mm: bubble-cloud offset from the physical focal point (transducer frame, mm).
+        bias_correction: also run the calibration treatment and the corrected targeting (§IV).
+        robot: one of :data:`ROBOTS`.
+        n_figure_experiments: experiments shown in Fig. 7 (>= 0).
+        sensitivity_poses: robot poses of the calibration-sensitivity Monte-Carlo (each >= 3).
+        sensitivity_noise: pose noise pairs (translation SD mm, rotation SD deg).
+        sensitivity_trials: Monte-Carlo trials per condition.
+        render_3d: render the 3-D scene of the set-up.
 
-    A bad value raises ValueError naming the parameter, its value and what it must be (the
-    experiments' through :class:`TargetingStudyConfig`'s checks). Values are kept as given, lists
-    as tuples.
+    Raises:
+        ValueError: a bad value, named with its value and what it must be (the experiments' through
+            :class:`~histostudy.study.targeting.setup.TargetingStudyConfig`'s checks).
     """
 
     NOTEBOOK = "05"
@@ -129,11 +143,16 @@ class TargetingSectionConfig(RenderedSectionConfig):
         put("sensitivity_noise", tuple(tuple(pair) for pair in noise))
         self.study_config()  # the experiments' parameters, checked by TargetingStudyConfig
 
-
-
     def study_config(self) -> TargetingStudyConfig:
-        """The experiments' :class:`TargetingStudyConfig` (:func:`config_from_parameters`)."""
-        return config_from_parameters(self.recorded())
+        """The experiments' parameters these give (:func:`study_config_from_parameters`).
+
+        Returns:
+            The :class:`~histostudy.study.targeting.setup.TargetingStudyConfig`.
+
+        Raises:
+            ValueError: where its checks refuse a value.
+        """
+        return study_config_from_parameters(self.recorded())
 
 
 @dataclass(frozen=True)
@@ -155,7 +174,7 @@ def notebook_seeds(seed: int) -> NotebookSeeds:
     return NotebookSeeds(physical, int(study.generate_state(1)[0]), sensitivity, scene)
 
 
-def config_from_parameters(parameters: Mapping) -> TargetingStudyConfig:
+def study_config_from_parameters(parameters: Mapping) -> TargetingStudyConfig:
     """The study's configuration from the notebook's parameters: every entry named as a
     :class:`TargetingStudyConfig` field, lists made tuples (the rest keep the config's defaults)."""
     fields = {f.name for f in dataclasses.fields(TargetingStudyConfig)}
@@ -180,12 +199,22 @@ class TargetingSetup:
     params: TargetingSectionConfig | None = None
 
 
-Timer = Callable[[str], contextlib.AbstractContextManager]
-
-
 def prepare(params: TargetingSectionConfig | Mapping, seed: int, *, timer: Timer | None = None) -> TargetingSetup:
-    """The section's set-up (:func:`prepare_study`) from its checked parameters (a
-    :class:`TargetingSectionConfig` or a mapping of them); the set-up keeps them as ``params``."""
+    """The section's set-up (:func:`prepare_study`) from its checked parameters.
+
+    Args:
+        params: a :class:`TargetingSectionConfig`, or a mapping naming its fields (the notebook's
+            ``globals()``).
+        seed: the notebook's root seed (:func:`notebook_seeds`).
+        timer: ``timer(name)`` -> a context manager timing the model build (``SectionWriter.timer``);
+            None: untimed.
+
+    Returns:
+        The :class:`TargetingSetup`, keeping ``params``.
+
+    Raises:
+        ValueError: a parameter missing or refused (:class:`TargetingSectionConfig`).
+    """
     if not isinstance(params, TargetingSectionConfig):
         params = TargetingSectionConfig.from_parameters(params)
     return dataclasses.replace(prepare_study(params.recorded(), seed, timer=timer), params=params)
@@ -194,7 +223,7 @@ def prepare(params: TargetingSectionConfig | Mapping, seed: int, *, timer: Timer
 def prepare_study(parameters: Mapping, seed: int, *, timer: Timer | None = None) -> TargetingSetup:
     """Build the models (``pose_spacing_mm``, ``render_spacing_mm``; the physical transducer drawn
     from the seed), the default biplane views, the configuration and the stages
-    (:func:`~.pose_estimation.study_stages` with ``learned_stages``) from the notebook's
+    (:func:`~histostudy.study.pose.experiments.study_stages` with ``learned_stages``) from the notebook's
     parameters (a mapping naming at least :data:`RECORDED_PARAMETERS`; :func:`prepare` checks them
     first). ``timer(name)``: a context manager timing the model build (e.g.
     ``SectionWriter.timer``)."""
@@ -206,7 +235,7 @@ def prepare_study(parameters: Mapping, seed: int, *, timer: Timer | None = None)
         physical = TransducerModel.build_physical(spec, spacing_mm=parameters["render_spacing_mm"],
                                                   rng=np.random.default_rng(seeds.physical))
     views = default_biplane()
-    config = config_from_parameters(parameters)
+    config = study_config_from_parameters(parameters)
     # The calibration's pose estimates run on the shipped U-Net and VGG19 where their manifests meet
     # histostudy.pose.LEARNED_STAGE_REQUIREMENTS, otherwise on the oracles; the report says which.
     stages = study_stages(config, parameters["learned_stages"])
@@ -269,8 +298,19 @@ class TargetingRun:
 
 
 def experiments_section(setup: TargetingSetup, *, timer: Timer | None = None) -> TargetingRun:
-    """:func:`run_prepared_study` on ``setup.params.robot``, timed as ``"targeting study"``; its part:
-    the per-experiment errors (table ``targeting_errors``)."""
+    """The study on ``setup.params.robot`` (:func:`run_prepared_study`, timed as ``"targeting study"``).
+
+    Args:
+        setup: the section's set-up (:func:`prepare`).
+        timer: ``timer(name)`` -> a context manager; None: untimed.
+
+    Returns:
+        The :class:`TargetingRun`; its part: the per-experiment errors (table ``targeting_errors``).
+
+    Raises:
+        TargetingError: a calibration pose's estimate failed its verdict.
+        CalibrationError: a calibration beyond its residual bound.
+    """
     with timer_or_untimed(timer)("targeting study"):
         records, volumes = run_prepared_study(setup, setup.params.robot)
     return TargetingRun(records, volumes, SectionPart(tables={"targeting_errors": (error_table(records),
@@ -278,14 +318,30 @@ def experiments_section(setup: TargetingSetup, *, timer: Timer | None = None) ->
 
 
 def calibration_part(records: pd.DataFrame) -> SectionPart:
-    """The calibration against the ground truth (table ``calibration``)."""
+    """The calibration against the ground truth.
+
+    Args:
+        records: the study's rows (:attr:`TargetingRun.records`).
+
+    Returns:
+        The part: table ``calibration`` (residuals and errors, mm and deg).
+    """
     return SectionPart(tables={"calibration": (calibration_table(records), CALIBRATION_TABLE_CAPTION)})
 
 
 def targeting_part(records: pd.DataFrame) -> SectionPart:
-    """§III's targeting figures beside the paper's (:func:`targeting_comparisons`), their summary
-    (table ``targeting_summary``) and, with both robots, their largest difference
-    (``rtde_vs_sim_max_difference``)."""
+    """§III's targeting figures beside the paper's (:func:`~._summary.targeting_comparisons`).
+
+    Args:
+        records: the study's rows (:attr:`TargetingRun.records`).
+
+    Returns:
+        The part: table ``targeting_summary`` (mm), the comparisons and, with both robots, their
+        largest difference (value ``rtde_vs_sim_max_difference``, mm).
+
+    Raises:
+        ValueError: ``records`` is empty.
+    """
     max_difference = robot_max_difference(records)
     return SectionPart(tables={"targeting_summary": (summary(records), SUMMARY_TABLE_CAPTION)},
                        values={} if max_difference is None else {"rtde_vs_sim_max_difference": max_difference},
@@ -302,9 +358,18 @@ class SensitivitySection:
 
 
 def sensitivity_section(setup: TargetingSetup, *, timer: Timer | None = None) -> SensitivitySection:
-    """:func:`calibration_sensitivity_table` on ``setup.params``' poses, noise and trials (timed as
-    ``"calibration sensitivity"``); its part: the table and its rows as
-    ``calibration_sensitivity_medians``."""
+    """Beyond the paper: the hand-eye calibration's median errors over a Monte-Carlo
+    (:func:`~._summary.calibration_sensitivity_table` on ``setup.params``' poses, noise and trials,
+    timed as ``"calibration sensitivity"``).
+
+    Args:
+        setup: the section's set-up (:func:`prepare`).
+        timer: ``timer(name)`` -> a context manager; None: untimed.
+
+    Returns:
+        The :class:`SensitivitySection`; its part: table ``calibration_sensitivity`` (deg, mm) and
+        its rows as value ``calibration_sensitivity_medians``.
+    """
     p = setup.params
     with timer_or_untimed(timer)("calibration sensitivity"):
         table = calibration_sensitivity_table(p.sensitivity_poses, p.sensitivity_noise, p.sensitivity_trials,
@@ -315,7 +380,15 @@ def sensitivity_section(setup: TargetingSetup, *, timer: Timer | None = None) ->
 
 
 def closing_part(setup: TargetingSetup, records: pd.DataFrame) -> SectionPart:
-    """What stands in for the lab (:func:`stand_ins`) and the closing paragraph (:func:`closing_text`)."""
+    """What stands in for the lab (:func:`stand_ins`) and the closing paragraph (:func:`closing_text`).
+
+    Args:
+        setup: the section's set-up (:func:`prepare`).
+        records: the study's rows (:attr:`TargetingRun.records`).
+
+    Returns:
+        The part: its stand-ins and one paragraph.
+    """
     p = setup.params
     return SectionPart(stand_ins=tuple(stand_ins(p.robot, setup.stages.learned, p.bubble_offset_mm)),
                        texts=(closing_text(len(first_robot_rows(records)), setup, p.bubble_offset_mm),))

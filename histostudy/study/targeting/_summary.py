@@ -1,9 +1,6 @@
-"""The targeting study's summaries (§III, §II-E.4): the paper's figures, per-experiment tables and the
-comparisons notebook 05 records, and the calibration-sensitivity table (beyond the paper).
-
-Every error is in mm (rotations in degrees), along the commanded transducer axes depth / TB / LR
-of §II-E.4. ``records`` is the table of :func:`~.targeting_experiment.run_targeting_study`: one
-row per (experiment, robot).
+"""The targeting study's summaries (§III, §II-E.4): the paper's figures, the per-experiment tables
+and the comparisons notebook 05 records, and the calibration-sensitivity table (beyond the paper).
+Errors in mm (rotations in degrees) along the commanded depth/TB/LR axes.
 """
 
 from __future__ import annotations
@@ -13,8 +10,8 @@ import pandas as pd
 
 from histostudy.calibration import calibration_sensitivity
 
-from ..pose._geometry import DIRECTIONS
-from ..pose._metrics import mean_sd
+from ..pose.geometry import DIRECTIONS
+from ..pose.metrics import mean_sd
 
 __all__ = ["CALIBRATION_TABLE_CAPTION", "ERROR_TABLE_CAPTION", "SUMMARY_TABLE_CAPTION", "calibration_table",
            "error_table", "first_robot_rows", "robot_max_difference", "sensitivity_caption",

@@ -1,20 +1,7 @@
-"""Treating a zone and the bias-correcting calibration treatment (§II-D, §II-A step 3, §IV).
-
-:func:`treat_zone` positions the robot, plans and executes the treatment (journal on disk),
-places the bubble clouds at the TRUE focal points of the physical transducer for the reached
-robot poses, simulates the post-treatment CBCT and segments the zone (the stand-in for the
-manual annotation).
-
-**Bias correction** (§IV: "this could be further improved by including the pose estimation bias
-during the calibration"). Fluoroscopy cannot see the bias: the calibration's own residuals are
-zero-mean by construction (its translation is the least-squares fit to the estimated focal
-points), and the offset between the digital model's focal point and the bubble cloud
-(manufacturing, aberration) moves no transducer feature. So the bias is learnt as the
-conventional workflow's test pulse does (§II-A step 3), with one **calibration treatment**
-(:func:`learn_bubble_bias`): a test zone treated in a calibration phantom, its post-treatment
-CBCT segmented, and the offset of its centroid from the intended target expressed in the
-transducer frame, ``b = R_des^T (centroid - target)`` (mm). The corrected TCP is the estimated
-focal point moved by ``b`` (``T_flange_tcp = X_est @ Trans(b)``).
+"""Treating a zone (§II-D) and the bias-correcting calibration treatment (§II-A step 3, §IV): the
+robot positioned and the plan executed, the bubble clouds at the physical transducer's true focal
+points, the post-treatment CBCT simulated and segmented; ``b = R_des^T (centroid - target)`` (mm)
+learnt from a test zone (docs/targeting-study.md, "Bias correction").
 """
 
 from __future__ import annotations
@@ -31,7 +18,7 @@ from histostudy.transducer import TransducerModel
 from histostudy.treatment import TreatmentZone, ZoneSegmentation, execute_treatment, plan_treatment, scan_treated_zone
 
 from ._positioning import position_for_target
-from ._setup import GroundTruth, TargetingStudyConfig
+from .setup import GroundTruth, TargetingStudyConfig
 
 __all__ = ["learn_bubble_bias", "phantom_for", "treat_zone"]
 

@@ -1,23 +1,7 @@
-"""One targeting experiment and the study of several (§II-C, §II-D, §II-E.4, §III).
-
-One experiment, as in the lab, in four stages:
-
-1. **Ground truth set-up** (:func:`~.targeting_setup.draw_ground_truth`).
-2. **Calibration** (§II-C, :func:`~.targeting_calibration.calibrate_robot`), checked against its
-   bound.
-3. **Pre-treatment CBCT** of the layered phantom; a target picked inside it with the whole zone
-   (20 or 25 mm) and the segmentation window inside the phantom.
-4. **Automatic positioning and treatment** (:func:`~.targeting_treatment.treat_zone`), once as
-   the paper did and, with the bias correction, after a calibration treatment
-   (:func:`~.targeting_treatment.learn_bubble_bias`) with the corrected TCP: two identical
-   phantoms, the same pre-treatment CBCT and target.
-
-Errors (§II-E.4), mm: Euclidean distance between the intended target and the segmented zone's
-centroid; its components along depth/TB/LR (the commanded transducer axes at the target); the
-segmented sphere radius against the planned radius; and the calibration against the ground
-truth (rotation in degrees and translation of ``T_flange_transducer`` and ``T_carm_base``, and
-the calibration's error at the target: where the true chain puts the focal point for the
-commanded flange pose). Points are in the C-arm frame (LPS, mm).
+"""One targeting experiment and the study of several (§II-C, §II-D, §II-E.4, §III): the ground truth
+drawn, the hand-eye calibration, the pre-treatment CBCT and target, the treatment (once as the
+paper, once bias-corrected) and the errors along the commanded depth/TB/LR axes. C-arm frame (LPS),
+mm; rotations in degrees (docs/targeting-study.md).
 """
 
 from __future__ import annotations
@@ -35,11 +19,11 @@ from histostudy.imaging import PhantomSpec, View, check_target, random_target, s
 from histostudy.transducer import TransducerModel
 from histostudy.treatment import TreatmentZone, ZoneSegmentation
 
-from ..pose import DIRECTIONS, transducer_axes
+from ..pose.geometry import DIRECTIONS, transducer_axes
 from ._calibration import calibrate_robot
 from ._positioning import target_orientation, tcp_for_target
-from ._robots import robot_seed, rtde_robot, sim_robot
-from ._setup import GroundTruth, TargetingStudyConfig, draw_ground_truth, start_joints
+from .robots import robot_seed, rtde_robot, sim_robot
+from .setup import GroundTruth, TargetingStudyConfig, draw_ground_truth, start_joints
 from ._treatment import learn_bubble_bias, phantom_for, treat_zone
 
 __all__ = ["calibration_errors", "run_targeting_experiment", "run_targeting_study", "zone_errors"]

@@ -1,15 +1,7 @@
-"""The robots of the targeting study: the in-process UR5e simulation and the simulated UR controller
-driven through the real ``ur_rtde`` client (§II-D; docs/architecture.md, "Robots").
-
-Each factory takes the experiment's integer robot seed (the controller's ``--seed``) and the
-start joints (rad) and yields a :class:`~histostudy.robot.Robot` as a context manager, so that
-the same study seed gives the same moves, and the same numbers, on either robot (up to the float
-round trip of the metre/axis-angle boundary, far below 1e-6 mm).
-
-An arm whose true kinematics differ from the nominal DH table its controller inverts (a lab's
-robot accuracy, §II-C's "rTe can be calculated for every pose" taken as only nearly true):
-:class:`KinematicError` and the :class:`InaccurateArm` wrapper that :func:`sim_robot` puts around
-the simulation when given one.
+"""The robots of the targeting study (§II-D; docs/architecture.md, "Robots"): the in-process UR5e
+simulation and the simulated UR controller driven through ``ur_rtde``, both seeded by the
+experiment's integer robot seed, and an arm whose true kinematics differ from its nominal DH
+table (:class:`KinematicError`, :class:`InaccurateArm`). Lengths in mm, angles in rad.
 """
 
 from __future__ import annotations
@@ -25,7 +17,7 @@ import numpy as np
 from histostudy.robot import HOME_JOINTS_RAD, UR5E, SimulatedUR5e, forward_kinematics
 from histostudy.robot.kinematics import DHSpec
 
-from ._setup import TargetingStudyConfig
+from .setup import TargetingStudyConfig
 
 __all__ = ["InaccurateArm", "KinematicError", "reported_flange_pose", "robot_seed", "rtde_robot", "sim_robot"]
 

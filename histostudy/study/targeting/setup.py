@@ -1,10 +1,6 @@
-"""The targeting study's set-up (§II-C, §II-D): its parameters and the ground truth one experiment draws.
-
-:class:`TargetingStudyConfig` holds every parameter of notebook 05's experiments (mm, degrees,
-HU); :func:`draw_ground_truth` draws what the lab had but did not know: the robot base in the
-C-arm frame, the transducer's mount on the flange (with its mounting error), the phantom and the
-point the operator jogged the focal point to. Transforms are 4x4 ``T_<to>_<from>`` in mm; the
-C-arm frame is LPS with its origin at the isocentre (docs/architecture.md, "Frames and units").
+"""The targeting study's set-up (§II-C, §II-D): its parameters (:class:`TargetingStudyConfig`) and
+the ground truth one experiment draws (:func:`draw_ground_truth`: base, mount, phantom, start).
+Transforms are 4x4 ``T_<to>_<from>`` in mm; the C-arm frame is LPS with its origin at the isocentre.
 """
 
 from __future__ import annotations

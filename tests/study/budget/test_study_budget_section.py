@@ -6,7 +6,15 @@ import pandas as pd
 import pytest
 
 from histostudy.study import budget as B
-from histostudy.study.budget import _notebook as budget_notebook
+from histostudy.study.budget import _section as budget_notebook
+from histostudy.study.budget._section import (
+    RECORDED_PARAMETERS,
+    budget_seeds,
+    lab_model_from_parameters,
+    prepare_budget,
+    sources_table,
+    stand_ins,
+)
 
 #: The parameters cell of notebooks/07_error_budget.ipynb as stored (its defaults).
 DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, pose_spacing_mm=0.47,
@@ -21,7 +29,7 @@ def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones(n
     params = B.BudgetSectionConfig.from_parameters(cell)
     assert {k: getattr(params, k) for k in DEFAULTS} == DEFAULTS  # sources kept as a tuple
     assert set(cell) - set(DEFAULTS) == {"profile", "seed", "output_dir"}
-    assert list(params.recorded()) == list(B.RECORDED_PARAMETERS) == list(DEFAULTS)
+    assert list(params.recorded()) == list(RECORDED_PARAMETERS) == list(DEFAULTS)
     with pytest.raises(AttributeError):
         params.scheduler = "local:2"  # frozen
 
@@ -39,15 +47,15 @@ def setup():
 
 def test_prepare_is_prepare_budget_on_the_checked_parameters(setup):
     assert isinstance(setup.params, B.BudgetSectionConfig) and setup.params.sources == ("robot",)
-    assert setup.seeds.study == B.budget_seeds(7).study
-    assert setup.seeds.lab.generate_state(4).tolist() == B.budget_seeds(7).lab.generate_state(4).tolist()
-    plain = B.prepare_budget(setup.params.recorded(), 7)
+    assert setup.seeds.study == budget_seeds(7).study
+    assert setup.seeds.lab.generate_state(4).tolist() == budget_seeds(7).lab.generate_state(4).tolist()
+    plain = prepare_budget(setup.params.recorded(), 7)
     assert (setup.pose_config, setup.targeting_config) == (plain.pose_config, plain.targeting_config)
-    assert setup.lab.model == plain.lab.model == B.lab_model_from_parameters(["robot"])
+    assert setup.lab.model == plain.lab.model == lab_model_from_parameters(["robot"])
 
 
 def test_the_parts_of_a_budget(setup, monkeypatch, recording_timer):
-    assert B.sources_part(setup).table("sources").equals(B.sources_table(setup.lab.model))
+    assert B.sources_part(setup).table("sources").equals(sources_table(setup.lab.model))
     calls = {}
 
     def fake_budget(budget_setup, *, seed, executor):
@@ -61,12 +69,12 @@ def test_the_parts_of_a_budget(setup, monkeypatch, recording_timer):
     timer, timed = recording_timer()
 
     run = B.budget_section(setup, timer=timer)
-    assert timed == ["budget"] and calls == dict(setup=setup, seed=B.budget_seeds(7).study, executor="local:1")
+    assert timed == ["budget"] and calls == dict(setup=setup, seed=budget_seeds(7).study, executor="local:1")
     assert list(run.part.tables) == ["pose_configurations", "targeting_configurations"]
     assert run.pose_table["study"][0] == "pose" and run.targeting_table["study"][0] == "targeting"
     closing = B.closing_part(setup, run.records)
     assert closing.comparisons == (dict(key="k", label="", ours=1.0, labs=None),)
-    assert closing.stand_ins == tuple(B.stand_ins())
+    assert closing.stand_ins == tuple(stand_ins())
     assert closing.texts[0].startswith("1 pose and 1 targeting experiment(s) per configuration, one lab (lab 0)")
     assert "median over" not in closing.texts[0]
     labs = pd.DataFrame({"lab": [0, 1, 2, 0, 1, 2], "study": ["pose"] * 3 + ["targeting"] * 3})

@@ -15,13 +15,12 @@ from histostudy.study.budget._run import (
     run_error_budget,
 )
 from histostudy.study.budget._sources import LabErrorModel, draw_lab
-from histostudy.study.pose._config import PoseStudyConfig
-from histostudy.study.pose._experiments import run_pose_study
-from histostudy.study.pose._metrics import experiment_metrics
-from histostudy.study.pose._reference import cbct_reference
-from histostudy.study.targeting._experiment import run_targeting_experiment
-from histostudy.study.targeting._robots import sim_robot
-from histostudy.study.targeting._setup import TargetingStudyConfig
+from histostudy.study.pose.experiments import PoseStudyConfig, run_pose_study
+from histostudy.study.pose.metrics import experiment_metrics
+from histostudy.study.pose.reference import cbct_reference
+from histostudy.study.targeting.experiment import run_targeting_experiment
+from histostudy.study.targeting.robots import sim_robot
+from histostudy.study.targeting.setup import TargetingStudyConfig
 from histostudy.transducer import TransducerModel
 
 DIRS = ("depth", "tb", "lr")
@@ -76,14 +75,14 @@ def test_pose_budget_baseline_is_the_study_and_sources_act_where_they_act(models
 
 
 def _axes(setup, seed):
-    from histostudy.study.pose._experiments import experiment_setups
-    from histostudy.study.pose._geometry import transducer_axes
+    from histostudy.study.pose.experiments import experiment_setups
+    from histostudy.study.pose.geometry import transducer_axes
 
     return transducer_axes(experiment_setups(setup.pose_config, seed)[0].T_true["centre"])
 
 
 def _centre_rotation(setup, seed):
-    from histostudy.study.pose._experiments import experiment_setups
+    from histostudy.study.pose.experiments import experiment_setups
 
     return experiment_setups(setup.pose_config, seed)[0].T_true["centre"][:3, :3]
 

@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from histostudy.study.budget import SOURCE_PROVENANCE, sources_table
+from histostudy.study.budget._section import SOURCE_PROVENANCE, sources_table
 from histostudy.study.budget._references import (
     SOURCE_REFERENCES,
     STATUSES,

@@ -11,7 +11,7 @@ from histostudy.imaging import default_biplane
 from histostudy.robot import HOME_JOINTS_RAD, UR5E, SimulatedUR5e, forward_kinematics
 from histostudy.study.budget._magnitudes import CarmReproducibility, RobotAccuracy, TransducerReplacement
 from histostudy.study.budget._sources import LAB_SOURCES, LabErrorModel, draw_lab
-from histostudy.study.targeting._robots import InaccurateArm, KinematicError, reported_flange_pose
+from histostudy.study.targeting.robots import InaccurateArm, KinematicError, reported_flange_pose
 from histostudy.transducer import TransducerModel, TransducerSpec
 
 FIRST_EIGHT = ("manufacturing", "bubble_offset", "projection", "gantry_sag", "registration", "annotation", "robot",
@@ -119,10 +119,9 @@ def test_an_inaccurate_arm_reports_the_nominal_pose_and_sits_at_the_true_one():
 @pytest.mark.slow
 def test_the_scatter_sources_act_in_the_budget_where_they_act():
     from histostudy.study.budget._run import BudgetSetup, budget_configurations, run_error_budget
-    from histostudy.study.pose._config import PoseStudyConfig
-    from histostudy.study.pose._experiments import experiment_setups
-    from histostudy.study.pose._geometry import transducer_axes
-    from histostudy.study.targeting._setup import TargetingStudyConfig
+    from histostudy.study.pose.experiments import PoseStudyConfig, experiment_setups
+    from histostudy.study.pose.geometry import transducer_axes
+    from histostudy.study.targeting.setup import TargetingStudyConfig
 
     model = TransducerModel.build(spacing_mm=0.94)
     physical = TransducerModel.build_physical(spacing_mm=0.94, rng=np.random.default_rng(3))

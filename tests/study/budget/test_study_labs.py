@@ -13,8 +13,8 @@ from histostudy.study.budget._labs import draw_labs, frames_alike, lab_magnitude
 from histostudy.study.budget._run import BudgetSetup, run_error_budget
 from histostudy.study.budget._shared import SharedSegmentations
 from histostudy.study.budget._sources import LAB_SOURCES, LabErrorModel, draw_lab
-from histostudy.study.pose._config import PoseStudyConfig
-from histostudy.study.targeting._setup import TargetingStudyConfig
+from histostudy.study.pose.experiments import PoseStudyConfig
+from histostudy.study.targeting.setup import TargetingStudyConfig
 from histostudy.transducer import TransducerModel
 
 

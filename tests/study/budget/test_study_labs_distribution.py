@@ -17,7 +17,7 @@ from histostudy.study.budget._distribution import (
     sign_agreement,
     source_movers,
 )
-from histostudy.study.budget._labs_notebook import movers_table
+from histostudy.study.budget._labs_section import movers_table
 from histostudy.study.budget._summary import budget_comparisons
 
 DIRS = ("depth", "tb", "lr")

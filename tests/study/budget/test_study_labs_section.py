@@ -6,7 +6,7 @@ import pandas as pd
 import pytest
 
 from histostudy.study import budget as B
-from histostudy.study.budget import _labs_notebook
+from histostudy.study.budget import _labs_section as _labs_notebook
 
 #: A small notebook 07: two sources, three labs.
 PARAMETERS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, pose_spacing_mm=0.47,

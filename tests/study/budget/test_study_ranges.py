@@ -12,10 +12,11 @@ from histostudy.imaging import default_biplane
 from histostudy.study import budget as B
 from histostudy.study.budget import _ranges
 from histostudy.study.budget._labs import run_labs
-from histostudy.study.budget._notebook import budget_seeds
+from histostudy.study.budget._ranges import range_bands, range_labs
 from histostudy.study.budget._run import BudgetSetup
-from histostudy.study.pose._config import PoseStudyConfig
-from histostudy.study.targeting._setup import TargetingStudyConfig
+from histostudy.study.budget._section import budget_seeds
+from histostudy.study.pose.experiments import PoseStudyConfig
+from histostudy.study.targeting.setup import TargetingStudyConfig
 from histostudy.transducer import TransducerModel
 
 
@@ -34,7 +35,7 @@ def _setup(*sources, n_experiments=1):
 def test_only_the_swept_source_moves_and_frames_are_kept_where_it_leaves_them():
     setup = _setup("manufacturing", "bubble_offset", "projection")
     lab0 = setup.lab
-    labs = B.range_labs(setup, ["bubble_offset", "manufacturing"])
+    labs = range_labs(setup, ["bubble_offset", "manufacturing"])
     assert [(s, e) for s, e, _, _ in labs] == [("bubble_offset", "low"), ("bubble_offset", "high"),
                                                ("manufacturing", "low"), ("manufacturing", "high")]
     ref = B.SOURCE_REFERENCES["bubble_offset"]
@@ -51,9 +52,9 @@ def test_only_the_swept_source_moves_and_frames_are_kept_where_it_leaves_them():
     assert high == pytest.approx(at_default * man.high / man.value, rel=0.05)
     assert all(np.array_equal(lab.bubble_offset_mm, lab0.bubble_offset_mm) for *_, lab in labs[2:])
     with pytest.raises(ValueError, match="sources must name sources on in the lab model.*'gantry_sag'"):
-        B.range_labs(setup, ["gantry_sag"])
+        range_labs(setup, ["gantry_sag"])
     with pytest.raises(ValueError, match="each at most once"):
-        B.range_labs(setup, ["bubble_offset", "bubble_offset"])
+        range_labs(setup, ["bubble_offset", "bubble_offset"])
 
 
 def test_run_ranges_shares_what_it_can_and_labels_each_run(monkeypatch):
@@ -101,7 +102,7 @@ def _range_records(source, low_err, high_err):
 def test_range_bands_are_lab_zero_at_each_end():
     ranges = _range_records("bubble_offset", [0.5, 0, 0], [2.0, 0, 0])
     budget = pd.DataFrame(_records(None, [1.0, 0, 0], "lab") + _records(None, [9.0, 0, 0], "baseline")).drop(columns="lab")
-    bands = B.range_bands(ranges, budget).set_index("study")
+    bands = range_bands(ranges, budget).set_index("study")
     assert list(bands.index) == ["pose", "targeting"]
     assert bands.loc["pose", "at_low_mm"] == pytest.approx(0.5) and bands.loc["pose", "at_high_mm"] == pytest.approx(2.0)
     assert bands.loc["pose", "at_default_mm"] == pytest.approx(1.0)  # the "lab" configuration, not the baseline
@@ -112,7 +113,7 @@ def test_range_bands_are_lab_zero_at_each_end():
 def test_a_band_spans_the_default_where_the_source_is_not_monotone():
     ranges = _range_records("gantry_sag", [1.5, 0, 0], [1.5, 0, 0])
     budget = pd.DataFrame(_records(None, [1.0, 0, 0], "lab")).drop(columns="lab")
-    bands = B.range_bands(ranges, budget).set_index("study")
+    bands = range_bands(ranges, budget).set_index("study")
     assert bands.loc["pose", "at_low_mm"] == pytest.approx(bands.loc["pose", "at_high_mm"])
     assert bands.loc["pose", "band_mm"] == pytest.approx(0.5)  # both ends 1.5 mm, the default 1.0 mm
 
@@ -121,7 +122,7 @@ def test_a_band_spans_the_default_where_the_source_is_not_monotone():
 def test_a_range_run_is_the_lab_run_alone():
     setup = _setup("bubble_offset", "projection")
     out = B.run_ranges(setup, ["bubble_offset"])
-    high = B.range_labs(setup, ["bubble_offset"])[1][3]
+    high = range_labs(setup, ["bubble_offset"])[1][3]
     alone = run_labs(setup, [high], seed=setup.seeds.study, indices=[2], share=False)
     got = out[out["lab"] == 2].drop(columns=["source", "end", "value"]).reset_index(drop=True)
     pd.testing.assert_frame_equal(got[alone.columns], alone, check_exact=True, check_dtype=False)

@@ -5,6 +5,9 @@ import pytest
 
 from histostudy.imaging import default_biplane, random_background
 from histostudy.study import pose as study
+from histostudy.study.pose.experiments import PoseStudyConfig, experiment_setups, run_pose_study
+from histostudy.study.pose.geometry import experiment_pose
+from histostudy.study.pose.metrics import experiment_metrics, stage_timing, tracking_summary
 from histostudy.transducer import TransducerModel
 
 
@@ -14,31 +17,31 @@ def test_one_small_experiment_end_to_end():
     well inside a millimetre, and the metrics computed from the rows."""
     model = TransducerModel.build(spacing_mm=0.47)
     physical = TransducerModel.build_physical(spacing_mm=0.47, rng=np.random.default_rng(3))
-    config = study.PoseStudyConfig(n_experiments=1, modes=("fast",), n_splats=2, track=True)
-    records = study.run_pose_study(config, pose_model=model, render_model=model, physical=physical,
+    config = PoseStudyConfig(n_experiments=1, modes=("fast",), n_splats=2, track=True)
+    records = run_pose_study(config, pose_model=model, render_model=model, physical=physical,
                                    views=default_biplane(), seed=11)
     full = records[records["mode"] == "fast"]
     assert len(full) == 7 and set(records["mode"]) == {"fast", "track"}
     assert full["ok"].all(), full["failure"].tolist()
     assert full["err_euclidean"].max() < 1.0, full["err_euclidean"].tolist()
-    metrics = study.experiment_metrics(records)
+    metrics = experiment_metrics(records)
     assert len(metrics) == 1 and metrics["radius_err_overall"].iloc[0] < 0.5
-    summary = study.tracking_summary(records)
+    summary = tracking_summary(records)
     assert summary["n"] == 6 and summary["track_error_mm"][0] < 1.0
-    timing = study.stage_timing(records)
+    timing = stage_timing(records)
     assert set(timing["mode"]) == {"fast", "track"} and (timing["total"] > 0).all()
 
 
 def test_experiment_setups_keep_the_study_draws():
     """Drawing the CBCT stream (child 5) changes none of run_pose_study's draws (children 0-4)."""
-    config = study.PoseStudyConfig(n_experiments=2)
-    setups = study.experiment_setups(config, 7)
+    config = PoseStudyConfig(n_experiments=2)
+    setups = experiment_setups(config, 7)
     assert [s.experiment for s in setups] == [0, 1]
     for exp, seq in zip(setups, np.random.SeedSequence(7).spawn(2)):
         rng_pose, rng_scene, _, rng_robot, _ = (np.random.default_rng(s) for s in seq.spawn(5))
         radius = float(rng_pose.choice(config.margin_mm))
         scene = random_background(rng_scene, config.background)
-        T_centre = study.experiment_pose(rng_pose, config, scene.meta["phantom_center_mm"])
+        T_centre = experiment_pose(rng_pose, config, scene.meta["phantom_center_mm"])
         assert exp.radius_mm == radius
         np.testing.assert_array_equal(exp.T_centre, T_centre)
         for position, T_nominal in study.margin_positions(T_centre, radius).items():

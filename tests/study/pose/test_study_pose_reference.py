@@ -8,7 +8,10 @@ import pandas as pd
 import pytest
 
 from histostudy.imaging import Anatomy, PhantomSpec, random_background
-from histostudy.study import pose as study
+from histostudy.study.pose.experiments import PoseStudyConfig, experiment_setups
+from histostudy.study.pose.geometry import DIRECTIONS, MARGINS, bubble_cloud_centre_mm, transducer_axes
+from histostudy.study.pose.metrics import experiment_metrics, reference_error_summary, table2
+from histostudy.study.pose.reference import cbct_reference, phantom_placement
 from histostudy.transducer import TransducerModel
 
 #: Coarse and fast: a 0.75 mm phantom (1 mm lets the 3x3x6 mm clouds alias by up to 0.6 mm) and a 1 mm CBCT,
@@ -25,63 +28,63 @@ def records_from_setups(config, seed, physical, bias=None, stretch=0.0):
     """run_pose_study-like rows for the redrawn set-ups whose predictions are the true bubble-cloud
     centres moved by ``bias`` (depth, TB, LR components, mm) and, for the margins, pushed outwards by
     ``stretch`` mm along their direction; no rendering."""
-    bias = dict(zip(study.DIRECTIONS, (0.0, 0.0, 0.0) if bias is None else bias))
+    bias = dict(zip(DIRECTIONS, (0.0, 0.0, 0.0) if bias is None else bias))
     rows = []
-    for exp in study.experiment_setups(config, seed):
-        axes = study.transducer_axes(exp.T_centre)
-        shift = sum(bias[d] * axes[d] for d in study.DIRECTIONS)
+    for exp in experiment_setups(config, seed):
+        axes = transducer_axes(exp.T_centre)
+        shift = sum(bias[d] * axes[d] for d in DIRECTIONS)
         for position, T in exp.T_true.items():
-            truth = study.bubble_cloud_centre_mm(physical, T, config.bubble_offset_mm)
+            truth = bubble_cloud_centre_mm(physical, T, config.bubble_offset_mm)
             pred = truth + shift
             if position != "centre":
-                d, sign = study.MARGINS[position]
+                d, sign = MARGINS[position]
                 pred = pred + sign * stretch * axes[d]
             err = pred - truth
             rows.append({"experiment": exp.experiment, "radius_mm": exp.radius_mm, "position": position,
                          "mode": "paper", "maps": "occlusion_aware", **{f"true_{a}": v for a, v in zip("xyz", truth)},
                          **{f"pred_{a}": v for a, v in zip("xyz", pred)},
-                         **{f"err_{d}": float(err @ axes[d]) for d in study.DIRECTIONS},
+                         **{f"err_{d}": float(err @ axes[d]) for d in DIRECTIONS},
                          "err_euclidean": float(np.linalg.norm(err)), "ok": True})
     return pd.DataFrame(rows)
 
 
 def test_phantom_placement_follows_the_scene():
     scene = random_background(np.random.default_rng(4), "phantom")
-    spec, T = study.phantom_placement(scene)
+    spec, T = phantom_placement(scene)
     assert spec.size_mm == scene.meta["phantom_edge_mm"] and spec.layer_thickness_mm == scene.meta["layer_mm"]
     np.testing.assert_allclose(T[:3, 3], scene.meta["phantom_center_mm"])
     np.testing.assert_allclose(T[:3, :3] @ [0.0, 0.0, 1.0], [0.0, -1.0, 0.0], atol=1e-12)  # layers stacked upwards
-    spec, T = study.phantom_placement(Anatomy((), kind="custom"), centre_mm=(1.0, 2.0, 3.0))
+    spec, T = phantom_placement(Anatomy((), kind="custom"), centre_mm=(1.0, 2.0, 3.0))
     assert spec == PhantomSpec() and np.allclose(T[:3, 3], [1.0, 2.0, 3.0])
     with pytest.raises(TypeError, match="scene"):
-        study.phantom_placement("phantom")
+        phantom_placement("phantom")
 
 
 def test_noise_free_cbct_reference_finds_the_true_centre_and_radius(physical_model):
-    config = study.PoseStudyConfig(n_experiments=2, robot_repeatability_mm=0.0)
-    ref = study.cbct_reference(config, physical=physical_model, seed=3, cbct_blur_mm=0.0, cbct_noise_hu=0.0, **COARSE)
+    config = PoseStudyConfig(n_experiments=2, robot_repeatability_mm=0.0)
+    ref = cbct_reference(config, physical=physical_model, seed=3, cbct_blur_mm=0.0, cbct_noise_hu=0.0, **COARSE)
     assert list(ref["experiment"]) == [0, 1] and ref["ok"].all()
-    setups = study.experiment_setups(config, 3)
+    setups = experiment_setups(config, 3)
     for (_, row), exp in zip(ref.iterrows(), setups):
-        truth = study.bubble_cloud_centre_mm(physical_model, exp.T_true["centre"], (0.0, 0.0, 0.0))
+        truth = bubble_cloud_centre_mm(physical_model, exp.T_true["centre"], (0.0, 0.0, 0.0))
         np.testing.assert_allclose(row[["true_x", "true_y", "true_z"]].to_numpy(float), truth)
         # Within a fraction of the 1 mm voxel: the centroid of the zone is the true centre.
         assert row["ref_err_euclidean"] < 0.35, row["ref_err_euclidean"]
         # The zone (the union of 3x3x6 mm clouds filling the sphere, segmented) reads up to ~1 mm small.
-        for d in study.DIRECTIONS:
+        for d in DIRECTIONS:
             assert -1.5 < row[f"ref_radius_err_{d}"] < 0.3, (d, row[f"ref_radius_err_{d}"])
         assert abs(row["sphere_radius_mm"] - exp.radius_mm) < 1.2 and row["clearance_mm"] > 4.0
-        axes = study.transducer_axes(exp.T_centre)
-        for d in study.DIRECTIONS:
+        axes = transducer_axes(exp.T_centre)
+        for d in DIRECTIONS:
             np.testing.assert_allclose(row[[f"axis_{d}_{a}" for a in "xyz"]].to_numpy(float), axes[d])
 
 
 def test_cbct_reference_follows_the_bubble_cloud_offset(physical_model):
     """A 2 mm offset of the bubble cloud along the transducer's +z (towards it: -depth) moves the
     treated zone with it: the reference centre follows the physical bubble cloud."""
-    config = study.PoseStudyConfig(n_experiments=1, bubble_offset_mm=(0.0, 0.0, 2.0))
-    ref = study.cbct_reference(config, physical=physical_model, seed=3, **COARSE).iloc[0]
-    plain = study.cbct_reference(replace(config, bubble_offset_mm=(0.0, 0.0, 0.0)), physical=physical_model,
+    config = PoseStudyConfig(n_experiments=1, bubble_offset_mm=(0.0, 0.0, 2.0))
+    ref = cbct_reference(config, physical=physical_model, seed=3, **COARSE).iloc[0]
+    plain = cbct_reference(replace(config, bubble_offset_mm=(0.0, 0.0, 0.0)), physical=physical_model,
                                  seed=3, **COARSE).iloc[0]
     shift = ref[["centroid_x", "centroid_y", "centroid_z"]].to_numpy(float) \
         - plain[["centroid_x", "centroid_y", "centroid_z"]].to_numpy(float)
@@ -91,16 +94,16 @@ def test_cbct_reference_follows_the_bubble_cloud_offset(physical_model):
 
 
 def test_table2_against_the_cbct_reference_shows_a_known_bias(physical_model):
-    config = study.PoseStudyConfig(n_experiments=2)
+    config = PoseStudyConfig(n_experiments=2)
     bias = (0.4, -0.3, 0.8)  # depth, TB, LR (mm)
     records = records_from_setups(config, 5, physical_model, bias=bias)
-    ref = study.cbct_reference(config, physical=physical_model, seed=5, records=records, **COARSE)
-    truth_metrics = study.experiment_metrics(records)
-    cbct_metrics = study.experiment_metrics(records, reference=ref)
+    ref = cbct_reference(config, physical=physical_model, seed=5, records=records, **COARSE)
+    truth_metrics = experiment_metrics(records)
+    cbct_metrics = experiment_metrics(records, reference=ref)
     assert set(truth_metrics["reference"]) == {"truth"} and set(cbct_metrics["reference"]) == {"cbct"}
-    _, truth_values = study.table2(truth_metrics, "paper")
-    _, cbct_values = study.table2(cbct_metrics, "paper")
-    for d, b in zip(study.DIRECTIONS, bias):
+    _, truth_values = table2(truth_metrics, "paper")
+    _, cbct_values = table2(cbct_metrics, "paper")
+    for d, b in zip(DIRECTIONS, bias):
         assert truth_values[f"table2.center_bias.{d}"][0] == pytest.approx(b)
         # Against the CBCT: the bias minus the reference's own error, exactly, and the bias within it.
         assert cbct_values[f"table2.center_bias.{d}"][0] == pytest.approx(b - ref[f"ref_err_{d}"].mean())
@@ -121,41 +124,41 @@ def test_table2_against_the_cbct_reference_shows_a_known_bias(physical_model):
     # Precision needs no reference.
     np.testing.assert_allclose(cbct_metrics["precision"], truth_metrics["precision"])
     with pytest.raises(ValueError, match="mix references"):
-        study.table2(pd.concat([truth_metrics, cbct_metrics]), "paper")
+        table2(pd.concat([truth_metrics, cbct_metrics]), "paper")
 
 
 def test_a_radial_stretch_against_the_cbct_reference_is_the_stretch_plus_the_zone_radius_error(physical_model):
-    config = study.PoseStudyConfig(n_experiments=1)
+    config = PoseStudyConfig(n_experiments=1)
     records = records_from_setups(config, 5, physical_model, stretch=0.5)
-    ref = study.cbct_reference(config, physical=physical_model, seed=5, records=records, **COARSE)
-    metrics = study.experiment_metrics(records, reference=ref).iloc[0]
-    for d in study.DIRECTIONS:
+    ref = cbct_reference(config, physical=physical_model, seed=5, records=records, **COARSE)
+    metrics = experiment_metrics(records, reference=ref).iloc[0]
+    for d in DIRECTIONS:
         assert metrics[f"radius_{d}"] == pytest.approx(metrics["radius_mm"] + 0.5, abs=0.05)  # 0.01 mm robot noise
         assert metrics[f"radius_err_{d}"] == pytest.approx(abs(metrics[f"radius_{d}"] - ref[f"ref_radius_{d}"].iloc[0]))
 
 
 def test_cbct_reference_refuses_bad_arguments(physical_model):
-    config = study.PoseStudyConfig(n_experiments=1)
+    config = PoseStudyConfig(n_experiments=1)
     records = records_from_setups(config, 5, physical_model)
     with pytest.raises(ValueError, match="do not match"):
-        study.cbct_reference(config, physical=physical_model, seed=6, records=records, **COARSE)
+        cbct_reference(config, physical=physical_model, seed=6, records=records, **COARSE)
     with pytest.raises(ValueError, match="beyond config.n_experiments"):
-        study.cbct_reference(config, physical=physical_model, seed=5,
+        cbct_reference(config, physical=physical_model, seed=5,
                              records=records.assign(experiment=3), **COARSE)
     with pytest.raises(ValueError, match="records must be"):
-        study.cbct_reference(config, physical=physical_model, seed=5, records=records.drop(columns="true_x"))
+        cbct_reference(config, physical=physical_model, seed=5, records=records.drop(columns="true_x"))
     with pytest.raises(ValueError, match="cbct_voxel_mm"):
-        study.cbct_reference(config, physical=physical_model, seed=5, cbct_voxel_mm=0.0)
+        cbct_reference(config, physical=physical_model, seed=5, cbct_voxel_mm=0.0)
     with pytest.raises(ValueError, match="cbct_noise_hu"):
-        study.cbct_reference(config, physical=physical_model, seed=5, cbct_noise_hu=-1.0)
+        cbct_reference(config, physical=physical_model, seed=5, cbct_noise_hu=-1.0)
     with pytest.raises(TypeError, match="physical"):
-        study.cbct_reference(config, physical=None, seed=5)
-    ref = study.cbct_reference(config, physical=physical_model, seed=5, **COARSE)
+        cbct_reference(config, physical=None, seed=5)
+    ref = cbct_reference(config, physical=physical_model, seed=5, **COARSE)
     with pytest.raises(ValueError, match="lacks the columns"):
-        study.experiment_metrics(records, reference=ref.drop(columns="sphere_radius_mm"))
+        experiment_metrics(records, reference=ref.drop(columns="sphere_radius_mm"))
     with pytest.raises(ValueError, match="no row for experiment 1"):
-        study.experiment_metrics(pd.concat([records, records.assign(experiment=1)]), reference=ref)
+        experiment_metrics(pd.concat([records, records.assign(experiment=1)]), reference=ref)
     with pytest.raises(TypeError, match="reference"):
-        study.experiment_metrics(records, reference="cbct")
-    summary = study.reference_error_summary(ref)
+        experiment_metrics(records, reference="cbct")
+    summary = reference_error_summary(ref)
     assert len(summary) == 8 and summary["mm"].str.contains("±").all()

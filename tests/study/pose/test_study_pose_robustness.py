@@ -6,6 +6,7 @@ import pytest
 
 from histostudy.imaging import default_biplane
 from histostudy.study import pose as study
+from histostudy.study.pose.experiments import PoseStudyConfig
 from histostudy.transducer import TransducerModel
 
 
@@ -25,7 +26,7 @@ def test_robustness_sweep_runs_the_stages_it_is_given():
     physical = TransducerModel.build_physical(spacing_mm=0.47, rng=np.random.default_rng(3))
     segmenter = CountingSegmenter()
     table = study.robustness_sweep(1, pose_model=model, render_model=model, physical=physical,
-                                   views=default_biplane(), seed=5, config=study.PoseStudyConfig(n_splats=1),
+                                   views=default_biplane(), seed=5, config=PoseStudyConfig(n_splats=1),
                                    inits=("robust",), segmenter=segmenter, orientation=OracleOrientation())
     assert segmenter.calls == 2 and list(table["init"]) == ["robust"]
     assert table["success"].all() and table["error_mm"].iloc[0] < 1.0
@@ -54,7 +55,7 @@ def test_robustness_sweep_gives_the_same_rows_in_process_or_on_a_local_cluster()
     model = TransducerModel.build(spacing_mm=0.47)
     physical = TransducerModel.build_physical(spacing_mm=0.47, rng=np.random.default_rng(3))
     kwargs = dict(pose_model=model, render_model=model, physical=physical, views=default_biplane(), seed=11,
-                  config=study.PoseStudyConfig(n_splats=1), inits=("robust",), orientation=OracleOrientation())
+                  config=PoseStudyConfig(n_splats=1), inits=("robust",), orientation=OracleOrientation())
     one = study.robustness_sweep(2, **kwargs)
     two = study.robustness_sweep(2, workers=2, **kwargs)  # a dask LocalCluster of 2 worker processes
     pd.testing.assert_frame_equal(one.drop(columns="seconds"), two.drop(columns="seconds"), check_exact=True)
@@ -67,7 +68,7 @@ def test_robustness_sweep_gives_the_same_rows_in_process_or_on_a_local_cluster()
 def test_robustness_sweep_refuses_a_bad_executor_before_any_work(monkeypatch):
     model = TransducerModel.build(spacing_mm=2.0)
     kwargs = dict(pose_model=model, render_model=model, physical=model, views=default_biplane(), seed=11,
-                  config=study.PoseStudyConfig(n_splats=1))
+                  config=PoseStudyConfig(n_splats=1))
     with pytest.raises(ValueError, match="give workers or executor, not both"):
         study.robustness_sweep(2, workers=2, executor="local", **kwargs)
     with pytest.raises(ValueError, match="executor must be 'sequential', 'local'"):

@@ -6,8 +6,8 @@ import pytest
 
 from histostudy.imaging import default_biplane
 from histostudy.learning import OracleOrientation, OracleSegmenter
-from histostudy.study.pose import PoseStudyConfig
 from histostudy.study.pose._projectors import comparison_poses, projector_comparison, projector_summary
+from histostudy.study.pose.experiments import PoseStudyConfig
 from histostudy.transducer import TransducerModel
 
 

@@ -14,6 +14,12 @@ from histostudy.imaging import default_biplane
 from histostudy.learning import OracleOrientation
 from histostudy.robot import HOME_JOINTS_RAD, RobotError, SimulatedUR5e, inverse_kinematics_closest
 from histostudy.study import targeting as T
+from histostudy.study.targeting._calibration import calibrate_robot
+from histostudy.study.targeting._positioning import position_for_target, scene_at_target, target_orientation
+from histostudy.study.targeting._summary import summary, targeting_values
+from histostudy.study.targeting.experiment import run_targeting_experiment
+from histostudy.study.targeting.robots import rtde_robot, sim_robot
+from histostudy.study.targeting.setup import TargetingError
 from histostudy.transducer import TransducerModel, TransducerSpec
 
 #: Bubble cloud 1.5 mm to the transducer's +x (LR) and 1.5 mm deeper (-z) than the physical focal point.
@@ -39,7 +45,7 @@ def models():
 @pytest.fixture(scope="module")
 def experiment(models):
     model, physical, views = models
-    return T.run_targeting_experiment(small_config(), np.random.SeedSequence(SEED), pose_model=model,
+    return run_targeting_experiment(small_config(), np.random.SeedSequence(SEED), pose_model=model,
                                       render_model=model, physical=physical, views=views)
 
 
@@ -81,16 +87,16 @@ def test_summary_tables(experiment):
     import pandas as pd
 
     records = pd.DataFrame([{"robot": "sim", **experiment}])
-    v = T.targeting_values(records)
+    v = targeting_values(records)
     assert v["targeting.euclidean"][0] == pytest.approx(experiment["err_euclidean"])
     assert v["targeting.bias.depth"][0] == pytest.approx(experiment["err_depth"])
     assert v["targeting.mae.lr"][0] == pytest.approx(abs(experiment["err_lr"]))
-    vc = T.targeting_values(records, "corr_")
+    vc = targeting_values(records, "corr_")
     assert vc["targeting.euclidean"][0] == pytest.approx(experiment["corr_err_euclidean"])
-    table = T.summary(records)
+    table = summary(records)
     assert list(table["targeting"]) == ["uncorrected (paper)", "bias-corrected"]
     with pytest.raises(ValueError, match="empty"):
-        T.targeting_values(records.iloc[:0])
+        targeting_values(records.iloc[:0])
 
 
 def _exact_calibration(rng):
@@ -106,9 +112,9 @@ def test_target_out_of_reach_raises_before_any_move():
     start = make_transform(R_BASE_FLANGE_DOWN, truth.start_focal_base_mm - R_BASE_FLANGE_DOWN
                            @ truth.T_flange_transducer_nominal[:3, 3])
     robot = SimulatedUR5e(0, initial_joints_rad=inverse_kinematics_closest(start, HOME_JOINTS_RAD))
-    R = T.target_orientation(cal)
+    R = target_orientation(cal)
     # A reachable target near the isocentre is reached with the focal point on it (exact calibration).
-    T.position_for_target(robot, cal, [0.0, 0.0, 0.0], R)
+    position_for_target(robot, cal, [0.0, 0.0, 0.0], R)
     assert robot.state().moves_completed == 1
     true_focal = truth.T_carm_transducer(robot.flange_pose())[:3, 3]
     assert np.linalg.norm(true_focal) < 0.05  # robot repeatability only
@@ -116,11 +122,11 @@ def test_target_out_of_reach_raises_before_any_move():
     # 1.5 m beyond the isocentre, away from the base: out of the UR5e's 850 mm reach.
     q_before = robot.joints()
     with pytest.raises(RobotError):
-        T.position_for_target(robot, cal, [1500.0, 0.0, 0.0], R)
+        position_for_target(robot, cal, [1500.0, 0.0, 0.0], R)
     assert robot.state().moves_completed == 1
     assert np.array_equal(robot.joints(), q_before)
     with pytest.raises(ValueError, match="target_mm"):
-        T.position_for_target(robot, cal, [np.nan, 0.0, 0.0], R)
+        position_for_target(robot, cal, [np.nan, 0.0, 0.0], R)
 
 
 def test_scene_at_target_puts_the_true_focal_point_on_the_target():
@@ -129,8 +135,8 @@ def test_scene_at_target_puts_the_true_focal_point_on_the_target():
     rng = np.random.default_rng(5)
     truth, cal = _exact_calibration(rng)
     target = truth.T_carm_phantom[:3, 3] + [3.0, -2.0, 4.0]
-    R = T.target_orientation(cal)
-    scene = T.scene_at_target(truth, cal, target, R)
+    R = target_orientation(cal)
+    scene = scene_at_target(truth, cal, target, R)
     assert np.array_equal(scene["T_carm_base"], truth.T_carm_base)
     assert np.array_equal(scene["T_carm_phantom"], truth.T_carm_phantom)
     # The joints reach the commanded flange pose, and the true chain (exact calibration) puts the
@@ -142,9 +148,9 @@ def test_scene_at_target_puts_the_true_focal_point_on_the_target():
     assert np.linalg.norm(scene["T_carm_transducer"][:3, 3] - target) < 1e-6
     assert np.allclose(scene["T_carm_transducer"][:3, :3], R, atol=1e-6)
     with pytest.raises(ValueError, match="target_mm"):
-        T.scene_at_target(truth, cal, [0.0, np.inf, 0.0], R)
+        scene_at_target(truth, cal, [0.0, np.inf, 0.0], R)
     with pytest.raises(TypeError, match="calibration"):
-        T.scene_at_target(truth, None, target, R)
+        scene_at_target(truth, None, target, R)
 
 
 def test_ground_truth_is_plausible_and_seeded():
@@ -182,9 +188,9 @@ def test_rtde_robot_gives_the_same_numbers(experiment, models):
     """The same experiment through the real ur_rtde client against the simulated controller."""
     pytest.importorskip("rtde_control")
     model, physical, views = models
-    row = T.run_targeting_experiment(small_config(), np.random.SeedSequence(SEED), pose_model=model,
+    row = run_targeting_experiment(small_config(), np.random.SeedSequence(SEED), pose_model=model,
                                      render_model=model, physical=physical, views=views,
-                                     robot_factory=T.rtde_robot(small_config()))
+                                     robot_factory=rtde_robot(small_config()))
     assert row["moves"] == experiment["moves"]
     assert np.allclose(row["robot_final_tcp_mm"], experiment["robot_final_tcp_mm"], rtol=0, atol=1e-6)
     for key, value in experiment.items():
@@ -197,7 +203,7 @@ def test_the_same_seed_sequence_gives_the_same_set_up_twice(models):
     seq = np.random.SeedSequence(SEED)
     model, physical, views = models
     with pytest.raises(TypeError, match="SeedSequence"):
-        T.run_targeting_experiment(small_config(), SEED, pose_model=model, render_model=model, physical=physical,
+        run_targeting_experiment(small_config(), SEED, pose_model=model, render_model=model, physical=physical,
                                    views=views)
     before = seq.n_children_spawned
     calls = []
@@ -211,7 +217,7 @@ def test_the_same_seed_sequence_gives_the_same_set_up_twice(models):
 
     for _ in range(2):
         with pytest.raises(Stop):
-            T.run_targeting_experiment(small_config(), seq, pose_model=model, render_model=model, physical=physical,
+            run_targeting_experiment(small_config(), seq, pose_model=model, render_model=model, physical=physical,
                                        views=views, robot_factory=factory)
     assert seq.n_children_spawned == before
     assert calls[0][0] == calls[1][0] and np.array_equal(calls[0][1], calls[1][1])
@@ -244,15 +250,15 @@ def test_the_calibration_runs_on_the_stages_it_is_given(models):
     def calibrate_with(segmenter, orientation):
         names = ("rng_pose", "rng_scene", "rng_render", "rng_est")
         rngs = {name: np.random.default_rng(k) for k, name in enumerate(names)}
-        with T.sim_robot(config)(7, T.start_joints(truth)) as robot:
-            return T.calibrate_robot(robot, truth, config, pose_model=model, render_model=model, physical=physical,
+        with sim_robot(config)(7, T.start_joints(truth)) as robot:
+            return calibrate_robot(robot, truth, config, pose_model=model, render_model=model, physical=physical,
                                      views=views, segmenter=segmenter, orientation=orientation, **rngs)
 
     cal, rows = calibrate_with(SpySegmenter(), SpyOrientation())
     n_frames = config.n_calibration_poses * len(views)
     assert calls == {"segment": n_frames, "orientation": n_frames}
     assert rows["pose_error_mm"].max() < 1.0
-    with pytest.raises(T.TargetingError, match="calibration pose 0"):
+    with pytest.raises(TargetingError, match="calibration pose 0"):
         calibrate_with(BlindSegmenter(), SpyOrientation())
 
 

@@ -9,7 +9,18 @@ import pytest
 
 from histostudy.geometry import make_transform, rotation_about_axis
 from histostudy.study import targeting as T
-from histostudy.study.targeting import _notebook as targeting_notebook
+from histostudy.study.targeting import _section as targeting_notebook
+from histostudy.study.targeting._section import (
+    RECORDED_PARAMETERS,
+    TargetingSetup,
+    closing_text,
+    notebook_seeds,
+    prepare_study,
+    run_prepared_study,
+    stand_ins,
+    study_config_from_parameters,
+)
+from histostudy.study.targeting.experiment import calibration_errors, zone_errors
 from histostudy.transducer import TransducerModel, TransducerSpec
 
 #: The smoke profile's notebook-05 parameters (histostudy/reporting/profiles/smoke.toml).
@@ -23,18 +34,18 @@ SMOKE = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, pose_sp
 def test_notebook_seeds_are_the_children_the_notebook_always_used():
     """The four seeds are SeedSequence(seed).spawn(2) (physical, study), .spawn(3)[2] and .spawn(4)[3]:
     the draws the notebook made before its set-up moved into the package."""
-    seeds = T.notebook_seeds(20230119)
+    seeds = notebook_seeds(20230119)
     physical, study = np.random.SeedSequence(20230119).spawn(2)
     assert np.array_equal(seeds.physical.generate_state(8), physical.generate_state(8))
     assert seeds.study == int(study.generate_state(1)[0])
     assert np.array_equal(seeds.sensitivity.generate_state(8),
                           np.random.SeedSequence(20230119).spawn(3)[2].generate_state(8))
     assert np.array_equal(seeds.scene.generate_state(8), np.random.SeedSequence(20230119).spawn(4)[3].generate_state(8))
-    assert T.notebook_seeds(1).study != seeds.study
+    assert notebook_seeds(1).study != seeds.study
 
 
 def test_config_from_parameters_takes_the_config_fields_only():
-    config = T.config_from_parameters(SMOKE)
+    config = study_config_from_parameters(SMOKE)
     assert config == T.TargetingStudyConfig(
         n_experiments=1, zone_diameters_mm=(20.0, 25.0), n_calibration_poses=4, background="phantom",
         photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, degradation="table1", pose_mode="fast",
@@ -43,7 +54,7 @@ def test_config_from_parameters_takes_the_config_fields_only():
     assert config.treatment_spacing_mm == (2.0, 2.0, 3.0)  # lists made tuples (the config is hashable)
     hash(config)
     with pytest.raises(ValueError, match="n_calibration_poses"):
-        T.config_from_parameters({**SMOKE, "n_calibration_poses": 2})
+        study_config_from_parameters({**SMOKE, "n_calibration_poses": 2})
 
 
 def test_recorded_parameters_are_parameters_of_notebook_05():
@@ -55,19 +66,19 @@ def test_recorded_parameters_are_parameters_of_notebook_05():
     cells = json.loads(notebook.read_text())["cells"]
     (source,) = ["".join(c["source"]) for c in cells if "parameters" in c.get("metadata", {}).get("tags", [])]
     names = {t.id for node in ast.parse(source).body if isinstance(node, ast.Assign) for t in node.targets}
-    assert set(T.RECORDED_PARAMETERS) <= names
-    assert len(set(T.RECORDED_PARAMETERS)) == len(T.RECORDED_PARAMETERS) == len(SMOKE)
+    assert set(RECORDED_PARAMETERS) <= names
+    assert len(set(RECORDED_PARAMETERS)) == len(RECORDED_PARAMETERS) == len(SMOKE)
 
 
 def test_prepare_study_builds_the_seeded_set_up(recording_timer):
     timer, timed = recording_timer()
 
-    setup = T.prepare_study(SMOKE, 20230119, timer=timer)
+    setup = prepare_study(SMOKE, 20230119, timer=timer)
     assert timed == ["build models"]
-    assert setup.config == T.config_from_parameters(SMOKE)
-    assert setup.seeds.study == T.notebook_seeds(20230119).study
+    assert setup.config == study_config_from_parameters(SMOKE)
+    assert setup.seeds.study == notebook_seeds(20230119).study
     expected = TransducerModel.build_physical(TransducerSpec(), spacing_mm=0.47,
-                                              rng=np.random.default_rng(T.notebook_seeds(20230119).physical))
+                                              rng=np.random.default_rng(notebook_seeds(20230119).physical))
     assert np.array_equal(setup.physical.focal_point_mm, expected.focal_point_mm)
     assert setup.pose_model.spacing_mm == 0.47 and len(setup.views) == 2
     assert not setup.stages.learned  # learned_stages=False: the oracles
@@ -82,9 +93,9 @@ def test_run_prepared_study_passes_the_set_up_and_splits_the_volumes(monkeypatch
 
     monkeypatch.setattr(targeting_notebook, "run_targeting_study", fake_study)
     stages = SimpleNamespace(segmenter="U-Net", orientation="VGG19")
-    setup = T.TargetingSetup(T.TargetingStudyConfig(), "pose", "render", "physical", ("A", "B"), stages,
-                             T.notebook_seeds(3))
-    records, volumes = T.run_prepared_study(setup, "rtde")
+    setup = TargetingSetup(T.TargetingStudyConfig(), "pose", "render", "physical", ("A", "B"), stages,
+                             notebook_seeds(3))
+    records, volumes = run_prepared_study(setup, "rtde")
     assert "_volumes" not in records and list(records["err_euclidean"]) == [1.5]
     assert volumes.iloc[0] == {"post": "volume"}
     assert calls["seed"] == setup.seeds.study and calls["robot"] == "rtde" and calls["keep_volumes"] is True
@@ -93,20 +104,20 @@ def test_run_prepared_study_passes_the_set_up_and_splits_the_volumes(monkeypatch
 
 
 def test_stand_ins_name_the_robot_stages_and_offset():
-    both = dict(T.stand_ins("both", True, [1.0, 0.0, -1.5]))
+    both = dict(stand_ins("both", True, [1.0, 0.0, -1.5]))
     assert "ur_rtde" in both["the UR5e"]
     assert "shipped" in both["U-Net segmentation and VGG19 orientation of the calibration frames"]
     assert "[1.0, 0.0, -1.5] mm" in both["the bubble cloud"]
-    sim = dict(T.stand_ins("sim", False, [0.0, 0.0, 0.0]))
+    sim = dict(stand_ins("sim", False, [0.0, 0.0, 0.0]))
     assert sim["the UR5e"] == "SimulatedUR5e in process"
     assert "Table I" in sim["U-Net segmentation and VGG19 orientation of the calibration frames"]
-    assert len(T.stand_ins("rtde", True, [0, 0, 0])) == 6
+    assert len(stand_ins("rtde", True, [0, 0, 0])) == 6
 
 
 def test_closing_text_states_the_offsets():
     setup = SimpleNamespace(physical=SimpleNamespace(focal_point_mm=np.array([3.0, 4.0, 0.0])),
                             config=T.TargetingStudyConfig(bias_test_diameter_mm=25.0))
-    text = T.closing_text(2, setup, [0.5, 0.0, 0.0])
+    text = closing_text(2, setup, [0.5, 0.0, 0.0])
     assert text.startswith("2 experiment(s).")
     assert "lies 5.00 mm from the digital model's" in text
     assert "[0.5, 0.0, 0.0] mm" in text and "25 mm test zone" in text
@@ -118,13 +129,13 @@ def test_closing_text_states_the_offsets():
 def test_zone_errors_along_the_commanded_axes():
     seg = SimpleNamespace(centroid_mm=np.array([11.0, 22.0, 33.0]), sphere_radius_mm=9.0)
     # Transducer axes = C-arm axes: LR = x, TB = y, depth (propagation) = -z.
-    row = T.zone_errors("corr_", seg, np.array([10.0, 20.0, 30.0]), np.eye(3), 10.0)
+    row = zone_errors("corr_", seg, np.array([10.0, 20.0, 30.0]), np.eye(3), 10.0)
     assert row == pytest.approx({"corr_err_depth": -3.0, "corr_err_tb": 2.0, "corr_err_lr": 1.0,
                                  "corr_err_euclidean": np.sqrt(14.0), "corr_radius_mm": 9.0,
                                  "corr_radius_err_mm": -1.0, "corr_centroid_x": 11.0, "corr_centroid_y": 22.0,
                                  "corr_centroid_z": 33.0})
     # Turned a quarter about the propagation axis: LR is now along y.
-    turned = T.zone_errors("", seg, np.array([10.0, 20.0, 30.0]), rotation_about_axis([0, 0, 1], np.pi / 2), 10.0)
+    turned = zone_errors("", seg, np.array([10.0, 20.0, 30.0]), rotation_about_axis([0, 0, 1], np.pi / 2), 10.0)
     assert turned["err_lr"] == pytest.approx(2.0) and turned["err_tb"] == pytest.approx(-1.0)
 
 
@@ -138,7 +149,7 @@ def test_calibration_errors_against_a_known_truth():
                                                      [-600.0, 100.0, 1.5]),
                           rms_focal_residual_mm=0.4, max_rotation_residual_deg=0.3)
     rows = pd.DataFrame({"pose_error_mm": [0.5, 1.5]})
-    errors = T.calibration_errors(cal, rows, truth)
+    errors = calibration_errors(cal, rows, truth)
     assert errors == pytest.approx({"cal_rms_focal_residual_mm": 0.4, "cal_max_rotation_residual_deg": 0.3,
                                     "cal_pose_error_mm": 1.0, "cal_X_rotation_deg": 0.5, "cal_X_translation_mm": 5.0,
                                     "cal_Y_rotation_deg": 0.2, "cal_Y_translation_mm": 1.5})

@@ -7,7 +7,13 @@ import pandas as pd
 import pytest
 
 from histostudy.study import targeting as T
-from histostudy.study.targeting import _notebook as targeting_notebook
+from histostudy.study.targeting import _section as targeting_notebook
+from histostudy.study.targeting._section import (
+    RECORDED_PARAMETERS,
+    prepare_study,
+    stand_ins,
+    study_config_from_parameters,
+)
 
 #: The parameters cell of notebooks/05_targeting.ipynb as stored (its defaults).
 DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, pose_spacing_mm=0.47,
@@ -24,9 +30,9 @@ def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones(n
     params = T.TargetingSectionConfig.from_parameters(cell)
     assert {k: getattr(params, k) for k in DEFAULTS} == DEFAULTS  # lists kept as tuples
     assert set(cell) - set(DEFAULTS) == {"profile", "seed", "output_dir"}
-    assert list(params.recorded()) == list(T.RECORDED_PARAMETERS)
-    assert params.recorded() == {k: DEFAULTS[k] for k in T.RECORDED_PARAMETERS}
-    assert params.study_config() == T.config_from_parameters({k: cell[k] for k in T.RECORDED_PARAMETERS})
+    assert list(params.recorded()) == list(RECORDED_PARAMETERS)
+    assert params.recorded() == {k: DEFAULTS[k] for k in RECORDED_PARAMETERS}
+    assert params.study_config() == study_config_from_parameters({k: cell[k] for k in RECORDED_PARAMETERS})
     with pytest.raises(AttributeError):
         params.robot = "sim"  # frozen
 
@@ -44,7 +50,7 @@ def setup():
 
 def test_prepare_is_prepare_study_on_the_checked_parameters(setup):
     assert isinstance(setup.params, T.TargetingSectionConfig) and setup.params.sensitivity_poses == (3,)
-    plain = T.prepare_study(setup.params.recorded(), 20230119)
+    plain = prepare_study(setup.params.recorded(), 20230119)
     assert setup.config == plain.config and setup.seeds.study == plain.seeds.study
     assert np.array_equal(setup.physical.focal_point_mm, plain.physical.focal_point_mm)
 
@@ -64,5 +70,5 @@ def test_the_parts_of_a_run(setup, monkeypatch, recording_timer):
     assert timed == ["targeting study", "calibration sensitivity"]
     assert sensitivity.part.values["calibration_sensitivity_medians"] == sensitivity.table.to_dict("records")
     closing = T.closing_part(setup, run.records)
-    assert closing.stand_ins == tuple(T.stand_ins("both", False, (0.0, 0.0, 0.0)))
+    assert closing.stand_ins == tuple(stand_ins("both", False, (0.0, 0.0, 0.0)))
     assert closing.texts[0].startswith("1 experiment(s).")

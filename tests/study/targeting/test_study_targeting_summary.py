@@ -10,8 +10,20 @@ import pytest
 
 from histostudy.calibration import calibrate, calibration_sensitivity
 from histostudy.study import targeting as T
-from histostudy.study.pose import DIRECTIONS
-from histostudy.study.targeting._summary import SENSITIVITY_METRICS
+from histostudy.study.pose.geometry import DIRECTIONS
+from histostudy.study.targeting._positioning import target_orientation
+from histostudy.study.targeting._summary import (
+    SENSITIVITY_METRICS,
+    calibration_sensitivity_table,
+    calibration_table,
+    error_table,
+    first_robot_rows,
+    robot_max_difference,
+    sensitivity_caption,
+    sensitivity_medians,
+    summary,
+    targeting_comparisons,
+)
 
 ERR = ("err_depth", "err_tb", "err_lr", "err_euclidean", "radius_err_mm")
 
@@ -37,38 +49,38 @@ def records_of(robots=("sim", "rtde"), correction=True, n_experiments=2) -> pd.D
 
 
 def test_first_robot_rows_keeps_one_row_per_experiment():
-    main = T.first_robot_rows(records_of())
+    main = first_robot_rows(records_of())
     assert list(main["robot"]) == ["sim", "sim"]
     assert list(main["experiment"]) == [0, 1]
     assert list(main.index) == [0, 1]
 
 
 def test_error_and_calibration_tables_pick_their_columns():
-    with_corr = T.error_table(records_of())
+    with_corr = error_table(records_of())
     assert list(with_corr.columns[:8]) == ["experiment", "robot", "diameter_mm", *ERR]
     assert "corr_err_euclidean" in with_corr and "bias_learnt_lr" in with_corr
     assert list(with_corr.columns[-2:]) == ["n_points", "moves"]
-    without = T.error_table(records_of(correction=False))
+    without = error_table(records_of(correction=False))
     assert not any(c.startswith(("corr_", "bias_")) for c in without.columns)
     assert len(without.columns) == 10
-    cal = T.calibration_table(records_of())
+    cal = calibration_table(records_of())
     assert all(c.startswith("cal_") for c in cal.columns[2:-1])
     assert list(cal.columns[-1:]) == ["physical_focal_offset_mm"] and len(cal) == 4
 
 
 def test_robot_max_difference_is_the_largest_float_difference():
     records = records_of()
-    assert T.robot_max_difference(records) == 0.0
+    assert robot_max_difference(records) == 0.0
     rtde = records["robot"] == "rtde"
     records.loc[rtde & (records["experiment"] == 1), "err_lr"] += 3e-7
     records.loc[rtde, "moves"] += 5  # an integer column: not compared
     records.loc[rtde & (records["experiment"] == 0), "cal_Y_translation_mm"] = np.nan  # NaN ignored
-    assert T.robot_max_difference(records) == pytest.approx(3e-7, rel=1e-6)
-    assert T.robot_max_difference(records_of(robots=("sim",))) is None
+    assert robot_max_difference(records) == pytest.approx(3e-7, rel=1e-6)
+    assert robot_max_difference(records_of(robots=("sim",))) is None
 
 
 def test_targeting_comparisons_in_order_with_known_values():
-    comparisons = T.targeting_comparisons(records_of())
+    comparisons = targeting_comparisons(records_of())
     keys = [c["key"] for c in comparisons]
     assert keys == (["targeting.calibration_error_at_target", "targeting.calibration_rotation", "targeting.euclidean"]
                     + [f"targeting.mae.{d}" for d in DIRECTIONS] + [f"targeting.bias.{d}" for d in DIRECTIONS]
@@ -86,12 +98,12 @@ def test_targeting_comparisons_in_order_with_known_values():
     assert by_key["targeting.corrected.bias.depth"]["paper_key"] == "targeting.bias.depth"
     assert by_key["targeting.rtde_vs_sim"]["ours"] == 0.0 and by_key["targeting.rtde_vs_sim"]["digits"] == 9
     # Neither correction nor second robot: only the paper's figures.
-    plain = [c["key"] for c in T.targeting_comparisons(records_of(robots=("sim",), correction=False))]
+    plain = [c["key"] for c in targeting_comparisons(records_of(robots=("sim",), correction=False))]
     assert plain == keys[:11]
 
 
 def test_summary_rows_per_robot_and_correction():
-    table = T.summary(records_of())
+    table = summary(records_of())
     assert list(zip(table["robot"], table["targeting"])) == [
         ("sim", "uncorrected (paper)"), ("sim", "bias-corrected"), ("rtde", "uncorrected (paper)"),
         ("rtde", "bias-corrected")]
@@ -105,7 +117,7 @@ def test_sensitivity_medians_per_condition():
         for trial, value in enumerate((1.0, 2.0, 9.0)):
             rows.append({"n_poses": n_poses, "noise_translation_mm": 0.5, "noise_rotation_deg": 0.2, "trial": trial,
                          **{m: value * n_poses for m in SENSITIVITY_METRICS}})
-    table = T.sensitivity_medians(pd.DataFrame(rows))
+    table = sensitivity_medians(pd.DataFrame(rows))
     assert list(table.columns[:3]) == ["n_poses", "noise_translation_mm", "noise_rotation_deg"]
     assert "trial" not in table
     assert list(table["target_error_mm"]) == [8.0, 16.0]  # the median 2, times n_poses
@@ -113,11 +125,11 @@ def test_sensitivity_medians_per_condition():
 
 def test_calibration_sensitivity_table_is_the_seeded_monte_carlo():
     seed = np.random.SeedSequence(7)
-    table = T.calibration_sensitivity_table([4], [[0.5, 0.2]], 3, seed)
+    table = calibration_sensitivity_table([4], [[0.5, 0.2]], 3, seed)
     direct = calibration_sensitivity((4,), ((0.5, 0.2),), n_trials=3, rng=np.random.default_rng(seed))
     assert len(table) == 1
     assert table.loc[0, "X_rotation_error_deg"] == direct["X_rotation_error_deg"].median()
-    assert "20 trials" in T.sensitivity_caption(20)
+    assert "20 trials" in sensitivity_caption(20)
 
 
 # --- figures ---------------------------------------------------------------------------------
@@ -183,7 +195,7 @@ def test_scene_figure_feeds_the_3d_scene():
     seg = SimpleNamespace(sphere_centre_mm=target + 0.5, sphere_radius_mm=9.5)
     records = records_of(robots=("rtde", "sim"))
     records["experiment"] += 3
-    volume = {"truth": truth, "calibration": cal, "target": target, "R_des": T.target_orientation(cal),
+    volume = {"truth": truth, "calibration": cal, "target": target, "R_des": target_orientation(cal),
               "segmentation": seg}
     volumes = pd.Series([volume] * len(records), index=records.index)
     physical = object()
