@@ -20,7 +20,8 @@ import numpy as np
 from histostudy.imaging import default_biplane, random_background, render_frame
 from histostudy.learning import OracleOrientation, OracleSegmenter
 from histostudy.pose import apply_left_perturbation, estimate_pose
-from histostudy.study.pose import PoseStudyConfig, experiment_pose
+from histostudy.study.pose.experiments import PoseStudyConfig
+from histostudy.study.pose.geometry import experiment_pose
 from histostudy.transducer import TransducerModel
 
 STAGES = ("segmentation", "distance_maps", "orientation", "initialisation", "refinement", "verdict", "total")

@@ -87,7 +87,8 @@ def main() -> None:
         if args.poses:
             from histostudy.imaging import default_biplane
             from histostudy.learning import OracleOrientation
-            from histostudy.study.pose import PoseStudyConfig, robustness_sweep
+            from histostudy.study.pose import robustness_sweep
+            from histostudy.study.pose.experiments import PoseStudyConfig
             from histostudy.transducer import TransducerModel
 
             model = TransducerModel.build(spacing_mm=0.47)

@@ -62,7 +62,8 @@ from histostudy.core import BENCHMARK_ISAS, machine_summary, run_restricted_to
 from histostudy.geometry import transform_from_params
 from histostudy.imaging import default_biplane, random_background, render_frame
 from histostudy.pose import Tracker, TrackingConfig, default_stages
-from histostudy.study.pose import PoseStudyConfig, experiment_pose
+from histostudy.study.pose.experiments import PoseStudyConfig
+from histostudy.study.pose.geometry import experiment_pose
 from histostudy.transducer import TransducerModel
 
 STAGES = ("segmentation", "distance_maps", "refinement", "verdict", "total")

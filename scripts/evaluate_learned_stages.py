@@ -100,7 +100,8 @@ def robustness(args, segmenter, orientation) -> None:
     import numpy as np
 
     from histostudy.imaging import default_biplane
-    from histostudy.study.pose import PoseStudyConfig, robustness_summary, robustness_sweep
+    from histostudy.study.pose import robustness_summary, robustness_sweep
+    from histostudy.study.pose.experiments import PoseStudyConfig
     from histostudy.transducer import TransducerModel
 
     seed = args.seed + 1
