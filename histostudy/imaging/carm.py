@@ -1,22 +1,6 @@
-"""C-arm projection geometry (paper §II-A, eq. 1-2): views, gantry angles, calibration files.
-
-World frame: the CBCT frame, origin at the isocentre, axes as DICOM's patient LPS: +x towards the
-patient's left, +y posterior, +z superior (cranial). The patient lies supine; the transducer sits
-in a water bath on the anterior side (-y).
-
-A :class:`View` is a pinhole (cone-beam) projection ``[u, v, w] = P @ [x, y, z, 1]``, pixel
-``(u / w, v / w)`` with ``u`` along columns and ``v`` along rows. Pixel centres sit at integer
-coordinates: pixel ``(row, col)`` covers ``[col - 0.5, col + 0.5) x [row - 0.5, row + 0.5)``.
-``P`` is stored with the sign that makes ``w > 0`` in front of the source (for the views built
-here ``w`` is the depth in mm along the principal ray).
-
-Gantry angles (:meth:`View.from_gantry`): primary angle positive = LAO (detector towards the
-patient's left), negative = RAO; secondary angle positive = CRAN (detector towards the head),
-negative = CAUD. At (0, 0) the beam runs posterior to anterior (PA): source under the table,
-detector above the patient. Image rows run from head to feet and columns towards the patient's
-right in that PA view; the detector frame ``(e_u, e_v, e_w)`` is right-handed with ``e_w`` the
-beam direction.
-"""
+"""C-arm projection geometry (§II-A, eq. 1-2): a :class:`View` projects world points (CBCT frame, LPS, mm) to
+pixels, made from gantry angles, a DICOM object or a calibration file. Conventions (pixel centres, angle
+signs, the detector frame): docs/imaging.md, "Frames and conventions"."""
 
 from __future__ import annotations
 

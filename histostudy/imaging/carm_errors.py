@@ -1,18 +1,5 @@
-"""How a lab's C-arm geometry differs from its calibration: the views the estimator is given
-against the views the frames were made with (eq. 1; docs/architecture.md, "Frames and units").
-
-A C-arm's geometric calibration gives one projection matrix per plane. In the lab two things
-make the real geometry differ from it:
-
-- **calibration error** (:func:`miscalibrated_view`): the source (focal spot) sits elsewhere
-  than the calibration says, with the detector where it says, and the detector's principal point
-  is off by a fraction of a pixel (the calibration's reprojection error);
-- **gantry sag** (:func:`displaced_view`): the whole source-detector assembly of a plane moves
-  rigidly (gravity bends the C and its support differently at each angulation and between the
-  two planes of a biplane system).
-
-Both return a new :class:`~histostudy.imaging.carm.View`; world (C-arm, LPS) mm, pixels.
-"""
+"""How a lab's C-arm geometry departs from its calibration (eq. 1): a miscalibrated source and principal
+point, and a gantry that sags rigidly; each returns a new view (world mm, pixels). See docs/imaging.md."""
 
 from __future__ import annotations
 

@@ -1,15 +1,6 @@
-"""The layered agarose-barium phantom and its simulated cone-beam CT (§II-D.1, §II-D).
-
-Paper sections: §II-D.1 (the layered phantom: a 5x5x5 cm agarose cube of ~4 mm alternating layers
-with and without barium, in water; histotripsy mixes the layers into a medium attenuation), §II-D
-(a spherical target of 2.0 or 2.5 cm diameter picked in the pre-treatment CBCT). Volumes are
-:class:`~histostudy.imaging.volume.Volume` (world frame, mm, HU).
-
-Where the synthetic study stands in for the lab (docs/architecture.md, Synthetic stand-ins for
-the lab): the physical phantom is the analytic :class:`PhantomSpec` rasterised by
-:func:`phantom_volume`; the scanner is :func:`simulate_cbct` (Gaussian blur, resampling, Gaussian
-noise).
-"""
+"""The layered agarose-barium phantom and its simulated cone-beam CT (§II-D.1, §II-D): the phantom
+rasterised, the scanner simulated (blur, resampling, noise), and targets drawn or checked inside it.
+Volumes in the world frame, mm, HU (docs/imaging.md, "The phantom")."""
 
 from __future__ import annotations
 

@@ -1,15 +1,6 @@
-"""Fluoroscopic frames: an image of line integrals with its view, and what is known about it.
-
-The same :class:`Frame` carries a synthetic frame (with reference labels and the true pose) and a
-real one loaded from disk (labels and pose unknown: ``None``). Everything downstream —
-segmentation, pose estimation, the studies — takes Frames, so real data and the synthetic study
-share one code path.
-
-:func:`line_integrals_from_pixels` is the one conversion of a detector's stored values into line
-integrals (``-log(I / I0)``, the form of docs/architecture.md "Frames and units"): DICOM's
-MONOCHROME1 inversion and modality rescale, then the log against the air intensity ``I0``.
-:func:`load_frame` and the lab's live receiver (:mod:`histostudy.lab.xray_objects`) both use it.
-"""
+"""Fluoroscopic frames (§II-B.2): an image of line integrals with its view, and, for a synthetic frame, its
+reference labels and true pose; real frames loaded from disk; and the one conversion of a detector's
+stored values into line integrals ``-log(I / I0)``."""
 
 from __future__ import annotations
 

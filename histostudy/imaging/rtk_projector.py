@@ -1,31 +1,6 @@
-"""An independent projector: RTK's Joseph ray caster in place of §II-B.2's virtual projections.
-
-The study's virtual projections (paper §II-B.2) come from :mod:`histostudy.imaging.render._reference`, which splats
-the model's points. This module makes the same line-integral images an unrelated way, to check it:
-the posed point model is voxelised into a world grid of linear attenuation (numpy), and the grid
-is ray cast by ``JosephForwardProjectionImageFilter`` of RTK (``itk-rtk``) in a cone-beam geometry
-rebuilt from each :class:`~histostudy.imaging.carm.View`'s ``P``. It shares no code with
-:mod:`histostudy.imaging.render._reference`'s projection; a frame takes only its reference labels
-(:func:`~histostudy.imaging.render.render_labels`), its background and quantum noise
-(:func:`~histostudy.imaging.render.add_poisson_noise`) from there, so it differs from
-:func:`~histostudy.imaging.render.render_frame`'s in the projector alone.
-itk-rtk is optional (``pip install 'histostudy[rtk]'``, ~1.8 GB) and imported lazily (~30 s of CPU).
-
-RTK conventions used here (RTK 2.7, ITK 5.4):
-
-- ``ThreeDCircularProjectionGeometry.AddProjection(source, detector, row, column)``: ``row`` is
-  the world direction in which the projection image's first index (ITK x, numpy's last axis, our
-  ``u``) grows, ``column`` the one of its second index (our ``v``); ``detector`` is the world
-  position of the detector's physical point (0, 0). RTK takes ``row x column`` (here the beam
-  direction ``e_w``) as the detector normal, so its source-to-isocentre and source-to-detector
-  distances come out negative; RTK allows that, and its matrices then equal ``P`` exactly.
-- ITK images: index ``i`` lies at ``origin + direction @ (spacing * i)``, so the origin is the
-  *centre* of the first pixel / voxel. Numpy sees projection stacks as ``[projection, v, u]`` and
-  volumes as ``[z, y, x]``.
-- Joseph integrates only between the first and the last voxel centres of the grid (a uniform grid
-  of n voxels gives (n - 1) x pitch along an axis), bilinearly interpolating each slice across the
-  ray's main axis; content must stay a voxel inside the grid (:func:`voxelise_model` pads it).
-"""
+"""An independent projector (§II-B.2): the posed model voxelised and ray cast by RTK's Joseph projector, to
+check the splatting renderer; itk-rtk is optional and imported lazily. RTK's conventions as used here:
+docs/imaging.md, "RTK's projector"."""
 
 from __future__ import annotations
 

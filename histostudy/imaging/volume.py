@@ -1,13 +1,5 @@
-"""CBCT volumes: an axis-aligned voxel grid in the world frame and its validation (§II-A).
-
-A CBCT is a voxel grid ``V`` whose value at a point between voxel centres is the trilinear
-interpolation (§II-A). Frames and units: millimetres; the CBCT/C-arm frame is the world frame
-(origin at the isocentre). A :class:`Volume` is axis-aligned with the world frame: ``data`` is
-indexed ``[iz, iy, ix]`` (z slowest), while ``spacing_mm``, ``origin_mm`` and every point or voxel
-coordinate are given in ``(x, y, z)`` order. ``origin_mm`` is the world position of the centre of
-voxel ``(0, 0, 0)``. Gray values are in Hounsfield units (HU): water 0 HU. The world frame has
-DICOM's LPS axes; NIfTI, nibabel and 3D Slicer show RAS, x and y negated (:func:`lps_from_ras`).
-"""
+"""CBCT volumes (§II-A): an axis-aligned voxel grid in the world frame (LPS, mm, HU), data indexed
+``[z, y, x]``, trilinear between voxel centres; its checks, and the LPS/RAS conversions."""
 
 from __future__ import annotations
 

@@ -1,16 +1,6 @@
-"""The `Robot` protocol, its errors, the safety workspace and the motion-time model (§II-C).
-
-Everything here is in millimetres, radians and 4x4 rigid transforms ``T_<to>_<from>``:
-
-- ``T_base_flange``: the tool flange in the robot base frame (what the joint encoders give, the
-  paper's ``rTe``);
-- ``T_flange_tcp``: the tool centre point in the flange frame. For the histotripsy system the
-  TCP is the transducer's geometric focal point, so a linear move aims the focal point;
-- ``T_base_tcp = T_base_flange @ T_flange_tcp``.
-
-Conversion to metres and axis-angle vectors happens only at the ``ur_rtde`` boundary
-(:mod:`histostudy.robot.rtde._robot` and the simulated controller).
-"""
+"""The :class:`Robot` protocol, its errors, the safety workspace and the motion-time model (§II-C), in mm,
+rad and 4x4 rigid transforms ``T_<to>_<from>`` (``T_base_tcp = T_base_flange @ T_flange_tcp``; the TCP is
+the transducer's focal point). See docs/robot.md."""
 
 from __future__ import annotations
 

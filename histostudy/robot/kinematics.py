@@ -1,15 +1,6 @@
-"""UR5e kinematics from the nominal Denavit-Hartenberg parameters (§II-C: "the rigid transform from
-robotic arm base to end effector rTe can be calculated for every pose").
-
-Forward kinematics multiplies the standard DH link transforms
-``Rz(theta_i) Tz(d_i) Tx(a_i) Rx(alpha_i)``. Inverse kinematics is the closed-form solution for
-the UR geometry (three parallel middle axes, a spherical-free wrist): up to eight solutions
-(shoulder left/right x wrist up/down x elbow up/down), each joint then unwrapped by multiples of
-2 pi to lie closest to a reference configuration within the +-360 deg joint limits.
-
-Millimetres and radians; ``T_base_flange`` is the flange in the base frame (the frame the UR
-controller reports poses in).
-"""
+"""UR5e kinematics from the nominal Denavit-Hartenberg parameters (§II-C: the base-to-flange transform
+``rTe`` of every pose): forward kinematics, and the closed-form inverse (up to eight solutions, unwrapped
+within the +-360 deg joint limits). mm and rad."""
 
 from __future__ import annotations
 

@@ -1,22 +1,6 @@
-"""`SimulatedUR5e`: an in-process UR5e behind the :class:`~histostudy.robot.base.Robot` protocol.
-
-It stands in for the paper's arm (§II-C: UR5e, pose repeatability +-0.03 mm). A linear move is
-planned through the UR5e kinematics (inverse kinematics closest to the current joints, the straight
-path checked sample by sample against the joint limits and singularities), checked against the
-safety workspace, timed with a trapezoidal profile from speed and acceleration, and lands with the
-repeatability noise: the TCP position is displaced uniformly within a ball of radius
-``repeatability_mm`` (drawn from the robot's Generator; 0 disables it).
-
-Faults are injected through a :class:`FaultPlan`: the connection dropping after k moves or in the
-middle of move k, a protective stop in the middle of move k, and a slow controller whose every
-command takes ``command_delay_s`` (a :class:`RobotTimeout` once that exceeds ``command_timeout_s``).
-Each fault ends with the arm at rest, a clear error, and no pose readable as valid while
-disconnected. The simulated UR controller (:mod:`histostudy.robot.controller`) runs the same
-planner (:meth:`SimulatedUR5e.plan_linear`, :meth:`SimulatedUR5e.finish`).
-
-Time is simulated: ``sim_time_s`` adds up the motion times; ``time_scale`` > 0 also sleeps that
-many wall seconds per simulated second.
-"""
+""":class:`SimulatedUR5e`: an in-process UR5e behind the :class:`~histostudy.robot.base.Robot` protocol
+(§II-C, repeatability +-0.03 mm), its moves planned, checked, timed and landed with noise, and faults
+injected by a :class:`FaultPlan` (docs/robot.md, "The simulated arm")."""
 
 from __future__ import annotations
 

@@ -1,19 +1,6 @@
-"""The transducer's point-cloud model (paper §II-B.1): one array of points per feature class.
-
-A :class:`TransducerModel` is a point cloud in the transducer frame (mm; frame in
-:mod:`histostudy.transducer.spec`), one array per :class:`~histostudy.transducer.spec.Feature`
-class, on a regular grid (paper: 0.47 mm for pose estimation, 0.125 mm for rendering). Each point
-carries an *attenuation-weighted area* in mm² — the linear attenuation coefficient times the
-material thickness times the area the point stands for (``mu * volume`` for volumetric points) —
-so that the line integral a ray sees is ``sum(weight) / pixel_footprint_mm2`` (see
-:meth:`histostudy.imaging.carm.View.pixel_footprint_mm2`). GAPS points mark the absence of
-material and weigh exactly 0.
-
-:meth:`TransducerModel.build` makes the digital model the pose estimation uses (the points are
-sampled in :mod:`histostudy.transducer.sampling`); :meth:`TransducerModel.build_physical` makes the
-"physical" transducer that differs from it as the real one did (§IV,
-:mod:`histostudy.transducer.physical`).
-"""
+"""The transducer's point-cloud model (§II-B.1): one array of points per feature class in the transducer
+frame (mm), each with an attenuation-weighted area (mm²); the digital model and its physical variant
+(§IV). See docs/imaging.md, "The transducer model"."""
 
 from __future__ import annotations
 

@@ -1,33 +1,6 @@
-"""A transducer model from a lab's CAD meshes (paper §II-B.1): closed surfaces, one feature class per
-part, sampled into the weighted point clouds of :class:`~histostudy.transducer.digital.TransducerModel`.
-
-A lab whose transducer is not the parametric :class:`~histostudy.transducer.spec.TransducerSpec`
-gives its CAD export instead (STL, PLY, OBJ, VTP, read by pyvista), as one file per class or as one
-mesh with a cell array ``"feature"`` giving each part's class. Each closed surface is a part (a
-solid); a closed surface inside an odd number of the class's other surfaces is a cavity of the
-smallest one around it. Frames and units as in docs/architecture.md ("Frames and units"): the
-points are in mm in the transducer frame, after ``units`` and ``T_transducer_mesh``.
-
-- Points: every triangle is bisected across its longest edge until no edge exceeds
-  ``2 * spacing_mm`` (:data:`EDGE_OVER_SPACING`), and the points are the vertices of the pieces
-  (deterministic: no random draw). Why 2: the parametric cap grid of ``spacing_mm`` in plan view
-  stretches on the sphere to ``spacing_mm * R / z``, about twice the spacing at the paper's
-  aperture edge, and a surface sampled at a smaller step carries many more points per area than
-  the parametric grid (a solid shows two faces where the parametric cap is one sheet). Right-angled
-  pieces give a square grid of step at most ``sqrt(2) * spacing_mm``. ``grid_step_mm`` of a class
-  is its longest edge left, the largest distance between neighbouring points. A mesh finer than
-  this keeps its own vertices (decimate it first if that is too many points).
-- Weights (the model's *attenuation-weighted area*, mm²): a solid of volume ``V`` (mm³, less its
-  cavities) and attenuation ``mu`` (1/mm) shares ``mu * V`` among its points, each a third of the
-  area of the pieces it is a corner of: a class's weights sum to ``mu`` times its volume. GAPS
-  mark the absence of material: their ``mu`` is 0 and so are their weights. Model a gap as a thin
-  sheet on the element's mid-surface, not as a slab of the element's thickness: a ray sees a gap
-  only where it crosses no element, and a slab's oblique projection is wider than that.
-
-:func:`mesh_model_fields` refuses, naming the file or mapping key, the value and what was expected:
-missing files, empty meshes, open surfaces (with the number of open edges), unknown classes,
-non-finite points, meshes that look like metres read as mm, and a non-rigid ``T_transducer_mesh``.
-"""
+"""A transducer model from a lab's closed CAD meshes (§II-B.1), one feature class per part, sampled into
+weighted points in the transducer frame (mm); what is refused is named (docs/imaging.md, "A transducer
+from CAD meshes")."""
 
 from __future__ import annotations
 
@@ -374,7 +347,7 @@ def _vertex_samples(points: np.ndarray, triangles: np.ndarray, max_edge: float):
 
 def _unique_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(unique rows, index of each row among them)`` for exactly equal float rows (-0.0 taken
-    as 0.0); the rows' bytes compared at once, several times faster than ``np.unique(axis=0)``."""
+    as 0.0); the rows' bytes compared at once rather than by ``np.unique(axis=0)``."""
     rows = np.ascontiguousarray(rows, dtype=np.float64) + 0.0
     keys = rows.view(np.dtype((np.void, rows.itemsize * rows.shape[1]))).ravel()
     _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)

@@ -1,27 +1,5 @@
-"""The parametric transducer written as closed surface meshes, one file per feature class (paper
-§II-B.1): the inverse of :meth:`~histostudy.transducer.digital.TransducerModel.from_meshes`, for a
-lab to see the format a CAD export must have and to check a mesh pipeline against the digital model.
-
-Transducer frame and mm as in :mod:`histostudy.transducer.spec` (docs/architecture.md, "Frames and
-units"). Each class becomes solids whose volume times the class's attenuation
-(:func:`~histostudy.transducer.mesh.default_mesh_mu_per_mm`) is the attenuation-weighted area the
-parametric model gives that class (:mod:`histostudy.transducer.sampling`):
-
-- the cap regions (TRANSDUCER, the boundary bands) are slabs of the element thickness between the
-  spheres of radius ``R -/+ element_thickness_mm / 2`` above their plan-view regions (the classes
-  are plan-view regions, as in ``sampling.cap_points``), cut by vertical planes and cylinders; one
-  solid per quadrant, its straight sides on the gap edges ``|x| = |y| = gap_width_mm / 2``;
-- the walls rise ``*_wall_height_mm`` in +z above the cap sphere, just outside the outer ellipse
-  and just inside the cutout circle, with the thickness ``rim_mu_per_mm * rim_thickness_mm / mu``
-  that gives them the parametric walls' attenuation in the boundary classes' one material ``mu``
-  (0.25 mm for the paper's values); with ``rim_mu_per_mm`` 0 they weigh nothing and are left out;
-- GAPS, where there is no material, are thin sheets (:data:`GAP_THICKNESS_MM`) around the cap
-  sphere over the gap stripes, and over the walls' height at their ends, one per arm of the gap
-  cross: a ray sees a gap only where it crosses no element, so a gap drawn as a slab of the element
-  thickness would project wider than it shows (and bias the pose by about 0.4 mm, measured);
-- the screws are closed cylinders (48 sides, the polygon's radius scaled so its area is
-  ``pi r^2``) along +z from the bases of ``sampling.rim_screw_bases_mm``.
-"""
+"""The parametric transducer written as closed surface meshes, one file per feature class (§II-B.1): the
+inverse of ``TransducerModel.from_meshes``, whose solids weigh what the parametric model gives each class."""
 
 from __future__ import annotations
 

@@ -1,16 +1,5 @@
-"""The physical transducer: how the real one differed from its digital model (paper §IV).
-
-§IV names two causes of the focal error that remain after a perfect pose estimate: the quadrants,
-fabricated separately, sit slightly off their nominal place (which also moves the acoustic focal
-point), and screws "further away from the transducer", outside the CBCT field of view the digital
-model was made from, show in the fluoroscopy but not in the model. :class:`ManufacturingDeviation`
-states both (all values assumptions); :func:`physical_model_fields` applies them to a digital
-:class:`~histostudy.transducer.digital.TransducerModel`, for
-:meth:`~histostudy.transducer.digital.TransducerModel.build_physical`.
-
-Transducer frame, mm and rad as in :mod:`histostudy.transducer.spec` (tilts in deg at the edges:
-``quadrant_tilt_sd_deg``).
-"""
+"""The physical transducer (§IV): how the real one differed from its digital model (quadrants off their
+nominal place, screws outside the CBCT's field of view), as a :class:`ManufacturingDeviation` (mm, deg)."""
 
 from __future__ import annotations
 

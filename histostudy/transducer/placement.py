@@ -1,10 +1,5 @@
-"""Where the transducer sits: the paper's set-up pose (§II-D, §II-E), transducer above the supine
-patient in a water bath, aimed at a focal point.
-
-``T_carm_transducer`` is the 4x4 rigid transform from the transducer frame (origin at the
-geometric focal point, +z towards the transducer; :mod:`histostudy.transducer.spec`) into the
-C-arm (world, CBCT LPS) frame, in mm; the axial rotation in rad.
-"""
+"""The paper's set-up pose (§II-D, §II-E): the transducer above the supine patient in a water bath, aimed at
+a focal point, as ``T_carm_transducer`` (transducer -> C-arm, mm)."""
 
 from __future__ import annotations
 

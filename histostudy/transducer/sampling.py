@@ -1,13 +1,5 @@
-"""Sampling the transducer's surfaces and solids into weighted points (paper §II-B.1): the building
-blocks of :class:`~histostudy.transducer.digital.TransducerModel` and its physical variant.
-
-Transducer frame and mm as in :mod:`histostudy.transducer.spec`. Every piece is a
-:class:`SampledPart`: points ``(n, 3)`` mm per :class:`~histostudy.transducer.spec.Feature`, their
-attenuation-weighted areas in mm² (linear attenuation 1/mm x thickness mm x area mm², or
-``mu * volume`` for solid screws; 0 for GAPS) and the largest distance between neighbouring grid
-points of each class in mm. Nothing here is exported from :mod:`histostudy.transducer`: the
-models in ``digital`` and ``physical`` are its only users.
-"""
+"""Sampling the transducer's surfaces and solids into weighted points (§II-B.1), the building blocks of the
+digital and physical models: points in mm, attenuation-weighted areas in mm², grid steps in mm."""
 
 from __future__ import annotations
 

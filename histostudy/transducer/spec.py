@@ -1,12 +1,6 @@
-"""The transducer's specification (paper §II-B.1): its geometry and attenuation, the feature classes
-of its points and pixels, the label priority where classes overlap (§II-B.2), and its quadrants.
-
-Transducer frame (docs/architecture.md, Frames and units): origin at the geometric focal point,
-i.e. the centre of the spherical cap; +z from the focal point towards the transducer centre, so
-the cap apex is at ``(0, 0, R)``. The paper's "depth" is -z, TB is y and LR is x. Lengths in mm,
-attenuation coefficients in 1/mm. The four quadrants, fabricated separately, are split along the
-x = 0 and y = 0 planes (:func:`quadrant_index`).
-"""
+"""The transducer's specification (§II-B.1): geometry and attenuation, the feature classes, the label
+priority where classes overlap (§II-B.2) and the quadrants. Transducer frame: origin at the geometric
+focal point, +z towards the transducer (depth is -z, TB is y, LR is x); mm, 1/mm."""
 
 from __future__ import annotations
 

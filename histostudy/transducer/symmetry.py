@@ -1,12 +1,5 @@
-"""Whether a transducer model looks the same after a half turn about its axis (§II-B.4).
-
-The paper's axial search covers [0°, 180°) only: its transducer (aperture, quadrant gaps, cutout
-and screws) maps onto itself under a half turn about the transducer's z axis, so no image can tell
-the two orientations apart, and an estimate half a turn from the truth puts the focal point in the
-same place. A lab's own transducer (a CAD mesh, :meth:`TransducerModel.from_meshes`) need not be
-symmetric; the study's orientation errors count the half turn as no error only where
-:func:`half_turn_symmetric` says the model allows it.
-"""
+"""Whether a transducer model looks the same after a half turn about its axis (§II-B.4): the paper's axial
+search covers [0, 180) deg only, which a lab's own transducer need not allow."""
 
 from __future__ import annotations
 

@@ -1,15 +1,6 @@
-"""The stages of :func:`~histostudy.treatment.zone.segment_treatment_zone` (§II-E.3-4).
-
-The automatic stand-in for the paper's manual annotation of the treated zone in the
-post-treatment CBCT of the layered phantom: the local variance of the volume
-(:func:`_local_variance`), the phantom's interior (:func:`_phantom_interior`), the noise level
-of homogeneous material (:func:`_homogeneous_variance`), the coarse stage on the local variance
-(:func:`_coarse_stage`) and the boundary stage on the local deviation from the mixed level
-(:func:`_boundary_stage`). See ``segment_treatment_zone``'s docstring for the method.
-
-Arrays are ``[z, y, x]`` on the CBCT grid; gray values in HU, variances in HU^2, lengths in mm,
-box sizes in voxels per array axis.
-"""
+"""The stages of :func:`~histostudy.treatment.zone.segment_treatment_zone` (§II-E.3-4): local variance,
+the phantom's interior, the homogeneous level, the coarse and the boundary stage. Arrays ``[z, y, x]``;
+HU, HU^2, mm."""
 
 from __future__ import annotations
 

@@ -1,14 +1,6 @@
-"""The bubble clouds a treatment makes and what they leave (paper §II-D, §II-D.1, §IV): the union of
-clouds at the reached poses, the phantom with its layers mixed there, and the post-treatment CBCT
-with the zone segmented in it.
-
-§II-D: the excitation makes a 3x3x6 mm (LR, TB, depth) bubble cloud; §IV: the cloud sits off the
-geometric focal point (manufacturing, aberration); §II-D.1: treatment mixes the phantom's layers
-into a medium attenuation. Frames and units: millimetres; poses ``T_carm_transducer`` (4x4) from
-the transducer frame (origin at the geometric focal point, +z towards the transducer: ultrasound
-propagates along -z, "depth"; TB = y, LR = x) into the C-arm (world) frame; masks and volumes
-indexed ``[z, y, x]`` on the volume's grid, attenuation in HU.
-"""
+"""The bubble clouds a treatment makes and what they leave (§II-D, §II-D.1, §IV): clouds at the reached
+poses, the phantom's layers mixed there, and the post-treatment CBCT with the zone segmented in it (mm,
+poses ``T_carm_transducer``, HU)."""
 
 from __future__ import annotations
 

@@ -1,18 +1,6 @@
-"""Executing a treatment plan on the robot with a journal that never fires a point twice (§II-D).
-
-The robot is commanded in its base frame with the TCP at the transducer's focal point, so
-``T_base_tcp`` (4x4, mm) positions the focal point; each plan point (C-arm frame, mm) is mapped into
-the base frame by the calibration ``T_base_carm`` (§II-C) and reached by a linear move, the
-transducer's orientation ``R_base_tcp`` kept throughout; then the point's fixed number of pulses is
-fired.
-
-Every point goes through the transactional journal (:mod:`.journal`): the arm moves, an *intent*
-is committed, the pulses are fired, a *done* is committed. A run interrupted anywhere — a robot
-fault, a therapy fault, a killed process — resumes from the journal on a fresh connection or a
-fresh robot: finished points are never fired again, and a point with an intent and no done (its
-pulses may have been fired) is settled only by the caller's explicit policy (``on_uncertain``),
-which the journal records. One process at a time holds a journal.
-"""
+"""Executing a treatment plan on the robot with a journal that never fires a point twice (§II-D): each point
+(C-arm mm) mapped into the base frame by ``T_base_carm`` and reached by a linear move; interrupted runs
+resume (docs/robot.md)."""
 
 from __future__ import annotations
 

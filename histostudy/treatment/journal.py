@@ -1,25 +1,5 @@
-"""The treatment journal: a transactional record of every focal point, one writer at a time (§II-D).
-
-A treatment fires a fixed number of pulses at each point of its plan. Whatever fails — the robot,
-the therapy system, the process (SIGKILL), the machine — no point may be fired twice or skipped
-without the record saying so. The journal is an SQLite database (WAL mode, ``synchronous=FULL``:
-a commit is on disk before the call returns) holding
-
-- ``meta``: the format and version, the plan (its JSON and its fingerprint), the calibration
-  (``T_base_carm``, ``R_base_tcp``, ``T_flange_tcp``) and the count of finished points;
-- ``points``: per point an *intent* (the commanded and reached ``T_base_tcp``, committed after the
-  arm reached the point and before the first pulse) and a *done* (the pulses delivered and the
-  time, committed after the last pulse); ``resolution`` says how an uncertain point was settled.
-
-A point with an intent and no done is *uncertain*: its pulses may or may not have been fired.
-Nothing settles it silently; :func:`~histostudy.treatment.execute_treatment` applies the caller's
-policy and the record keeps the answer (``refired`` or ``skipped``). One process at a time holds
-the journal: an exclusive ``flock`` on ``<journal>.lock``, which the OS drops when the holder dies;
-a second run is refused at once with the holder's pid, host and start time. Opening checks the
-records (a prefix of finished points, at most one uncertain point right after it, nothing beyond
-the plan, the count in ``meta`` equal to the finished rows, the plan's fingerprint equal to its
-JSON's) and refuses a journal that fails any check. Version-1 journals (JSON) are migrated.
-"""
+"""The treatment journal (§II-D): an SQLite record of every focal point (an intent before its first pulse,
+a done after its last), one process at a time, checked on opening (docs/robot.md)."""
 
 from __future__ import annotations
 

@@ -1,16 +1,5 @@
-"""The treatment plan (paper §II-D): discrete focal points filling the treatment zone, in the order
-they are treated.
-
-§II-D: "the robotic arm was motioned through the planned treatment volume comprised of a plurality
-of discrete focal locations and delivered a predetermined fixed number of histotripsy pulses per
-focal location". :func:`plan_treatment` lays a rectangular lattice over the zone
-(:class:`~histostudy.treatment.zone.TreatmentZone`), clips it to the zone and orders it deepest
-layer first, serpentine within a layer.
-
-Frames and units: millimetres, the C-arm (world) frame. With the transducer's axes as the
-lattice's (``axes = T_carm_transducer[:3, :3]``) the lattice's x, y, z are LR, TB and -depth:
-ultrasound propagates along -z.
-"""
+"""The treatment plan (§II-D): discrete focal points filling the treatment zone (C-arm frame, mm), ordered
+deepest layer first, serpentine within a layer."""
 
 from __future__ import annotations
 

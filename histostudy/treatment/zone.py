@@ -1,15 +1,5 @@
-"""The treatment zone: the prescribed sphere and its segmentation in the post-treatment CBCT.
-
-Paper sections: §II-D (a spherical target of 2.0 or 2.5 cm diameter), §II-E.3-4 (the effective
-treatment zone segmented in the post-treatment CBCT: its centroid, its radius along depth/TB/LR,
-and the distance of predicted margin points to its surface). World frame (the CBCT/C-arm frame),
-millimetres; volumes are :class:`~histostudy.imaging.Volume`.
-
-Where the synthetic study stands in for the lab (docs/architecture.md, Synthetic stand-ins for
-the lab): the manual annotation of the treated zone is the automatic
-:func:`segment_treatment_zone` (local variance, then local deviation from the mixed level; see
-there).
-"""
+"""The treatment zone (§II-D, §II-E.3-4): the prescribed sphere (world mm) and its automatic segmentation in
+the post-treatment CBCT (docs/robot.md, "Segmenting the treated zone")."""
 
 from __future__ import annotations
 

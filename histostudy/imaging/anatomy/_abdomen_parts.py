@@ -1,18 +1,7 @@
-"""The parts of the random abdomen of :func:`~histostudy.imaging.anatomy._random.random_abdomen`.
-
-The abdomen stands in for the 12 porcine studies whose projections the paper's hybrid training
-images were built on (§II-B.2). Each helper here builds one part of it, drawing its sizes from the
-scene's :class:`~histostudy.imaging.anatomy._params._Draw`: the body outline and its placement
-(:func:`_place_body`), the fat and soft-tissue layers (:func:`_body_layers`), the organs
-(:func:`_organs`), the gas in the stomach (:func:`_stomach_gas`), the vertebral column
-(:func:`_vertebral_column`), the ribs (:func:`_ribs`) and the bowel gas (:func:`_bowel_gas`).
-The helpers are called in that order: same Generator state, same scene, the order of the draws
-being part of the result.
-
-Body frame: origin at the body centre, the body's long axis along z, millimetres, LPS-like
-axes (+y posterior, the table side); world = ``R @ x + t`` (:class:`_Body`). Attenuations
-``mu_per_mm`` [1/mm] are differences to whatever else is there (see ``_random``'s docstring).
-"""
+"""The parts of the random abdomen of :func:`~histostudy.imaging.anatomy._random.random_abdomen` (§II-B.2): body
+outline, fat and soft tissue, organs, gas, spine and ribs, each drawn in a fixed order (same Generator
+state, same scene). Body frame: origin at the body centre, long axis along z, mm; attenuations in 1/mm
+are differences to whatever else is there (docs/imaging.md, "The scenes")."""
 
 from __future__ import annotations
 

@@ -1,12 +1,6 @@
-"""Composite solids: the intersection and the difference of convex analytic shapes.
-
-Built from the convex solids of :mod:`._shapes` by combining their entry and exit
-distances along each ray, so the chord stays exact: a body flattened against the table
-(:class:`Intersection` of an elliptic cylinder and a box), the water of a bath pressed onto the
-curved abdomen or a tank's walls (:class:`Difference`). Part of the synthetic scenes that stand
-in for the real projections of §II-B.2 and the phantom set-up of §II-D. World frame: CBCT, mm,
-LPS; ``mu_per_mm`` in 1/mm, a difference to the surroundings.
-"""
+"""Composite solids (§II-B.2, §II-D): the intersection and the difference of convex analytic shapes, their
+chords exact (a body flattened against the table, a bath pressed onto the abdomen). World frame: CBCT,
+LPS, mm; ``mu_per_mm`` in 1/mm, a difference to the surroundings."""
 
 from __future__ import annotations
 

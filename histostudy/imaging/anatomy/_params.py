@@ -1,12 +1,5 @@
-"""The ranges the random abdomen and phantom scenes draw from, and the draws themselves.
-
-:class:`AbdomenSpec` (a porcine/human abdomen, standing in for the 12 porcine studies of
-§II-B.2) and :class:`PhantomSceneSpec` (the phantom set-up of §II-D, Fig. 4) hold one uniform range
-``(low, high)`` per named quantity; lengths in mm, attenuations ``mu`` in 1/mm, angles in degrees
-(``*_deg``), probabilities in [0, 1]. A bare number fixes a range; a field with one range per
-component (e.g. three semi-axes) takes one range or number per component. ``_Draw`` draws from
-the named ranges of one params object and records each value, for the scene's provenance.
-"""
+"""The ranges the random abdomen (§II-B.2) and phantom set-up (§II-D) scenes draw from, one uniform range
+per named quantity (lengths in mm, attenuations in 1/mm, angles in deg), and the recorded draws."""
 
 from __future__ import annotations
 

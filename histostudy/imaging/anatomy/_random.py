@@ -1,24 +1,6 @@
-"""Random synthetic patient and phantom scenes, the backgrounds of the hybrid fluoroscopy images.
-
-Stands in for the real projections the paper superimposed the transducer on (§II-B.2: "hybrid
-images ... real x-ray projections from 12 porcine studies", converted to line integrals of the
-linear attenuation coefficient) and for the phantom set-up of §II-D (Fig. 4A: an agarose
-phantom in a degassed water bath on the patient table). Instead of recorded projections we
-project a random analytic 3-D scene exactly, so that both biplane views see one consistent body.
-
-A random scene is an :class:`~histostudy.imaging.anatomy._scene.Anatomy`: a list of the analytic
-solids of :mod:`._shapes` and :mod:`._csg`, each with a linear attenuation
-``mu_per_mm`` [1/mm] that is the *difference* to whatever else is there (bowel gas inside soft
-tissue is about -0.02 /mm, bone inside soft tissue about +0.02..0.03 /mm), so that a line
-integral is the dimensionless ``sum(mu * chord length in mm)``. The ranges the scenes draw from
-are in :mod:`._params`. Same Generator state, same scene: the draws' order is part of the
-result.
-
-World frame: the CBCT frame, millimetres, origin at the isocentre, DICOM LPS axes (+x patient
-left, +y posterior, +z head). The patient lies supine, the table under the back (+y side); the
-transducer's water bath sits on the anterior surface (-y side), its focal point near the
-isocentre.
-"""
+"""Random abdomen and phantom scenes, the backgrounds of the hybrid fluoroscopy frames (§II-B.2, §II-D):
+a random analytic 3-D scene projected exactly, so that both biplane views see one body. World frame:
+CBCT, LPS, mm, origin at the isocentre (docs/imaging.md, "The scenes")."""
 
 from __future__ import annotations
 

@@ -1,11 +1,5 @@
-"""Bundles of X-ray rays from one common origin, and the algebra the analytic shapes share on them.
-
-The primitives of :mod:`._shapes` and :mod:`._csg` compute exact chord lengths for
-all pixel rays of a C-arm view at once (§II-B.2, the virtual projections: a line integral is
-``sum(mu * chord length)``). All rays start at the X-ray source, so per-ray work reduces to linear
-and quadratic forms in the unit direction ``d``; this module holds those forms. Directions are
-unit vectors in the world (CBCT, LPS) frame; distances along a ray are millimetres.
-"""
+"""Bundles of X-ray rays from one origin and the linear and quadratic forms in the unit direction that the
+analytic shapes share to compute exact chords (§II-B.2). World frame (CBCT, LPS), mm."""
 
 from __future__ import annotations
 

@@ -1,16 +1,6 @@
-"""A synthetic X-ray scene and its line-integral image in a C-arm view.
-
-An :class:`Anatomy` is a list of analytic solids (:mod:`._shapes`, :mod:`._csg`)
-whose attenuations add; :meth:`Anatomy.line_integrals` projects it exactly into the detector of a
-:class:`~histostudy.imaging.carm.View` (eq. 1-2), giving the dimensionless line integrals
-``sum(mu * chord length in mm)`` = ``-log(I / I0)`` that the C-arm's preprocessing delivers and
-that the hybrid images of §II-B.2 put under the rendered transducer. A
-:class:`StaticBackground` wraps a user's own projection (e.g. a real porcine frame) instead;
-:class:`Background` is what both are to the renderer.
-
-World frame: the CBCT frame, millimetres, origin at the isocentre, DICOM LPS axes. Images are
-float32 ``(rows, cols)``, pixel centres at integer ``(u = column, v = row)``.
-"""
+"""A synthetic X-ray scene and its line-integral image in a C-arm view (§II-B.2, eq. 1-2): the
+:class:`Anatomy` of analytic solids, a user's own projection (:class:`StaticBackground`), and the
+:class:`Background` both are to the renderer. World frame: CBCT, LPS, mm; images ``(rows, cols)`` float32."""
 
 from __future__ import annotations
 

@@ -1,16 +1,6 @@
-"""Analytic convex solids for the synthetic scenes, with closed-form X-ray chords through them.
-
-The solids from which :mod:`._random` builds its random abdomens and phantom set-ups, standing in
-for the real projections of §II-B.2 and the phantom set-up of §II-D: an :class:`Ellipsoid`, an
-oriented :class:`Box` and a finite :class:`EllipticCylinder`, each with a linear attenuation
-``mu_per_mm`` [1/mm] that is a *difference* to whatever else is there (the attenuations of a
-scene add). For rays from one origin, each gives the chord length in mm in closed form: a
-quadratic for ellipsoids and elliptic cylinders, the slab method for boxes. :class:`Primitive`
-is the interface they and the composites of :mod:`._csg` implement.
-
-World frame: the CBCT frame, millimetres, origin at the isocentre, DICOM LPS axes. A shape's
-rotation ``R`` maps its local axes to world axes (local -> world).
-"""
+"""Analytic convex solids with closed-form X-ray chords (§II-B.2): ellipsoid, oriented box, elliptic
+cylinder, and the :class:`Primitive` interface. World frame: CBCT, LPS, mm; a shape's rotation maps its
+local axes to the world's; ``mu_per_mm`` in 1/mm, a difference to the surroundings."""
 
 from __future__ import annotations
 

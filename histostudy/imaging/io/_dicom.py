@@ -1,14 +1,6 @@
-"""CBCT volumes in DICOM: a folder holding one series of single-slice images, or one enhanced
-multi-frame file, read into a :class:`~histostudy.imaging.volume.Volume`.
-
-The §II-A/§II-D CBCT volumes as the C-arm exports them. Every slice's plane geometry comes from
-its own tags (ImagePositionPatient, ImageOrientationPatient, PixelSpacing; per frame, through the
-functional groups, in an enhanced file), in DICOM patient LPS millimetres, our world frame; values
-are rescaled (RescaleSlope/RescaleIntercept, HU for CT). The slices are sorted along their normal
-and must stack into a uniform, unsheared grid: unevenly spaced slices (a missing or duplicated
-one) and a gantry-tilted series are refused, since resampling would interpolate the gray values
-the treatment-zone segmentation (§II-E.3) measures.
-"""
+"""CBCT volumes in DICOM (§II-A, §II-D): a folder holding one series of slices, or one enhanced multi-frame
+file, read into a Volume (LPS mm, HU); unevenly spaced or tilted series are refused (docs/imaging.md,
+"Volume files")."""
 
 from __future__ import annotations
 

@@ -1,12 +1,5 @@
-"""A volume file's voxel grid put onto the :class:`~histostudy.imaging.volume.Volume` layout.
-
-Shared by the NIfTI (:mod:`._nifti`) and DICOM (:mod:`._dicom`) readers of §II-A/§II-D CBCT
-volumes. A reader hands over its 3-D array, the LPS step (mm) of each array axis and the LPS
-position (mm) of voxel ``[0, 0, 0]``; a grid axis-aligned in any order or direction (a signed
-permutation of the LPS axes) is reordered and flipped onto the Volume's ``[z, y, x]`` layout with
-positive spacing, without touching a value. An oblique grid is refused: resampling would
-interpolate the gray values the treatment-zone segmentation (§II-E.3) measures.
-"""
+"""A volume file's voxel grid put onto the Volume layout (§II-A): an axis-aligned grid in any order or
+direction is reordered and flipped without touching a value; an oblique one is refused."""
 
 from __future__ import annotations
 

@@ -1,12 +1,5 @@
-"""CBCT volumes in NIfTI files (``.nii``, ``.nii.gz``): read into, and written from, a Volume.
-
-The §II-A/§II-D CBCT volumes as 3D Slicer and most research tools exchange them. NIfTI keeps its
-affine in RAS millimetres (or metres or microns, per the header's unit); our world frame is the
-CBCT/C-arm frame in DICOM LPS millimetres, so x and y change sign on the way in and out. Reading
-applies ``scl_slope``/``scl_inter`` (values in HU for CT) and refuses a grid without voxel sizes;
-writing stores float32 without scaling and is exact: :func:`save_volume_nifti` then
-:func:`~histostudy.imaging.io._volumes.load_volume` gives back the same data, spacing and origin.
-"""
+"""CBCT volumes in NIfTI files (``.nii``, ``.nii.gz``; §II-A, §II-D), read into and written from a Volume:
+RAS in the file, LPS mm here; writing then reading gives back the same data bit for bit."""
 
 from __future__ import annotations
 

@@ -1,26 +1,5 @@
-"""Real CBCT volumes from disk: NIfTI (read and write) and DICOM (a folder of slices, or one
-enhanced multi-frame file), as :class:`~histostudy.imaging.volume.Volume`.
-
-Paper sections: §II-A (a CBCT is a voxel grid whose value between voxel centres is the trilinear
-interpolation, :meth:`Volume.sample`), §II-D (the pre-treatment CBCT in which the target is picked
-and the post-treatment CBCT in which the treated zone is segmented). The synthetic study makes
-these volumes with :func:`~histostudy.imaging.cbct.simulate_cbct`; :func:`load_volume` lets the
-lab's own volumes take their place in the same code path. It picks the reader by the path:
-NIfTI in :mod:`._nifti` (which also writes), DICOM in :mod:`._dicom`; both put the file's
-grid onto the Volume's layout with :mod:`._grid`.
-
-Frames and units: the world frame is the CBCT/C-arm frame in DICOM patient coordinates (LPS:
-+x towards the patient's left, +y posterior, +z superior), millimetres. A :class:`Volume` is
-axis-aligned with that frame, has positive spacing along +x, +y, +z, and its ``origin_mm`` is the
-world position of the centre of voxel ``[0, 0, 0]``; its data are float32, indexed ``[z, y, x]``,
-in Hounsfield units for CT (DICOM rescale and NIfTI ``scl_slope``/``scl_inter`` are applied).
-
-A file whose grid is axis-aligned in any order or direction (a signed permutation of the LPS
-axes) is reordered and flipped onto that layout without touching a value. An oblique grid, a
-sheared series (gantry tilt) or unevenly spaced slices are refused: resampling would interpolate
-the gray values the treatment-zone segmentation (§II-E.3) measures, so it is left to the user,
-done once and knowingly.
-"""
+"""CBCT volumes from disk (§II-A, §II-D): the reader a path goes to (NIfTI, a DICOM series or an enhanced
+DICOM file), each giving a Volume in the LPS C-arm frame, mm, HU (docs/imaging.md, "Volume files")."""
 
 from __future__ import annotations
 

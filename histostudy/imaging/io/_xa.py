@@ -1,17 +1,5 @@
-"""DICOM X-ray angiography (XA) objects written the way a C-arm writes them: the lab-like stand-in
-for a C-arm's export and its live stream (§II-A, §II-B.2).
-
-:func:`xa_dataset` makes one XA object (a single frame, or a cine of several) with the geometry
-tags :meth:`~histostudy.imaging.View.from_dicom` reads (:mod:`.geometry`: positioner angles
-in degrees, source distances and the detector pitch in mm), the detector's intensities stored as
-unsigned integers of ``bits_stored`` bits, MONOCHROME2, and the timing a receiver pairs biplane
-frames by (``AcquisitionDateTime`` of the first frame and ``FrameTime`` in ms between frames).
-:func:`write_xa` writes it atomically; :func:`detector_counts` turns line integrals into the
-detector's counts (``I0 exp(-L)``, eq. 1 of the paper's projection model run backwards).
-
-UIDs are derived from ``uid_seed`` (``pydicom.uid.generate_uid`` with that entropy), so the same
-seed writes byte-identical files.
-"""
+"""DICOM X-ray angiography (XA) objects written as a C-arm writes them (§II-A, §II-B.2): geometry tags,
+detector counts, cine timing; UIDs derived from a seed, so the same seed writes the same bytes."""
 
 from __future__ import annotations
 

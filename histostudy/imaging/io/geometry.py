@@ -1,18 +1,6 @@
-"""The C-arm geometry a DICOM X-ray angiography (XA) or RF object records, read for a view.
-
-:meth:`histostudy.imaging.View.from_dicom` builds a view from what this module reads: the
-positioner angles, the source distances, the detector pixel pitch and the image size, from the
-top-level attributes of a single-frame object or of a cine, or from a frame's per-frame functional
-groups in an enhanced XA object. Units as in DICOM: degrees and millimetres.
-
-Angle conventions (DICOM PS3.3 C.8.7.5 / C.8.19.6): ``PositionerPrimaryAngle`` (0018,1510) is
-positive from RAO towards LAO and ``PositionerSecondaryAngle`` (0018,1511) positive from caudal
-towards cranial, with the patient supine and the beam posterior to anterior at (0, 0): the
-conventions of :meth:`~histostudy.imaging.View.from_gantry`. ``DistanceSourceToPatient``
-(0018,1111) is the source to isocentre distance, ``DistanceSourceToDetector`` (0018,1110) the source
-to detector distance, and ``ImagerPixelSpacing`` (0018,1164) the pitch at the detector, row
-spacing first.
-"""
+"""The C-arm geometry a DICOM XA or RF object records, read for a view (§II-A): positioner angles (deg),
+source distances and the detector pitch (mm), and the image size (pixels). The angle conventions:
+docs/imaging.md, "X-ray objects"."""
 
 from __future__ import annotations
 

@@ -1,31 +1,6 @@
-"""The one check of a DICOM X-ray object that every reader of the lab's frames applies, and the
-decoding of its pixels: ``histostudy pose`` and ``histostudy calibrate`` (through
-:func:`histostudy.imaging.load_frame` and :meth:`~histostudy.imaging.View.from_dicom`) and the live
-receiver (:func:`histostudy.lab.xray_objects.read_xray_header`, ``histostudy listen``) refuse the
-same objects with the same reason.
-
-- **The SOP class** (:func:`check_sop_class`): X-ray angiographic, enhanced XA or RF image
-  storage (:data:`X_RAY_SOP_CLASSES`); any other (CT, secondary capture, ...) is refused (C-STORE
-  status 0x0122), and a data set whose SOP class differs from the one it was stored as (0xA900).
-  A data set that names no SOP class at all is a bare image (a file written by a script), read
-  as one; the receiver always has the sender's SOP class, so there it is refused as differing.
-- **The transfer syntax** (:data:`RECEIVABLE_TRANSFER_SYNTAXES`): the native ones, and the
-  compressed ones pydicom can decode in this install (its plugins: python-gdcm for JPEG Lossless,
-  JPEG-LS and JPEG 2000, pydicom's own RLE decoder). Refused (0xA900): any syntax without a
-  decoder here, and lossy pixels: JPEG baseline and extended, a JPEG-LS stream with NEAR > 0 (its
-  near-lossless syntax carries lossless streams too), an irreversible (9-7 wavelet) JPEG 2000
-  stream, and an object whose LossyImageCompression (0028,2110) is "01". A lossy frame is not
-  posed: a near-lossless pair (NEAR 2 of 4095 counts) moved the pose by about 13 mm, and only the
-  verdict caught it (docs/your-data.md, "Compressed frames").
-- **The image** (:func:`check_xray_object`): a readable size, one sample per pixel (0xC000), and,
-  for a native transfer syntax, every frame's bytes (0xA900).
-
-:func:`read_dicom_file` reads a frame file, naming it in every failure (missing, a folder, not
-DICOM, truncated or corrupt). :func:`xray_pixels` decodes one frame (or all) through pydicom's
-pixel-data plugins; a stream that does not decode is refused (0xA900). The tags of the pixel
-module (MONOCHROME1, the rescale) are checked where they are used, by
-:func:`histostudy.imaging.line_integrals_from_pixels`.
-"""
+"""The one check of a DICOM X-ray object that every reader of the lab's frames applies (SOP class, transfer
+syntax, lossless pixels, image size), and the decoding of its pixels; refusals carry the C-STORE status
+(docs/imaging.md, "X-ray objects")."""
 
 from __future__ import annotations
 

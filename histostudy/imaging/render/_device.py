@@ -1,19 +1,5 @@
-"""Where a frame's splatting runs (paper §II-B.2): the numpy reference, compiled on the CPU, or torch.
-
-Every renderer projects the same points (:func:`splat_points`) with the same arithmetic; they
-differ in where the jitter comes from and how the copies are binned:
-
-- ``device=None``: the numpy reference of :func:`~histostudy.imaging.render._reference.render_line_integrals`
-  (the jitter from the caller's ``numpy.random.Generator``); the study renders this way.
-- ``device="cpu"``: one compiled pass per copy (:mod:`._splat_kernels`), its jitter from per-point
-  counter-based streams seeded by one draw of the caller's Generator.
-- ``device="cuda"`` (or ``"cuda:N"``, or a ``torch.device``): torch (:mod:`._torch`), a batch
-  of frames per call; its jitter from a ``torch.Generator`` seeded the same way.
-
-The three draw the same distribution, not the same numbers: a seed gives the same image again on
-the same renderer, and the renderers' images agree to float rounding where nothing is drawn (zero jitter)
-and, in distribution, elsewhere (tests/imaging/render/test_render_device.py).
-"""
+"""Where a frame's splatting runs (§II-B.2): the numpy reference, compiled on the CPU, or torch on a device;
+the same projection, a different source of jitter (docs/imaging.md, "Splatting")."""
 
 from __future__ import annotations
 

@@ -1,15 +1,6 @@
-"""Frames rendered once and handed out again: :func:`shared_frames`, a scope inside which
-:func:`~._reference.render_frame` returns the frame it already made for the same inputs.
-
-A frame is a function of its inputs and of its Generator's state (the splat jitter, then the
-noise). Inside the scope a call with the same model and physical transducer (the same objects),
-pose, view (projection matrix, shape, pixel size, name), background (by value), settings and
-Generator state as an earlier one returns a copy of that frame and sets the Generator to the state
-the first call left it in: the caller gets the numbers it would have rendered, and draws the same
-numbers afterwards. A study that runs the same experiment for several variants whose frames are
-alike (the error budget's labs, whose errors act on what the estimator is told) renders each
-frame once. Outside a scope nothing is kept.
-"""
+"""Frames rendered once and handed out again: inside a :func:`shared_frames` scope, a render with the same
+inputs and Generator state returns a copy of the frame already made and leaves the Generator where the
+first call left it."""
 
 from __future__ import annotations
 

@@ -1,21 +1,6 @@
-"""Virtual x-ray projections of the transducer model (paper §II-B.2).
-
-- :func:`render_line_integrals`: point "splatting" — every model point is projected ``n_splats``
-  times, each copy jittered by a 3-D Gaussian ``N(0, sigma²)`` per axis (paper: 16 copies,
-  sigma 0.5 mm), and its share of the point's attenuation is added to the nearest pixel.
-- :func:`render_labels`: the reference label image, classes painted in the overlap order of
-  §II-B.2 (screws > gaps > inner > outer boundary > elements > background).
-- :func:`add_poisson_noise`: quantum noise at a fluoroscopic dose.
-- :func:`render_frame`: a complete synthetic :class:`~histostudy.imaging.frame.Frame` — the hybrid image
-  (background + transducer, then noise), reference labels and the true pose.
-
-Images are line integrals of linear attenuation (dimensionless), the form of the paper's
-preprocessed projections. A point of attenuation-weighted area ``a`` mm² (see
-:mod:`histostudy.transducer`) adds ``a / footprint`` to its pixel, where ``footprint`` is the area
-in mm² one pixel covers at the point perpendicular to the ray
-(:meth:`~histostudy.imaging.carm.View.pixel_footprint_mm2`); so a uniform slab of ``mu`` and thickness
-``t`` seen at incidence angle ``theta`` renders to ``mu t / cos(theta)``, as a ray integral would.
-"""
+"""Virtual x-ray projections of the transducer model (§II-B.2, eq. 1-2), the numpy reference: point
+splatting into line integrals, the reference labels, quantum noise, and a complete synthetic frame
+(docs/imaging.md, "Splatting")."""
 
 from __future__ import annotations
 

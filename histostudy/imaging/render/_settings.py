@@ -1,11 +1,5 @@
-"""How a synthetic fluoroscopic frame is rendered: dose, splatting and the scene behind (§II-B.2).
-
-One :class:`FrameRenderConfig` is shared by every configuration that renders frames (the pose
-study's, the targeting study's and the hybrid training images'), so the settings, their defaults
-and their checks are declared once. Defaults are the paper's rendering: 5e4 unattenuated photons
-per pixel (Poisson noise at a fluoroscopic dose), 16 splats per point with a 0.5 mm Gaussian
-jitter, and the agarose phantom behind the transducer (the paper's pose studies).
-"""
+"""How a synthetic fluoroscopic frame is rendered (§II-B.2): dose, splatting and the scene behind, declared
+once in :class:`FrameRenderConfig` for every configuration that renders frames; defaults are the paper's."""
 
 from __future__ import annotations
 

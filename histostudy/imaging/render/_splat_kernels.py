@@ -1,21 +1,6 @@
-"""Compiled point splatting on the CPU (paper §II-B.2): the jitter drawn, projected and binned in one pass.
-
-The numpy reference (:func:`histostudy.imaging.render._reference.render_line_integrals`) makes every splat
-copy as an array element: 3 normal draws, a 3x3 product, two divisions, a bounds test and a flat
-index, each a pass over tens of millions of copies in memory. This kernel does the same arithmetic
-per copy in registers, in float32 as the reference does, and adds the copy to its pixel at once.
-
-Random numbers: each model point has its own stream, so the image does not depend on how the
-points are shared among threads. The stream of point ``i`` is SplitMix64 (Steele, Lea & Flood,
-OOPSLA 2014) started at ``mix(seed + (i + 1) * gamma)``; every 64-bit output gives two 32-bit
-draws, and a standard normal is drawn from those by the Marsaglia-Tsang ziggurat (J Stat Softw
-5(8), 2000; 128 layers, exact tail by Marsaglia's 1964 method). Copy ``k`` of point ``i`` takes
-the normals ``3k, 3k + 1, 3k + 2`` of its stream as its (x, y, z) offset.
-
-Accumulation: the points are cut into :data:`N_PARTS` fixed, contiguous parts, each summed into its
-own float64 image, and the parts added in order, so the same seed gives the same bits on any
-number of threads.
-"""
+"""Compiled point splatting on the CPU (§II-B.2): the jitter drawn, projected and binned in one pass, with a
+counter-based stream per point and fixed parts summed in order, so a seed gives the same bits on any
+number of threads (docs/imaging.md, "Splatting")."""
 
 from __future__ import annotations
 

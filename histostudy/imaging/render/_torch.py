@@ -1,17 +1,5 @@
-"""Point splatting and quantum noise on a torch device, a batch of frames per call (paper §II-B.2).
-
-:class:`TorchSplatter` keeps a transducer model's points on the device once and renders the
-line integrals of many (pose, view) pairs: the same arithmetic as the numpy reference
-(:func:`~histostudy.imaging.render._reference.render_line_integrals`: float32 jitter ``N(0, sigma²)`` per world
-axis, the projection's linear part applied to it, nearest pixel, ``weight / (n_splats *
-footprint)`` per copy), with the jitter drawn by a ``torch.Generator`` seeded per frame, so a
-frame's image depends on its seed, not on the batch it was rendered in. Copies are binned with
-``index_add_`` into a float64 image (on CUDA the atomic adds come in any order; float64 keeps the
-float32 result the same). On the CPU it runs too, slower than the compiled kernel of
-:mod:`._splat_kernels`; it is there so that the CUDA code is the code tested on every machine.
-
-:func:`poisson_noise_torch` is :func:`~histostudy.imaging.render._reference.add_poisson_noise` on the device.
-"""
+"""Point splatting and quantum noise on a torch device, a batch of frames per call (§II-B.2): the numpy
+reference's arithmetic, its jitter seeded per frame (docs/imaging.md, "Splatting")."""
 
 from __future__ import annotations
 

@@ -1,17 +1,6 @@
-"""The arm behind the simulated UR controller (§II-C robot layer): a :class:`SimulatedUR5e` whose moves
-take wall-clock time, can be stopped, and fail as the :class:`FaultPlan` says.
-
-Poses inside are millimetres and 4x4 transforms ``T_base_tcp`` in the robot base frame; the
-controller's output fields (:meth:`ControllerArm.values`) and its move parameters are in SI units
-and axis-angle (metres, radians), converted at this boundary with
-:func:`histostudy.robot.units.pose_from_transform` and
-:func:`~histostudy.robot.units.transform_from_pose`.
-
-``moveJ``, ``moveJ_IK`` and ``moveL_FK`` are executed as linear moves to the target pose (the robot
-layer only needs linear moves). A move the arm cannot make ends in a protective stop, as on the
-real controller. Faults: a disconnect after move K (at the next command), a disconnect or a
-protective stop halfway through move K; a dropped connection stops the arm.
-"""
+"""The arm behind the simulated UR controller (§II-C): a :class:`SimulatedUR5e` whose moves take wall-clock
+time, can be stopped, and fail as the :class:`FaultPlan` says; mm inside, metres and axis-angle at its
+outputs (:mod:`histostudy.robot.units`)."""
 
 from __future__ import annotations
 

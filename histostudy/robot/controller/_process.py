@@ -1,26 +1,6 @@
-"""A simulated UR controller on loopback that the unmodified ``ur_rtde`` client (1.6.5) drives (§II-C
-robot layer): its command line and the child process that runs it.
-
-Run it in its own process (ur_rtde's constructors hold the GIL, so a server thread in the client's
-process deadlocks)::
-
-    python -m histostudy.robot.controller --host 127.0.0.1 [--seed 0] [--repeatability-mm 0.03]
-
-or from Python as :class:`ControllerProcess`. It serves what ``rtde_control.RTDEControlInterface``
-and ``rtde_receive.RTDEReceiveInterface`` need from a UR e-Series controller, backed by
-:class:`~histostudy.robot.sim.SimulatedUR5e` (lengths in mm inside, metres and axis-angle on the
-wire). The parts, one job each:
-
-- ``_protocol``: ports, status codes, command numbers, RTDE field types, recipes, framing;
-- ``_arm``: the arm whose moves take wall-clock time, and the injected faults;
-- ``_program``: the register handshake and what each command does;
-- ``_server``: :class:`SimulatedController`, the dashboard, RTDE and script servers.
-
-Faults (``--disconnect-after-moves K``, ``--disconnect-during-move K``,
-``--protective-stop-during-move K``, ``--command-delay-s S``) follow
-:class:`~histostudy.robot.sim.FaultPlan`. Only loopback addresses (127.0.0.0/8) are served. The
-process exits on SIGTERM, after ``--max-lifetime-s``, or when ``--parent-pid`` is gone.
-"""
+"""The simulated UR controller's command line (``python -m histostudy.robot.controller``) and the child
+process that runs it (:class:`ControllerProcess`), served on a loopback address to the unmodified
+ur_rtde client (§II-C; docs/robot.md, "The simulated UR controller")."""
 
 from __future__ import annotations
 

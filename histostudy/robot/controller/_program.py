@@ -1,19 +1,5 @@
-"""The control program on the simulated UR controller (§II-C robot layer): the register handshake
-through which ur_rtde 1.6.5 sends its commands, and what each command does.
-
-Once the client's control script arrives the "program" runs (runtime_state 2) and commands travel
-through registers: output int register 0 = 1 (ready); the client writes a command number
-(:class:`~histostudy.robot.controller._protocol.Command`) to input int register 0 and parameters
-to input double registers; the controller executes it, writes results to output double
-registers 0-5 (booleans to output int register 1) and sets output int register 0 = 2 (done); the
-client writes 0 and the controller returns to ready. Parameters and results are in SI units and
-axis-angle (metres, radians), converted to and from the library's millimetres and 4x4 transforms
-here and in :mod:`histostudy.robot.controller._arm`.
-
-Commands run one at a time on a worker thread, each answered ``command_delay_s`` late when the
-:class:`~histostudy.robot.sim.FaultPlan` says so (a slow controller); a command still waiting
-when its program ends (its client went away) is dropped.
-"""
+"""The control program on the simulated UR controller (§II-C): the register handshake through which ur_rtde
+sends its commands, and what each command does (SI units and axis-angle on the wire)."""
 
 from __future__ import annotations
 

@@ -1,22 +1,5 @@
-"""The UR controller's wire protocols as ur_rtde 1.6.5 uses them (§II-C robot layer): ports,
-versions, status codes, the register command numbers, RTDE field types, recipes and packet framing.
-
-No arm and no sockets of its own: :mod:`histostudy.robot.controller._server` serves these protocols
-and :mod:`histostudy.robot.controller._program` runs the commands. Values on the wire are in SI
-units with axis-angle poses (metres, radians), as ur_rtde sends them.
-
-- Dashboard (port 29999): a welcome line, then one reply line per command line
-  (``PolyscopeVersion``, ``get serial number``, ``is in remote control``,
-  ``unlock protective stop`` …).
-- RTDE (port 30004): frames of a big-endian uint16 size (3-byte header included) and a uint8
-  type (:func:`rtde_packet`); protocol version 2, controller version 5.11.1.108318, output
-  recipes (ids 1, 2, … per connection) streamed as ``U`` packets, input recipes (ids 1..N in the
-  order requested), both :class:`RTDERecipe`.
-- Script (port 30003): the client uploads its control script; commands then travel through
-  registers (:class:`Command`, and the handshake values ``REG_*`` in output int register 0).
-
-The protocol was implemented from observed client behaviour; no client code or script is copied.
-"""
+"""The UR controller's wire protocols as ur_rtde uses them (§II-C): ports, versions, status codes, the
+register command numbers, RTDE field types, recipes and packet framing; no arm and no sockets."""
 
 from __future__ import annotations
 

@@ -1,13 +1,5 @@
-"""The simulated UR controller's servers (§II-C robot layer): dashboard, RTDE and script sockets on a
-loopback address, each client on a thread of its own, over a :class:`ControlProgram` and its
-:class:`ControllerArm`.
-
-Ports and packet formats: :mod:`histostudy.robot.controller._protocol`. A dropped connection (an
-injected fault) closes every client socket and stops the arm; the listeners stay up, so clients
-can reconnect to the same state. When the control client's connection closes, the program and any
-motion stop. Only loopback addresses (127.0.0.0/8, ::1) are served. The command line and the
-child process that runs this server are in :mod:`histostudy.robot.controller`.
-"""
+"""The simulated UR controller's servers (§II-C): dashboard, RTDE and script sockets on a loopback address,
+each client on a thread of its own, over a :class:`ControlProgram` and its :class:`ControllerArm`."""
 
 from __future__ import annotations
 

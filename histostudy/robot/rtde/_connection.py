@@ -1,27 +1,6 @@
-"""The link to one UR controller through ur_rtde (§II-C robot layer): its receive and control
-interfaces, every blocking call under a watchdog, and a connection that is declared lost rather
-than trusted. :class:`~histostudy.robot.rtde._robot.RTDERobot` builds the ``Robot`` protocol on it.
-
-What it guards against (observed with ur-rtde 1.6.5):
-
-- an unreachable host raises ``RuntimeError`` at once in the constructor -> RobotConnectionError;
-  the ports are probed first with a bounded socket connect, because the constructors hold the GIL;
-- after the connection drops, the receive interface keeps returning the last values while
-  ``isConnected()`` turns False: :meth:`RTDEConnection._require_connected` checks it;
-- a call on a dead controller can block for more than 55 s: every control call runs under a
-  watchdog thread (the client releases the GIL while it waits) and the connection is declared lost
-  when the watchdog fires or the receive connection drops meanwhile;
-- a dropped interface keeps reconnecting in the background, and would attach to the next
-  controller on the same address: it is disconnected when given up;
-- the control interface reconnects on its own receive thread, and if that reconnection throws, the
-  C++ runtime terminates the whole process (SIGABRT; no Python handler runs). Nothing here can
-  catch it. Three of about ten full test runs under load aborted natively in the tests of a drop,
-  while the interfaces were being given up; those tests now run in a child process
-  (tests/robot/test_robot_rtde.py). A lab's script that must survive a dropped robot link can do the
-  same: drive the robot from a process of its own.
-
-Timeouts in seconds.
-"""
+"""The link to one UR controller through ur_rtde (§II-C): its receive and control interfaces, every
+blocking call under a watchdog, and a connection declared lost rather than trusted (docs/robot.md,
+"The RTDE client"). Timeouts in seconds."""
 
 from __future__ import annotations
 

@@ -1,25 +1,6 @@
-"""`RTDERobot`: a real UR5e (or the simulated controller) through ur_rtde, behind the `Robot` protocol.
-
-The library speaks millimetres and 4x4 transforms ``T_base_tcp`` in the robot base frame, ur_rtde
-metres and axis-angle poses ``[x, y, z, rx, ry, rz]``; :mod:`histostudy.robot.units`
-converts at the boundary.
-
-What it guards against (observed with ur-rtde 1.6.5 and written into the code below):
-
-- the connection itself (unreachable hosts, calls that block on a dead controller, interfaces
-  that keep reconnecting): :class:`~histostudy.robot.rtde._connection.RTDEConnection`, which
-  :class:`RTDERobot` extends;
-- after the connection drops, ``getActualTCPPose()`` keeps returning the last pose while
-  ``isConnected()`` turns False: every reading checks the connection before and after;
-- a separate receive interface can lag after a blocking move: after each move we wait until the
-  received pose is steady and within tolerance of the target before reading it;
-- under a protective stop moves return False (and ``stopScript()`` does nothing): moves are
-  refused beforehand with ProtectiveStopError, and a False result is explained;
-- NaN poses are passed through unchecked by the client: poses are validated here (finite, rigid,
-  inside the workspace, within the controller's safety limits, with an IK solution) before moving;
-- ``getForwardKinematics(q, tcp_offset)`` with an explicit offset gave wrong results: forward
-  kinematics is computed locally (:mod:`histostudy.robot.kinematics`).
-"""
+""":class:`RTDERobot`: a real UR5e, or the simulated controller, through ur_rtde behind the
+:class:`~histostudy.robot.base.Robot` protocol (§II-C); mm and 4x4 transforms here, metres and
+axis-angle converted by :mod:`histostudy.robot.units` (docs/robot.md, "The RTDE client")."""
 
 from __future__ import annotations
 
