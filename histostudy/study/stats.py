@@ -1,18 +1,6 @@
-"""Evaluation metrics and statistics of the learned stages (paper §II-E.1-2, §III).
-
-Segmentation (§II-E.1, Table I): per image and class the confusion counts of the class against
-all others (one-vs-rest) and from them precision ``TP/(TP+FP)``, recall ``TP/(TP+FN)``, IoU
-``TP/(TP+FP+FN)`` and pixel accuracy ``(TP+TN)/N``; per image the global accuracy (fraction of
-pixels whose class is right) and the frequency-weighted IoU (class IoUs weighted by the class's
-share of reference pixels). A ratio whose denominator is 0 (a class absent from both prediction
-and reference, say) is NaN, not 0 or 1: it is left out of means.
-
-Group comparisons: one-way ANOVA (:func:`anova_oneway`) and Tukey's HSD (:func:`tukey_hsd`),
-both through statsmodels, as the paper compares the precision of the six classes.
-
-Angles (§II-E.2): mean absolute error ± SD (azimuth differences wrapped to ``(-pi, pi]``), Pearson
-correlation with its p value, and the linear fit ``y = intercept + slope x`` by the Moore-Penrose
-pseudo-inverse with its R². :func:`angle_statistics` takes radians and reports degrees.
+"""Evaluation metrics and statistics of the learned stages (§II-E.1-2, §III): segmentation metrics per
+image and class, one-way ANOVA and Tukey's HSD, and the angle statistics (MAE, Pearson, Moore-Penrose
+fit). A ratio whose denominator is 0 is NaN, left out of means (docs/study-sections.md, "02").
 """
 
 from __future__ import annotations
@@ -68,12 +56,25 @@ def _ratio(num, den) -> np.ndarray:
 
 
 def segmentation_metrics(pred, ref, n_classes: int = 6, class_names=None) -> dict:
-    """Metrics of one predicted label image against its reference (module docstring).
+    """Metrics of one predicted label image against its reference (§II-E.1), each class counted
+    against all others: precision ``TP/(TP+FP)``, recall ``TP/(TP+FN)``, IoU ``TP/(TP+FP+FN)``,
+    pixel accuracy ``(TP+TN)/N``; the global accuracy and the frequency-weighted IoU (class IoUs
+    weighted by the class's share of reference pixels).
 
-    Returns ``{"per_class": DataFrame, "global_accuracy": float, "weighted_iou": float}``; the
-    DataFrame has one row per class: ``class, tp, fp, fn, tn, precision, recall, iou, accuracy,
-    frequency`` (ratios as fractions, NaN where undefined). ``class_names`` (default ``0..n-1``)
-    names the rows.
+    Args:
+        pred: the predicted label image, 2-D integers in ``[0, n_classes)``.
+        ref: the reference label image, of the same shape.
+        n_classes: the number of classes (>= 2).
+        class_names: the rows' names; None: ``0 .. n_classes - 1``.
+
+    Returns:
+        ``{"per_class": DataFrame, "global_accuracy": float, "weighted_iou": float}``; the
+        DataFrame has one row per class: ``class, tp, fp, fn, tn, precision, recall, iou,
+        accuracy, frequency`` (ratios as fractions, NaN where undefined).
+
+    Raises:
+        ValueError: shapes that differ or are not 2-D, non-integer labels, labels out of range, a
+            bad ``n_classes``, or ``class_names`` of another length.
     """
     counts = confusion_counts(pred, ref, n_classes)
     tp, fp, fn, tn = counts.T
@@ -208,6 +209,17 @@ def angle_statistics(pred_rad, ref_rad, *, wrap: bool = False) -> dict:
     (``ref + wrap(pred - ref)``), so a prediction of 179° for -179° counts as an error of 2° in the
     MAE, the correlation and the fit alike. Returns ``mae_deg, sd_deg, pearson_r, pearson_p,
     intercept_deg, slope, r2, n``; the correlation is NaN when the predictions are constant.
+
+    Args:
+        pred_rad: the predicted angles, rad.
+        ref_rad: the reference angles, rad (at least 3, finite, as many as ``pred_rad``).
+        wrap: unwrap each prediction to the branch nearest its reference first (azimuth).
+
+    Returns:
+        The statistics as a dict (angles in degrees).
+
+    Raises:
+        ValueError: lengths that differ, fewer than 3 pairs, or non-finite values.
     """
     p, r = _pair(pred_rad, ref_rad)
     if wrap:
