@@ -116,25 +116,33 @@ def _inference(seg: UNetRunner, frame: Frame, repeat: int) -> None:
     for p, (median, low) in on_region.items():
         agree = np.mean(runners[p].segment_region(frame, REGION) == reference)
         print(f"    {p:>9}: {median:7.1f} / {low:7.1f} ms   {100 * agree:.3f} % of the labels")
-    whole = _interleaved_ms({p: (lambda r=r: r.segment(frame)) for p, r in runners.items()}, max(1, repeat // 2))
+    def whole_frame(runner):
+        def call():
+            runner._recent.clear()
+            return runner.segment(frame)
+        return call
+
+    whole = _interleaved_ms({p: whole_frame(r) for p, r in runners.items()}, max(1, repeat // 2))
     print(f"  whole frame (labels at 960 x 1240), ms median / min of {max(1, repeat // 2)}:")
     for p, (median, low) in whole.items():
         print(f"    {p:>9}: {median:7.1f} / {low:7.1f} ms")
 
     # the parts: Conv2d -> ReLU fused against the eager pair; the head and arg-max in one pass
     # against torch's head then arg-max (on the same kept features)
-    fused = runners["float32"]
     from histostudy.learning.inference import runner as runner_module
 
-    fuse = runner_module.fuse_conv_relu
-
+    fuse, unfused = runner_module.fuse_conv_relu, {}
     runner_module.fuse_conv_relu = lambda net: (net, 0)
     try:
-        unfused = seg.with_precision("float32")
+        for p in [p for p in ("float32", "bfloat16") if p in runners]:
+            unfused[p] = seg.with_precision(p)
     finally:
         runner_module.fuse_conv_relu = fuse
-    parts = _interleaved_ms({f"float32, {fused.n_fused_layers} pairs fused": region(fused),
-                             "float32, none fused": region(unfused)}, repeat)
+    calls = {}
+    for p, plain in unfused.items():
+        calls[f"{p}, {runners[p].n_fused_layers} pairs fused"] = region(runners[p])
+        calls[f"{p}, none fused"] = region(plain)
+    parts = _interleaved_ms(calls, repeat)
     print("  the inference network's parts, region, ms median / min:")
     for name, (median, low) in parts.items():
         print(f"    {name:>28}: {median:7.1f} / {low:7.1f} ms")

@@ -24,7 +24,7 @@ kernels, torch's convolution primitives) and is reset; its first timed update is
 (timed apart), and from-scratch seconds are also timed on ``--scratch`` later frames (``reset()``
 then ``update``), interleaved with ``fast-full``, the fast tracker with
 ``TrackingConfig(scratch_label_scale=1)``: its from-scratch path before docs/tracking.md "From
-scratch in under a second" (FastUNet.segment on the full frames, then ``estimate_pose``), against
+scratch in under a second" (UNetRunner.segment on the full frames, then ``estimate_pose``), against
 ``fast``'s default (``estimate_pose`` at the U-Net's label scale 0.5); with ``--scratch-poses N``
 also on one pair each of N independent poses (notebook 04's distribution, each with its own
 physical transducer and scene: seeds ``--seed`` + 1000, 1001, ...).
@@ -154,7 +154,8 @@ def print_targets(names: list, rate: dict, errors: dict, scratch_s: float) -> No
         verdict = "met" if rate[n] >= goal and k == m else "not met"
         print(f"  {label:28s} {rate[n]:6.2f} warm pairs/s (target >= {goal:g}), {k}/{m} frames within 0.1 mm of "
               f"the baseline (largest |difference| {largest:.3f} mm): {verdict}")
-    print(f"  {'from scratch':28s} {scratch_s:6.3f} s a pair (target <= 0.6): {'met' if scratch_s <= 0.6 else 'not met'}")
+    verdict = "met" if scratch_s <= 0.6 else "not met"
+    print(f"  {'from scratch':28s} {scratch_s:6.3f} s a pair (target <= 0.6): {verdict}")
 
 
 def main() -> None:
@@ -187,7 +188,8 @@ def main() -> None:
     t0 = time.perf_counter()
     poses, frames, physical, views = cine(args.frames, args.seed, args.step_mm, args.step_deg)
     print(f"rendered {args.frames} biplane pairs ({views[0].shape[0]}x{views[0].shape[1]}) in "
-          f"{time.perf_counter() - t0:.0f} s; torch/numba/OpenCV threads = {torch.get_num_threads()}/{args.threads}/{args.threads}; "
+          f"{time.perf_counter() - t0:.0f} s; torch/numba/OpenCV threads = "
+          f"{torch.get_num_threads()}/{args.threads}/{args.threads}; "
           f"load average before: {os.getloadavg()[0]:.2f}")
     model = TransducerModel.build(spacing_mm=0.47)
     segmenter, orientation = default_stages()
@@ -243,9 +245,9 @@ def main() -> None:
             error = np.linalg.norm(result.focal_point_mm - truth[i]) if result.verdict.ok else np.nan
             log[name].append((tracker.last_kind, seconds, dict(result.timings_s), error))
         stream.close()
-    # From scratch (first updates, re-acquisitions): the baseline (estimate_pose, UNetSegmenter), the
+    # From scratch (first updates, re-acquisitions): the baseline (estimate_pose, UNetRunner), the
     # fast tracker's full-frame path before docs/tracking.md "From scratch in under a second"
-    # (scratch_label_scale=1: FastUNet.segment on the full frames, then estimate_pose) and the fast
+    # (scratch_label_scale=1: UNetRunner.segment on the full frames, then estimate_pose) and the fast
     # tracker's default (estimate_pose at the U-Net's label scale).
     scratch_trackers = {"baseline": trackers["baseline"],
                         "fast-full": Tracker(model, views, rng=args.seed, mode="fast",
@@ -284,7 +286,8 @@ def main() -> None:
     print(f"{'focal err mean':16s}" + "".join(f"{np.nanmean(errors[n]):15.3f}" for n in names))
 
     print("\nper frame: kind, seconds, focal error (mm) against the truth; diff: each error - the baseline's")
-    print(f"{'frame':>5s}" + "".join(f"{n:>30s}" for n in names) + "  diff: " + " ".join(f"{n[:13]:>13s}" for n in names[1:]))
+    print(f"{'frame':>5s}" + "".join(f"{n:>30s}" for n in names) + "  diff: "
+          + " ".join(f"{n[:13]:>13s}" for n in names[1:]))
     for i in range(args.frames):
         row = f"{i:5d}"
         for n in names:
@@ -297,7 +300,8 @@ def main() -> None:
         diff = np.abs(signed)
         print(f"{n}: focal error - baseline's over frames 1-{args.frames - 1}: mean {np.nanmean(signed):+.3f} mm, "
               f"largest {np.nanmax(signed):+.3f} mm (worse than the baseline), |diff| mean {np.nanmean(diff):.3f} mm, "
-              f"max {np.nanmax(diff):.3f} mm ({int(np.sum(diff <= 0.1))}/{int(np.sum(np.isfinite(diff)))} within 0.1 mm)")
+              f"max {np.nanmax(diff):.3f} mm "
+              f"({int(np.sum(diff <= 0.1))}/{int(np.sum(np.isfinite(diff)))} within 0.1 mm)")
     print_from_scratch(f"the cine's frames {scratch_frames}", scratch)
     if independent is not None:
         print_from_scratch(f"{args.scratch_poses} independent poses (seeds {args.seed + 1000}...)", independent)

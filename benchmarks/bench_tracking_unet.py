@@ -16,13 +16,13 @@ with ``--workers`` processes when missing.
 Prints, per network:
 
 - Table I (per class mean precision, recall and IoU in %, over the images where defined) of its
-  full-resolution labels (``UNetSegmenter.segment``: logits upsampled to 960 x 1240) against the
+  full-resolution labels (``UNetRunner.segment``: logits upsampled to 960 x 1240) against the
   reference labels, and the global accuracy;
 - the agreement of each tracking network's labels with the shipped one's: at full resolution, and
   on the grid the tracker uses (its arg-max at its input scale against the shipped 0.5 labels, pooled
   to that scale by overlap priority where it is coarser, :func:`~histostudy.learning.pool_labels`),
   over all pixels and over the pixels either network calls foreground;
-- the median ms of ``FastUNet.segment_region`` on a 448 x 448 frame-pixel tracking region
+- the median ms of ``UNetRunner.segment_region`` on a 448 x 448 frame-pixel tracking region
   (``--precision``, default ``auto``: bfloat16 on a CPU with native bfloat16) over ``--repeats``
   interleaved calls, and the ratio to the baseline. Torch runs on ``--threads`` (2) threads; the
   load average before and after says how busy the machine was.
@@ -39,7 +39,7 @@ import time
 import numpy as np
 import torch
 
-from histostudy.learning import MODELS_DIR, FastUNet, UNetSegmenter, default_segmenter, pool_labels
+from histostudy.learning import MODELS_DIR, UNetRunner, default_segmenter, pool_labels
 from histostudy.reporting import load_profile
 from histostudy.study.held_out import held_out_frames
 from histostudy.study.segmentation import evaluate_segmentation, table1
@@ -61,13 +61,14 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     profile = load_profile("standard")
     common, nb = profile.common, profile.notebooks["02_segmentation"]
-    names = args.networks or ["unet_tracking"] + (["unet_tracking_fine"] if (MODELS_DIR / "unet_tracking_fine.safetensors").exists() else [])
+    fine = (MODELS_DIR / "unet_tracking_fine.safetensors").exists()
+    names = args.networks or ["unet_tracking"] + (["unet_tracking_fine"] if fine else [])
     networks = {"shipped (0.5)": default_segmenter()}
     if networks["shipped (0.5)"] is None:
         raise SystemExit("the shipped U-Net (data/models/unet_standard) is missing or fails its check")
     for name in names:
         path = name if name.endswith(".safetensors") else MODELS_DIR / f"{name}.safetensors"
-        net = UNetSegmenter.load(path)  # a ValueError names a missing or damaged file
+        net = UNetRunner.load(path)  # a ValueError names a missing or damaged file
         label = os.path.basename(str(name)).removesuffix(".safetensors").removeprefix("unet_")
         networks[f"{label[:18]} ({net.scale:g})"] = net
     t0 = time.perf_counter()
@@ -97,8 +98,8 @@ def main() -> None:
     print(f"{'global accuracy':16s}" + "".join(f"{accuracy[n]:26.2f}" for n in networks))
 
     shipped = networks["shipped (0.5)"]
-    fast = {name: FastUNet(net, precision=args.precision) for name, net in networks.items()}
-    shipped_grid = [FastUNet(shipped, precision="float32").segment_region(f, (0, f.shape[0], 0, f.shape[1]))
+    fast = {name: net.with_precision(args.precision) for name, net in networks.items()}
+    shipped_grid = [shipped.with_precision("float32").segment_region(f, (0, f.shape[0], 0, f.shape[1]))
                     for f in frame_list]
     for name, tracking in list(networks.items())[1:]:
         agree_full, agree_full_fg, agree_grid, agree_grid_fg = [], [], [], []
@@ -108,13 +109,15 @@ def main() -> None:
             agree_full.append(np.mean(a == b))
             agree_full_fg.append(np.mean(a[fg] == b[fg]))
             rows, cols = f.shape
-            grid = FastUNet(tracking, precision="float32").segment_region(f, (0, rows, 0, cols))
-            ref = shipped_grid[i] if tracking.scale == shipped.scale else pool_labels(shipped_grid[i], tracking.scale / shipped.scale)
+            grid = tracking.with_precision("float32").segment_region(f, (0, rows, 0, cols))
+            ref = (shipped_grid[i] if tracking.scale == shipped.scale
+                   else pool_labels(shipped_grid[i], tracking.scale / shipped.scale))
             fg = (grid > 0) | (ref > 0)
             agree_grid.append(np.mean(grid == ref))
             agree_grid_fg.append(np.mean(grid[fg] == ref[fg]))
         print(f"\nagreement of {name}'s labels with the shipped network's (mean over images, min)")
-        for label, values in (("full resolution, all pixels", agree_full), ("full resolution, foreground", agree_full_fg),
+        for label, values in (("full resolution, all pixels", agree_full),
+                              ("full resolution, foreground", agree_full_fg),
                               (f"{tracking.scale:g} grid, all pixels", agree_grid),
                               (f"{tracking.scale:g} grid, foreground", agree_grid_fg)):
             print(f"  {label:30s} {100 * np.mean(values):6.2f} %  (min {100 * np.min(values):.2f} %)")
@@ -129,7 +132,7 @@ def main() -> None:
             f.segment_region(frame, BOX)
             times[name].append(time.perf_counter() - t)
     base = np.median(times["shipped (0.5)"])
-    print(f"\nFastUNet.segment_region on a {BOX[1] - BOX[0]} x {BOX[3] - BOX[2]} px region, precision "
+    print(f"\nUNetRunner.segment_region on a {BOX[1] - BOX[0]} x {BOX[3] - BOX[2]} px region, precision "
           f"{fast['shipped (0.5)'].precision!r}, {args.threads} threads: median ms (min), x baseline")
     for name, values in times.items():
         print(f"  {name:16s} {1e3 * np.median(values):7.1f} ({1e3 * np.min(values):.1f})  "

@@ -71,7 +71,7 @@ def main() -> None:
         opts, seeds = probe.options, range(args.draws)
         grids = {s: RegionEstimator(model, views, probe.segmenter, opts, TrackingConfig(label_scale=s),
                                     np.random.default_rng(0)) for s in (0.5, 1.0)}
-        full = grids[0.5].full_frame_segmenter  # FastUNet.segment: estimate_pose's labels
+        full = grids[0.5].full_frame_segmenter  # UNetRunner.segment: estimate_pose's labels
         values = {"region 0.5": [], "region 1": [], "full frames": []}
         for k, frames in zip(ks, pairs):
             T = truth["T_carm_transducer"][k]

@@ -1,24 +1,5 @@
-"""Network checkpoints: weights as safetensors (no pickle) beside a JSON manifest.
-
-``<name>.safetensors`` holds the tensors; ``<name>.json`` the manifest::
-
-    {"format": "histostudy.checkpoint", "version": 1,
-     "config": {...network config, e.g. {"arch": "unet", "base_width": 12, ...}},
-     "sha256": "<hash of the .safetensors file>", "weights_file": "<name>.safetensors",
-     "profile": "standard", "seed": 20230119, "git_commit": "...", "training_steps": 4000,
-     "validation": {...metrics}, "input_scale": 0.5, ...}
-
-The network config is also stored in the safetensors header metadata, and the manifest records
-each tensor's dtype (``"tensor_dtypes"``; older manifests lack it). Loading checks the file's
-hash against the manifest, that both configs agree, that every tensor has the dtype the manifest
-records and the network expects, that no floating-point tensor holds NaN or inf, and that the
-tensors fit the network the config builds; any mismatch or a corrupt file raises a
-``ValueError`` naming the file (and the tensor). Both
-files are written atomically (temporary file, then rename), weights first, so a manifest never
-names weights that are not completely on disk.
-
-Resumable training state uses the same format: the optimiser's tensors go into the same file
-under the ``optim.`` prefix (see :mod:`histostudy.learning.training._loop`).
+"""Network checkpoints: weights as safetensors (no pickle) beside a JSON manifest with their SHA-256,
+configuration and provenance, written atomically and checked on loading (docs/training.md, "Checkpoints").
 """
 
 from __future__ import annotations
@@ -125,7 +106,8 @@ def save_checkpoint(path, tensors: dict, config: dict, **manifest) -> Path:
     commit = manifest.pop("git_commit", None) or git_commit()
     flat = {k: v.detach().to("cpu").contiguous() for k, v in tensors.items()}
     with atomic_path(weights) as tmp:
-        save_file(flat, str(tmp), metadata={"format": FORMAT, "config": json.dumps(to_jsonable(config), sort_keys=True)})
+        metadata = {"format": FORMAT, "config": json.dumps(to_jsonable(config), sort_keys=True)}
+        save_file(flat, str(tmp), metadata=metadata)
     record = {"format": FORMAT, "version": VERSION, "config": config, "weights_file": weights.name,
               "sha256": sha256_file(weights), "size_bytes": weights.stat().st_size,
               "tensor_dtypes": {k: _dtype_name(v) for k, v in sorted(flat.items())}}
@@ -200,9 +182,16 @@ def load_network(path, expected_config: dict | None = None) -> tuple[torch.nn.Mo
 
 
 def shipped_model(name: str, models_dir=None) -> Path | None:
-    """Path of the shipped weights ``data/models/<name>.safetensors`` if they and their manifest exist
-    and the hash matches, else None (with a warning when present but invalid: a manifest that is
-    not a JSON object, too)."""
+    """The shipped weights of a name, where they are usable.
+
+    Args:
+        name: the weights' name (``"unet_standard"``, ``"vgg19_standard"``, ...).
+        models_dir: the folder (None: ``data/models``).
+
+    Returns:
+        ``<models_dir>/<name>.safetensors`` if it and its manifest exist and the hash matches, else
+        None (with a warning when present but invalid, a manifest that is no JSON object too).
+    """
     folder = MODELS_DIR if models_dir is None else Path(models_dir)
     weights = folder / f"{name}.safetensors"
     if not (weights.is_file() and manifest_path(weights).is_file()):
@@ -233,9 +222,16 @@ def load_shipped(name: str, loader, what: str):
 def training_summary(manifest: dict) -> str:
     """One line for a report: how a checkpoint was trained, from its manifest's training record.
 
-    Steps and optimiser, the frames (how many, rendered from which model spacing) of the run and of
-    its fine-tune stage, and the checkpoint the run started from, as far as the manifest records
-    them (older manifests lack some; they are left out rather than guessed).
+    Args:
+        manifest: a checkpoint manifest (``UNetRunner.manifest``, ``LearnedOrientation.manifest``).
+
+    Returns:
+        Steps and optimiser, the frames (how many, rendered from which model spacing) of the run and
+        of its fine-tune stage, and the checkpoint it started from, as far as the manifest records
+        them (older manifests lack some; they are left out rather than guessed).
+
+    Raises:
+        TypeError: ``manifest`` is not a dict.
     """
     if not isinstance(manifest, dict):
         raise TypeError(f"manifest must be a checkpoint manifest dict, got {type(manifest).__name__}")
@@ -245,7 +241,9 @@ def training_summary(manifest: dict) -> str:
         parts[0] += f" ({cfg['optimizer']})"
 
     def frames(n, render):
-        return f"{n} frames rendered from the {render.get('render_spacing_mm', '?'):g} mm model" if render else f"{n} frames"
+        if not render:
+            return f"{n} frames"
+        return f"{n} frames rendered from the {render.get('render_spacing_mm', '?'):g} mm model"
 
     if "n_train" in cfg:
         parts.append("on " + frames(cfg["n_train"], cfg.get("render")))

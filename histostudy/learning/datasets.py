@@ -1,23 +1,6 @@
-"""Hybrid training and evaluation images for the learned stages (paper §II-B.2, §II-B.4).
-
-A hybrid image is a procedural background (:func:`histostudy.imaging.anatomy.random_background`, standing
-in for the paper's porcine projections) plus the rendered *physical* transducer
-(:meth:`~histostudy.transducer.TransducerModel.build_physical`) at a random pose, with Poisson noise
-(:func:`histostudy.imaging.render.render_frame`); the reference labels are the digital model's, as the
-paper's annotation was. Random poses follow §II-B.2: Euler angles (extrinsic ``xyz``) uniform in
-``[0, 2 pi)`` and a focal-point translation uniform in ``[-100, 100]`` mm per axis, redrawn until the
-transducer centre projects onto the detector (a pose with the transducer off the image teaches
-nothing). Each image comes from a C-arm view at a random primary angle (the paper's training
-images came from 304 gantry angles).
-
-Seeds: frame ``i`` of split ``s`` is drawn from ``SeedSequence([seed, SPLIT_CODES[s], i])``, so the
-train, validation and evaluation splits never share a seed and every frame is reproducible on
-its own (a DataLoader may ask for frames in any order). An optional on-disk cache keeps rendered
-frames (full resolution, image as float16 — its 0.008 quantisation at 8-16 is far below the
-quantum noise — and labels as uint8), so a long training renders each frame once.
-
-Network inputs come from :mod:`.preprocess` (:func:`~.preprocess.prepare_image`,
-:func:`~.preprocess.pool_labels`), the one transform used in training and at inference.
+"""Hybrid training and evaluation images for the learned stages (paper §II-B.2, §II-B.4): a procedural
+background plus the rendered physical transducer at a random pose, seeded per split and frame, optionally
+cached on disk (docs/training.md, "The hybrid images").
 """
 
 from __future__ import annotations
@@ -106,7 +89,8 @@ class RenderConfig(FrameRenderConfig):
             raise ValueError(f"background must be 'abdomen', 'phantom' or 'mixed', got {self.background!r}")
         lo, hi = (float(v) for v in self.primary_range_deg)
         if not (np.isfinite(lo) and np.isfinite(hi) and lo <= hi):
-            raise ValueError(f"primary_range_deg must be (low, high) degrees with low <= high, got {self.primary_range_deg!r}")
+            raise ValueError(f"primary_range_deg must be (low, high) degrees with low <= high, "
+                             f"got {self.primary_range_deg!r}")
         object.__setattr__(self, "primary_range_deg", (lo, hi))
         object.__setattr__(self, "detector", tuple(int(v) for v in self.detector))
         if self.splat_device not in SPLAT_DEVICES:
@@ -188,7 +172,8 @@ class HybridFrames:
         """The view of frame ``index`` (primary angle drawn from the frame's own seed)."""
         rng = np.random.default_rng(self.seed_sequence(index).spawn(1)[0])
         lo, hi = self.config.primary_range_deg
-        return View.from_gantry(float(rng.uniform(lo, hi)), 0.0, shape=self.config.detector, name=f"{self.split}{index}")
+        return View.from_gantry(float(rng.uniform(lo, hi)), 0.0, shape=self.config.detector,
+                                name=f"{self.split}{index}")
 
     def cached(self, index: int) -> bool:
         """Whether frame ``index`` is in the on-disk cache."""
@@ -232,7 +217,8 @@ class HybridFrames:
             try:
                 with np.load(path, allow_pickle=False) as data:
                     return Frame(image=data["image"].astype(np.float32), view=view, labels=data["labels"],
-                                 T_carm_transducer=data["T"], meta={"split": self.split, "index": int(index), "cached": True})
+                                 T_carm_transducer=data["T"],
+                                 meta={"split": self.split, "index": int(index), "cached": True})
             except (OSError, ValueError, KeyError):
                 path.unlink(missing_ok=True)  # a damaged cache entry is rendered again
         cfg = self.config
@@ -319,7 +305,8 @@ class HybridImageDataset(Dataset):
         check_count(size, "size")
         check_unit_fraction(scale)
         rows, cols = (s * scale for s in frames.config.detector)
-        if crop is not None and (isinstance(crop, bool) or not isinstance(crop, int) or not 1 <= crop <= min(rows, cols)):
+        if crop is not None and (isinstance(crop, bool) or not isinstance(crop, int)
+                                 or not 1 <= crop <= min(rows, cols)):
             raise ValueError(f"crop must be None or an integer in [1, {int(min(rows, cols))}] px, got {crop!r}")
         check_count(repeats, "repeats")
         self.task, self.frames, self.size, self.scale, self.crop = task, frames, size, float(scale), crop
@@ -387,5 +374,9 @@ class HybridImageDataset(Dataset):
 
 
 def default_cache_dir() -> Path:
-    """``$HISTOSTUDY_CACHE`` or ``~/.cache/histostudy``: rendered frames and training runs."""
+    """Where rendered frames and training runs are kept.
+
+    Returns:
+        ``$HISTOSTUDY_CACHE``, or ``~/.cache/histostudy`` where it is not set (not created here).
+    """
     return Path(os.environ.get("HISTOSTUDY_CACHE", Path.home() / ".cache" / "histostudy"))

@@ -1,21 +1,6 @@
-"""Transducer orientation relative to a view: azimuth and elevation (paper §II-B.4, eq. 4).
-
-The orientation the paper's VGG19 regressor estimates is the direction ``d`` from the transducer
-centre to the geometric focal point — in the transducer frame that is ``-z`` — expressed in the
-detector frame of the view, ``(e_u, e_v, e_w)`` (:attr:`histostudy.imaging.carm.View.detector_axes`,
-``e_w`` along the beam from source to detector)::
-
-    d_det = (cos(az) sin(el), sin(az) sin(el), ±cos(el))
-
-A projection cannot tell ``d`` from its mirror image on the detector plane (the sign of the
-``e_w`` component), so angles are reported for the mirror that points *away from the detector*
-(``e_w`` component <= 0, towards the source), as the paper's network was trained: elevation in
-``[0, pi/2]`` is the angle between ``d`` and the beam axis, azimuth in ``(-pi, pi]`` the in-plane
-angle from the detector's column axis. Eq. 4 turns a pair of angles back into the two mirror
-candidates in world coordinates; combining two views resolves the ambiguity.
-
-Orientation sources (the oracle here; the learned VGG19 regressor of the learning stage) implement
-:class:`OrientationSource`: ``estimate(frame, rng) -> (azimuth_rad, elevation_rad)``.
+"""Transducer orientation relative to a view: azimuth and elevation (paper §II-B.4, eq. 4), their
+mirror candidates, and the orientation sources (oracle, learned VGG19) behind :class:`OrientationSource`
+(docs/learned-stages.md, "The orientation angles").
 """
 
 from __future__ import annotations
@@ -48,20 +33,47 @@ __all__ = [
 
 
 def beam_direction_of_pose(T_carm_transducer) -> np.ndarray:
-    """World unit vector from the transducer centre to its focal point (the transducer's ``-z``)."""
+    """World unit vector from the transducer centre to its focal point (the transducer's ``-z``).
+
+    Args:
+        T_carm_transducer: ``(4, 4)`` pose mapping transducer -> C-arm (world) coordinates, mm.
+
+    Returns:
+        ``(3,)`` float64 unit vector in the C-arm frame.
+    """
     T = np.asarray(T_carm_transducer, dtype=np.float64)
     d = -T[:3, 2]
     return d / np.linalg.norm(d)
 
 
 def wrap_angle(angle_rad):
-    """Angle(s) wrapped to ``(-pi, pi]``; use for azimuth differences (azimuth wraps around)."""
+    """Angle(s) wrapped to ``(-pi, pi]``; use for azimuth differences (azimuth wraps around).
+
+    Args:
+        angle_rad: an angle or an array of angles, rad.
+
+    Returns:
+        float64 array of the input's shape (a 0-d array for a scalar), rad in ``(-pi, pi]``.
+    """
     wrapped = np.mod(np.asarray(angle_rad, dtype=np.float64) + np.pi, 2 * np.pi) - np.pi
     return np.where(wrapped == -np.pi, np.pi, wrapped)
 
 
 def angles_from_direction(direction, view: View) -> tuple[float, float]:
-    """``(azimuth_rad, elevation_rad)`` of a world direction relative to ``view`` (module docstring)."""
+    """The azimuth and elevation of a world direction relative to a view (paper §II-B.4; the convention:
+    docs/learned-stages.md, "The orientation angles").
+
+    Args:
+        direction: a world (C-arm frame) 3-vector, any length but zero.
+        view: the :class:`~histostudy.imaging.carm.View` whose detector axes the angles refer to.
+
+    Returns:
+        ``(azimuth_rad, elevation_rad)``: azimuth in ``(-pi, pi]`` from the detector's column axis,
+        elevation in ``[0, pi/2]`` from the beam axis, of the mirror pointing away from the detector.
+
+    Raises:
+        ValueError: ``direction`` is zero or not finite.
+    """
     d = np.asarray(direction, dtype=np.float64).reshape(3)
     norm = np.linalg.norm(d)
     if not np.isfinite(norm) or norm == 0:
@@ -75,9 +87,19 @@ def angles_from_direction(direction, view: View) -> tuple[float, float]:
 
 
 def direction_candidates(azimuth_rad: float, elevation_rad: float, view: View) -> np.ndarray:
-    """Eq. 4: the two world unit directions (rows) that ``(azimuth, elevation)`` allows in ``view``.
+    """Eq. 4: the two world unit directions that an azimuth and elevation allow in a view.
 
-    Row 0 points away from the detector (the canonical mirror), row 1 is its mirror image.
+    Args:
+        azimuth_rad: azimuth relative to ``view``, rad.
+        elevation_rad: elevation relative to ``view``, rad.
+        view: the :class:`~histostudy.imaging.carm.View` the angles refer to.
+
+    Returns:
+        ``(2, 3)`` world (C-arm frame) unit directions: row 0 points away from the detector (the
+        canonical mirror), row 1 is its mirror image.
+
+    Raises:
+        ValueError: an angle is not finite.
     """
     if not (np.isfinite(azimuth_rad) and np.isfinite(elevation_rad)):
         raise ValueError(f"azimuth_rad and elevation_rad must be finite, got {azimuth_rad!r}, {elevation_rad!r}")
@@ -89,13 +111,19 @@ def direction_candidates(azimuth_rad: float, elevation_rad: float, view: View) -
 
 
 def select_direction(candidates: Sequence[np.ndarray]) -> tuple[np.ndarray, tuple[int, ...], float]:
-    """Resolve the mirror ambiguity across views (§II-B.4).
+    """Resolve the mirror ambiguity across views (§II-B.4): one candidate per view, those that agree best
+    (smallest mean pairwise angle). With one view the ambiguity cannot be resolved: the canonical
+    candidate is returned and the caller should try both (the pose search does).
 
-    ``candidates[i]`` is the ``(2, 3)`` array of view ``i``. Picks one candidate per view so that
-    the chosen directions agree best (smallest sum of pairwise angles) and returns their
-    normalised mean, the chosen indices and the mean pairwise angle in rad. With one view the
-    ambiguity cannot be resolved: the canonical candidate is returned and the caller should try
-    both (the pose search does).
+    Args:
+        candidates: per view, its ``(2, 3)`` world directions (:func:`direction_candidates`).
+
+    Returns:
+        ``(direction, indices, angle_rad)``: the chosen directions' normalised mean (world unit
+        vector), the chosen row of each view, and their mean pairwise angle in rad.
+
+    Raises:
+        ValueError: ``candidates`` is empty, or an entry does not hold 6 numbers.
     """
     cands = [np.asarray(c, dtype=np.float64).reshape(2, 3) for c in candidates]
     if not cands:
@@ -132,6 +160,14 @@ class OracleOrientation:
     By default the errors' mean absolute values are the paper's regression MAE (§III: 1.06 deg
     azimuth, 2.34 deg elevation), so the initialisation sees what the learned network gave. The
     noisy elevation is folded back into ``[0, pi/2]``. Needs ``frame.T_carm_transducer``.
+
+    Args:
+        azimuth_mae_deg: mean absolute azimuth error, deg (0: exact).
+        elevation_mae_deg: mean absolute elevation error, deg (0: exact).
+
+    Raises:
+        ValueError: an error is negative or not finite; :meth:`estimate` of a frame without
+            ``T_carm_transducer``.
     """
 
     azimuth_mae_deg: float = 1.06
@@ -192,10 +228,20 @@ def hemisphere_directions(n: int = N_ORIENTATION_CLASSES) -> np.ndarray:
 
 
 def orientation_angle_error(azimuth_rad, elevation_rad, reference_azimuth_rad, reference_elevation_rad):
-    """Angle (rad) between the directions two ``(azimuth, elevation)`` pairs of one view stand for.
+    """Angle between the directions two ``(azimuth, elevation)`` pairs of one view stand for.
 
     The error that matters to the pose initialisation: unlike the azimuth error alone it is small
-    near elevation 0, where the azimuth is ill-defined. Accepts arrays (broadcast)."""
+    near elevation 0, where the azimuth is ill-defined.
+
+    Args:
+        azimuth_rad: estimated azimuth(s), rad.
+        elevation_rad: estimated elevation(s), rad.
+        reference_azimuth_rad: true azimuth(s), rad.
+        reference_elevation_rad: true elevation(s), rad (all four broadcast together).
+
+    Returns:
+        The angle(s) in rad, in ``[0, pi]``: a float64 array of the broadcast shape.
+    """
     a = _detector_direction(azimuth_rad, elevation_rad)
     b = _detector_direction(reference_azimuth_rad, reference_elevation_rad)
     return np.arccos(np.clip(np.sum(a * b, axis=-1), -1.0, 1.0))
@@ -218,7 +264,19 @@ class LearnedOrientation:
     azimuth is wrapped to ``(-pi, pi]`` and the elevation folded into ``[0, pi/2]``. ``rng`` is
     accepted for the protocol and unused (inference is deterministic).
 
-    Build it with :meth:`load` from a checkpoint (:mod:`histostudy.learning.checkpoints`).
+    Build it with :meth:`load` from a checkpoint (:mod:`histostudy.learning.checkpoints`), or get the
+    shipped one from :func:`default_vgg19`.
+
+    Args:
+        network: the VGG19 regressor (:class:`~histostudy.learning.nets.vgg.VGG19`, ``head="regressor"``).
+        scale: the network's input scale (network pixels per frame pixel).
+        manifest: the checkpoint's manifest, None for a network without one.
+
+    Raises:
+        TypeError: :meth:`estimate_many` of something other than a
+            :class:`~histostudy.imaging.frame.Frame`.
+        ValueError: :meth:`load` of a checkpoint that is no VGG19 regressor or fails its checks;
+            :meth:`estimate_many` of frames of different shapes in one batch.
     """
 
     network: object = field(repr=False)
@@ -264,8 +322,12 @@ class LearnedOrientation:
 
 
 def default_vgg19() -> LearnedOrientation | None:
-    """The shipped VGG19 regressor (``data/models/vgg19_standard``) as a :class:`LearnedOrientation`,
-    or None when the weights are missing or fail their hash or configuration check."""
+    """The shipped VGG19 regressor (``data/models/vgg19_standard``).
+
+    Returns:
+        Its :class:`LearnedOrientation`, or None (with a warning) when the weights are missing or
+        fail their hash or configuration check.
+    """
     from .checkpoints import load_shipped
 
     return load_shipped("vgg19_standard", LearnedOrientation.load, "VGG19")

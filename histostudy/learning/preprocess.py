@@ -1,10 +1,6 @@
-"""The networks' input transforms, one for training and inference (paper §II-B.2).
-
-:func:`prepare_image` (area downscaling, then per-image standardisation) is the one transform
-applied to a fluoroscopic image before either network, in training and at inference;
-:func:`pool_labels` downscales a label image by taking, in each block, the class of highest overlap
-priority present (the rule of §II-B.2 for pixels covered by several classes). Scales are 1, 1/2,
-1/4, ... (an integer reduction), images ``[row, col]``.
+"""The networks' input transforms (paper §II-B.2), the same in training and at inference:
+:func:`prepare_image` (area downscaling, then per-image standardisation) and :func:`pool_labels`
+(each block the class of highest overlap priority).
 """
 
 from __future__ import annotations
@@ -47,7 +43,20 @@ _LABEL_OF_RANK[_RANK[[int(f) for f in Feature]]] = [int(f) for f in Feature]
 
 
 def pool_labels(labels, scale: float) -> np.ndarray:
-    """Label image downscaled by ``scale``: each block takes its highest-priority class (§II-B.2)."""
+    """A label image downscaled by an integer factor: each block takes its highest-priority class
+    present (the overlap rule of §II-B.2).
+
+    Args:
+        labels: ``(rows, cols)`` :class:`~histostudy.transducer.Feature` values.
+        scale: 1, 1/2, 1/4, ... (label pixels per input pixel).
+
+    Returns:
+        ``uint8 (rows * scale, cols * scale)`` labels (a ``uint8`` copy at scale 1).
+
+    Raises:
+        ValueError: ``labels`` is not 2-D, ``scale`` is not ``1 / integer``, or the shape is not
+            divisible by ``1 / scale``.
+    """
     lab = np.asarray(labels)
     if lab.ndim != 2:
         raise ValueError(f"labels must be a 2-D label image, got shape {lab.shape}")

@@ -29,7 +29,17 @@ class Segmenter(Protocol):
 
 
 def masks_from_labels(labels: np.ndarray) -> dict[Feature, np.ndarray]:
-    """Boolean mask per feature class (background excluded) of a label image."""
+    """Boolean mask per feature class (background excluded) of a label image.
+
+    Args:
+        labels: ``(rows, cols)`` :class:`~histostudy.transducer.Feature` values.
+
+    Returns:
+        ``{feature: bool (rows, cols)}`` for the five feature classes.
+
+    Raises:
+        ValueError: ``labels`` is not 2-D.
+    """
     labels = np.asarray(labels)
     if labels.ndim != 2:
         raise ValueError(f"labels must be a 2-D label image, got shape {labels.shape}")
@@ -37,13 +47,19 @@ def masks_from_labels(labels: np.ndarray) -> dict[Feature, np.ndarray]:
 
 
 def keep_largest_component(labels: np.ndarray) -> np.ndarray:
-    """``labels`` with every pixel outside the largest 8-connected component of the segmented
-    foreground (any class > 0) set to background; a copy, same shape and dtype.
+    """The labels of the largest 8-connected component of the segmented foreground only.
 
     The transducer projects as one connected body (elements, rim and screws touch), so in a frame
-    of one transducer any other component is a false positive: a learned segmentation marks
-    patches of bone or phantom edges as transducer (measured on random abdomen scenes: up to a
-    third of a view's segmented pixels, 99 % of the true transducer pixels in the component kept).
+    of one transducer any other component is a false positive (docs/learned-stages.md).
+
+    Args:
+        labels: ``(rows, cols)`` :class:`~histostudy.transducer.Feature` values.
+
+    Returns:
+        A copy, same shape and dtype, with every pixel outside that component set to background.
+
+    Raises:
+        ValueError: ``labels`` is not 2-D.
     """
     labels = np.asarray(labels)
     if labels.ndim != 2:
@@ -116,7 +132,16 @@ ORACLE_DEGRADATIONS = ("table1", "none")
 
 @dataclass(frozen=True)
 class OracleSegmenter:
-    """The frame's reference labels, degraded by ``degradation`` (None: perfect segmentation)."""
+    """The frame's reference labels, degraded the way a network errs (paper Table I), or perfect.
+
+    Args:
+        degradation: how the labels err (:class:`SegmentationDegradation`); None: the reference
+            labels as they are.
+
+    Raises:
+        ValueError: :meth:`named` of an unknown name; :meth:`segment` of a frame without reference labels.
+        TypeError: :meth:`segment` with a degradation and no ``numpy.random.Generator``.
+    """
 
     degradation: SegmentationDegradation | None = None
 
@@ -174,7 +199,8 @@ def degrade_labels(labels: np.ndarray, degradation: SegmentationDegradation, rng
         if precision < 1.0:
             n_fp = int(round(keep.sum() * (1.0 / precision - 1.0)))
             # candidates: pixels next to the class that hold a lower-priority class or background
-            lower = np.isin(reference, [int(c) for c in (Feature.BACKGROUND, *FEATURE_CLASSES[: FEATURE_CLASSES.index(k)])])
+            lower_classes = (Feature.BACKGROUND, *FEATURE_CLASSES[: FEATURE_CLASSES.index(k)])
+            lower = np.isin(reference, [int(c) for c in lower_classes])
             ring = np.zeros_like(ref)
             grown = keep.astype(np.uint8)
             for _ in range(8):  # widen until there is room for every false positive

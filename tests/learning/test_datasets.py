@@ -61,7 +61,8 @@ def test_random_pose_is_rigid_and_on_the_detector():
 
 
 def test_splits_never_share_seeds_and_frames_are_reproducible():
-    seqs = {(split, i): HybridFrames(split, 5, TINY).seed_sequence(i).entropy for split in SPLIT_CODES for i in range(4)}
+    seqs = {(split, i): HybridFrames(split, 5, TINY).seed_sequence(i).entropy
+            for split in SPLIT_CODES for i in range(4)}
     assert len(set(map(tuple, seqs.values()))) == len(seqs)
     a, b = HybridFrames("train", 5, TINY).frame(0), HybridFrames("train", 5, TINY).frame(0)
     np.testing.assert_array_equal(a.image, b.image)
@@ -174,7 +175,8 @@ def test_kept_inputs_give_the_same_items_without_reading_the_frame_again(tmp_pat
         first = [kept[i] for i in range(2)]
         calls = []
         real_frame = HybridFrames.frame
-        monkeypatch.setattr(HybridFrames, "frame", lambda self, i: calls.append(i) or real_frame(self, i))
+        monkeypatch.setattr(HybridFrames, "frame",
+                            lambda self, i, calls=calls, real_frame=real_frame: calls.append(i) or real_frame(self, i))
         for epoch in (0, 1, 2):
             plain.set_epoch(epoch)
             kept.set_epoch(epoch)

@@ -147,7 +147,8 @@ def test_orientation_angle_error_is_the_angle_between_the_eq4_directions():
     for _ in range(20):
         a, b = rng.uniform(-np.pi, np.pi, 2), rng.uniform(0, np.pi / 2, 2)
         da, db = direction_candidates(a[0], b[0], view)[0], direction_candidates(a[1], b[1], view)[0]
-        assert orientation_angle_error(a[0], b[0], a[1], b[1]) == pytest.approx(np.arccos(np.clip(da @ db, -1, 1)), abs=1e-9)
+        expected = np.arccos(np.clip(da @ db, -1, 1))
+        assert orientation_angle_error(a[0], b[0], a[1], b[1]) == pytest.approx(expected, abs=1e-9)
     # Elevation alone: its difference. Near elevation 0 a large azimuth error is a small direction error.
     assert orientation_angle_error(0.3, 0.5, 0.3, 0.2) == pytest.approx(0.3)
     assert np.rad2deg(orientation_angle_error(0.0, np.deg2rad(2), np.pi, np.deg2rad(2))) == pytest.approx(4.0)

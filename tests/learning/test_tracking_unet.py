@@ -30,7 +30,8 @@ def test_the_tracking_table_trains_the_unet_at_quarter_scale_from_the_shipped_we
     standard = TrainingConfig.from_table("segmentation", load_profile("standard").training["segmentation"])
     assert cfg.task == "segmentation" and cfg.scale == 0.25 and standard.scale == 0.5
     assert cfg.network == standard.network and cfg.crop is None
-    assert (MODELS_DIR.parent.parent / cfg.init_weights).resolve() == (MODELS_DIR / "unet_standard.safetensors").resolve()
+    shipped = (MODELS_DIR / "unet_standard.safetensors").resolve()
+    assert (MODELS_DIR.parent.parent / cfg.init_weights).resolve() == shipped
     assert export_name("segmentation_tracking", "unet", "standard") == "unet_tracking"
     assert export_name("segmentation_tracking", "unet", "paper") == "unet_tracking_paper"
     assert export_name("segmentation", "unet", "standard") == "unet_standard"

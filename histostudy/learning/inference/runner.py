@@ -222,7 +222,8 @@ class UNetRunner:
 
         net, manifest = load_network(path)
         if net.config.get("arch") != "unet" or net.config.get("n_classes") != len(Feature):
-            raise ValueError(f"checkpoint {str(path)!r} holds {net.config}, expected a U-Net with {len(Feature)} classes")
+            raise ValueError(f"checkpoint {str(path)!r} holds {net.config}, expected a U-Net with "
+                             f"{len(Feature)} classes")
         return cls(net, precision, test_time_flips, scale=float(manifest.get("input_scale", 0.5)), manifest=manifest)
 
     def with_precision(self, precision: str) -> UNetRunner:
@@ -302,7 +303,8 @@ class UNetRunner:
             raise TypeError(f"frame must be a histostudy.imaging.frame.Frame, got {type(frame).__name__}")
         if self.test_time_flips:
             raise ValueError("segment_region runs without test-time flips: use segment, or a runner without them")
-        if isinstance(upsample, bool) or not isinstance(upsample, (int, np.integer)) or not 1 <= upsample <= self.stride_px:
+        if (isinstance(upsample, bool) or not isinstance(upsample, (int, np.integer))
+                or not 1 <= upsample <= self.stride_px):
             raise ValueError(f"upsample must be an integer in [1, {self.stride_px}] (labels at most at the frame's "
                              f"resolution), got {upsample!r}")
         if upsample == 1:

@@ -1,10 +1,6 @@
-"""The networks of the learned stages as plain torch modules (no training logic here).
-
-- :class:`~histostudy.learning.nets.unet.UNet`: feature segmentation (§II-B.2).
-- :class:`~histostudy.learning.nets.vgg.VGG19`: orientation classification, then regression (§II-B.4).
-
-:func:`build_network` makes either from its ``config`` dict (the one each module records in
-``.config`` and a checkpoint manifest stores), so a checkpoint can be rebuilt without pickle.
+"""The networks of the learned stages as plain torch modules: :class:`UNet` (§II-B.2), :class:`VGG19`
+(§II-B.4), and :func:`build_network`, which rebuilds either from its configuration dict without pickle
+(docs/training.md, "The networks").
 """
 
 from __future__ import annotations

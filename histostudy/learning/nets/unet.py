@@ -1,25 +1,6 @@
-"""U-Net for feature segmentation (paper §II-B.2; Ronneberger et al. 2015): a plain torch module.
-
-One input channel (the standardised fluoroscopic image, see :func:`histostudy.learning.preprocess.prepare_image`)
-and six output channels (background + the five :class:`~histostudy.transducer.Feature` classes),
-logits per pixel at the input's resolution. Each level is two 3x3 convolutions with batch
-normalisation and ReLU; the encoder halves the resolution with 2x2 max pooling, the decoder doubles
-it with a 2x2 transposed convolution and concatenates the encoder's features. Level ``i`` has
-``base_width * 2**i`` channels; the original U-Net is ``base_width=64, depth=4`` (64 ... 1024).
-
-Inputs of any size are accepted: they are padded (reflect) to a multiple of :attr:`UNet.pad_multiple`
-(``2**depth * input_stride``) and the logits are cropped back, so a full 1240x960 frame (or its 0.5x
-downscale) runs in one pass.
-
-``input_stride`` > 1 makes a U-Net that reads its input at one resolution and runs its levels on a
-grid ``input_stride`` times coarser, for the tracker's warm regions (docs/tracking.md, "A network
-that reads fine and computes coarse"): a strided convolution (kernel ``2 * input_stride``, stride
-``input_stride``, batch norm, ReLU) turns the input into ``base_width`` channels on the coarse grid,
-the levels run there, and the head is a sub-pixel convolution (Shi et al. 2016: a 3x3 convolution to
-``n_classes * input_stride**2`` channels, then :class:`torch.nn.PixelShuffle`) that puts the logits
-back on the input's grid. The interface is unchanged: logits at the input's resolution. On CPU the
-levels' cost falls with the pixels they run on, while the input's detail (edges finer than the
-coarse grid) still reaches the network and its labels.
+"""U-Net for feature segmentation (paper §II-B.2; Ronneberger et al. 2015), a plain torch module, with
+an optional strided stem and sub-pixel head (``input_stride``) for the tracker's regions
+(docs/training.md, "The networks").
 """
 
 from __future__ import annotations
@@ -71,7 +52,8 @@ class UNet(nn.Module):
             if isinstance(value, bool) or not isinstance(value, int) or value < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {value!r}")
         if isinstance(input_stride, bool) or not isinstance(input_stride, int) or input_stride not in (1, 2, 4):
-            raise ValueError(f"input_stride must be 1, 2 or 4 (input pixels per first-level pixel), got {input_stride!r}")
+            raise ValueError(f"input_stride must be 1, 2 or 4 (input pixels per first-level pixel), "
+                             f"got {input_stride!r}")
         self.config = {"arch": "unet", "in_channels": in_channels, "n_classes": n_classes,
                        "base_width": base_width, "depth": depth}
         if input_stride != 1:

@@ -1,20 +1,6 @@
-"""VGG19 orientation network (paper §II-B.4; Simonyan & Zisserman 2015): a plain torch module.
-
-The standard VGG19 "E" configuration — 16 3x3 convolutions in five stages (2, 2, 4, 4, 4 convs of
-64, 128, 256, 512, 512 channels, each stage closed by 2x2 max pooling) — then adaptive average
-pooling to 7x7 and the classifier ``4096 -> 4096 -> n_classes`` with ReLU and dropout. ``width``
-scales every channel count and the classifier's hidden size (1.0 is the original; 1/8 runs on a
-CPU). Input: one channel, the frame downscaled by 0.25 (1240x960 -> 310x240) and standardised.
-
-Two heads (§II-B.4): first a classifier of the 36 hemisphere orientations
-(:func:`histostudy.learning.orientation.hemisphere_directions`), trained with a softmax cross-entropy;
-then :meth:`VGG19.to_regressor` replaces the softmax by a sigmoid followed by a fully connected
-layer with two outputs, azimuth and elevation in rad (``head="regressor"``).
-
-Beyond the paper, ``angle_encoding="cos_sin"`` gives that layer three outputs, ``(c, s, elevation)``,
-and the network returns ``(atan2(s, c), elevation)``: a linear layer that outputs the azimuth itself
-must cut the circle somewhere (neighbouring classes across the cut get outputs 2 pi apart), one
-that outputs a point of the plane need not. Both return ``(azimuth, elevation)`` in rad.
+"""VGG19 orientation network (paper §II-B.4; Simonyan & Zisserman 2015), a plain torch module: a
+36-class classifier of hemisphere orientations, then an azimuth and elevation regressor
+(docs/training.md, "The networks").
 """
 
 from __future__ import annotations

@@ -1,13 +1,6 @@
-"""What a training run of a learned stage is (paper §II-B.2, §II-B.4): its configuration (a
-profile's ``[training.<task>]`` table), the stages it runs and the frames each stage trains and
-validates on, and what it returns.
-
-Stages, in order: segmentation ``segment``; orientation ``classify`` (VGG19 as a 36-class
-classifier of the nearest hemisphere orientation, when ``classification_epochs`` > 0) then
-``regress`` (azimuth and elevation, rad); then, for either task, an optional ``finetune``
-(:class:`FineTuneConfig`) on frames of another rendering. Lengths in mm (the renderings' model
-spacings), budgets in minutes, learning rates per SGD / Adam step. The loop that runs the stages is
-:func:`histostudy.learning.training._loop.train`.
+"""What a training run of a learned stage is (paper §II-B.2, §II-B.4): its configuration (a profile's
+``[training.<task>]`` table), its stages and the frames each trains and validates on, and its result
+(docs/training.md, "The training package").
 """
 
 from __future__ import annotations
@@ -42,10 +35,20 @@ TRAINING_TABLES = {"segmentation": ("segmentation", ""), "orientation": ("orient
 
 
 def export_name(table: str, arch: str, profile: str) -> str:
-    """The name of the weights ``histostudy train <table>`` exports to ``data/models``:
-    ``<arch>_<profile>`` (``unet_standard``) for a task's own table, ``<arch>_<variant>`` for a
-    variant of the ``standard`` profile (``unet_tracking``) and ``<arch>_<variant>_<profile>`` for
-    one of another profile."""
+    """The name of the weights ``histostudy train <table>`` exports to ``data/models``.
+
+    Args:
+        table: a key of :data:`TRAINING_TABLES` (``"segmentation"``, ``"segmentation_tracking"``, ...).
+        arch: the network's architecture (``"unet"``, ``"vgg19"``).
+        profile: the profile's name.
+
+    Returns:
+        ``<arch>_<profile>`` (``unet_standard``) for a task's own table, ``<arch>_<variant>`` for a
+        variant of the ``standard`` profile (``unet_tracking``), ``<arch>_<variant>_<profile>`` else.
+
+    Raises:
+        ValueError: ``table`` is not a key of :data:`TRAINING_TABLES`.
+    """
     if table not in TRAINING_TABLES:
         raise ValueError(f"table must be one of {sorted(TRAINING_TABLES)}, got {table!r}")
     variant = TRAINING_TABLES[table][1]
@@ -295,7 +298,14 @@ def stage_frames(cfg: TrainingConfig, stage: str) -> tuple[RenderConfig, int, in
 
 
 def run_frame_sets(cfg: TrainingConfig) -> list[tuple[RenderConfig, int, int]]:
-    """Every ``(render, n_train, n_val)`` the run's stages train and validate on, each once, in stage order."""
+    """The frame sets a run's stages train and validate on (to render them beforehand).
+
+    Args:
+        cfg: the run's :class:`TrainingConfig`.
+
+    Returns:
+        Every ``(render, n_train, n_val)`` of its stages, each once, in stage order.
+    """
     sets = []
     for stage in stage_names(cfg):
         frames = stage_frames(cfg, stage)

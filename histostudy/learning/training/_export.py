@@ -1,14 +1,5 @@
-"""Exporting a trained network (paper §II-B.2, §II-B.4): the run's best network copied to
-``data/models`` with the manifest a reader of the results needs — profile, seed, git commit,
-training steps, the validation split and its metrics (losses in the stage's unit: cross-entropy,
-or rad² for the angle loss; angle errors in degrees), the stages' stops, the training time in
-minutes and the SHA-256 of the weights (:mod:`histostudy.learning.checkpoints`).
-
-A network trained on a lent GPU comes back through a narrow channel (files of at most 16 MiB):
-:func:`half_precision_copy` writes its float16 copy, :func:`full_precision_copy` widens that copy
-back to the float32 the networks load. The round trip rounds each weight to float16 (a relative
-error of at most 2^-11); the manifests say so, and what is evaluated and shipped is the rounded
-network.
+"""Exporting a trained network to ``data/models`` with its manifest, and the float16 round trip of a
+network trained on a lent GPU (docs/training.md, "The training package").
 """
 
 from __future__ import annotations
@@ -32,7 +23,24 @@ def _validation_split(cfg: TrainingConfig, stage: str | None) -> str:
 
 def export(result: TrainingResult, cfg: TrainingConfig, name: str, *, seed: int, profile: str,
            models_dir=None) -> Path:
-    """Copy the run's best network to ``<models_dir>/<name>.safetensors`` with the full manifest."""
+    """Copy the run's best network to ``<models_dir>/<name>.safetensors`` with the full manifest
+    (profile, seed, git commit, steps, validation split and metrics, stops, minutes, SHA-256).
+
+    Args:
+        result: the run's :class:`~histostudy.learning.training._config.TrainingResult`.
+        cfg: the run's :class:`~histostudy.learning.training._config.TrainingConfig`.
+        name: the weights' name (:func:`~histostudy.learning.training._config.export_name`).
+        seed: the profile's seed the run drew its frames from.
+        profile: the profile's name.
+        models_dir: the folder (None: ``data/models``).
+
+    Returns:
+        The path of the manifest written.
+
+    Raises:
+        ValueError: the run's best checkpoint fails its checks.
+        OSError: the run's files cannot be read or the copy cannot be written.
+    """
     tensors, manifest = load_checkpoint(result.best)
     model = {k: v for k, v in tensors.items() if k.startswith("model.")}
     state = json.loads((result.run_dir / "state.json").read_text())["state"]
@@ -62,14 +70,33 @@ def _copy_as(weights, dest, dtype: torch.dtype, **note) -> Path:
 
 
 def half_precision_copy(weights, dest) -> Path:
-    """Write ``weights``' checkpoint with its floating-point tensors in float16 to ``dest``
-    (``<dest>.safetensors`` + ``.json``, the manifest kept, ``"float16_of"`` naming the source's
-    SHA-256); returns the new manifest's path. Refuses a tensor beyond float16's range."""
+    """A checkpoint's float16 copy, for the narrow channel back from a lent GPU (docs/training.md).
+
+    Args:
+        weights: the checkpoint's ``.safetensors``.
+        dest: the copy's path without suffix (``<dest>.safetensors`` and ``.json`` are written).
+
+    Returns:
+        The new manifest's path (the manifest kept, ``"float16_of"`` naming the source's SHA-256).
+
+    Raises:
+        ValueError: the checkpoint fails its checks, or a tensor exceeds float16's range (65504).
+    """
     _, manifest = load_checkpoint(weights)
     return _copy_as(weights, dest, torch.float16, float16_of=manifest["sha256"])
 
 
 def full_precision_copy(weights, dest) -> Path:
-    """Write a float16 checkpoint (:func:`half_precision_copy`) back in float32 to ``dest``, the
-    manifest kept and ``"rounded_to": "float16"`` added; returns the new manifest's path."""
+    """A float16 checkpoint (:func:`half_precision_copy`) widened back to the float32 the networks load.
+
+    Args:
+        weights: the float16 checkpoint's ``.safetensors``.
+        dest: the copy's path without suffix.
+
+    Returns:
+        The new manifest's path (the manifest kept, ``"rounded_to": "float16"`` added).
+
+    Raises:
+        ValueError: the checkpoint fails its checks.
+    """
     return _copy_as(weights, dest, torch.float32, rounded_to="float16")

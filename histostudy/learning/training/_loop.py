@@ -1,31 +1,6 @@
-"""The training loop of both learned stages (paper §II-B.2 and §II-B.4).
-
-SGD with momentum 0.9, learning rate 0.001, mini-batches of 5 (the paper's values, profile
-defaults), an epoch being one pass over the training frames; after each epoch the validation loss
-is computed on a held-out split (its own seeds) and training stops when it has not improved for
-``patience`` (3) epochs, when ``max_epochs`` is reached or when the wall-time budget
-``max_minutes`` is spent. The best network (lowest validation loss) is kept.
-
-- segmentation: the U-Net on random ``crop x crop`` patches of the frames downscaled by ``scale``
-  (paper: 512x512 at full resolution), pixel-wise cross-entropy over the six classes.
-- orientation: two stages (§II-B.4). ``classify``: VGG19 as a 36-class classifier of the nearest
-  hemisphere orientation; then its best weights become the regressor
-  (:meth:`~histostudy.learning.nets.vgg.VGG19.to_regressor`) and ``regress`` trains azimuth and
-  elevation (rad). The losses are in :mod:`histostudy.learning.training._losses`.
-
-An optional last stage, ``finetune`` (:class:`~histostudy.learning.training._config.FineTuneConfig`),
-goes on training the best network of the stage before it, with that stage's loss, on frames of
-another rendering (e.g. the 0.125 mm model of the held-out frames, after a long run on cheaper
-0.47 mm frames), with its own training and validation frames, learning rate and budget. The
-configuration and the stages are in :mod:`histostudy.learning.training._config`.
-
-Checkpoints (:mod:`histostudy.learning.checkpoints`): after every epoch ``last.safetensors`` (network and
-optimiser momentum, with ``state.json``: stage, epoch, steps, best loss, history) and, on a new
-best, ``best-<stage>.safetensors`` — all written atomically, so an interrupted run resumes from
-its last completed epoch with :func:`train` (``resume=True``), bit for bit: every epoch's batch
-order and dropout draw from seeds of (seed, task, stage, epoch). :func:`export
-<histostudy.learning.training._export.export>` copies the best network with its manifest to
-``data/models``.
+"""The training loop of both learned stages (paper §II-B.2, §II-B.4): SGD or Adam over epochs with
+early stopping on a held-out split, atomic checkpoints after every epoch and a bit-for-bit resume
+(docs/training.md, "The training package").
 """
 
 from __future__ import annotations

@@ -1,15 +1,6 @@
-"""The losses of the learned stages and their validation metrics (paper §II-B.2, §II-B.4).
-
-- ``segment`` (the U-Net, §II-B.2): pixel-wise cross-entropy over the six classes, optionally
-  weighted per class, optionally plus the soft Dice loss of the five feature classes
-  (:func:`dice_loss`; Milletari et al. 2016, the batch's pixels pooled per class as in Sudre et
-  al. 2017's generalised Dice).
-- ``classify`` (VGG19 as a 36-class classifier, §II-B.4): cross-entropy.
-- ``regress`` (VGG19's azimuth and elevation, rad): :func:`angle_loss`,
-  ``sin(el)^2 wrap(d_az)^2 + d_el^2`` in rad², the squared angle between predicted and true
-  direction for small errors. ``wrap`` takes the azimuth difference into ``(-pi, pi]``, so a
-  prediction of ``179°`` for ``-179°`` costs 2° and not 358°; the ``sin(el)`` weight says that the
-  azimuth of a direction along the beam axis means nothing.
+"""The losses of the learned stages and their validation metrics (paper §II-B.2, §II-B.4):
+cross-entropy with an optional soft Dice term, and the angle loss in rad² (docs/training.md,
+"The training package").
 """
 
 from __future__ import annotations

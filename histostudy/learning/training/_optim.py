@@ -1,9 +1,5 @@
-"""The optimiser of a training run and the tensors its checkpoints hold (§II-B.2, §II-B.4).
-
-SGD with momentum (the paper's) or Adam (:attr:`TrainingConfig.optimizer
-<histostudy.learning.training._config.TrainingConfig.optimizer>`); a checkpoint
-(:mod:`histostudy.learning.checkpoints`) holds the network's state dict under ``model.`` and the
-optimiser's per-parameter state (momentum; Adam's moments and step) under ``optim.<index>.``.
+"""The optimiser of a training run (SGD with momentum or Adam) and the tensors its checkpoints hold
+(docs/training.md, "The training package").
 """
 
 from __future__ import annotations

@@ -1,17 +1,5 @@
-"""Training a segmentation network on another network's labels (distillation; beyond the paper, for
-the tracking networks of docs/tracking.md).
-
-With ``TrainingConfig.teacher`` set, every batch's target labels (training and validation) are the
-teacher U-Net's arg-max on the same standardised input, instead of the rendered frame's labels. A
-network meant to stand in for the shipped one (a faster one for :class:`~histostudy.pose.Tracker`'s
-warm regions) is then trained to label as the shipped network does, errors included, which is what
-a pose refined on its labels must match. The validation metrics then measure agreement with the
-teacher, not with the truth.
-
-The teacher is a checkpoint of ``data/models`` (SHA-256, dtypes and config checked by
-:func:`~.checkpoints.load_network`), read at the run's input scale: its manifest's
-``input_scale`` must be the run's ``scale``. It runs in eval mode, without gradients, on the
-run's device.
+"""Training a segmentation network on a teacher U-Net's labels (distillation, for the tracking networks;
+docs/training.md, "The training package").
 """
 
 from __future__ import annotations

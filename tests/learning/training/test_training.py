@@ -150,7 +150,8 @@ def test_a_run_may_resume_with_another_budget(tmp_path, cache):
                   cache_dir=cache)
     assert first.epochs == 1
     with pytest.raises(ValueError, match="another configuration"):
-        train(_seg(max_epochs=1, crop=16), tmp_path / "run", seed=3, progress=False, log=lambda m: None, cache_dir=cache)
+        train(_seg(max_epochs=1, crop=16), tmp_path / "run", seed=3, progress=False, log=lambda m: None,
+              cache_dir=cache)
     again = train(_seg(max_epochs=1, max_minutes=0.001, threads=1), tmp_path / "run", seed=3, progress=False,
                   log=lambda m: None, cache_dir=cache)
     assert again.steps == first.steps and again.stopped == first.stopped
@@ -167,7 +168,8 @@ def test_a_run_may_resume_with_another_budget(tmp_path, cache):
     (tmp_path / "run" / "best-regress.safetensors").write_bytes(b"left over from another run")
     fresh = train(_seg(max_epochs=1, crop=16), tmp_path / "run", seed=3, resume=False, progress=False,
                   log=lambda m: None, cache_dir=cache)
-    assert fresh.best.name == "best-segment.safetensors" and not (tmp_path / "run" / "best-regress.safetensors").exists()
+    assert fresh.best.name == "best-segment.safetensors"
+    assert not (tmp_path / "run" / "best-regress.safetensors").exists()
 
 
 def test_class_weights_and_warm_start(tmp_path, cache):
@@ -355,7 +357,8 @@ def test_fine_tune_budget_of_its_own_and_bad_tables(tmp_path, cache):
     from histostudy.learning import run_frame_sets
 
     assert run_frame_sets(cfg) == [(cfg.render, 200, 3), (cfg.fine_tune.render, 5, 3)]
-    assert run_frame_sets(TrainingConfig.from_table("orientation", {**table, "fine_tune": None})) == [(cfg.render, 200, 3)]
+    without = TrainingConfig.from_table("orientation", {**table, "fine_tune": None})
+    assert run_frame_sets(without) == [(cfg.render, 200, 3)]
     for fine, match in [({"n_train": 5, "render": {}}, r"fine_tune needs \['learning_rate'\]"),
                         ({**table["fine_tune"], "epochs": 2}, r"fine_tune has unknown keys \['epochs'\]"),
                         ({**table["fine_tune"], "n_train": 0}, "fine_tune.n_train must be an integer >= 1, got 0"),

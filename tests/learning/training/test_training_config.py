@@ -29,4 +29,5 @@ def test_config_validation_and_profiles():
             assert cfg.learning_rate == 0.001
             if name == "paper":  # the paper's hyper-parameters; the others are CPU-sized (profile comments)
                 assert (cfg.optimizer, cfg.momentum, cfg.patience) == ("sgd", 0.9, 3)
-    assert TrainingConfig.from_table("orientation", load_profile("paper").training["orientation"]).network["width"] == 1.0
+    paper = load_profile("paper").training["orientation"]
+    assert TrainingConfig.from_table("orientation", paper).network["width"] == 1.0
