@@ -41,9 +41,6 @@ from .training import (
     train,
 )
 
-#: The name of :class:`UNetRunner` before 0.3.0, kept while histostudy.study.segmentation imports it.
-UNetSegmenter = UNetRunner
-
 __all__ = [
     # segmentation (§II-B.2)
     "Segmenter", "OracleSegmenter", "SegmentationDegradation", "default_segmenter", "tracking_segmenter",

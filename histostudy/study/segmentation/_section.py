@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from histostudy.learning import HybridFrames, UNetSegmenter, training_summary
+from histostudy.learning import HybridFrames, UNetRunner, training_summary
 from histostudy.transducer import Feature
 
 from ..held_out import HeldOutConfig, HeldOutSetup, prepare_held_out, resolve_weights
@@ -60,7 +60,7 @@ class SegmentationConfig(HeldOutConfig):
     NOTEBOOK = "02"
 
 
-def load_unet(weights: str | os.PathLike = "") -> tuple[UNetSegmenter, Path]:
+def load_unet(weights: str | os.PathLike = "") -> tuple[UNetRunner, Path]:
     """The U-Net to evaluate and its checkpoint path.
 
     Args:
@@ -74,7 +74,7 @@ def load_unet(weights: str | os.PathLike = "") -> tuple[UNetSegmenter, Path]:
             ``histostudy train segmentation`` command that makes it).
     """
     path = resolve_weights(weights, "unet_standard", "U-Net", "segmentation")
-    return UNetSegmenter.load(path), path
+    return UNetRunner.load(path), path
 
 
 def evaluate_segmentation(segmenter, frames: Iterable, rng: np.random.Generator | None = None, *,
@@ -83,7 +83,7 @@ def evaluate_segmentation(segmenter, frames: Iterable, rng: np.random.Generator 
 
     Args:
         segmenter: anything with ``segment(frame, rng)`` returning a label image (e.g.
-            :class:`histostudy.learning.UNetSegmenter`).
+            :class:`histostudy.learning.UNetRunner`).
         frames: frames with reference labels (any iterable; a generator keeps memory flat).
         rng: passed to ``segmenter.segment`` (None for a deterministic segmenter).
         keep: how many of the first frames' predictions to return (for figures).
@@ -210,7 +210,7 @@ class SegmentationSetup(HeldOutSetup):
         segmenter: the U-Net (:func:`load_unet`).
     """
 
-    segmenter: UNetSegmenter
+    segmenter: UNetRunner
 
 
 def prepare(params: SegmentationConfig | Mapping, seed: int, *, timer: Timer | None = None) -> SegmentationSetup:
