@@ -51,6 +51,12 @@ class LabScene:
 
     :meth:`draw` makes one from two Generators; :meth:`render_pair` renders the biplane images of a
     pose. :func:`write_lab_dataset` and :mod:`.moving_cine` render through it.
+
+    Args:
+        views: the biplane views.
+        physical: the physical transducer model.
+        backgrounds: the scene's line integrals, one ``(rows, cols)`` array per view.
+        settings: the dose and splatting (anything with ``frame_kwargs()``).
     """
 
     views: tuple
@@ -90,7 +96,21 @@ class LabScene:
 
 @dataclass(frozen=True)
 class LabDataset:
-    """Where :func:`write_lab_dataset` put each file (paths), and the suggested target (C-arm mm)."""
+    """Where :func:`write_lab_dataset` put each file (paths), and the suggested target.
+
+    Args:
+        folder: the dataset's folder.
+        views: ``views.json``.
+        calibration_frames: ``((A.dcm, B.dcm), ...)``, one pair per station.
+        flange_poses: ``calibration/flange_poses.json``.
+        cine: ``(A.dcm, B.dcm)``.
+        cbct: ``cbct.nii.gz``.
+        transducer_meshes: the STL files, one per feature class.
+        manifest: ``dataset.json``.
+        truth: ``truth.json``.
+        target_mm: the suggested target (x, y, z), C-arm frame, mm.
+        n_cine_frames: the cine's frames.
+    """
 
     folder: Path
     views: Path
@@ -124,11 +144,28 @@ def write_lab_dataset(folder: str | os.PathLike, *, seed: int = 20231125, n_cine
                       frame_time_ms: float = 66.7, cine_step_mm: float = 0.5, cine_turn_deg: float = 0.2,
                       config: TargetingStudyConfig | None = None, render_spacing_mm: float = 0.25,
                       views: tuple[View, View] | None = None) -> LabDataset:
-    """Write the lab-like dataset described in docs/study-sections.md ("06") into ``folder``; returns its
-    paths. ``config``: the set-up's parameters (default: the targeting study's standard ones with 4
-    calibration stations); ``render_spacing_mm``: the rendered transducer's point spacing (the
-    study renders at 0.125 mm; 0.25 mm draws fewer points and is enough for 0.3 mm pixels at the
-    isocentre); ``views``: the biplane (default :func:`default_biplane`)."""
+    """Write the lab-like dataset (docs/study-sections.md, "06") into ``folder``.
+
+    Args:
+        folder: where to write (created; files of the same names are replaced).
+        seed: every draw (one ``numpy.random.SeedSequence``): the same seed writes the same files.
+        n_cine_frames: the cine's frames (>= 1).
+        frame_time_ms: the time between cine frames, ms (> 0).
+        cine_step_mm: the flange's move per cine frame, mm (>= 0).
+        cine_turn_deg: its turn per cine frame, deg (>= 0).
+        config: the set-up's parameters (default: the targeting study's standard ones, phantom
+            background, 4 calibration stations).
+        render_spacing_mm: the rendered transducer's point spacing, mm (the study renders at 0.125
+            mm; 0.25 mm draws fewer points and is enough for 0.3 mm pixels at the isocentre).
+        views: the biplane (default :func:`histostudy.imaging.default_biplane`).
+
+    Returns:
+        The :class:`LabDataset` of the files written.
+
+    Raises:
+        ValueError: a bad ``seed``, ``n_cine_frames``, ``frame_time_ms``, ``cine_step_mm``,
+            ``cine_turn_deg`` or ``render_spacing_mm``.
+    """
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     if isinstance(n_cine_frames, bool) or not isinstance(n_cine_frames, (int, np.integer)) or n_cine_frames < 1:

@@ -37,10 +37,17 @@ T0 = _dt.datetime(2023, 1, 19, 11, 0, 0)
 
 @dataclass(frozen=True)
 class RobotPath:
-    """The focal point's tour (C-arm frame, mm) with its timing: ``waypoints_mm`` ``(m, 3)`` and their
-    ``names`` (``MARGIN_TOUR`` entries), the ``T_centre`` pose (4x4) whose orientation the robot
-    holds, and per leg ``k`` (from waypoint k to k + 1) its start ``leg_start_s`` and duration
-    ``leg_s``; each waypoint is held ``dwell_s`` before its leg starts."""
+    """The focal point's tour (C-arm frame, mm) with its timing (:func:`robot_path`).
+
+    Args:
+        T_centre: the pose at the zone's centre, 4x4 ``T_carm_transducer`` (mm), whose orientation
+            the robot holds.
+        names: the waypoints' names (``MARGIN_TOUR`` entries).
+        waypoints_mm: the waypoints, ``(m, 3)`` mm.
+        leg_start_s: per leg ``k`` (waypoint k to k + 1), its start, s.
+        leg_s: per leg, its duration, s.
+        dwell_s: how long each waypoint is held before its leg starts, s.
+    """
 
     T_centre: np.ndarray
     names: tuple
@@ -80,10 +87,23 @@ class RobotPath:
 
 def robot_path(T_centre, duration_s: float, *, radius_mm: float = 12.5, max_speed_mm_s: float = 10.0,
                dwell_s: float = 1.0) -> RobotPath:
-    """The robot's tour of the zone of ``radius_mm`` about ``T_centre`` (4x4 ``T_carm_transducer``,
-    mm) that lasts at least ``duration_s`` (s): the tour's order and profile (docs/study-sections.md, "06"), each leg
-    of length ``d`` taking ``1.875 d / max_speed_mm_s`` seconds (peak speed ``max_speed_mm_s``,
-    mm/s), each waypoint held ``dwell_s`` (s, >= 0) first."""
+    """The robot's tour of the zone about ``T_centre`` that lasts at least ``duration_s`` and ends on
+    the centre (order and minimum-jerk profile: docs/study-sections.md, "06"); a leg of length ``d``
+    takes ``1.875 d / max_speed_mm_s`` seconds.
+
+    Args:
+        T_centre: the pose at the zone's centre, 4x4 ``T_carm_transducer`` (mm).
+        duration_s: the shortest tour, s (> 0).
+        radius_mm: the zone's radius, mm (> 0): the margin points' distance from the centre.
+        max_speed_mm_s: the peak speed of each leg, mm/s (> 0).
+        dwell_s: how long each waypoint is held first, s (>= 0).
+
+    Returns:
+        The :class:`RobotPath`.
+
+    Raises:
+        ValueError: a bad duration, radius, speed or dwell, or ``T_centre`` not a finite 4x4.
+    """
     duration_s = check_positive(duration_s, "duration_s", unit="s")
     radius_mm = check_positive(radius_mm, "radius_mm", unit="mm")
     max_speed_mm_s = check_positive(max_speed_mm_s, "max_speed_mm_s", unit="mm/s")
@@ -114,9 +134,17 @@ def robot_path(T_centre, duration_s: float, *, radius_mm: float = 12.5, max_spee
 class MovingCine:
     """Where :func:`write_moving_cine` put the cine (paths) and what it is.
 
-    ``frames``: per frame, its objects in plane order (``((A, B), ...)``), the order a sender
-    streams them; ``times_s``: each frame's time from the first (s); ``acquired``: the first frame's
-    ``AcquisitionDateTime``; ``truth``: ``truth.json`` (never read by the receiver)."""
+    Args:
+        folder: the cine's folder.
+        views: its ``views.json``.
+        frames: per frame, its objects in plane order (``((A, B), ...)``), the order a sender
+            streams them.
+        times_s: each frame's time from the first, s.
+        fps: the frame rate, frames/s.
+        acquired: the first frame's ``AcquisitionDateTime``.
+        truth: ``truth.json`` (never read by the receiver).
+        manifest: ``cine.json``.
+    """
 
     folder: Path
     views: Path
@@ -220,7 +248,18 @@ def write_moving_cine(folder: str | os.PathLike, *, seed: int, duration_s: float
 
 
 def load_moving_cine(folder: str | os.PathLike) -> MovingCine:
-    """A cine :func:`write_moving_cine` wrote into ``folder`` (read from its ``cine.json``)."""
+    """A cine :func:`write_moving_cine` wrote, read from its ``cine.json``.
+
+    Args:
+        folder: the cine's folder.
+
+    Returns:
+        The :class:`MovingCine`.
+
+    Raises:
+        FileNotFoundError: no ``cine.json`` in ``folder``.
+        ValueError: a ``cine.json`` of another format.
+    """
     out = Path(folder)
     manifest = out / "cine.json"
     if not manifest.is_file():

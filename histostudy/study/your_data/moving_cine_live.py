@@ -29,10 +29,16 @@ __all__ = ["MovingCineRun", "count_table", "frame_table", "plot_focal_error", "s
 
 @dataclass(frozen=True)
 class MovingCineRun:
-    """One stream of a moving cine through the receiver: its pose ``records`` (as the receiver
-    wrote them), the receiver's :meth:`~histostudy.lab.FrameReceiver.stats` once stopped, what the
-    sender ``sent`` (:class:`histostudy.lab.SentObject` per object, in the cine's order),
-    ``stream_s`` (from the first object sent to the last answered) and ``wall_s`` (to the last pose)."""
+    """One stream of a moving cine through the receiver (:func:`stream_moving_cine`).
+
+    Args:
+        records: the pose records, as the receiver wrote them.
+        stats: the receiver's :meth:`histostudy.lab.FrameReceiver.stats` once stopped.
+        sent: what the sender sent, a :class:`histostudy.lab.SentObject` per object in the cine's order.
+        stream_s: from the first object sent to the last answered, s.
+        wall_s: from the first object sent to the last pose, s.
+        max_queued_pairs: the receiver's bound on waiting pairs (None: none).
+    """
 
     records: list
     stats: dict
@@ -64,7 +70,13 @@ def stream_moving_cine(cine: MovingCine, model: TransducerModel, seed: int, *, o
         receiver_options: more :class:`~histostudy.lab.FrameReceiver` arguments.
 
     After the last object is sent the receiver stops and poses what waits (at most
-    ``max_queued_pairs``). Raises ConnectionError as the sender does.
+    ``max_queued_pairs``).
+
+    Returns:
+        The :class:`MovingCineRun`.
+
+    Raises:
+        ConnectionError: as the sender does.
     """
     output = Path(output_path)
     output.unlink(missing_ok=True)  # the receiver appends: start from an empty file
@@ -98,7 +110,18 @@ def frame_table(run: MovingCineRun, cine: MovingCine) -> pd.DataFrame:
     ``"dropped"``: sent and answered but never posed — skipped by ``max_queued_pairs``, or left
     unpaired), ``tracking`` (``from_scratch``, ``warm``, ``reacquired``), ``accepted`` (the verdict),
     ``focal_error_mm`` (``|T_est t - T_true t|`` of the posed frames, NaN otherwise), ``latency_s``
-    (the pair's last frame received to its line), ``queue_s``, ``pose_s`` and ``pair_index``."""
+    (the pair's last frame received to its line), ``queue_s``, ``pose_s`` and ``pair_index``.
+
+    Args:
+        run: the stream (:func:`stream_moving_cine`).
+        cine: the cine streamed (its truth is read).
+
+    Returns:
+        The table.
+
+    Raises:
+        ValueError: a record whose frame time lies outside the cine.
+    """
     truth = cine.read_truth()
     n = cine.n_frames
     planes = len(cine.frames[0]) if n else 0
@@ -131,7 +154,15 @@ def count_table(run: MovingCineRun, frames: pd.DataFrame) -> pd.DataFrame:
     refused pose and held, lost, re-acquired, accepted); the rates (frames of the cine per second,
     poses per second over the stream); the latency (median, 90th percentile, largest) and the focal error of
     the accepted poses (mean, median, 95th percentile, largest); how late the sender ran. The rates
-    are over ``run.stream_s`` (the C-arm's time) and ``run.wall_s`` (the last poses come after it)."""
+    are over ``run.stream_s`` (the C-arm's time) and ``run.wall_s`` (the last poses come after it).
+
+    Args:
+        run: the stream.
+        frames: :func:`frame_table` of it.
+
+    Returns:
+        Rows ``quantity``, ``value``.
+    """
     s, tracker = run.stats, run.stats.get("tracker", {})
     n_sent = len(frames)
     refused = int((frames["status"] == "refused").sum())
@@ -174,7 +205,18 @@ def count_table(run: MovingCineRun, frames: pd.DataFrame) -> pd.DataFrame:
 def plot_focal_error(frames: pd.DataFrame, *, title: str = "Focal error per frame, streamed at the frame rate"):
     """Focal error per posed frame against the time (top; the verdict's refusals as crosses,
     re-acquisitions ringed, the dropped frames as ticks along the bottom, the robot's speed in
-    grey on the right axis) and the latency of each pose (bottom). A matplotlib Figure."""
+    grey on the right axis) and the latency of each pose (bottom).
+
+    Args:
+        frames: :func:`frame_table`'s table.
+        title: the top panel's title.
+
+    Returns:
+        A matplotlib Figure (not managed by pyplot).
+
+    Raises:
+        ValueError: ``frames`` lacks a column.
+    """
     from matplotlib.figure import Figure
 
     needed = {"time_s", "status", "tracking", "accepted", "focal_error_mm", "latency_s", "speed_mm_s"}
