@@ -68,6 +68,9 @@ class RenderConfig(FrameRenderConfig):
             ``device``): None, the numpy reference; ``"cpu"``, compiled; ``"cuda"``, torch on the
             GPU; ``"auto"``, CUDA when torch sees it, else compiled. The renderers draw the same
             distribution but not the same numbers, so a frame cache belongs to one resolved device.
+
+    Raises:
+        ValueError: a field is out of its range (the message names it).
     """
 
     background: str = "mixed"
@@ -143,13 +146,17 @@ def random_training_pose(rng: np.random.Generator, view: View, translation_range
 
 
 class HybridFrames:
-    """Frame ``i`` of a split: full-resolution hybrid image, labels, pose and view (module docstring).
+    """Frame ``i`` of a split: full-resolution hybrid image, labels, pose and view (docs/training.md).
 
     Args:
         split: ``"train"``, ``"val"`` or ``"eval"``.
         seed: the study seed.
         config: a :class:`RenderConfig`.
         cache_dir: folder for rendered frames (None: render every time).
+
+    Raises:
+        ValueError: ``split`` is not one of :data:`SPLIT_CODES`.
+        TypeError: ``config`` is not a :class:`RenderConfig`.
     """
 
     def __init__(self, split: str, seed: int, config: RenderConfig | None = None, cache_dir=None):

@@ -93,6 +93,10 @@ class SegmentationDegradation:
             (1 = no false positives); false positives are placed next to true pixels.
         blob_sigma_px: spatial correlation length (Gaussian sigma, px) of lost and added pixels,
             so that errors come in blobs as a network's do, not as salt-and-pepper.
+
+    Raises:
+        ValueError: a key is not a feature class, a fraction is outside (0, 1], or
+            ``blob_sigma_px`` is negative or not finite.
     """
 
     recall: dict = field(default_factory=lambda: {k: 1.0 for k in FEATURE_CLASSES})

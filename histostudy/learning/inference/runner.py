@@ -124,8 +124,8 @@ class UNetRunner:
 
     Args:
         network: the U-Net (:class:`~histostudy.learning.nets.unet.UNet`, eval mode; it is not
-            modified). ``"reference"`` takes any module mapping ``(1, 1, rows, cols)`` to
-            ``(1, classes, rows, cols)`` logits.
+            modified). :meth:`segment` at ``"reference"`` takes any module mapping
+            ``(1, 1, rows, cols)`` to ``(1, classes, rows, cols)`` logits; the rest needs a U-Net.
         precision: one of :data:`PRECISIONS` (default ``"reference"``); ``"auto"`` is resolved here.
         test_time_flips: ``"reference"`` only: the logits are the mean of the network's on the image
             and on its three mirror images, each flipped back (four passes; the labels mirror as the

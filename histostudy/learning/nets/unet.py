@@ -37,11 +37,14 @@ class UNet(nn.Module):
         base_width: channels of the first level (64 in the original; the width multiplier).
         depth: number of poolings (4 in the original: five levels).
         input_stride: input pixels per pixel of the first level (1, 2 or 4; 1 in the original): above
-            1, a strided stem and a sub-pixel head (module docstring). It enters :attr:`config` only
+            1, a strided stem and a sub-pixel head (docs/training.md). It enters :attr:`config` only
             when it is not 1, so the configs of plain U-Nets stay as they were.
 
     Attributes:
         pad_multiple: inputs are padded to a multiple of this many pixels (``2**depth * input_stride``).
+
+    Raises:
+        ValueError: a size is not an integer of its range, or ``input_stride`` is not 1, 2 or 4.
     """
 
     def __init__(self, in_channels: int = 1, n_classes: int = 6, base_width: int = 64, depth: int = 4,

@@ -31,7 +31,10 @@ class VGG19(nn.Module):
             variant of the same configuration). The paper does not say; without it a narrow
             19-layer stack barely starts learning in the few thousand steps a CPU affords.
         angle_encoding: the regressor's azimuth output: ``"angles"`` (the paper's two outputs) or
-            ``"cos_sin"`` (module docstring).
+            ``"cos_sin"`` (docs/training.md).
+
+    Raises:
+        ValueError: an argument is out of its range (the message names it).
     """
 
     def __init__(self, width: float = 1.0, n_classes: int = 36, in_channels: int = 1,

@@ -75,6 +75,10 @@ class FineTuneConfig:
         max_epochs: cap of the stage.
         max_minutes: wall-time budget of the stage alone, counted from its start (None: none);
             the run's ``max_minutes`` covers the stages before it.
+
+    Raises:
+        ValueError: ``max_minutes`` is not > 0 or None.
+        TypeError: ``render`` is not a :class:`~histostudy.learning.datasets.RenderConfig`.
     """
 
     render: RenderConfig
@@ -160,6 +164,10 @@ class TrainingConfig:
             exported manifest.
         fine_tune: a last ``finetune`` stage on frames of another rendering (:class:`FineTuneConfig`
             or its table), or None.
+
+    Raises:
+        ValueError: a field is out of its range or does not fit the task (the message names it).
+        TypeError: ``render`` or ``fine_tune`` is of the wrong type.
     """
 
     task: str
@@ -275,7 +283,7 @@ def resolve_device(name: str) -> torch.device:
 
 
 def stage_names(cfg: TrainingConfig) -> list[str]:
-    """The stages ``cfg`` runs, in order (module docstring)."""
+    """The stages ``cfg`` runs, in order (docs/training.md)."""
     if cfg.task == "segmentation":
         stages = ["segment"]
     else:

@@ -87,7 +87,7 @@ def _warm_start(init_weights, net):
 
 def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume: bool = True,
           progress: bool = True, log: Callable[[str], None] = print, cache_dir=None) -> TrainingResult:
-    """Train (or resume) the network of ``cfg`` in ``run_dir``; see the module docstring.
+    """Train (or resume) the network of ``cfg`` in ``run_dir`` (docs/training.md, "The training package").
 
     Args:
         cfg: the :class:`TrainingConfig`.
@@ -100,6 +100,15 @@ def train(cfg: TrainingConfig, run_dir, *, seed: int, profile: str = "", resume:
             starts afresh.
         progress: show a tqdm progress bar per epoch.
         cache_dir: folder of the rendered-frame cache (default :func:`default_cache_dir`).
+
+    Returns:
+        The :class:`~histostudy.learning.training._config.TrainingResult`: the best checkpoint, steps,
+        epochs, validation metrics, why it stopped and the history.
+
+    Raises:
+        TypeError: ``cfg`` is not a :class:`TrainingConfig`.
+        ValueError: ``resume`` and ``run_dir`` holds a run of another configuration or seed; device
+            ``"cuda"`` without a CUDA device.
     """
     if not isinstance(cfg, TrainingConfig):
         raise TypeError(f"cfg must be a TrainingConfig, got {type(cfg).__name__}")
@@ -201,8 +210,8 @@ def _stop_reason(cfg: TrainingConfig, state: dict, stage: str, elapsed_s: float)
 
 
 class _Run:
-    """A training run in progress in its folder (module docstring): the configuration, the clock,
-    the network and optimiser, the current stage's data and the state checkpointed after every
+    """A training run in progress in its folder (docs/training.md, "The training package"): the
+    configuration, the clock, the network and optimiser, the current stage's data and the state checkpointed after every
     epoch (``state.json``, times in seconds)."""
 
     def __init__(self, cfg: TrainingConfig, run_dir: Path, *, seed: int, profile: str, log: Callable[[str], None],
