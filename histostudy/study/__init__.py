@@ -11,22 +11,17 @@ imports its folder (``from histostudy.study import segmentation as study``). Sha
 - :mod:`.orientation` — notebook 03: the VGG19's azimuth and elevation, the conic initialiser beside
   it (§II-B.4 eq. 4, §II-E.2, §III).
 
-Notebook 04, the pose-estimation experiments and Table II (§II-B.3, §II-B.4, §II-D, §II-E.3,
-§III): the sub-package :mod:`.pose` — its configuration and the stages it runs on, error
-directions and poses, the experiments, the CBCT reference, Table II and the other summaries,
-initialisation over random poses, the sweeps, RTK's projector beside ours, and the report section.
-
-Notebook 05, calibration, targeting and treatment of the phantom (§II-C, §II-D, §II-E.4, §III,
-Fig. 7): the sub-package :mod:`.targeting` — the set-up and ground truth, the robots, the hand-eye
-calibration, positioning, treatment, one experiment and the study, §III's summaries, Fig. 7's
-figures, and the notebook's parameters and set-up.
-
+- :mod:`.pose` — notebook 04: the pose-estimation experiments and Table II (§II-B.3, §II-B.4, §II-D,
+  §II-E.3, §III), the sweeps and RTK's projector beside ours; its experiment layer (the study's
+  config and stages, the error directions, the metrics, the CBCT reference) is public for 05 and 07.
+- :mod:`.targeting` — notebook 05: calibration, targeting and treatment of the phantom (§II-C,
+  §II-D, §II-E.4, §III, Fig. 7); its experiment layer (set-up and ground truth, robots, one
+  experiment and the study) is public for 06 and 07.
 - :mod:`.your_data` — notebook 06: the lab's own data end to end (§II-B to §II-D on a lab's files),
   with its helpers ``lab_dataset``, ``moving_cine`` and ``moving_cine_live``.
-
-Notebook 07, the error budget (§III, §IV): the sub-package :mod:`.budget` — the lab's error
-sources (:class:`LabErrorModel`), the runs under every configuration, the summaries and the
-notebook's parameters.
+- :mod:`.budget` — notebook 07: the error budget (§III, §IV), the lab's error sources
+  (:class:`LabErrorModel`) drawn for one lab and many, the runs under every configuration and the
+  shares of the error.
 
 ``histostudy.study.LabErrorModel`` is the one name this package gives itself, imported on first
 use so that importing a notebook's module costs no more than that module.

@@ -13,7 +13,8 @@ from scipy import stats as sps
 from ..pose.geometry import DIRECTIONS
 from ._summary import STUDY_COLUMNS
 
-__all__ = ["BAND_PERCENT", "MOVER_METRICS", "NATIVE_READING", "PAPER_FIGURES", "READINGS", "bias_scatter_split", "lab_statistics",
+__all__ = ["BAND_PERCENT", "MOVER_METRICS", "NATIVE_READING", "PAPER_FIGURES", "READINGS", "bias_scatter_split",
+           "lab_statistics",
            "labs_vs_paper", "paper_statistics", "sign_agreement", "source_movers"]
 
 #: The labs' band: these percentiles of their values.
@@ -99,7 +100,8 @@ def lab_statistics(records: pd.DataFrame) -> pd.DataFrame:
 def _column(metric: str, direction: str) -> str:
     if metric in ("bias", "sd", "mae"):
         return f"{metric}_{direction}_mm"
-    return {"euclidean_mean": "euclidean_mean_mm", "euclidean_sd": "euclidean_sd_mm", "bias_share": "bias_share"}[metric]
+    return {"euclidean_mean": "euclidean_mean_mm", "euclidean_sd": "euclidean_sd_mm",
+            "bias_share": "bias_share"}[metric]
 
 
 def _placed(values: np.ndarray, paper: float) -> dict:

@@ -50,10 +50,24 @@ def lab_seed(seed, index: int) -> np.random.SeedSequence:
 
 def draw_labs(model: LabErrorModel, seed, n_labs: int, *, physical: TransducerModel, views,
               physical_seed: np.random.SeedSequence | int | None = None) -> list[LabDraw]:
-    """``n_labs`` labs of ``model``: lab 0 is ``draw_lab(model, seed, physical=physical, views=views,
-    physical_seed=physical_seed)`` (the notebook's single lab, number for number); lab ``k``
-    draws from :func:`lab_seed` ``(seed, k)``, its transducer from its own stream (each lab has its
-    own transducer)."""
+    """``n_labs`` labs of ``model``: lab 0 is :func:`~histostudy.study.budget.draw_lab` of ``seed``
+    (the notebook's single lab, number for number); lab ``k`` draws everything, its transducer
+    included, from :func:`lab_seed` ``(seed, k)``.
+
+    Args:
+        model: the lab error model.
+        seed: the lab seed (an int or a SeedSequence).
+        n_labs: the labs (>= 1).
+        physical: the study's physical transducer (where ``manufacturing`` is off; lab 0's spec).
+        views: the study's calibrated views.
+        physical_seed: the seed the study drew its transducer from (lab 0's quadrants).
+
+    Returns:
+        The :class:`~histostudy.study.budget._sources.LabDraw` of each lab.
+
+    Raises:
+        ValueError: ``n_labs`` not an integer >= 1.
+    """
     if isinstance(n_labs, bool) or not isinstance(n_labs, (int, np.integer)) or n_labs < 1:
         raise ValueError(f"n_labs must be an integer >= 1, got {n_labs!r}")
     seq = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(int(seed))
@@ -100,18 +114,32 @@ def run_labs(setup: BudgetSetup, labs: Sequence[LabDraw], *, seed: int, indices:
              executor: SweepExecutor | str | None = None, labs_per_task: int | None = None,
              studies: Sequence[str] = ("pose", "targeting"), share: bool = True,
              progress: bool = False) -> pd.DataFrame:
-    """Run every lab of ``labs`` (:func:`draw_labs`) with all its sources on, on ``setup``'s pose and
-    targeting experiments and the study ``seed``: the "lab" configuration of
-    :func:`~._run.run_error_budget` for each lab, number for number.
+    """Run every lab with all its sources on, on ``setup``'s pose and targeting experiments: the "lab"
+    configuration of :func:`~histostudy.study.budget.run_error_budget` for each lab, number for number.
 
-    One row per (study, lab, experiment): ``lab`` (``indices[i]`` for ``labs[i]``, default
-    ``0, 1, ...``) and the columns of :func:`~._run.run_error_budget`. One task per (study,
-    experiment, chunk of ``labs_per_task`` labs) goes through :func:`histostudy.core.run_sweep`
-    (``executor``: sequential, local processes or a dask cluster); default: all the labs in one
-    chunk when their frames are alike (:func:`frames_alike`), so that they share renders and
-    segmentations (``share``), else one lab per task (per study). The numbers depend neither on the
-    executor nor on the chunks. ``attrs["frames"]`` and ``attrs["segmentations"]``: (made, shared)
-    over all tasks.
+    One task per (study, experiment, chunk of labs) goes through :func:`histostudy.core.run_sweep`;
+    the numbers depend neither on the executor nor on the chunks.
+
+    Args:
+        setup: the budget's set-up.
+        labs: the labs (:func:`draw_labs`).
+        seed: the study's integer seed.
+        indices: the lab number of each of ``labs``; None: ``0, 1, ...``.
+        executor: what runs the tasks (sequential, local processes, a dask cluster); None: the default.
+        labs_per_task: labs per task; None: all in one chunk where their frames are alike
+            (:func:`frames_alike`), else one.
+        studies: ``"pose"`` and/or ``"targeting"``.
+        share: share renders and segmentations between the labs of a chunk.
+        progress: a progress bar per task.
+
+    Returns:
+        One row per (study, lab, experiment): ``lab`` and ``run_error_budget``'s columns;
+        ``attrs["frames"]`` and ``attrs["segmentations"]``: (made, shared).
+
+    Raises:
+        TypeError: ``setup`` is not a BudgetSetup.
+        ValueError: no labs, ``indices`` not naming each lab once, an unknown study, or a bad
+            ``labs_per_task``.
     """
     if not isinstance(setup, BudgetSetup):
         raise TypeError(f"setup must be a BudgetSetup, got {type(setup).__name__}")
@@ -124,7 +152,8 @@ def run_labs(setup: BudgetSetup, labs: Sequence[LabDraw], *, seed: int, indices:
     studies = tuple(studies)
     if not studies or any(s not in ("pose", "targeting") for s in studies):
         raise ValueError(f"studies must name 'pose' and/or 'targeting', got {studies!r}")
-    if labs_per_task is not None and (isinstance(labs_per_task, bool) or not isinstance(labs_per_task, (int, np.integer))
+    if labs_per_task is not None and (isinstance(labs_per_task, bool) or not isinstance(labs_per_task, (int,
+                                                                                                        np.integer))
                                       or labs_per_task < 1):
         raise ValueError(f"labs_per_task must be an integer >= 1 or None, got {labs_per_task!r}")
     tasks = []

@@ -32,8 +32,15 @@ __all__ = ["LabsSection", "labs_figure", "labs_section", "labs_text", "movers_ta
 
 
 def prepare_labs(setup: BudgetSetup) -> list[LabDraw]:
-    """``setup.params.n_labs`` labs (:func:`~._labs.draw_labs`) of the set-up's lab model, from its
-    lab seed, on the study's transducer and views; lab 0 is ``setup.lab``'s draw."""
+    """The labs of the distribution (:func:`~histostudy.study.budget.draw_labs`): ``setup.params.n_labs``
+    labs of the set-up's lab model from its lab seed, on the study's transducer and views.
+
+    Args:
+        setup: the budget's set-up (notebook 07's ``prepare``).
+
+    Returns:
+        The labs; lab 0 is ``setup.lab``'s draw.
+    """
     lab = setup.lab
     return draw_labs(lab.model, setup.seeds.lab, setup.params.n_labs, physical=lab.study_physical,
                      views=lab.study_views, physical_seed=setup.seeds.physical)
@@ -120,10 +127,20 @@ class LabsSection:
 
 def labs_section(setup: BudgetSetup, labs: list[LabDraw], budget_records: pd.DataFrame, *,
                  timer: Timer | None = None) -> LabsSection:
-    """Run labs 1.. of ``labs`` (:func:`~._labs.run_labs` on the set-up's study seed and
-    ``params.scheduler``, timed as ``"labs"``), take lab 0 from ``budget_records`` (its "lab"
-    configuration), and set the labs beside the paper: tables ``labs_vs_paper``, ``bias_scatter``,
-    ``signs``, ``movers``, the figure ``labs`` and the paragraph of :func:`labs_text`."""
+    """Notebook 07's many labs beside the paper: labs 1.. run
+    (:func:`~histostudy.study.budget.run_labs` on the set-up's study seed and ``params.scheduler``,
+    timed as ``"labs"``), lab 0 taken from the budget's "lab" configuration.
+
+    Args:
+        setup: the budget's set-up.
+        labs: the labs (:func:`prepare_labs`).
+        budget_records: :func:`~histostudy.study.budget.run_error_budget`'s rows.
+        timer: ``timer(name)`` -> a context manager; None: untimed.
+
+    Returns:
+        The :class:`LabsSection`; its part: tables ``labs_vs_paper``, ``bias_scatter``, ``signs``,
+        ``movers`` (mm, mm², fractions), figure ``labs``, the labs' counts and a paragraph.
+    """
     more = None
     with timer_or_untimed(timer)("labs"):
         if len(labs) > 1:

@@ -31,7 +31,8 @@ class _Magnitudes:
                 if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
                         or not math.isfinite(float(v)) or float(v) < 0:
                     raise ValueError(f"{type(self).__name__}.{f.name} must be finite and >= 0, got {value!r}")
-            object.__setattr__(self, f.name, tuple(float(v) for v in values) if isinstance(value, tuple) else float(value))
+            object.__setattr__(self, f.name, tuple(float(v) for v in values) if isinstance(value,
+                                                                                           tuple) else float(value))
 
 
 @dataclass(frozen=True)
@@ -42,6 +43,12 @@ class BubbleOffset(_Magnitudes):
     Default (0.5, 0.5, 1.0) mm: an assumption scaled to the cloud (§II-C: 3 x 3 x 6 mm), a sixth
     of its extent per axis. The clinical workflow calibrates this offset with a test pulse
     (§I, step 3) because it is not negligible; the paper's C-arm targeting did not.
+
+    Args:
+        sd_mm: the SDs (LR, TB, depth; mm).
+
+    Raises:
+        ValueError: a field not finite and >= 0, or not 3 SDs.
     """
 
     sd_mm: tuple = (0.5, 0.5, 1.0)
@@ -62,6 +69,13 @@ class ProjectionError(_Magnitudes):
     Defaults: 0.5 px (0.15 mm at the 0.308 mm detector pixel), the order of the residual
     reprojection error of phantom-based C-arm calibrations; 1.0 mm for the focal spot, the
     order of its size. Both are assumptions, stated as such.
+
+    Args:
+        reprojection_px: the principal point's SD per detector axis (px).
+        source_mm: the source's SD per world axis (mm).
+
+    Raises:
+        ValueError: a field not finite and >= 0.
     """
 
     reprojection_px: float = 0.5
@@ -76,6 +90,12 @@ class GantrySag(_Magnitudes):
     Default 0.5 mm: an assumption, a fraction of the millimetre-scale flexing that C-arm gantries
     show over an orbit (which their calibration captures for the CBCT orbit, not for each
     fluoroscopic angulation of a biplane pair).
+
+    Args:
+        sd_mm: the displacement's SD along gravity (mm).
+
+    Raises:
+        ValueError: a field not finite and >= 0.
     """
 
     sd_mm: float = 0.5
@@ -88,6 +108,13 @@ class RegistrationError(_Magnitudes):
 
     Defaults 0.3 mm and 0.1 deg: assumptions of a same-C-arm registration (the CBCT is
     reconstructed in the frame of the C-arm's calibration; what differs is its reproducibility).
+
+    Args:
+        translation_mm: SD of each translation axis (mm).
+        rotation_deg: SD of each rotation-vector component (deg).
+
+    Raises:
+        ValueError: a field not finite and >= 0.
     """
 
     translation_mm: float = 0.3
@@ -103,6 +130,13 @@ class AnnotationError(_Magnitudes):
     (the studies' reconstruction) has each of its six extreme points placed within ±1 voxel
     (uniform, SD 1/√3 mm); a centroid or radius is half the sum or difference of two of them:
     SD (1/√3)/√2 = 0.41 mm.
+
+    Args:
+        centroid_mm: the centroid's SD per axis (mm).
+        radius_mm: the radius' SD per direction (mm).
+
+    Raises:
+        ValueError: a field not finite and >= 0.
     """
 
     centroid_mm: float = 0.41
@@ -112,7 +146,14 @@ class AnnotationError(_Magnitudes):
 @dataclass(frozen=True)
 class RobotRepeatability(_Magnitudes):
     """The UR5e's landing noise, SD per axis (mm). Default 0.03 mm: the paper's ±0.03 mm pose
-    repeatability (§II-C, the UR5e's data sheet) taken as one SD, the conservative reading."""
+    repeatability (§II-C, the UR5e's data sheet) taken as one SD, the conservative reading.
+
+    Args:
+        sd_mm: the landing noise's SD per axis (mm).
+
+    Raises:
+        ValueError: a field not finite and >= 0.
+    """
 
     sd_mm: float = 0.03
 
@@ -121,7 +162,14 @@ class RobotRepeatability(_Magnitudes):
 class PhantomMotion(_Magnitudes):
     """The phantom's shift between the treatment and the post-treatment CBCT (SD per axis, mm; per
     experiment). Default 0.2 mm: an assumption for an agarose phantom in a water bath as the
-    transducer is lifted out of it."""
+    transducer is lifted out of it.
+
+    Args:
+        sd_mm: the shift's SD per axis (mm).
+
+    Raises:
+        ValueError: a field not finite and >= 0.
+    """
 
     sd_mm: float = 0.2
 
@@ -145,6 +193,12 @@ class TransducerReplacement(_Magnitudes):
     (annotation 0.41 mm, phantom motion 0.2 mm, robot 0.03 mm) in quadrature, 0.39 mm remains. The
     registration's share is not subtracted (an upper reading); their second day's SD (0.18 mm) would
     leave nothing, so the source is also swept over 0-0.6 mm (``_references``).
+
+    Args:
+        sd_mm: the SDs (LR, TB, depth; mm).
+
+    Raises:
+        ValueError: a field not finite and >= 0, or not 3 SDs.
     """
 
     sd_mm: tuple = (0.39, 0.39, 0.39)
@@ -165,6 +219,12 @@ class CarmReproducibility(_Magnitudes):
 
     Default 0.1 mm: cited. Fahrig & Holdsworth (Med Phys 2000) found a C-arm gantry's motion
     reproducible within one day to a mean SD of 0.11 mm (tangential) and 0.08 mm (axial).
+
+    Args:
+        shift_mm: the shift's SD per detector axis (mm at the detector).
+
+    Raises:
+        ValueError: a field not finite and >= 0.
     """
 
     shift_mm: float = 0.1
@@ -192,6 +252,12 @@ class RobotAccuracy(_Magnitudes):
     Default 0.65 mm: the linear position accuracy of an uncalibrated six-axis arm whose
     repeatability is 37 µm (Slamani et al., Industrial Robot 2012; an ABB IRB 1600): no UR5e
     measurement is cited, so the source is swept (``_references``).
+
+    Args:
+        position_mm: the RMS TCP position error over the working poses (mm).
+
+    Raises:
+        ValueError: a field not finite and >= 0.
     """
 
     position_mm: float = 0.65

@@ -50,17 +50,30 @@ def range_labs(setup: BudgetSetup, sources: Sequence[str]) -> list[tuple[str, st
             if name not in FRAME_SOURCES:
                 if not (np.array_equal(lab.physical.focal_point_mm, base.physical.focal_point_mm)
                         and all(np.array_equal(a.P, b.P) for a, b in zip(lab.frame_views, base.frame_views))):
-                    raise RuntimeError(f"source {name!r} at {value:g} moved lab 0's frames; it belongs in FRAME_SOURCES")
+                    raise RuntimeError(f"source {name!r} at {value:g} moved lab 0's frames; it belongs in "
+                                       "FRAME_SOURCES")
                 lab = dataclasses.replace(lab, physical=base.physical, frame_views=base.frame_views)
             out.append((name, end, value, lab))
     return out
 
 
 def run_ranges(setup: BudgetSetup, sources: Sequence[str], *, executor=None) -> pd.DataFrame:
-    """Run every lab of :func:`range_labs` on the set-up's experiments (:func:`~._labs.run_labs`,
-    the study seed): the rows of ``run_labs`` with ``source``, ``end`` and ``value`` in front
-    (``lab`` numbers them from 1 in :func:`range_labs`'s order). The labs that keep lab 0's frames
-    run together, sharing renders and segmentations; the others one by one."""
+    """Run every lab of :func:`range_labs` (lab 0 with one source at each end of its range) on the
+    set-up's experiments and the study seed (:func:`~histostudy.study.budget._labs.run_labs`); the labs
+    that keep lab 0's frames run together, sharing renders and segmentations.
+
+    Args:
+        setup: the budget's set-up (from notebook 07's ``prepare``: its lab, seeds and params).
+        sources: the swept sources (names of :data:`~histostudy.study.budget.LAB_SOURCES`, each on in lab 0).
+        executor: what runs the tasks (:func:`histostudy.core.run_sweep`); None: the default.
+
+    Returns:
+        ``run_labs``' rows with ``source``, ``end`` and ``value`` in front (``lab`` from 1 in
+        :func:`range_labs`' order).
+
+    Raises:
+        ValueError: a source not swept or not on in lab 0 (:func:`range_labs`).
+    """
     labs = range_labs(setup, sources)
     if not labs:
         return pd.DataFrame(columns=["source", "end", "value", "lab", "study", "experiment"])
@@ -121,9 +134,18 @@ class RangesSection:
 
 
 def ranges_section(setup: BudgetSetup, budget_records: pd.DataFrame, *, timer: Timer | None = None) -> RangesSection:
-    """Run ``setup.params.range_sources`` at both ends of their ranges on lab 0 (:func:`run_ranges`
-    on ``params.scheduler``, timed as ``"ranges"``) and report the bands (:func:`range_bands`) as
-    table ``ranges`` with a paragraph naming the widest."""
+    """Notebook 07's part: ``setup.params.range_sources`` at both ends of their ranges on lab 0
+    (:func:`run_ranges` on ``params.scheduler``, timed as ``"ranges"``).
+
+    Args:
+        setup: the budget's set-up (notebook 07's ``prepare``).
+        budget_records: :func:`~histostudy.study.budget.run_error_budget`'s rows (lab 0's figures).
+        timer: ``timer(name)`` -> a context manager; None: untimed.
+
+    Returns:
+        The :class:`RangesSection`: the bands (:func:`range_bands`, mm) and the part (table ``ranges``
+        and a paragraph naming the widest).
+    """
     with timer_or_untimed(timer)("ranges"):
         records = run_ranges(setup, setup.params.range_sources, executor=setup.params.scheduler or None)
     bands = range_bands(records, budget_records)

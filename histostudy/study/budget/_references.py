@@ -80,7 +80,8 @@ SOURCE_REFERENCES = {r.source: r for r in (
          "own depth bias (0.0 mm) is another draw",
          "swept", "abstract: 'a 2 mm offset in the direction of ultrasound propagation (Z) was measured': confirmed; "
                   "no spread across transducers is given", ("sd_mm",)),
-    _ref("projection", 0.5, "px (principal point SD per detector axis; the source SD scales with it, 1 mm at 0.5 px)", 0.25,
+    _ref("projection", 0.5, "px (principal point SD per detector axis; the source SD scales with it, 1 mm at 0.5 px)",
+         0.25,
          0.73 / _MEAN_2D_PER_SD / 0.308,
          "Ouadah, Stayman, Gang, Ehtiati, Siewerdsen. Phys Med Biol 2016 (PMC4948745)", "",
          "a reprojection error (RPE) is a mean 2D distance: per-axis SD = RPE / sqrt(pi/2); Ouadah et al.'s 0.73 mm "
@@ -153,8 +154,18 @@ def _reference(name: str) -> SourceReference:
 
 
 def sweep_values(name: str, n: int = 5) -> np.ndarray:
-    """``n`` (>= 2) headline magnitudes of source ``name`` evenly over its range (low to high, in
-    the reference's ``unit``): what a band over the source sweeps."""
+    """Headline magnitudes of a source evenly over its range: what a band over the source sweeps.
+
+    Args:
+        name: the source (a key of :data:`SOURCE_REFERENCES`).
+        n: the values (>= 2).
+
+    Returns:
+        ``n`` values from low to high, in the reference's ``unit``.
+
+    Raises:
+        ValueError: ``n`` not an integer >= 2, or an unknown source.
+    """
     ref = _reference(name)
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
         raise ValueError(f"n must be an integer >= 2, got {n!r}")
@@ -177,8 +188,21 @@ def magnitudes_at(name: str, value: float):
 
 
 def model_at(name: str, value: float, base: LabErrorModel | None = None) -> LabErrorModel:
-    """``base`` (default: every source at its default) with source ``name`` on at headline
-    magnitude ``value`` (:func:`magnitudes_at`); the other sources as ``base`` has them."""
+    """A lab error model with one source on at another headline magnitude (:func:`magnitudes_at`:
+    every scaled field of the default times ``value`` / default).
+
+    Args:
+        name: the source (a key of :data:`SOURCE_REFERENCES`).
+        value: its headline magnitude, in the reference's ``unit``.
+        base: the other sources as this model has them; None: every source at its default.
+
+    Returns:
+        The :class:`~histostudy.study.budget.LabErrorModel`.
+
+    Raises:
+        TypeError: ``base`` is not a LabErrorModel.
+        ValueError: an unknown source, or a magnitude its dataclass refuses.
+    """
     base = LabErrorModel() if base is None else base
     if not isinstance(base, LabErrorModel):
         raise TypeError(f"base must be a LabErrorModel, got {type(base).__name__}")

@@ -18,8 +18,7 @@ from histostudy.calibration import CalibrationError
 from histostudy.core import SweepExecutor, run_sweep
 from histostudy.transducer import TransducerModel
 
-from ..pose.experiments import PoseStudyConfig
-from ..pose.experiments import run_pose_study
+from ..pose.experiments import PoseStudyConfig, run_pose_study
 from ..pose.geometry import DIRECTIONS
 from ..pose.metrics import experiment_metrics
 from ..pose.reference import cbct_reference
@@ -58,13 +57,22 @@ def _key(model: LabErrorModel, names: Sequence[str]) -> tuple[bool, ...]:
 
 @dataclass(frozen=True, eq=False)
 class BudgetSetup:
-    """What the budget runs with: the lab drawn, the two studies' configurations (their
-    ``n_experiments`` are the budget's), the digital and rendering models, and the stages.
+    """What the budget runs with (made by notebook 07's ``prepare``, or by hand for a lab's own figures).
 
-    ``pose_config.bubble_offset_mm`` and ``targeting_config.bubble_offset_mm`` must be zeros (the
-    lab's offset replaces them); the budget predicts without a bias correction, as the paper did.
-    Made by notebook 07's ``prepare``, it also holds the notebook's checked ``params`` and its
-    ``seeds`` (:class:`~._section.BudgetSectionConfig`, :class:`~._section.BudgetSeeds`).
+    Args:
+        lab: the lab drawn (:func:`~histostudy.study.budget.draw_lab`).
+        pose_config: the pose study's parameters (its ``n_experiments`` the budget's; bubble offset zeros).
+        targeting_config: the targeting study's (likewise; the budget predicts without a bias correction).
+        pose_model: the digital model the pose is estimated with.
+        render_model: the model frames are rendered from.
+        segmenter: the segmentation stage; None: each study's oracle.
+        orientation: the orientation source; None: the oracle.
+        params: notebook 07's checked parameters (:class:`~histostudy.study.budget.BudgetSectionConfig`), if any.
+        seeds: its seeds (:class:`~histostudy.study.budget._section.BudgetSeeds`), if any.
+
+    Raises:
+        TypeError: ``lab`` is not a LabDraw.
+        ValueError: a config's ``bubble_offset_mm`` not zeros (the lab's offset replaces it).
     """
 
     lab: LabDraw
@@ -96,7 +104,8 @@ def measured_reference(reference: pd.DataFrame, draw: ExperimentDraw) -> pd.Data
             out.loc[i, cols] = draw.measured_point(out.loc[i, cols].to_numpy(float))
         for d, err in zip(DIRECTIONS, draw.annotation_radius_mm):
             out.loc[i, f"ref_radius_{d}"] = float(out.loc[i, f"ref_radius_{d}"]) + float(err)
-        out.loc[i, "sphere_radius_mm"] = float(out.loc[i, "sphere_radius_mm"]) + float(np.mean(draw.annotation_radius_mm))
+        out.loc[i, "sphere_radius_mm"] = float(out.loc[i,
+                                                       "sphere_radius_mm"]) + float(np.mean(draw.annotation_radius_mm))
     return out
 
 
@@ -128,7 +137,8 @@ def _pose_task(setup: BudgetSetup, seed: int, experiment: int,
     for label, model in configurations:
         sub = lab.variant(model)
         draw = sub.experiment(experiment)
-        config = dataclasses.replace(base, robot_repeatability_mm=sub.robot_repeatability_mm(base.robot_repeatability_mm),
+        config = dataclasses.replace(base,
+                                     robot_repeatability_mm=sub.robot_repeatability_mm(base.robot_repeatability_mm),
                                      bubble_offset_mm=tuple(float(v) for v in sub.bubble_offset_at(experiment)),
                                      assumed_bubble_offset_mm=(0.0, 0.0, 0.0))
         key = _key(model, _POSE_ESTIMATE_SOURCES)
@@ -202,17 +212,29 @@ def _run_task(task: tuple, *, setup: BudgetSetup, configurations: list) -> pd.Da
 def run_error_budget(setup: BudgetSetup, *, seed: int, configurations: list[tuple[str, LabErrorModel]] | None = None,
                      executor: SweepExecutor | str | None = None, progress: bool = False,
                      studies: Sequence[str] = ("pose", "targeting")) -> pd.DataFrame:
-    """Run every configuration (default :func:`budget_configurations` of the lab's model) on the
-    pose experiments and the targeting experiments of ``setup``'s configurations.
+    """Run every configuration on the pose and the targeting experiments of ``setup``'s
+    configurations, all on the same draws (docs/error-budget.md, "The design").
 
-    One row per (study, configuration, experiment): for ``study == "pose"`` the columns of
-    :func:`~histostudy.study.pose.metrics.experiment_metrics` against the lab's reading of the
-    CBCT reference (``centre_err_<d>``, ``centre_err_euclidean``, ``radius_err_<d>``, ...) and
-    ``n_failed`` (estimates refused by the verdict); for ``"targeting"`` the measured zone's
-    ``err_<d>``, ``err_euclidean``, ``radius_err_mm``, ``cal_error_at_target_mm``, and ``ok`` /
-    ``failure`` (a calibration refused by its bound or a failed estimate). ``executor``: see
-    :func:`histostudy.core.run_sweep` (the numbers do not depend on it); ``progress``: a
-    progress bar per task; ``studies``: ``"pose"`` and/or ``"targeting"``.
+    Args:
+        setup: the budget's set-up.
+        seed: the studies' integer seed.
+        configurations: ``(label, sub-model)`` pairs with unique labels including ``"baseline"``;
+            None: :func:`budget_configurations` of the lab's model.
+        executor: what runs the tasks (:func:`histostudy.core.run_sweep`; the numbers do not depend
+            on it); None: the default.
+        progress: a progress bar per task.
+        studies: ``"pose"`` and/or ``"targeting"``.
+
+    Returns:
+        One row per (study, configuration, experiment): for ``"pose"`` the columns of
+        :func:`~histostudy.study.pose.metrics.experiment_metrics` against the lab's reading of the
+        CBCT reference and ``n_failed``; for ``"targeting"`` the measured zone's ``err_<d>``,
+        ``err_euclidean``, ``radius_err_mm``, ``cal_error_at_target_mm``, ``ok`` and ``failure``
+        (mm, along depth/TB/LR).
+
+    Raises:
+        TypeError: ``setup`` is not a BudgetSetup.
+        ValueError: an unknown study, or configurations without unique labels and ``"baseline"``.
     """
     if not isinstance(setup, BudgetSetup):
         raise TypeError(f"setup must be a BudgetSetup, got {type(setup).__name__}")

@@ -53,17 +53,27 @@ SOURCE_PROVENANCE = {name: ref.provenance for name, ref in SOURCE_REFERENCES.ite
 
 @dataclass(frozen=True)
 class BudgetSectionConfig(RenderedSectionConfig):
-    """Notebook 07's parameters (its ``parameters`` cell names and documents each), checked: the
-    frames' dose and splatting and the model grids (``photons_per_pixel``, ``n_splats``,
-    ``splat_sigma_mm``, ``pose_spacing_mm``, ``render_spacing_mm``, ``background``), the
-    experiments per configuration (``pose_experiments``, ``targeting_experiments``), the stages
-    (``learned_stages``), the lab's ``sources`` on (names of :data:`LAB_SOURCES`, each at most
-    once), the labs drawn for the distribution (``n_labs``, lab 0 the one the configurations run on),
-    the sources run at both ends of their range on lab 0 (``range_sources``, each on in ``sources``)
-    and the ``scheduler`` the experiments run on (``""``: ``HISTOSTUDY_SCHEDULER``, else here).
+    """Notebook 07's parameters (its ``parameters`` cell names and documents each), checked; values
+    are kept as given, ``sources`` and ``range_sources`` as tuples.
 
-    A bad value raises ValueError naming the parameter, its value and what it must be. Values are
-    kept as given, ``sources`` as a tuple.
+    Args:
+        photons_per_pixel: dose of the frames, photons per unattenuated pixel (> 0).
+        n_splats: splats per model point (>= 1).
+        splat_sigma_mm: splat SD (mm, > 0).
+        pose_spacing_mm: grid of the digital model the pose is estimated with (mm, > 0).
+        render_spacing_mm: grid of the models the frames are rendered from, and the lab's transducer (mm, > 0).
+        background: the scene behind the transducer (one of :data:`histostudy.imaging.BACKGROUNDS`).
+        pose_experiments: Table II experiments per configuration (>= 1).
+        targeting_experiments: targeting experiments per configuration (>= 1).
+        learned_stages: the estimates on the shipped U-Net and VGG19 where they qualify.
+        sources: the lab's sources on (names of :data:`~histostudy.study.budget.LAB_SOURCES`, each at most once).
+        n_labs: labs drawn for the distribution (>= 1; lab 0 the one the configurations run on).
+        range_sources: sources run at both ends of their range on lab 0 (each on in ``sources``).
+        scheduler: where the experiments run (``""``: ``HISTOSTUDY_SCHEDULER``, else here;
+            ``"local:<n>"``; ``"tcp://<host>:<port>"``).
+
+    Raises:
+        ValueError: a bad value, named with its value and what it must be.
     """
 
     NOTEBOOK = "07"
@@ -129,9 +139,19 @@ def lab_model_from_parameters(sources) -> LabErrorModel:
 
 
 def prepare(params: BudgetSectionConfig | Mapping, seed: int, *, timer: Timer | None = None) -> BudgetSetup:
-    """The section's set-up (:func:`prepare_budget`) from its checked parameters (a
-    :class:`BudgetSectionConfig` or a mapping of them); the set-up keeps them as ``params`` and the
-    seeds (:func:`budget_seeds`) as ``seeds``."""
+    """The section's set-up (:func:`prepare_budget`) from its checked parameters.
+
+    Args:
+        params: a :class:`BudgetSectionConfig`, or a mapping naming its fields (the notebook's ``globals()``).
+        seed: the notebook's root seed (:func:`budget_seeds`).
+        timer: ``timer(name)`` -> a context manager; None: untimed.
+
+    Returns:
+        The :class:`~histostudy.study.budget.BudgetSetup`, keeping ``params`` and the seeds.
+
+    Raises:
+        ValueError: a parameter missing or refused (:class:`BudgetSectionConfig`).
+    """
     if not isinstance(params, BudgetSectionConfig):
         params = BudgetSectionConfig.from_parameters(params)
     return dataclasses.replace(prepare_budget(params.recorded(), seed, timer=timer), params=params,
@@ -141,8 +161,8 @@ def prepare(params: BudgetSectionConfig | Mapping, seed: int, *, timer: Timer | 
 def prepare_budget(parameters: Mapping, seed: int, *, timer: Timer | None = None) -> BudgetSetup:
     """Build the models (``pose_spacing_mm``, ``render_spacing_mm``; the study's physical
     transducer from the seed), the default biplane views, the lab (:func:`draw_lab`), both
-    studies' configurations (``pose_experiments``: margins in the paper's fast mode, occlusion-aware
-    maps, no warm-start rows; ``targeting_experiments``: no bias correction, as the paper) and
+    studies' configurations (the pose experiments: margins in the paper's fast mode, occlusion-aware
+    maps, no warm-start rows; the targeting experiments: no bias correction, as the paper) and
     the stages (``learned_stages``)."""
     seeds = budget_seeds(seed)
     spec = TransducerSpec()
@@ -201,7 +221,14 @@ def closing_text(setup: BudgetSetup, n_pose: int, n_targeting: int, n_labs: int 
 
 
 def sources_part(setup: BudgetSetup) -> SectionPart:
-    """The lab's error sources (table ``sources``, :func:`sources_table`)."""
+    """The lab's error sources (:func:`sources_table`).
+
+    Args:
+        setup: the budget's set-up (:func:`prepare`).
+
+    Returns:
+        The part: table ``sources`` (on or off, magnitudes, where each default comes from).
+    """
     return SectionPart(tables={"sources": (sources_table(setup.lab.model), "The lab's error sources: on or off, "
                                            "their magnitudes, and where each default comes from (none fitted to the "
                                            "paper's figures)")})
@@ -219,8 +246,17 @@ class BudgetRun:
 
 
 def budget_section(setup: BudgetSetup, *, timer: Timer | None = None) -> BudgetRun:
-    """:func:`run_error_budget` on the set-up's study seed and ``params.scheduler`` (timed as
-    ``"budget"``); its part: each study's table per configuration (:func:`configuration_table`)."""
+    """Every configuration run (:func:`~histostudy.study.budget.run_error_budget` on the set-up's
+    study seed and ``params.scheduler``, timed as ``"budget"``).
+
+    Args:
+        setup: the budget's set-up (:func:`prepare`).
+        timer: ``timer(name)`` -> a context manager; None: untimed.
+
+    Returns:
+        The :class:`BudgetRun`: the records and each study's table per configuration (mm); its part:
+        tables ``pose_configurations`` and ``targeting_configurations``.
+    """
     with timer_or_untimed(timer)("budget"):
         records = run_error_budget(setup, seed=setup.seeds.study, executor=setup.params.scheduler or None)
     pose_table, targeting_table = configuration_table(records, "pose"), configuration_table(records, "targeting")
@@ -242,9 +278,19 @@ class SharesSection:
 
 
 def shares_section(records: pd.DataFrame, study: str) -> SharesSection:
-    """``study``'s (``"pose"`` or ``"targeting"``) shares of the lab's MSE increment (table
-    ``<study>_shares``), its dominant sources (``<study>_dominant``) and the waterfall figure
-    (``<study>_waterfall``)."""
+    """One study's shares of the lab's mean squared error increment (docs/error-budget.md, "The design").
+
+    Args:
+        records: :func:`~histostudy.study.budget.run_error_budget`'s rows.
+        study: ``"pose"`` or ``"targeting"``.
+
+    Returns:
+        The :class:`SharesSection`: the shares (alone and total, mm²; the bias each adds alone, mm);
+        its part: table ``<study>_shares``, figure ``<study>_waterfall``, value ``<study>_dominant``.
+
+    Raises:
+        ValueError: ``study`` unknown, or ``records`` not run_error_budget's table.
+    """
     shares = source_shares(records, study)
     return SharesSection(shares, SectionPart(
         tables={f"{study}_shares": (shares, f"{study}: each source's share of the lab's MSE increment (alone: only "
@@ -256,9 +302,17 @@ def shares_section(records: pd.DataFrame, study: str) -> SharesSection:
 
 
 def closing_part(setup: BudgetSetup, records: pd.DataFrame, labs: pd.DataFrame | None = None) -> SectionPart:
-    """The lab beside the paper (:func:`budget_comparisons`; with ``labs``, the
-    :func:`~._distribution.lab_statistics` of the many labs, the "lab" rows are their distribution),
-    what stands in for what (:func:`stand_ins`) and the closing paragraph (:func:`closing_text`)."""
+    """The lab beside the paper, what stands in for what and the closing paragraph.
+
+    Args:
+        setup: the budget's set-up (:func:`prepare`).
+        records: :func:`~histostudy.study.budget.run_error_budget`'s rows.
+        labs: the many labs' statistics (:func:`~histostudy.study.budget._distribution.lab_statistics`);
+            with them the "lab" comparisons are their distribution; None: lab 0 alone.
+
+    Returns:
+        The part: the comparisons with the paper, the stand-ins and one paragraph.
+    """
     p = setup.params
     n_labs = 1 if labs is None else int(labs["lab"].nunique())
     return SectionPart(comparisons=tuple(budget_comparisons(records, labs)), stand_ins=tuple(stand_ins()),

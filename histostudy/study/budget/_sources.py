@@ -47,11 +47,28 @@ _SOURCE_TYPES = {"manufacturing": ManufacturingDeviation, "bubble_offset": Bubbl
 
 @dataclass(frozen=True)
 class LabErrorModel:
-    """The lab's error sources (module docstring): one field per source, ``None`` = off.
+    """The lab's error sources (§IV): one field per source, ``None`` = off (docs/error-budget.md,
+    "The sources", says where each acts and where each default comes from).
 
-    ``LabErrorModel()`` is the lab with every source at its documented default;
-    :meth:`off` is the study as notebooks 04 and 05 run it (its own physical transducer and robot
-    noise); :meth:`only` and :meth:`without` toggle one source and keep the others' magnitudes.
+    ``LabErrorModel()`` is the lab with every source at its documented default; :meth:`off` is the
+    study as notebooks 04 and 05 run it; :meth:`only` and :meth:`without` toggle one source and keep
+    the others' magnitudes.
+
+    Args:
+        manufacturing: the physical transducer's tolerances (default ISO 2768-1 class m).
+        bubble_offset: the bubble cloud's offset from the physical focal point, per lab.
+        projection: the C-arm's geometric calibration error, per plane.
+        gantry_sag: each plane's displacement along gravity.
+        registration: the CBCT-to-fluoroscopy registration error, per experiment.
+        annotation: the observer's segmentation of the treated zone, per experiment.
+        robot: the UR5e's landing noise.
+        phantom_motion: the phantom's shift before the post-treatment CBCT, per experiment.
+        replacement: the bubble offset's change between experiments (the transducer re-placed).
+        carm_reproducibility: each acquisition's projection shift on the detector.
+        robot_accuracy: the arm's kinematic error against its nominal table, per lab.
+
+    Raises:
+        TypeError: a field neither None nor its magnitude dataclass.
     """
 
     manufacturing: ManufacturingDeviation | None = ISO_2768_M_DEVIATION
@@ -102,7 +119,8 @@ class LabErrorModel:
         for name in LAB_SOURCES:
             value = getattr(self, name) or getattr(LabErrorModel(), name)
             rows.append({"source": name, "on": getattr(self, name) is not None,
-                         "magnitudes": ", ".join(f"{f.name} = {getattr(value, f.name)!r}".replace("(", "").replace(")", "")
+                         "magnitudes": ", ".join(f"{f.name} = {getattr(value, f.name)!r}".replace("(", "").replace(")",
+                                                                                                                   "")
                                                  for f in dataclasses.fields(value)
                                                  if not f.name.startswith("extra_screw"))})
         return rows
@@ -231,14 +249,24 @@ class LabDraw:
 
 def draw_lab(model: LabErrorModel, seed, *, physical: TransducerModel, views,
              physical_seed: np.random.SeedSequence | int | None = None) -> LabDraw:
-    """Draw one lab of ``model`` from ``seed`` (an int or a ``SeedSequence``).
+    """Draw one lab of ``model``: its systematic sources once (each from its own stream, standard
+    normals scaled by the magnitudes, so a magnitude changes no other draw).
 
-    ``physical`` and ``views``: the study's transducer and calibrated views, used where the
-    corresponding sources are off. With ``manufacturing`` on, the lab's transducer is built from
-    ``physical``'s spec and spacing with the model's tolerances, from ``physical_seed`` when
-    given (the seed the study drew its transducer from: the same quadrants, moved by the lab's
-    tolerances instead of the study's), else from the lab's own stream. Standard normal draws
-    are scaled by the magnitudes, so a magnitude changes no other draw.
+    Args:
+        model: the lab error model.
+        seed: the lab's seed (an int or a ``SeedSequence``).
+        physical: the study's physical transducer, used where ``manufacturing`` is off (and whose spec
+            and spacing the lab's transducer takes where it is on).
+        views: the study's calibrated views, used where the view sources are off.
+        physical_seed: the seed the study drew its transducer from (the same quadrants moved by the
+            lab's tolerances); None: the lab's own stream.
+
+    Returns:
+        The :class:`LabDraw`.
+
+    Raises:
+        TypeError: ``model`` not a LabErrorModel, or ``physical`` not a TransducerModel.
+        ValueError: ``views`` empty or not View objects.
     """
     if not isinstance(model, LabErrorModel):
         raise TypeError(f"model must be a LabErrorModel, got {type(model).__name__}")

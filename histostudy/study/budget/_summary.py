@@ -133,7 +133,7 @@ def waterfall_figure(shares: pd.DataFrame, study: str, title: str = ""):
     labels = ["baseline", *shares["source"].str.replace("_", " "), "lab"]
     steps = [base, *shares["alone_mse_mm2"], lab]
     level = base
-    for i, (label, step) in enumerate(zip(labels, steps)):
+    for i, (_label, step) in enumerate(zip(labels, steps)):
         if i == 0 or i == len(steps) - 1:
             ax.bar(i, step, color="0.45")
             ax.text(i, step, f"RMS {np.sqrt(step):.2f} mm", ha="center", va="bottom", fontsize=8)

@@ -78,7 +78,8 @@ def init_success_comparisons(rates: pd.DataFrame) -> list[dict]:
     rows = []
     for row in rates.itertuples():
         is_learned = row.stages != "oracle"
-        label = {"learned": ", learned stages", "learned-vgg19": ", learned stages, VGG19 orientation"}.get(row.stages, "")
+        label = {"learned": ", learned stages", "learned-vgg19": ", learned stages, VGG19 orientation"}.get(row.stages,
+                                                                                                            "")
         rows.append(dict(key=f"pose.init_success.{row.init}" + (f".{row.stages}" if is_learned else ""),
                          label=f"Initialisation success ({row.init}{label}), {row.poses} random poses",
                          ours=100 * row.success_rate, unit="%", digits=0, paper_key="",

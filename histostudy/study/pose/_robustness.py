@@ -34,26 +34,39 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
                      success_mm: float = 2.0, segmenter: Segmenter | None = None,
                      orientation: OrientationSource | None = None, workers: int | None = None,
                      executor: SweepExecutor | str | None = None) -> pd.DataFrame:
-    """Initialisation success over random poses in the paper's training ranges; one row per (pose, init).
+    """Initialisation success over random poses in the paper's training ranges (§II-B.2, §II-B.4).
 
-    The focal point and the transducer's centre (the centroid of the model's element points)
-    project into every view: the transducer is seen, at least half of it, as in every use of
-    the system. Success: no :class:`PoseEstimationError` and a focal-point error below ``success_mm``.
-    Backgrounds are drawn from the paper's evaluation mix (abdomen and phantom). ``segmenter``
-    and ``orientation`` default to the config's oracles (Table I degradation, the paper's angle
-    MAE); pass the learned ones to measure the whole pipeline.
+    Each pose shows the focal point and the transducer's centre in every view (the transducer seen,
+    at least half of it); backgrounds from the paper's evaluation mix (abdomen and phantom). Every
+    pose draws from its own child of ``SeedSequence(seed)``, so the rows are the same whatever runs
+    them (but ``seconds``).
 
-    ``executor`` runs the poses (:func:`histostudy.core.run_sweep`): ``"sequential"``, ``"local"``
-    / ``"local:<workers>"`` (a dask LocalCluster), a scheduler address ``"tcp://host:port"``, a
-    :class:`~histostudy.core.SweepExecutor`, or None: ``$HISTOSTUDY_SCHEDULER``, else sequential.
-    ``workers`` > 1 is the older spelling of ``executor="local:<workers>"``; 1 runs in this process.
-    Every pose draws from its own child of ``SeedSequence(seed)``, so the rows are the same
-    whatever runs them (but ``seconds``). Each row also records the rotation error (deg,
-    ``rotation_error_deg``: up to a half turn about the axis where ``pose_model`` looks the same after
-    one, :func:`~histostudy.transducer.half_turn_symmetric`; ``half_turned`` when the estimate is
-    nearer the half-turned truth), the verdict's reasons (``failure``)
-    and, per view, its statistics (``rms_<view>``, ``body_rms_<view>``, ``unexplained_<view>``,
-    ``disagreement_mm_<view>``; NaN where not reached).
+    Args:
+        n_poses: random poses.
+        pose_model: the digital model the cost uses.
+        render_model: the model frames are rendered from.
+        physical: the physical transducer.
+        views: the C-arm views.
+        seed: the sweep's integer seed.
+        config: the study's parameters (rendering, oracle degradation, bubble offset).
+        inits: the initialisations compared (``"robust"``, ``"paper"``).
+        mode: the refinement mode.
+        success_mm: success: an accepted estimate with a focal error below this (mm).
+        segmenter: the segmentation stage; None: the config's oracle.
+        orientation: the orientation source; None: the oracle with the paper's angle MAE.
+        workers: > 1: the older spelling of ``executor="local:<workers>"``; 1: this process.
+        executor: what runs the poses (:func:`histostudy.core.run_sweep`: ``"sequential"``,
+            ``"local:<n>"``, ``"tcp://host:port"``, a :class:`~histostudy.core.SweepExecutor`; None:
+            ``$HISTOSTUDY_SCHEDULER``, else sequential).
+
+    Returns:
+        One row per (pose, init): ``error_mm``, ``rotation_error_deg`` (up to a half turn where the
+        model looks the same after one), ``half_turned``, ``verdict_ok``, ``success``, ``failure``,
+        per view ``rms_<view>``, ``body_rms_<view>``, ``unexplained_<view>``, ``disagreement_mm_<view>``
+        (px, fraction, mm; NaN where not reached), ``seconds``.
+
+    Raises:
+        ValueError: ``workers`` not an integer >= 1, or given with ``executor``.
     """
     if workers is not None:
         if isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1:
@@ -99,7 +112,8 @@ def _sweep_pose(i: int, seq: np.random.SeedSequence, *, pose_model, render_model
             for view in views:
                 name = view.name
                 row[f"rms_{name}"] = v.rms_distance_px.get(name, np.nan)
-                row[f"body_rms_{name}"] = v.class_rms_distance_px.get(name, {}).get(Feature.TRANSDUCER.name.lower(), np.nan)
+                row[f"body_rms_{name}"] = v.class_rms_distance_px.get(name, {}).get(Feature.TRANSDUCER.name.lower(),
+                                                                                    np.nan)
                 row[f"unexplained_{name}"] = v.unexplained_fraction.get(name, np.nan)
                 row[f"disagreement_mm_{name}"] = v.view_disagreement_mm.get(name, np.nan)
         row["seconds"] = time.perf_counter() - t0
@@ -108,9 +122,20 @@ def _sweep_pose(i: int, seq: np.random.SeedSequence, *, pose_model, render_model
 
 
 def robustness_summary(robust: pd.DataFrame, by: Sequence[str] = ("init",)) -> pd.DataFrame:
-    """Per group of :func:`robustness_sweep` rows: poses, success rate, how many the verdict refused,
-    how many it accepted although the focal point is off by ``success_mm`` or more (the dangerous
-    outcome: a robot would be sent there), median error (mm) and median time (s)."""
+    """Per group of :func:`robustness_sweep` rows: how often the initialisation succeeds.
+
+    Args:
+        robust: :func:`robustness_sweep`'s rows.
+        by: the columns to group by.
+
+    Returns:
+        One row per group: poses, success rate, refused (by the verdict), wrong_accepted (accepted
+        although off by ``success_mm`` or more: a robot would be sent there), median error (mm) and
+        median seconds.
+
+    Raises:
+        ValueError: ``robust`` lacks a column the summary reads.
+    """
     missing = {"pose", "success", "verdict_ok", "error_mm", "seconds", *by} - set(robust.columns)
     if missing:
         raise ValueError(f"robust must hold robustness_sweep rows; missing columns {sorted(missing)}")

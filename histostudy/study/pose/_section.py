@@ -341,9 +341,9 @@ def cbct_reference_part(setup: PoseSetup, run: PoseRun, *, timer: Timer | None =
     failed = reference[~reference["ok"].astype(bool)]
     part = SectionPart(
         tables={"cbct_reference": (reference[REFERENCE_TABLE_COLUMNS], "The post-treatment CBCT reference per "
-                                   "experiment: segmented centroid minus true bubble-cloud centre along depth/TB/LR and "
-                                   "Euclidean, zone radii along depth/TB/LR, fitted sphere radius, clearance of the "
-                                   "sphere from the phantom's faces (mm)"),
+                                   "experiment: segmented centroid minus true bubble-cloud centre along depth/TB/LR "
+                                   "and Euclidean, zone radii along depth/TB/LR, fitted sphere radius, clearance of "
+                                   "the sphere from the phantom's faces (mm)"),
                 "experiment_metrics_cbct": (metrics, "Table II's quantities per experiment, mode and map kind (mm), "
                                             "against the post-treatment CBCT"),
                 "cbct_reference_error": (errors, "The error of the CBCT reference against the ground truth (mean ± SD "
@@ -616,7 +616,7 @@ def projector_part(setup: PoseSetup, *, timer: Timer | None = None) -> PoseTable
 
     Returns:
         The :class:`PoseTable`: the summary per pose kind and projector (None where not run); its
-        part: tables ``projector_comparison``, ``projector_summary`` and the RTK-minus-splatting
+        part: tables "projector_comparison", "projector_summary" and the RTK-minus-splatting
         comparisons, or a paragraph saying why it was not run.
     """
     p, stages = setup.params, setup.stages
@@ -667,7 +667,8 @@ def closing_part(setup: PoseSetup, run: PoseRun) -> SectionPart:
                       "(true bubble-cloud centre, sphere of radius r) reported beside it")]
     else:
         stand_ins = [("post-treatment CBCT, manual segmentation of the treated zone (reference)",
-                      "the true bubble-cloud centre (physical focal point in the true pose) and the sphere of radius r")]
+                      "the true bubble-cloud centre (physical focal point in the true pose) and the sphere of "
+                      "radius r")]
     if not setup.stages.learned:
         stand_ins += [("U-Net segmentation (§II-B.2)", "the reference labels degraded to Table I's per-class precision "
                        "and recall (" + setup.stages.why + ")"),

@@ -32,29 +32,33 @@ __all__ = ["PoseExperiment", "PoseStudyConfig", "StudyStages", "draw_experiments
 
 @dataclass(frozen=True)
 class PoseStudyConfig(FrameRenderConfig):
-    """Parameters of the pose-estimation study (defaults: the standard profile's).
+    """Parameters of the pose-estimation study (defaults: the standard profile's); a plain dataclass of
+    the experiment layer, not a notebook's section config (notebook 04's is
+    :class:`~histostudy.study.pose.PoseSectionConfig`, whose ``study_config()`` makes this).
 
-    The rendering (``photons_per_pixel``, ``n_splats``, ``splat_sigma_mm``, §II-B.2, and the
-    ``background`` behind the transducer, the paper's pose studies: agarose phantoms) is the
-    shared :class:`~histostudy.imaging.FrameRenderConfig`, checks included.
-
-    Attributes:
+    Args:
+        photons_per_pixel: dose, Poisson photons per unattenuated pixel (§II-B.2;
+            :class:`~histostudy.imaging.FrameRenderConfig`, checks included).
+        n_splats: splats per model point.
+        splat_sigma_mm: splat SD (mm).
+        background: the scene behind the transducer (the paper's pose studies: ``"phantom"``).
         n_experiments: phantom experiments (paper: 10).
-        margin_mm: radii drawn per experiment (paper: 10 or 12.5 mm, spheres of 2.0 or 2.5 cm).
+        margin_mm: radii ``r`` drawn per experiment (mm; paper: 10 or 12.5, spheres of 2.0 or 2.5 cm).
         degradation: ``"table1"`` (oracle errs as the paper's U-Net, Table I) or ``"none"``.
-        modes: refinement modes to run on the same frames (``"paper"``, ``"fast"``).
-        distance_maps: map kinds to run on the same frames (``"occlusion_aware"``, ``"per_class"``,
-            see :func:`histostudy.pose.estimate_pose`); every mode runs with every kind.
-        track: also re-estimate each margin pose warm-started from the centre's estimate (fast
-            mode), as live tracking of a 10-12.5 mm move would.
-        tilt_sd_deg: tilt of the transducer axis from vertical (anterior-posterior), per axis.
-        focal_jitter_mm: focal point uniform within ± this of the phantom centre, per axis.
-        robot_repeatability_mm: SD of the robot's positioning noise (UR5e: ±0.03 mm).
-        bubble_offset_mm: offset of the bubble cloud from the acoustic focal point, transducer frame.
+        modes: refinement modes run on the same frames (``"paper"``, ``"fast"``).
+        distance_maps: map kinds run on the same frames (``"occlusion_aware"``, ``"per_class"``, see
+            :func:`histostudy.pose.estimate_pose`); every mode runs with every kind.
+        track: also re-estimate each margin pose warm-started from the centre's estimate (fast mode).
+        tilt_sd_deg: SD of the transducer axis's tilt from vertical, per axis (deg).
+        focal_jitter_mm: focal point uniform within ± this of the phantom centre, per axis (mm).
+        robot_repeatability_mm: SD of the robot's positioning noise (mm; UR5e: ±0.03).
+        bubble_offset_mm: the bubble cloud's offset from the acoustic focal point (3, transducer frame, mm).
         assumed_bubble_offset_mm: the offset the prediction adds to the estimated focal point
-            (transducer frame); None: ``bubble_offset_mm``, known as after a test pulse. A lab
-            that did not calibrate it (:class:`~histostudy.study.budget.LabErrorModel`)
-            assumes zeros.
+            (transducer frame, mm); None: ``bubble_offset_mm``, known as after a test pulse (a lab that
+            did not calibrate it, :class:`~histostudy.study.budget.LabErrorModel`, assumes zeros).
+
+    Raises:
+        ValueError: a value out of its range (named), an unknown mode, map kind or degradation.
     """
 
     n_experiments: int = 10
@@ -105,8 +109,13 @@ class PoseStudyConfig(FrameRenderConfig):
 class StudyStages:
     """The segmenter and orientation source a pose study runs on, and why those (:func:`study_stages`).
 
-    ``shipped_segmenter`` / ``shipped_orientation`` are the learned networks that were considered
-    (None when missing or not asked for), whether or not the study runs on them.
+    Args:
+        segmenter: the segmentation stage the estimates run on.
+        orientation: the orientation source they run on.
+        learned: whether those are the shipped networks.
+        why: the report's sentence saying which and why.
+        shipped_segmenter: the shipped U-Net considered (None when missing or not asked for).
+        shipped_orientation: the shipped orientation source considered (likewise).
     """
 
     segmenter: Segmenter
@@ -119,14 +128,18 @@ class StudyStages:
 
 def study_stages(config, learned: bool = True, *, segmenter=None, orientation=None) -> StudyStages:
     """The stages of a study's pose estimates: learned by default, the oracles where the learned ones
-    fall short. ``config``: a :class:`PoseStudyConfig` or any study config with a ``segmenter()``
-    giving its oracle (notebook 05's :class:`~histostudy.study.targeting.TargetingStudyConfig`).
+    fall short of :data:`histostudy.pose.LEARNED_STAGE_REQUIREMENTS`.
 
-    With ``learned``, the shipped U-Net and VGG19 (:func:`histostudy.learning.segment.default_segmenter`,
-    :func:`histostudy.pose.conic_orientation.default_orientation`, or the ``segmenter`` / ``orientation``
-    given) when their manifests meet :data:`histostudy.pose.LEARNED_STAGE_REQUIREMENTS`;
-    otherwise, or without ``learned``, the config's oracles (Table I degradation, the paper's
-    angle MAE). ``why`` says which and why, for the report.
+    Args:
+        config: a :class:`PoseStudyConfig`, or any study config whose ``segmenter()`` gives its oracle
+            (notebook 05's :class:`~histostudy.study.targeting.setup.TargetingStudyConfig`).
+        learned: try the shipped networks; False: the config's oracles (Table I degradation, the
+            paper's angle MAE).
+        segmenter: the U-Net to judge; None: :func:`histostudy.learning.default_segmenter`.
+        orientation: the orientation source to judge; None: :func:`histostudy.pose.default_orientation`.
+
+    Returns:
+        The :class:`StudyStages`, its ``why`` saying which and why.
     """
     oracles = (config.segmenter(), OracleOrientation())
     if not learned:
@@ -156,12 +169,15 @@ def study_stages(config, learned: bool = True, *, segmenter=None, orientation=No
 
 @dataclass(frozen=True, eq=False)
 class PoseExperiment:
-    """One experiment's set-up as :func:`run_pose_study` draws it (C-arm frame, mm).
+    """One experiment's set-up as :func:`run_pose_study` draws it.
 
-    ``radius_mm``: the treatment sphere's radius ``r`` (the robot's move to each margin).
-    ``scene``: the phantom set-up behind the transducer. ``T_centre``: the commanded centre pose
-    (``T_carm_transducer``); ``T_true``: per position (``"centre"``, then the six margins) the
-    reached pose, the robot's repeatability noise included.
+    Args:
+        experiment: its index.
+        radius_mm: the treatment sphere's radius ``r`` (mm; the robot's move to each margin).
+        scene: the phantom set-up behind the transducer.
+        T_centre: the commanded centre pose ``T_carm_transducer`` (4x4, mm).
+        T_true: per position (``"centre"``, then the six margins) the reached pose (4x4, mm), the
+            robot's repeatability noise included.
     """
 
     experiment: int
@@ -172,13 +188,19 @@ class PoseExperiment:
 
 
 def draw_experiments(config: PoseStudyConfig, seed: int):
-    """Yield ``(PoseExperiment, rng_render, rng_est, rng_cbct)`` per experiment.
+    """Yield each experiment's set-up and its random streams: the one place the experiments are drawn.
 
-    The one place the experiments are drawn: :func:`run_pose_study` renders and estimates from
-    them and :func:`cbct_reference` treats and scans the same set-ups. Streams per experiment:
-    children 0-4 of its seed sequence (pose, scene, render, robot, estimation); child 5 is the CBCT
-    reference's (treatment positioning noise, CBCT noise), a stream of its own so that the
-    reference changes no other draw.
+    :func:`run_pose_study` renders and estimates from them and
+    :func:`~histostudy.study.pose.reference.cbct_reference` treats and scans the same set-ups.
+    Streams per experiment: children 0-4 of its seed sequence (pose, scene, render, robot,
+    estimation); child 5 is the CBCT reference's, so that the reference changes no other draw.
+
+    Args:
+        config: the study's parameters.
+        seed: the study's integer seed.
+
+    Returns:
+        An iterator of ``(PoseExperiment, rng_render, rng_est, rng_cbct)``.
     """
     for e, seq in enumerate(np.random.SeedSequence(seed).spawn(config.n_experiments)):
         rng_pose, rng_scene, rng_render, rng_robot, rng_est, rng_cbct = (np.random.default_rng(s) for s in seq.spawn(6))
@@ -195,7 +217,15 @@ def draw_experiments(config: PoseStudyConfig, seed: int):
 
 
 def experiment_setups(config: PoseStudyConfig, seed: int) -> list[PoseExperiment]:
-    """The experiments :func:`run_pose_study` runs for ``config`` and ``seed`` (no rendering)."""
+    """The experiments :func:`run_pose_study` runs for ``config`` and ``seed``, without rendering.
+
+    Args:
+        config: the study's parameters.
+        seed: the study's integer seed.
+
+    Returns:
+        One :class:`PoseExperiment` per experiment.
+    """
     return [exp for exp, *_ in draw_experiments(config, seed)]
 
 
@@ -204,30 +234,39 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
                    segmenter: Segmenter | None = None, orientation: OrientationSource | None = None,
                    progress: Callable[[str], None] | None = None, estimator_views: Sequence[View] | None = None,
                    experiments: Sequence[int] | None = None, acquisition_views=None) -> pd.DataFrame:
-    """Run the experiments; one row per (experiment, position, mode, maps), plus tracking rows.
+    """Run the experiments of Table II (§II-D): render each position and estimate the pose.
 
-    Columns: experiment, radius_mm, position, mode, maps, the true and predicted focal points
-    (``true_*``, ``pred_*``, world mm), the error along depth/TB/LR of the experiment's centre
-    pose (``err_depth`` ...), ``err_euclidean``, ``rotation_error_deg`` (modulo the transducer's
-    half-turn symmetry), cost, iterations, seconds per stage (``s_*``), ``ok`` and the failure
-    text (a failed estimate keeps NaN predictions). With ``config.track``, rows of mode
-    ``"track"`` hold the margin poses re-estimated from the centre's estimate (warm start).
+    Args:
+        config: the study's parameters.
+        pose_model: the digital model the cost uses.
+        render_model: the model frames are rendered from.
+        physical: the physical transducer (the frames and the bubble clouds).
+        views: the views that make the frames (the C-arm's true geometry).
+        seed: the study's integer seed (:func:`draw_experiments`).
+        segmenter: the segmentation stage; None: the config's oracle (Table I degradation).
+        orientation: the orientation source; None: the oracle with the paper's angle MAE.
+        progress: called with a line per position; None: silent.
+        estimator_views: the views the estimator is told (a lab's calibration); None: ``views``.
+        experiments: run only these experiment indices (the others are drawn, not rendered, so each
+            keeps its numbers); None: all.
+        acquisition_views: ``(experiment, acquisition, views) -> views`` told at each acquisition
+            (0 the centre, then the margins; a lab's per-acquisition C-arm reproducibility); None: as given.
 
-    ``segmenter`` and ``orientation`` default to the config's oracles (Table I degradation and
-    the paper's angle MAE); pass learned ones to run the study on them.
+    Returns:
+        One row per (experiment, position, mode, maps), plus ``"track"`` rows with ``config.track``:
+        experiment, radius_mm, position, mode, maps, ``true_*`` and ``pred_*`` (C-arm mm), ``err_depth``,
+        ``err_tb``, ``err_lr`` (along the centre pose's axes, mm), ``err_euclidean``,
+        ``rotation_error_deg`` (modulo the half-turn symmetry), cost, iterations, ``s_*`` (seconds per
+        stage), ``ok`` and ``failure`` (a failed estimate keeps NaN predictions).
 
-    ``views`` make the frames (the C-arm's true geometry); ``estimator_views``, when given, are
-    what the estimator is told (a lab's calibration, :mod:`~histostudy.study.budget._sources`);
-    ``acquisition_views(experiment, acquisition, views)``, when given, those it is told at each
-    acquisition (0 the centre, then the margins in order: a lab's per-acquisition C-arm
-    reproducibility), the frames unchanged.
-    ``experiments``: run only these experiment indices (the others are drawn, not rendered, so
-    each keeps its numbers).
+    Raises:
+        ValueError: ``estimator_views`` of another length than ``views``.
     """
     rows = []
     estimator_views = list(views) if estimator_views is None else list(estimator_views)
     if len(estimator_views) != len(views):
-        raise ValueError(f"estimator_views must hold one view per frame view ({len(views)}), got {len(estimator_views)}")
+        raise ValueError(f"estimator_views must hold one view per frame view ({len(views)}), "
+                         f"got {len(estimator_views)}")
     wanted = None if experiments is None else {int(e) for e in experiments}
     segmenter = config.segmenter() if segmenter is None else segmenter
     orientation = OracleOrientation() if orientation is None else orientation

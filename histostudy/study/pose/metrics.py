@@ -16,7 +16,14 @@ __all__ = ["experiment_metrics", "mean_sd", "reference_error_summary", "stage_ti
 
 
 def mean_sd(values) -> tuple[float, float]:
-    """Mean and sample SD (``ddof=1``; 0 for one value) of the finite ``values``; NaNs without any."""
+    """Mean and sample SD of the finite ``values``.
+
+    Args:
+        values: numbers (non-finite ones are left out).
+
+    Returns:
+        ``(mean, sd)``: ``ddof=1``, SD 0 for one value; NaNs without any finite value.
+    """
     v = np.asarray(values, dtype=np.float64)
     v = v[np.isfinite(v)]
     if v.size == 0:
@@ -25,11 +32,22 @@ def mean_sd(values) -> tuple[float, float]:
 
 
 def reference_error_summary(reference: pd.DataFrame) -> pd.DataFrame:
-    """The error of the CBCT reference against the ground truth (mean ± SD over experiments, mm):
-    centroid minus true bubble-cloud centre along depth/TB/LR and Euclidean, zone radius along
-    each direction and fitted sphere radius minus ``r`` (signed: negative = the zone reads small)."""
+    """The error of the CBCT reference against the ground truth (mean ± SD over experiments, mm).
+
+    Args:
+        reference: :func:`~histostudy.study.pose.reference.cbct_reference`'s table.
+
+    Returns:
+        One row per quantity: centroid minus true bubble-cloud centre along depth/TB/LR and
+        Euclidean, zone radius along each direction and fitted sphere radius minus ``r`` (signed:
+        negative = the zone reads small).
+
+    Raises:
+        TypeError, ValueError: ``reference`` is not ``cbct_reference``'s table.
+    """
     reference_by_experiment(reference)  # refuses a table that is not cbct_reference()'s
-    fmt = lambda v: f"{v[0]:+.2f} ± {v[1]:.2f}" if np.isfinite(v[0]) else "n/a"
+    def fmt(v):
+        return f"{v[0]:+.2f} ± {v[1]:.2f}" if np.isfinite(v[0]) else "n/a"
     rows = [{"quantity": f"centroid − true centre, {d}", "mm": fmt(mean_sd(reference[f"ref_err_{d}"]))}
             for d in DIRECTIONS]
     rows.append({"quantity": "centroid − true centre, Euclidean",
@@ -41,24 +59,26 @@ def reference_error_summary(reference: pd.DataFrame) -> pd.DataFrame:
 
 
 def experiment_metrics(records: pd.DataFrame, reference: pd.DataFrame | None = None) -> pd.DataFrame:
-    """Per experiment and mode, the quantities of Table II (mm, §II-E.3), from :func:`run_pose_study`'s rows.
+    """Per experiment, mode and map kind, the quantities of Table II (mm, §II-E.3).
 
     Centre error per direction (signed, predicted minus reference, along the centre pose's
     depth/TB/LR axes) and Euclidean; margin error per margin (distance of the predicted margin
     point to the reference surface); predicted radius per direction (half the distance between
-    opposite margin predictions) and its absolute error against the reference radius in that
-    direction; precision (distance between the centroid of the six margin predictions and the
-    centre prediction; needs no reference).
+    opposite margin predictions) and its absolute error against the reference radius; precision
+    (the centroid of the six margin predictions against the centre prediction; needs no reference).
 
-    ``reference``:
+    Args:
+        records: :func:`~histostudy.study.pose.experiments.run_pose_study`'s rows.
+        reference: None: the ground truth (the true bubble-cloud centre, the sphere of radius ``r``
+            about it); or :func:`~histostudy.study.pose.reference.cbct_reference`'s table (the
+            paper's reference: the segmented zone's centroid, its fitted sphere, its radii), with a
+            row for every experiment of ``records``.
 
-    - ``None`` (the ground truth): the true bubble-cloud centre of the records, the sphere of
-      radius ``r`` about it, radius ``r`` in every direction;
-    - :func:`cbct_reference`'s table (the paper's reference): the segmented zone's centroid, the
-      surface of its fitted sphere, its radii along depth/TB/LR. Every experiment of the records
-      needs a row.
+    Returns:
+        One row per (experiment, mode, maps); column ``reference`` says which (``"truth"``, ``"cbct"``).
 
-    Column ``reference`` says which (``"truth"`` or ``"cbct"``).
+    Raises:
+        ValueError: ``reference`` lacks an experiment of ``records``, or is not ``cbct_reference``'s table.
     """
     refs = None if reference is None else reference_by_experiment(reference)
     out = []
@@ -108,13 +128,20 @@ def experiment_metrics(records: pd.DataFrame, reference: pd.DataFrame | None = N
 
 
 def table2(metrics: pd.DataFrame, mode: str, maps: str = "occlusion_aware") -> tuple[pd.DataFrame, dict]:
-    """Table II (§III; mean ± SD over experiments, mm) for one mode and map kind, and the values
-    keyed as in :mod:`histostudy.reporting.paper` (``table2.<row>.<direction>`` -> (mean, sd)), plus
-    ``pose.precision`` (centroid of the six margin predictions vs the centre prediction).
+    """Table II (§III; mean ± SD over experiments, mm) for one mode and map kind.
 
-    The reference is the one :func:`experiment_metrics` measured against (its ``reference``
-    column: the ground truth, or the post-treatment CBCT of :func:`cbct_reference` as the paper);
-    metrics against both mixed are refused.
+    Args:
+        metrics: :func:`experiment_metrics`' rows, against one reference.
+        mode: the refinement mode (``"paper"``, ``"fast"``).
+        maps: the distance-map kind.
+
+    Returns:
+        ``(table, values)``: the table as the paper prints it, and the values keyed as in
+        :mod:`histostudy.reporting.paper` (``table2.<row>.<direction>`` -> (mean, sd)) plus
+        ``pose.precision``.
+
+    Raises:
+        ValueError: no metrics of that mode and maps, or metrics against both references mixed.
     """
     m = metrics[(metrics["mode"] == mode) & (metrics["maps"] == maps)]
     if m.empty:
@@ -132,7 +159,8 @@ def table2(metrics: pd.DataFrame, mode: str, maps: str = "occlusion_aware") -> t
     values["table2.margin_mae.overall"] = mean_sd(m[[f"margin_err_{n}" for n in MARGINS]].to_numpy().ravel())
     values["table2.radius_mae.overall"] = mean_sd(m[[f"radius_err_{d}" for d in DIRECTIONS]].to_numpy().ravel())
     values["pose.precision"] = mean_sd(m["precision"])
-    fmt = lambda v: f"{v[0]:.2f} ± {v[1]:.2f}" if np.isfinite(v[0]) else "n/a"
+    def fmt(v):
+        return f"{v[0]:.2f} ± {v[1]:.2f}" if np.isfinite(v[0]) else "n/a"
     rows = []
     for row, label in (("center_bias", "Center Bias"), ("center_mae", "Center MAE"),
                        ("margin_mae", "Margin MAE"), ("radius_mae", "Radius MAE")):
@@ -146,8 +174,14 @@ def table2(metrics: pd.DataFrame, mode: str, maps: str = "occlusion_aware") -> t
 
 def variant_summary(metrics: pd.DataFrame) -> pd.DataFrame:
     """Per (mode, maps): centre Euclidean error, centre MAE per direction, radius MAE and precision
-    (mean ± SD over experiments, mm) — the paper's mode beside the fast one, per-class maps beside
-    occlusion-aware ones."""
+    (mean ± SD over experiments, mm): the modes and map kinds side by side.
+
+    Args:
+        metrics: :func:`experiment_metrics`' rows.
+
+    Returns:
+        One row per (mode, maps), the values as ``"mean ± SD"`` text.
+    """
     rows = []
     for (mode, maps), m in metrics.groupby(["mode", "maps"], sort=False):
         row = {"mode": mode, "maps": maps, "experiments": len(m)}
@@ -162,9 +196,14 @@ def variant_summary(metrics: pd.DataFrame) -> pd.DataFrame:
 
 
 def stage_timing(records: pd.DataFrame) -> pd.DataFrame:
-    """Median seconds per stage of :func:`histostudy.pose.estimate_pose`, per (mode, maps).
+    """Median seconds per stage of :func:`histostudy.pose.estimate_pose`, per (mode, maps); mode
+    ``"track"`` is the warm start from the previous estimate (no initialisation).
 
-    Mode ``"track"`` is the warm start from the previous estimate (no initialisation).
+    Args:
+        records: :func:`~histostudy.study.pose.experiments.run_pose_study`'s rows.
+
+    Returns:
+        One row per (mode, maps): the accepted estimates and the median seconds of each stage.
     """
     stages = [c for c in records.columns if c.startswith("s_")]
     ok = records[records["ok"].astype(bool)]
@@ -176,7 +215,15 @@ def stage_timing(records: pd.DataFrame) -> pd.DataFrame:
 
 def tracking_summary(records: pd.DataFrame) -> dict:
     """Warm-started margin estimates (mode ``"track"``) beside the same margins estimated from
-    scratch in the fast mode: focal error (mean ± SD, mm) and refinement time (median, s)."""
+    scratch in the fast mode.
+
+    Args:
+        records: :func:`~histostudy.study.pose.experiments.run_pose_study`'s rows.
+
+    Returns:
+        ``n``, ``failed``, and per kind (``track``, ``scratch``) the focal error (mean, SD; mm) and the
+        median refinement and total seconds; empty without tracking rows.
+    """
     track = records[records["mode"] == "track"]
     if track.empty:
         return {}

@@ -35,15 +35,22 @@ REFERENCE_COLUMNS = ("experiment", "centroid_x", "centroid_y", "centroid_z", "sp
 
 
 def phantom_placement(scene: Anatomy, centre_mm=(0.0, 0.0, 0.0)) -> tuple[PhantomSpec, np.ndarray]:
-    """The layered phantom of a scene as :mod:`histostudy.imaging.cbct` models it (§II-D.1):
-    ``(PhantomSpec, T_carm_phantom)``.
+    """The layered phantom of a scene as :mod:`histostudy.imaging.cbct` models it (§II-D.1).
 
-    A phantom scene (:func:`histostudy.imaging.anatomy._random.random_phantom_setup`) records its cube's edge,
-    centre, yaw about the vertical axis and layer thickness; its layers are stacked vertically as
-    poured, so the phantom frame's +z (the stacking axis of :class:`PhantomSpec`) is world ``-y``
-    (up). The layers' phase is :class:`PhantomSpec`'s (from the bottom face), not the scene's: the
-    fluoroscopy never sees it and the CBCT reference does not depend on it. A scene without a
-    phantom (abdomen) gets the default 5 cm phantom at ``centre_mm`` (world mm), layers horizontal.
+    A phantom scene records its cube's edge, centre, yaw about the vertical axis and layer
+    thickness; its layers are stacked vertically as poured, so the phantom frame's +z is world
+    ``-y`` (up). The layers' phase is :class:`~histostudy.imaging.PhantomSpec`'s (the fluoroscopy
+    never sees it). A scene without a phantom (abdomen) gets the default 5 cm phantom at ``centre_mm``.
+
+    Args:
+        scene: the experiment's :class:`~histostudy.imaging.Anatomy`.
+        centre_mm: the default phantom's centre where the scene has none (C-arm frame, mm).
+
+    Returns:
+        ``(PhantomSpec, T_carm_phantom)`` (4x4, mm; phantom -> C-arm).
+
+    Raises:
+        TypeError: ``scene`` is not an Anatomy.
     """
     if not isinstance(scene, Anatomy):
         raise TypeError(f"scene must be a histostudy.imaging.anatomy.Anatomy, got {type(scene).__name__}")
@@ -96,43 +103,43 @@ def cbct_reference(config: PoseStudyConfig, *, physical: TransducerModel, seed: 
                    experiments: Sequence[int] | None = None) -> pd.DataFrame:
     """The paper's reference of Table II (§II-D, §II-E.3): the treated zone in a post-treatment CBCT.
 
-    For each experiment of :func:`run_pose_study` with the same ``config`` and ``seed`` (the
-    set-ups are redrawn by :func:`experiment_setups`; no rendering), as the paper did after the
-    fluoroscopy: a sphere of radius ``r`` treated about the true centre pose (the transducer
-    translated through :func:`histostudy.treatment.plan_treatment`'s focal points on the centre
-    pose's axes; bubble clouds at the physical focal point plus ``config.bubble_offset_mm``), the
-    layered phantom of the experiment's scene (:func:`phantom_placement`) mixed there, a
-    post-treatment CBCT simulated (:func:`histostudy.imaging.cbct.simulate_cbct`: ``cbct_blur_mm``,
-    ``cbct_noise_hu``, voxels of ``cbct_voxel_mm``; the true phantom on ``phantom_voxel_mm``) and
-    the zone segmented (:func:`histostudy.treatment.zone.segment_treatment_zone`, the automatic stand-in for
-    the paper's manual annotation). Defaults: notebook 05's (0.5 mm phantom, 1 mm CBCT, 0.5 mm
-    blur, 20 HU noise, the studies' plan: spacing (2, 2, 3) mm, inset (1.25, 1.25, 2.25) mm).
+    For each experiment of :func:`~histostudy.study.pose.experiments.run_pose_study` with the same
+    ``config`` and ``seed`` (the set-ups redrawn, no rendering): a sphere of radius ``r`` treated
+    about the true centre pose (:func:`histostudy.treatment.plan_treatment`; bubble clouds at the
+    physical focal point plus ``config.bubble_offset_mm``), the scene's layered phantom
+    (:func:`phantom_placement`) mixed there, a post-treatment CBCT simulated and the zone segmented
+    (:func:`histostudy.treatment.scan_treated_zone`, the automatic stand-in for the manual annotation).
 
-    ``records``: :func:`run_pose_study`'s rows; when given, only its experiments are treated and
-    each one's true centre is checked against the redrawn set-up (a different config or seed is
-    refused). One row per experiment, C-arm frame, mm:
+    Args:
+        config: the study's parameters.
+        physical: the physical transducer.
+        seed: the study's integer seed.
+        records: ``run_pose_study``'s rows: only their experiments are treated, each one's true centre
+            checked against the redrawn set-up; None: every experiment (or ``experiments``).
+        phantom_voxel_mm: grid of the true phantom (mm, > 0).
+        cbct_voxel_mm: voxel of the simulated CBCT (mm, > 0).
+        cbct_blur_mm: the CBCT's Gaussian blur (mm, >= 0).
+        cbct_noise_hu: the CBCT's noise SD (HU, >= 0).
+        treatment_spacing_mm: the plan's lattice spacing (LR, TB, depth; mm).
+        treatment_inset_mm: the plan's ellipsoid inset (mm).
+        keep_volumes: also return the volumes (column ``_volumes``).
+        progress: called with a line per experiment; None: silent.
+        experiments: treat only these experiment indices.
 
-    - ``experiment``, ``radius_mm`` (``r``), ``true_x/y/z``: the true bubble-cloud centre at the
-      centre pose (the ground-truth reference);
-    - ``centroid_x/y/z``: the segmented zone's centroid (the reference centre, §II-E.3);
-      ``sphere_x/y/z``, ``sphere_radius_mm``: its least-squares sphere (the surface the margin
-      points are measured to);
-    - ``ref_radius_depth/tb/lr``: the zone's radius along the centre pose's depth/TB/LR axes
-      (through the centroid, :meth:`~histostudy.treatment.zone.ZoneSegmentation.radii_along`), and those
-      axes as world unit vectors ``axis_<d>_x/y/z``;
-    - the error of the reference against the ground truth: ``ref_err_<d>`` and
-      ``ref_err_euclidean`` (centroid minus true centre), ``ref_radius_err_<d>`` and
-      ``sphere_radius_err_mm`` (minus ``r``);
-    - ``clearance_mm``: least distance of the nominal sphere to the phantom's faces (the
-      segmentation keeps to half a window, 4 mm, inside them: below that the zone is clipped);
-      ``n_points`` (plan), ``volume_mm3``, ``seconds``; ``ok`` and ``failure``: a segmentation
-      that finds no zone leaves the experiment without a reference (NaN, skipped by Table II's
-      means) instead of stopping the study; with ``keep_volumes``, ``_volumes`` (the
-      post-treatment CBCT and the segmentation).
+    Returns:
+        One row per experiment (C-arm frame, mm): ``experiment``, ``radius_mm``, ``true_x/y/z`` (the
+        true bubble-cloud centre); ``centroid_x/y/z``; ``sphere_x/y/z`` and ``sphere_radius_mm`` (the
+        zone's least-squares sphere); ``ref_radius_<d>`` along the centre pose's depth/TB/LR axes and
+        those axes ``axis_<d>_x/y/z``; the reference's own errors ``ref_err_<d>``,
+        ``ref_err_euclidean``, ``ref_radius_err_<d>``, ``sphere_radius_err_mm``; ``clearance_mm`` (the
+        sphere to the phantom's faces), ``n_points``, ``volume_mm3``, ``seconds``, ``ok`` and
+        ``failure`` (no zone found: NaN, skipped by Table II's means). Pass it to
+        :func:`~histostudy.study.pose.metrics.experiment_metrics` (``reference=``).
 
-    ``experiments``: treat only these experiment indices (as ``records`` does, without records).
-
-    Pass the table to :func:`experiment_metrics` (``reference=``) for Table II against it.
+    Raises:
+        TypeError: ``physical`` is not a TransducerModel.
+        ValueError: a voxel size not > 0, a blur or noise < 0, ``records`` without the run's columns,
+            or records that do not match the set-ups of this config and seed.
     """
     _check_reference_inputs(physical, phantom_voxel_mm, cbct_voxel_mm, cbct_blur_mm, cbct_noise_hu)
     wanted, centres = _wanted_experiments(config, records, experiments)
@@ -267,8 +274,18 @@ def _reference_row(exp: PoseExperiment, truth: np.ndarray, seg, axes: dict, R: n
 
 
 def reference_by_experiment(reference) -> dict:
-    """``{experiment: row}`` of :func:`cbct_reference`'s table, after checking its columns and that
-    each experiment has one row."""
+    """:func:`cbct_reference`'s table by experiment, checked.
+
+    Args:
+        reference: :func:`cbct_reference`'s table.
+
+    Returns:
+        ``{experiment: row}``.
+
+    Raises:
+        TypeError: ``reference`` is not a DataFrame.
+        ValueError: it lacks :data:`REFERENCE_COLUMNS` or holds an experiment twice.
+    """
     if not isinstance(reference, pd.DataFrame):
         raise TypeError(f"reference must be cbct_reference()'s DataFrame (or None for the ground truth), "
                         f"got {type(reference).__name__}")

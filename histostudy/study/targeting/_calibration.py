@@ -32,13 +32,20 @@ from .setup import GroundTruth, TargetingError, TargetingStudyConfig
 __all__ = ["HALF_TURN", "calibrate_robot", "calibration_poses", "config_focal_flange"]
 
 def calibration_poses(rng: np.random.Generator, config: TargetingStudyConfig, truth: GroundTruth) -> list[np.ndarray]:
-    """The preprogrammed flange poses ``T_base_flange`` (base frame) of the calibration (§II-C).
+    """The preprogrammed flange poses of the calibration (§II-C).
 
     Pose k tilts the tool axis by ``calibration_tilt_deg`` about the horizontal axis at azimuth
     ``2 pi k / n`` (plus up to ±0.3 rad), turns the transducer about its axis by up to
     ``calibration_axial_deg`` (alternating sign), and puts the designed focal point within
-    ``calibration_offset_mm`` of the start point: the rotation axes of the motions differ, which
-    AX = XB needs.
+    ``calibration_offset_mm`` of the start point: the motions' rotation axes differ, which AX = XB needs.
+
+    Args:
+        rng: the experiment's pose stream.
+        config: the study's parameters (``n_calibration_poses`` and the three above).
+        truth: the experiment's ground truth (the nominal mount and the start point).
+
+    Returns:
+        ``n_calibration_poses`` poses ``T_base_flange`` (4x4, mm; base frame).
     """
     n = int(config.n_calibration_poses)
     tilt = np.radians(config.calibration_tilt_deg)
@@ -69,7 +76,7 @@ def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConf
     biplane pair rendered from the true pose at each, calibrate, check the residuals.
 
     ``segmenter`` / ``orientation``: the pose estimate's stages (e.g. the shipped U-Net and VGG19
-    from :func:`histostudy.study.pose.study_stages`); None: the config's oracle
+    from :func:`histostudy.study.pose.experiments.study_stages`); None: the config's oracle
     segmenter and the oracle orientation.
 
     ``views`` make the frames (the C-arm's true geometry); ``estimator_views``, when given, are
@@ -84,7 +91,8 @@ def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConf
     """
     estimator_views = list(views) if estimator_views is None else list(estimator_views)
     if len(estimator_views) != len(views):
-        raise ValueError(f"estimator_views must hold one view per frame view ({len(views)}), got {len(estimator_views)}")
+        raise ValueError(f"estimator_views must hold one view per frame view ({len(views)}), "
+                         f"got {len(estimator_views)}")
     robot.set_tcp(np.eye(4))  # calibration poses are flange poses
     scene = None if config.background == "none" else random_background(rng_scene, config.background)
     segmenter = config.segmenter() if segmenter is None else segmenter

@@ -24,10 +24,23 @@ __all__ = ["SceneFigure", "fig7_figures", "plot_target_slices", "scene_figure"]
 
 def plot_target_slices(volume: Volume, segmentation: ZoneSegmentation | None, target_mm, *, title: str = "",
                        half_width_mm: float = 30.0):
-    """Fig. 7: transverse, frontal and sagittal slices of a post-treatment CBCT through the
-    target, the target from the pre-treatment CBCT as a green dot and the segmented zone's outline
-    in blue (``segmentation`` None: the slices and the target only, e.g. a pre-treatment CBCT).
-    Returns the matplotlib figure."""
+    """Fig. 7: transverse, frontal and sagittal slices of a CBCT through the target, the target as a
+    green dot and the segmented zone's outline in blue.
+
+    Args:
+        volume: the CBCT (HU, C-arm frame).
+        segmentation: the treated zone's segmentation; None: the slices and the target only (e.g. a
+            pre-treatment CBCT).
+        target_mm: the target (3, C-arm frame, mm).
+        title: the figure's title.
+        half_width_mm: half the width shown about the target (mm).
+
+    Returns:
+        The matplotlib figure.
+
+    Raises:
+        ValueError: the target outside the volume, or a mask of another shape than the volume.
+    """
     import matplotlib.pyplot as plt
 
     target = np.asarray(target_mm, dtype=np.float64).reshape(3)
@@ -39,9 +52,12 @@ def plot_target_slices(volume: Volume, segmentation: ZoneSegmentation | None, ta
     if mask.shape != volume.data.shape:
         raise ValueError(f"segmentation mask {mask.shape} does not match the volume {volume.data.shape}")
     # (name, image rows x cols, row axis, col axis, target (col, row), row/col labels)
-    cuts = (("transverse (z = %.1f mm)" % z[k], volume.data[k], mask[k], y, x, (target[0], target[1]), "y (P) mm", "x (L) mm"),
-            ("frontal (y = %.1f mm)" % y[j], volume.data[:, j, :], mask[:, j, :], z, x, (target[0], target[2]), "z (S) mm", "x (L) mm"),
-            ("sagittal (x = %.1f mm)" % x[i], volume.data[:, :, i], mask[:, :, i], z, y, (target[1], target[2]), "z (S) mm", "y (P) mm"))
+    cuts = ((f"transverse (z = {z[k]:.1f} mm)", volume.data[k], mask[k], y, x, (target[0], target[1]),
+             "y (P) mm", "x (L) mm"),
+            (f"frontal (y = {y[j]:.1f} mm)", volume.data[:, j, :], mask[:, j, :], z, x, (target[0], target[2]),
+             "z (S) mm", "x (L) mm"),
+            (f"sagittal (x = {x[i]:.1f} mm)", volume.data[:, :, i], mask[:, :, i], z, y, (target[1], target[2]),
+             "z (S) mm", "y (P) mm"))
     fig, axes = plt.subplots(1, 3, figsize=(12, 4.2))
     lo, hi = np.percentile(volume.data, [1, 99.5])
     for ax, (name, img, m, rows, cols, (tc, tr), rlab, clab) in zip(axes, cuts):
@@ -65,9 +81,16 @@ def plot_target_slices(volume: Volume, segmentation: ZoneSegmentation | None, ta
 
 
 def fig7_figures(records: pd.DataFrame, volumes: pd.Series, n_experiments: int) -> Iterator[tuple[str, object, str]]:
-    """Fig. 7 for the first ``n_experiments`` experiments of the first robot: ``(name, figure,
-    caption)`` one at a time (each figure is made when asked for). ``volumes``: the ``"_volumes"``
-    column of a study run with ``keep_volumes``."""
+    """Fig. 7 for the first experiments of the first robot, one figure at a time (each made when asked for).
+
+    Args:
+        records: the study's rows.
+        volumes: their ``"_volumes"`` column (a study run with ``keep_volumes``).
+        n_experiments: the experiments shown.
+
+    Returns:
+        An iterator of ``(name, figure, caption)``.
+    """
     first = records.index[records["robot"] == records["robot"].iloc[0]]
     for idx in first[:n_experiments]:
         v = volumes[idx]
@@ -92,9 +115,20 @@ class SceneFigure:
 
 def scene_figure(records: pd.DataFrame, volumes: pd.Series, physical: TransducerModel,
                  seed: np.random.SeedSequence) -> SceneFigure:
-    """The first experiment's set-up at the treatment pose (:func:`scene_at_target`: the true base,
-    the true physical transducer on the flange), the phantom, the target and the segmented zone's
-    fitted sphere; ``seed`` seeds the transducer's point sampling in the render."""
+    """The first experiment's 3-D scene at the treatment pose: the true base and the true physical
+    transducer on the flange (:func:`~histostudy.study.targeting._positioning.scene_at_target`), the
+    phantom, the target and the segmented zone's fitted sphere.
+
+    Args:
+        records: the study's rows.
+        volumes: their ``"_volumes"`` column.
+        physical: the physical transducer drawn.
+        seed: seeds the transducer's point sampling in the render.
+
+    Returns:
+        The :class:`SceneFigure`: its name, caption and the keyword arguments of
+        :func:`histostudy.reporting.targeting_scene` but the views.
+    """
     idx = records.index[records["robot"] == records["robot"].iloc[0]][0]
     v = volumes[idx]
     seg = v["segmentation"]

@@ -336,7 +336,7 @@ def targeting_part(records: pd.DataFrame) -> SectionPart:
         records: the study's rows (:attr:`TargetingRun.records`).
 
     Returns:
-        The part: table ``targeting_summary`` (mm), the comparisons and, with both robots, their
+        The part: table "targeting_summary" (mm), the comparisons and, with both robots, their
         largest difference (value ``rtde_vs_sim_max_difference``, mm).
 
     Raises:

@@ -50,7 +50,8 @@ def summary(records: pd.DataFrame) -> pd.DataFrame:
     """Mean ± SD per robot of the targeting errors without and with bias correction, and of the
     calibration's errors against the ground truth (mm, deg)."""
     out = []
-    fmt = lambda v: f"{v[0]:.2f} ± {v[1]:.2f}" if np.isfinite(v[0]) else "n/a"
+    def fmt(v):
+        return f"{v[0]:.2f} ± {v[1]:.2f}" if np.isfinite(v[0]) else "n/a"
     for robot, g in records.groupby("robot", sort=False):
         for prefix, label in (("", "uncorrected (paper)"), ("corr_", "bias-corrected")):
             if f"{prefix}err_euclidean" not in g:

@@ -25,7 +25,8 @@ __all__ = ["learn_bubble_bias", "phantom_for", "treat_zone"]
 
 def treat_zone(robot: Robot, truth: GroundTruth, calibration: HandEyeCalibration, config: TargetingStudyConfig,
            zone: TreatmentZone, R_des: np.ndarray, T_flange_tcp: np.ndarray, phantom: Volume, roi: np.ndarray,
-           physical: TransducerModel, rng_cbct: np.random.Generator, journal: Path) -> tuple[ZoneSegmentation, Volume, dict]:
+           physical: TransducerModel, rng_cbct: np.random.Generator, journal: Path) -> tuple[ZoneSegmentation, Volume,
+                                                                                             dict]:
     """Position the TCP ``T_flange_tcp`` on ``zone``'s centre, treat the zone, simulate the
     post-treatment CBCT and segment it.
 
@@ -53,8 +54,16 @@ def treat_zone(robot: Robot, truth: GroundTruth, calibration: HandEyeCalibration
 
 
 def phantom_for(truth: GroundTruth, config: TargetingStudyConfig) -> tuple[Volume, np.ndarray]:
-    """The experiment's true layered phantom (HU on a ``config.phantom_voxel_mm`` grid, C-arm frame)
-    and its mask (the region the zone segmentation searches)."""
+    """The experiment's true layered phantom and the region the zone segmentation searches.
+
+    Args:
+        truth: the experiment's ground truth (``T_carm_phantom``).
+        config: the study's parameters (``phantom_voxel_mm``).
+
+    Returns:
+        ``(phantom, mask)``: the phantom (HU on a ``config.phantom_voxel_mm`` grid, C-arm frame) and its
+        boolean mask.
+    """
     phantom = phantom_volume(PhantomSpec(), truth.T_carm_phantom, spacing_mm=config.phantom_voxel_mm)
     return phantom, phantom_mask(phantom, PhantomSpec(), truth.T_carm_phantom)
 

@@ -22,17 +22,28 @@ from histostudy.treatment import TreatmentZone, ZoneSegmentation
 from ..pose.geometry import DIRECTIONS, transducer_axes
 from ._calibration import calibrate_robot
 from ._positioning import target_orientation, tcp_for_target
+from ._treatment import learn_bubble_bias, phantom_for, treat_zone
 from .robots import robot_seed, rtde_robot, sim_robot
 from .setup import GroundTruth, TargetingStudyConfig, draw_ground_truth, start_joints
-from ._treatment import learn_bubble_bias, phantom_for, treat_zone
 
 __all__ = ["calibration_errors", "run_targeting_experiment", "run_targeting_study", "zone_errors"]
 
 
 def zone_errors(prefix: str, seg: ZoneSegmentation, target: np.ndarray, R_des: np.ndarray, radius: float) -> dict:
-    """The row entries of one treated zone (mm), keys prefixed by ``prefix``: the centroid's error
-    along the commanded transducer axes ``R_des`` (``err_depth``/``err_tb``/``err_lr``), its
-    Euclidean error, the segmented sphere radius and its error, and the centroid (C-arm frame)."""
+    """The row entries of one treated zone (§II-E.4), keys prefixed by ``prefix``.
+
+    Args:
+        prefix: ``""`` (as the paper) or ``"corr_"`` (bias-corrected).
+        seg: the zone's segmentation.
+        target: the intended target (3, C-arm frame, mm).
+        R_des: the commanded transducer orientation (3x3; transducer -> C-arm).
+        radius: the planned radius (mm).
+
+    Returns:
+        ``err_depth``/``err_tb``/``err_lr`` (the centroid minus the target along ``R_des``' axes),
+        ``err_euclidean``, ``radius_mm`` and ``radius_err_mm`` (the fitted sphere), ``centroid_x/y/z``
+        (C-arm frame); all mm.
+    """
     err = seg.centroid_mm - target
     axes = transducer_axes(make_transform(R_des))
     row = {f"{prefix}err_{d}": float(err @ axes[d]) for d in DIRECTIONS}
@@ -44,16 +55,26 @@ def zone_errors(prefix: str, seg: ZoneSegmentation, target: np.ndarray, R_des: n
 
 
 def calibration_errors(calibration: HandEyeCalibration, calibration_rows: pd.DataFrame, truth: GroundTruth) -> dict:
-    """The row entries of the calibration (``cal_*``): its residuals (mm, deg), the mean
-    pose-estimation error of its poses (mm), and its errors against the ground truth: rotation
-    (deg) and translation (mm) of X = ``T_flange_transducer`` and Y = ``T_carm_base``."""
+    """The row entries of the calibration (``cal_*``).
+
+    Args:
+        calibration: the hand-eye calibration.
+        calibration_rows: its poses' rows (:func:`~histostudy.study.targeting._calibration.calibrate_robot`).
+        truth: the experiment's ground truth.
+
+    Returns:
+        The residuals (mm, deg), the mean pose-estimation error of its poses (mm), and its errors
+        against the truth: rotation (deg) and translation (mm) of X = ``T_flange_transducer`` and
+        Y = ``T_carm_base``.
+    """
     cal, cal_rows, X = calibration, calibration_rows, calibration.T_flange_transducer
     return dict(cal_rms_focal_residual_mm=cal.rms_focal_residual_mm,
                 cal_max_rotation_residual_deg=cal.max_rotation_residual_deg,
                 cal_pose_error_mm=float(cal_rows["pose_error_mm"].mean()),
                 cal_X_rotation_deg=float(np.degrees(rotation_angle(X[:3, :3].T @ truth.T_flange_transducer[:3, :3]))),
                 cal_X_translation_mm=float(np.linalg.norm(X[:3, 3] - truth.T_flange_transducer[:3, 3])),
-                cal_Y_rotation_deg=float(np.degrees(rotation_angle(cal.T_carm_base[:3, :3].T @ truth.T_carm_base[:3, :3]))),
+                cal_Y_rotation_deg=float(np.degrees(rotation_angle(cal.T_carm_base[:3, :3].T @ truth.T_carm_base[:3,
+                                                                                                                 :3]))),
                 cal_Y_translation_mm=float(np.linalg.norm(cal.T_carm_base[:3, 3] - truth.T_carm_base[:3, 3])))
 
 
@@ -62,18 +83,36 @@ def run_targeting_experiment(config: TargetingStudyConfig, seq: np.random.SeedSe
                              views: Sequence[View], robot_factory=None, keep_volumes: bool = False,
                              experiment: int = 0, segmenter=None, orientation=None,
                              estimator_views: Sequence[View] | None = None, acquisition_views=None) -> dict:
-    """One experiment (module docstring) from the seed sequence ``seq``; returns one flat row.
+    """One targeting experiment from the seed sequence ``seq`` (docs/targeting-study.md): the ground
+    truth drawn, the calibration, the pre-treatment CBCT and target, the treatment (and, with
+    ``config.bias_correction``, the calibration treatment and the corrected one).
 
-    ``segmenter`` / ``orientation``: the calibration's pose-estimation stages (see
-    :func:`calibrate_robot`; None: the oracles). ``estimator_views``: the views the estimator is
-    told, when they differ from the ``views`` that make the frames (a lab's calibration);
-    ``acquisition_views(k, views)``: those told at calibration pose ``k`` (see :func:`calibrate_robot`).
+    Args:
+        config: the study's parameters.
+        seq: the experiment's seed sequence (spawned from a copy: the same ``seq`` gives the same experiment).
+        pose_model: the digital model the pose is estimated with.
+        render_model: the model frames are rendered from.
+        physical: the physical transducer.
+        views: the views that make the frames (the C-arm's true geometry).
+        robot_factory: ``(seed, initial_joints_rad) -> context manager yielding a Robot``; None:
+            :func:`~histostudy.study.targeting.robots.sim_robot`.
+        keep_volumes: also return the CBCTs, the segmentation and the calibration under ``"_volumes"``.
+        experiment: the experiment's index (recorded).
+        segmenter: the calibration's segmentation stage; None: the config's oracle.
+        orientation: its orientation source; None: the oracle.
+        estimator_views: the views the estimator is told (a lab's calibration); None: ``views``.
+        acquisition_views: ``(k, views) -> views`` told at calibration pose ``k``; None: as given.
 
-    ``robot_factory(seed, initial_joints_rad) -> context manager yielding a Robot`` (default
-    :func:`sim_robot`); the robot starts where the operator jogged it, the flange pointing down
-    with the designed focal point over the phantom.
-    With ``keep_volumes`` the row also holds (under ``"_volumes"``) the pre/post-treatment CBCTs
-    and the segmentation, for figures.
+    Returns:
+        One flat row: target, diameter, the zone errors (:func:`zone_errors`, ``corr_*`` with the
+        correction), the learnt bias ``bias_learnt_*``, the calibration's ``cal_*``
+        (:func:`calibration_errors`, ``cal_error_at_target_mm``), the commanded axes ``axis_<d>_<x|y|z>``,
+        moves and points (mm, deg).
+
+    Raises:
+        TypeError: ``seq`` is not a SeedSequence.
+        TargetingError: a calibration pose's estimate failed its verdict, or degenerate motions.
+        CalibrationError: the calibration's residuals beyond the config's bound.
     """
     robot_factory = sim_robot(config) if robot_factory is None else robot_factory
     if not isinstance(seq, np.random.SeedSequence):
@@ -98,11 +137,13 @@ def run_targeting_experiment(config: TargetingStudyConfig, seq: np.random.SeedSe
     row = {"experiment": experiment, "diameter_mm": diameter, **{f"target_{a}": v for a, v in zip("xyz", target)}}
     # The operator jogged the flange pointing down over the phantom: the robot starts there.
     q_start = start_joints(truth)
-    with robot_factory(robot_seed(s_robot), q_start) as robot, tempfile.TemporaryDirectory(prefix="histostudy-target-") as tmp:
+    with robot_factory(robot_seed(s_robot),
+                       q_start) as robot, tempfile.TemporaryDirectory(prefix="histostudy-target-") as tmp:
         cal, cal_rows = calibrate_robot(robot, truth, config, pose_model=pose_model, render_model=render_model,
                                         physical=physical, views=views, rng_pose=np.random.default_rng(s_pose),
                                         rng_scene=np.random.default_rng(s_scene),
-                                        rng_render=np.random.default_rng(s_render), rng_est=np.random.default_rng(s_est),
+                                        rng_render=np.random.default_rng(s_render),
+                                        rng_est=np.random.default_rng(s_est),
                                         segmenter=segmenter, orientation=orientation,
                                         estimator_views=estimator_views, acquisition_views=acquisition_views)
         R_des = target_orientation(cal)
@@ -117,7 +158,8 @@ def run_targeting_experiment(config: TargetingStudyConfig, seq: np.random.SeedSe
         if config.bias_correction:
             bias_local = learn_bubble_bias(robot, truth, cal, config, R_des, X, phantom, roi, physical, rng_target,
                                            rng_cbct, Path(tmp) / "calibration_treatment.json")
-        row.update({f"bias_learnt_{a}": v for a, v in zip(("lr", "tb", "depth"), (bias_local[0], bias_local[1], -bias_local[2]))})
+        row.update({f"bias_learnt_{a}": v for a, v in zip(("lr", "tb", "depth"), (bias_local[0], bias_local[1],
+                                                                                  -bias_local[2]))})
 
         seg, post, info = treat_zone(robot, truth, cal, config, zone, R_des, X, phantom, roi, physical, rng_cbct,
                                      Path(tmp) / "treatment.json")
@@ -144,19 +186,32 @@ def run_targeting_study(config: TargetingStudyConfig, *, pose_model: TransducerM
                         keep_volumes: bool = False, progress: Callable[[str], None] | None = None,
                         segmenter=None, orientation=None, estimator_views: Sequence[View] | None = None,
                         experiments: Sequence[int] | None = None) -> pd.DataFrame:
-    """Run ``config.n_experiments`` experiments; one row per (experiment, robot).
+    """Run ``config.n_experiments`` experiments (:func:`run_targeting_experiment`), each from its
+    child of ``SeedSequence(seed)``.
 
-    ``segmenter`` / ``orientation``: the calibration's pose-estimation stages, e.g. the learned
-    ones of :func:`histostudy.study.pose.study_stages` (None: the config's oracles).
+    Args:
+        config: the study's parameters.
+        pose_model: the digital model the pose is estimated with.
+        render_model: the model frames are rendered from.
+        physical: the physical transducer.
+        views: the C-arm views.
+        seed: the study's integer seed.
+        robot: ``"sim"`` (SimulatedUR5e), ``"rtde"`` (the simulated controller through ur_rtde) or
+            ``"both"`` (each experiment on both, from the same seeds).
+        keep_volumes: keep the volumes (column ``_volumes``).
+        progress: called with a line per experiment; None: silent.
+        segmenter: the calibration's segmentation stage (e.g. of
+            :func:`~histostudy.study.pose.experiments.study_stages`); None: the config's oracle.
+        orientation: its orientation source; None: the oracle.
+        estimator_views: the views the estimator is told; None: ``views``.
+        experiments: run only these experiment indices (each keeps its seeds).
 
-    ``robot``: ``"sim"`` (:class:`SimulatedUR5e`), ``"rtde"`` (the simulated controller through
-    ur_rtde) or ``"both"`` (each experiment on both, from the same seeds). Columns: experiment,
-    robot, diameter_mm, target_*, the errors (``err_depth``, ``err_tb``, ``err_lr``,
-    ``err_euclidean``, ``radius_err_mm``; ``corr_*`` with the bias correction), the learnt bias
-    (``bias_learnt_*``, depth/TB/LR), the calibration's residuals and errors against the truth
-    (``cal_*``), the moves made, and the commanded axes at the target (``axis_<d>_<x|y|z>``).
-    ``estimator_views``: see :func:`run_targeting_experiment`; ``experiments``: run only these
-    experiment indices (each keeps its seeds).
+    Returns:
+        One row per (experiment, robot): ``robot`` and :func:`run_targeting_experiment`'s columns.
+
+    Raises:
+        ValueError: an unknown ``robot``.
+        TargetingError, CalibrationError: as :func:`run_targeting_experiment`.
     """
     robots = {"sim": ("sim",), "rtde": ("rtde",), "both": ("sim", "rtde")}.get(robot)
     if robots is None:

@@ -24,8 +24,14 @@ __all__ = ["InaccurateArm", "KinematicError", "reported_flange_pose", "robot_see
 
 @dataclass(frozen=True, eq=False)
 class KinematicError:
-    """An arm's true DH parameters less its nominal table's: ``d_mm`` and ``a_mm`` (6 each, mm),
-    ``alpha_rad`` and the joint zero offsets ``theta_rad`` (6 each, rad)."""
+    """An arm's true DH parameters less its nominal table's.
+
+    Args:
+        d_mm: the link offsets' errors (6, mm).
+        a_mm: the link lengths' errors (6, mm).
+        alpha_rad: the twists' errors (6, rad).
+        theta_rad: the joint zero offsets (6, rad).
+    """
 
     d_mm: np.ndarray
     a_mm: np.ndarray
@@ -34,20 +40,46 @@ class KinematicError:
 
     @classmethod
     def from_normals(cls, normals, *, length_sd_mm: float, angle_sd_rad: float) -> KinematicError:
-        """Standard normals (4, 6: d, a, alpha, theta) scaled by the lengths' SD (mm) and the
-        angles' (rad), so that a magnitude changes no draw."""
+        """Standard normals scaled by the lengths' SD and the angles', so that a magnitude changes no draw.
+
+        Args:
+            normals: standard normals (4, 6: d, a, alpha, theta).
+            length_sd_mm: the lengths' SD (mm).
+            angle_sd_rad: the angles' SD (rad).
+
+        Returns:
+            The :class:`KinematicError`.
+
+        Raises:
+            ValueError: ``normals`` not a finite (4, 6) array.
+        """
         z = np.asarray(normals, dtype=np.float64)
         if z.shape != (4, 6) or not np.all(np.isfinite(z)):
             raise ValueError(f"normals must be a finite (4, 6) array (d, a, alpha, theta), got shape {z.shape}")
         return cls(length_sd_mm * z[0], length_sd_mm * z[1], angle_sd_rad * z[2], angle_sd_rad * z[3])
 
     def physical_dh(self, dh: DHSpec = UR5E) -> DHSpec:
-        """The arm's true table: ``dh`` plus the length and twist errors (mm, rad)."""
+        """The arm's true table.
+
+        Args:
+            dh: the nominal table (default the UR5e's).
+
+        Returns:
+            ``dh`` plus the length and twist errors (mm, rad).
+        """
         return DHSpec(tuple(np.asarray(dh.d_mm) + self.d_mm), tuple(np.asarray(dh.a_mm) + self.a_mm),
                       tuple(np.asarray(dh.alpha_rad) + self.alpha_rad))
 
     def flange_pose(self, joints_rad, dh: DHSpec = UR5E) -> np.ndarray:
-        """Where the flange really is (``T_base_flange``, mm) at the encoders' ``joints_rad``."""
+        """Where the flange really is at the encoders' reading.
+
+        Args:
+            joints_rad: the encoders' joint angles (6, rad).
+            dh: the nominal table (default the UR5e's).
+
+        Returns:
+            ``T_base_flange`` (4x4, mm).
+        """
         return forward_kinematics(np.asarray(joints_rad, dtype=np.float64) + self.theta_rad, self.physical_dh(dh))
 
 
@@ -55,10 +87,16 @@ class InaccurateArm:
     """A robot whose arm is not its controller's model (the simulation's view of a real arm).
 
     The wrapped robot plans every move and reads its joints through the nominal table, as a UR
-    controller does; the flange sits where :class:`KinematicError` puts it. ``flange_pose``,
-    ``tcp_pose`` and ``move_linear``'s return are therefore the TRUE poses (what the study's ground
-    truth is built from), and :meth:`reported_flange_pose` what the controller reports. Every other
-    attribute is the wrapped robot's.
+    controller does; the flange sits where the :class:`KinematicError` puts it. ``flange_pose``,
+    ``tcp_pose`` and ``move_linear``'s return are the TRUE poses; :meth:`reported_flange_pose` is what
+    the controller reports. Every other attribute is the wrapped robot's.
+
+    Args:
+        robot: the wrapped robot (e.g. a :class:`~histostudy.robot.SimulatedUR5e`).
+        error: the arm's :class:`KinematicError`.
+
+    Raises:
+        TypeError: ``error`` is not a KinematicError.
     """
 
     def __init__(self, robot, error: KinematicError):
@@ -94,20 +132,41 @@ class InaccurateArm:
 
 
 def reported_flange_pose(robot) -> np.ndarray:
-    """What the robot's controller reports as ``T_base_flange`` (mm): an :class:`InaccurateArm`'s
-    nominal reading, any other robot's ``flange_pose()``."""
+    """What the robot's controller reports as its flange pose.
+
+    Args:
+        robot: a :class:`~histostudy.robot.Robot` or an :class:`InaccurateArm`.
+
+    Returns:
+        ``T_base_flange`` (4x4, mm): an InaccurateArm's nominal reading, any other robot's ``flange_pose()``.
+    """
     reported = getattr(robot, "reported_flange_pose", None)
     return robot.flange_pose() if reported is None else reported()
 
 
 def robot_seed(seq: np.random.SeedSequence) -> int:
-    """The integer seed of the robot's repeatability noise (the controller's ``--seed``)."""
+    """The integer seed of the robot's repeatability noise (the controller's ``--seed``).
+
+    Args:
+        seq: the experiment's robot seed sequence.
+
+    Returns:
+        The first word of its state.
+    """
     return int(seq.generate_state(1)[0])
 
 
 def sim_robot(config: TargetingStudyConfig, kinematic_error: KinematicError | None = None):
-    """A robot factory for :func:`run_targeting_experiment`: ``SimulatedUR5e`` in process, inside an
-    :class:`InaccurateArm` when ``kinematic_error`` is given (a lab's arm)."""
+    """A robot factory for :func:`~histostudy.study.targeting.experiment.run_targeting_experiment`:
+    ``SimulatedUR5e`` in process, inside an :class:`InaccurateArm` when ``kinematic_error`` is given.
+
+    Args:
+        config: the study's parameters (``robot_repeatability_mm``).
+        kinematic_error: a lab's arm; None: the nominal arm.
+
+    Returns:
+        ``factory(seed, initial_joints_rad)`` -> a context manager yielding the robot (closed after).
+    """
 
     @contextlib.contextmanager
     def factory(seed: int, initial_joints_rad=HOME_JOINTS_RAD):
@@ -133,11 +192,17 @@ def _loopback_host() -> str:
 
 
 def rtde_robot(config: TargetingStudyConfig, *, command_timeout_s: float = 10.0):
-    """A robot factory: the simulated UR controller in its own process on a loopback address,
-    driven by :class:`~histostudy.robot.RTDERobot` through the real ``ur_rtde`` client.
+    """A robot factory: the simulated UR controller in its own process on a loopback address, driven
+    by :class:`~histostudy.robot.RTDERobot` through the real ``ur_rtde`` client; its ``--seed`` is the
+    experiment's robot seed, so its noise is drawn exactly as :func:`sim_robot`'s.
 
-    The controller's ``--seed`` is the experiment's robot seed, so its repeatability noise is
-    drawn exactly as :func:`sim_robot`'s. The controller is stopped when the block ends.
+    Args:
+        config: the study's parameters (``robot_repeatability_mm``).
+        command_timeout_s: the client's timeout per command (s).
+
+    Returns:
+        ``factory(seed, initial_joints_rad)`` -> a context manager yielding the robot (the controller
+        stopped after).
     """
     from histostudy.robot import RTDERobot
     from histostudy.robot.controller import ControllerProcess

@@ -20,7 +20,9 @@ __all__ = ["GroundTruth", "TargetingError", "TargetingStudyConfig", "draw_ground
 
 
 class TargetingError(RuntimeError):
-    """The targeting study cannot go on (a calibration outside its bound, a failed pose estimate)."""
+    """The targeting study cannot go on: a calibration pose's estimate failed its verdict, or the
+    calibration poses do not determine the hand-eye calibration.
+    """
 
 
 @dataclass(frozen=True)
@@ -32,7 +34,11 @@ class TargetingStudyConfig(FrameRenderConfig):
     included; ``background`` is the scene behind the transducer at calibration (``"phantom"``: the
     water bath and phantom; ``"none"``: no scene, for fast tests).
 
-    Attributes:
+    Args:
+        photons_per_pixel: dose of the calibration frames, photons per unattenuated pixel.
+        n_splats: splats per model point.
+        splat_sigma_mm: splat SD (mm).
+        background: the scene behind the transducer at calibration (``"none"``: no scene).
         n_experiments: phantom experiments (paper: 6).
         zone_diameters_mm: target sphere diameters drawn per experiment (paper: 20 or 25 mm).
         n_calibration_poses: robot poses of the hand-eye calibration (paper: 4; >= 3).
@@ -58,7 +64,11 @@ class TargetingStudyConfig(FrameRenderConfig):
         robot_repeatability_mm: landing noise radius of the UR5e (±0.03 mm).
         bubble_offset_mm: bubble cloud offset from the physical focal point, transducer frame.
         bias_correction: run the calibration treatment and the corrected targeting.
-        bias_test_diameter_mm: diameter of the calibration treatment's test zone.
+        bias_test_diameter_mm: diameter of the calibration treatment's test zone (mm, in (0, 30]).
+
+    Raises:
+        ValueError: a value out of its range, named with its value (an unknown degradation or mode
+            included).
     """
 
     n_experiments: int = 6
@@ -92,7 +102,8 @@ class TargetingStudyConfig(FrameRenderConfig):
 
     def __post_init__(self):
         super().__post_init__()
-        if isinstance(self.n_experiments, bool) or int(self.n_experiments) != self.n_experiments or self.n_experiments < 1:
+        if isinstance(self.n_experiments,
+                      bool) or int(self.n_experiments) != self.n_experiments or self.n_experiments < 1:
             raise ValueError(f"n_experiments must be an integer >= 1, got {self.n_experiments!r}")
         if int(self.n_calibration_poses) != self.n_calibration_poses or self.n_calibration_poses < 3:
             raise ValueError(f"n_calibration_poses must be an integer >= 3 (hand-eye needs 2 motions), "
@@ -120,7 +131,8 @@ class TargetingStudyConfig(FrameRenderConfig):
             if not (np.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be finite and > 0, got {v!r}")
         if np.asarray(self.bubble_offset_mm, float).shape != (3,):
-            raise ValueError(f"bubble_offset_mm must be 3 numbers (transducer frame, mm), got {self.bubble_offset_mm!r}")
+            raise ValueError(f"bubble_offset_mm must be 3 numbers (transducer frame, mm), "
+                             f"got {self.bubble_offset_mm!r}")
 
     def segmenter(self) -> OracleSegmenter:
         """The oracle segmenter of ``degradation``."""
@@ -129,14 +141,18 @@ class TargetingStudyConfig(FrameRenderConfig):
 
 @dataclass(frozen=True, eq=False)
 class GroundTruth:
-    """What the lab had but did not know (mm, 4x4 ``T_<to>_<from>``).
+    """What the lab had but did not know (4x4 ``T_<to>_<from>``, mm).
 
-    ``T_carm_base``: the robot base in the C-arm frame. ``T_flange_transducer``: the transducer
-    (digital frame: origin at the geometric focal point) on the flange, mounting error included.
-    ``T_flange_transducer_nominal``: the mount as designed (tool axis, no error), what the
-    preprogrammed calibration poses are laid out with. ``T_carm_phantom``: the layered phantom.
-    ``start_focal_base_mm``: where the operator jogged the focal point above the phantom before
-    the preprogrammed calibration poses (base frame). ``bubble_offset_mm``: transducer frame.
+    Args:
+        T_carm_base: the robot base in the C-arm frame.
+        T_flange_transducer: the transducer (digital frame: origin at the geometric focal point) on
+            the flange, mounting error included.
+        T_flange_transducer_nominal: the mount as designed (tool axis, no error), what the
+            preprogrammed calibration poses are laid out with.
+        T_carm_phantom: the layered phantom.
+        start_focal_base_mm: where the operator jogged the focal point above the phantom before the
+            calibration poses (3, base frame, mm).
+        bubble_offset_mm: the bubble cloud's offset (3, transducer frame, mm).
     """
 
     T_carm_base: np.ndarray
@@ -147,7 +163,14 @@ class GroundTruth:
     bubble_offset_mm: np.ndarray
 
     def T_carm_transducer(self, T_base_flange) -> np.ndarray:
-        """The true transducer pose for a (measured) flange pose."""
+        """The true transducer pose for a (measured) flange pose.
+
+        Args:
+            T_base_flange: the flange pose (4x4, mm; flange -> base).
+
+        Returns:
+            ``T_carm_base @ T_base_flange @ T_flange_transducer`` (4x4, mm).
+        """
         return self.T_carm_base @ np.asarray(T_base_flange, float) @ self.T_flange_transducer
 
 
@@ -161,8 +184,15 @@ def draw_ground_truth(rng: np.random.Generator, config: TargetingStudyConfig) ->
     The base stands beside the table on the patient's right (world -x, LPS), its z axis up (world
     -y) within ``base_tilt_deg``, turned by up to ``base_yaw_deg``, at a horizontal distance in
     ``base_distance_mm`` from the isocentre and 150-250 mm below it; the transducer hangs from the
-    flange with its +z (towards the transducer) along the flange's -z, the focal point
-    ``flange_to_focal_mm`` away, plus the mounting error.
+    flange with its +z along the flange's -z, the focal point ``flange_to_focal_mm`` away, plus the
+    mounting error.
+
+    Args:
+        rng: the experiment's ground-truth stream (the draws' order fixes every seeded result).
+        config: the study's parameters.
+
+    Returns:
+        The :class:`GroundTruth`.
     """
     # Base axes in the world: x away from the table (world -x), z up (world -y), y = z cross x; the
     # arm works in front of its home configuration (base -x), where straight moves stay regular.
@@ -188,9 +218,18 @@ def draw_ground_truth(rng: np.random.Generator, config: TargetingStudyConfig) ->
 
 
 def start_joints(truth: GroundTruth) -> np.ndarray:
-    """Where the operator jogged the robot before the calibration (rad, 6 joints): the flange
-    pointing down, the designed focal point at ``truth.start_focal_base_mm`` (the joint solution
-    closest to the home configuration)."""
+    """Where the operator jogged the robot before the calibration: the flange pointing down, the
+    designed focal point at ``truth.start_focal_base_mm``.
+
+    Args:
+        truth: the experiment's ground truth.
+
+    Returns:
+        The 6 joint angles (rad), the solution closest to the home configuration.
+
+    Raises:
+        UnreachablePoseError: no joint solution reaches the start pose.
+    """
     start_flange = make_transform(R_BASE_FLANGE_DOWN, truth.start_focal_base_mm
                                   - R_BASE_FLANGE_DOWN @ truth.T_flange_transducer_nominal[:3, 3])
     return inverse_kinematics_closest(start_flange, HOME_JOINTS_RAD)

@@ -41,7 +41,8 @@ def test_missing_parameters_are_named():
 
 @pytest.fixture(scope="module")
 def setup():
-    return B.prepare({**DEFAULTS, "render_spacing_mm": 0.47, "learned_stages": False, "sources": ["robot"], "range_sources": [],
+    return B.prepare({**DEFAULTS, "render_spacing_mm": 0.47, "learned_stages": False, "sources": ["robot"],
+                      "range_sources": [],
                       "scheduler": "local:1"}, 7)
 
 

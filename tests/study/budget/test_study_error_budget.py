@@ -37,7 +37,8 @@ def _setup(models, sources, **pose):
     model, physical = models
     lab_model = dataclasses.replace(LabErrorModel().off(), **{s: getattr(LabErrorModel(), s) for s in sources})
     lab = draw_lab(lab_model, 21, physical=physical, views=default_biplane())
-    pose_config = PoseStudyConfig(n_experiments=1, modes=("fast",), track=False, n_splats=2, background="phantom", **pose)
+    pose_config = PoseStudyConfig(n_experiments=1, modes=("fast",), track=False, n_splats=2, background="phantom",
+                                  **pose)
     targeting_config = TargetingStudyConfig(n_experiments=1, n_splats=2, background="none", bias_correction=False)
     return BudgetSetup(lab, pose_config, targeting_config, model, model)
 
@@ -53,15 +54,18 @@ def test_pose_budget_baseline_is_the_study_and_sources_act_where_they_act(models
                            physical=setup.lab.study_physical, views=default_biplane(), seed=5)
     expected = experiment_metrics(today, reference=cbct_reference(config, physical=setup.lab.study_physical, seed=5))
     base = records.loc["baseline"]
-    for column in ("centre_err_euclidean", "radius_err_overall", "margin_err_overall", *(f"centre_err_{d}" for d in DIRS)):
+    for column in ("centre_err_euclidean", "radius_err_overall", "margin_err_overall",
+                   *(f"centre_err_{d}" for d in DIRS)):
         assert base[column] == expected[column].iloc[0], column
     axes = np.array([_axes(setup, seed=5)[d] for d in DIRS])
     draw = setup.lab.experiment(0)
     reference = cbct_reference(config, physical=setup.lab.study_physical, seed=5)
     centroid = reference[[f"centroid_{a}" for a in "xyz"]].to_numpy(float)[0]
     base_err = np.array([base[f"centre_err_{d}"] for d in DIRS])
-    for label, shift in (("only annotation", draw.annotation_centroid_mm), ("only phantom_motion", draw.phantom_motion_mm),
-                         ("only registration", draw.T_cbct_carm[:3, :3] @ centroid + draw.T_cbct_carm[:3, 3] - centroid)):
+    for label, shift in (("only annotation", draw.annotation_centroid_mm), ("only phantom_motion",
+                                                                            draw.phantom_motion_mm),
+                         ("only registration", draw.T_cbct_carm[:3, :3] @ centroid + draw.T_cbct_carm[:3,
+                                                                                                      3] - centroid)):
         err = np.array([records.loc[label, f"centre_err_{d}"] for d in DIRS])
         assert np.allclose(err, base_err - axes @ shift, atol=1e-9), label
     # the bubble offset moves the treated zone (the reference), not the estimate
@@ -114,7 +118,8 @@ def test_measured_reference_and_zone_apply_the_draw(models):
     draw = setup.lab.experiment(0)
     import pandas as pd
 
-    reference = pd.DataFrame([{"centroid_x": 1.0, "centroid_y": 2.0, "centroid_z": 3.0, "sphere_x": 1.0, "sphere_y": 2.0,
+    reference = pd.DataFrame([{"centroid_x": 1.0, "centroid_y": 2.0, "centroid_z": 3.0, "sphere_x": 1.0,
+                               "sphere_y": 2.0,
                                "sphere_z": 3.0, "sphere_radius_mm": 10.0, "ref_radius_depth": 10.0,
                                "ref_radius_tb": 10.0, "ref_radius_lr": 10.0}])
     read = measured_reference(reference, draw)
@@ -122,7 +127,8 @@ def test_measured_reference_and_zone_apply_the_draw(models):
                        np.array([1.0, 2.0, 3.0]) + draw.annotation_centroid_mm)
     assert read["ref_radius_lr"].iloc[0] == pytest.approx(10.0 + draw.annotation_radius_mm[2])
     row = {"target_x": 0.0, "target_y": 0.0, "target_z": 0.0, "centroid_x": 0.0, "centroid_y": 0.0, "centroid_z": 1.0,
-           "radius_err_mm": 0.2, **{f"axis_{d}_{a}": float(i == j) for i, d in enumerate(DIRS) for j, a in enumerate("xyz")}}
+           "radius_err_mm": 0.2, **{f"axis_{d}_{a}": float(i == j) for i, d in enumerate(DIRS) for j,
+                                    a in enumerate("xyz")}}
     zone = measured_zone(row, draw)
     err = np.array([0.0, 0.0, 1.0]) + draw.annotation_centroid_mm
     assert zone["err_euclidean"] == pytest.approx(np.linalg.norm(err))

@@ -24,12 +24,14 @@ def _records(n: int = 40, seed: int = 0) -> pd.DataFrame:
     noise = rng.normal(0, 0.4, (n, 3))
     errors = {"baseline": base, "lab": base + bias + noise,
               "only bubble_offset": base + bias, "only annotation": base + noise, "only robot": base,
-              "without bubble_offset": base + noise, "without annotation": base + bias, "without robot": base + bias + noise}
+              "without bubble_offset": base + noise, "without annotation": base + bias,
+              "without robot": base + bias + noise}
     rows = []
     for label, e in errors.items():
         for i, (d, tb, lr) in enumerate(e):
             rows.append({"study": "pose", "configuration": label, "experiment": i, "centre_err_depth": d,
-                         "centre_err_tb": tb, "centre_err_lr": lr, "centre_err_euclidean": float(np.linalg.norm([d, tb, lr])),
+                         "centre_err_tb": tb, "centre_err_lr": lr, "centre_err_euclidean": float(np.linalg.norm([d, tb,
+                                                                                                                 lr])),
                          "radius_err_overall": 0.1})
     return pd.DataFrame(rows), errors
 

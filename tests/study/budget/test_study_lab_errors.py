@@ -62,7 +62,8 @@ def test_the_same_seed_gives_the_same_lab_and_toggling_one_source_moves_no_other
     assert np.array_equal(only_bubble.bubble_offset_mm, a.bubble_offset_mm)
     assert only_bubble.frame_views == tuple(views) and only_bubble.estimator_views == tuple(views)
     for e in range(3):
-        full, alone = a.experiment(e), draw_lab(model.only("registration"), 7, physical=physical, views=views).experiment(e)
+        full, alone = a.experiment(e), draw_lab(model.only("registration"), 7, physical=physical,
+                                                views=views).experiment(e)
         assert np.array_equal(full.T_cbct_carm, alone.T_cbct_carm)
     with pytest.raises(ValueError, match="not this lab's"):
         a.variant(dataclasses.replace(model, gantry_sag=GantrySag(sd_mm=2.0)))

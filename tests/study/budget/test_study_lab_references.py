@@ -6,7 +6,6 @@ import dataclasses
 import numpy as np
 import pytest
 
-from histostudy.study.budget._section import SOURCE_PROVENANCE, sources_table
 from histostudy.study.budget._references import (
     SOURCE_REFERENCES,
     STATUSES,
@@ -15,6 +14,7 @@ from histostudy.study.budget._references import (
     references_table,
     sweep_values,
 )
+from histostudy.study.budget._section import SOURCE_PROVENANCE, sources_table
 from histostudy.study.budget._sources import LAB_SOURCES, LabErrorModel
 
 

@@ -93,7 +93,8 @@ def test_the_papers_place_among_the_labs_is_numpys():
     assert set(table["reading"]) == {*READINGS, "any"}
     assert (table["metric"] == "bias").sum() == 2 * 2 * 3  # two studies, two readings, three directions
     for r in table.itertuples():
-        values = stats.loc[stats["study"] == r.study, f"{r.metric}_{r.direction}_mm" if r.metric in ("bias", "sd", "mae")
+        values = stats.loc[stats["study"] == r.study, f"{r.metric}_{r.direction}_mm" if r.metric in ("bias", "sd",
+                                                                                                     "mae")
                            else {"euclidean_mean": "euclidean_mean_mm", "euclidean_sd": "euclidean_sd_mm",
                                  "bias_share": "bias_share"}[r.metric]].to_numpy(float)
         if r.metric == "bias":
@@ -117,7 +118,8 @@ def test_bias_scatter_split_and_signs():
     stats = _stats(n=21)
     split = bias_scatter_split(stats).set_index("study")
     assert split.loc["pose", "paper_bias_share"] == pytest.approx(
-        split.loc["pose", "paper_bias2_mm2"] / (split.loc["pose", "paper_bias2_mm2"] + split.loc["pose", "paper_sd2_mm2"]))
+        split.loc["pose", "paper_bias2_mm2"] / (split.loc["pose", "paper_bias2_mm2"] + split.loc["pose",
+                                                                                                 "paper_sd2_mm2"]))
     assert split.loc["targeting", "labs_bias_share"] == pytest.approx(
         np.median(stats.loc[stats["study"] == "targeting", "bias_share"]))
     # signs: a lab set where Table II's LR bias is always negative and targeting's always positive

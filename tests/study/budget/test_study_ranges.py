@@ -101,13 +101,16 @@ def _range_records(source, low_err, high_err):
 
 def test_range_bands_are_lab_zero_at_each_end():
     ranges = _range_records("bubble_offset", [0.5, 0, 0], [2.0, 0, 0])
-    budget = pd.DataFrame(_records(None, [1.0, 0, 0], "lab") + _records(None, [9.0, 0, 0], "baseline")).drop(columns="lab")
+    budget = pd.DataFrame(_records(None, [1.0, 0, 0], "lab") + _records(None, [9.0, 0, 0],
+                                                                        "baseline")).drop(columns="lab")
     bands = range_bands(ranges, budget).set_index("study")
     assert list(bands.index) == ["pose", "targeting"]
-    assert bands.loc["pose", "at_low_mm"] == pytest.approx(0.5) and bands.loc["pose", "at_high_mm"] == pytest.approx(2.0)
+    assert bands.loc["pose", "at_low_mm"] == pytest.approx(0.5) and bands.loc["pose",
+                                                                              "at_high_mm"] == pytest.approx(2.0)
     assert bands.loc["pose", "at_default_mm"] == pytest.approx(1.0)  # the "lab" configuration, not the baseline
     assert bands.loc["targeting", "band_mm"] == pytest.approx(1.5)
-    assert bands.loc["pose", "status"] == "swept" and bands.loc["pose", "high"] == B.SOURCE_REFERENCES["bubble_offset"].high
+    assert bands.loc["pose", "status"] == "swept" and bands.loc["pose",
+                                                                "high"] == B.SOURCE_REFERENCES["bubble_offset"].high
 
 
 def test_a_band_spans_the_default_where_the_source_is_not_monotone():

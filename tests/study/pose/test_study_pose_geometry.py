@@ -55,7 +55,8 @@ def test_rotation_error_modulo_symmetry_takes_the_half_turn_only_where_the_model
     tilt = make_transform(matrix_from_rotvec([np.deg2rad(4.0), 0.0, 0.0]))
     estimate = T_CENTRE @ half_turn @ tilt
     assert rotation_error_modulo_symmetry_deg(estimate, T_CENTRE, half_turn=True) == (pytest.approx(4.0), True)
-    assert rotation_error_modulo_symmetry_deg(estimate, T_CENTRE, half_turn=False) == (pytest.approx(180.0, abs=4.1), True)
+    assert rotation_error_modulo_symmetry_deg(estimate, T_CENTRE, half_turn=False) == (pytest.approx(180.0, abs=4.1),
+                                                                                       True)
     assert rotation_error_modulo_symmetry_deg(T_CENTRE @ tilt, T_CENTRE, half_turn=True) == (pytest.approx(4.0), False)
 
 
