@@ -21,7 +21,6 @@ from ._section import (
     table2_part,
     variants_part,
 )
-from .geometry import margin_positions
 
 __all__ = [
     "SECTION_TITLE",
@@ -31,7 +30,6 @@ __all__ = [
     "degradation_part",
     "experiments_part",
     "learned_stages_part",
-    "margin_positions",
     "pose_overlay",
     "prepare",
     "projector_part",

@@ -18,16 +18,13 @@ from ._section import (
     targeting_part,
 )
 from ._treatment import phantom_for
-from .setup import TargetingStudyConfig, draw_ground_truth, start_joints
 
 __all__ = [
     "SECTION_TITLE",
     "TargetingSectionConfig",
-    "TargetingStudyConfig",
     "calibration_part",
     "calibration_poses",
     "closing_part",
-    "draw_ground_truth",
     "experiments_section",
     "fig7_figures",
     "phantom_for",
@@ -36,6 +33,5 @@ __all__ = [
     "record",
     "scene_figure",
     "sensitivity_section",
-    "start_joints",
     "targeting_part",
 ]

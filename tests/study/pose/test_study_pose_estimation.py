@@ -16,7 +16,7 @@ HOMES = {
     "cbct_reference_part": "_section", "table2_part": "_section", "variants_part": "_section",
     "pose_overlay": "_section", "robustness_part": "_section", "degradation_part": "_section",
     "learned_stages_part": "_section", "projector_part": "_section", "closing_part": "_section",
-    "robustness_sweep": "_robustness", "robustness_summary": "_robustness", "margin_positions": "geometry",
+    "robustness_sweep": "_robustness", "robustness_summary": "_robustness",
 }
 
 

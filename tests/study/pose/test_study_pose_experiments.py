@@ -4,9 +4,8 @@ import numpy as np
 import pytest
 
 from histostudy.imaging import default_biplane, random_background
-from histostudy.study import pose as study
 from histostudy.study.pose.experiments import PoseStudyConfig, experiment_setups, run_pose_study
-from histostudy.study.pose.geometry import experiment_pose
+from histostudy.study.pose.geometry import experiment_pose, margin_positions
 from histostudy.study.pose.metrics import experiment_metrics, stage_timing, tracking_summary
 from histostudy.transducer import TransducerModel
 
@@ -44,7 +43,7 @@ def test_experiment_setups_keep_the_study_draws():
         T_centre = experiment_pose(rng_pose, config, scene.meta["phantom_center_mm"])
         assert exp.radius_mm == radius
         np.testing.assert_array_equal(exp.T_centre, T_centre)
-        for position, T_nominal in study.margin_positions(T_centre, radius).items():
+        for position, T_nominal in margin_positions(T_centre, radius).items():
             expected = T_nominal.copy()
             expected[:3, 3] += rng_robot.normal(0, config.robot_repeatability_mm, 3)
             np.testing.assert_array_equal(exp.T_true[position], expected)

@@ -6,7 +6,6 @@ import pytest
 
 from histostudy.geometry import make_transform, matrix_from_rotvec
 from histostudy.imaging import default_biplane
-from histostudy.study import pose as study
 from histostudy.study.pose.experiments import PoseStudyConfig
 from histostudy.study.pose.geometry import (
     DIRECTIONS,
@@ -14,6 +13,7 @@ from histostudy.study.pose.geometry import (
     axial_symmetric_rotation_error_deg,
     bubble_cloud_centre_mm,
     experiment_pose,
+    margin_positions,
     random_pose_in_views,
     rotation_error_modulo_symmetry_deg,
     transducer_axes,
@@ -32,7 +32,7 @@ def test_transducer_axes_are_orthonormal_and_depth_is_propagation():
 
 
 def test_margin_positions_are_r_away_along_each_axis_with_the_same_rotation():
-    positions = study.margin_positions(T_CENTRE, 12.5)
+    positions = margin_positions(T_CENTRE, 12.5)
     assert set(positions) == {"centre", "top", "bottom", "left", "right", "front", "back"}
     axes = transducer_axes(T_CENTRE)
     for name, (direction, sign) in MARGINS.items():

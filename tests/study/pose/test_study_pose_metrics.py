@@ -4,8 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from histostudy.study import pose as study
-from histostudy.study.pose.geometry import DIRECTIONS, MARGINS, transducer_axes
+from histostudy.study.pose.geometry import DIRECTIONS, MARGINS, margin_positions, transducer_axes
 from histostudy.study.pose.metrics import experiment_metrics, table2
 from histostudy.transducer import pose_facing
 
@@ -15,7 +14,7 @@ T_CENTRE = pose_facing((0.1, 1.0, -0.2), focal_point_mm=(3.0, -2.0, 5.0), axial_
 def synthetic_records(offsets: dict, radius: float = 10.0, experiment: int = 0) -> pd.DataFrame:
     """Records whose prediction = truth + offsets[position] (world mm), for one experiment."""
     rows = []
-    for position, T in study.margin_positions(T_CENTRE, radius).items():
+    for position, T in margin_positions(T_CENTRE, radius).items():
         truth = T[:3, 3]
         pred = truth + np.asarray(offsets.get(position, np.zeros(3)))
         axes = transducer_axes(T_CENTRE)

@@ -19,7 +19,7 @@ from histostudy.study.targeting._positioning import position_for_target, scene_a
 from histostudy.study.targeting._summary import summary, targeting_values
 from histostudy.study.targeting.experiment import run_targeting_experiment
 from histostudy.study.targeting.robots import rtde_robot, sim_robot
-from histostudy.study.targeting.setup import TargetingError
+from histostudy.study.targeting.setup import TargetingError, TargetingStudyConfig, draw_ground_truth, start_joints
 from histostudy.transducer import TransducerModel, TransducerSpec
 
 #: Bubble cloud 1.5 mm to the transducer's +x (LR) and 1.5 mm deeper (-z) than the physical focal point.
@@ -27,11 +27,11 @@ OFFSET = (1.5, 0.0, -1.5)
 SEED = 11
 
 
-def small_config(**kw) -> T.TargetingStudyConfig:
+def small_config(**kw) -> TargetingStudyConfig:
     base = dict(n_experiments=1, zone_diameters_mm=(20.0,), background="none", n_splats=4, phantom_voxel_mm=1.0,
                 cbct_voxel_mm=1.0, treatment_spacing_mm=(3.0, 3.0, 4.0), bubble_offset_mm=OFFSET)
     base.update(kw)
-    return T.TargetingStudyConfig(**base)
+    return TargetingStudyConfig(**base)
 
 
 @pytest.fixture(scope="module")
@@ -100,7 +100,7 @@ def test_summary_tables(experiment):
 
 
 def _exact_calibration(rng):
-    truth = T.draw_ground_truth(rng, small_config())
+    truth = draw_ground_truth(rng, small_config())
     F = T.calibration_poses(rng, small_config(), truth)
     cal = calibrate(F, [truth.T_carm_transducer(f) for f in F])
     return truth, cal
@@ -155,11 +155,11 @@ def test_scene_at_target_puts_the_true_focal_point_on_the_target():
 
 def test_ground_truth_is_plausible_and_seeded():
     cfg = small_config()
-    a = T.draw_ground_truth(np.random.default_rng(1), cfg)
-    b = T.draw_ground_truth(np.random.default_rng(1), cfg)
+    a = draw_ground_truth(np.random.default_rng(1), cfg)
+    b = draw_ground_truth(np.random.default_rng(1), cfg)
     assert np.array_equal(a.T_carm_base, b.T_carm_base)
     for seed in range(10):
-        t = T.draw_ground_truth(np.random.default_rng(seed), cfg)
+        t = draw_ground_truth(np.random.default_rng(seed), cfg)
         base_in_carm = t.T_carm_base[:3, 3]
         assert 500.0 <= np.linalg.norm(base_in_carm) <= 750.0
         assert base_in_carm[1] > 0  # the base stands below the isocentre (LPS +y is posterior)
@@ -229,7 +229,7 @@ def test_the_calibration_runs_on_the_stages_it_is_given(models):
     the study with a clear error before anything is calibrated."""
     model, physical, views = models
     config = small_config(degradation="none")
-    truth = T.draw_ground_truth(np.random.default_rng(5), config)
+    truth = draw_ground_truth(np.random.default_rng(5), config)
     oracle_segmenter, oracle_orientation = config.segmenter(), OracleOrientation()
     calls = {"segment": 0, "orientation": 0}
 
@@ -250,7 +250,7 @@ def test_the_calibration_runs_on_the_stages_it_is_given(models):
     def calibrate_with(segmenter, orientation):
         names = ("rng_pose", "rng_scene", "rng_render", "rng_est")
         rngs = {name: np.random.default_rng(k) for k, name in enumerate(names)}
-        with sim_robot(config)(7, T.start_joints(truth)) as robot:
+        with sim_robot(config)(7, start_joints(truth)) as robot:
             return calibrate_robot(robot, truth, config, pose_model=model, render_model=model, physical=physical,
                                      views=views, segmenter=segmenter, orientation=orientation, **rngs)
 
@@ -266,10 +266,10 @@ def test_the_calibration_runs_on_the_stages_it_is_given(models):
 def test_the_config_renders_with_the_shared_render_settings():
     from histostudy.imaging import FrameRenderConfig
 
-    config = T.TargetingStudyConfig(n_splats=4, background="none")
+    config = TargetingStudyConfig(n_splats=4, background="none")
     assert isinstance(config, FrameRenderConfig)
     assert config.frame_kwargs() == {"photons_per_pixel": 5e4, "n_splats": 4, "splat_sigma_mm": 0.5}
     with pytest.raises(ValueError, match="background must be one of"):
-        T.TargetingStudyConfig(background="water")
+        TargetingStudyConfig(background="water")
     with pytest.raises(ValueError, match="splat_sigma_mm"):
-        T.TargetingStudyConfig(splat_sigma_mm=-1.0)
+        TargetingStudyConfig(splat_sigma_mm=-1.0)

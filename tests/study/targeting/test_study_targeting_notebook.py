@@ -8,7 +8,6 @@ import pandas as pd
 import pytest
 
 from histostudy.geometry import make_transform, rotation_about_axis
-from histostudy.study import targeting as T
 from histostudy.study.targeting import _section as targeting_notebook
 from histostudy.study.targeting._section import (
     RECORDED_PARAMETERS,
@@ -21,6 +20,7 @@ from histostudy.study.targeting._section import (
     study_config_from_parameters,
 )
 from histostudy.study.targeting.experiment import calibration_errors, zone_errors
+from histostudy.study.targeting.setup import TargetingStudyConfig
 from histostudy.transducer import TransducerModel, TransducerSpec
 
 #: The smoke profile's notebook-05 parameters (histostudy/reporting/profiles/smoke.toml).
@@ -46,7 +46,7 @@ def test_notebook_seeds_are_the_children_the_notebook_always_used():
 
 def test_config_from_parameters_takes_the_config_fields_only():
     config = study_config_from_parameters(SMOKE)
-    assert config == T.TargetingStudyConfig(
+    assert config == TargetingStudyConfig(
         n_experiments=1, zone_diameters_mm=(20.0, 25.0), n_calibration_poses=4, background="phantom",
         photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, degradation="table1", pose_mode="fast",
         phantom_voxel_mm=0.5, cbct_voxel_mm=1.0, treatment_spacing_mm=(2.0, 2.0, 3.0),
@@ -93,7 +93,7 @@ def test_run_prepared_study_passes_the_set_up_and_splits_the_volumes(monkeypatch
 
     monkeypatch.setattr(targeting_notebook, "run_targeting_study", fake_study)
     stages = SimpleNamespace(segmenter="U-Net", orientation="VGG19")
-    setup = TargetingSetup(T.TargetingStudyConfig(), "pose", "render", "physical", ("A", "B"), stages,
+    setup = TargetingSetup(TargetingStudyConfig(), "pose", "render", "physical", ("A", "B"), stages,
                              notebook_seeds(3))
     records, volumes = run_prepared_study(setup, "rtde")
     assert "_volumes" not in records and list(records["err_euclidean"]) == [1.5]
@@ -116,7 +116,7 @@ def test_stand_ins_name_the_robot_stages_and_offset():
 
 def test_closing_text_states_the_offsets():
     setup = SimpleNamespace(physical=SimpleNamespace(focal_point_mm=np.array([3.0, 4.0, 0.0])),
-                            config=T.TargetingStudyConfig(bias_test_diameter_mm=25.0))
+                            config=TargetingStudyConfig(bias_test_diameter_mm=25.0))
     text = closing_text(2, setup, [0.5, 0.0, 0.0])
     assert text.startswith("2 experiment(s).")
     assert "lies 5.00 mm from the digital model's" in text

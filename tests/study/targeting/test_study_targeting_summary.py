@@ -24,6 +24,7 @@ from histostudy.study.targeting._summary import (
     summary,
     targeting_comparisons,
 )
+from histostudy.study.targeting.setup import TargetingStudyConfig, draw_ground_truth
 
 ERR = ("err_depth", "err_tb", "err_lr", "err_euclidean", "radius_err_mm")
 
@@ -186,9 +187,9 @@ def test_fig7_marks_the_target_and_outlines_the_zone(treated):
 def test_scene_figure_feeds_the_3d_scene():
     from histostudy.reporting import targeting_scene
 
-    config = T.TargetingStudyConfig(background="none")
+    config = TargetingStudyConfig(background="none")
     rng = np.random.default_rng(5)
-    truth = T.draw_ground_truth(rng, config)
+    truth = draw_ground_truth(rng, config)
     flanges = T.calibration_poses(rng, config, truth)
     cal = calibrate(flanges, [truth.T_carm_transducer(f) for f in flanges])
     target = truth.T_carm_phantom[:3, 3] + [3.0, -2.0, 4.0]
