@@ -56,7 +56,7 @@ class PoseConfig:
             off-detector points at that and at half of it, three chains of each carried on),
             adds a 1 cm medium grid before the fine one, repeats the fine grids after the axial search and
             carries the three best axial minima through a short Levenberg-Marquardt polish. With two
-            or more views, a silhouette seed (:func:`~.init.silhouette_candidates`: the visible
+            or more views, a silhouette seed (:func:`~.silhouette.silhouette_candidates`: the visible
             part's occupancy centroids matched by Gauss-Newton, the axial angle chosen by the
             silhouettes' overlap) proposes two more chains, and the best of them is carried
             through the axial search beside the best coarse chain: where most of the transducer is
@@ -68,7 +68,7 @@ class PoseConfig:
         distance_maps: ``"per_class"`` builds eq. 3's maps as written (distance to the nearest
             pixel of the same class); ``"occlusion_aware"`` (default, beyond the paper) lets a
             pixel of a higher-priority class count for the classes it hides (see
-            :class:`~.cost.DistanceMaps`): with priority-resolved labels, per-class maps bias the
+            :class:`~.distance_maps.DistanceMaps`): with priority-resolved labels, per-class maps bias the
             optimum by up to about 1 mm on noise-free frames, occlusion-aware maps by a few
             hundredths (tests/pose/test_pose_estimate.py; notebook 04 compares both).
         class_weights: eq. 3's ``lambda_k`` (default 1 each).
