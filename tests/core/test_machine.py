@@ -83,7 +83,7 @@ def test_run_restricted_to_avx2_reruns_the_command_as_an_avx2_cpu(tmp_path):
     level says so, bfloat16 is off); 'native' changes nothing; another name is refused."""
     script = tmp_path / "probe.py"
     script.write_text("import sys, torch\n"
-                      "from histostudy.core import run_restricted_to, isa_restriction\n"
+                      "from histostudy.core.machine import isa_restriction, run_restricted_to\n"
                       "from histostudy.learning import native_bfloat16\n"
                       "run_restricted_to(sys.argv[1])\n"
                       "print(sys.argv[1:], torch.backends.cpu.get_cpu_capability(), native_bfloat16(),\n"
