@@ -73,6 +73,46 @@ def add_parsers(sub, parents) -> None:
                      help="publish although some notebooks did not run (the report names them)")
     pub.set_defaults(run=_publish)
 
+    _add_train_parser(sub, parents)
+
+    cal = add_command(
+        sub, "calibrate-int8", parents,
+        help="calibrate a U-Net's int8 network (UNetRunner precision 'int8', an option of the tracker on a CPU "
+             "without bfloat16) on validation frames and store it beside its weights",
+        description="Calibrate the activation ranges of a U-Net's int8 network on validation frames and store them "
+                    "beside its weights (with their SHA-256), where UNetRunner(precision='int8') finds them.",
+        example="histostudy calibrate-int8 --model unet_standard --frames 24")
+    cal.add_argument("--model", default="unet_standard", help="U-Net weights in data/models (default: unet_standard)")
+    cal.add_argument("--frames", type=_positive_int, default=24,
+                     help="validation frames of the profile's seed to calibrate on (default: 24)")
+    cal.add_argument("--profile", type=_profile, default="standard",
+                     help="the profile whose seed draws the frames (default: standard)")
+    cal.add_argument("--output", default=None,
+                     help="where the calibration goes (default: data/models/<model>.int8.json, where UNetRunner "
+                          "finds it)")
+    cal.set_defaults(run=_calibrate_int8)
+
+    rebuild = add_command(
+        sub, "report", parents, help="rebuild REPORT.md and report.html from a reproduce output folder",
+        description="Rebuild REPORT.md and report.html from the files a `histostudy reproduce` run wrote "
+                    "(run.json and each section's results), e.g. after a run on another machine.",
+        example="histostudy report --output reports")
+    rebuild.add_argument("--output", default="reports", help="the folder reproduce wrote (default: reports)")
+    rebuild.set_defaults(run=_report)
+
+    prof = add_command(sub, "profiles", parents, help="list the built-in profiles",
+                       description="List the built-in profiles (smoke, standard, paper): seed and what each is for.",
+                       example="histostudy profiles")
+    prof.set_defaults(run=_profiles)
+
+
+def _add_train_parser(sub, parents) -> None:
+    """Add ``histostudy train`` (a learned stage trained as a profile's ``[training.<task>]`` says).
+
+    Args:
+        sub: the subparsers of the ``histostudy`` parser.
+        parents: parent parsers every subcommand takes.
+    """
     tr = add_command(
         sub, "train", parents, help="train a learned stage (U-Net or VGG19) on hybrid images and export its weights",
         description="Train a learned stage on hybrid frames as the profile's [training.<task>] table says, resuming "
@@ -107,36 +147,6 @@ def add_parsers(sub, parents) -> None:
                          "leased GPU, render first, then give the training the time that is left (--max-minutes)")
     tr.add_argument("--no-progress", action="store_true", help="no progress bar")
     tr.set_defaults(run=_train)
-
-    cal = add_command(
-        sub, "calibrate-int8", parents,
-        help="calibrate a U-Net's int8 network (UNetRunner precision 'int8', an option of the tracker on a CPU "
-             "without bfloat16) on validation frames and store it beside its weights",
-        description="Calibrate the activation ranges of a U-Net's int8 network on validation frames and store them "
-                    "beside its weights (with their SHA-256), where UNetRunner(precision='int8') finds them.",
-        example="histostudy calibrate-int8 --model unet_standard --frames 24")
-    cal.add_argument("--model", default="unet_standard", help="U-Net weights in data/models (default: unet_standard)")
-    cal.add_argument("--frames", type=_positive_int, default=24,
-                     help="validation frames of the profile's seed to calibrate on (default: 24)")
-    cal.add_argument("--profile", type=_profile, default="standard",
-                     help="the profile whose seed draws the frames (default: standard)")
-    cal.add_argument("--output", default=None,
-                     help="where the calibration goes (default: data/models/<model>.int8.json, where UNetRunner "
-                          "finds it)")
-    cal.set_defaults(run=_calibrate_int8)
-
-    rebuild = add_command(
-        sub, "report", parents, help="rebuild REPORT.md and report.html from a reproduce output folder",
-        description="Rebuild REPORT.md and report.html from the files a `histostudy reproduce` run wrote "
-                    "(run.json and each section's results), e.g. after a run on another machine.",
-        example="histostudy report --output reports")
-    rebuild.add_argument("--output", default="reports", help="the folder reproduce wrote (default: reports)")
-    rebuild.set_defaults(run=_report)
-
-    prof = add_command(sub, "profiles", parents, help="list the built-in profiles",
-                       description="List the built-in profiles (smoke, standard, paper): seed and what each is for.",
-                       example="histostudy profiles")
-    prof.set_defaults(run=_profiles)
 
 
 def _profiles(args) -> int:
