@@ -1,4 +1,4 @@
-"""Tests of histostudy.imaging.anatomy._random (and its ranges, anatomy_params): the random abdomen and phantom
+"""Tests of histostudy.imaging.anatomy._random (and its ranges, _params): the random abdomen and phantom
 set-up scenes, their seeding, landmarks, overrides and plausible line integrals."""
 
 import numpy as np

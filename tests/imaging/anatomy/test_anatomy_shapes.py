@@ -1,4 +1,4 @@
-"""Tests of histostudy.imaging.anatomy._shapes and anatomy_csg: analytic chords of the solids and their
+"""Tests of histostudy.imaging.anatomy._shapes and _csg: analytic chords of the solids and their
 composites against brute-force point sampling."""
 
 import numpy as np

@@ -1,5 +1,5 @@
 """Tests of the splatting renderers beside the numpy reference: histostudy.imaging.render._device,
-splat_kernels (compiled, CPU) and render_torch (torch, here on the CPU; the CUDA code is the same).
+_splat_kernels (compiled, CPU) and _torch (torch, here on the CPU; the CUDA code is the same).
 
 The renderers draw the same distribution, not the same numbers, so they are held to:
 - the reference's image exactly (float tolerance) where nothing is drawn (zero jitter), on every

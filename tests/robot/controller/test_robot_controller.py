@@ -1,7 +1,7 @@
 """The simulated UR controller's protocols, spoken from raw sockets (no ur_rtde), in process.
 
-These pin the wire facts ur-rtde 1.6.5 relies on (see histostudy/robot/controller_protocol.py and
-controller_program.py); the end-to-end path through the real client is in tests/robot/test_robot_rtde.py.
+These pin the wire facts ur-rtde 1.6.5 relies on (see histostudy/robot/controller/_protocol.py and
+_program.py); the end-to-end path through the real client is in tests/robot/rtde/test_robot_rtde.py.
 """
 
 import os

@@ -6,7 +6,7 @@ Each test is bounded in time by SIGALRM (no pytest plugin), with a faulthandler 
 
 The tests that drop or kill the controller under a connected client run in a child pytest process
 (:func:`isolated`): after a drop, ur_rtde's control interface reconnects on its own C++ thread, and
-when that fails it terminates the whole process (histostudy/robot/rtde_connection.py's docstring).
+when that fails it terminates the whole process (docs/robot.md, "The RTDE client").
 Three of about ten full test runs under load were aborted so. A child killed by a signal is run
 again, at most twice; a child that fails an assertion fails the test at once.
 """
@@ -142,7 +142,7 @@ def test_ur_rtde_is_the_pinned_version():
     assert version == "1.6.5", (
         f"ur_rtde {version} is installed, but the simulated controller implements the register protocol "
         f"of ur_rtde 1.6.5 (command numbers, recipes, handshake). Pin ur-rtde==1.6.5 or re-derive the "
-        f"protocol in histostudy/robot/controller_protocol.py and controller_program.py for the new version."
+        f"protocol in histostudy/robot/controller/_protocol.py and _program.py for the new version."
     )
 
 
