@@ -10,7 +10,6 @@ imports its folder (``from histostudy.study import segmentation as study``). Sha
 - :mod:`.segmentation` — notebook 02: the U-Net, Table I, ANOVA and Tukey HSD (§II-B.2, §II-E.1, §III).
 - :mod:`.orientation` — notebook 03: the VGG19's azimuth and elevation, the conic initialiser beside
   it (§II-B.4 eq. 4, §II-E.2, §III).
-
 - :mod:`.pose` — notebook 04: the pose-estimation experiments and Table II (§II-B.3, §II-B.4, §II-D,
   §II-E.3, §III), the sweeps and RTK's projector beside ours; its experiment layer (the study's
   config and stages, the error directions, the metrics, the CBCT reference) is public for 05 and 07.
