@@ -177,18 +177,16 @@ def test_each_package_exports_a_short_hand_written_list(package):
 
 
 #: Rank of each unit (module or sub-package) of ``histostudy.study``: a unit imports only units of a
-#: lower rank. Statistics first; the learned stages' studies; pose, then targeting on it; the
-#: error budget and the lab's data on both; the moving cine on the lab's data; notebook 06 on all.
+#: lower rank. The section interface and statistics first; what notebooks 02 and 03 share; the
+#: sections of the learned stages; pose (04), then targeting (05) on it; the error budget (07) and the
+#: lab's data (06) on both.
 STUDY_LAYERS = {
     "section": 0, "stats": 0,
-    "held_out": 1, "transducer_projections": 1,
-    "segmentation": 2, "orientation_regression": 2,
+    "held_out": 1, "projections": 1,
+    "segmentation": 2, "orientation": 2,
     "pose": 3,
     "targeting": 4,
-    "lab_dataset": 5, "budget": 5,
-    "moving_cine": 6,
-    "moving_cine_live": 7,
-    "your_data": 8,
+    "budget": 5, "your_data": 5,
 }
 
 
