@@ -22,11 +22,15 @@ def _sources():
 
 
 def test_no_function_over_100_lines():
+    """Its code, that is: the docstring is reference, as long as its arguments need."""
     long = []
     for path in _sources():
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
                 length = node.end_lineno - node.lineno + 1
+                if ast.get_docstring(node) is not None:
+                    docstring = node.body[0]
+                    length -= docstring.end_lineno - docstring.lineno + 1
                 if length > 100:
                     long.append(f"{path.relative_to(REPO)}:{node.lineno} {node.name} ({length} lines)")
     assert long == []
