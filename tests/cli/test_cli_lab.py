@@ -93,7 +93,8 @@ def test_pose_with_the_transducer_from_its_cad_meshes(lab, truth, tmp_path, caps
     code = main(["pose", str(a), str(b), "--transducer", str(lab.folder / "transducer"), "--output", str(out)])
     record = json.loads(out.read_text())
     assert code == (0 if record["accepted"] else 1)
-    error = np.linalg.norm(np.asarray(record["T_carm_transducer"])[:3, 3] - truth["station_T_carm_transducer"][1][:3, 3])
+    error = np.linalg.norm(np.asarray(record["T_carm_transducer"])[:3, 3]
+                           - truth["station_T_carm_transducer"][1][:3, 3])
     assert error < 2.0
     assert main(["pose", str(a), str(b), "--transducer", str(tmp_path / "none"), "--output", str(tmp_path / "x")]) == 2
     assert "no such folder of meshes" in capsys.readouterr().err

@@ -21,7 +21,8 @@ def test_check_positive_returns_a_float_and_names_the_argument_its_value_and_the
     assert check_positive(np.int32(3), "radius_mm") == 3.0 and type(check_positive(2, "x")) is float
     assert check_positive(0, "dwell_s", allow_zero=True) == 0.0
     for bad in (0, -1.0, math.nan, math.inf, True, "2", None):
-        with pytest.raises(ValueError, match=r"^radius_mm must be a finite number > 0 mm, got " + repr(bad).replace("(", r"\(")):
+        expected = r"^radius_mm must be a finite number > 0 mm, got " + repr(bad).replace("(", r"\(")
+        with pytest.raises(ValueError, match=expected):
             check_positive(bad, "radius_mm", unit="mm")
     with pytest.raises(ValueError, match=r"dwell_s must be a finite number >= 0, got -0.1"):
         check_positive(-0.1, "dwell_s", allow_zero=True)

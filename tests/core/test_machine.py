@@ -44,7 +44,8 @@ def test_the_avx2_restriction_turns_numpys_avx512_loops_off_and_make_sets_it(tmp
     env = {k: v for k, v in os.environ.items() if k not in ISA_RESTRICTION_ENV} | restriction
     code = ("import numpy; from numpy._core._multiarray_umath import __cpu_features__ as f; "
             "print(f.get('X86_V4', False) or f.get('AVX512_ICL', False))")
-    out = subprocess.run([sys.executable, "-W", "error", "-c", code], env=env, capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-W", "error", "-c", code], env=env, capture_output=True, text=True,
+                         check=True)
     assert out.stdout.strip() == "False" and out.stderr == ""
     # what make puts before the suite (dry run: prints the command, runs nothing)
     root = Path(__file__).parents[2]

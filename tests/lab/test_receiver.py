@@ -374,7 +374,8 @@ def test_refused_objects_get_failure_statuses_and_the_other_frames_still_get_pos
     short.PixelData = short.PixelData[:-2 * views[1].shape[1]]
     short.SOPInstanceUID = generate_uid(entropy_srcs=["short"])
     out = tmp_path / "poses.jsonl"
-    with FrameReceiver(views, ReceiverConfig(output_path=out, port=0, max_queued_pairs=None), model=model, seed=SEED) as receiver:
+    config = ReceiverConfig(output_path=out, port=0, max_queued_pairs=None)
+    with FrameReceiver(views, config, model=model, seed=SEED) as receiver:
         statuses = send(receiver.port, [ct_dataset(), cine["paths"]["A"], bad_geometry, short, cine["paths"]["B"]])
         assert receiver.wait_for_pairs(N_FRAMES, timeout_s=120)
     assert statuses == [0x0122, 0x0000, 0xC000, 0xA900, 0x0000]
@@ -459,7 +460,8 @@ def test_the_receiver_announces_pdus_of_a_mebibyte_under_the_guards_bound(small_
     from histostudy.lab.access import MAX_PDU_BYTES, RECEIVER_MAX_PDU_BYTES
 
     assert RECEIVER_MAX_PDU_BYTES == 1 << 20 and RECEIVER_MAX_PDU_BYTES < MAX_PDU_BYTES
-    with FrameReceiver(small_views, ReceiverConfig(output_path=tmp_path / "p.jsonl", port=0, warm_up=False)) as receiver:
+    config = ReceiverConfig(output_path=tmp_path / "p.jsonl", port=0, warm_up=False)
+    with FrameReceiver(small_views, config) as receiver:
         ae = AE(ae_title="TESTSCU")
         ae.add_requested_context("1.2.840.10008.1.1")
         assoc = ae.associate("127.0.0.1", receiver.port, ae_title="HISTOSTUDY")

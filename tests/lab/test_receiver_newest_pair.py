@@ -24,7 +24,8 @@ from histostudy.lab.listening import pose_summary
 from histostudy.lab.xray_objects import PendingFrame, read_xray_header
 
 #: What ``histostudy listen`` prints per pose (listening.pose_summary).
-SUMMARY = re.compile(r"^\d\d:\d\d:\d\d\.\d{3} pair (?P<index>\d+) (?P<kind>\S+) (?P<verdict>accepted|REFUSED.*|ERROR.*) "
+SUMMARY = re.compile(r"^\d\d:\d\d:\d\d\.\d{3} pair (?P<index>\d+) (?P<kind>\S+) "
+                     r"(?P<verdict>accepted|REFUSED.*|ERROR.*) "
                      r"focal (\(\S+, \S+, \S+\) mm|-) latency \d+ ms dropped (?P<dropped>\d+)$")
 
 
@@ -143,7 +144,8 @@ def test_the_header_is_read_without_the_pixels_and_short_pixel_data_is_refused_t
 
 @pytest.mark.parametrize("value", [0, -1, 1.5, True, "2"])
 def test_a_bad_max_queued_pairs_raises_naming_it(views, tmp_path, value):
-    with pytest.raises(ValueError, match=rf"max_queued_pairs must be None or an integer >= 1, got {re.escape(repr(value))}"):
+    expected = rf"max_queued_pairs must be None or an integer >= 1, got {re.escape(repr(value))}"
+    with pytest.raises(ValueError, match=expected):
         ReceiverConfig(output_path=tmp_path / "p.jsonl", max_queued_pairs=value)
 
 
