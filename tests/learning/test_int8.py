@@ -106,5 +106,5 @@ def test_the_shipped_unet_has_its_calibration_and_int8_is_asked_for_by_name(smal
     assert shipped.with_precision("int8").precision == "int8"
     monkeypatch.setattr(runner, "native_bfloat16", lambda: True)
     assert shipped.with_precision("auto").precision == "bfloat16"
-    with pytest.raises(TypeError, match="runner must be a histostudy.learning.UNetRunner"):
+    with pytest.raises(TypeError, match="segmenter must be a histostudy.learning.UNetRunner"):
         calibrate_int8("unet", [])

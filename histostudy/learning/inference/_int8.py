@@ -105,10 +105,9 @@ def _activation_observers(prepared) -> list:
 
 
 def _check_runner(runner) -> None:
-    from .runner import UNetRunner
-
-    if not isinstance(runner, UNetRunner):
-        raise TypeError(f"runner must be a histostudy.learning.UNetRunner, got {type(runner).__name__}")
+    # what a UNetRunner has and calibration reads (runner.py builds on this module, not the reverse)
+    if not all(hasattr(runner, name) for name in ("network", "scale", "manifest", "with_precision")):
+        raise TypeError(f"segmenter must be a histostudy.learning.UNetRunner, got {type(runner).__name__}")
 
 
 def _network_input(segmenter, frame: Frame):
