@@ -115,3 +115,26 @@ def test_a_package_s_docstring_names_only_its_modules_and_names(package):
     unknown = [name for name in BARE.findall(doc)
                if name not in names and not any(hasattr(mod, name) for mod in loaded)]
     assert unknown == [], f"{package}'s docstring names what it does not have: {sorted(set(unknown))}"
+
+
+SUBPACKAGES = sorted(p.parent.name for p in PACKAGE.glob("*/__init__.py"))
+ARCHITECTURE = PACKAGE.parent / "docs" / "architecture.md"
+
+
+def test_the_architecture_page_names_only_what_exists():
+    """docs/architecture.md is what a newcomer reads first: each file or folder it names in
+    backquotes (under histostudy/ or the repository) exists, and each ``package.name`` it names
+    resolves."""
+    text = ARCHITECTURE.read_text()
+    # a path may be written from the package, the repository or the subpackage it is about
+    bases = [PACKAGE.parent, PACKAGE, *(p for p in PACKAGE.rglob("*") if p.is_dir() and p.name != "__pycache__")]
+    stale = []
+    for token in re.findall(r"`([^`\s]+)`", text):
+        token = token.rstrip(",.;:")
+        if "/" in token and re.fullmatch(r"[\w./-]+", token) and token.endswith((".py", "/")):
+            if not any((base / token).exists() for base in bases):
+                stale.append(token)
+        elif re.fullmatch(r"[a-z_]+(\.[A-Za-z_]\w*)+", token) and token.split(".")[0] in SUBPACKAGES:
+            if not _resolves(f"histostudy.{token}"):
+                stale.append(token)
+    assert stale == [], f"docs/architecture.md names what does not exist: {sorted(set(stale))}"
