@@ -11,7 +11,8 @@ import pydicom
 import pytest
 
 from histostudy.imaging import default_biplane, load_views
-from histostudy.lab import decode_xray_object, frame_times, posix_seconds
+from histostudy.lab.pairing import frame_times, posix_seconds
+from histostudy.lab.xray_objects import decode_xray_object
 from histostudy.study.pose.geometry import margin_positions
 from histostudy.study.your_data.moving_cine import MARGIN_TOUR, T0, load_moving_cine, robot_path, write_moving_cine
 from histostudy.transducer import pose_facing
