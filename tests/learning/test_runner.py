@@ -173,3 +173,19 @@ def test_the_default_segmenter_is_the_reference():
         pytest.skip("the shipped U-Net (data/models/unet_standard) is not available")
     assert isinstance(segmenter, UNetRunner) and segmenter.precision == "reference"
     assert not segmenter.test_time_flips and segmenter.manifest["sha256"]
+
+
+@pytest.mark.parametrize("precision", ["reference", "float32"])
+def test_a_runner_pickles_to_one_that_gives_the_same_labels(random_unet, precision):
+    """Sweeps send the runner to their workers and key their cache on its pickle: the copy is
+    rebuilt from the network and precision, without the recent features, and gives the same labels."""
+    import pickle
+
+    runner = random_unet.with_precision(precision)
+    view = default_biplane()[0].scaled(0.25)
+    frame = Frame(np.random.default_rng(5).standard_normal(view.shape).astype(np.float32), view)
+    before = runner.segment_region(frame, (0, 240, 0, 310))  # fills the recent features
+    copy = pickle.loads(pickle.dumps(runner))
+    assert copy._recent == {} and copy.precision == precision
+    np.testing.assert_array_equal(copy.segment_region(frame, (0, 240, 0, 310)), before)
+    assert runner._recent  # the original keeps its own

@@ -177,7 +177,7 @@ class UNetRunner:
         # same regions of the same frames at a finer label grid, and needs no second forward pass.
         self._recent: collections.OrderedDict = collections.OrderedDict()
         self._recent_lock = threading.Lock()
-        self._head_weights = self._int8 = None
+        self._head_weights = self._int8 = self._int8_calibration = None
         if precision == "reference":
             self._dtype, self._net, self._head = torch.float32, network, getattr(network, "head", None)
             return
@@ -198,7 +198,13 @@ class UNetRunner:
                 raise ValueError(f"precision 'int8' needs the calibration of this checkpoint: none at "
                                  f"{str(int8_calibration_path(self))!r} (histostudy calibrate-int8), and "
                                  f"int8_calibration is None")
-            self._int8 = Int8Features(self, calibration)
+            self._int8, self._int8_calibration = Int8Features(self, calibration), calibration
+
+    def __reduce__(self):
+        # A runner travels to sweep workers and into the sweep cache's key: it is rebuilt from what
+        # made it, since its fused layers do not pickle and its recent features are this process's.
+        return (_rebuilt_runner, (self.network, self.precision, self.test_time_flips, self.scale, self.manifest,
+                                  self._int8_calibration))
 
     @classmethod
     def load(cls, path, *, precision: str = "reference", test_time_flips: bool = False) -> UNetRunner:
@@ -431,3 +437,8 @@ class UNetRunner:
     def __repr__(self) -> str:
         flips = ", test_time_flips=True" if self.test_time_flips else ""
         return f"UNetRunner(precision={self.precision!r}, scale={self.scale}{flips})"
+
+
+def _rebuilt_runner(network, precision, test_time_flips, scale, manifest, int8_calibration) -> UNetRunner:
+    return UNetRunner(network, precision, test_time_flips, scale=scale, manifest=manifest,
+                      int8_calibration=int8_calibration)
