@@ -17,6 +17,11 @@ __all__ = ["add_parsers"]
 
 
 def add_parsers(sub, parents) -> None:
-    """The lab's subcommands on the ``histostudy`` parser's ``sub``."""
+    """Add the lab's subcommands (pose, calibrate, target, listen, send, lab-dataset) to the parser.
+
+    Args:
+        sub: the ``histostudy`` parser's sub-parsers (``ArgumentParser.add_subparsers()``).
+        parents: the parsers whose options every subcommand shares (``-q``/``-v``, ``--version``).
+    """
     for add in (add_pose, add_calibrate, add_target, add_listen, add_send, add_lab_dataset):
         add(sub, parents)
