@@ -4,4 +4,4 @@ rebuilt in Python and reproduced on synthetic data. One subpackage per concern, 
 ``pose``, ``calibration``, ``robot``, ``treatment``, ``lab``, ``study`` (a folder per notebook),
 ``reporting`` (the batch run and its report) and ``cli`` (the command line)."""
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
