@@ -2,8 +2,9 @@
 libraries to a lower instruction set (``make test-avx2``) and the numerical libraries' versions, so
 that a failure on one machine can be told from a failure on every machine (docs/testing.md); and
 the order that lets two workers share the suite: the longest test first. And the fixtures:
-``notebook_parameters``, a notebook's stored parameters cell, and the logging state restored after
-each test (``histostudy.cli.main`` sets it for its process)."""
+``notebook_parameters``, a notebook's stored parameters cell, ``stage_clock``, the stage profile's
+clocks stepped by the test, and the logging state restored after each test (``histostudy.cli.main``
+sets it for its process)."""
 
 import contextlib
 import json
@@ -72,6 +73,25 @@ def recording_timer():
         return timer, timed
 
     return make
+
+
+@pytest.fixture
+def stage_clock(monkeypatch):
+    """The clocks of :mod:`histostudy.core.stage_profile` replaced by ones that move only when the test
+    says, ``stage_clock.tick(wall_s, cpu_s=wall_s)``, so that stage times are exact figures."""
+    from histostudy.core import stage_profile
+
+    class SteppedClock:
+        wall = cpu = 0.0
+
+        def tick(self, wall_s, cpu_s=None):
+            self.wall += wall_s
+            self.cpu += wall_s if cpu_s is None else cpu_s
+
+    clock = SteppedClock()
+    monkeypatch.setattr(stage_profile, "wall_clock", lambda: clock.wall)
+    monkeypatch.setattr(stage_profile, "cpu_clock", lambda: clock.cpu)
+    return clock
 
 
 @pytest.fixture(autouse=True)
