@@ -8,6 +8,7 @@ import os
 import pickle
 import re
 import sys
+import threading
 import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -15,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from .stage_profile import merge_stage_totals, stage_delta, stage_totals
 from .sweep_cache import SweepCache, resolve_sweep_cache
 
 __all__ = ["SCHEDULER_ENV", "SweepExecutor", "SweepTaskError", "resolve_executor", "run_sweep"]
@@ -267,7 +269,7 @@ def _run_distributed(task_fn, calls, shared, ex: SweepExecutor, chunk_size, prog
             try:
                 for future in _progress(as_completed(futures, loop=client.loop), len(futures), progress):
                     try:
-                        values = pickle.loads(future.result())
+                        values, pid, stages = pickle.loads(future.result())
                     except Exception as exc:
                         # a task that raised or killed its workers before the cancellations it caused
                         erred = [f for f in futures if f.status == "error"]
@@ -277,6 +279,8 @@ def _run_distributed(task_fn, calls, shared, ex: SweepExecutor, chunk_size, prog
                             raise SweepTaskError(indices[exc.index], str(exc).replace(
                                 f"sweep task {exc.index} ", f"sweep task {indices[exc.index]} ", 1)) from exc
                         raise _task_error(task_fn, indices[first[failed.key]], exc) from exc
+                    if pid != os.getpid():  # a worker in this process charged this process already
+                        merge_stage_totals(stages)
                     # as_completed yields each future once, re-run or not
                     for j, value in enumerate(values, start=first[future.key]):
                         results[j] = value
@@ -315,7 +319,9 @@ _SHARED: dict[str, dict] = {}
 def _call(task_fn, chunk: bytes, start: int, token: str, shared: bytes, threads: int) -> bytes:
     """On a worker: cap the thread pools at ``threads``, then run a chunk of tasks (the first is
     task ``start``) on their unpickled arguments and the sweep's shared inputs (unpickled once
-    per process); the results pickled. A task that raises raises :class:`SweepTaskError`."""
+    per process); pickled, the results, this process's id and the stage times charged here since
+    the last chunk reported them (:mod:`.stage_profile`), which the caller adds to its own. A task
+    that raises raises :class:`SweepTaskError`."""
     _cap_threads(threads)
     if token not in _SHARED:
         while len(_SHARED) >= 2:
@@ -327,7 +333,22 @@ def _call(task_fn, chunk: bytes, start: int, token: str, shared: bytes, threads:
             results.append(task_fn(*args, **_SHARED[token]))
         except Exception as exc:
             raise _task_error(task_fn, i, exc) from exc
-    return _dumps(results)
+    return _dumps((results, os.getpid(), _unreported_stages()))
+
+
+_REPORTED_LOCK = threading.Lock()
+#: Per worker process: the stage totals the chunks have reported so far.
+_REPORTED: dict = {}
+
+
+def _unreported_stages() -> dict:
+    """The stage times charged in this process since a chunk last reported them: where a worker runs
+    chunks on several threads at once, each time is reported once, by whichever chunk ends first."""
+    global _REPORTED
+    with _REPORTED_LOCK:
+        now = stage_totals()
+        delta, _REPORTED = stage_delta(_REPORTED, now), now
+    return delta
 
 
 def _cap_threads(threads: int) -> None:

@@ -1,6 +1,7 @@
 """Tests of histostudy.core.sweeps: the same results bit for bit in this process and on a dask
 LocalCluster of one or two worker processes, a worker killed mid-sweep loses and duplicates
-nothing, a failing task is named, bad executors are refused."""
+nothing, a failing task is named, the workers' stage times reach the caller, bad executors are
+refused."""
 
 import logging
 import os
@@ -10,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from histostudy.core import SweepExecutor, SweepTaskError, resolve_executor, run_sweep
+from histostudy.core import SweepExecutor, SweepTaskError, resolve_executor, run_sweep, stage, stage_delta, stage_totals
 from histostudy.core.sweeps import SCHEDULER_ENV
 
 N_TASKS = 12
@@ -36,6 +37,15 @@ def raises_on_three(i, seed):
     if i == 3:
         raise ValueError("no calibration for three poses")
     return i
+
+
+def staged(i, seed):
+    """A task that charges one calibration, with a statistic inside it, and says where it ran."""
+    with stage("calibrate"):
+        time.sleep(0.01)  # long enough that both workers take tasks
+        with stage("statistics"):
+            value = float(np.random.default_rng(seed).normal())
+    return value, os.getpid()
 
 
 def always_dies_on_two(i, seed):
@@ -116,6 +126,22 @@ def test_a_failing_task_is_named_by_its_index(scheduler):
     with pytest.raises(SweepTaskError, match=r"sweep task 3 \(raises_on_three\) failed") as info:
         run_sweep(raises_on_three, range(6), seed=1, executor=scheduler, chunk_size=4)  # inside a chunk
     assert info.value.index == 3
+
+
+def test_the_workers_stage_times_are_added_to_the_caller_s(scheduler):
+    before = stage_totals()
+    sequential = run_sweep(staged, range(N_TASKS), seed=3, executor="sequential")
+    in_process = stage_delta(before)
+    assert {k: v["calls"] for k, v in in_process.items()} == {"calibrate": N_TASKS, "statistics": N_TASKS}
+
+    before = stage_totals()
+    on_cluster = run_sweep(staged, range(N_TASKS), seed=3, executor=scheduler, chunk_size=2)
+    merged = stage_delta(before)
+    assert [v for v, _ in on_cluster] == [v for v, _ in sequential]  # the results as they were
+    assert os.getpid() not in {pid for _, pid in on_cluster}
+    # every task's stages once, from every chunk of the workers; the times are theirs (no figure asserted)
+    assert {k: v["calls"] for k, v in merged.items()} == {"calibrate": N_TASKS, "statistics": N_TASKS}
+    assert all(v["wall_s"] >= 0 and v["cpu_s"] >= 0 for v in merged.values())
 
 
 def test_executors_are_parsed_and_bad_ones_refused(monkeypatch):
