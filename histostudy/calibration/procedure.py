@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from histostudy.core import atomic_write_json, to_jsonable
+from histostudy.core import atomic_write_json, stage, to_jsonable
 from histostudy.geometry import check_rigid, check_rotation, invert_transform, make_transform
 
 from .axxb import (
@@ -297,6 +297,7 @@ class HandEyeCalibration:
         return cls.from_dict(json.loads(path.read_text(encoding="utf-8")))
 
 
+@stage("calibrate")
 def calibrate(
     T_base_flange_list,
     T_carm_transducer_list,

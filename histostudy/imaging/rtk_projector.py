@@ -11,6 +11,7 @@ from collections.abc import Sequence
 import numpy as np
 import scipy.ndimage
 
+from histostudy.core import stage
 from histostudy.geometry import check_rigid
 from histostudy.transducer import FEATURE_CLASSES, TransducerModel
 
@@ -201,6 +202,7 @@ def forward_project(volume, views, *, n_threads: int | None = None) -> list[np.n
     return out
 
 
+@stage("render")
 def render_frame_rtk(digital: TransducerModel, physical: TransducerModel, T_carm_transducer, view: View, *,
                      rng: np.random.Generator, background=None, photons_per_pixel: float | None = 5e4,
                      voxel_mm: float = 0.5, n_threads: int | None = None) -> Frame:

@@ -12,6 +12,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from histostudy.core import stage
 from histostudy.imaging import Frame, View
 
 __all__ = [
@@ -179,6 +180,7 @@ class OracleOrientation:
             if not np.isfinite(value) or value < 0:
                 raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
 
+    @stage("orient")
     def estimate(self, frame: Frame, rng: np.random.Generator) -> tuple[float, float]:
         if frame.T_carm_transducer is None:
             raise ValueError(f"OracleOrientation needs a synthetic frame with T_carm_transducer; view "
@@ -296,6 +298,7 @@ class LearnedOrientation:
     def estimate(self, frame: Frame, rng: np.random.Generator | None = None) -> tuple[float, float]:
         return self.estimate_many([frame])[0]
 
+    @stage("orient")
     def estimate_many(self, frames: Sequence[Frame], batch_size: int = 8) -> list[tuple[float, float]]:
         """Angles of several frames in batches: ``[(azimuth_rad, elevation_rad), ...]``."""
         import torch

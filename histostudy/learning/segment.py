@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 import cv2
 import numpy as np
 
+from histostudy.core import stage
 from histostudy.imaging import Frame
 from histostudy.transducer import FEATURE_CLASSES, Feature
 
@@ -156,6 +157,7 @@ class OracleSegmenter:
             raise ValueError(f"degradation must be one of {ORACLE_DEGRADATIONS}, got {degradation!r}")
         return cls(SegmentationDegradation.paper_table1() if degradation == "table1" else None)
 
+    @stage("segment")
     def segment(self, frame: Frame, rng: np.random.Generator | None = None) -> np.ndarray:
         if frame.labels is None:
             raise ValueError(f"OracleSegmenter needs a frame with reference labels; the frame of view "

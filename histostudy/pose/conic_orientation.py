@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from histostudy.core import stage
 from histostudy.geometry import rotation_about_axis
 from histostudy.imaging import Frame, View
 from histostudy.learning import (
@@ -183,6 +184,7 @@ class ConicOrientation:
 
     # --- the estimate ---------------------------------------------------------------------------
 
+    @stage("orient")
     def fit(self, labels, view: View, rng: np.random.Generator, maps=None, *, executor=None) -> ConicFit | None:
         """The ellipse of the inner boundary in ``labels`` and the focal directions it gives, or
         None when the view shows no usable ellipse (see the class's thresholds). ``maps``: the

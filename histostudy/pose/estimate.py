@@ -11,7 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from histostudy.core import check_items
+from histostudy.core import check_items, stage
 from histostudy.imaging import Frame
 from histostudy.learning import OrientationSource, Segmenter
 from histostudy.transducer import TransducerModel
@@ -26,6 +26,7 @@ from .result import PoseResult, refused
 __all__ = ["estimate_pose"]
 
 
+@stage("pose")
 def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter: Segmenter | None = None,
                   orientation: OrientationSource | None = None, rng: int | np.random.Generator | None = None,
                   initial_pose=None, options: PoseConfig | None = None, **option_overrides) -> PoseResult:

@@ -11,6 +11,8 @@ import numpy as np
 import pandas as pd
 from scipy import stats as _sps
 
+from histostudy.core import stage
+
 __all__ = [
     "anova_oneway",
     "angle_statistics",
@@ -35,6 +37,7 @@ def _check_labels(pred, ref, n_classes: int) -> tuple[np.ndarray, np.ndarray]:
     return pred, ref
 
 
+@stage("statistics")
 def confusion_counts(pred, ref, n_classes: int = 6) -> np.ndarray:
     """``(n_classes, 4)`` int64 counts ``[TP, FP, FN, TN]`` of each class against all others."""
     if isinstance(n_classes, bool) or not isinstance(n_classes, (int, np.integer)) or n_classes < 2:
@@ -55,6 +58,7 @@ def _ratio(num, den) -> np.ndarray:
         return np.where(den > 0, num / np.where(den > 0, den, 1.0), np.nan)
 
 
+@stage("statistics")
 def segmentation_metrics(pred, ref, n_classes: int = 6, class_names=None) -> dict:
     """Metrics of one predicted label image against its reference (§II-E.1), each class counted
     against all others: precision ``TP/(TP+FP)``, recall ``TP/(TP+FN)``, IoU ``TP/(TP+FP+FN)``,
@@ -109,6 +113,7 @@ def _groups(groups) -> dict[str, np.ndarray]:
     return out
 
 
+@stage("statistics")
 def anova_oneway(groups) -> tuple[float, int, int, float]:
     """One-way ANOVA (equal variances) of ``{name: 1-D values}``: ``(F, df_between, df_within, p)``.
 
@@ -123,6 +128,7 @@ def anova_oneway(groups) -> tuple[float, int, int, float]:
     return float(res.statistic), df_between, df_within, float(res.pvalue)
 
 
+@stage("statistics")
 def tukey_hsd(groups, alpha: float = 0.05) -> pd.DataFrame:
     """Tukey's HSD for all pairs of ``{name: 1-D values}`` (statsmodels ``pairwise_tukeyhsd``).
 
@@ -160,6 +166,7 @@ def _pair(x, y) -> tuple[np.ndarray, np.ndarray]:
     return x, y
 
 
+@stage("statistics")
 def linear_fit(x, y) -> tuple[float, float, float]:
     """``(intercept, slope, r2)`` of ``y = intercept + slope x`` by the Moore-Penrose pseudo-inverse.
 
@@ -174,6 +181,7 @@ def linear_fit(x, y) -> tuple[float, float, float]:
     return float(intercept), float(slope), r2
 
 
+@stage("statistics")
 def pearson(x, y) -> tuple[float, float]:
     """Pearson's ``r`` and the two-sided p value of ``r = 0`` (t test with ``n - 2`` dof)."""
     x, y = _pair(x, y)
@@ -189,6 +197,7 @@ def pearson(x, y) -> tuple[float, float]:
     return r, float(2.0 * _sps.t.sf(abs(t), dof))
 
 
+@stage("statistics")
 def mean_absolute_error(pred, ref, *, wrap: bool = False) -> tuple[float, float]:
     """``(MAE, SD)`` of ``|pred - ref|`` (SD with ``ddof = 1``); ``wrap`` takes differences of angles
     in rad into ``(-pi, pi]`` first (azimuth)."""
@@ -202,6 +211,7 @@ def mean_absolute_error(pred, ref, *, wrap: bool = False) -> tuple[float, float]
     return float(a.mean()), float(a.std(ddof=1))
 
 
+@stage("statistics")
 def angle_statistics(pred_rad, ref_rad, *, wrap: bool = False) -> dict:
     """The §II-E.2 statistics of predicted against reference angles, reported in degrees.
 

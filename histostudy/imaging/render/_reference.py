@@ -11,6 +11,7 @@ from concurrent.futures import ThreadPoolExecutor
 import cv2
 import numpy as np
 
+from histostudy.core import stage
 from histostudy.geometry import check_rigid
 from histostudy.transducer import LABEL_PRIORITY, TransducerModel
 
@@ -33,6 +34,7 @@ ZERO_COUNT_CLAMP = 0.5
 # --- line integrals -------------------------------------------------------------------------
 
 
+@stage("render")
 def render_line_integrals(model: TransducerModel, T_carm_transducer, view: View, *,
                           rng: np.random.Generator, n_splats: int = 16,
                           splat_sigma_mm: float = 0.5, device=None) -> np.ndarray:
@@ -146,6 +148,7 @@ def _nearest_pixel(uw: np.ndarray, vw: np.ndarray, w: np.ndarray, rows: int,
 # --- labels ---------------------------------------------------------------------------------
 
 
+@stage("render")
 def render_labels(model: TransducerModel, T_carm_transducer, view: View, *, device=None) -> np.ndarray:
     """Reference label image of the transducer (§II-B.2): the values of :class:`~histostudy.transducer.Feature`.
 
@@ -280,6 +283,8 @@ def add_poisson_noise(line_integrals, photons_per_pixel: float, rng: np.random.G
 # --- frames ---------------------------------------------------------------------------------
 
 
+# outside the memo: a frame handed out again is a render call, charged its look-up and copy
+@stage("render")
 @memoised_frames  # inside shared_frames(), a frame rendered before is handed out again
 def render_frame(model: TransducerModel, T_carm_transducer, view: View, *, rng: np.random.Generator,
                  physical: TransducerModel | None = None, background=None,

@@ -12,6 +12,7 @@ import threading
 
 import numpy as np
 
+from histostudy.core import stage
 from histostudy.imaging import Frame
 
 from ..nets.unet import max_pool_2x2
@@ -246,6 +247,7 @@ class UNetRunner:
         """
         return UNetRunner(self.network, precision, scale=self.scale, manifest=self.manifest)
 
+    @stage("segment")
     def segment(self, frame: Frame, rng: np.random.Generator | None = None) -> np.ndarray:
         """The labels of the whole frame at its full resolution: the arg-max of the logits upsampled
         bilinearly (pixel centres aligned) from the network's grid.
@@ -279,6 +281,7 @@ class UNetRunner:
             return labels
         return _upsampled_argmax(logits.numpy(), labels, rows, cols)
 
+    @stage("segment")
     def segment_region(self, frame: Frame, box, upsample: int = 1) -> np.ndarray:
         """The labels of ``box`` of ``frame`` at ``upsample`` times the network's resolution.
 

@@ -11,7 +11,7 @@ from collections.abc import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
-from histostudy.core import check_items
+from histostudy.core import check_items, stage
 from histostudy.imaging import Frame, View
 from histostudy.transducer import TransducerModel
 
@@ -263,6 +263,7 @@ class Tracker:
             return
         yield from pipelined_updates(self, pairs, ready)
 
+    @stage("pose")  # update's and track's (a segmentation inside it is charged to segment)
     def _update(self, frames: list[Frame], prepared, t_start: float, slot: int = 0,
                 parallel: bool | None = None) -> PoseResult:
         """One update on checked frames; ``prepared``: their regions made by ``RegionEstimator.prepare``
