@@ -1,15 +1,18 @@
 """The report's first screen: the profile's banner (what kind of run it is, its study sizes against
 the paper's), the headline table of the paper's key results (:data:`HEADLINE_KEYS`) beside their
-reproduction, and the contents (docs/report.md, "The first screen")."""
+reproduction, the contents, and the facts of the run with its time by stage (docs/report.md, "The
+first screen")."""
 
 from __future__ import annotations
+
+from histostudy.core import STAGES
 
 from .markdown import Markdown, md_code, md_escape, md_link, md_table
 from .paper import PAPER
 from .twins import TWINS_ANCHOR, TWINS_HEADING, section_anchor, status_markdown
 
 __all__ = ["CONTENTS_ANCHOR", "HEADLINE_ANCHOR", "HEADLINE_KEYS", "SOFTWARE_ANCHOR", "contents_markdown",
-           "headline_markdown", "profile_banner", "run_facts"]
+           "headline_markdown", "profile_banner", "run_facts", "stage_table"]
 
 #: The paper's key results, in the order of the first screen's table.
 HEADLINE_KEYS = ("seg.global_accuracy", "table1.screws.precision", "table1.screws.recall", "table1.screws.iou",
@@ -85,7 +88,8 @@ def contents_markdown(entries: list[tuple[str, str]]) -> list[str]:
 
 def run_facts(run: dict) -> list[str]:
     """Profile, seed, commit, creation time, machine, wall time and the notebooks with their status
-    and wall time (kept: finished by an earlier run with the same content key), as a Markdown list."""
+    and wall time (kept: finished by an earlier run with the same content key), as a Markdown list,
+    then the sections' time by stage (:func:`stage_table`) where the run recorded it."""
     prov = run.get("provenance", {})
     notebooks = ", ".join(f"{md_code(n['name'])} ({md_escape(n.get('status', 'pending'))}"
                           + (", kept" if n.get("kept") else "")
@@ -111,7 +115,63 @@ def run_facts(run: dict) -> list[str]:
         lines.append(f"- Wall time of the sections: {_hours(total)}"
                      + (f", of which {_hours(kept)} in earlier runs whose sections were kept" if kept else "")
                      + (f"; this run: {_hours(wall)}" if isinstance(wall, (int, float)) else ""))
-    return lines + [f"- Notebooks: {notebooks}", ""]
+    lines += [f"- Notebooks: {notebooks}", ""]
+    table = stage_table(run)
+    if table is not None:
+        header, rows, unit = table
+        lines += [f"Time by stage, wall / CPU in {unit} (a stage's time adds up the processes that ran it, a "
+                  "sweep's workers included; other: the section's time outside every stage):", "",
+                  md_table(header, rows, ["l"] + ["r"] * (len(header) - 1)), ""]
+    return lines
+
+
+def stage_table(run: dict) -> tuple[list[str], list[list[str]], str] | None:
+    """The sections' time by stage (``run.json``'s ``stages`` and ``other`` per notebook).
+
+    Args:
+        run: the run record.
+
+    Returns:
+        ``(header, rows, unit)``: a row per timed notebook and one for all of them, a column per stage
+        of :data:`histostudy.core.STAGES` that any of them recorded, then other and total; each cell
+        ``"wall / CPU"`` in ``unit`` (``"s"``, ``"min"`` or ``"h"``, by the longest section), ``"—"``
+        for a stage the section did not enter, ``"n/a"`` for what is not known (a kept section of a
+        version that recorded no stages; the CPU time of notebooks run at once). None where no
+        notebook recorded its stages.
+    """
+    timed = [n for n in run.get("notebooks", []) if isinstance(n.get("seconds"), (int, float))]
+    if not any(isinstance(n.get("stages"), dict) for n in timed):
+        return None
+    used = [s for s in STAGES if any(s in (n.get("stages") or {}) for n in timed)]
+    longest = max(n["seconds"] for n in timed)
+    unit, scale, digits = ("s", 1.0, 1) if longest < 120 else ("min", 60.0, 1) if longest < 7200 else ("h", 3600.0, 2)
+
+    def cell(times) -> str:
+        if times is None:
+            return "—"
+        if all(v is None for v in times):
+            return "n/a"
+        return " / ".join("n/a" if v is None else f"{v / scale:.{digits}f}" for v in times)
+
+    rows, sums = [], [(0.0, 0.0)] * (len(used) + 2)
+    for n in timed:
+        stages, other = n.get("stages"), n.get("other") or {}
+        times = [_stage_times(stages, s) for s in used]
+        times += [(other.get("wall_s"), other.get("cpu_s")), (n["seconds"], n.get("cpu_seconds"))]
+        sums = [tuple(None if a is None or b is None else a + b for a, b in zip(total, t or (0.0, 0.0)))
+                for total, t in zip(sums, times)]
+        rows.append([n["name"] + (" (kept)" if n.get("kept") else ""), *map(cell, times)])
+    rows.append(["all sections", *map(cell, sums)])
+    return ["Section", *used, "other", "total"], rows, unit
+
+
+def _stage_times(stages, name: str) -> tuple | None:
+    """``(wall_s, cpu_s)`` of stage ``name`` in a section's ``stages``: None where the section did not
+    enter it, ``(None, None)`` where it recorded no stages."""
+    if not isinstance(stages, dict):
+        return (None, None)
+    entry = stages.get(name)
+    return None if entry is None else (entry.get("wall_s"), entry.get("cpu_s"))
 
 
 def _hours(seconds: float) -> str:

@@ -20,10 +20,10 @@ from histostudy.core.provenance import REPO_ROOT
 
 from .interrupts import StudyInterrupted, remove_temporaries, signals_interrupt, stop_kernels
 from .profiles import Profile, load_profile, validate_profile
-from .report import build_report, write_run_record
+from .report import RESULTS_FILE, build_report, write_run_record
 from .section_keys import SectionKey, changed_parts, estimate_seconds, kept_section, record_key, remove_key, section_key
 
-__all__ = ["NotebookFailed", "discover_notebooks", "run_study", "select_notebooks"]
+__all__ = ["NotebookFailed", "discover_notebooks", "run_study", "section_stages", "select_notebooks"]
 
 NOTEBOOK_PATTERN = re.compile(r"^\d\d_[A-Za-z0-9_]+\.ipynb$")
 DEFAULT_NOTEBOOK_DIR = REPO_ROOT / "notebooks"
@@ -234,6 +234,7 @@ class _NotebookTask:
         if kept is not None:
             self.entry.update(status="ok", kept=True, seconds=kept["seconds"], cpu_seconds=kept.get("cpu_seconds"),
                               finished_utc=kept.get("finished_utc"))
+            self.entry.update(section_stages(self.section_dir, kept["seconds"], kept.get("cpu_seconds")))
             self.log(f"[{self.index}/{self.count}] {name}: unchanged since {kept.get('finished_utc')} "
                      f"(key {key.key[:12]}), kept ({kept['seconds']:.0f} s then)")
             return None
@@ -253,6 +254,7 @@ class _NotebookTask:
             self.entry["cpu_seconds"] = _children_cpu_seconds() - cpu0 if self.alone else None
         self.entry["status"] = "ok" if failure is None else "failed"
         if failure is None:
+            self.entry.update(section_stages(self.section_dir, self.entry["seconds"], self.entry["cpu_seconds"]))
             record_key(self.section_dir, key, notebook=name, profile=self.profile.name, parameters=params,
                        seconds=self.entry["seconds"], cpu_seconds=self.entry["cpu_seconds"],
                        machine=provenance()["machine"])
@@ -264,6 +266,36 @@ class _NotebookTask:
         remove_temporaries(self.section_dir, self.out / "notebooks")
         self.entry.update(status="interrupted")
         self.log(f"      interrupted by {signal_name}: kernel stopped, section {self.nb_path.stem} marked interrupted")
+
+
+def section_stages(section_dir, seconds: float, cpu_seconds: float | None) -> dict:
+    """A finished section's time by stage, for its entry of ``run.json``.
+
+    Args:
+        section_dir: the section's folder, whose ``results.json`` holds the stage times the
+            notebook's :class:`~.report.SectionWriter` recorded (``"stages"``).
+        seconds: the notebook's wall time, s.
+        cpu_seconds: its CPU time (its kernel and their workers), s; None where it is not known
+            (notebooks that ran at once).
+
+    Returns:
+        ``{"stages": {stage: {"wall_s", "cpu_s", "calls"}}, "other": {"wall_s", "cpu_s"}}``: ``other``
+        is the notebook's time outside every stage, the stages' sum taken from its wall and CPU time
+        (at least 0: a stage's time adds up the processes that ran it, which a sweep's workers can
+        make more than the notebook's; None where the CPU time is not known); ``{}`` where
+        ``results.json`` records no stages (a section of an earlier version, or unreadable).
+    """
+    try:
+        with open(Path(section_dir) / RESULTS_FILE, encoding="utf-8") as fh:
+            stages = json.load(fh).get("stages")
+    except (OSError, ValueError, AttributeError):
+        return {}
+    if not isinstance(stages, dict):
+        return {}
+    wall = sum(float(s.get("wall_s", 0.0)) for s in stages.values())
+    cpu = sum(float(s.get("cpu_s", 0.0)) for s in stages.values())
+    return {"stages": stages, "other": {"wall_s": max(0.0, float(seconds) - wall),
+                                        "cpu_s": None if cpu_seconds is None else max(0.0, float(cpu_seconds) - cpu)}}
 
 
 def _children_cpu_seconds() -> float:

@@ -12,7 +12,16 @@ from pathlib import Path
 
 import numpy as np
 
-from histostudy.core import atomic_path, atomic_write_json, atomic_write_text, provenance, to_jsonable
+from histostudy.core import (
+    atomic_path,
+    atomic_write_json,
+    atomic_write_text,
+    provenance,
+    stage,
+    stage_delta,
+    stage_totals,
+    to_jsonable,
+)
 
 from .agreement import FAR_OFF, NOT_JUDGED, judge
 from .headline import SOFTWARE_ANCHOR, contents_markdown, headline_markdown, profile_banner, run_facts
@@ -67,7 +76,9 @@ class _Entry:
 class SectionWriter:
     """Collects one notebook's results and writes them under ``output_dir``: values, comparisons
     with the paper, tables (CSV + Markdown), figures (PNG), text and what stands in for the lab;
-    :meth:`save` writes ``results.json``.
+    :meth:`save` writes ``results.json``, with the time charged to each stage of
+    :data:`histostudy.core.STAGES` since the writer was made (``"stages"``). Writing tables, figures
+    and ``results.json`` is itself the ``report`` stage.
 
     Args:
         output_dir: the section's folder (papermill passes ``reports/<notebook stem>``).
@@ -94,6 +105,7 @@ class SectionWriter:
         self.stand_ins: list[dict] = []
         self.timings_s: dict[str, float] = {}
         self._started = time.perf_counter()
+        self._stages_before = stage_totals()
 
     # --- recording ----------------------------------------------------------------------------
 
@@ -177,6 +189,7 @@ class SectionWriter:
         """
         self.stand_ins.append({"lab": lab, "synthetic": synthetic})
 
+    @stage("report")
     def table(self, name: str, df, caption: str = "", *, index: bool = False, digits: int = 3):
         """Write a table as ``tables/<name>.csv`` and ``tables/<name>.md`` for the report.
 
@@ -202,6 +215,7 @@ class SectionWriter:
         self.tables.append(_Entry(name, caption, f"tables/{name}.md"))
         return df
 
+    @stage("report")
     def figure(self, name: str, fig, caption: str = "", *, dpi: int = 110) -> Path:
         """Save a matplotlib figure as ``figures/<name>.png`` for the report.
 
@@ -224,6 +238,7 @@ class SectionWriter:
         self.figures.append(_Entry(name, caption, f"figures/{name}.png"))
         return path
 
+    @stage("report")
     def image(self, name: str, rgb: np.ndarray, caption: str = "") -> Path:
         """Save an image (e.g. a pyvista screenshot) as ``figures/<name>.png`` for the report.
 
@@ -256,9 +271,12 @@ class SectionWriter:
 
     # --- output -------------------------------------------------------------------------------
 
+    @stage("report")
     def save(self) -> Path:
         """Write ``results.json`` (atomically), with the timings (``"total"`` since construction,
-        unless timed already) and the provenance.
+        unless timed already), the stage times since construction (``"stages"``:
+        ``{stage: {"wall_s", "cpu_s", "calls"}}``, this save's own writing left out) and the
+        provenance.
 
         Returns:
             The path of ``results.json``.
@@ -277,6 +295,7 @@ class SectionWriter:
             "text": self.paragraphs,
             "stand_ins": self.stand_ins,
             "timings_s": self.timings_s,
+            "stages": stage_delta(self._stages_before),
             "provenance": provenance(),
         }
         return atomic_write_json(self.output_dir / RESULTS_FILE, record)

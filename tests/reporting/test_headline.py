@@ -1,8 +1,15 @@
-"""The report's first screen: the profile's banner, the headline of the paper's key results and
-the contents."""
+"""The report's first screen: the profile's banner, the headline of the paper's key results, the
+contents and the run's facts with its time by stage."""
 
 from histostudy.reporting import PAPER
-from histostudy.reporting.headline import HEADLINE_KEYS, contents_markdown, headline_markdown, profile_banner
+from histostudy.reporting.headline import (
+    HEADLINE_KEYS,
+    contents_markdown,
+    headline_markdown,
+    profile_banner,
+    run_facts,
+    stage_table,
+)
 from histostudy.reporting.report import load_section
 from histostudy.reporting.twins import results_coverage
 
@@ -48,3 +55,40 @@ def test_contents_links_every_entry():
     lines = contents_markdown([("01 · Model | views", "01_model"), ("Software", "software")])
     assert lines[0] == '<a id="contents"></a>'
     assert "- [01 · Model \\| views](#01_model)" in lines and "- [Software](#software)" in lines
+
+
+def test_this_run_shows_each_section_s_time_by_stage():
+    run = {"profile": "standard", "seed": 1, "notebooks": [
+        {"name": "01_model", "status": "ok", "seconds": 180.0, "cpu_seconds": 240.0,
+         "stages": {"render": {"wall_s": 60.0, "cpu_s": 90.0, "calls": 2},
+                    "report": {"wall_s": 6.0, "cpu_s": 6.0, "calls": 9}},
+         "other": {"wall_s": 114.0, "cpu_s": 144.0}},
+        # kept from an earlier run: its recorded stages; notebooks run at once: no CPU time of its own
+        {"name": "04_pose", "status": "ok", "kept": True, "seconds": 600.0, "cpu_seconds": None,
+         "stages": {"render": {"wall_s": 120.0, "cpu_s": 150.0, "calls": 40},
+                    "pose": {"wall_s": 420.0, "cpu_s": 800.0, "calls": 20}},
+         "other": {"wall_s": 60.0, "cpu_s": None}},
+        # a section of a version that recorded no stages
+        {"name": "05_targeting", "status": "ok", "seconds": 30.0, "cpu_seconds": 30.0},
+        {"name": "06_lab", "status": "failed"}]}
+    header, rows, unit = stage_table(run)
+    assert unit == "min" and header == ["Section", "render", "pose", "report", "other", "total"]
+    assert rows == [
+        ["01_model", "1.0 / 1.5", "—", "0.1 / 0.1", "1.9 / 2.4", "3.0 / 4.0"],
+        ["04_pose (kept)", "2.0 / 2.5", "7.0 / 13.3", "—", "1.0 / n/a", "10.0 / n/a"],
+        ["05_targeting", "n/a", "n/a", "n/a", "n/a", "0.5 / 0.5"],
+        ["all sections", "n/a", "n/a", "n/a", "n/a", "13.5 / n/a"]]
+    lines = run_facts(run)
+    caption = next(i for i, line in enumerate(lines) if line.startswith("Time by stage, wall / CPU in min"))
+    table = lines[caption + 2].splitlines()
+    assert table[:3] == ["| Section | render | pose | report | other | total |", "|:---|---:|---:|---:|---:|---:|",
+                         "| 01_model | 1.0 / 1.5 | — | 0.1 / 0.1 | 1.9 / 2.4 | 3.0 / 4.0 |"]
+
+    # all known, all short: seconds, and the sums
+    run["notebooks"] = run["notebooks"][:1]
+    run["notebooks"][0].update(seconds=100.0, cpu_seconds=None, other={"wall_s": 34.0, "cpu_s": None})
+    header, rows, unit = stage_table(run)
+    assert unit == "s" and rows[-1] == ["all sections", "60.0 / 90.0", "6.0 / 6.0", "34.0 / n/a", "100.0 / n/a"]
+    # no section recorded stages (a run of an earlier version): no table
+    assert stage_table({"notebooks": [{"name": "01_model", "seconds": 5.0}]}) is None
+    assert not any("Time by stage" in line for line in run_facts({"notebooks": [{"name": "01", "seconds": 5.0}]}))

@@ -8,7 +8,7 @@ import pytest
 
 from histostudy.cli import main
 from histostudy.reporting import NotebookFailed, run_study
-from histostudy.reporting.pipeline import discover_notebooks, select_notebooks
+from histostudy.reporting.pipeline import discover_notebooks, section_stages, select_notebooks
 
 PARAMS = 'profile = "smoke"\nseed = 0\noutput_dir = "."\nfactor = 1\n'
 
@@ -55,6 +55,21 @@ def test_discover_and_select(toy_notebooks):
         select_notebooks(nbs, ["third"])
 
 
+def test_a_section_s_stages_and_the_time_outside_them_go_into_its_run_entry(tmp_path):
+    section = tmp_path / "04_pose"
+    section.mkdir()
+    stages = {"render": {"wall_s": 30.0, "cpu_s": 50.0, "calls": 4},
+              "pose": {"wall_s": 60.0, "cpu_s": 90.0, "calls": 2}}
+    (section / "results.json").write_text(json.dumps({"section": "04_pose", "stages": stages}))
+    assert section_stages(section, 100.0, 200.0) == {"stages": stages, "other": {"wall_s": 10.0, "cpu_s": 60.0}}
+    assert section_stages(section, 100.0, None)["other"] == {"wall_s": 10.0, "cpu_s": None}  # ran beside others
+    # a sweep's workers' stage times add up to more than the section's wall time: nothing is left outside
+    assert section_stages(section, 80.0, 120.0)["other"] == {"wall_s": 0.0, "cpu_s": 0.0}
+    (section / "results.json").write_text(json.dumps({"section": "04_pose"}))  # an earlier version's
+    assert section_stages(section, 100.0, 200.0) == {}
+    assert section_stages(tmp_path / "missing", 100.0, 200.0) == {}
+
+
 @pytest.mark.slow
 def test_run_writes_sections_executed_notebooks_and_report(toy_notebooks, toy_profile, tmp_path):
     out = tmp_path / "reports"
@@ -69,6 +84,8 @@ def test_run_writes_sections_executed_notebooks_and_report(toy_notebooks, toy_pr
     assert run.report_html.is_file()
     record = json.loads((out / "run.json").read_text())
     assert [n["status"] for n in record["notebooks"]] == ["ok", "ok"]
+    for entry in record["notebooks"]:  # the section's stages (its save's call) and the time outside them
+        assert entry["stages"]["report"]["calls"] == 1 and 0 <= entry["other"]["wall_s"] <= entry["seconds"]
     assert not list(out.rglob("*.tmp*"))
 
 
@@ -254,6 +271,8 @@ def test_a_rerun_keeps_finished_sections_and_redoes_what_changed(toy_notebooks, 
     assert all((out / n / "results.json").stat().st_mtime_ns == t for n, t in stamps.items())
     assert sum("unchanged since" in line for line in logged) == 2
     assert again.record["notebooks"][0]["seconds"] == json.loads((out / "01_first" / KEY_FILE).read_text())["seconds"]
+    kept_stages = json.loads((out / "01_first" / "results.json").read_text())["stages"]
+    assert again.record["notebooks"][0]["stages"] == kept_stages and "other" in again.record["notebooks"][0]
     assert "kept from an earlier run" in again.report_md.read_text()
 
     # a parameter of 02 changes: 02 runs, 01 is kept; the log says why and how long the last run took

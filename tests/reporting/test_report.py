@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from histostudy.core import stage
 from histostudy.reporting import SectionWriter, build_report
 from histostudy.reporting.report import format_measure, load_section
 
@@ -52,6 +53,23 @@ def test_section_writer_records_everything(tmp_path):
     assert (tmp_path / "01_demo/figures/line.png").read_bytes()[:4] == b"\x89PNG"
     assert res["timings_s"]["work"] >= 0 and "git_commit" in res["provenance"]
     assert not list((tmp_path / "01_demo").rglob("*.tmp*"))
+
+
+def test_section_writer_records_the_stage_times_since_it_was_made(tmp_path, stage_clock):
+    with stage("pose"):
+        stage_clock.tick(100.0)  # before the writer: not the section's
+    w = SectionWriter(tmp_path / "04_demo", "04_demo", "Demo", profile="smoke", seed=0)
+    with stage("pose"):
+        stage_clock.tick(2.0, 3.0)
+        with stage("render"):
+            stage_clock.tick(1.0, 0.5)
+    w.table("counts", pd.DataFrame({"n": [1]}))  # writing a table is the report stage
+    w.save()
+    stages = load_section(tmp_path / "04_demo")["stages"]
+    # save's call counts; the time of its own writing cannot be in the file it writes
+    assert stages == {"render": {"wall_s": 1.0, "cpu_s": 0.5, "calls": 1},
+                      "pose": {"wall_s": 2.0, "cpu_s": 3.0, "calls": 1},
+                      "report": {"wall_s": 0.0, "cpu_s": 0.0, "calls": 2}}
 
 
 def test_unknown_paper_key_is_an_error(tmp_path):
