@@ -17,7 +17,16 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from histostudy.core import atomic_path, check_count, check_positive, check_unit_fraction
+from histostudy.core import (
+    atomic_path,
+    check_count,
+    check_positive,
+    check_unit_fraction,
+    merge_stage_totals,
+    stage,
+    stage_delta,
+    stage_totals,
+)
 from histostudy.geometry import make_transform, matrix_from_euler
 from histostudy.imaging import FrameRenderConfig, View, random_background, render_frame
 from histostudy.transducer import TransducerModel
@@ -194,7 +203,8 @@ class HybridFrames:
 
         The frames are the ones :meth:`frame` renders (each from its own seed), so a training
         run that finds them cached computes exactly what it would have computed rendering them
-        itself; only the wall time differs. Needs a cache folder.
+        itself; only the wall time differs. Needs a cache folder. The worker processes' render
+        time is added to this process's stage times (:func:`histostudy.core.merge_stage_totals`).
         """
         if self.cache_dir is None:
             raise ValueError("prerender needs a cache_dir: without one the rendered frames would be thrown away")
@@ -211,9 +221,11 @@ class HybridFrames:
         # spawned, not forked: a fork of a process whose torch/OpenMP pools are running can hang
         with ProcessPoolExecutor(max_workers=int(workers), mp_context=multiprocessing.get_context("spawn"),
                                  initializer=_single_threaded_worker) as pool:
-            list(pool.map(_render_into_cache, [self] * len(missing), missing, chunksize=4))
+            for stages in pool.map(_render_into_cache, [self] * len(missing), missing, chunksize=4):
+                merge_stage_totals(stages)
         return len(missing)
 
+    @stage("render")  # a frame read back from the cache is a render-stage cost too
     def frame(self, index: int):
         """The :class:`~histostudy.imaging.frame.Frame` of ``index`` (rendered, or read from the cache)."""
         from histostudy.imaging import Frame
@@ -254,8 +266,12 @@ def _single_threaded_worker() -> None:
     numba.set_num_threads(1)
 
 
-def _render_into_cache(frames: HybridFrames, index: int) -> None:
+def _render_into_cache(frames: HybridFrames, index: int) -> dict:
+    """Frame ``index`` rendered into the cache in a worker process; the stage times it charged
+    there, which the parent adds to its own."""
+    before = stage_totals()
     frames.frame(index)
+    return stage_delta(before)
 
 
 def true_angles(frame) -> tuple[float, float]:

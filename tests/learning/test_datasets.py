@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import torch
 
+from histostudy.core import stage_delta, stage_totals
 from histostudy.geometry import check_rigid
 from histostudy.imaging import View
 from histostudy.learning import HybridFrames, RenderConfig, angles_from_direction, beam_direction_of_pose, pool_labels
@@ -149,9 +150,12 @@ def test_prerender_fills_the_cache_with_the_frames_the_loop_would_render(tmp_pat
 
     cfg = RenderConfig(render_spacing_mm=0.47, label_spacing_mm=0.47, detector=(120, 160))
     frames = HybridFrames("val", 8, cfg, cache_dir=tmp_path)
+    before = stage_totals()
     assert frames.prerender(3, workers=2) == 3
+    assert stage_delta(before)["render"]["calls"] == 3  # the workers' renders, added to this process's
     assert all(frames.cached(i) for i in range(3)) and not frames.cached(3)
     assert frames.prerender(4, workers=2) == 1  # only what is missing
+    assert stage_delta(before)["render"]["calls"] == 4  # that one here
     uncached = HybridFrames("val", 8, cfg)
     for i in (0, 3):
         cached, fresh = frames.frame(i), uncached.frame(i)
