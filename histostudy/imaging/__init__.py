@@ -11,6 +11,7 @@ from .frame import Frame, line_integrals_from_pixels, load_frame
 from .io import detector_counts, load_volume, save_volume_nifti, write_xa
 from .render import (
     BACKGROUNDS,
+    SPLAT_DEVICES,
     FrameRenderConfig,
     add_poisson_noise,
     background_line_integrals,
@@ -28,6 +29,7 @@ __all__ = [
     "Frame",
     "FrameRenderConfig",
     "PhantomSpec",
+    "SPLAT_DEVICES",
     "View",
     "Volume",
     "add_poisson_noise",

@@ -39,15 +39,11 @@ __all__ = [
     "HybridFrames",
     "HybridImageDataset",
     "RenderConfig",
-    "SPLAT_DEVICES",
     "default_cache_dir",
     "flip_angles",
     "random_training_pose",
     "true_angles",
 ]
-
-#: The renderers a :class:`RenderConfig` may name (``splat_device``).
-SPLAT_DEVICES = (None, "cpu", "cuda", "auto")
 
 #: Seed-sequence codes of the splits; distinct codes keep the splits' seeds disjoint.
 SPLIT_CODES = {"train": 1, "val": 2, "eval": 3}
@@ -73,10 +69,6 @@ class RenderConfig(FrameRenderConfig):
         translation_range_mm: focal-point translation range per axis (100 mm = 10 cm).
         primary_range_deg: range of the views' primary (LAO/RAO) angle, uniform.
         detector: ``(rows, cols)`` of the full-resolution detector.
-        splat_device: where the splatting runs (:func:`histostudy.imaging.render_frame`'s
-            ``device``): None, the numpy reference; ``"cpu"``, compiled; ``"cuda"``, torch on the
-            GPU; ``"auto"``, CUDA when torch sees it, else compiled. The renderers draw the same
-            distribution but not the same numbers, so a frame cache belongs to one resolved device.
 
     Raises:
         ValueError: a field is out of its range (the message names it).
@@ -89,7 +81,6 @@ class RenderConfig(FrameRenderConfig):
     translation_range_mm: float = 100.0
     primary_range_deg: tuple = (-90.0, 90.0)
     detector: tuple = (960, 1240)
-    splat_device: str | None = None
 
     def __post_init__(self):
         super().__post_init__()
@@ -105,14 +96,12 @@ class RenderConfig(FrameRenderConfig):
                              f"got {self.primary_range_deg!r}")
         object.__setattr__(self, "primary_range_deg", (lo, hi))
         object.__setattr__(self, "detector", tuple(int(v) for v in self.detector))
-        if self.splat_device not in SPLAT_DEVICES:
-            raise ValueError(f"splat_device must be one of {SPLAT_DEVICES}, got {self.splat_device!r}")
 
     def resolved(self) -> RenderConfig:
         """This configuration with ``splat_device="auto"`` replaced by the device it means here."""
         if self.splat_device != "auto":
             return self
-        return replace(self, splat_device="cuda" if torch.cuda.is_available() else "cpu")
+        return replace(self, splat_device=self.resolved_device())
 
     def key(self) -> str:
         """A short hash of the configuration (names the cache folder); the reference renderer's
@@ -246,7 +235,7 @@ class HybridFrames:
         anatomy = random_background(rng, cfg.background)
         digital, physical = _models(cfg.render_spacing_mm, cfg.label_spacing_mm, cfg.physical_seed)
         frame = render_frame(digital, T, view, rng=rng, physical=physical, background=anatomy,
-                             device=cfg.splat_device, **cfg.frame_kwargs())
+                             **cfg.frame_kwargs())
         if path is not None:
             with atomic_path(path) as tmp:
                 np.savez(tmp, image=frame.image.astype(np.float16), labels=frame.labels, T=frame.T_carm_transducer)

@@ -34,6 +34,10 @@ from .twins import TWINS_ANCHOR, TWINS_HEADING, results_coverage, section_anchor
 __all__ = ["RESULTS_FILE", "SectionWriter", "build_report", "format_measure", "load_section"]
 
 RESULTS_FILE = "results.json"
+
+#: How a section's first line names its renderer, by its ``splat_device`` parameter (docs/imaging.md).
+SPLAT_RENDERERS = {"numpy": "the numpy reference", "cpu": "the compiled kernel (CPU)", "cuda": "torch on CUDA",
+                   "auto": "torch on CUDA where present, else the compiled kernel"}
 RUN_FILE = "run.json"
 
 
@@ -460,6 +464,9 @@ def _section_facts(name: str, res: dict, nb: dict) -> str:
     cpu_model = (prov.get("machine") or {}).get("cpu_model")
     if cpu_model:
         text += f" on {md_escape(cpu_model)}, {md_escape(prov['machine'].get('cpus'))} cores"
+    renderer = SPLAT_RENDERERS.get((res.get("parameters") or {}).get("splat_device"))
+    if renderer:
+        text += f"; frames splatted by {renderer}"
     return text + ("; kept from an earlier run (same content key)" if nb.get("kept") else "") + ".*"
 
 

@@ -13,14 +13,23 @@ from histostudy.core import check_count, check_positive
 from histostudy.imaging import BACKGROUNDS
 from histostudy.learning import HybridFrames, RenderConfig, default_cache_dir, shipped_model
 
-from .section import SectionConfig, SectionPart, Timer, check_bool, check_choice, check_text, timer_or_untimed
+from .section import (
+    SectionConfig,
+    SectionPart,
+    Timer,
+    check_bool,
+    check_choice,
+    check_splat_device,
+    check_text,
+    timer_or_untimed,
+)
 
 __all__ = ["RECORDED_PARAMETERS", "HeldOutConfig", "held_out_frames", "resolve_weights", "weights_part",
            "weights_summary", "prepare_held_out", "HeldOutSetup"]
 
 #: The notebook parameters the reports of notebooks 02 and 03 record, in the order they record them.
-RECORDED_PARAMETERS = ("photons_per_pixel", "n_splats", "splat_sigma_mm", "render_spacing_mm", "background",
-                       "n_eval_images", "weights")
+RECORDED_PARAMETERS = ("photons_per_pixel", "n_splats", "splat_sigma_mm", "splat_device", "render_spacing_mm",
+                       "background", "n_eval_images", "weights")
 
 
 @dataclass(frozen=True)
@@ -32,6 +41,7 @@ class HeldOutConfig(SectionConfig):
         photons_per_pixel: unattenuated photons per detector pixel of the frames (dose, > 0).
         n_splats: splats per model point (>= 1).
         splat_sigma_mm: SD of each splat's jitter, mm (> 0).
+        splat_device: where the frames are splatted, one of :data:`~histostudy.study.section.STUDY_SPLAT_DEVICES`.
         render_spacing_mm: grid spacing of the rendering and reference-label models, mm.
         background: the frames' scene, one of :data:`histostudy.imaging.BACKGROUNDS`.
         n_eval_images: held-out frames to evaluate (>= 1).
@@ -46,6 +56,7 @@ class HeldOutConfig(SectionConfig):
     photons_per_pixel: float
     n_splats: int
     splat_sigma_mm: float
+    splat_device: str
     render_spacing_mm: float
     background: str
     n_eval_images: int
@@ -67,6 +78,7 @@ class HeldOutConfig(SectionConfig):
         for name in ("n_splats", "n_eval_images", "render_workers"):
             put(name, check_count(getattr(self, name), name))
         check_choice(self.background, "background", BACKGROUNDS)
+        check_splat_device(self.splat_device)
         if not isinstance(self.weights, os.PathLike):
             check_text(self.weights, "weights", "a checkpoint path or \"\" (the shipped network)")
         put("cache_frames", check_bool(self.cache_frames, "cache_frames"))
@@ -85,8 +97,9 @@ class HeldOutConfig(SectionConfig):
         """
         return held_out_frames(seed, self.n_eval_images, render_spacing_mm=self.render_spacing_mm,
                                photons_per_pixel=self.photons_per_pixel, n_splats=self.n_splats,
-                               splat_sigma_mm=self.splat_sigma_mm, background=self.background,
-                               cache_frames=self.cache_frames, render_workers=self.render_workers, timer=timer)
+                               splat_sigma_mm=self.splat_sigma_mm, splat_device=self.splat_device,
+                               background=self.background, cache_frames=self.cache_frames,
+                               render_workers=self.render_workers, timer=timer)
 
 
 def resolve_weights(weights: str | os.PathLike, shipped_name: str, network: str, train_task: str) -> Path:
@@ -113,8 +126,8 @@ def resolve_weights(weights: str | os.PathLike, shipped_name: str, network: str,
 
 
 def held_out_frames(seed: int, n_images: int, *, render_spacing_mm: float, photons_per_pixel: float, n_splats: int,
-                    splat_sigma_mm: float, background: str, cache_frames: bool = True, render_workers: int = 1,
-                    timer: Timer | None = None) -> HybridFrames:
+                    splat_sigma_mm: float, background: str, splat_device: str = "numpy", cache_frames: bool = True,
+                    render_workers: int = 1, timer: Timer | None = None) -> HybridFrames:
     """The evaluation split (``"eval"``) of the study's hybrid frames, which no training or
     validation frame shares a seed with (§II-B.2). The frames are the same cached or not.
 
@@ -126,6 +139,8 @@ def held_out_frames(seed: int, n_images: int, *, render_spacing_mm: float, photo
         n_splats: splats per model point.
         splat_sigma_mm: splat SD, mm.
         background: the scene, one of :data:`histostudy.imaging.BACKGROUNDS`.
+        splat_device: where the frames are splatted (:data:`histostudy.imaging.SPLAT_DEVICES`); each
+            renderer's frames are cached apart.
         cache_frames: read the frames from (or render them into) the frame cache.
         render_workers: with ``cache_frames``, processes that pre-render the first ``n_images``.
         timer: ``timer(name)`` -> a context manager timing the pre-rendering; None: untimed.
@@ -135,7 +150,7 @@ def held_out_frames(seed: int, n_images: int, *, render_spacing_mm: float, photo
     """
     render = RenderConfig(render_spacing_mm=render_spacing_mm, label_spacing_mm=render_spacing_mm,
                           photons_per_pixel=photons_per_pixel, n_splats=n_splats, splat_sigma_mm=splat_sigma_mm,
-                          background=background)
+                          background=background, splat_device=splat_device)
     frames = HybridFrames("eval", seed, render, cache_dir=default_cache_dir() if cache_frames else None)
     if cache_frames and render_workers > 1:
         with timer_or_untimed(timer)(f"pre-render the uncached evaluation frames ({render_workers} processes)"):

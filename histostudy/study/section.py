@@ -14,8 +14,13 @@ from typing import ClassVar
 
 import numpy as np
 
-__all__ = ["RenderedSectionConfig", "SectionConfig", "SectionPart", "Timer", "check_bool", "check_choice",
-           "check_text", "config_from_parameters", "record", "timer_or_untimed"]
+__all__ = ["STUDY_SPLAT_DEVICES", "RenderedSectionConfig", "SectionConfig", "SectionPart", "Timer", "check_bool",
+           "check_choice", "check_splat_device", "check_text", "config_from_parameters", "record", "timer_or_untimed"]
+
+#: The renderers a notebook's ``splat_device`` may name (:data:`histostudy.imaging.SPLAT_DEVICES`):
+#: ``"numpy"``, the reference; ``"cpu"``, the compiled kernel; ``"cuda"``, torch; ``"auto"``, CUDA
+#: where torch sees one, else compiled.
+STUDY_SPLAT_DEVICES = ("numpy", "cpu", "cuda", "auto")
 
 #: ``timer(name)`` -> a context manager timing the block under ``name`` (``SectionWriter.timer``).
 Timer = Callable[[str], contextlib.AbstractContextManager]
@@ -68,6 +73,21 @@ def check_choice(value, name: str, choices) -> str:
     if not isinstance(value, str) or value not in choices:
         raise ValueError(f"{name} must be one of {', '.join(map(repr, choices))}, got {value!r}")
     return value
+
+
+def check_splat_device(value) -> str:
+    """``value``, if it names one of :data:`STUDY_SPLAT_DEVICES` (a notebook's ``splat_device``).
+
+    Args:
+        value: the value to check.
+
+    Returns:
+        ``value``.
+
+    Raises:
+        ValueError: ``value`` names no renderer.
+    """
+    return check_choice(value, "splat_device", STUDY_SPLAT_DEVICES)
 
 
 def check_text(value, name: str, what: str) -> str:
@@ -157,6 +177,7 @@ class RenderedSectionConfig(SectionConfig):
         pose_spacing_mm: the pose model's point spacing, mm.
         render_spacing_mm: the rendering model's point spacing, mm.
         background: the background scene.
+        splat_device: where the frames are splatted, one of :data:`STUDY_SPLAT_DEVICES`.
     """
 
     photons_per_pixel: float
@@ -165,6 +186,7 @@ class RenderedSectionConfig(SectionConfig):
     pose_spacing_mm: float
     render_spacing_mm: float
     background: str
+    splat_device: str
 
 
 @dataclass(frozen=True, eq=False)

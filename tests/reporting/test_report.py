@@ -96,6 +96,20 @@ def test_report_is_assembled_from_results_files(tmp_path):
     assert "01_demo/figures/line.png" not in html  # embedded, not linked
 
 
+def test_each_section_names_the_renderer_that_splatted_its_frames(tmp_path):
+    for name, device in (("01_cpu", "cpu"), ("02_numpy", "numpy"), ("03_none", None)):
+        parameters = {} if device is None else {"splat_device": device}
+        SectionWriter(tmp_path / name, name, name, profile="smoke", seed=3, parameters=parameters).save()
+    run = {"profile": "smoke", "seed": 3, "notebooks": [{"name": n, "status": "ok", "output_dir": str(tmp_path / n)}
+                                                        for n in ("01_cpu", "02_numpy", "03_none")]}
+    md = build_report(tmp_path, run)[0].read_text()
+    first_lines = {n: next(line for line in md.splitlines() if line.startswith(f"*Notebook `{n}`"))
+                   for n in ("01_cpu", "02_numpy", "03_none")}
+    assert "frames splatted by the compiled kernel (CPU)" in first_lines["01_cpu"]
+    assert "frames splatted by the numpy reference" in first_lines["02_numpy"]
+    assert "splatted" not in first_lines["03_none"]  # a section that renders nothing names no renderer
+
+
 def test_report_names_a_failure(tmp_path):
     run = {"profile": "smoke", "seed": 1, "notebooks": [{"name": "01_x", "status": "failed"}],
            "failure": {"notebook": "01_x", "cell_index": 4, "error": "ValueError: boom",

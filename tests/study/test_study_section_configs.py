@@ -8,6 +8,7 @@ import pytest
 
 from histostudy.study.budget import BudgetSectionConfig
 from histostudy.study.orientation import OrientationConfig
+from histostudy.study.pose import PoseSectionConfig
 from histostudy.study.projections import TransducerProjectionsConfig
 from histostudy.study.segmentation import SegmentationConfig
 from histostudy.study.targeting import TargetingSectionConfig
@@ -17,6 +18,7 @@ from histostudy.study.your_data import YourDataConfig
 NB01 = (TransducerProjectionsConfig, "01_transducer_and_projections")
 NB02 = (SegmentationConfig, "02_segmentation")
 NB03 = (OrientationConfig, "03_orientation")
+NB04 = (PoseSectionConfig, "04_pose_estimation")
 NB05 = (TargetingSectionConfig, "05_targeting")
 NB06 = (YourDataConfig, "06_your_data")
 NB07 = (BudgetSectionConfig, "07_error_budget")
@@ -31,6 +33,12 @@ CASES = [
     (*NB01, "background", "liver", "one of 'phantom', 'abdomen', 'mixed', 'none'"),
     (*NB01, "timing_repeats", 0, "an integer >= 1"),
     (*NB01, "render_3d", "yes", "True or False"),
+    (*NB01, "splat_device", None, "one of 'numpy', 'cpu', 'cuda', 'auto'"),
+    (*NB02, "splat_device", "gpu", "one of 'numpy', 'cpu', 'cuda', 'auto'"),
+    (*NB05, "splat_device", "CPU", "one of 'numpy', 'cpu', 'cuda', 'auto'"),
+    (*NB04, "splat_device", "gpu", "one of 'numpy', 'cpu', 'cuda', 'auto'"),
+    (*NB06, "splat_device", 0, "one of 'numpy', 'cpu', 'cuda', 'auto'"),
+    (*NB07, "splat_device", "compiled", "one of 'numpy', 'cpu', 'cuda', 'auto'"),
     (*NB02, "photons_per_pixel", -1.0, "a finite number > 0"),
     (*NB02, "n_splats", 0, "an integer >= 1"),
     (*NB02, "splat_sigma_mm", None, "a finite number > 0 mm"),

@@ -5,12 +5,13 @@ torch device (``_torch``) as ``_device`` picks, and a scope that renders each di
 
 from ._memo import shared_frames
 from ._reference import add_poisson_noise, background_line_integrals, render_frame, render_labels, render_line_integrals
-from ._settings import BACKGROUNDS, FrameRenderConfig
+from ._settings import BACKGROUNDS, SPLAT_DEVICES, FrameRenderConfig
 from ._torch import TorchSplatter, poisson_noise_torch
 
 __all__ = [
     "BACKGROUNDS",
     "FrameRenderConfig",
+    "SPLAT_DEVICES",
     "TorchSplatter",
     "add_poisson_noise",
     "background_line_integrals",

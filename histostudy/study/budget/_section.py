@@ -25,6 +25,7 @@ from ..section import (
     Timer,
     check_bool,
     check_choice,
+    check_splat_device,
     check_text,
     timer_or_untimed,
 )
@@ -42,9 +43,9 @@ __all__ = ["BudgetRun", "BudgetSectionConfig", "BudgetSeeds", "RECORDED_PARAMETE
 SECTION_TITLE = "07 · The error budget: the lab's error sources and their shares (§III, §IV)"
 
 #: The notebook parameters the report records, in the order it records them.
-RECORDED_PARAMETERS = ("photons_per_pixel", "n_splats", "splat_sigma_mm", "pose_spacing_mm", "render_spacing_mm",
-                       "background", "pose_experiments", "targeting_experiments", "learned_stages", "sources",
-                       "n_labs", "range_sources", "scheduler")
+RECORDED_PARAMETERS = ("photons_per_pixel", "n_splats", "splat_sigma_mm", "splat_device", "pose_spacing_mm",
+                       "render_spacing_mm", "background", "pose_experiments", "targeting_experiments", "learned_stages",
+                       "sources", "n_labs", "range_sources", "scheduler")
 
 #: Where each source's default comes from (the report's sources table): its status, value, range
 #: and reference (:data:`~._references.SOURCE_REFERENCES`).
@@ -63,6 +64,7 @@ class BudgetSectionConfig(RenderedSectionConfig):
         pose_spacing_mm: grid of the digital model the pose is estimated with (mm, > 0).
         render_spacing_mm: grid of the models the frames are rendered from, and the lab's transducer (mm, > 0).
         background: the scene behind the transducer (one of :data:`histostudy.imaging.BACKGROUNDS`).
+        splat_device: where the frames are splatted, one of :data:`~histostudy.study.section.STUDY_SPLAT_DEVICES`.
         pose_experiments: Table II experiments per configuration (>= 1).
         targeting_experiments: targeting experiments per configuration (>= 1).
         learned_stages: the estimates on the shipped U-Net and VGG19 where they qualify.
@@ -94,6 +96,7 @@ class BudgetSectionConfig(RenderedSectionConfig):
         for name in ("n_splats", "pose_experiments", "targeting_experiments", "n_labs"):
             check_count(getattr(self, name), name)
         check_choice(self.background, "background", BACKGROUNDS)
+        check_splat_device(self.splat_device)
         object.__setattr__(self, "learned_stages", check_bool(self.learned_stages, "learned_stages"))
         if isinstance(self.sources, (str, bytes)) or not isinstance(self.sources, (list, tuple)):
             raise ValueError(f"sources must be a list of the names {LAB_SOURCES}, got {self.sources!r}")
@@ -168,7 +171,8 @@ def prepare_budget(parameters: Mapping, seed: int, *, timer: Timer | None = None
     spec = TransducerSpec()
     model = lab_model_from_parameters(parameters["sources"])
     render = dict(photons_per_pixel=parameters["photons_per_pixel"], n_splats=parameters["n_splats"],
-                  splat_sigma_mm=parameters["splat_sigma_mm"], background=parameters["background"])
+                  splat_sigma_mm=parameters["splat_sigma_mm"], background=parameters["background"],
+                  splat_device=parameters["splat_device"])
     pose_config = PoseStudyConfig(n_experiments=int(parameters["pose_experiments"]), modes=("fast",),
                                   distance_maps=("occlusion_aware",), track=False, **render)
     targeting_config = TargetingStudyConfig(n_experiments=int(parameters["targeting_experiments"]),

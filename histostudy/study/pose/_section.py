@@ -19,7 +19,7 @@ from histostudy.learning import OracleOrientation
 from histostudy.pose import estimate_pose
 from histostudy.transducer import TransducerModel, TransducerSpec
 
-from ..section import RenderedSectionConfig, SectionPart, Timer, timer_or_untimed
+from ..section import RenderedSectionConfig, SectionPart, Timer, check_splat_device, timer_or_untimed
 from . import _projectors as projectors
 from ._report_tables import (
     RECORD_COLUMNS,
@@ -68,6 +68,7 @@ class PoseSectionConfig(RenderedSectionConfig):
         pose_spacing_mm: point spacing of the digital model the cost uses (mm, §II-B.1).
         render_spacing_mm: point spacing of the rendered and the physical transducer (mm).
         background: the scene behind the transducer (``"phantom"``, ``"abdomen"``, ``"mixed"``).
+        splat_device: where the frames are splatted, one of :data:`~histostudy.study.section.STUDY_SPLAT_DEVICES`.
         n_experiments: phantom experiments of Table II (paper: 10).
         margin_mm: treatment radii ``r`` drawn per experiment (mm).
         modes: refinement modes (``"paper"``: Nelder-Mead, ``"fast"``: Levenberg-Marquardt).
@@ -111,6 +112,9 @@ class PoseSectionConfig(RenderedSectionConfig):
     projector_study_poses: int
     projector_random_poses: int
 
+    def __post_init__(self):
+        check_splat_device(self.splat_device)
+
     def study_config(self) -> PoseStudyConfig:
         """The experiments' parameters these give (the rest keep :class:`PoseStudyConfig`'s defaults).
 
@@ -123,7 +127,8 @@ class PoseSectionConfig(RenderedSectionConfig):
         return PoseStudyConfig(
             n_experiments=self.n_experiments, margin_mm=tuple(self.margin_mm), background=self.background,
             photons_per_pixel=self.photons_per_pixel, n_splats=self.n_splats, splat_sigma_mm=self.splat_sigma_mm,
-            degradation=self.degradation, modes=tuple(self.modes), distance_maps=tuple(self.distance_maps))
+            splat_device=self.splat_device, degradation=self.degradation, modes=tuple(self.modes),
+            distance_maps=tuple(self.distance_maps))
 
 
 @dataclass(frozen=True)

@@ -86,8 +86,7 @@ def noise_sweep(photons_per_pixel: Sequence[float], *, pose_model: TransducerMod
             # The same splat and noise streams at every level: only the dose differs.
             rng = np.random.default_rng(render_seed)
             frames = [render_frame(render_model, T, v, rng=rng, physical=physical, background=scene,
-                                   photons_per_pixel=float(photons), n_splats=config.n_splats,
-                                   splat_sigma_mm=config.splat_sigma_mm) for v in views]
+                                   **{**config.frame_kwargs(), "photons_per_pixel": float(photons)}) for v in views]
             row = {"pose": i, "photons_per_pixel": float(photons)}
             try:
                 res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=orientation,

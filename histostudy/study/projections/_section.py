@@ -15,17 +15,32 @@ import pandas as pd
 
 from histostudy.core import as_generator, check_count, check_positive
 from histostudy.geometry import fit_sphere
-from histostudy.imaging import BACKGROUNDS, default_biplane, random_background, render_frame, render_line_integrals
+from histostudy.imaging import (
+    BACKGROUNDS,
+    FrameRenderConfig,
+    default_biplane,
+    random_background,
+    render_frame,
+    render_line_integrals,
+)
 from histostudy.transducer import FEATURE_CLASSES, Feature, TransducerModel, TransducerSpec, pose_facing
 
-from ..section import RenderedSectionConfig, SectionPart, Timer, check_bool, check_choice, timer_or_untimed
+from ..section import (
+    RenderedSectionConfig,
+    SectionPart,
+    Timer,
+    check_bool,
+    check_choice,
+    check_splat_device,
+    timer_or_untimed,
+)
 
 SECTION = "01_transducer_and_projections"
 TITLE = "01 · Digital transducer model and synthetic biplane fluoroscopy (§II-A, §II-B.1, §II-B.2)"
 
 #: The notebook parameters the report records, in the order it records them.
-RECORDED_PARAMETERS = ("photons_per_pixel", "n_splats", "splat_sigma_mm", "pose_spacing_mm", "render_spacing_mm",
-                       "background", "timing_repeats")
+RECORDED_PARAMETERS = ("photons_per_pixel", "n_splats", "splat_sigma_mm", "splat_device", "pose_spacing_mm",
+                       "render_spacing_mm", "background", "timing_repeats")
 
 
 @dataclass(frozen=True)
@@ -40,6 +55,7 @@ class TransducerProjectionsConfig(RenderedSectionConfig):
         pose_spacing_mm: grid spacing of the pose-estimation model, mm (paper: 0.47).
         render_spacing_mm: grid spacing of the rendering (and reference-label) model, mm (paper: 0.125).
         background: the scene behind the transducer, one of :data:`histostudy.imaging.BACKGROUNDS`.
+        splat_device: where the frames are splatted, one of :data:`~histostudy.study.section.STUDY_SPLAT_DEVICES`.
         timing_repeats: repeats of the render timing, whose median is reported (>= 1).
         render_3d: whether the notebook draws the 3-D model.
 
@@ -64,13 +80,14 @@ class TransducerProjectionsConfig(RenderedSectionConfig):
         for name in ("n_splats", "timing_repeats"):
             put(name, check_count(getattr(self, name), name))
         check_choice(self.background, "background", BACKGROUNDS)
+        check_splat_device(self.splat_device)
         put("render_3d", check_bool(self.render_3d, "render_3d"))
 
 
     def render(self) -> dict:
-        """The frames' dose and splatting (:func:`~histostudy.imaging.render_frame` keywords)."""
-        return {"photons_per_pixel": self.photons_per_pixel, "n_splats": self.n_splats,
-                "splat_sigma_mm": self.splat_sigma_mm}
+        """The frames' dose, splatting and renderer (:func:`~histostudy.imaging.render_frame` keywords)."""
+        return FrameRenderConfig(photons_per_pixel=self.photons_per_pixel, n_splats=self.n_splats,
+                                 splat_sigma_mm=self.splat_sigma_mm, splat_device=self.splat_device).frame_kwargs()
 
 
 class StageGenerators(NamedTuple):
@@ -377,7 +394,7 @@ def render_timing(model: TransducerModel, T_carm_transducer, view, *, background
     rng = as_generator(rng)
     stages = {"background projection": [], "transducer splatting": [], "frame, background precomputed": []}
     image_model = physical if physical is not None else model
-    splat_kwargs = {k: v for k, v in render_kwargs.items() if k in ("n_splats", "splat_sigma_mm")}
+    splat_kwargs = {k: v for k, v in render_kwargs.items() if k in ("n_splats", "splat_sigma_mm", "device")}
     for _ in range(repeats):
         t0 = time.perf_counter()
         bg = background.line_integrals(view) if hasattr(background, "line_integrals") else background
@@ -391,7 +408,8 @@ def render_timing(model: TransducerModel, T_carm_transducer, view, *, background
     n_points = sum(len(p) for p in image_model.points.values())
     table = pd.DataFrame([{"stage": name, "median_s": float(np.median(t)), "repeats": len(t),
                            "points": n_points if name != "background projection" else pd.NA,
-                           "detector": f"{view.shape[1]}x{view.shape[0]}"} for name, t in stages.items()])
+                           "detector": f"{view.shape[1]}x{view.shape[0]}",
+                           "splat_device": render_kwargs.get("device") or "numpy"} for name, t in stages.items()])
     return table.astype({"points": "Int64"})
 
 

@@ -18,7 +18,15 @@ from histostudy.imaging import View, default_biplane
 from histostudy.transducer import TransducerModel, TransducerSpec
 
 from ..pose.experiments import StudyStages, study_stages
-from ..section import RenderedSectionConfig, SectionPart, Timer, check_bool, check_choice, timer_or_untimed
+from ..section import (
+    RenderedSectionConfig,
+    SectionPart,
+    Timer,
+    check_bool,
+    check_choice,
+    check_splat_device,
+    timer_or_untimed,
+)
 from ._summary import (
     CALIBRATION_TABLE_CAPTION,
     ERROR_TABLE_CAPTION,
@@ -43,10 +51,10 @@ __all__ = ["RECORDED_PARAMETERS", "ROBOTS", "SECTION_TITLE", "NotebookSeeds", "S
 SECTION_TITLE = "05 · Automated targeting: calibration, positioning, treatment (§II-C, §II-D, §II-E.4, §III)"
 
 #: The notebook parameters the report records, in the order it records them.
-RECORDED_PARAMETERS = ("photons_per_pixel", "n_splats", "splat_sigma_mm", "pose_spacing_mm", "render_spacing_mm",
-                       "background", "n_experiments", "zone_diameters_mm", "n_calibration_poses", "pose_mode",
-                       "degradation", "learned_stages", "phantom_voxel_mm", "cbct_voxel_mm", "treatment_spacing_mm",
-                       "bubble_offset_mm", "bias_correction", "robot")
+RECORDED_PARAMETERS = ("photons_per_pixel", "n_splats", "splat_sigma_mm", "splat_device", "pose_spacing_mm",
+                       "render_spacing_mm", "background", "n_experiments", "zone_diameters_mm", "n_calibration_poses",
+                       "pose_mode", "degradation", "learned_stages", "phantom_voxel_mm", "cbct_voxel_mm",
+                       "treatment_spacing_mm", "bubble_offset_mm", "bias_correction", "robot")
 
 
 #: The robots the study runs on: the simulated UR5e, the simulated controller through ur_rtde, both.
@@ -72,6 +80,7 @@ class TargetingSectionConfig(RenderedSectionConfig):
         pose_spacing_mm: grid of the digital model the pose is estimated with (mm).
         render_spacing_mm: grid of the models the frames are rendered from (mm).
         background: the scene behind the transducer (``"phantom"``, ``"abdomen"``, ``"mixed"``, ``"none"``).
+        splat_device: where the frames are splatted, one of :data:`~histostudy.study.section.STUDY_SPLAT_DEVICES`.
         n_experiments: phantom experiments (paper: 6).
         zone_diameters_mm: target sphere diameters drawn per experiment (mm, each in (0, 30]).
         n_calibration_poses: robot poses of the hand-eye calibration (>= 3; paper: 4).
@@ -132,6 +141,7 @@ class TargetingSectionConfig(RenderedSectionConfig):
         for name in ("learned_stages", "bias_correction", "render_3d"):
             put(name, check_bool(getattr(self, name), name))
         check_choice(self.robot, "robot", ROBOTS)
+        check_splat_device(self.splat_device)
         put("sensitivity_poses", _numbers(self.sensitivity_poses, "sensitivity_poses", "integers >= 3 (robot poses)",
                                           check=lambda v: isinstance(v, (int, np.integer)) and not isinstance(v, bool)
                                           and v >= 3))

@@ -9,15 +9,15 @@ import numpy as np
 
 from histostudy.core import check_count, check_positive, is_finite_real
 
-from ..section import SectionConfig
+from ..section import SectionConfig, check_splat_device
 from ..section import check_bool as _check_bool
 
 SECTION = "06_your_data"
 TITLE = "Your own data: frames, calibration, target and robot (§II-B to §II-D on a lab's files)"
 
 #: The notebook parameters the report records, in the order it records them.
-RECORDED_PARAMETERS = ("data_dir", "target_mm", "pose_spacing_mm", "robot_host", "dry_run", "stream_cine",
-                       "moving_cine_s", "moving_cine_fps", "moving_cine_speed_mm_s", "max_queued_pairs")
+RECORDED_PARAMETERS = ("data_dir", "target_mm", "pose_spacing_mm", "splat_device", "robot_host", "dry_run",
+                       "stream_cine", "moving_cine_s", "moving_cine_fps", "moving_cine_speed_mm_s", "max_queued_pairs")
 
 
 def _check_optional_count(value, name: str) -> int | None:
@@ -50,6 +50,8 @@ class YourDataConfig(SectionConfig):
         photons_per_pixel: the generated frames' dose, photons per detector pixel (> 0).
         n_splats: splats per model point (>= 1).
         splat_sigma_mm: splat SD, mm (> 0).
+        splat_device: where the generated frames are splatted, one of
+            :data:`~histostudy.study.section.STUDY_SPLAT_DEVICES`.
         pose_spacing_mm: the transducer model's grid for the pose estimate, mm (> 0).
         robot_host: the UR controller's host name or address; None: no robot.
         dry_run: True: plan and check the move, move nothing.
@@ -75,6 +77,7 @@ class YourDataConfig(SectionConfig):
     photons_per_pixel: float
     n_splats: int
     splat_sigma_mm: float
+    splat_device: str
     pose_spacing_mm: float
     robot_host: str | None
     dry_run: bool
@@ -104,11 +107,13 @@ class YourDataConfig(SectionConfig):
                            ("pose_spacing_mm", "mm"), ("speed_mm_s", "mm/s")):
             put(name, check_positive(getattr(self, name), name, unit=unit))
         put("n_splats", check_count(self.n_splats, "n_splats"))
+        check_splat_device(self.splat_device)
         if self.robot_host is not None and (not isinstance(self.robot_host, str) or not self.robot_host.strip()):
             raise ValueError(f"robot_host must be None or the UR controller's host name or address, "
                              f"got {self.robot_host!r}")
 
     def render(self) -> dict:
-        """The generated frames' dose and splatting (:class:`~histostudy.imaging.FrameRenderConfig` fields)."""
+        """The generated frames' dose, splatting and renderer (:class:`~histostudy.imaging.FrameRenderConfig`
+        fields)."""
         return {"photons_per_pixel": self.photons_per_pixel, "n_splats": self.n_splats,
-                "splat_sigma_mm": self.splat_sigma_mm}
+                "splat_sigma_mm": self.splat_sigma_mm, "splat_device": self.splat_device}

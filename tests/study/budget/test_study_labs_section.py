@@ -9,7 +9,7 @@ from histostudy.study import budget as B
 from histostudy.study.budget import _labs_section as _labs_notebook
 
 #: A small notebook 07: two sources, three labs.
-PARAMETERS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, pose_spacing_mm=0.47,
+PARAMETERS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, splat_device="cpu", pose_spacing_mm=0.47,
                   render_spacing_mm=0.47, background="phantom", pose_experiments=1, targeting_experiments=1,
                   learned_stages=False, sources=["bubble_offset", "projection"], n_labs=3, range_sources=["projection"],
                   scheduler="local:1")

@@ -231,15 +231,16 @@ def test_stand_ins_part_names_the_manifest(tmp_path):
 # --- the notebook's parameters and set-up -----------------------------------------------------------
 
 #: The parameters cell of notebooks/03_orientation.ipynb as stored (its defaults).
-DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, render_spacing_mm=0.125,
-                background="mixed", n_eval_images=3, weights="", cache_frames=True, render_workers=1,
+DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, splat_device="numpy",
+                render_spacing_mm=0.125, background="mixed", n_eval_images=3, weights="", cache_frames=True,
+                render_workers=1,
                 geometric_initialiser=True)
 
 
 def test_the_parameters_are_the_notebooks_with_the_geometric_initialiser(notebook_parameters):
     params = study.OrientationConfig.from_parameters(notebook_parameters("03_orientation"))
     assert {k: getattr(params, k) for k in DEFAULTS} == DEFAULTS
-    assert list(params.recorded()) == list(study.OrientationConfig.RECORDED) == list(DEFAULTS)[:7]
+    assert list(params.recorded()) == list(study.OrientationConfig.RECORDED) == list(DEFAULTS)[:8]
 
 
 def test_prepare_loads_the_shipped_vgg19_and_the_frames():

@@ -49,7 +49,8 @@ def test_the_config_renders_with_the_shared_render_settings():
 
     config = PoseStudyConfig(photons_per_pixel=1e4, n_splats=8)
     assert isinstance(config, FrameRenderConfig) and config.background == "phantom"  # §II-D: agarose phantoms
-    assert config.frame_kwargs() == {"photons_per_pixel": 1e4, "n_splats": 8, "splat_sigma_mm": 0.5}
+    assert config.frame_kwargs() == {"photons_per_pixel": 1e4, "n_splats": 8, "splat_sigma_mm": 0.5, "device": None}
+    assert PoseStudyConfig(splat_device="cpu").frame_kwargs()["device"] == "cpu"
     with pytest.raises(ValueError, match="n_splats"):
         PoseStudyConfig(n_splats=0)
     with pytest.raises(ValueError, match="background must be one of"):

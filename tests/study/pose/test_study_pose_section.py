@@ -11,6 +11,7 @@ from histostudy.study import pose as study
 from histostudy.study.pose.metrics import mean_sd, table2
 
 TINY = dict(photons_per_pixel=5e4, n_splats=2, splat_sigma_mm=0.5, pose_spacing_mm=0.47, render_spacing_mm=0.47,
+            splat_device="cpu",
             background="phantom", n_experiments=1, margin_mm=[10.0], modes=["fast"], distance_maps=["occlusion_aware"],
             degradation="table1", robustness_poses=1, degradation_levels=[0.0], degradation_poses=1,
             learned_stages=False, learned_experiments=1, noise_photons=[5e4], noise_poses=1, cbct_reference=True,

@@ -206,8 +206,9 @@ def test_stand_ins_part_reports_the_detector_and_time(tmp_path):
 # --- the notebook's parameters and set-up -----------------------------------------------------------
 
 #: The parameters cell of notebooks/02_segmentation.ipynb as stored (its defaults).
-DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, render_spacing_mm=0.125,
-                background="mixed", n_eval_images=3, weights="", cache_frames=True, render_workers=1)
+DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, splat_device="numpy",
+                render_spacing_mm=0.125, background="mixed", n_eval_images=3, weights="", cache_frames=True,
+                render_workers=1)
 
 
 def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones(notebook_parameters):
@@ -215,7 +216,7 @@ def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones(n
     params = study.SegmentationConfig.from_parameters(cell)
     assert {k: getattr(params, k) for k in DEFAULTS} == DEFAULTS
     assert set(cell) - set(DEFAULTS) == {"profile", "seed", "output_dir"}
-    assert list(params.recorded()) == list(study.SegmentationConfig.RECORDED) == list(DEFAULTS)[:7]
+    assert list(params.recorded()) == list(study.SegmentationConfig.RECORDED) == list(DEFAULTS)[:8]
     with pytest.raises(AttributeError):
         params.n_eval_images = 2  # frozen
 

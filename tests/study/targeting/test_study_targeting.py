@@ -268,7 +268,7 @@ def test_the_config_renders_with_the_shared_render_settings():
 
     config = TargetingStudyConfig(n_splats=4, background="none")
     assert isinstance(config, FrameRenderConfig)
-    assert config.frame_kwargs() == {"photons_per_pixel": 5e4, "n_splats": 4, "splat_sigma_mm": 0.5}
+    assert config.frame_kwargs() == {"photons_per_pixel": 5e4, "n_splats": 4, "splat_sigma_mm": 0.5, "device": None}
     with pytest.raises(ValueError, match="background must be one of"):
         TargetingStudyConfig(background="water")
     with pytest.raises(ValueError, match="splat_sigma_mm"):

@@ -25,6 +25,7 @@ from histostudy.transducer import TransducerModel, TransducerSpec
 
 #: The smoke profile's notebook-05 parameters (histostudy/reporting/profiles/smoke.toml).
 SMOKE = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, pose_spacing_mm=0.47, render_spacing_mm=0.47,
+             splat_device="cpu",
              background="phantom", n_experiments=1, zone_diameters_mm=[20.0, 25.0], n_calibration_poses=4,
              pose_mode="fast", degradation="table1", learned_stages=False, phantom_voxel_mm=0.5, cbct_voxel_mm=1.0,
              treatment_spacing_mm=[2.0, 2.0, 3.0], bubble_offset_mm=[0.0, 0.0, 0.0], bias_correction=True,
@@ -48,7 +49,8 @@ def test_config_from_parameters_takes_the_config_fields_only():
     config = study_config_from_parameters(SMOKE)
     assert config == TargetingStudyConfig(
         n_experiments=1, zone_diameters_mm=(20.0, 25.0), n_calibration_poses=4, background="phantom",
-        photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, degradation="table1", pose_mode="fast",
+        photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, splat_device="cpu", degradation="table1",
+        pose_mode="fast",
         phantom_voxel_mm=0.5, cbct_voxel_mm=1.0, treatment_spacing_mm=(2.0, 2.0, 3.0),
         bubble_offset_mm=(0.0, 0.0, 0.0), bias_correction=True)
     assert config.treatment_spacing_mm == (2.0, 2.0, 3.0)  # lists made tuples (the config is hashable)
