@@ -24,7 +24,13 @@ __all__ = ["ORACLE_DEGRADATIONS", "OracleSegmenter", "SegmentationDegradation", 
 
 @runtime_checkable
 class Segmenter(Protocol):
-    """Turns a frame into a ``uint8`` label image of :class:`Feature` values."""
+    """Turns a frame into a ``uint8`` label image of :class:`Feature` values.
+
+    A segmenter whose labels depend on the frame alone, drawing nothing from ``rng``, says so with
+    ``uses_rng = False`` (:class:`~histostudy.learning.inference.UNetRunner`); a caller may then
+    segment a frame once for several estimates (:func:`~histostudy.study.pose.experiments.run_pose_study`).
+    Without the attribute a segmenter is taken to draw, and is called every time.
+    """
 
     def segment(self, frame: Frame, rng: np.random.Generator) -> np.ndarray: ...
 

@@ -145,6 +145,7 @@ class UNetRunner:
             None for a ``"reference"`` network without ``pad_multiple``).
         n_fused_layers: the ``Conv2d -> ReLU`` pairs run as one call (0 for ``"reference"`` and where
             this torch cannot fuse them).
+        uses_rng: False: the labels depend on the frame alone (:class:`~histostudy.learning.segment.Segmenter`).
 
     Raises:
         TypeError: ``test_time_flips`` is not a bool.
@@ -152,6 +153,9 @@ class UNetRunner:
             precision than ``"reference"``; ``scale`` not finite and > 0;
             ``"int8"`` without a calibration of this checkpoint or without torch's int8 kernels.
     """
+
+    #: The labels depend on the frame alone: a caller may segment a frame once for several estimates.
+    uses_rng = False
 
     def __init__(self, network, precision: str = "reference", test_time_flips: bool = False, *,
                  scale: float = 0.5, manifest: dict | None = None, int8_calibration: dict | None = None):

@@ -28,6 +28,7 @@ class SharedSegmentations:
         if isinstance(max_frames, bool) or not isinstance(max_frames, int) or max_frames < 1:
             raise ValueError(f"max_frames must be an integer >= 1, got {max_frames!r}")
         self.segmenter = segmenter
+        self.uses_rng = getattr(segmenter, "uses_rng", True)  # the wrapped segmenter's (learning.Segmenter)
         self.max_frames = max_frames
         self.hits = self.misses = 0
         self._labels: OrderedDict = OrderedDict()

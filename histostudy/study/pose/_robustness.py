@@ -17,7 +17,7 @@ from histostudy.learning import OracleOrientation, OrientationSource, Segmenter
 from histostudy.pose import PoseEstimationError, estimate_pose
 from histostudy.transducer import Feature, TransducerModel, half_turn_symmetric
 
-from .experiments import PoseStudyConfig
+from .experiments import PoseStudyConfig, SegmentedOnce
 from .geometry import (
     bubble_cloud_centre_mm,
     random_pose_in_views,
@@ -33,7 +33,7 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
                      inits: Sequence[str] = ("robust", "paper"), mode: str = "fast",
                      success_mm: float = 2.0, segmenter: Segmenter | None = None,
                      orientation: OrientationSource | None = None, workers: int | None = None,
-                     executor: SweepExecutor | str | None = None) -> pd.DataFrame:
+                     executor: SweepExecutor | str | None = None, stage_sets: dict | None = None) -> pd.DataFrame:
     """Initialisation success over random poses in the paper's training ranges (§II-B.2, §II-B.4).
 
     Each pose shows the focal point and the transducer's centre in every view (the transducer seen,
@@ -58,6 +58,12 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
         executor: what runs the poses (:func:`histostudy.core.run_sweep`: ``"sequential"``,
             ``"local:<n>"``, ``"tcp://host:port"``, a :class:`~histostudy.core.SweepExecutor`; None:
             ``$HISTOSTUDY_SCHEDULER``, else sequential).
+        stage_sets: name -> ``dict(segmenter=..., orientation=..., inits=...)`` (None or a missing
+            key: as above): several sets of stages run on each pose's frames, rendered once; each set
+            draws as a sweep of its own would, so its rows equal that sweep's (but ``seconds``), and a
+            segmenter that draws nothing (``uses_rng = False``) segments a frame once for every set.
+            The rows gain the column ``stages``. None: the one set of ``segmenter``, ``orientation``
+            and ``inits``, without the column.
 
     Returns:
         One row per (pose, init): ``error_mm``, ``rotation_error_deg`` (up to a half turn where the
@@ -74,23 +80,42 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
         if executor is not None:
             raise ValueError(f"give workers or executor, not both (workers={workers!r}, executor={executor!r})")
         executor = SweepExecutor("local", n_workers=int(workers)) if workers > 1 else "sequential"
-    segmenter = config.segmenter() if segmenter is None else segmenter
-    orientation = OracleOrientation() if orientation is None else orientation
+    one = {"segmenter": segmenter, "orientation": orientation, "inits": inits}
+    sets = [(None, one)] if stage_sets is None else [(name, {**one, **given}) for name, given in stage_sets.items()]
+    if not sets or any(set(given) - set(one) for _, given in sets):
+        raise ValueError(f"stage_sets must map names to dicts of segmenter, orientation and inits, got {stage_sets!r}")
+    sets = [(name, config.segmenter() if given["segmenter"] is None else given["segmenter"],
+             OracleOrientation() if given["orientation"] is None else given["orientation"], tuple(given["inits"]))
+            for name, given in sets]
     shared = dict(pose_model=pose_model, render_model=render_model, physical=physical, views=list(views),
-                  config=config, inits=tuple(inits), mode=mode, success_mm=success_mm, segmenter=segmenter,
-                  orientation=orientation, half_turn=half_turn_symmetric(pose_model))
+                  config=config, stage_sets=sets, mode=mode, success_mm=success_mm,
+                  half_turn=half_turn_symmetric(pose_model))
     per_pose = run_sweep(_sweep_pose, range(n_poses), seed=seed, executor=executor, shared=shared)
     return pd.DataFrame([row for rows in per_pose for row in rows])
 
 
-def _sweep_pose(i: int, seq: np.random.SeedSequence, *, pose_model, render_model, physical, views, config, inits,
-                mode, success_mm, segmenter, orientation, half_turn) -> list[dict]:
-    rng_pose, rng_scene, rng_render, rng_est = (np.random.default_rng(s) for s in seq.spawn(4))
+def _sweep_pose(i: int, seq: np.random.SeedSequence, *, pose_model, render_model, physical, views, config,
+                stage_sets, mode, success_mm, half_turn) -> list[dict]:
+    seq_pose, seq_scene, seq_render, seq_est = seq.spawn(4)
+    rng_pose, rng_scene, rng_render = (np.random.default_rng(s) for s in (seq_pose, seq_scene, seq_render))
     T = random_pose_in_views(rng_pose, views, visible_points_mm=sweep_visible_points(pose_model))
     scene = random_background(rng_scene, "mixed")
     frames = [render_frame(render_model, T, v, rng=rng_render, physical=physical, background=scene,
                            **config.frame_kwargs()) for v in views]
     truth = bubble_cloud_centre_mm(physical, T, config.bubble_offset_mm)
+    segmented: dict[int, SegmentedOnce] = {}  # one per segmenter: a set's estimates share its labels
+    rows = []
+    for name, segmenter, orientation, inits in stage_sets:
+        segmenter = segmented.setdefault(id(segmenter), SegmentedOnce(segmenter))
+        rng_est = np.random.default_rng(seq_est)  # each set draws as a sweep of its own
+        rows += _estimates(i, frames, T, truth, scene, name, segmenter, orientation, inits, rng_est,
+                           pose_model=pose_model, views=views, mode=mode, success_mm=success_mm, half_turn=half_turn)
+    return rows
+
+
+def _estimates(i, frames, T, truth, scene, name, segmenter, orientation, inits, rng_est, *, pose_model, views, mode,
+               success_mm, half_turn) -> list[dict]:
+    """The rows of one pose's estimates with one set of stages, an initialisation each."""
     rows = []
     for init in inits:
         row = {"pose": i, "init": init, "scene": scene.kind}
@@ -110,13 +135,15 @@ def _sweep_pose(i: int, seq: np.random.SeedSequence, *, pose_model, render_model
                        verdict_ok=v.ok, success=v.ok and err < success_mm,
                        failure="" if v.ok else ("implausible pose: " + "; ".join(v.reasons))[:200])
             for view in views:
-                name = view.name
-                row[f"rms_{name}"] = v.rms_distance_px.get(name, np.nan)
-                row[f"body_rms_{name}"] = v.class_rms_distance_px.get(name, {}).get(Feature.TRANSDUCER.name.lower(),
-                                                                                    np.nan)
-                row[f"unexplained_{name}"] = v.unexplained_fraction.get(name, np.nan)
-                row[f"disagreement_mm_{name}"] = v.view_disagreement_mm.get(name, np.nan)
+                view_name = view.name
+                row[f"rms_{view_name}"] = v.rms_distance_px.get(view_name, np.nan)
+                row[f"body_rms_{view_name}"] = v.class_rms_distance_px.get(view_name, {}).get(
+                    Feature.TRANSDUCER.name.lower(), np.nan)
+                row[f"unexplained_{view_name}"] = v.unexplained_fraction.get(view_name, np.nan)
+                row[f"disagreement_mm_{view_name}"] = v.view_disagreement_mm.get(view_name, np.nan)
         row["seconds"] = time.perf_counter() - t0
+        if name is not None:
+            row["stages"] = name
         rows.append(row)
     return rows
 

@@ -447,7 +447,9 @@ def variants_part(setup: PoseSetup, run: PoseRun) -> PoseTable:
         tables={"variants": (summary, "Centre error, radius MAE and precision per refinement mode and map kind (mm), "
                              "against the ground truth"),
                 "stage_timing": (timing, "Median seconds per stage of estimate_pose (2-core CPU, "
-                                 f"{'learned' if setup.stages.learned else 'oracle'} stages)")},
+                                 f"{'learned' if setup.stages.learned else 'oracle'} stages"
+                                 + ("; the U-Net segments an acquisition's frames once, in its first variant's "
+                                    "time)" if setup.stages.learned else ")"))},
         values={"tracking": tracking}, comparisons=tuple(comparisons))
     return PoseTable(timing.round(3), part)
 
@@ -516,17 +518,18 @@ def robustness_part(setup: PoseSetup, *, timer: Timer | None = None) -> PoseTabl
     """
     p, stages = setup.params, setup.stages
     sweep = dict(**setup.models(), seed=_sweep_seed(setup.seeds.robustness), config=setup.config)
+    # every set on each pose's frames, rendered once (the rows those of a sweep per set)
+    sets = {"oracle": {}}
+    if stages.learned:
+        sets["learned"] = dict(inits=("robust",), segmenter=stages.segmenter, orientation=stages.orientation)
+        vgg19 = getattr(stages.orientation, "fallback", None)
+        if p.robustness_vgg19 and vgg19 is not None:
+            sets["learned-vgg19"] = dict(inits=("robust",), segmenter=stages.segmenter, orientation=vgg19)
     with timer_or_untimed(timer)("robustness sweep"):
-        robust = robustness_sweep(p.robustness_poses, **sweep).assign(stages="oracle")
-        if stages.learned:
-            learned_robust = robustness_sweep(p.robustness_poses, **sweep, inits=("robust",),
-                                              segmenter=stages.segmenter, orientation=stages.orientation)
-            robust = pd.concat([robust, learned_robust.assign(stages="learned")], ignore_index=True)
-            vgg19 = getattr(stages.orientation, "fallback", None)
-            if p.robustness_vgg19 and vgg19 is not None:
-                vgg_robust = robustness_sweep(p.robustness_poses, **sweep, inits=("robust",),
-                                              segmenter=stages.segmenter, orientation=vgg19)
-                robust = pd.concat([robust, vgg_robust.assign(stages="learned-vgg19")], ignore_index=True)
+        robust = robustness_sweep(p.robustness_poses, **sweep, stage_sets=sets)
+        # the table as before: a set's rows together, the sets in order
+        robust = robust.sort_values("stages", key=lambda s: s.map(list(sets).index), kind="stable",
+                                    ignore_index=True)
     rates = robustness_summary(robust, by=("stages", "init"))
     part = SectionPart(
         tables={"robustness": (robust, "Initialisation over random poses: error (mm), verdict, time (s)"),

@@ -26,7 +26,7 @@ from .geometry import (
     transducer_axes,
 )
 
-__all__ = ["PoseExperiment", "PoseStudyConfig", "StudyStages", "draw_experiments", "experiment_setups",
+__all__ = ["PoseExperiment", "PoseStudyConfig", "SegmentedOnce", "StudyStages", "draw_experiments", "experiment_setups",
            "run_pose_study", "study_stages"]
 
 
@@ -229,6 +229,29 @@ def experiment_setups(config: PoseStudyConfig, seed: int) -> list[PoseExperiment
     return [exp for exp, *_ in draw_experiments(config, seed)]
 
 
+class SegmentedOnce:
+    """``segmenter`` for the estimates of one acquisition: a segmenter whose labels depend on the frame
+    alone (``uses_rng = False``) segments each frame once, for every variant; one that draws is called
+    each time, each variant with its own draws. Exact: a segmenter that draws nothing leaves the
+    Generator as it found it. Keeps the frames it saw: one per acquisition.
+
+    Args:
+        segmenter: the :class:`~histostudy.learning.Segmenter` wrapped.
+    """
+
+    def __init__(self, segmenter):
+        self.segmenter = segmenter
+        self.uses_rng = getattr(segmenter, "uses_rng", True)
+        self._labels: dict[int, tuple] = {}  # id(frame) -> (frame, labels); the frame keeps its id unique
+
+    def segment(self, frame, rng=None):
+        if self.uses_rng:
+            return self.segmenter.segment(frame, rng)
+        if id(frame) not in self._labels:
+            self._labels[id(frame)] = (frame, np.asarray(self.segmenter.segment(frame, rng)))
+        return self._labels[id(frame)][1].copy()
+
+
 def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, render_model: TransducerModel,
                    physical: TransducerModel, views: Sequence[View], seed: int,
                    segmenter: Segmenter | None = None, orientation: OrientationSource | None = None,
@@ -283,6 +306,7 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
                                    **config.frame_kwargs()).with_view(given)
                       for v, given in zip(views, told)]
             truth = bubble_cloud_centre_mm(physical, T_true, config.bubble_offset_mm)
+            segmented = SegmentedOnce(segmenter)
             variants = list(config.variants)
             if config.track and position != "centre":
                 variants.append(("track", config.distance_maps[0]))
@@ -296,7 +320,7 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
                         continue
                     kwargs.update(mode="fast", initial_pose=centre_estimate)
                 try:
-                    res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=orientation,
+                    res = estimate_pose(frames, pose_model, segmenter=segmented, orientation=orientation,
                                         rng=rng_mode, **kwargs)
                     if position == "centre" and (mode, maps) == config.variants[0]:
                         centre_estimate = res.T_carm_transducer

@@ -1,6 +1,7 @@
 """Tests of histostudy.study.pose._experiments: the experiments' draws and one small experiment end to end."""
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from histostudy.imaging import default_biplane, random_background
@@ -47,3 +48,33 @@ def test_experiment_setups_keep_the_study_draws():
             expected = T_nominal.copy()
             expected[:3, 3] += rng_robot.normal(0, config.robot_repeatability_mm, 3)
             np.testing.assert_array_equal(exp.T_true[position], expected)
+
+
+class _CountingSegmenter:
+    """Perfect labels (the oracle without degradation draws nothing), counting the calls."""
+
+    def __init__(self, uses_rng: bool):
+        from histostudy.learning import OracleSegmenter
+
+        self.oracle, self.uses_rng, self.calls = OracleSegmenter(None), uses_rng, 0
+
+    def segment(self, frame, rng=None):
+        self.calls += 1
+        return self.oracle.segment(frame, rng)
+
+
+@pytest.mark.slow
+def test_a_segmenter_that_draws_nothing_segments_each_acquisition_once_with_the_same_rows():
+    model = TransducerModel.build(spacing_mm=0.47)
+    physical = TransducerModel.build_physical(spacing_mm=0.47, rng=np.random.default_rng(3))
+    config = PoseStudyConfig(n_experiments=1, modes=("fast",), n_splats=2, track=True, splat_device="cpu")
+    runs = {}
+    for uses_rng in (True, False):
+        segmenter = _CountingSegmenter(uses_rng)
+        records = run_pose_study(config, pose_model=model, render_model=model, physical=physical,
+                                 views=default_biplane(), seed=11, segmenter=segmenter)
+        runs[uses_rng] = (records.drop(columns=[c for c in records if c.startswith("s_")]), segmenter.calls)
+    (every_time, calls_every_time), (once, calls_once) = runs[True], runs[False]
+    assert calls_every_time == 2 * len(every_time) == 2 * (7 + 6)  # two views per estimate: 7 fast + 6 tracks
+    assert calls_once == 2 * 7  # two views per acquisition
+    pd.testing.assert_frame_equal(once, every_time)

@@ -34,6 +34,38 @@ def test_robustness_sweep_runs_the_stages_it_is_given():
     assert table["rotation_error_deg"].iloc[0] < 2.0 and table["half_turned"].dtype == bool
 
 
+@pytest.mark.slow
+def test_stage_sets_on_each_pose_s_frames_give_the_rows_of_a_sweep_per_set():
+    from histostudy.learning import OracleOrientation, OracleSegmenter
+
+    class CountingSegmenter:
+        uses_rng = False  # perfect labels: no draw
+
+        def __init__(self):
+            self.calls = 0
+
+        def segment(self, frame, rng=None):
+            self.calls += 1
+            return OracleSegmenter().segment(frame, rng)
+
+    model = TransducerModel.build(spacing_mm=0.47)
+    physical = TransducerModel.build_physical(spacing_mm=0.47, rng=np.random.default_rng(3))
+    kwargs = dict(pose_model=model, render_model=model, physical=physical, views=default_biplane(), seed=7,
+                  config=PoseStudyConfig(n_splats=1, splat_device="cpu"))
+    perfect = CountingSegmenter()
+    sets = {"oracle": dict(inits=("robust",)),  # the Table I oracle: draws its degradations
+            "perfect": dict(inits=("robust",), segmenter=perfect, orientation=OracleOrientation()),
+            "perfect, paper init": dict(inits=("paper",), segmenter=perfect)}
+    together = study.robustness_sweep(2, **kwargs, stage_sets=sets)
+    assert perfect.calls == 2 * 2  # each pose's two frames once, for both sets that share the segmenter
+    separate = pd.concat([study.robustness_sweep(2, **kwargs, **given).assign(stages=name)
+                          for name, given in sets.items()], ignore_index=True)
+    together = together.sort_values("stages", key=lambda s: s.map(list(sets).index), kind="stable", ignore_index=True)
+    pd.testing.assert_frame_equal(together.drop(columns="seconds"), separate.drop(columns="seconds"), check_exact=True)
+    with pytest.raises(ValueError, match="stage_sets must map names to dicts"):
+        study.robustness_sweep(1, **kwargs, stage_sets={"x": {"segmentor": perfect}})
+
+
 def test_robustness_summary_counts_refusals_and_wrong_accepted_poses():
     robust = pd.DataFrame({
         "pose": [0, 1, 2, 3, 0, 1], "init": ["robust"] * 4 + ["paper"] * 2,
