@@ -85,9 +85,14 @@ def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConf
     The encoders' reading (:func:`~._robots.reported_flange_pose`) enters the calibration; the frames
     are rendered where the flange really is (an :class:`~._robots.InaccurateArm`'s ``flange_pose()``).
 
+    A pair whose estimate fails its verdict is acquired again (new splats and noise), up to
+    ``config.calibration_acquisitions`` pairs per pose; where none is refused the draws are those of
+    one pair per pose.
+
     Returns the checked calibration and one row per pose (the true and estimated focal points,
-    the pose-estimation error). Raises :class:`TargetingError` when a pose estimate fails its
-    verdict and :class:`~histostudy.calibration.CalibrationError` beyond the residual bound.
+    the pose-estimation error, the pairs acquired). Raises :class:`TargetingError` when every pair of
+    a pose fails its verdict and :class:`~histostudy.calibration.CalibrationError` beyond the
+    residual bound.
     """
     estimator_views = list(views) if estimator_views is None else list(estimator_views)
     if len(estimator_views) != len(views):
@@ -104,20 +109,24 @@ def calibrate_robot(robot: Robot, truth: GroundTruth, config: TargetingStudyConf
         # only a simulated inaccurate arm knows where its flange really is; any other robot is its reading
         T_true = truth.T_carm_transducer(robot.flange_pose() if isinstance(robot, InaccurateArm) else F_k)
         told = estimator_views if acquisition_views is None else acquisition_views(k, estimator_views)
-        frames = [render_frame(render_model, T_true, v, rng=rng_render, physical=physical, background=scene,
-                               **config.frame_kwargs()).with_view(given) for v, given in zip(views, told)]
-        try:
-            res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=orientation,
-                                rng=np.random.default_rng(rng_est.integers(2**63)), mode=config.pose_mode)
-        except PoseEstimationError as exc:
-            raise TargetingError(f"calibration pose {k}: the pose estimate failed its verdict ({exc}); "
-                                 "re-acquire the frames") from exc
+        for acquisition in range(1, config.calibration_acquisitions + 1):
+            frames = [render_frame(render_model, T_true, v, rng=rng_render, physical=physical, background=scene,
+                                   **config.frame_kwargs()).with_view(given) for v, given in zip(views, told)]
+            try:
+                res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=orientation,
+                                    rng=np.random.default_rng(rng_est.integers(2**63)), mode=config.pose_mode)
+                break
+            except PoseEstimationError as exc:
+                if acquisition == config.calibration_acquisitions:
+                    raise TargetingError(f"calibration pose {k}: the pose estimates of all {acquisition} pairs "
+                                         f"acquired failed their verdict (the last: {exc})") from exc
         F.append(F_k)
         C.append(res.T_carm_transducer)
         true_focal = T_true[:3, 3]
         rows.append({"pose": k, **{f"true_{a}": v for a, v in zip("xyz", true_focal)},
                      **{f"pred_{a}": v for a, v in zip("xyz", res.focal_point_mm)},
                      "pose_error_mm": float(np.linalg.norm(res.focal_point_mm - true_focal)),
+                     "acquisitions": acquisition,
                      "seconds": res.timings_s.get("total", np.nan)})
     try:
         cal = calibrate_half_turns(F, C, nominal_T_flange_transducer=truth.T_flange_transducer_nominal)

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from histostudy.calibration import R_BASE_FLANGE_DOWN
+from histostudy.core import check_count
 from histostudy.geometry import invert_transform, make_transform, matrix_from_rotvec, rotation_about_axis
 from histostudy.imaging import FrameRenderConfig
 from histostudy.learning import OracleSegmenter
@@ -42,6 +43,8 @@ class TargetingStudyConfig(FrameRenderConfig):
         n_experiments: phantom experiments (paper: 6).
         zone_diameters_mm: target sphere diameters drawn per experiment (paper: 20 or 25 mm).
         n_calibration_poses: robot poses of the hand-eye calibration (paper: 4; >= 3).
+        calibration_acquisitions: biplane pairs acquired at most per calibration pose: a pair whose
+            estimate fails its verdict is acquired again, as a lab would (>= 1; the paper does not say).
         calibration_tilt_deg: tilt of the tool axis from vertical at the calibration poses (each
             about a different horizontal axis).
         calibration_axial_deg: the transducer is also turned about its axis by up to this.
@@ -74,6 +77,7 @@ class TargetingStudyConfig(FrameRenderConfig):
     n_experiments: int = 6
     zone_diameters_mm: tuple = (20.0, 25.0)
     n_calibration_poses: int = 4
+    calibration_acquisitions: int = 3
     calibration_tilt_deg: float = 15.0
     calibration_axial_deg: float = 30.0
     calibration_offset_mm: float = 15.0
@@ -108,6 +112,7 @@ class TargetingStudyConfig(FrameRenderConfig):
         if int(self.n_calibration_poses) != self.n_calibration_poses or self.n_calibration_poses < 3:
             raise ValueError(f"n_calibration_poses must be an integer >= 3 (hand-eye needs 2 motions), "
                              f"got {self.n_calibration_poses!r}")
+        check_count(self.calibration_acquisitions, "calibration_acquisitions")
         if not self.zone_diameters_mm or any(not (np.isfinite(d) and 0 < d <= 30) for d in self.zone_diameters_mm):
             raise ValueError(f"zone_diameters_mm must hold diameters in (0, 30] mm (the 50 mm phantom), "
                              f"got {self.zone_diameters_mm!r}")

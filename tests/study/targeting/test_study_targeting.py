@@ -257,9 +257,28 @@ def test_the_calibration_runs_on_the_stages_it_is_given(models):
     cal, rows = calibrate_with(SpySegmenter(), SpyOrientation())
     n_frames = config.n_calibration_poses * len(views)
     assert calls == {"segment": n_frames, "orientation": n_frames}
-    assert rows["pose_error_mm"].max() < 1.0
-    with pytest.raises(TargetingError, match="calibration pose 0"):
+    assert rows["pose_error_mm"].max() < 1.0 and (rows["acquisitions"] == 1).all()
+    with pytest.raises(TargetingError, match="calibration pose 0: the pose estimates of all 3 pairs acquired failed"):
         calibrate_with(BlindSegmenter(), SpyOrientation())
+
+    class BlindAtFirst:
+        """Finds nothing in the second calibration pose's first pair (its first view), as a pair
+        whose estimate the verdict refuses."""
+
+        def __init__(self):
+            self.calls = 0
+
+        def segment(self, frame, rng=None):
+            self.calls += 1
+            if self.calls == len(views) + 1:
+                return np.zeros(frame.image.shape, np.uint8)
+            return oracle_segmenter.segment(frame, rng)
+
+    again_cal, again = calibrate_with(BlindAtFirst(), OracleOrientation())
+    assert list(again["acquisitions"]) == [1, 2] + [1] * (config.n_calibration_poses - 2)
+    assert again["pose_error_mm"].max() < 1.0
+    # the first pose drew as before; the second pair of pose 1 is a new acquisition
+    assert again["pose_error_mm"].iloc[0] == rows["pose_error_mm"].iloc[0]
 
 
 
