@@ -10,17 +10,23 @@ from histostudy.study.pose.experiments import PoseStudyConfig
 from histostudy.transducer import TransducerModel
 
 
+class CountingSegmenter:
+    """Perfect labels (the oracle without degradation draws nothing), counting the calls; says it
+    draws nothing only when told (``uses_rng``)."""
+
+    def __init__(self, uses_rng: bool = True):
+        self.calls, self.uses_rng = 0, uses_rng
+
+    def segment(self, frame, rng=None):
+        from histostudy.learning import OracleSegmenter
+
+        self.calls += 1
+        return OracleSegmenter().segment(frame, rng)
+
+
 @pytest.mark.slow
 def test_robustness_sweep_runs_the_stages_it_is_given():
-    from histostudy.learning import OracleOrientation, OracleSegmenter
-
-    class CountingSegmenter:
-        def __init__(self):
-            self.calls = 0
-
-        def segment(self, frame, rng=None):
-            self.calls += 1
-            return OracleSegmenter().segment(frame, rng)
+    from histostudy.learning import OracleOrientation
 
     model = TransducerModel.build(spacing_mm=0.47)
     physical = TransducerModel.build_physical(spacing_mm=0.47, rng=np.random.default_rng(3))
@@ -36,23 +42,13 @@ def test_robustness_sweep_runs_the_stages_it_is_given():
 
 @pytest.mark.slow
 def test_stage_sets_on_each_pose_s_frames_give_the_rows_of_a_sweep_per_set():
-    from histostudy.learning import OracleOrientation, OracleSegmenter
-
-    class CountingSegmenter:
-        uses_rng = False  # perfect labels: no draw
-
-        def __init__(self):
-            self.calls = 0
-
-        def segment(self, frame, rng=None):
-            self.calls += 1
-            return OracleSegmenter().segment(frame, rng)
+    from histostudy.learning import OracleOrientation
 
     model = TransducerModel.build(spacing_mm=0.47)
     physical = TransducerModel.build_physical(spacing_mm=0.47, rng=np.random.default_rng(3))
     kwargs = dict(pose_model=model, render_model=model, physical=physical, views=default_biplane(), seed=7,
                   config=PoseStudyConfig(n_splats=1, splat_device="cpu"))
-    perfect = CountingSegmenter()
+    perfect = CountingSegmenter(uses_rng=False)
     sets = {"oracle": dict(inits=("robust",)),  # the Table I oracle: draws its degradations
             "perfect": dict(inits=("robust",), segmenter=perfect, orientation=OracleOrientation()),
             "perfect, paper init": dict(inits=("paper",), segmenter=perfect)}
