@@ -20,7 +20,7 @@ from histostudy.core.provenance import REPO_ROOT
 
 from .interrupts import StudyInterrupted, remove_temporaries, signals_interrupt, stop_kernels
 from .profiles import Profile, load_profile, validate_profile
-from .report import RESULTS_FILE, build_report, write_run_record
+from .report import build_report, load_section, write_run_record
 from .section_keys import SectionKey, changed_parts, estimate_seconds, kept_section, record_key, remove_key, section_key
 
 __all__ = ["NotebookFailed", "discover_notebooks", "run_study", "section_stages", "select_notebooks"]
@@ -286,8 +286,7 @@ def section_stages(section_dir, seconds: float, cpu_seconds: float | None) -> di
         ``results.json`` records no stages (a section of an earlier version, or unreadable).
     """
     try:
-        with open(Path(section_dir) / RESULTS_FILE, encoding="utf-8") as fh:
-            stages = json.load(fh).get("stages")
+        stages = load_section(section_dir).get("stages")
     except (OSError, ValueError, AttributeError):
         return {}
     if not isinstance(stages, dict):
