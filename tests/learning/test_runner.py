@@ -189,3 +189,16 @@ def test_a_runner_pickles_to_one_that_gives_the_same_labels(random_unet, precisi
     assert copy._recent == {} and copy.precision == precision
     np.testing.assert_array_equal(copy.segment_region(frame, (0, 240, 0, 310)), before)
     assert runner._recent  # the original keeps its own
+
+
+def test_the_channel_arg_max_is_torch_s_with_its_ties():
+    """The labels' arg-max over the classes (a running maximum) is Tensor.argmax's, ties to the
+    first class included: logits rounded to a coarse grid tie often."""
+    from histostudy.learning.inference.runner import _channel_argmax
+
+    logits = torch.round(torch.randn(6, 37, 53, generator=torch.Generator().manual_seed(3)) * 2) / 2
+    expected = logits.argmax(dim=0).to(torch.uint8).numpy()
+    assert (logits == logits.max(dim=0).values).sum(dim=0).gt(1).any()  # ties present
+    labels = _channel_argmax(logits)
+    assert labels.dtype == np.uint8
+    np.testing.assert_array_equal(labels, expected)
