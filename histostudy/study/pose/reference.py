@@ -6,6 +6,7 @@ intensities in HU (docs/pose-study.md, "The CBCT reference").
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable, Sequence
 
@@ -13,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from histostudy.geometry import make_transform, rotation_about_axis
-from histostudy.imaging import Anatomy, PhantomSpec, phantom_mask, phantom_volume
+from histostudy.imaging import Anatomy, PhantomSpec, Volume, phantom_mask, phantom_volume
 from histostudy.transducer import TransducerModel
 from histostudy.treatment import (
     STUDY_PLAN_INSET_MM,
@@ -71,6 +72,37 @@ def _positive(value, name: str, allow_zero: bool = False):
     return value
 
 
+def phantom_and_mask(spec: PhantomSpec, T_carm_phantom: np.ndarray, spacing_mm) -> tuple[Volume, np.ndarray]:
+    """The phantom set-up rasterised (:func:`~histostudy.imaging.phantom_volume`) and its cube's mask
+    (:func:`~histostudy.imaging.phantom_mask`), both read-only: the last placement's are kept, since
+    the configurations of an experiment (notebook 07) and its labs treat the same phantom in turn.
+
+    Args:
+        spec: the phantom.
+        T_carm_phantom: (4, 4) rigid, phantom -> C-arm (mm).
+        spacing_mm: the grid's voxel (mm, scalar or ``(3,)``, > 0).
+
+    Returns:
+        ``(phantom, mask)``: HU on the grid, C-arm frame; boolean ``[z, y, x]``.
+
+    Raises:
+        ValueError: as :func:`~histostudy.imaging.phantom_volume`.
+    """
+    T = np.ascontiguousarray(T_carm_phantom, dtype=np.float64)
+    spacing = tuple(float(v) for v in np.atleast_1d(np.asarray(spacing_mm, dtype=np.float64)))
+    return _phantom_and_mask(spec, T.shape, T.tobytes(), spacing)
+
+
+@functools.lru_cache(maxsize=1)
+def _phantom_and_mask(spec: PhantomSpec, shape: tuple, T_bytes: bytes, spacing: tuple) -> tuple[Volume, np.ndarray]:
+    T = np.frombuffer(T_bytes, dtype=np.float64).reshape(shape)
+    phantom = phantom_volume(spec, T, spacing_mm=spacing[0] if len(spacing) == 1 else spacing)
+    mask = phantom_mask(phantom, spec, T)
+    phantom.data.setflags(write=False)
+    mask.setflags(write=False)
+    return phantom, mask
+
+
 def _treat_and_scan(exp: PoseExperiment, spec: PhantomSpec, T_carm_phantom: np.ndarray, *, physical: TransducerModel,
                     config: PoseStudyConfig, rng: np.random.Generator, phantom_voxel_mm, cbct_voxel_mm,
                     cbct_blur_mm: float, cbct_noise_hu: float, treatment_spacing_mm, treatment_inset_mm):
@@ -87,8 +119,7 @@ def _treat_and_scan(exp: PoseExperiment, spec: PhantomSpec, T_carm_phantom: np.n
                           inset_mm=treatment_inset_mm)
     reached = np.repeat(T_c[None], len(plan), axis=0)
     reached[:, :3, 3] = plan.points_mm + rng.normal(0.0, config.robot_repeatability_mm, plan.points_mm.shape)
-    phantom = phantom_volume(spec, T_carm_phantom, spacing_mm=phantom_voxel_mm)
-    roi = phantom_mask(phantom, spec, T_carm_phantom)
+    phantom, roi = phantom_and_mask(spec, T_carm_phantom, phantom_voxel_mm)
     seg, post = scan_treated_zone(phantom, roi, reached, physical.focal_point_mm, config.bubble_offset_mm, spec=spec,
                                   T_carm_phantom=T_carm_phantom, rng=rng, blur_sigma_mm=cbct_blur_mm,
                                   noise_sd_hu=cbct_noise_hu, voxel_mm=cbct_voxel_mm)

@@ -12,11 +12,12 @@ import numpy as np
 
 from histostudy.calibration import HandEyeCalibration
 from histostudy.geometry import invert_transform
-from histostudy.imaging import PhantomSpec, Volume, phantom_mask, phantom_volume, random_target
+from histostudy.imaging import PhantomSpec, Volume, random_target
 from histostudy.robot import Robot
 from histostudy.transducer import TransducerModel
 from histostudy.treatment import TreatmentZone, ZoneSegmentation, execute_treatment, plan_treatment, scan_treated_zone
 
+from ..pose.reference import phantom_and_mask
 from ._positioning import position_for_target
 from .setup import GroundTruth, TargetingStudyConfig
 
@@ -64,8 +65,7 @@ def phantom_for(truth: GroundTruth, config: TargetingStudyConfig) -> tuple[Volum
         ``(phantom, mask)``: the phantom (HU on a ``config.phantom_voxel_mm`` grid, C-arm frame) and its
         boolean mask.
     """
-    phantom = phantom_volume(PhantomSpec(), truth.T_carm_phantom, spacing_mm=config.phantom_voxel_mm)
-    return phantom, phantom_mask(phantom, PhantomSpec(), truth.T_carm_phantom)
+    return phantom_and_mask(PhantomSpec(), truth.T_carm_phantom, config.phantom_voxel_mm)
 
 
 def learn_bubble_bias(robot: Robot, truth: GroundTruth, calibration: HandEyeCalibration,

@@ -7,11 +7,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from histostudy.imaging import Anatomy, PhantomSpec, random_background
+from histostudy.geometry import make_transform, rotation_about_axis
+from histostudy.imaging import Anatomy, PhantomSpec, phantom_mask, phantom_volume, random_background
 from histostudy.study.pose.experiments import PoseStudyConfig, experiment_setups
 from histostudy.study.pose.geometry import DIRECTIONS, MARGINS, bubble_cloud_centre_mm, transducer_axes
 from histostudy.study.pose.metrics import experiment_metrics, reference_error_summary, table2
-from histostudy.study.pose.reference import cbct_reference, phantom_placement
+from histostudy.study.pose.reference import cbct_reference, phantom_and_mask, phantom_placement
 from histostudy.transducer import TransducerModel
 
 #: Coarse and fast: a 0.75 mm phantom (1 mm lets the 3x3x6 mm clouds alias by up to 0.6 mm) and a 1 mm CBCT,
@@ -162,3 +163,20 @@ def test_cbct_reference_refuses_bad_arguments(physical_model):
         experiment_metrics(records, reference="cbct")
     summary = reference_error_summary(ref)
     assert len(summary) == 8 and summary["mm"].str.contains("±").all()
+
+
+def test_the_phantom_is_rasterised_once_per_placement_and_read_only():
+    """The configurations of an experiment treat the same phantom: the second call returns the
+    first's arrays (made once), equal to phantom_volume's and phantom_mask's; nobody can write them."""
+    spec = PhantomSpec(size_mm=40.0, layer_thickness_mm=5.0)
+    T = make_transform(rotation_about_axis([0.0, 0.0, 1.0], 0.3), [1.0, -2.0, 3.0])
+    phantom, mask = phantom_and_mask(spec, T, 1.0)
+    again, mask_again = phantom_and_mask(spec, T.copy(), 1.0)
+    assert again is phantom and mask_again is mask
+    np.testing.assert_array_equal(phantom.data, phantom_volume(spec, T, spacing_mm=1.0).data)
+    np.testing.assert_array_equal(mask, phantom_mask(phantom_volume(spec, T, spacing_mm=1.0), spec, T))
+    with pytest.raises(ValueError, match="read-only"):
+        phantom.data[0, 0, 0] = 0.0
+    moved = T.copy()
+    moved[0, 3] += 1.0
+    assert phantom_and_mask(spec, moved, 1.0)[0] is not phantom
