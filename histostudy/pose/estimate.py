@@ -17,6 +17,7 @@ from histostudy.learning import OrientationSource, Segmenter
 from histostudy.transducer import TransducerModel
 
 from .directions import SourceDirections
+from .estimate_memo import memoised_estimates
 from .from_labels import estimate_pose_from_labels
 from .labels import segment_frames
 from .learned_stages import default_stages
@@ -27,10 +28,14 @@ __all__ = ["estimate_pose"]
 
 
 @stage("pose")
+@memoised_estimates
 def estimate_pose(frames: Sequence[Frame], model: TransducerModel, *, segmenter: Segmenter | None = None,
                   orientation: OrientationSource | None = None, rng: int | np.random.Generator | None = None,
                   initial_pose=None, options: PoseConfig | None = None, **option_overrides) -> PoseResult:
     """Estimate ``T_carm_transducer`` from one or more frames (§II-B.3-4).
+
+    Inside a :func:`~.estimate_memo.shared_estimates` scope a call equal to an earlier one (same
+    frames, stages, options and Generator state) returns that call's result again, exactly.
 
     Args:
         frames: the fluoroscopic frames, each with its view (>= 1; the paper: planes A and B).

@@ -96,8 +96,8 @@ def _labs_task(task: tuple, *, setup: BudgetSetup, labs: Sequence[LabDraw], shar
     run = _pose_task if study == "pose" else _targeting_task
     config = setup.pose_config if study == "pose" else setup.targeting_config
     frames = []
-    scope = shared_work(setup, config) if share else contextlib.nullcontext((setup, None, None))
-    with scope as (base, memo, seg):
+    scope = shared_work(setup, config) if share else contextlib.nullcontext((setup, None))
+    with scope as (base, shared):
         for k in indices:
             lab = labs[k]
             frame = run(dataclasses.replace(base, lab=lab), seed, experiment, [("lab", lab.model)])
@@ -105,8 +105,8 @@ def _labs_task(task: tuple, *, setup: BudgetSetup, labs: Sequence[LabDraw], shar
             frame.insert(0, "study", study)
             frames.append(frame)
     out = pd.concat(frames, ignore_index=True)
-    out.attrs["frames"] = (memo.misses, memo.hits) if share else (0, 0)
-    out.attrs["segmentations"] = (seg.misses, seg.hits) if share else (0, 0)
+    for name in ("frames", "segmentations", "estimates"):
+        out.attrs[name] = (getattr(shared, name).misses, getattr(shared, name).hits) if share else (0, 0)
     return out
 
 
@@ -129,12 +129,12 @@ def run_labs(setup: BudgetSetup, labs: Sequence[LabDraw], *, seed: int, indices:
         labs_per_task: labs per task; None: all in one chunk where their frames are alike
             (:func:`frames_alike`), else one.
         studies: ``"pose"`` and/or ``"targeting"``.
-        share: share renders and segmentations between the labs of a chunk.
+        share: share renders, segmentations and estimates between the labs of a chunk.
         progress: a progress bar per task.
 
     Returns:
         One row per (study, lab, experiment): ``lab`` and ``run_error_budget``'s columns;
-        ``attrs["frames"]`` and ``attrs["segmentations"]``: (made, shared).
+        ``attrs["frames"]``, ``attrs["segmentations"]`` and ``attrs["estimates"]``: (made, shared).
 
     Raises:
         TypeError: ``setup`` is not a BudgetSetup.
@@ -167,8 +167,8 @@ def run_labs(setup: BudgetSetup, labs: Sequence[LabDraw], *, seed: int, indices:
     out = pd.concat(frames, ignore_index=True)
     out["lab"] = [indices[k] for k in out["lab"]]
     out = out.sort_values(["study", "lab", "experiment"], kind="stable").reset_index(drop=True)
-    out.attrs["frames"] = tuple(int(sum(f.attrs["frames"][i] for f in frames)) for i in (0, 1))
-    out.attrs["segmentations"] = tuple(int(sum(f.attrs["segmentations"][i] for f in frames)) for i in (0, 1))
+    for name in ("frames", "segmentations", "estimates"):
+        out.attrs[name] = tuple(int(sum(f.attrs[name][i] for f in frames)) for i in (0, 1))
     return out
 
 

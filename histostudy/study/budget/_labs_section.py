@@ -155,6 +155,7 @@ def labs_section(setup: BudgetSetup, labs: list[LabDraw], budget_records: pd.Dat
     top = movers_table(movers)
     frames = more.attrs.get("frames", (0, 0)) if more is not None else (0, 0)
     segmentations = more.attrs.get("segmentations", (0, 0)) if more is not None else (0, 0)
+    estimates = more.attrs.get("estimates", (0, 0)) if more is not None else (0, 0)
     part = SectionPart(
         tables={"labs_vs_paper": (table, "The paper beside the labs: per study, metric and direction the paper's value "
                                   "(derived: not printed, computed from its MAE, SD and bias), the labs' median and "
@@ -172,6 +173,6 @@ def labs_section(setup: BudgetSetup, labs: list[LabDraw], budget_records: pd.Dat
         figures={"labs": (labs_figure(stats), "Each lab's bias and SD per direction and Euclidean mean (dots) beside "
                           "the paper's (red cross; its bias mirrored, the other sign reading, faint)")},
         values={"labs_n": int(stats["lab"].nunique()), "labs_frames_made_shared": list(frames),
-                "labs_segmentations_made_shared": list(segmentations)},
+                "labs_segmentations_made_shared": list(segmentations), "labs_estimates_made_shared": list(estimates)},
         texts=(labs_text(stats, table, frames, segmentations),))
     return LabsSection(records, stats, table, split, signs, magnitudes, movers, top, part)

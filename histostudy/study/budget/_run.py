@@ -202,8 +202,9 @@ def _run_task(task: tuple, *, setup: BudgetSetup, configurations: list) -> pd.Da
     study, seed, experiment = task
     config = setup.pose_config if study == "pose" else setup.targeting_config
     # Configurations whose frames are alike (the sources that act on the views the estimator is told,
-    # or after it) render and segment them once: exact, the numbers of separate runs (_shared).
-    with shared_work(setup, config, max_frames=64) as (shared, _, _):
+    # or after it) render and segment them once, and estimate once where the views told are alike too:
+    # exact, the numbers of separate runs (_shared).
+    with shared_work(setup, config, max_frames=64) as (shared, _):
         frame = (_pose_task if study == "pose" else _targeting_task)(shared, seed, experiment, configurations)
     frame.insert(0, "study", study)
     return frame

@@ -17,13 +17,14 @@ from histostudy.learning import OracleOrientation, OrientationSource, Segmenter
 from histostudy.pose import PoseEstimationError, estimate_pose
 from histostudy.transducer import Feature, TransducerModel, half_turn_symmetric
 
-from .experiments import PoseStudyConfig, SegmentedOnce
+from .experiments import PoseStudyConfig
 from .geometry import (
     bubble_cloud_centre_mm,
     random_pose_in_views,
     rotation_error_modulo_symmetry_deg,
     sweep_visible_points,
 )
+from .segmentations import SegmentationCache
 
 __all__ = ["robustness_summary", "robustness_sweep"]
 
@@ -103,10 +104,10 @@ def _sweep_pose(i: int, seq: np.random.SeedSequence, *, pose_model, render_model
     frames = [render_frame(render_model, T, v, rng=rng_render, physical=physical, background=scene,
                            **config.frame_kwargs()) for v in views]
     truth = bubble_cloud_centre_mm(physical, T, config.bubble_offset_mm)
-    segmented: dict[int, SegmentedOnce] = {}  # one per segmenter: a set's estimates share its labels
+    segmented: dict[int, SegmentationCache] = {}  # one per segmenter: a set's estimates share its labels
     rows = []
     for name, segmenter, orientation, inits in stage_sets:
-        segmenter = segmented.setdefault(id(segmenter), SegmentedOnce(segmenter))
+        segmenter = segmented.setdefault(id(segmenter), SegmentationCache(segmenter, max_frames=len(views)))
         rng_est = np.random.default_rng(seq_est)  # each set draws as a sweep of its own
         rows += _estimates(i, frames, T, truth, scene, name, segmenter, orientation, inits, rng_est,
                            pose_model=pose_model, views=views, mode=mode, success_mm=success_mm, half_turn=half_turn)

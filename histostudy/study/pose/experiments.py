@@ -25,8 +25,9 @@ from .geometry import (
     margin_positions,
     transducer_axes,
 )
+from .segmentations import SegmentationCache
 
-__all__ = ["PoseExperiment", "PoseStudyConfig", "SegmentedOnce", "StudyStages", "draw_experiments", "experiment_setups",
+__all__ = ["PoseExperiment", "PoseStudyConfig", "StudyStages", "draw_experiments", "experiment_setups",
            "run_pose_study", "study_stages"]
 
 
@@ -229,29 +230,6 @@ def experiment_setups(config: PoseStudyConfig, seed: int) -> list[PoseExperiment
     return [exp for exp, *_ in draw_experiments(config, seed)]
 
 
-class SegmentedOnce:
-    """``segmenter`` for the estimates of one acquisition: a segmenter whose labels depend on the frame
-    alone (``uses_rng = False``) segments each frame once, for every variant; one that draws is called
-    each time, each variant with its own draws. Exact: a segmenter that draws nothing leaves the
-    Generator as it found it. Keeps the frames it saw: one per acquisition.
-
-    Args:
-        segmenter: the :class:`~histostudy.learning.Segmenter` wrapped.
-    """
-
-    def __init__(self, segmenter):
-        self.segmenter = segmenter
-        self.uses_rng = getattr(segmenter, "uses_rng", True)
-        self._labels: dict[int, tuple] = {}  # id(frame) -> (frame, labels); the frame keeps its id unique
-
-    def segment(self, frame, rng=None):
-        if self.uses_rng:
-            return self.segmenter.segment(frame, rng)
-        if id(frame) not in self._labels:
-            self._labels[id(frame)] = (frame, np.asarray(self.segmenter.segment(frame, rng)))
-        return self._labels[id(frame)][1].copy()
-
-
 def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, render_model: TransducerModel,
                    physical: TransducerModel, views: Sequence[View], seed: int,
                    segmenter: Segmenter | None = None, orientation: OrientationSource | None = None,
@@ -292,6 +270,10 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
                          f"got {len(estimator_views)}")
     wanted = None if experiments is None else {int(e) for e in experiments}
     segmenter = config.segmenter() if segmenter is None else segmenter
+    # an acquisition's variants segment its frames once (exact: SegmentationCache); a caller's cache
+    # is used as it is, so that its estimates can be shared too (pose.shared_estimates)
+    segmented = segmenter if isinstance(segmenter, SegmentationCache) else SegmentationCache(segmenter,
+                                                                                             max_frames=2 * len(views))
     orientation = OracleOrientation() if orientation is None else orientation
     predicted_offset = config.predicted_bubble_offset_mm
     for exp, rng_render, rng_est, _ in draw_experiments(config, seed):
@@ -306,7 +288,6 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
                                    **config.frame_kwargs()).with_view(given)
                       for v, given in zip(views, told)]
             truth = bubble_cloud_centre_mm(physical, T_true, config.bubble_offset_mm)
-            segmented = SegmentedOnce(segmenter)
             variants = list(config.variants)
             if config.track and position != "centre":
                 variants.append(("track", config.distance_maps[0]))

@@ -11,7 +11,6 @@ import pytest
 from histostudy.imaging import default_biplane, random_background, render_frame, shared_frames
 from histostudy.study.budget._labs import draw_labs, frames_alike, lab_magnitudes, lab_seed, labs_records, run_labs
 from histostudy.study.budget._run import BudgetSetup, run_error_budget
-from histostudy.study.budget._shared import SharedSegmentations
 from histostudy.study.budget._sources import LAB_SOURCES, LabErrorModel, draw_lab
 from histostudy.study.pose.experiments import PoseStudyConfig
 from histostudy.study.targeting.setup import TargetingStudyConfig
@@ -67,18 +66,7 @@ def test_frames_alike_and_magnitudes(models):
         assert sizes.loc[k, "gantry_sag"] == pytest.approx(np.mean(moved)) and sizes.loc[k, "gantry_sag"] > 0
 
 
-class _DrawingSegmenter:
-    """A segmenter whose labels depend on the Generator: the image thresholded at a drawn level."""
-
-    def __init__(self):
-        self.calls = 0
-
-    def segment(self, frame, rng):
-        self.calls += 1
-        return (frame.image > rng.uniform(0.0, 0.1)).astype(np.uint8)
-
-
-def test_shared_frames_and_segmentations_are_the_ones_each_call_makes(models):
+def test_shared_frames_are_the_ones_each_call_makes(models):
     model, physical = models
     T = np.eye(4)
     T[:3, 3] = [0.0, -140.0, 0.0]
@@ -100,17 +88,6 @@ def test_shared_frames_and_segmentations_are_the_ones_each_call_makes(models):
         assert np.array_equal(frame.image, plain.image) and np.array_equal(frame.labels, plain.labels)
     assert after == after_first == after_second  # the Generator left where rendering leaves it
     assert second.image is not first.image and not np.array_equal(other.image, plain.image)
-
-    inner = _DrawingSegmenter()
-    shared = SharedSegmentations(inner)
-    rngs = [np.random.default_rng(7) for _ in range(3)]
-    labels = [shared.segment(plain, rng) for rng in rngs[:2]]
-    direct = _DrawingSegmenter().segment(plain, rngs[2])
-    assert np.array_equal(labels[0], direct) and np.array_equal(labels[1], direct)
-    assert rngs[0].random() == rngs[1].random() == rngs[2].random()
-    assert (inner.calls, shared.hits, shared.misses) == (1, 1, 1)
-    shared.segment(plain, np.random.default_rng(8))
-    assert inner.calls == 2  # another Generator state: segmented again
 
 
 @pytest.fixture(scope="module")
