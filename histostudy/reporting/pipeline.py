@@ -329,45 +329,12 @@ def _duration(seconds: float) -> str:
     return f"{seconds / 60:.0f} min" if seconds < 5400 else f"{seconds / 3600:.1f} h"
 
 
-def _start_order(tasks: list) -> list:
-    """The order in which notebooks that run at once start: the longest first, so that no long
-    notebook starts last and leaves the other cores idle while it finishes.
-
-    A notebook's length is its estimate (:func:`_estimate`: an earlier run with its parameters) where
-    every notebook has one, else its wall time in the published standard run
-    (``docs/results/standard/run.json``: the notebooks' relative cost), else none; notebooks of
-    equal or unknown length keep their order, and with no length known the order is the notebooks'.
-
-    Args:
-        tasks: the run's notebooks (each with ``nb_path`` and ``estimate``).
-
-    Returns:
-        The same tasks, reordered.
-    """
-    if tasks and all(t.estimate is not None for t in tasks):
-        length = {id(t): t.estimate[0] for t in tasks}
-    else:
-        published = _published_seconds()
-        length = {id(t): published.get(t.nb_path.stem, 0.0) for t in tasks}
-    return sorted(tasks, key=lambda t: -length[id(t)])
-
-
-def _published_seconds() -> dict[str, float]:
-    """``{notebook: wall seconds}`` of the published standard run; empty where it is not there."""
-    try:
-        record = json.loads((REPO_ROOT / "docs" / "results" / "standard" / "run.json").read_text())
-        return {e["name"]: float(e["seconds"]) for e in record["notebooks"] if e.get("seconds") is not None}
-    except (OSError, ValueError, KeyError, TypeError):
-        return {}
-
-
 def _run_tasks(tasks: list[_NotebookTask], kernel_name: str, workers: int, record: dict):
-    """Run ``tasks`` on ``workers`` threads (each drives one kernel), longest first where several
-    run at once (:func:`_start_order`); returns the first failure (a :class:`NotebookFailed`, or the
-    interruption), None when every notebook ran."""
+    """Run ``tasks`` on ``workers`` threads (each drives one kernel), in order of start; returns the
+    first failure (a :class:`NotebookFailed`, or the interruption), None when every notebook ran."""
     from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
-    waiting, running = (list(tasks) if workers == 1 else _start_order(tasks)), {}
+    waiting, running = list(tasks), {}
     failure = None
     pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="notebook")
     try:

@@ -311,30 +311,3 @@ def test_a_run_stopped_by_a_failure_resumes_without_redoing_the_finished_section
     assert (out / "01_first" / "results.json").stat().st_mtime_ns == stamp
     # the estimate of 02 comes from nowhere (it never finished); the finished 01 is not counted as time left
     assert any("02_second" in line and "no earlier run with these parameters" in line for line in logged), logged
-
-
-def test_notebooks_run_at_once_start_longest_first():
-    """Several notebooks at once start longest first: by their estimates where all have one, else by
-    the published standard run's times (so a first smoke run starts 07 and 04 first), else in order."""
-    from pathlib import Path
-    from types import SimpleNamespace
-
-    from histostudy.core.provenance import REPO_ROOT
-    from histostudy.reporting.pipeline import _published_seconds, _start_order
-
-    def task(name, estimate=None):
-        return SimpleNamespace(nb_path=Path(f"{name}.ipynb"), estimate=estimate)
-
-    published = _published_seconds()
-    names = [f"{n:02d}" for n in range(1, 8)]
-    stems = [e["name"] for e in json.loads((REPO_ROOT / "docs/results/standard/run.json").read_text())["notebooks"]]
-    assert sorted(published) == sorted(stems) and len(stems) == 7
-    fresh = [task(stem) for stem in stems]
-    order = [t.nb_path.stem for t in _start_order(fresh)]
-    assert order == sorted(stems, key=lambda s: -published[s])
-    assert order[:2] == ["07_error_budget", "04_pose_estimation"]
-    timed = [task(n, (float(i), "here")) for i, n in enumerate(names)]
-    assert [t.nb_path.stem for t in _start_order(timed)] == names[::-1]
-    toy = [task(n) for n in ("b", "a", "c")]
-    assert [t.nb_path.stem for t in _start_order(toy)] == ["b", "a", "c"]
-    assert [t.nb_path.stem for t in _start_order(toy[:1] + timed[:1])] == ["b", "01"]  # one unknown: no estimates
