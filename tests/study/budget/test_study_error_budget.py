@@ -24,6 +24,8 @@ from histostudy.study.targeting.setup import TargetingStudyConfig
 from histostudy.transducer import TransducerModel
 
 DIRS = ("depth", "tb", "lr")
+#: Half-resolution views: each check compares two runs on the same views, at a quarter of the pixels.
+VIEWS = [v.scaled(0.5) for v in default_biplane()]
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +38,7 @@ def models():
 def _setup(models, sources, **pose):
     model, physical = models
     lab_model = dataclasses.replace(LabErrorModel().off(), **{s: getattr(LabErrorModel(), s) for s in sources})
-    lab = draw_lab(lab_model, 21, physical=physical, views=default_biplane())
+    lab = draw_lab(lab_model, 21, physical=physical, views=VIEWS)
     pose_config = PoseStudyConfig(n_experiments=1, modes=("fast",), track=False, n_splats=2, background="phantom",
                                   **pose)
     targeting_config = TargetingStudyConfig(n_experiments=1, n_splats=2, background="none", bias_correction=False)
@@ -51,7 +53,7 @@ def test_pose_budget_baseline_is_the_study_and_sources_act_where_they_act(models
     # every source off: Table II of run_pose_study against cbct_reference, number for number
     config = dataclasses.replace(setup.pose_config, assumed_bubble_offset_mm=(0.0, 0.0, 0.0))
     today = run_pose_study(config, pose_model=setup.pose_model, render_model=setup.render_model,
-                           physical=setup.lab.study_physical, views=default_biplane(), seed=5)
+                           physical=setup.lab.study_physical, views=VIEWS, seed=5)
     expected = experiment_metrics(today, reference=cbct_reference(config, physical=setup.lab.study_physical, seed=5))
     base = records.loc["baseline"]
     for column in ("centre_err_euclidean", "radius_err_overall", "margin_err_overall",
@@ -101,7 +103,7 @@ def test_targeting_budget_baseline_is_the_study_and_registration_is_read_through
     seq = np.random.SeedSequence(8).spawn(1)[0]
     row = run_targeting_experiment(setup.targeting_config, seq, pose_model=setup.pose_model,
                                    render_model=setup.render_model, physical=setup.lab.study_physical,
-                                   views=default_biplane(), robot_factory=sim_robot(setup.targeting_config))
+                                   views=VIEWS, robot_factory=sim_robot(setup.targeting_config))
     for column in ("err_euclidean", "radius_err_mm", *(f"err_{d}" for d in DIRS)):
         assert records.loc["baseline", column] == pytest.approx(row[column], abs=1e-12), column
     T = setup.lab.experiment(10_000).T_cbct_carm

@@ -93,8 +93,9 @@ def test_shared_frames_are_the_ones_each_call_makes(models):
 @pytest.fixture(scope="module")
 def tiny(models):
     model, physical = models
+    # half-resolution views: the shared and the separate runs compare at any resolution, 4x fewer pixels
     labs = draw_labs(_model("bubble_offset", "projection", "registration"), 21, 2, physical=physical,
-                     views=default_biplane())
+                     views=[v.scaled(0.5) for v in default_biplane()])
     pose_config = PoseStudyConfig(n_experiments=1, modes=("fast",), track=False, n_splats=2, background="phantom")
     targeting_config = TargetingStudyConfig(n_experiments=1, n_splats=2, background="none", bias_correction=False)
     setup = BudgetSetup(labs[0], pose_config, targeting_config, model, model)

@@ -26,7 +26,8 @@ def _setup(*sources, n_experiments=1):
     default = B.LabErrorModel()
     lab_model = dataclasses.replace(default.off(), **{s: getattr(default, s) for s in sources})
     physical = TransducerModel.build_physical(spacing_mm=0.47, rng=np.random.default_rng(3))
-    lab0 = B.draw_lab(lab_model, seeds.lab, physical=physical, views=default_biplane(), physical_seed=seeds.physical)
+    views = [v.scaled(0.5) for v in default_biplane()]  # half resolution: the runs compare on the same views
+    lab0 = B.draw_lab(lab_model, seeds.lab, physical=physical, views=views, physical_seed=seeds.physical)
     pose = PoseStudyConfig(n_experiments=n_experiments, modes=("fast",), track=False, n_splats=2, background="phantom")
     targeting = TargetingStudyConfig(n_experiments=n_experiments, n_splats=2, background="none", bias_correction=False)
     return dataclasses.replace(BudgetSetup(lab0, pose, targeting, model, model), seeds=seeds)
