@@ -194,7 +194,7 @@ STUDY_LAYERS = {
 #: and the refinement, the initialisation and verdict on them, then the stages' composition
 #: (``from_labels``, ``estimate``) and what is built on it (the pose from files, the tracker).
 POSE_LAYERS = {
-    "distance_maps": 0, "perturbation": 0, "conic": 0, "init": 0,
+    "distance_maps": 0, "perturbation": 0, "conic": 0, "init": 0, "estimate_memo": 0,
     "cost": 1, "silhouette": 1, "directions": 1,
     "options": 2,
     "truncations": 3,

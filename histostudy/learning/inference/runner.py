@@ -96,7 +96,7 @@ def _bilinear_support(n_out: int, n_in: int) -> tuple[np.ndarray, np.ndarray, np
 def _channel_argmax(logits) -> np.ndarray:
     """``uint8`` arg-max over the first axis of a ``(classes, rows, cols)`` torch tensor, the first
     class on ties (as ``Tensor.argmax``): a running maximum over the classes, since torch reduces a
-    leading axis of a contiguous tensor with strided loads, 20x slower on a whole frame."""
+    leading axis of a contiguous tensor with strided loads, far slower on a whole frame."""
     import torch
 
     best = logits[0].clone()

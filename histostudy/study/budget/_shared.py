@@ -19,7 +19,7 @@ __all__ = ["SharedWork", "shared_work"]
 
 @dataclasses.dataclass(frozen=True)
 class SharedWork:
-    """What a :func:`shared_work` scope shares: its frames (a :class:`~histostudy.imaging.FrameMemo`),
+    """What a :func:`shared_work` scope shares: its frames (the memo of :func:`~histostudy.imaging.shared_frames`),
     segmentations (a :class:`~histostudy.study.pose.segmentations.SegmentationCache`) and estimates
     (a :class:`~histostudy.pose.EstimateMemo`), each counting its ``hits`` and ``misses``."""
 
