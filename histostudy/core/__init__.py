@@ -1,14 +1,15 @@
 """Foundations every layer uses, with no paper section of their own: the argument checks
 (``checks``), atomic file writes (``io``), the seeding policy (``seeding``), provenance and the CPU
 it ran on (``provenance``, ``machine``), Monte-Carlo sweeps in this process or on dask
-(``sweeps``, their finished tasks kept by ``sweep_cache``), the time of a run by stage
-(``stage_profile``) and the world frame's name (``world_frame``). See docs/architecture.md,
-"Seeding and determinism".
+(``sweeps``, their finished tasks kept by ``sweep_cache``), results computed once within a scope
+(``memo``), the time of a run by stage (``stage_profile``) and the world frame's name
+(``world_frame``). See docs/architecture.md, "Seeding and determinism".
 """
 
 from .checks import check_count, check_items, check_positive, check_unit_fraction, is_finite_real, is_real
 from .io import atomic_path, atomic_write_json, atomic_write_text, to_jsonable
 from .machine import BENCHMARK_ISAS, avx2_env_words, avx2_restriction, machine_summary, run_restricted_to
+from .memo import GeneratorMemo, MemoScope, value_digest
 from .provenance import git_commit, provenance
 from .seeding import as_generator
 from .stage_profile import STAGES, merge_stage_totals, stage, stage_delta, stage_totals
@@ -27,6 +28,8 @@ __all__ = [
     # sweeps
     "SweepExecutor", "SweepTaskError", "resolve_executor", "run_sweep", "SWEEP_CACHE_ENV", "files_digest",
     "package_digest",
+    # results computed once within a scope
+    "GeneratorMemo", "MemoScope", "value_digest",
     # the time of a run by stage
     "STAGES", "stage", "stage_totals", "stage_delta", "merge_stage_totals",
     # frames

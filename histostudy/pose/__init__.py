@@ -10,7 +10,7 @@ from .cost import PoseCost
 from .directions import SourceDirections
 from .distance_maps import DistanceMaps
 from .estimate import estimate_pose
-from .estimate_memo import EstimateMemo, shared_estimates
+from .estimate_memo import shared_estimates
 from .from_files import frames_from_files, half_turn_reading, match_views, pose_from_files, pose_record
 from .from_labels import estimate_pose_from_labels
 from .learned_stages import LEARNED_STAGE_REQUIREMENTS, default_stages, learned_stage_shortfalls
@@ -30,7 +30,6 @@ __all__ = [
     "PoseEstimationError",
     # estimates made once within a scope (a study's runs that repeat one)
     "shared_estimates",
-    "EstimateMemo",
     # its learned stages and the orientation stage
     "default_stages",
     "learned_stage_shortfalls",

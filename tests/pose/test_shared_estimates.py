@@ -8,7 +8,7 @@ from pose_frames import POSES, frames_of
 
 from histostudy.imaging import Frame, default_biplane
 from histostudy.learning import OracleOrientation, OracleSegmenter
-from histostudy.pose import EstimateMemo, PoseEstimationError, estimate_pose, shared_estimates
+from histostudy.pose import PoseEstimationError, estimate_pose, shared_estimates
 from histostudy.transducer import TransducerModel
 
 ORACLES = dict(segmenter=OracleSegmenter(), orientation=OracleOrientation())
@@ -65,5 +65,5 @@ def test_a_refusal_is_raised_again_and_the_memo_keeps_the_latest(models):
 
 @pytest.mark.parametrize("bad", [0, -1, 1.5, True, "8"])
 def test_a_memo_of_no_estimates_is_refused(bad):
-    with pytest.raises(ValueError, match="max_estimates must be an integer >= 1"):
-        EstimateMemo(bad)
+    with pytest.raises(ValueError, match="max_estimates must be an integer >= 1"), shared_estimates(bad):
+        pass

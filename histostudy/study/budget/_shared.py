@@ -9,6 +9,7 @@ import contextlib
 import dataclasses
 from collections.abc import Iterator
 
+from histostudy.core import GeneratorMemo
 from histostudy.imaging import shared_frames
 from histostudy.pose import shared_estimates
 
@@ -21,11 +22,11 @@ __all__ = ["SharedWork", "shared_work"]
 class SharedWork:
     """What a :func:`shared_work` scope shares: its frames (the memo of :func:`~histostudy.imaging.shared_frames`),
     segmentations (a :class:`~histostudy.study.pose.segmentations.SegmentationCache`) and estimates
-    (a :class:`~histostudy.pose.EstimateMemo`), each counting its ``hits`` and ``misses``."""
+    (the memo of :func:`~histostudy.pose.shared_estimates`), each counting its ``hits`` and ``misses``."""
 
-    frames: object
+    frames: GeneratorMemo
     segmentations: SegmentationCache
-    estimates: object
+    estimates: GeneratorMemo
 
 
 @contextlib.contextmanager

@@ -107,7 +107,9 @@ def _sweep_pose(i: int, seq: np.random.SeedSequence, *, pose_model, render_model
     segmented: dict[int, SegmentationCache] = {}  # one per segmenter: a set's estimates share its labels
     rows = []
     for name, segmenter, orientation, inits in stage_sets:
-        segmenter = segmented.setdefault(id(segmenter), SegmentationCache(segmenter, max_frames=len(views)))
+        if id(segmenter) not in segmented:
+            segmented[id(segmenter)] = SegmentationCache(segmenter, max_frames=len(views))
+        segmenter = segmented[id(segmenter)]
         rng_est = np.random.default_rng(seq_est)  # each set draws as a sweep of its own
         rows += _estimates(i, frames, T, truth, scene, name, segmenter, orientation, inits, rng_est,
                            pose_model=pose_model, views=views, mode=mode, success_mm=success_mm, half_turn=half_turn)

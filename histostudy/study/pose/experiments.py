@@ -270,10 +270,12 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
                          f"got {len(estimator_views)}")
     wanted = None if experiments is None else {int(e) for e in experiments}
     segmenter = config.segmenter() if segmenter is None else segmenter
-    # an acquisition's variants segment its frames once (exact: SegmentationCache); a caller's cache
-    # is used as it is, so that its estimates can be shared too (pose.shared_estimates)
-    segmented = segmenter if isinstance(segmenter, SegmentationCache) else SegmentationCache(segmenter,
-                                                                                             max_frames=2 * len(views))
+    # an acquisition's variants segment its frames once (exact: SegmentationCache) where the labels
+    # depend on the frame alone: a segmenter that draws meets another Generator state each variant.
+    # A caller's cache is used as it is, so that its estimates can be shared too (pose.shared_estimates)
+    segmented = segmenter
+    if not isinstance(segmenter, SegmentationCache) and not getattr(segmenter, "uses_rng", True):
+        segmented = SegmentationCache(segmenter, max_frames=2 * len(views))
     orientation = OracleOrientation() if orientation is None else orientation
     predicted_offset = config.predicted_bubble_offset_mm
     for exp, rng_render, rng_est, _ in draw_experiments(config, seed):

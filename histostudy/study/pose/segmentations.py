@@ -5,11 +5,9 @@ for those that do not.
 
 from __future__ import annotations
 
-import hashlib
-import threading
-from collections import OrderedDict
-
 import numpy as np
+
+from histostudy.core import GeneratorMemo, check_count, value_digest
 
 __all__ = ["SegmentationCache"]
 
@@ -33,37 +31,25 @@ class SegmentationCache:
     """
 
     def __init__(self, segmenter, max_frames: int = 32):
-        if isinstance(max_frames, bool) or not isinstance(max_frames, int) or max_frames < 1:
-            raise ValueError(f"max_frames must be an integer >= 1, got {max_frames!r}")
+        self.max_frames = check_count(max_frames, "max_frames")
         self.segmenter = segmenter
         self.uses_rng = getattr(segmenter, "uses_rng", True)  # the wrapped segmenter's (learning.Segmenter)
-        self.max_frames = max_frames
-        self.hits = self.misses = 0
-        self._labels: OrderedDict = OrderedDict()
-        self._lock = threading.Lock()
+        self._memo = GeneratorMemo(max_frames)
+
+    @property
+    def hits(self) -> int:
+        """Calls answered from the cache."""
+        return self._memo.hits
+
+    @property
+    def misses(self) -> int:
+        """Calls the wrapped segmenter answered."""
+        return self._memo.misses
 
     def segment(self, frame, rng: np.random.Generator | None = None) -> np.ndarray:
         """The labels of ``frame`` (``segmenter.segment(frame, rng)``), once per distinct call."""
         if self.uses_rng and not isinstance(rng, np.random.Generator):
             return self.segmenter.segment(frame, rng)
-        digest = hashlib.blake2b(np.ascontiguousarray(frame.image).tobytes())
-        if frame.labels is not None:
-            digest.update(np.ascontiguousarray(frame.labels).tobytes())
-        key = (frame.image.shape, digest.hexdigest(), repr(rng.bit_generator.state) if self.uses_rng else None)
-        with self._lock:
-            entry = self._labels.get(key)
-            if entry is not None:
-                self.hits += 1
-                self._labels.move_to_end(key)
-        if entry is not None:
-            labels, state = entry
-            if self.uses_rng:
-                rng.bit_generator.state = state
-            return labels.copy()
-        labels = np.asarray(self.segmenter.segment(frame, rng))
-        with self._lock:
-            self.misses += 1
-            self._labels[key] = (labels.copy(), rng.bit_generator.state if self.uses_rng else None)
-            while len(self._labels) > self.max_frames:
-                self._labels.popitem(last=False)
-        return labels
+        key = value_digest((frame.image, frame.labels))
+        return self._memo.call(key, lambda: np.asarray(self.segmenter.segment(frame, rng)),
+                               rng=rng if self.uses_rng else None, copy_result=np.copy)
