@@ -76,7 +76,8 @@ def main() -> None:
     posed = sum(line["instance_uids"] in report["good_uids"] and "error" not in line for line in lines)
     print(f"good pairs posed / sent: {posed} / {report['good_sent']} (lines {len(lines)})")
     print(f"receiver counts: objects received {stats['objects_received']} = accepted {stats['objects_accepted']} "
-          f"+ rejected {stats['objects_rejected']} {stats['rejections']}; connections {stats['connections']}, "
+          f"+ sent again {stats['objects_duplicate']} + rejected {stats['objects_rejected']} {stats['rejections']}; "
+          f"connections {stats['connections']}, "
           f"associations {stats['associations']}, aborted {stats['associations_aborted']}, rejected at pynetdicom's "
           f"limit of associations at once {stats['associations_rejected']} (tried again); frames "
           f"{stats['frames_received']} = 2 x {stats['pairs_completed']} paired + {stats['frames_unpaired']} unpaired")

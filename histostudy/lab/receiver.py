@@ -21,6 +21,7 @@ from histostudy.pose import Tracker, TrackingConfig
 from histostudy.transducer import TransducerModel
 
 from .access import MAX_OBJECT_BYTES, MAX_PDU_BYTES, AllowList, AssociationGate, ConnectionGuard, listening_error
+from .instances import InstanceRegister, pixel_fingerprint
 from .pairing import DEFAULT_FRAME_INTERVAL_S, BiplanePairer, PlaneFrame
 from .pose_worker import PoseWorker
 from .receiver_counts import ReceiverCounts
@@ -221,6 +222,7 @@ class FrameReceiver(PoseWorker):
         self._t_free = time.perf_counter()  # when the worker last wrote a line (its pose time starts after)
         self._stats = ReceiverCounts(self.tracker.stats())
         self._counts = self._stats.counts
+        self._instances = InstanceRegister()  # a C-STORE repeated is answered, not posed twice
 
     # --- life cycle -----------------------------------------------------------------------------
 
@@ -376,29 +378,57 @@ class FrameReceiver(PoseWorker):
             return self._reject(STATUS_OUT_OF_RESOURCES, uid, sop_class, "the receiver is stopping")
         try:
             frames = read_c_store(event, self.views, match_tolerance_mm=self.match_tolerance_mm)
+            dataset = frames[0].dataset
+            fingerprint = pixel_fingerprint(dataset)
         except XRayObjectRejected as exc:
             return self._reject(exc.status, uid, sop_class, exc.reason)
+        instance = frames[0].instance_uid
         now = time.perf_counter()
-        share = (now - t0) / len(frames)
         with self._cv:
-            self._stats.decode_s += now - t0
-            self._counts["objects_accepted"] += 1
-            self._counts["frames_received"] += len(frames)
-            if self._stats.t_first_frame is None:
-                self._stats.t_first_frame = t0
-            for f in frames:
-                f = dataclasses.replace(f, decode_s=share, received_at=now)
-                pairing = self.pairer.add(PlaneFrame(f.view.name, f.time_s, f.interval_s, data=f))
-                for dropped in pairing.dropped:
-                    log.warning("frame %s[%d] of plane %r (%s) found no partner: dropped as unpaired",
-                                dropped.data.instance_uid, dropped.data.frame_index, dropped.plane,
-                                dropped.data.acquired.isoformat())
-                self._counts["frames_unpaired"] += len(pairing.dropped)
-                for pair in pairing.sets:
-                    self._enqueue(pair, now)
-            self._cv.notify_all()
+            compare_decoded = self._instances.needs_decoding(instance, fingerprint)
+        if compare_decoded:  # a copy sent before in another syntax: decoded here, not under the lock
+            try:
+                fingerprint = pixel_fingerprint(dataset, decode=True)
+            except XRayObjectRejected as exc:
+                return self._reject(exc.status, uid, sop_class, exc.reason)
+        refused = None
+        with self._cv:  # admitted and paired at once: a copy arriving meanwhile finds the frames paired
+            try:
+                new = self._instances.admit(instance, fingerprint)
+            except XRayObjectRejected as exc:
+                new, refused = False, exc
+            if new:
+                self._pair(frames, t0, now)
+            elif refused is None:
+                self._counts["objects_duplicate"] += 1
+        if refused is not None:
+            return self._reject(refused.status, uid, sop_class, refused.reason)
+        if not new:
+            log.info("received %s again (the same pixels): answered, not posed again", instance)
+            return STATUS_SUCCESS
         log.info("received %s: %d frame(s) of plane(s) %s", uid, len(frames), sorted({f.view.name for f in frames}))
         return STATUS_SUCCESS
+
+    def _pair(self, frames, t0: float, now: float) -> None:
+        """Count an accepted object's frames, pair them and queue the completed pairs (the caller
+        holds the lock)."""
+        share = (now - t0) / len(frames)
+        self._stats.decode_s += now - t0
+        self._counts["objects_accepted"] += 1
+        self._counts["frames_received"] += len(frames)
+        if self._stats.t_first_frame is None:
+            self._stats.t_first_frame = t0
+        for f in frames:
+            f = dataclasses.replace(f, decode_s=share, received_at=now)
+            pairing = self.pairer.add(PlaneFrame(f.view.name, f.time_s, f.interval_s, data=f))
+            for dropped in pairing.dropped:
+                log.warning("frame %s[%d] of plane %r (%s) found no partner: dropped as unpaired",
+                            dropped.data.instance_uid, dropped.data.frame_index, dropped.plane,
+                            dropped.data.acquired.isoformat())
+            self._counts["frames_unpaired"] += len(pairing.dropped)
+            for pair in pairing.sets:
+                self._enqueue(pair, now)
+        self._cv.notify_all()
 
     def _enqueue(self, pair, now: float) -> None:
         """Queue a completed pair (the caller holds the lock)."""

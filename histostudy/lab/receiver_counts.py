@@ -13,10 +13,10 @@ from histostudy.core import to_jsonable
 __all__ = ["COUNT_KEYS", "LATENCY_WINDOW", "ReceiverCounts"]
 
 #: The counters :meth:`ReceiverCounts.stats` reports (0 until counted).
-COUNT_KEYS = ("objects_received", "objects_accepted", "objects_rejected", "frames_received", "frames_unpaired",
-              "pairs_completed", "pairs_processed", "pairs_accepted", "pairs_errors", "pairs_skipped",
-              "pairs_dropped_stale", "pairs_waiting_max", "connections", "associations", "associations_aborted",
-              "associations_rejected", "tls_refused")
+COUNT_KEYS = ("objects_received", "objects_accepted", "objects_duplicate", "objects_rejected", "frames_received",
+              "frames_unpaired", "pairs_completed", "pairs_processed", "pairs_accepted", "pairs_errors",
+              "pairs_skipped", "pairs_dropped_stale", "pairs_waiting_max", "connections", "associations",
+              "associations_aborted", "associations_rejected", "tls_refused")
 
 #: How many of the last lines' latencies the percentiles of :meth:`ReceiverCounts.stats` are taken over.
 LATENCY_WINDOW = 10_000

@@ -33,6 +33,7 @@ __all__ = ["PendingFrame", "REJECTION_STATUSES", "ReceivedFrame", "X_RAY_SOP_CLA
 log = logging.getLogger(__name__)
 
 STATUS_SUCCESS = 0x0000
+STATUS_DUPLICATE_INSTANCE = 0x0111
 STATUS_SOP_CLASS_NOT_SUPPORTED = 0x0122
 STATUS_OUT_OF_RESOURCES = 0xA700
 STATUS_DATASET_MISMATCH = 0xA900
@@ -40,6 +41,7 @@ STATUS_CANNOT_UNDERSTAND = 0xC000
 
 #: The C-STORE failure statuses the receiver answers, and when (see the module docstring).
 REJECTION_STATUSES = {
+    STATUS_DUPLICATE_INSTANCE: "Refused: Duplicate SOP Instance (a UID received before with other pixels)",
     STATUS_SOP_CLASS_NOT_SUPPORTED: "Refused: SOP Class not supported (not an X-ray image)",
     STATUS_OUT_OF_RESOURCES: "Refused: Out of resources (the receiver is stopping)",
     STATUS_DATASET_MISMATCH: "Error: Data Set does not match SOP Class (unreadable X-ray object)",

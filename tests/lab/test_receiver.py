@@ -389,6 +389,34 @@ def test_refused_objects_get_failure_statuses_and_the_other_frames_still_get_pos
 
 
 @pytest.mark.slow
+def test_an_object_sent_again_is_answered_and_not_posed_twice(cine, views, model, direct, tmp_path):
+    """Both cines sent twice in one association and plane A's again in another (a C-arm repeating
+    C-STOREs whose responses it lost): every copy is answered success and each pair is posed once,
+    as the direct tracker poses it; plane A's UID with one pixel changed is refused (0x0111)."""
+    changed = pydicom.dcmread(cine["paths"]["A"])
+    pixels = changed.pixel_array.copy()
+    pixels[0, 0, 0] += 1
+    changed.PixelData = pixels.tobytes()
+    out = tmp_path / "poses.jsonl"
+    config = ReceiverConfig(output_path=out, port=0, max_queued_pairs=None)
+    with FrameReceiver(views, config, model=model, seed=SEED) as receiver:
+        a, b = cine["paths"]["A"], cine["paths"]["B"]
+        assert send(receiver.port, [a, b, a, b]) == [0, 0, 0, 0]
+        assert send(receiver.port, [a]) == [0]
+        assert send(receiver.port, [changed]) == [0x0111]
+        assert receiver.wait_for_pairs(N_FRAMES, timeout_s=120)
+    stats = receiver.stats()
+    lines = read_lines(out)
+    assert [line["pair_index"] for line in lines] == list(range(N_FRAMES))
+    assert_same_poses(lines, direct)
+    assert (stats["objects_received"], stats["objects_accepted"], stats["objects_duplicate"],
+            stats["objects_rejected"]) == (6, 2, 3, 1)
+    assert (stats["frames_received"], stats["frames_unpaired"], stats["pairs_processed"]) == (2 * N_FRAMES, 0, N_FRAMES)
+    assert stats["rejections"] == {"0x0111": 1}
+    assert changed.SOPInstanceUID in stats["last_rejections"][0]["reason"]
+
+
+@pytest.mark.slow
 def test_an_aborted_association_and_a_dropped_connection_leave_the_receiver_serving(cine, views, model, direct,
                                                                                    tmp_path):
     """Plane A's frame comes in an association its sender aborts; a raw TCP connection sends half
