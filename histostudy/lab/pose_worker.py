@@ -13,7 +13,7 @@ import numpy as np
 
 from histostudy.pose import half_turn_reading
 
-from .pose_lines import append_pose_line, pose_line
+from .pose_lines import pose_line
 from .xray_objects import XRayObjectRejected
 
 __all__: list[str] = []  # the receiver's internals: FrameReceiver is the public face
@@ -111,7 +111,7 @@ class PoseWorker:
         record = pose_line(index, frames, queued_at, taken_at, result=result, error=error,
                            tracking=None if error is not None else self.tracker.last_kind, t_free=self._t_free,
                            t_written=time.perf_counter(), model=self.model)
-        append_pose_line(self._out, record, self.output_path)
+        self._out.append(record)
         now = time.perf_counter()
         with self._cv:
             # a snapshot of the tracker's counters: stats() reads it from other threads

@@ -23,6 +23,7 @@ from histostudy.transducer import TransducerModel
 from .access import MAX_OBJECT_BYTES, MAX_PDU_BYTES, AllowList, AssociationGate, ConnectionGuard, listening_error
 from .instances import InstanceRegister, pixel_fingerprint
 from .pairing import DEFAULT_FRAME_INTERVAL_S, BiplanePairer, PlaneFrame
+from .pose_lines import PoseLineFile
 from .pose_worker import PoseWorker
 from .receiver_counts import ReceiverCounts
 from .tls import ServerTLS, tls_context
@@ -52,7 +53,8 @@ class ReceiverConfig:
     are paired and queued, and how the tracker starts. Checked on construction.
 
     Args:
-        output_path: the JSON-lines file the poses are appended to (one line per pair, flushed).
+        output_path: the JSON-lines file the poses are appended to (one whole line per pair, written
+            as it comes); an earlier run's file is continued, its pairs numbered on.
         ae_title: the receiver's AE title (the senders' "called AE title"), 1-16 ASCII characters.
         port: TCP port to listen on; 0: a free one (:meth:`FrameReceiver.start` returns it).
         host: the address to bind (default loopback; ``"0.0.0.0"`` for every interface).
@@ -217,6 +219,7 @@ class FrameReceiver(PoseWorker):
         self._cv = threading.Condition()  # guards the pairer, the queue and the counters
         self._queue: collections.deque = collections.deque()
         self._ae = self._server = self._worker = self._out = None
+        self._first_index = 0  # the first pair's index: one past the last line of the file continued
         self._closing = self._stopped = False
         self._max_pairs: int | None = None
         self._t_free = time.perf_counter()  # when the worker last wrote a line (its pose time starts after)
@@ -228,7 +231,9 @@ class FrameReceiver(PoseWorker):
 
     def start(self) -> int:
         """Listen (non-blocking), warm the tracker up (``warm_up``), then open the output and start
-        the pose worker.
+        the pose worker. An output file of an earlier run is continued: a torn last line (a run
+        killed while writing it) is cut off and the pairs are numbered on from its last line's
+        (:class:`~.pose_lines.PoseLineFile`).
 
         Returns:
             The bound port (a free one where the config's ``port`` is 0).
@@ -237,11 +242,14 @@ class FrameReceiver(PoseWorker):
             RuntimeError: this receiver was started already.
             OSError: the address cannot be bound (in use, not this machine's); it names the host and
                 port, and is raised before the output is opened: nothing is created or written.
+            ValueError: the output file's last line is not a pose line (before anything is bound).
         """
         from pynetdicom import evt
 
         if self._server is not None or self._stopped:
             raise RuntimeError("this FrameReceiver was started already; make a new one")
+        # a file of an earlier run is continued: its pairs numbered on (read before a frame can come)
+        self._first_index = PoseLineFile(self.output_path).next_index()
         ae = storage_application_entity(self.ae_title, self.network_timeout_s)
         gate, guard = AssociationGate(self.allow, self._on_rejected), ConnectionGuard(
             self.network_timeout_s, self.max_pdu_bytes, self.max_object_bytes)
@@ -264,7 +272,8 @@ class FrameReceiver(PoseWorker):
             raise
         try:
             self._warm_up_tracker()
-            self._out = open(self.output_path, "a", encoding="utf-8")
+            self._out = PoseLineFile(self.output_path)
+            self._out.open()  # numbered on from next_index(), read before any frame could come
             self._worker = threading.Thread(target=self._work, name="histostudy-pose-worker", daemon=True)
             self._worker.start()
         except BaseException:
@@ -433,7 +442,7 @@ class FrameReceiver(PoseWorker):
     def _enqueue(self, pair, now: float) -> None:
         """Queue a completed pair (the caller holds the lock)."""
         self._counts["pairs_completed"] += 1
-        self._queue.append((self._counts["pairs_completed"] - 1, pair, now))
+        self._queue.append((self._first_index + self._counts["pairs_completed"] - 1, pair, now))
         if self.max_queued_pairs is not None and len(self._queue) > self.max_queued_pairs:
             index, skipped, _ = self._queue.popleft()
             self._counts["pairs_skipped"] += 1

@@ -417,6 +417,20 @@ def test_an_object_sent_again_is_answered_and_not_posed_twice(cine, views, model
 
 
 @pytest.mark.slow
+def test_a_second_run_on_the_same_file_numbers_its_pairs_on(cine, views, model, direct, tmp_path):
+    """The receiver restarted on its own output (after a stop, or a kill: tests/lab/test_pose_lines.py)
+    appends to it, its first pair numbered one past the last line."""
+    out = tmp_path / "poses.jsonl"
+    for _ in range(2):
+        with FrameReceiver(views, ReceiverConfig(output_path=out, port=0), model=model, seed=SEED) as receiver:
+            assert send(receiver.port, [cine["paths"]["A0"], cine["paths"]["B0"]]) == [0, 0]
+            assert receiver.wait_for_pairs(1, timeout_s=120)
+    lines = read_lines(out)
+    assert [line["pair_index"] for line in lines] == [0, 1]
+    assert_same_poses(lines, direct, pairs=[0, 0])  # each run's first pair, from scratch
+
+
+@pytest.mark.slow
 def test_an_aborted_association_and_a_dropped_connection_leave_the_receiver_serving(cine, views, model, direct,
                                                                                    tmp_path):
     """Plane A's frame comes in an association its sender aborts; a raw TCP connection sends half

@@ -29,7 +29,9 @@ def add_listen(sub, parents) -> None:
                      help="address to bind (default 127.0.0.1: this machine only; 0.0.0.0: every interface, e.g. "
                           "for the C-arm's network, with --allow or --modalities)")
     lis.add_argument("--ae-title", default="HISTOSTUDY", help="this receiver's AE title (default HISTOSTUDY)")
-    lis.add_argument("--output", default="poses.jsonl", help="JSON lines, one pose per pair (default poses.jsonl)")
+    lis.add_argument("--output", default="poses.jsonl",
+                     help="JSON lines, one pose per pair (default poses.jsonl); an earlier run's file is continued, "
+                          "its pairs numbered on")
     lis.add_argument("--max-pairs", type=int, default=None, help="stop after this many pairs")
     lis.add_argument("--timeout-s", type=float, default=None, help="stop after this many seconds")
     lis.add_argument("--seed", type=int, default=0, help="seed of the estimates' random draws (default 0)")
