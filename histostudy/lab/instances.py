@@ -15,9 +15,10 @@ from .xray_objects import STATUS_DUPLICATE_INSTANCE, XRayObjectRejected
 
 __all__ = ["NATIVE_TRANSFER_SYNTAXES", "InstanceRegister", "PixelFingerprint", "pixel_fingerprint"]
 
-#: Uncompressed little-endian transfer syntaxes: their PixelData bytes are the pixels themselves,
-#: so two objects in either compare byte for byte.
-NATIVE_TRANSFER_SYNTAXES = ("1.2.840.10008.1.2", "1.2.840.10008.1.2.1")
+#: Uncompressed little-endian transfer syntaxes (implicit, explicit, deflated explicit VR): their
+#: PixelData bytes, as read, are the pixels themselves, so two objects in any of them compare byte
+#: for byte (explicit VR big endian's 16-bit pixels are byte-swapped: compared after decoding).
+NATIVE_TRANSFER_SYNTAXES = ("1.2.840.10008.1.2", "1.2.840.10008.1.2.1", "1.2.840.10008.1.2.1.99")
 
 
 @dataclasses.dataclass(frozen=True)

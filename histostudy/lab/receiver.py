@@ -29,6 +29,7 @@ from .receiver_counts import ReceiverCounts
 from .tls import ServerTLS, tls_context
 from .xray_objects import (
     STATUS_OUT_OF_RESOURCES,
+    STATUS_SOP_CLASS_NOT_SUPPORTED,
     STATUS_SUCCESS,
     XRayObjectRejected,
     read_c_store,
@@ -255,8 +256,10 @@ class FrameReceiver(PoseWorker):
             self.network_timeout_s, self.max_pdu_bytes, self.max_object_bytes)
         gate.configure(ae)
         tls = None if self.tls is None else ServerTLS(self.tls, self.network_timeout_s, self._on_tls_refused)
-        handlers = [(evt.EVT_CONN_OPEN, self._on_event("connections")), *guard.handlers(), *gate.handlers(),
-                    (evt.EVT_C_STORE, self._on_c_store), (evt.EVT_ACCEPTED, self._on_event("associations")),
+        handlers = [(evt.EVT_CONN_OPEN, self._on_event("connections")), (evt.EVT_CONN_OPEN, _dimse_recv_first),
+                    *guard.handlers(), *gate.handlers(),
+                    (evt.EVT_C_STORE, self._on_c_store), (evt.EVT_DIMSE_RECV, self._on_dimse_received),
+                    (evt.EVT_ACCEPTED, self._on_event("associations")),
                     (evt.EVT_ABORTED, self._on_event("associations_aborted"))]
         if tls is not None:  # the handshake first, on the connection's thread (tls.ServerTLS)
             handlers.insert(0, (evt.EVT_CONN_OPEN, tls.handshake))
@@ -374,6 +377,29 @@ class FrameReceiver(PoseWorker):
                 self._counts[counter] += 1
         return handler
 
+    def _on_dimse_received(self, event) -> None:
+        """Answer at once a C-STORE request whose command names no SOP class (0x0122): pynetdicom
+        drops such a request as invalid, unanswered, and its sender would wait out the network
+        timeout (docs/receiver.md)."""
+        from pynetdicom.dimse_messages import C_STORE_RQ
+        from pynetdicom.dimse_primitives import C_STORE
+
+        message = event.message
+        if not isinstance(message, C_STORE_RQ) or str(message.command_set.get("AffectedSOPClassUID", "") or ""):
+            return
+        uid = str(message.command_set.get("AffectedSOPInstanceUID", "") or "")
+        reason = "the C-STORE command names no Affected SOP Class UID (0000,0002)"
+        with self._cv:
+            self._counts["objects_received"] += 1
+        answer = self._reject(STATUS_SOP_CLASS_NOT_SUPPORTED, uid, "", reason)
+        response = C_STORE()
+        response.MessageIDBeingRespondedTo = message.command_set.MessageID
+        if uid:
+            response.AffectedSOPInstanceUID = uid
+        response.Status = answer.Status
+        response.ErrorComment = answer.ErrorComment
+        event.assoc.dimse.send_msg(response, message.context_id)
+
     def _on_c_store(self, event):
         """Read and check one object's header, pair its frames, queue completed pairs; answer at once
         (the pixels are converted by the worker, for the pairs it poses)."""
@@ -465,3 +491,19 @@ class FrameReceiver(PoseWorker):
         with self._cv:
             return self._stats.stats(n_views=len(self.views), pairs_waiting=len(self._queue), port=self.port,
                                      now=time.perf_counter())
+
+
+def _dimse_recv_first(event) -> None:
+    """Move the receiver's own EVT_DIMSE_RECV handler ahead of pynetdicom's logging one, which
+    raises on a C-STORE command without a SOP class and so ends the handlers' loop before ours."""
+    from pynetdicom import evt
+
+    assoc = event.assoc
+    bound = list(assoc.get_handlers(evt.EVT_DIMSE_RECV))
+    ours = [h for h in bound if getattr(h[0], "__name__", "") == "_on_dimse_received"]
+    if not ours or bound[0] is ours[0]:
+        return
+    for handler, _ in bound:
+        assoc.unbind(evt.EVT_DIMSE_RECV, handler)
+    for handler, args in ours + [h for h in bound if h not in ours]:
+        assoc.bind(evt.EVT_DIMSE_RECV, handler, args)

@@ -133,8 +133,7 @@ def read_xray_header(ds, views: Sequence[View], *, sop_class_uid: str | None = N
     check_xray_object(ds, sop_class_uid=str(getattr(ds, "SOPClassUID", "") or "") if sop_class_uid is None
                       else sop_class_uid)
     uid = str(getattr(ds, "SOPInstanceUID", "") or "")
-    n_frames = int(getattr(ds, "NumberOfFrames", 1) or 1)
-    _check_fragments(ds, n_frames)  # before a time and a frame are made for each frame it declares
+    n_frames = int(getattr(ds, "NumberOfFrames", 1) or 1)  # bounded by check_xray_object (pixels, fragments)
     # the plane of each frame: once for a plain cine, per frame where functional groups may differ
     per_frame = bool(getattr(ds, "PerFrameFunctionalGroupsSequence", None))
     plane_views = []
@@ -247,27 +246,6 @@ def _check_pixel_module(ds) -> None:
         line_integrals_from_pixels(np.ones((1, 1)), ds, air_value=1.0)  # the tags alone: a one-pixel probe
     except ValueError as exc:
         raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND, str(exc)) from None
-
-
-def _check_fragments(ds, n_frames: int) -> None:
-    """Refuses (0xA900) encapsulated (compressed) pixel data with fewer fragments than the frames it
-    declares: each fragment holds one frame's data at most (PS3.5 §A.4), and, unlike native pixels,
-    no length bounds a compressed object's NumberOfFrames (a few bytes may declare 2**30 frames)."""
-    from pydicom.encaps import parse_fragments
-    from pydicom.uid import UID
-
-    if n_frames == 1 or not UID(str(ds.file_meta.TransferSyntaxUID)).is_encapsulated:
-        return
-    try:
-        fragments = parse_fragments(ds.PixelData)[0] - 1  # the first item is the Basic Offset Table
-    except Exception as exc:  # items pydicom cannot walk
-        fragments, why = 0, f": {type(exc).__name__}: {exc}"
-    else:
-        why = ""
-    if fragments < n_frames:
-        raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"its pixel data cannot be read: NumberOfFrames is "
-                                                          f"{n_frames}, its encapsulated pixel data holds {fragments} "
-                                                          f"fragment(s){why}")
 
 
 def _plane_view(ds, views: Sequence[View], frame_index: int | None, tol_mm: float | None) -> View:

@@ -285,7 +285,8 @@ def encoded(ds) -> bytes:
     return encode(ds, False, True)
 
 
-def _store(port: int, data: bytes, uid: str, sop_class: str | None = XA_STORAGE, syntax: str = EXPLICIT_LE) -> str:
+def store_object(port: int, data: bytes, uid: str, sop_class: str | None = XA_STORAGE,
+                 syntax: str = EXPLICIT_LE) -> str:
     """A C-STORE of the encoded ``data`` in its own association: the receiver's answer."""
     with associated(port, XA_STORAGE, syntax) as sock:
         send_dataset(sock, uid, data, sop_class=sop_class)
@@ -369,7 +370,7 @@ def truncated_dataset(port, rng, views, limits) -> str:
     """A C-STORE whose data set is cut at a random byte."""
     ds = hostile_object(views, rng)
     data = encoded(ds)
-    return _store(port, data[:int(rng.integers(1, len(data)))], ds.SOPInstanceUID)
+    return store_object(port, data[:int(rng.integers(1, len(data)))], ds.SOPInstanceUID)
 
 
 def wrong_vr(port, rng, views, limits) -> str:
@@ -380,7 +381,7 @@ def wrong_vr(port, rng, views, limits) -> str:
     for k in rng.choice(len(found), size=int(rng.integers(1, 4)), replace=False):
         at = found[k][1]
         data[at + 4:at + 6] = bytes(rng.integers(65, 91, size=2).astype(np.uint8))
-    return _store(port, bytes(data), ds.SOPInstanceUID)
+    return store_object(port, bytes(data), ds.SOPInstanceUID)
 
 
 def garbage_pixel_length(port, rng, views, limits) -> str:
@@ -393,7 +394,7 @@ def garbage_pixel_length(port, rng, views, limits) -> str:
     length = int.from_bytes(data[at + 8:at + 12], "little")
     data[at + 8:at + 12] = int(rng.choice([0xFFFFFFFF, length // 2, length + 2 * int(rng.integers(1, 1 << 20)),
                                            int(rng.integers(0, 1 << 31)) | 1])).to_bytes(4, "little")
-    return _store(port, bytes(data), ds.SOPInstanceUID)
+    return store_object(port, bytes(data), ds.SOPInstanceUID)
 
 
 def missing_sop_class(port, rng, views, limits) -> str:
@@ -401,8 +402,8 @@ def missing_sop_class(port, rng, views, limits) -> str:
     ds = hostile_object(views, rng)
     if rng.random() < 0.5:
         del ds.SOPClassUID
-        return _store(port, encoded(ds), ds.SOPInstanceUID)
-    return _store(port, encoded(ds), ds.SOPInstanceUID, sop_class=None)
+        return store_object(port, encoded(ds), ds.SOPInstanceUID)
+    return store_object(port, encoded(ds), ds.SOPInstanceUID, sop_class=None)
 
 
 def huge_image(port, rng, views, limits) -> str:
@@ -415,12 +416,12 @@ def huge_image(port, rng, views, limits) -> str:
     ds = hostile_object(views, rng)
     if rng.random() < 0.5 or JPEG_LOSSLESS not in RECEIVABLE_TRANSFER_SYNTAXES:
         ds.Rows, ds.Columns = int(rng.integers(1 << 15, 1 << 16)), int(rng.integers(1 << 15, 1 << 16))
-        return _store(port, encoded(ds), ds.SOPInstanceUID)
+        return store_object(port, encoded(ds), ds.SOPInstanceUID)
     ds.NumberOfFrames = int(rng.integers(1 << 20, 1 << 30))
     ds.PixelData = encapsulate([rng.bytes(64), rng.bytes(64)])
     ds["PixelData"].VR, ds["PixelData"].is_undefined_length = "OB", True
     ds.file_meta.TransferSyntaxUID = JPEG_LOSSLESS
-    return _store(port, encoded(ds), ds.SOPInstanceUID, syntax=JPEG_LOSSLESS)
+    return store_object(port, encoded(ds), ds.SOPInstanceUID, syntax=JPEG_LOSSLESS)
 
 
 def oversize_pixels(port, rng, views, limits) -> str:

@@ -27,6 +27,8 @@ from receiver_stub import (
     associate_rq,
     connect,
     echo,
+    encoded,
+    hostile_object,
     huge_image,
     pdu,
     reaction,
@@ -34,6 +36,7 @@ from receiver_stub import (
     receiver_with,
     run_fuzz,
     small_views,
+    store_object,
 )
 
 from histostudy.imaging.io import RECEIVABLE_TRANSFER_SYNTAXES
@@ -187,3 +190,18 @@ def test_a_compressed_object_declaring_more_frames_than_fragments_is_refused_bef
     reasons = [r["reason"] for r in receiver.stats()["last_rejections"]]
     assert any("encapsulated pixel data holds 2 fragment(s)" in reason for reason in reasons)
     assert receiver.stats()["frames_received"] == 0
+
+
+def test_a_c_store_naming_no_sop_class_is_answered_at_once(views, tmp_path, quiet):
+    """Regression: a C-STORE whose command names no Affected SOP Class UID got no answer (pynetdicom
+    drops it as an invalid request) until the network timeout aborted its association. It is now
+    refused at once (0x0122) and counted."""
+    with fuzz_receiver(views, tmp_path) as receiver:
+        ds = hostile_object(views, np.random.default_rng(SEED))
+        t0 = time.monotonic()
+        answer = store_object(receiver.port, encoded(ds), ds.SOPInstanceUID, sop_class=None)
+        waited_s = time.monotonic() - t0
+    assert answer == "status 0x0122" and waited_s < NETWORK_TIMEOUT_S / 2
+    stats = receiver.stats()
+    assert stats["objects_received"] == stats["objects_rejected"] == 1 and stats["rejections"] == {"0x0122": 1}
+    assert stats["last_rejections"][0]["reason"] == "the C-STORE command names no Affected SOP Class UID (0000,0002)"

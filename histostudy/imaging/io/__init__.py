@@ -14,6 +14,7 @@ from .xray import (
     check_sop_class,
     check_xray_object,
     read_dicom_file,
+    stored_sop_class,
     xray_pixels,
 )
 
@@ -28,6 +29,7 @@ __all__ = [
     "load_volume",
     "read_dicom_file",
     "save_volume_nifti",
+    "stored_sop_class",
     "write_xa",
     "xray_pixels",
 ]

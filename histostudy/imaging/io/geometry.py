@@ -72,7 +72,8 @@ def gantry_from_dicom(ds, frame_index: int | None = None, source: str = "the DIC
     open whether its increments are per frame or cumulative, and a wrong guess moves every view. An
     object of a SOP class that is not an X-ray image (CT, secondary capture, ...) is refused first,
     as every reader of the lab's frames refuses it (:func:`~.xray.check_sop_class`; a data set
-    without SOPClassUID is a bare set of tags, read).
+    without SOPClassUID is refused where its file meta names the class it was stored as, and read as
+    a bare set of tags where nothing does: :func:`~.xray.stored_sop_class`).
 
     Args:
         ds: the pydicom data set.
@@ -90,9 +91,9 @@ def gantry_from_dicom(ds, frame_index: int | None = None, source: str = "the DIC
         ValueError: ``frame_index`` invalid, a rotational acquisition, or an attribute missing or out
             of range (the message names it and its tag).
     """
-    from .xray import check_sop_class
+    from .xray import check_sop_class, stored_sop_class
 
-    check_sop_class(getattr(ds, "SOPClassUID", None), source=source)
+    check_sop_class(getattr(ds, "SOPClassUID", None), stored=stored_sop_class(ds), source=source)
     if frame_index is not None and (isinstance(frame_index, bool) or not isinstance(frame_index, int)
                                     or frame_index < 0):
         raise ValueError(f"frame_index must be an integer >= 0 or None, got {frame_index!r}")

@@ -5,7 +5,7 @@ syntax, lossless pixels, image size), and the decoding of its pixels; refusals c
 from __future__ import annotations
 
 __all__ = ["RECEIVABLE_TRANSFER_SYNTAXES", "X_RAY_SOP_CLASSES", "XRayObjectRejected", "check_sop_class",
-           "check_xray_object", "read_dicom_file", "xray_pixels"]
+           "check_xray_object", "read_dicom_file", "stored_sop_class", "xray_pixels"]
 
 #: The SOP classes whose frames are read (the others are refused; C-STORE status 0x0122).
 X_RAY_SOP_CLASSES = {
@@ -74,7 +74,8 @@ def check_sop_class(sop_class_uid, *, stored=None, source: str | None = None) ->
     Args:
         sop_class_uid: the data set's SOPClassUID; None or empty, with ``stored`` None, is a bare
             image and is not refused.
-        stored: the SOP class it was stored as (a C-STORE's affected SOP class), or None.
+        stored: the SOP class it was stored as (a C-STORE's affected SOP class, a Part 10 file's
+            MediaStorageSOPClassUID: :func:`stored_sop_class`), or None.
         source: what the message starts with (e.g. ``"path 'A.dcm'"``), or None.
 
     Returns:
@@ -93,9 +94,27 @@ def check_sop_class(sop_class_uid, *, stored=None, source: str | None = None) ->
         raise XRayObjectRejected(STATUS_SOP_CLASS_NOT_SUPPORTED,
                                  f"{prefix}SOP class {_named(expected)} is not an X-ray angiographic or RF image; "
                                  f"this reader takes {', '.join(X_RAY_SOP_CLASSES.values())}")
+    if not sop:
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"{prefix}the data set names no SOPClassUID (0008,0016), "
+                                                          f"which an object stored as {expected} must")
     if sop != expected:
-        raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"{prefix}the data set's SOPClassUID {sop or '(none)'} "
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"{prefix}the data set's SOPClassUID {sop} "
                                                           f"differs from the stored SOP class {expected}")
+
+
+def stored_sop_class(ds):
+    """The SOP class a data set read from a file was stored as: its file meta's
+    MediaStorageSOPClassUID (0002,0002), or None for a data set without one (written by a script
+    with no file meta: a bare image, whose tags are read as they are).
+
+    Args:
+        ds: the pydicom data set.
+
+    Returns:
+        The UID as a string, or None.
+    """
+    stored = getattr(getattr(ds, "file_meta", None), "MediaStorageSOPClassUID", None)
+    return str(stored) if stored else None
 
 
 def _check_transfer_syntax(ds, prefix: str) -> str:
@@ -145,11 +164,13 @@ def _lossy(ds, syntax: str) -> str | None:
 def check_xray_object(ds, *, sop_class_uid=None, source: str | None = None) -> None:
     """The checks every reader of an X-ray object applies before its pixels (docs/imaging.md, "X-ray
     objects"): the SOP class (:func:`check_sop_class`), the transfer syntax, lossless pixels, the
-    image size, one sample per pixel and, native, the pixel data's length.
+    image size, one sample per pixel and the pixel data's length (native) or, compressed, a
+    fragment for each frame declared.
 
     Args:
         ds: the pydicom data set.
-        sop_class_uid: the SOP class it was stored as (a C-STORE's), or None.
+        sop_class_uid: the SOP class it was stored as (a C-STORE's), or None: the file meta's
+            (:func:`stored_sop_class`).
         source: what the message starts with, or None.
 
     Returns:
@@ -161,7 +182,8 @@ def check_xray_object(ds, *, sop_class_uid=None, source: str | None = None) -> N
     from pydicom.pixels.utils import get_expected_length
 
     prefix = "" if not source else f"{source}: "
-    check_sop_class(getattr(ds, "SOPClassUID", None), stored=sop_class_uid, source=source)
+    stored = sop_class_uid if sop_class_uid is not None else stored_sop_class(ds)
+    check_sop_class(getattr(ds, "SOPClassUID", None), stored=stored, source=source)
     syntax = _check_transfer_syntax(ds, prefix)
     if (lossy := _lossy(ds, syntax)) is not None:
         raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"{prefix}lossy pixels are refused: {lossy}")
@@ -185,6 +207,26 @@ def check_xray_object(ds, *, sop_class_uid=None, source: str | None = None) -> N
         raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
                                  f"{prefix}its pixel data cannot be read: PixelData holds {len(data)} bytes, its "
                                  f"{n_frames} frame(s) of {rows} x {cols} need {expected}")
+    if syntax not in _NATIVE and n_frames > 1:
+        _check_fragments(data, n_frames, prefix)
+
+
+def _check_fragments(data: bytes, n_frames: int, prefix: str) -> None:
+    """Refuses (0xA900) encapsulated (compressed) pixel data with fewer fragments than the frames it
+    declares: each fragment holds one frame's data at most (PS3.5 §A.4), and, unlike native pixels,
+    no length bounds a compressed object's NumberOfFrames (a few bytes may declare 2**30 frames)."""
+    from pydicom.encaps import parse_fragments
+
+    try:
+        fragments = parse_fragments(data)[0] - 1  # the first item is the Basic Offset Table
+    except Exception as exc:  # items pydicom cannot walk
+        fragments, why = 0, f": {type(exc).__name__}: {exc}"
+    else:
+        why = ""
+    if fragments < n_frames:
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"{prefix}its pixel data cannot be read: NumberOfFrames is "
+                                                          f"{n_frames}, its encapsulated pixel data holds {fragments} "
+                                                          f"fragment(s){why}")
 
 
 def read_dicom_file(path, *, stop_before_pixels: bool = False):

@@ -5,6 +5,7 @@ stream, the lossy JPEG 2000 one close to it; and all six, secondary captures wit
 distance tags, are refused by every reader of the lab's frames with the same reason (and the two
 lossy ones, were they X-ray images, for their lossy pixels)."""
 
+import copy
 import hashlib
 from pathlib import Path
 
@@ -68,13 +69,19 @@ def test_every_reader_refuses_a_secondary_capture_with_the_same_reason(name):
         with pytest.raises(XRayObjectRejected, match=SECONDARY_CAPTURE):
             read()
     if name in LOSSY:  # stored as an XA image, its lossy pixels are refused: by its tag, else by its stream
-        ds.SOPClassUID = "1.2.840.10008.5.1.4.1.1.12.1"
+        lossy = copy.deepcopy(ds)
+        lossy.SOPClassUID = lossy.file_meta.MediaStorageSOPClassUID = "1.2.840.10008.5.1.4.1.1.12.1"
         with pytest.raises(XRayObjectRejected, match=r"lossy pixels are refused: its LossyImageCompression"):
-            check_xray_object(ds)
-        del ds.LossyImageCompression
+            check_xray_object(lossy)
+        del lossy.LossyImageCompression
         with pytest.raises(XRayObjectRejected, match=r"near-lossless \(NEAR 4\)|irreversible \(9-7 wavelet\)"):
-            check_xray_object(ds)
-    # as a bare image (no SOP class) its geometry is what is missing, named with its tag
+            check_xray_object(lossy)
+    # without SOPClassUID it is still what its file meta says it was stored as: refused alike
     del ds.SOPClassUID
+    for read in (lambda: check_xray_object(ds), lambda: View.from_dicom(ds)):
+        with pytest.raises(XRayObjectRejected, match=SECONDARY_CAPTURE):
+            read()
+    # as a bare image (no SOP class anywhere) its geometry is what is missing, named with its tag
+    del ds.file_meta.MediaStorageSOPClassUID
     with pytest.raises(ValueError, match=r"lacks PositionerPrimaryAngle \(0018,1510\), which a view needs"):
         View.from_dicom(ds)
