@@ -128,7 +128,9 @@ def emit(summary: dict) -> None:
 
 
 def fail(command: str, exc: BaseException | str, code: int = 2) -> int:
-    """Report a bad input or a refusal on stderr as ``histostudy <command>: <message>``.
+    """Report a bad input or a refusal on stderr as ``histostudy <command>: <message>``, and as the
+    command's summary line on stdout (:func:`emit`: ``command``, ``exit_code``, ``refused`` (code
+    1) or ``bad_input`` (code 2), ``error``), so that a script reading stdout sees every outcome.
 
     Args:
         command: the subcommand's name.
@@ -139,6 +141,7 @@ def fail(command: str, exc: BaseException | str, code: int = 2) -> int:
         ``code``.
     """
     print(f"histostudy {command}: {exc}", file=sys.stderr, flush=True)
+    emit({"command": command, "exit_code": code, "refused": code == 1, "bad_input": code == 2, "error": str(exc)})
     return code
 
 

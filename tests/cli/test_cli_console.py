@@ -111,7 +111,11 @@ def test_send_exits_1_on_a_refused_object_and_2_on_a_missing_file(scp, xa_files,
     captured = capsys.readouterr()
     assert json.loads(captured.out)["statuses"] == [0, 0xA700] and "not stored: " + str(refused) in captured.err
     assert main(["send", "127.0.0.1", str(port), str(tmp_path / "none.dcm")]) == 2
-    assert "no such file: " in capsys.readouterr().err
+    captured = capsys.readouterr()
+    assert "no such file: " in captured.err
+    # refused or not, stdout holds the command's one summary line
+    assert json.loads(captured.out) == {"command": "send", "exit_code": 2, "refused": False, "bad_input": True,
+                                        "error": f"no such file: {str(tmp_path / 'none.dcm')!r}"}
 
 
 def test_send_waits_for_a_receiver_only_as_long_as_asked(xa_files, capsys):

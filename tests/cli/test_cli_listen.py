@@ -128,7 +128,9 @@ def test_a_port_in_use_is_refused_at_once_naming_it_and_no_output_is_created(tmp
         code = main(["listen", "--port", str(port), "--views", str(small_views_file), "--output",
                      str(tmp_path / "poses.jsonl"), "--timeout-s", "5"])
     captured = capsys.readouterr()
-    assert code == 2 and captured.out == ""
+    error = captured.err.split(": ", 1)[1].strip()
+    assert code == 2 and json.loads(captured.out) == {"command": "listen", "exit_code": 2, "refused": False,
+                                                      "bad_input": True, "error": error}
     assert re.search(rf"histostudy listen: \[Errno \d+\] cannot listen on 127.0.0.1:{port}: .*in use", captured.err)
     assert not (tmp_path / "poses.jsonl").exists()
 
