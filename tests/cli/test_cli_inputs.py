@@ -11,6 +11,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+import pydicom
 import pytest
 
 from histostudy.cli import main
@@ -176,6 +177,10 @@ def test_a_frame_without_geometry_names_the_views_flag_and_a_matching_views_file
     station = _copy_station(lab, tmp_path)
     ds = xa_dataset(lab.views[0], np.full(SHAPE, 2000, np.uint16))
     del ds.PositionerPrimaryAngle
+    partner = pydicom.dcmread(station / "B.dcm", stop_before_pixels=True)
+    for keyword in ("StudyInstanceUID", "AcquisitionDateTime", "AcquisitionDate", "AcquisitionTime"):
+        if keyword in partner:  # one acquisition with its station's B
+            setattr(ds, keyword, partner[keyword].value)
     ds.save_as(station / "A.dcm", enforce_file_format=True)
     code, err = _calibrate(lab, tmp_path, capsys, *lab.stations[:3], str(station))
     assert code == 2 and "A.dcm lacks PositionerPrimaryAngle (0018,1510)" in err and "(--views FILE)" in err
@@ -225,8 +230,8 @@ def test_a_cine_needs_a_frame_index_it_holds(lab, tmp_path, capsys):
 
 
 def test_frames_of_another_size_than_their_views_need_resample(lab, tmp_path, capsys):
-    for name in "AB":
-        np.save(tmp_path / f"{name}.npy", np.ones((48, 62)))
+    for k, name in enumerate("AB"):
+        np.save(tmp_path / f"{name}.npy", np.full((48, 62), 1.0 + k))
     frames = [str(tmp_path / "A.npy"), str(tmp_path / "B.npy")]
     views = ["--views", str(lab.folder / "views.json")]
     code, err = _run(["pose", *frames, *views, "--output", str(tmp_path / "p.json")], capsys)
@@ -292,3 +297,35 @@ def test_the_generated_lab_datasets_flange_file_is_accepted_in_both_forms(tmp_pa
         with pytest.raises(PoseWork):
             main(["calibrate", *stations, "--flange-poses", flanges, "--transducer",
                   str(generated.folder / "transducer"), "--output", str(tmp_path / "c.json")])
+
+
+def test_frames_that_are_not_one_acquisition_of_the_planes_are_refused_naming_why(lab, tmp_path, capsys):
+    """The same file twice, its copy, one instance re-encoded, planes of two studies or taken a minute
+    apart: each refused before the pose (issue 56), and a pair within --max-pair-gap-s gets through."""
+    a, b = Path(lab.stations[0]) / "A.dcm", Path(lab.stations[0]) / "B.dcm"
+    out = ["--output", str(tmp_path / "p.json")]
+    code, err = _run(["pose", str(a), str(a), *out], capsys)
+    assert code == 2 and f"FRAMES '{a}' is '{a}' again (the same file): a pose needs one frame per plane" in err
+    shutil.copy(a, tmp_path / "B.dcm")
+    code, err = _run(["pose", str(a), str(tmp_path / "B.dcm"), *out], capsys)
+    assert code == 2 and "again (the same bytes)" in err
+    same_instance = pydicom.dcmread(a)
+    same_instance.InstanceNumber = 7
+    same_instance.save_as(tmp_path / "B.dcm")
+    code, err = _run(["pose", str(a), str(tmp_path / "B.dcm"), *out], capsys)
+    assert code == 2 and f"are one X-ray object (SOPInstanceUID {same_instance.SOPInstanceUID})" in err
+    other_station = Path(lab.stations[1]) / "B.dcm"
+    code, err = _run(["pose", str(a), str(other_station), *out], capsys)
+    study_a = pydicom.dcmread(a, stop_before_pixels=True).StudyInstanceUID
+    assert code == 2 and f"'{a}' (study {study_a}) and '{other_station}'" in err
+    assert "are of different studies: not one acquisition of the planes" in err
+    later = pydicom.dcmread(b)
+    later.AcquisitionDateTime = "20200101000100.000000"  # a minute after A
+    later.save_as(tmp_path / "B.dcm")
+    code, err = _run(["pose", str(a), str(tmp_path / "B.dcm"), *out], capsys)
+    assert code == 2 and "were taken 60 s apart, more than --max-pair-gap-s 10" in err
+    assert not (tmp_path / "p.json").exists()
+    with pytest.raises(PoseWork):
+        main(["pose", str(a), str(tmp_path / "B.dcm"), "--max-pair-gap-s", "90", *out])
+    code, err = _run(["pose", str(a), str(b), "--max-pair-gap-s", "nan", *out], capsys)
+    assert code == 2 and "--max-pair-gap-s must be a finite number of seconds >= 0, got nan" in err

@@ -158,3 +158,28 @@ def test_pose_writes_its_frame_and_says_the_orientation_is_ambiguous(lab, truth,
     angles = [np.degrees(np.arccos(np.clip((np.trace(true_R.T @ R) - 1) / 2, -1, 1)))
               for R in (T[:3, :3], T[:3, :3] @ HALF_TURN)]
     assert min(angles) < 5.0
+
+
+@pytest.mark.parametrize("speed", ["0", "-50", "nan", "inf", "1500"])
+def test_a_speed_that_is_no_speed_is_refused_before_the_plan_even_in_a_dry_run(speed, calibration_file, tmp_path,
+                                                                               capsys):
+    code, summary, written = _target(capsys, calibration_file, tmp_path / "t.json", "--target=0,0,0",
+                                     f"--speed-mm-s={speed}")
+    assert code == 2 and written is None and summary["bad_input"] is True
+    assert summary["error"].startswith("--speed-mm-s must be a speed in mm/s, > 0 and at most 1000")
+
+
+def test_the_speed_is_recorded_and_a_refused_pose_record_is_not_planned_with(lab, truth, calibration_file, tmp_path,
+                                                                             capsys):
+    x, y, z = lab.target_mm
+    code, summary, written = _target(capsys, calibration_file, tmp_path / "t.json", f"--target={x},{y},{z}",
+                                     "--speed-mm-s", "20")
+    assert code == 0 and summary["speed_mm_s"] == written["speed_mm_s"] == 20.0
+    record = tmp_path / "refused.json"
+    record.write_text(json.dumps({"T_carm_transducer": np.asarray(truth["cine_T_carm_transducer"][0]).tolist(),
+                                  "accepted": False, "verdict": {"reasons": ["view A: body RMS 4.1 px > 2.5 px"]}}))
+    code, summary, written = _target(capsys, calibration_file, tmp_path / "r.json", f"--target={x},{y},{z}",
+                                     "--pose", str(record))
+    assert code == 2 and written is None
+    assert summary["error"] == (f"--pose {str(record)!r} is a pose its verdict refused (view A: body RMS 4.1 px > "
+                                "2.5 px): its orientation is not to be planned with; pose again")

@@ -11,10 +11,12 @@ from histostudy.core import WORLD_FRAME
 
 from ..console import positive_int
 
-__all__ = ["FRAME_SUFFIXES", "WORLD_FRAME", "check_frames", "check_transducer", "estimate_from_files", "frame_options",
-           "model_from_args", "positive_int", "residual_options", "triple"]
+__all__ = ["FRAME_SUFFIXES", "MAX_PAIR_GAP_S", "WORLD_FRAME", "check_frames", "check_transducer",
+           "estimate_from_files", "frame_options", "model_from_args", "positive_int", "residual_options", "triple"]
 
 FRAME_SUFFIXES = (".dcm", ".dicom", ".npy", ".png", ".tif", ".tiff")
+#: The default bound on the seconds between one pose's DICOM frames (``--max-pair-gap-s``).
+MAX_PAIR_GAP_S = 10.0
 _MESH_SUFFIXES = (".stl", ".ply", ".obj", ".vtp")
 
 
@@ -39,6 +41,10 @@ def frame_options(parser) -> None:
                         help="the files hold line integrals already (default: intensities, converted with -log(I/I0))")
     parser.add_argument("--resample", action="store_true", help="resize frames of another size onto their view")
     parser.add_argument("--seed", type=int, default=0, help="seed of the estimate's random draws (default 0)")
+    parser.add_argument("--max-pair-gap-s", type=float, default=MAX_PAIR_GAP_S,
+                        help="the most seconds between the acquisition times of one pose's DICOM frames (default "
+                             f"{MAX_PAIR_GAP_S:g}: a biplane pair is taken at once; a monoplane C-arm's second view "
+                             "after turning the gantry, give more)")
     parser.add_argument("--transducer", default=None, metavar="DIR",
                         help="the transducer's CAD meshes, one file per feature class named after it (transducer.stl, "
                              "outer_boundary.stl, inner_boundary.stl, gaps.stl, screws.stl; mm, transducer frame); "
@@ -88,7 +94,8 @@ def check_frames(frames, args, *, label: str = "FRAMES") -> None:
     format; it has a view (``--views``'s, by order or by name = the file's stem, or a DICOM file's
     geometry tags); a DICOM file is one whole X-ray object
     (:func:`~histostudy.imaging.io.check_xray_object`); ``--frame-index`` picks a frame each file
-    holds; each image has its view's size unless ``--resample``. ``label`` starts the messages
+    holds; each image has its view's size unless ``--resample``; and the files are one acquisition
+    of the planes (none twice, one study, ``--max-pair-gap-s``). ``label`` starts the messages
     about one file (the argument that named it). Raises ValueError (XRayObjectRejected among them)
     or OSError naming the flag, the argument or the file."""
     paths = [Path(p) for p in frames]
@@ -116,6 +123,69 @@ def check_frames(frames, args, *, label: str = "FRAMES") -> None:
         if view is not None and shape != tuple(view.shape) and not args.resample:
             raise ValueError(f"{where} holds a {shape[0]} x {shape[1]} image, its view {view.name!r} in --views "
                              f"expects {view.shape[0]} x {view.shape[1]}: give --resample to resize it onto the view")
+    _check_one_acquisition(paths, args, label)  # after each file's own checks: those name what is wrong in it
+
+
+def _check_one_acquisition(paths: list, args, label: str) -> None:
+    """Refuses frame files that are not one acquisition of the planes: a file given twice (the same
+    path or the same bytes), one DICOM instance twice, DICOM files of different studies
+    (StudyInstanceUID), or taken further apart than ``--max-pair-gap-s``."""
+    import hashlib
+    import math
+
+    gap_limit = getattr(args, "max_pair_gap_s", MAX_PAIR_GAP_S)
+    if not (isinstance(gap_limit, (int, float)) and math.isfinite(gap_limit) and gap_limit >= 0):
+        raise ValueError(f"--max-pair-gap-s must be a finite number of seconds >= 0, got {gap_limit!r}")
+    seen: dict = {}
+    for path in paths:
+        for key in (("path", path.resolve()), ("bytes", hashlib.blake2b(path.read_bytes()).hexdigest())):
+            if key in seen:
+                how = "the same file" if key[0] == "path" else "the same bytes"
+                raise ValueError(f"{label} {str(path)!r} is {str(seen[key])!r} again ({how}): a pose needs one frame "
+                                 "per plane")
+            seen[key] = path
+    headers = {p: _dicom_header(p, label) for p in paths if p.suffix.lower() in _DICOM_SUFFIXES}
+    instances: dict = {}
+    for path, ds in headers.items():
+        uid = str(getattr(ds, "SOPInstanceUID", "") or "")
+        if uid and uid in instances:
+            raise ValueError(f"{label} {str(path)!r} and {str(instances[uid])!r} are one X-ray object "
+                             f"(SOPInstanceUID {uid}): a pose needs one frame per plane")
+        instances[uid] = path
+    studies = {p: str(getattr(ds, "StudyInstanceUID", "") or "") for p, ds in headers.items()}
+    named = {p: s for p, s in studies.items() if s}
+    if len(set(named.values())) > 1:
+        listed = " and ".join(f"{str(p)!r} (study {s})" for p, s in named.items())
+        raise ValueError(f"{label} {listed} are of different studies: not one acquisition of the planes")
+    times = {}
+    for path, ds in headers.items():
+        try:
+            from histostudy.lab.pairing import frame_times
+
+            acquired, _ = frame_times(ds)
+        except ValueError:  # no acquisition time: nothing to compare
+            continue
+        index = args.frame_index if args.frame_index is not None and args.frame_index < len(acquired) else 0
+        times[path] = acquired[index]
+    if len(times) > 1:
+        first, last = min(times.values()), max(times.values())
+        try:
+            gap_s = (last - first).total_seconds()
+        except TypeError:  # one time with a UTC offset, one without: not comparable
+            return
+        if gap_s > gap_limit:
+            listed = " and ".join(f"{str(p)!r} ({t.isoformat()})" for p, t in times.items())
+            raise ValueError(f"{label} {listed} were taken {gap_s:g} s apart, more than --max-pair-gap-s "
+                             f"{gap_limit:g}: not one acquisition of the planes (a biplane pair is taken at once)")
+
+
+def _dicom_header(path: Path, label: str):
+    from histostudy.imaging.io import read_dicom_file
+
+    try:
+        return read_dicom_file(path, stop_before_pixels=True)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{label} {str(path)!r}: {exc}") from None
 
 
 def _views_of(paths: list, args, label: str) -> list:

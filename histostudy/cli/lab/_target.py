@@ -5,6 +5,7 @@ kept, in the half-turn reading the robot reaches with less travel."""
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
@@ -15,6 +16,8 @@ __all__ = ["add_target"]
 
 #: The axes ``--target`` may be given in: DICOM's (the world frame's) or NIfTI's and 3D Slicer's.
 FRAMES = ("lps", "ras")
+#: The fastest ``--speed-mm-s`` taken: the UR5e's tool speed limit (1 m/s, its user manual).
+MAX_SPEED_MM_S = 1000.0
 
 
 def add_target(sub, parents) -> None:
@@ -55,7 +58,9 @@ def add_target(sub, parents) -> None:
     mode = tgt.add_mutually_exclusive_group()
     mode.add_argument("--dry-run", action="store_true", help="plan only, move nothing (the default)")
     mode.add_argument("--execute", action="store_true", help="move the robot (needs --robot)")
-    tgt.add_argument("--speed-mm-s", type=float, default=50.0, help="linear speed of the move (default 50 mm/s)")
+    tgt.add_argument("--speed-mm-s", type=float, default=50.0,
+                     help=f"linear speed of the move, > 0 and at most {MAX_SPEED_MM_S:g} mm/s (default 50 mm/s); "
+                          "checked and recorded in a dry run too")
     residual_options(tgt)
     tgt.add_argument("--output", default="target.json", help="plan (and result) JSON (default target.json)")
     tgt.set_defaults(run=run_target)
@@ -71,6 +76,10 @@ def run_target(args) -> int:
     from histostudy.robot import RobotError
 
     t0 = time.monotonic()
+    speed = args.speed_mm_s
+    if not (math.isfinite(speed) and 0.0 < speed <= MAX_SPEED_MM_S):
+        return fail("target", ValueError(f"--speed-mm-s must be a speed in mm/s, > 0 and at most {MAX_SPEED_MM_S:g} "
+                                         f"(the UR5e's tool speed limit), got {speed!r}"))
     if args.execute and args.robot is None:
         return fail("target", ValueError("--execute moves a robot: name it with --robot HOST"))
     if args.target_frame is not None and args.target is None:
@@ -103,10 +112,11 @@ def run_target(args) -> int:
     planned = plan.to_dict()
     given = {"target_frame_given": given_as, "target_given": args.target_voxel if given_as == "voxel" else args.target}
     atomic_write_json(args.output, to_jsonable({"dry_run": not args.execute, "robot": args.robot,
+                                                "speed_mm_s": speed,
                                                 **world_frame_keys(angle="rad"), **given, "plan": planned,
                                                 "executed": executed}))
     _log_plan(plan, planned, given_as, executed, args.output)
-    emit({"command": "target", "output": str(args.output), "dry_run": not args.execute,
+    emit({"command": "target", "output": str(args.output), "dry_run": not args.execute, "speed_mm_s": speed,
           "target_mm": plan.target_mm, "frame": WORLD_FRAME, "target_ras_mm": planned["target_ras_mm"], **given,
           "orientation_reading": plan.orientation_reading, "joint_travel_rad": plan.joint_travel_rad,
           "moved": executed is not None,
@@ -138,6 +148,10 @@ def _plan_with_pose(path, calibration, target, volume, start):
     from histostudy.lab import load_pose_record, plan_targeting_either_reading
 
     record = load_pose_record(path)
+    if record["accepted"] is not True:
+        reasons = (record.get("verdict") or {}).get("reasons") or ["no reason recorded"]
+        raise ValueError(f"--pose {str(path)!r} is a pose its verdict refused ({'; '.join(map(str, reasons))}): "
+                         "its orientation is not to be planned with; pose again")
     half_turn = record.get("half_turn")
     symmetric = half_turn.get("symmetric") if isinstance(half_turn, dict) else None
     if symmetric not in (True, False, None):
