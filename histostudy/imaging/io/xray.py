@@ -207,6 +207,11 @@ def check_xray_object(ds, *, sop_class_uid=None, source: str | None = None) -> N
         raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
                                  f"{prefix}its pixel data cannot be read: PixelData holds {len(data)} bytes, its "
                                  f"{n_frames} frame(s) of {rows} x {cols} need {expected}")
+    if expected is not None and len(data) > expected + expected % 2:  # beyond an odd length's padding byte
+        raise XRayObjectRejected(STATUS_DATASET_MISMATCH,
+                                 f"{prefix}its pixel data is corrupt: PixelData holds {len(data)} bytes, more than "
+                                 f"its {n_frames} frame(s) of {rows} x {cols} (Rows, Columns, NumberOfFrames) "
+                                 f"take, {expected}")
     if syntax not in _NATIVE and n_frames > 1:
         _check_fragments(data, n_frames, prefix)
 

@@ -68,3 +68,31 @@ def test_bad_input_is_refused_by_name(tmp_path, view):
     with pytest.raises(ValueError, match="i0"):
         detector_counts(np.zeros(view.shape), i0=1e6)
     assert not list(tmp_path.iterdir())  # nothing half-written
+
+
+@pytest.mark.parametrize("rows, cols, frames, kept", [(48, 64, 1, "read"), (40, 64, 1, "long"), (48, 64, 2, "short"),
+                                                      (48, 60, 1, "long")])
+def test_rows_or_columns_that_disagree_with_the_pixel_data_are_refused_as_corrupt(tmp_path, view, rows, cols, frames,
+                                                                                  kept):
+    """An object whose Rows / Columns / NumberOfFrames ask for more bytes than PixelData holds, or
+    fewer (pydicom only warned, and the frame was posed on shifted rows until the verdict refused
+    it), is refused before its pixels are read, by every reader."""
+    from histostudy.imaging.io import XRayObjectRejected, check_xray_object
+
+    small = View.from_gantry(0.0, 0.0, shape=(48, 64), pixel_mm=0.6, name="A")
+    path = write_xa(tmp_path / "A.dcm", small, np.full((48, 64), 1000, np.uint16))
+    ds = pydicom.dcmread(path)
+    ds.Rows, ds.Columns = rows, cols
+    if frames > 1:
+        ds.NumberOfFrames = frames
+    ds.save_as(path)
+    if kept == "read":  # the object as written
+        check_xray_object(pydicom.dcmread(path))
+        return
+    match = {"short": r"cannot be read: PixelData holds 6144 bytes, its \d frame\(s\) of \d+ x \d+ need \d+",
+             "long": r"is corrupt: PixelData holds 6144 bytes, more than its 1 frame\(s\) of \d+ x \d+ "
+                     r"\(Rows, Columns, NumberOfFrames\) take, \d+"}[kept]
+    for read in (lambda: check_xray_object(pydicom.dcmread(path)), lambda: load_frame(path, small, resample=True)):
+        with pytest.raises(XRayObjectRejected, match=match) as refused:
+            read()
+        assert refused.value.status == 0xA900
