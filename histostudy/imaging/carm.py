@@ -24,6 +24,10 @@ VIEWS_FORMAT_VERSION = 1
 
 # Largest condition number of P[:, :3] still accepted as a projection (beyond: a singular view).
 _MAX_CONDITION = 1e12
+#: Points (mm, C-arm frame) whose projections compare two views: the isocentre and the corners of a
+#: 100 mm cube around it, the region where the transducer's focal point is sought.
+_PROBE_POINTS_MM = np.array([[0.0, 0.0, 0.0]] + [[x, y, z] for x in (-50.0, 50.0) for y in (-50.0, 50.0)
+                                                 for z in (-50.0, 50.0)])
 
 
 @dataclass(frozen=True, eq=False)
@@ -281,6 +285,26 @@ class View:
         w = pts @ self.P[2, :3] + self.P[2, 3]
         d = np.linalg.norm(pts - self.source_mm, axis=1)
         return np.abs(w) ** 3 / (abs(np.linalg.det(self.P[:, :3])) * d)
+
+    def projection_distance_mm(self, other: View) -> float:
+        """How far this view's geometry is from ``other``'s where it matters: the largest distance
+        between the two projections of the isocentre and of the corners of a 100 mm cube around it
+        (the region where the focal point is sought), in mm at the isocentre (pixels times the size
+        of ``other``'s pixel there), so that one tolerance serves any detector.
+
+        Args:
+            other: the view compared with (e.g. a calibrated one, this one from an object's tags).
+
+        Returns:
+            The distance in mm (0 for the same projection).
+
+        Raises:
+            TypeError: ``other`` is not a View.
+        """
+        if not isinstance(other, View):
+            raise TypeError(f"other must be a histostudy.imaging.View, got {type(other).__name__}")
+        px = float(np.max(np.linalg.norm(self.project(_PROBE_POINTS_MM) - other.project(_PROBE_POINTS_MM), axis=1)))
+        return px * float(np.sqrt(other.pixel_footprint_mm2(np.zeros(3))[0]))
 
     # --- serialisation ------------------------------------------------------------------------
 

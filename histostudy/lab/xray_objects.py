@@ -48,11 +48,6 @@ REJECTION_STATUSES = {
     STATUS_CANNOT_UNDERSTAND: "Error: Cannot understand (missing geometry or time, or no matching view)",
 }
 
-#: Test points (mm, C-arm frame) whose projections compare two views: the isocentre and the
-#: corners of a 100 mm cube around it, the region where the transducer's focal point is sought.
-_PROBE_POINTS_MM = np.array([[0.0, 0.0, 0.0]] + [[x, y, z] for x in (-50.0, 50.0) for y in (-50.0, 50.0)
-                                                 for z in (-50.0, 50.0)])
-
 
 @dataclass(frozen=True, eq=False)
 class ReceivedFrame:
@@ -264,14 +259,14 @@ def _plane_view(ds, views: Sequence[View], frame_index: int | None, tol_mm: floa
                                      f"plane {description!r}: its {tag_view.shape[0]} x {tag_view.shape[1]} pixels "
                                      f"differ from view {view.name!r}'s {view.shape}")
         if tol_mm is not None:
-            distance = _projection_distance_mm(tag_view, view)
+            distance = tag_view.projection_distance_mm(view)
             if distance > tol_mm:
                 raise XRayObjectRejected(STATUS_CANNOT_UNDERSTAND,
                                          f"plane {description!r}: its geometry tags project {distance:.1f} mm (at the "
                                          f"isocentre) from view {view.name!r} (> {tol_mm} mm); has the gantry moved "
                                          "since the views were calibrated?")
         return view
-    candidates = sorted(((_projection_distance_mm(tag_view, v), i) for i, v in enumerate(views)
+    candidates = sorted(((tag_view.projection_distance_mm(v), i) for i, v in enumerate(views)
                          if v.shape == tag_view.shape))
     if candidates and (tol_mm is None or candidates[0][0] <= tol_mm):
         return views[candidates[0][1]]
@@ -282,9 +277,3 @@ def _plane_view(ds, views: Sequence[View], frame_index: int | None, tol_mm: floa
                              f"{[v.name for v in views]}{nearest}")
 
 
-def _projection_distance_mm(a: View, b: View) -> float:
-    """The largest distance between the two views' projections of the isocentre region, in mm at
-    the isocentre (pixels times the size of ``b``'s pixel there), so that one tolerance serves
-    any detector resolution."""
-    px = float(np.max(np.linalg.norm(a.project(_PROBE_POINTS_MM) - b.project(_PROBE_POINTS_MM), axis=1)))
-    return px * float(np.sqrt(b.pixel_footprint_mm2(np.zeros(3))[0]))

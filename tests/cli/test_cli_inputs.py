@@ -6,6 +6,7 @@ records runs to its end with the flange poses in either form."""
 
 import dataclasses
 import json
+import re
 import shutil
 from pathlib import Path
 from types import SimpleNamespace
@@ -15,7 +16,7 @@ import pydicom
 import pytest
 
 from histostudy.cli import main
-from histostudy.imaging import default_biplane, save_views, write_xa
+from histostudy.imaging import View, default_biplane, save_views, write_xa
 from histostudy.imaging.io._xa import xa_dataset
 from histostudy.robot import pose_from_transform
 from histostudy.study.targeting._calibration import calibration_poses
@@ -329,3 +330,23 @@ def test_frames_that_are_not_one_acquisition_of_the_planes_are_refused_naming_wh
         main(["pose", str(a), str(tmp_path / "B.dcm"), "--max-pair-gap-s", "90", *out])
     code, err = _run(["pose", str(a), str(b), "--max-pair-gap-s", "nan", *out], capsys)
     assert code == 2 and "--max-pair-gap-s must be a finite number of seconds >= 0, got nan" in err
+
+
+def test_views_that_the_files_gantry_tags_contradict_are_named(lab, tmp_path, capsys):
+    """A views file of another geometry (plane A turned 10 degrees) than the DICOM files' tags record
+    is refused naming the view, the file and the distance (issue 56), as the receiver refuses it."""
+    g = lab.views[0].gantry
+    turned = [View.from_gantry(g["primary_deg"] + 10.0, g["secondary_deg"], source_isocenter_mm=g["source_isocenter_mm"],
+                               source_detector_mm=g["source_detector_mm"], shape=lab.views[0].shape,
+                               pixel_mm=lab.views[0].pixel_mm, name="A"), lab.views[1]]
+    save_views(tmp_path / "turned.json", turned)
+    frames = [f"{lab.stations[0]}/A.dcm", f"{lab.stations[0]}/B.dcm"]
+    distance = lab.views[0].projection_distance_mm(turned[0])
+    code, err = _run(["pose", *frames, "--views", str(tmp_path / "turned.json"), "--output", str(tmp_path / "p.json")],
+                     capsys)
+    assert code == 2 and distance > 5.0 and not (tmp_path / "p.json").exists()
+    said = re.search(rf"view 'A' and the gantry tags of '{re.escape(frames[0])}' project ([0-9.]+) mm apart at the "
+                     r"isocentre \(> 5 mm\)", err)
+    assert said and float(said.group(1)) == pytest.approx(distance, abs=0.2)
+    with pytest.raises(PoseWork):  # the views the files were written with
+        main(["pose", *frames, "--views", str(lab.folder / "views.json"), "--output", str(tmp_path / "p.json")])

@@ -17,6 +17,9 @@ __all__ = ["FRAME_SUFFIXES", "MAX_PAIR_GAP_S", "WORLD_FRAME", "check_frames", "c
 FRAME_SUFFIXES = (".dcm", ".dicom", ".npy", ".png", ".tif", ".tiff")
 #: The default bound on the seconds between one pose's DICOM frames (``--max-pair-gap-s``).
 MAX_PAIR_GAP_S = 10.0
+#: How far (mm at the isocentre) a ``--views`` view may project from its DICOM file's gantry tags:
+#: the live receiver's bound (``ReceiverConfig.match_tolerance_mm``).
+MAX_VIEW_DISAGREEMENT_MM = 5.0
 _MESH_SUFFIXES = (".stl", ".ply", ".obj", ".vtp")
 
 
@@ -220,8 +223,8 @@ def _dicom_shape(path: Path, view, args) -> tuple[tuple[int, int], int]:
 
     ds = read_dicom_file(path)  # to its pixel data: a truncated or corrupt file is named here
     n_frames = int(getattr(ds, "NumberOfFrames", 1) or 1)
+    index = args.frame_index if args.frame_index is not None and args.frame_index < n_frames else None
     if view is None:
-        index = args.frame_index if args.frame_index is not None and args.frame_index < n_frames else None
         try:
             View.from_dicom(path, frame_index=index, name=path.stem)
         except XRayObjectRejected:
@@ -230,8 +233,32 @@ def _dicom_shape(path: Path, view, args) -> tuple[tuple[int, int], int]:
             text = str(exc)
             raise ValueError(text.replace("a views file", "a views file (--views FILE)") if "a views file" in text
                              else f"{text}; or give the frames' views with --views FILE") from None
+    else:
+        _check_views_against_tags(path, ds, view, index, args)
     check_xray_object(ds, source=f"path {str(path)!r}")
     return (int(ds.Rows), int(ds.Columns)), n_frames
+
+
+def _check_views_against_tags(path: Path, ds, view, index: int | None, args) -> None:
+    """Refuses a ``--views`` view whose geometry the file's own gantry tags contradict: projecting
+    more than :data:`MAX_VIEW_DISAGREEMENT_MM` apart (at the isocentre), as the live receiver
+    refuses a plane whose tags are that far from its view. A file without readable tags is the
+    views file's to describe."""
+    from histostudy.imaging import View
+    from histostudy.imaging.io import XRayObjectRejected
+
+    try:
+        tags = View.from_dicom(ds, frame_index=index)
+    except (ValueError, XRayObjectRejected):
+        return
+    if tags.shape != tuple(view.shape):
+        return  # --resample's case, checked with the image size
+    distance = tags.projection_distance_mm(view)
+    if distance > MAX_VIEW_DISAGREEMENT_MM:
+        raise ValueError(f"--views {args.views!r}: view {view.name!r} and the gantry tags of {str(path)!r} project "
+                         f"{distance:.1f} mm apart at the isocentre (> {MAX_VIEW_DISAGREEMENT_MM:g} mm): the views "
+                         "file was calibrated for another geometry, or the gantry moved since; give the views of "
+                         "these frames, or leave --views out to read the tags")
 
 
 def _image_shape(path: Path, label: str) -> tuple[tuple[int, ...], int]:
