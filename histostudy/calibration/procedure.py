@@ -191,7 +191,8 @@ class HandEyeCalibration:
         if problems:
             raise CalibrationError(
                 "hand-eye calibration residuals exceed the stated bound; targeting refuses to run on it "
-                "(re-acquire the poses or check the pose estimates): " + "; ".join(problems)
+                "(re-acquire the poses, check the pose estimates, or check that the flange poses are the "
+                "robot's at these stations, in their order): " + "; ".join(problems)
             )
         return self
 

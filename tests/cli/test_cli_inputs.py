@@ -350,3 +350,13 @@ def test_views_that_the_files_gantry_tags_contradict_are_named(lab, tmp_path, ca
     assert said and float(said.group(1)) == pytest.approx(distance, abs=0.2)
     with pytest.raises(PoseWork):  # the views the files were written with
         main(["pose", *frames, "--views", str(lab.folder / "views.json"), "--output", str(tmp_path / "p.json")])
+
+
+def test_flange_poses_of_another_session_are_a_refusal_that_names_the_flange_file(lab, tmp_path, capsys):
+    """The stations' true pose records with the flange poses in another order (as another session's
+    file would be): the residuals refuse the calibration (exit 1) and the message names the file."""
+    other = tmp_path / "other_flanges.json"
+    other.write_text(json.dumps({"T_base_flange": [F.tolist() for F in lab.flanges[::-1]]}))
+    code, err = _calibrate(lab, tmp_path, capsys, *lab.records, flanges=str(other))
+    assert code == 1 and "residuals exceed the stated bound" in err
+    assert f"(--flange-poses '{other}': the robot's poses at these stations, in the order given?)" in err

@@ -175,7 +175,9 @@ def run_calibrate(args) -> int:
                                            max_rotation_residual_deg=args.max_rotation_residual_deg,
                                            on_refused="exclude" if args.exclude_refused else "raise")
     except CalibrationError as exc:
-        return fail("calibrate", exc, 1)
+        # a flange file of another session fails every station alike: name the file
+        return fail("calibrate", f"{exc} (--flange-poses {args.flange_poses!r}: the robot's poses at these "
+                                 f"stations, in the order given?)", 1)
     except (ValueError, TypeError, KeyError, FileNotFoundError, OSError) as exc:
         return fail("calibrate", exc)
     used = [args.stations[i] for i in accepted_stations(records)]
