@@ -41,6 +41,9 @@ __all__ = ["FrameReceiver", "ReceiverConfig"]
 
 log = logging.getLogger(__name__)
 
+#: How long (s) :meth:`FrameReceiver.stop` waits for open associations to release before aborting them.
+RELEASE_GRACE_S = 1.0
+
 
 #: The settings of :class:`ReceiverConfig`, by name (those :meth:`ReceiverConfig.split` takes).
 _SETTINGS = ("output_path", "ae_title", "port", "host", "network_timeout_s", "allow", "tls", "air_value",
@@ -291,21 +294,26 @@ class FrameReceiver(PoseWorker):
         return self.port
 
     def stop(self, drain: bool = True) -> None:
-        """Stop listening (open associations are aborted), let the worker finish — with ``drain``
-        every pair already received gets its pose, without it only the ones in progress (with
-        ``pipeline``, the one posed and the one taken ahead) — and close the output. Frames still waiting for a partner
-        are counted as unpaired."""
+        """Stop listening, let the worker finish — with ``drain`` every pair already received gets
+        its pose, without it only the ones in progress (with ``pipeline``, the one posed and the one
+        taken ahead) — and close the output. Objects arriving meanwhile are answered 0xA700; open
+        associations get up to :data:`RELEASE_GRACE_S` (at most the network timeout) to release, so
+        that a sender whose last object was stored is not aborted in its release, and are then
+        aborted. Frames still waiting for a partner are counted as unpaired."""
         if self._stopped:
             return
         self._stopped = True
-        if self._ae is not None:
-            self._ae.shutdown()
         with self._cv:
-            self._closing = True
+            self._closing = True  # from here on an object is answered 0xA700: no pair completes
             if not drain:
                 self._counts["pairs_skipped"] += len(self._queue)
                 self._queue.clear()
             self._cv.notify_all()
+        if self._ae is not None:
+            deadline = time.monotonic() + min(RELEASE_GRACE_S, self.network_timeout_s)
+            while self._ae.active_associations and time.monotonic() < deadline:
+                time.sleep(0.02)
+            self._ae.shutdown()
         if self._worker is not None:
             self._worker.join()
         with self._cv:
