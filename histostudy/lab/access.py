@@ -35,6 +35,13 @@ RECEIVER_MAX_PDU_BYTES = 1 << 20
 MAX_PDU_BYTES = 4 * RECEIVER_MAX_PDU_BYTES
 #: The largest data set one message may bring (bytes): a cine of 500 frames of 1024 x 1024 at 16 bits.
 MAX_OBJECT_BYTES = 1 << 30
+#: How many associations, negotiated, senders off the allow-list (or every sender, without one) may
+#: hold at once (:class:`AssociationGate`): pynetdicom's own default. An allow-listed sender is
+#: never turned away for them; connections that have not negotiated are not counted.
+MAX_ASSOCIATIONS = 10
+#: The most connections the receiver serves at once (each a thread): pynetdicom's own limit is set
+#: this high so that it counts only what the gate does not.
+MAX_CONNECTIONS = 256
 
 
 def _address(value: str, name: str) -> str:
@@ -220,11 +227,14 @@ class AssociationGate:
     reason code) and ``why`` (text).
     """
 
-    def __init__(self, allow: AllowList | None, on_rejected: Callable[[dict], object]):
-        self.allow, self.on_rejected = allow, on_rejected
+    def __init__(self, allow: AllowList | None, on_rejected: Callable[[dict], object],
+                 max_associations: int = MAX_ASSOCIATIONS):
+        self.allow, self.on_rejected, self.max_associations = allow, on_rejected, int(max_associations)
 
     def configure(self, ae) -> None:
-        """Make ``ae`` refuse another called AE title and, with a list, the titles not on it."""
+        """Make ``ae`` refuse another called AE title and, with a list, the titles not on it; its own
+        limit of associations at once becomes :data:`MAX_CONNECTIONS` (the gate counts instead)."""
+        ae.maximum_associations = MAX_CONNECTIONS
         ae.require_called_aet = True
         if self.allow is not None:
             ae.require_calling_aet = self.allow.ae_titles
@@ -239,25 +249,33 @@ class AssociationGate:
 
     def _on_requested(self, event) -> None:
         """A listed calling AE title from an address its modality may not call from: rejected (reason
-        3). The other checks are pynetdicom's, during the negotiation that follows."""
-        if self.allow is None:
-            return
+        3); a sender off the list (any, without one) while :attr:`max_associations` are negotiated:
+        rejected as transient (result 2, reason 2: local limit exceeded, to be tried again). The
+        other checks are pynetdicom's, during the negotiation that follows."""
+        assoc = event.assoc
         try:
-            request = event.assoc.requestor.primitive
-            calling, address = str(request.calling_ae_title).strip(), str(event.assoc.requestor.address)
-            refused = calling in self.allow.ae_titles and not self.allow.allows(calling, address)
+            request = assoc.requestor.primitive
+            calling, address = str(request.calling_ae_title).strip(), str(assoc.requestor.address)
+            listed = self.allow is not None and self.allow.allows(calling, address)
+            refused = self.allow is not None and calling in self.allow.ae_titles and not listed
+            busy = not listed and sum(1 for other in assoc.ae.active_associations
+                                      if other is not assoc and other.is_acceptor and other.is_established
+                                      ) >= self.max_associations
         except Exception:  # a check that cannot be made refuses: the gate fails closed
             log.exception("the association's address check failed; rejecting it")
-            refused = True
+            refused, busy = True, False
         if refused:
-            self._reject(event.assoc, 3)
+            self._reject(assoc, 3)
+        elif busy:
+            self._reject(assoc, 2, result=2, source=3)
 
     @staticmethod
-    def _reject(assoc, reason: int) -> None:
-        """Reject permanently (result 1, source 1) with ``reason``, as pynetdicom's negotiation does."""
+    def _reject(assoc, reason: int, result: int = 1, source: int = 1) -> None:
+        """Reject (permanently: result 1, source 1, DICOM UL service-user; or transiently: result 2,
+        source 3, service-provider presentation) with ``reason``, as pynetdicom's negotiation does."""
         from pynetdicom import evt
 
-        assoc.acse.send_reject(0x01, 0x01, reason)
+        assoc.acse.send_reject(result, source, reason)
         evt.trigger(assoc, evt.EVT_REJECTED, {})
         assoc.kill()
 
@@ -268,7 +286,9 @@ class AssociationGate:
         reason = int(getattr(answer, "diagnostic", 1) or 1)
         peer = f"{assoc.requestor.address}:{assoc.requestor.port}"
         why = REJECT_REASONS.get(reason, f"reason {reason}")
-        if reason == 3 and self.allow is not None:
+        if int(getattr(answer, "result", 1) or 1) == 2:
+            why = f"{self.max_associations} associations of senders off the allow-list are open (transient: try again)"
+        elif reason == 3 and self.allow is not None:
             why += ": " + self.allow.why_not(calling, str(assoc.requestor.address))
         elif reason == 7:
             why += f": {called!r} is not this receiver's AE title {assoc.ae.ae_title!r}"

@@ -43,6 +43,8 @@ log = logging.getLogger(__name__)
 
 #: How long (s) :meth:`FrameReceiver.stop` waits for open associations to release before aborting them.
 RELEASE_GRACE_S = 1.0
+#: The listening socket's backlog of connections not yet accepted.
+LISTEN_BACKLOG = 128
 
 
 #: The settings of :class:`ReceiverConfig`, by name (those :meth:`ReceiverConfig.split` takes).
@@ -270,6 +272,9 @@ class FrameReceiver(PoseWorker):
         try:
             self._server = ae.start_server((self.host, self.port), block=False, ssl_context=tls,
                                            evt_handlers=handlers)
+            # socketserver listens with a backlog of 5: under a burst of connections (a scanner) the
+            # kernel then drops the C-arm's SYN, and TCP retries it after 1, 3, 7 s
+            self._server.socket.listen(LISTEN_BACKLOG)
         except OSError as exc:
             self.stop(drain=False)
             raise listening_error(self.host, self.port, exc) from None

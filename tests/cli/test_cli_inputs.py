@@ -336,7 +336,8 @@ def test_views_that_the_files_gantry_tags_contradict_are_named(lab, tmp_path, ca
     """A views file of another geometry (plane A turned 10 degrees) than the DICOM files' tags record
     is refused naming the view, the file and the distance (issue 56), as the receiver refuses it."""
     g = lab.views[0].gantry
-    turned = [View.from_gantry(g["primary_deg"] + 10.0, g["secondary_deg"], source_isocenter_mm=g["source_isocenter_mm"],
+    turned = [View.from_gantry(g["primary_deg"] + 10.0, g["secondary_deg"],
+                               source_isocenter_mm=g["source_isocenter_mm"],
                                source_detector_mm=g["source_detector_mm"], shape=lab.views[0].shape,
                                pixel_mm=lab.views[0].pixel_mm, name="A"), lab.views[1]]
     save_views(tmp_path / "turned.json", turned)

@@ -200,3 +200,72 @@ def test_an_address_in_use_is_an_error_naming_it_and_no_file_is_created(views, t
     assert {t for t in threading.enumerate() if t.name == "histostudy-pose-worker"} <= workers
     with pytest.raises(RuntimeError, match="started already; make a new one"):
         receiver.start()
+
+
+def _churn(port: int, n_peers: int, seconds: float) -> None:
+    """``n_peers`` threads that, for ``seconds``, hold the receiver's connections as a port scanner
+    and a flood of strangers would: half connect and send nothing (for 5 s at a time), half ask for an
+    association as an AE off the list (rejected) and connect again. Run in its own process, so that
+    its threads do not take the receiver's share of the GIL."""
+    import time as _time
+
+    from receiver_stub import associate_rq, read_pdu
+
+    stop = _time.monotonic() + seconds
+
+    def idle() -> None:
+        while _time.monotonic() < stop:
+            try:
+                with socket.create_connection(("127.0.0.1", port), timeout=5) as sock:
+                    sock.recv(1)  # held until its 5 s timeout
+            except OSError:
+                _time.sleep(0.05)
+
+    def stranger() -> None:
+        while _time.monotonic() < stop:
+            try:
+                with socket.create_connection(("127.0.0.1", port), timeout=5) as sock:
+                    sock.sendall(associate_rq(calling="STRANGER"))
+                    read_pdu(sock)
+            except OSError:
+                _time.sleep(0.05)
+
+    threads = [threading.Thread(target=idle if k % 2 else stranger, daemon=True) for k in range(n_peers)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(seconds + 10)
+
+
+@pytest.mark.slow
+def test_the_allow_listed_c_arm_is_not_turned_away_while_100_peers_churn(views, tmp_path):
+    """100 loopback peers, half holding connections open without a word and half asking for
+    associations as strangers, again and again: each of 10 C-ECHO associations of the C-arm on the
+    allow-list is accepted (issue 56). Before, 12 idle connections were enough to turn it away
+    (pynetdicom counted them among its 10 associations at once), and a burst of connections filled
+    the listening backlog of 5, so that the kernel dropped the C-arm's SYN (retried after 1, 3, 7 s).
+    The wait is bounded loosely here (each connection's pynetdicom threads poll every millisecond:
+    under this churn on 2 cores an association took 1.5 to 6 s; issue 56's 1 s is not met yet)."""
+    import multiprocessing
+    import time
+
+    tracker = StubTracker()
+    with receiver_with(views, tmp_path, tracker, allow=["CARM@127.0.0.1"]) as receiver:
+        churn = multiprocessing.get_context("fork").Process(target=_churn, args=(receiver.port, 100, 10.0))
+        churn.start()
+        try:
+            time.sleep(2.5)  # the churn under way: idle connections held past the first-PDU wait
+            waits = []
+            while churn.is_alive() and len(waits) < 10:
+                t0 = time.monotonic()
+                established, reason = echo_from("127.0.0.1", receiver.port, "CARM")
+                waits.append(time.monotonic() - t0)
+                assert established, f"the C-arm was rejected (reason {reason}) after {waits[-1]:.2f} s"
+        finally:
+            churn.join(30)
+            if churn.is_alive():
+                churn.kill()
+        stats = receiver.stats()
+    assert waits and max(waits) < 15.0, f"C-ECHO associations took {sorted(waits)}"
+    assert stats["associations_rejected"] > 50 and stats["connections"] > 100
+
