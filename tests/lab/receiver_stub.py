@@ -589,3 +589,98 @@ def run_fuzz(receiver, views, *, seed: int, n_hostile: int, concurrency: int, go
             "good_posed": receiver.stats()["pairs_processed"], "good_uids": good_uids, "good_resent": resent,
             "memory": memory,
             "seconds": time.perf_counter() - t0}
+
+
+# --- a whole procedure (tests/lab/test_receiver_soak.py, benchmarks/bench_receiver_soak.py) --------
+
+SOAK_T0 = dt.datetime(2026, 11, 28, 9, 0, 0)
+#: The hostile kinds mixed into a soak: all but a stalled PDU (it holds its connection for the
+#: network timeout) and an oversize object (it streams gigabytes at the receiver's data set bound).
+SOAK_KINDS = tuple(k for k in HOSTILE if k not in ("stalled_pdu", "oversize_pixels"))
+
+
+def cine_pair(views, k: int, fps: float, rng) -> list:
+    """Plane A's and B's frame ``k`` of a cine at ``fps``: two single-frame XA objects."""
+    when = SOAK_T0 + dt.timedelta(seconds=k / fps)
+    return [xa_dataset(v, rng.integers(100, 4000, size=v.shape).astype(np.uint16), acquisition_time=when,
+                       uid_seed=f"soak/{k}/{v.name}") for v in views]
+
+
+def _send_cine(port: int, views, fps: float, resend_every: int, drop_every: int, seed: int,
+               stop: threading.Event, sent: dict) -> None:
+    """The C-arm of a soak: one association, each pair at its time, every ``resend_every``-th stored
+    twice (a response lost), every ``drop_every``-th after a connection dropped mid-object."""
+    from pynetdicom import AE
+
+    rng = np.random.default_rng(seed)
+    ae = AE(ae_title="CARM")
+    ae.add_requested_context(XA_STORAGE, EXPLICIT_LE)
+    assoc = ae.associate("127.0.0.1", port, ae_title="HISTOSTUDY")
+    t_start, k = time.monotonic(), 0
+    try:
+        while not stop.is_set() and assoc.is_established:
+            wait = t_start + k / fps - time.monotonic()
+            if wait > 0:
+                time.sleep(wait)
+            if drop_every and k % drop_every == drop_every - 1:
+                try:
+                    dropped_mid_pdata(port, rng, views, None)
+                except OSError:
+                    pass
+                sent["dropped"] += 1
+            objects = cine_pair(views, k, fps, rng)
+            times = 2 if resend_every and k % resend_every == resend_every - 1 else 1
+            for _ in range(times):
+                for ds in objects:
+                    sent["statuses"][int(getattr(assoc.send_c_store(ds), "Status", -1))] += 1
+            sent["frames"] += 2
+            sent["resent"] += 2 * (times - 1)
+            sent["uids"].append([ds.SOPInstanceUID for ds in objects])
+            k += 1
+    finally:
+        if assoc.is_established:
+            assoc.release()
+
+
+def _send_hostile(receiver, views, per_min: float, seed: int, stop: threading.Event, outcomes) -> None:
+    """Hostile associations at random times, ``per_min`` a minute on average."""
+    rng = np.random.default_rng(seed + 1)
+    limits = SimpleNamespace(max_pdu_bytes=receiver.max_pdu_bytes, max_object_bytes=receiver.max_object_bytes,
+                             stream_bytes=1 << 20)
+    index = 0
+    while per_min > 0 and not stop.wait(rng.exponential(60.0 / per_min)):
+        kind, outcome = hostile(receiver.port, views, seed, index, limits, kinds=SOAK_KINDS)
+        outcomes[(kind, outcome)] += 1
+        index += 1
+
+
+def run_soak(receiver, views, *, seconds: float, fps: float = 15.0, resend_every: int = 50, drop_every: int = 100,
+             hostile_per_min: float = 30.0, seed: int = 20261128, sample_s: float = 5.0) -> dict:
+    """A started live ``receiver`` fed one C-arm's paced biplane cine for ``seconds`` (frame ``k`` of
+    each plane at ``k / fps`` s), with pairs stored twice, drops mid-object and hostile peers; its
+    counts, RSS and threads sampled every ``sample_s``. Returns ``sent`` (frames, resent, dropped,
+    the C-arm's statuses, its pairs' UIDs), ``hostile`` (per (kind, outcome)), ``samples``
+    (``t_s``, ``rss``, ``threads``, ``p99_s``), ``stats`` and ``threads_end``."""
+    sent = {"frames": 0, "resent": 0, "dropped": 0, "statuses": collections.Counter(), "uids": []}
+    outcomes: collections.Counter = collections.Counter()
+    samples = []
+    stop = threading.Event()
+    workers = [threading.Thread(target=_send_cine, args=(receiver.port, views, fps, resend_every, drop_every, seed,
+                                                         stop, sent)),
+               threading.Thread(target=_send_hostile, args=(receiver, views, hostile_per_min, seed, stop, outcomes))]
+    t0 = time.monotonic()
+    for w in workers:
+        w.start()
+    try:
+        while time.monotonic() - t0 < seconds:
+            time.sleep(min(sample_s, max(0.0, seconds - (time.monotonic() - t0))))
+            stats = receiver.stats()
+            samples.append({"t_s": time.monotonic() - t0, "rss": rss_bytes(), "threads": len(threading.enumerate()),
+                            "p99_s": stats["latency_s"]["p99"]})
+    finally:
+        stop.set()
+        for w in workers:
+            w.join(60)
+    _settled(30.0)
+    return {"sent": sent, "hostile": dict(outcomes), "samples": samples, "stats": receiver.stats(),
+            "threads_end": len(threading.enumerate())}
