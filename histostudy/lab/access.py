@@ -13,6 +13,7 @@ import json
 import logging
 import os
 import socket
+import threading
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -35,6 +36,10 @@ RECEIVER_MAX_PDU_BYTES = 1 << 20
 MAX_PDU_BYTES = 4 * RECEIVER_MAX_PDU_BYTES
 #: The largest data set one message may bring (bytes): a cine of 500 frames of 1024 x 1024 at 16 bits.
 MAX_OBJECT_BYTES = 1 << 30
+#: The most bytes of data sets all connections together may hold while they are being received
+#: (:class:`ConnectionGuard`): two objects at :data:`MAX_OBJECT_BYTES`, so that ten senders at once
+#: cannot hold ten times that.
+MAX_IN_FLIGHT_BYTES = 2 * MAX_OBJECT_BYTES
 #: How many associations, negotiated, senders off the allow-list (or every sender, without one) may
 #: hold at once (:class:`AssociationGate`): pynetdicom's own default. An allow-listed sender is
 #: never turned away for them; connections that have not negotiated are not counted.
@@ -303,11 +308,17 @@ class ConnectionGuard:
     """The bounds of every connection (module docstring): :meth:`handlers` gives the receiver's
     server an ``EVT_CONN_OPEN`` handler, which runs on the connection's thread before any PDU is
     read (after the TLS handshake, when there is one) and bounds its socket's reads and sends by
-    ``timeout_s``, its PDUs by ``max_pdu_bytes`` and its data sets by ``max_object_bytes``."""
+    ``timeout_s``, its PDUs by ``max_pdu_bytes``, its data sets by ``max_object_bytes``, and the
+    data sets all connections hold while receiving them by ``max_in_flight_bytes``
+    (:attr:`in_flight_bytes`): the connection whose fragment passes it is closed."""
 
-    def __init__(self, timeout_s: float, max_pdu_bytes: int = MAX_PDU_BYTES, max_object_bytes: int = MAX_OBJECT_BYTES):
+    def __init__(self, timeout_s: float, max_pdu_bytes: int = MAX_PDU_BYTES, max_object_bytes: int = MAX_OBJECT_BYTES,
+                 max_in_flight_bytes: int = MAX_IN_FLIGHT_BYTES):
         self.timeout_s, self.max_pdu_bytes, self.max_object_bytes = float(timeout_s), int(max_pdu_bytes), \
             int(max_object_bytes)
+        self.max_in_flight_bytes = int(max_in_flight_bytes)
+        self.in_flight_bytes = 0  # the data set bytes every connection holds, received so far
+        self._lock = threading.Lock()
 
     def handlers(self) -> list:
         from pynetdicom import evt
@@ -348,14 +359,27 @@ class ConnectionGuard:
             while data[:1] == b"\x04" and at + 6 <= len(data) and not refused:
                 length, control = int.from_bytes(data[at:at + 4], "big"), data[at + 5]
                 if not control & 1:  # a data set's fragment (bit 1 set: its last)
-                    held[0] += length - 2
-                    if held[0] > self.max_object_bytes:  # the next read closes the connection
-                        refused.append(f"its data set passed {self.max_object_bytes} bytes")
-                    held[0] = 0 if control & 2 else held[0]
+                    with self._lock:
+                        held[0] += length - 2
+                        self.in_flight_bytes += length - 2
+                        if held[0] > self.max_object_bytes:  # the next read closes the connection
+                            refused.append(f"its data set passed {self.max_object_bytes} bytes")
+                        elif self.in_flight_bytes > self.max_in_flight_bytes:
+                            refused.append(f"the data sets being received over all connections passed "
+                                           f"{self.max_in_flight_bytes} bytes (MAX_IN_FLIGHT_BYTES)")
+                        if control & 2 or refused:  # whole (the handler's now), or to be dropped
+                            self.in_flight_bytes -= held[0]
+                            held[0] = 0
                 at += 4 + length
+
+        def on_close(event) -> None:  # a message cut short: its bytes are no longer held
+            with self._lock:
+                self.in_flight_bytes -= held[0]
+                held[0] = 0
 
         transport.recv = recv
         assoc.bind(evt.EVT_DATA_RECV, on_data)
+        assoc.bind(evt.EVT_CONN_CLOSE, on_close)
 
 
 def listening_error(host: str, port: int, exc: OSError) -> OSError:

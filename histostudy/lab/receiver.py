@@ -20,7 +20,15 @@ from histostudy.imaging import View
 from histostudy.pose import Tracker, TrackingConfig
 from histostudy.transducer import TransducerModel
 
-from .access import MAX_OBJECT_BYTES, MAX_PDU_BYTES, AllowList, AssociationGate, ConnectionGuard, listening_error
+from .access import (
+    MAX_IN_FLIGHT_BYTES,
+    MAX_OBJECT_BYTES,
+    MAX_PDU_BYTES,
+    AllowList,
+    AssociationGate,
+    ConnectionGuard,
+    listening_error,
+)
 from .instances import InstanceRegister, pixel_fingerprint
 from .pairing import DEFAULT_FRAME_INTERVAL_S, BiplanePairer, PlaneFrame
 from .pose_lines import PoseLineFile
@@ -220,6 +228,7 @@ class FrameReceiver(PoseWorker):
         self.air_value, self.match_tolerance_mm = config.air_value, config.match_tolerance_mm
         self.max_queued_pairs, self.network_timeout_s = config.max_queued_pairs, config.network_timeout_s
         self.max_pdu_bytes, self.max_object_bytes = MAX_PDU_BYTES, MAX_OBJECT_BYTES  # ConnectionGuard's bounds
+        self.max_in_flight_bytes = MAX_IN_FLIGHT_BYTES
         self.pipeline, self.warm_up = config.pipeline, config.warm_up
 
         self._cv = threading.Condition()  # guards the pairer, the queue and the counters
@@ -258,7 +267,7 @@ class FrameReceiver(PoseWorker):
         self._first_index = PoseLineFile(self.output_path).next_index()
         ae = storage_application_entity(self.ae_title, self.network_timeout_s)
         gate, guard = AssociationGate(self.allow, self._on_rejected), ConnectionGuard(
-            self.network_timeout_s, self.max_pdu_bytes, self.max_object_bytes)
+            self.network_timeout_s, self.max_pdu_bytes, self.max_object_bytes, self.max_in_flight_bytes)
         gate.configure(ae)
         tls = None if self.tls is None else ServerTLS(self.tls, self.network_timeout_s, self._on_tls_refused)
         handlers = [(evt.EVT_CONN_OPEN, self._on_event("connections")), (evt.EVT_CONN_OPEN, _dimse_recv_first),

@@ -23,13 +23,17 @@ from receiver_stub import (
     CLIENT_TIMEOUT_S,
     HOSTILE,
     JPEG_LOSSLESS,
+    XA_STORAGE,
     StubTracker,
     associate_rq,
+    associated,
+    command_bytes,
     connect,
     echo,
     encoded,
     hostile_object,
     huge_image,
+    pdata,
     pdu,
     reaction,
     read_lines,
@@ -39,6 +43,7 @@ from receiver_stub import (
     store_object,
 )
 
+from histostudy.imaging import default_biplane
 from histostudy.imaging.io import RECEIVABLE_TRANSFER_SYNTAXES
 
 SEED = 20240506
@@ -205,3 +210,28 @@ def test_a_c_store_naming_no_sop_class_is_answered_at_once(views, tmp_path, quie
     stats = receiver.stats()
     assert stats["objects_received"] == stats["objects_rejected"] == 1 and stats["rejections"] == {"0x0122": 1}
     assert stats["last_rejections"][0]["reason"] == "the C-STORE command names no Affected SOP Class UID (0000,0002)"
+
+
+def test_objects_received_at_once_are_bounded_together_and_the_one_past_the_bound_is_cut(tmp_path, quiet):
+    """Two senders each half-way through a 2.4 MB object while the receiver may hold 3 MB of data
+    sets being received: the second one's fragment passes the bound and its connection is closed
+    (issue 56: a bound over all associations, not per association), and the first completes its
+    object (success): the second's bytes no longer count."""
+    views = default_biplane()  # full-size frames: 2.4 MB objects
+    receiver = receiver_with(views, tmp_path, StubTracker(keep_images=False), max_queued_pairs=None,
+                             network_timeout_s=NETWORK_TIMEOUT_S, warm_up=False)
+    receiver.max_in_flight_bytes = 3_000_000
+    rng = np.random.default_rng(SEED)
+    first, second = (hostile_object(views, rng) for _ in range(2))
+    data = {ds.SOPInstanceUID: encoded(ds) for ds in (first, second)}
+    with receiver:
+        a, b = associated(receiver.port), associated(receiver.port)
+        with a, b:
+            for sock, ds in ((a, first), (b, second)):  # 2 MB of each, in PDUs under the 1 MiB announced
+                sock.sendall(pdata(0x03, command_bytes(0x0001, XA_STORAGE, ds.SOPInstanceUID)))
+                for at in range(0, 2_000_000, 500_000):
+                    sock.sendall(pdata(0x00, data[ds.SOPInstanceUID][at:at + 500_000]))
+            assert reaction(b) in ("aborted", "closed", "reset")
+            a.sendall(pdata(0x02, data[first.SOPInstanceUID][2_000_000:]))
+            assert reaction(a) == "status 0x0000"
+    assert receiver.stats()["objects_accepted"] == 1
