@@ -218,8 +218,9 @@ def test_objects_received_at_once_are_bounded_together_and_the_one_past_the_boun
     (issue 56: a bound over all associations, not per association), and the first completes its
     object (success): the second's bytes no longer count."""
     views = default_biplane()  # full-size frames: 2.4 MB objects
+    # a network timeout longer than the test: the first sender waits on the second's refusal
     receiver = receiver_with(views, tmp_path, StubTracker(keep_images=False), max_queued_pairs=None,
-                             network_timeout_s=NETWORK_TIMEOUT_S, warm_up=False)
+                             network_timeout_s=60.0, warm_up=False)
     receiver.max_in_flight_bytes = 3_000_000
     rng = np.random.default_rng(SEED)
     first, second = (hostile_object(views, rng) for _ in range(2))
