@@ -370,6 +370,11 @@ class ConnectionGuard:
                         if control & 2 or refused:  # whole (the handler's now), or to be dropped
                             self.in_flight_bytes -= held[0]
                             held[0] = 0
+                if refused:  # its socket reads as ended now: the read that closes it comes at once,
+                    try:     # not with the sender's next PDU (which may never come)
+                        transport.socket.shutdown(socket.SHUT_RD)
+                    except (AttributeError, OSError):  # closed already
+                        pass
                 at += 4 + length
 
         def on_close(event) -> None:  # a message cut short: its bytes are no longer held
