@@ -1,7 +1,8 @@
 """Who may send frames to the live receiver, and where it listens (§II-A): the allow-list of
-modalities (:class:`AllowList`, :func:`load_modalities`, :func:`parse_allow`) checked at association
-negotiation (:class:`AssociationGate`), the bounds of every connection (:class:`ConnectionGuard`) and
-the listening address tried before anything is written (docs/receiver.md, "Who may send").
+modalities (:class:`AllowList`, :func:`load_modalities`, :func:`parse_allow`) checked on a new
+connection's first bytes and at association negotiation (:class:`AssociationGate`), the bounds of
+every connection (:class:`ConnectionGuard`) and the listening address tried before anything is
+written (docs/receiver.md, "Who may send").
 """
 
 from __future__ import annotations
@@ -12,7 +13,9 @@ import ipaddress
 import json
 import logging
 import os
+import select
 import socket
+import ssl
 import threading
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -44,6 +47,15 @@ MAX_IN_FLIGHT_BYTES = 2 * MAX_OBJECT_BYTES
 #: hold at once (:class:`AssociationGate`): pynetdicom's own default. An allow-listed sender is
 #: never turned away for them; connections that have not negotiated are not counted.
 MAX_ASSOCIATIONS = 10
+#: How long a new connection may stay silent before its first bytes (seconds; :class:`ConnectionGuard`):
+#: a DICOM sender sends its A-ASSOCIATE-RQ (or TLS ClientHello) as soon as it connects, a port scanner
+#: or an idle peer sends nothing. Waited for on the connection's own thread, without polling, before
+#: pynetdicom starts the association's threads (each polls every millisecond, and a hundred of them
+#: take the C-arm's share of the GIL); a silent peer is closed then and never holds an association.
+FIRST_BYTES_WAIT_S = 2.0
+#: The fixed part of an A-ASSOCIATE-RQ, up to its calling AE title (PS3.8 Table 9-11: bytes 11-26 the
+#: called, 27-42 the calling AE title).
+_RQ_HEAD_BYTES = 42
 #: The most connections the receiver serves at once (each a thread): pynetdicom's own limit is set
 #: this high so that it counts only what the gate does not.
 MAX_CONNECTIONS = 256
@@ -284,24 +296,78 @@ class AssociationGate:
         evt.trigger(assoc, evt.EVT_REJECTED, {})
         assoc.kill()
 
+    def screen(self, sock, client_address, own_ae_title: str) -> bool:
+        """Whether a new connection may go on to negotiate, judged on its first bytes
+        (:class:`.admitting_server.AdmittingServer`, after :meth:`ConnectionGuard.await_first_bytes`):
+        with an allow-list, an A-ASSOCIATE-RQ whose calling AE title and address the list does not
+        allow is answered A-ASSOCIATE-RJ (reason 3) and closed before pynetdicom makes an association
+        of it, so that strangers asking again and again cost one thread each, not three polling
+        ones. A request not yet whole in its fixed part, and a TLS connection (its bytes cannot be
+        peeked), go on to be checked at negotiation (:meth:`_on_requested`)."""
+        from pynetdicom.pdu import A_ASSOCIATE_RJ
+
+        if self.allow is None or isinstance(sock, ssl.SSLSocket):
+            return True
+        try:
+            head = sock.recv(_RQ_HEAD_BYTES, socket.MSG_PEEK | socket.MSG_DONTWAIT)
+        except OSError:  # nothing there, or closed meanwhile: pynetdicom finds out
+            return True
+        if len(head) < _RQ_HEAD_BYTES or head[0] != 0x01:
+            return True
+        calling, called = (head[at:at + 16].decode("ascii", "replace").strip() for at in (26, 10))
+        address = str(client_address[0])
+        try:
+            if self.allow.allows(calling, address):
+                return True
+        except Exception:  # fails closed at negotiation instead, where it is logged
+            return True
+        reject = A_ASSOCIATE_RJ()
+        reject.result, reject.source, reject.reason_diagnostic = 1, 1, 3
+        try:
+            sock.sendall(reject.encode())
+        except OSError:
+            pass
+        close_socket(sock)
+        self._report(":".join(str(part) for part in client_address[:2]), calling, called, address, own_ae_title,
+                     result=1, source=1, reason=3)
+        return False
+
     def _on_rejected(self, event) -> None:
         assoc = event.assoc
         request, answer = assoc.requestor.primitive, assoc.acceptor.primitive
-        calling, called = str(request.calling_ae_title).strip(), str(request.called_ae_title).strip()
-        reason = int(getattr(answer, "diagnostic", 1) or 1)
-        peer = f"{assoc.requestor.address}:{assoc.requestor.port}"
+        self._report(f"{assoc.requestor.address}:{assoc.requestor.port}", str(request.calling_ae_title).strip(),
+                     str(request.called_ae_title).strip(), str(assoc.requestor.address), assoc.ae.ae_title,
+                     result=getattr(answer, "result", None), source=getattr(answer, "result_source", None),
+                     reason=int(getattr(answer, "diagnostic", 1) or 1))
+
+    def _report(self, peer: str, calling: str, called: str, address: str, own_ae_title: str, result, source,
+                reason: int) -> None:
+        """Log a rejection and pass its record to ``on_rejected`` (class docstring)."""
         why = REJECT_REASONS.get(reason, f"reason {reason}")
-        if int(getattr(answer, "result", 1) or 1) == 2:
+        if int(result or 1) == 2:
             why = f"{self.max_associations} associations of senders off the allow-list are open (transient: try again)"
         elif reason == 3 and self.allow is not None:
-            why += ": " + self.allow.why_not(calling, str(assoc.requestor.address))
+            why += ": " + self.allow.why_not(calling, address)
         elif reason == 7:
-            why += f": {called!r} is not this receiver's AE title {assoc.ae.ae_title!r}"
+            why += f": {called!r} is not this receiver's AE title {own_ae_title!r}"
         log.warning("rejected an association from %s (calling AE title %r, called %r): %s (A-ASSOCIATE-RJ "
                     "result %s, source %s, reason %d)", peer, calling, called, why,
-                    getattr(answer, "result", "?"), getattr(answer, "result_source", "?"), reason)
+                    "?" if result is None else result, "?" if source is None else source, reason)
         self.on_rejected({"peer": peer, "calling_ae_title": calling, "called_ae_title": called, "reason": reason,
                           "why": why})
+
+
+def close_socket(sock) -> None:
+    """Shut ``sock`` both ways and close it; one closed already is left as it is. The association's
+    reader then finds it closed and ends (pynetdicom does not close it itself after an abort)."""
+    try:
+        sock.shutdown(socket.SHUT_RDWR)
+    except (AttributeError, OSError):
+        pass
+    try:
+        sock.close()
+    except (AttributeError, OSError):
+        pass
 
 
 class ConnectionGuard:
@@ -313,10 +379,13 @@ class ConnectionGuard:
     (:attr:`in_flight_bytes`): the connection whose fragment passes it is closed."""
 
     def __init__(self, timeout_s: float, max_pdu_bytes: int = MAX_PDU_BYTES, max_object_bytes: int = MAX_OBJECT_BYTES,
-                 max_in_flight_bytes: int = MAX_IN_FLIGHT_BYTES):
+                 max_in_flight_bytes: int = MAX_IN_FLIGHT_BYTES, first_bytes_wait_s: float = FIRST_BYTES_WAIT_S,
+                 on_silent: Callable[[str], object] | None = None):
         self.timeout_s, self.max_pdu_bytes, self.max_object_bytes = float(timeout_s), int(max_pdu_bytes), \
             int(max_object_bytes)
         self.max_in_flight_bytes = int(max_in_flight_bytes)
+        self.first_bytes_wait_s = min(float(first_bytes_wait_s), self.timeout_s)
+        self.on_silent = on_silent
         self.in_flight_bytes = 0  # the data set bytes every connection holds, received so far
         self._lock = threading.Lock()
 
@@ -324,6 +393,24 @@ class ConnectionGuard:
         from pynetdicom import evt
 
         return [(evt.EVT_CONN_OPEN, self._on_open)]
+
+    def await_first_bytes(self, sock, client_address) -> bool:
+        """Whether a new connection sent its first bytes within ``first_bytes_wait_s``, waited for
+        in ``select`` (not polling) on its own thread before pynetdicom makes an association of it
+        (:data:`FIRST_BYTES_WAIT_S`); one that sent none is closed and ``on_silent(peer)`` called."""
+        try:
+            ready, _, _ = select.select([sock], [], [], self.first_bytes_wait_s)
+        except (OSError, ValueError):  # closed already
+            return False
+        if ready:
+            return True
+        peer = ":".join(str(part) for part in client_address[:2])
+        log.info("closed the connection from %s: it sent nothing within %g s of connecting", peer,
+                 self.first_bytes_wait_s)
+        close_socket(sock)
+        if self.on_silent is not None:
+            self.on_silent(peer)
+        return False
 
     def _on_open(self, event) -> None:
         from pynetdicom import evt
@@ -336,13 +423,9 @@ class ConnectionGuard:
             return
         read, limit, held, refused = transport.recv, self.max_pdu_bytes, [0], []
 
-        def close(why: str) -> None:  # pynetdicom does not close it after an abort (stop()) meanwhile
+        def close(why: str) -> None:
             log.warning("closed the connection from %s: %s", peer, why)
-            try:
-                transport.socket.shutdown(socket.SHUT_RDWR)
-                transport.socket.close()
-            except (AttributeError, OSError):  # closed already
-                pass
+            close_socket(transport.socket)
 
         def recv(n: int):  # pynetdicom reads a PDU's 6-byte header, then the length it announces
             if refused or n > limit:

@@ -21,6 +21,7 @@ from histostudy.pose import Tracker, TrackingConfig
 from histostudy.transducer import TransducerModel
 
 from .access import (
+    FIRST_BYTES_WAIT_S,
     MAX_IN_FLIGHT_BYTES,
     MAX_OBJECT_BYTES,
     MAX_PDU_BYTES,
@@ -228,7 +229,7 @@ class FrameReceiver(PoseWorker):
         self.air_value, self.match_tolerance_mm = config.air_value, config.match_tolerance_mm
         self.max_queued_pairs, self.network_timeout_s = config.max_queued_pairs, config.network_timeout_s
         self.max_pdu_bytes, self.max_object_bytes = MAX_PDU_BYTES, MAX_OBJECT_BYTES  # ConnectionGuard's bounds
-        self.max_in_flight_bytes = MAX_IN_FLIGHT_BYTES
+        self.max_in_flight_bytes, self.first_bytes_wait_s = MAX_IN_FLIGHT_BYTES, FIRST_BYTES_WAIT_S
         self.pipeline, self.warm_up = config.pipeline, config.warm_up
 
         self._cv = threading.Condition()  # guards the pairer, the queue and the counters
@@ -261,29 +262,35 @@ class FrameReceiver(PoseWorker):
         """
         from pynetdicom import evt
 
+        from .admitting_server import start_admitting_server
+
         if self._server is not None or self._stopped:
             raise RuntimeError("this FrameReceiver was started already; make a new one")
         # a file of an earlier run is continued: its pairs numbered on (read before a frame can come)
         self._first_index = PoseLineFile(self.output_path).next_index()
         ae = storage_application_entity(self.ae_title, self.network_timeout_s)
         gate, guard = AssociationGate(self.allow, self._on_rejected), ConnectionGuard(
-            self.network_timeout_s, self.max_pdu_bytes, self.max_object_bytes, self.max_in_flight_bytes)
+            self.network_timeout_s, self.max_pdu_bytes, self.max_object_bytes, self.max_in_flight_bytes,
+            self.first_bytes_wait_s, on_silent=self._on_silent)
         gate.configure(ae)
         tls = None if self.tls is None else ServerTLS(self.tls, self.network_timeout_s, self._on_tls_refused)
-        handlers = [(evt.EVT_CONN_OPEN, self._on_event("connections")), (evt.EVT_CONN_OPEN, _dimse_recv_first),
-                    *guard.handlers(), *gate.handlers(),
+        # the TLS handshake first of pynetdicom's handlers, on the connection's thread (tls.ServerTLS)
+        handlers = [*([] if tls is None else [(evt.EVT_CONN_OPEN, tls.handshake)]),
+                    (evt.EVT_CONN_OPEN, _dimse_recv_first), *guard.handlers(), *gate.handlers(),
                     (evt.EVT_C_STORE, self._on_c_store), (evt.EVT_DIMSE_RECV, self._on_dimse_received),
                     (evt.EVT_ACCEPTED, self._on_event("associations")),
                     (evt.EVT_ABORTED, self._on_event("associations_aborted"))]
-        if tls is not None:  # the handshake first, on the connection's thread (tls.ServerTLS)
-            handlers.insert(0, (evt.EVT_CONN_OPEN, tls.handshake))
+
+        def admit(sock, client_address) -> bool:  # each connection, before an association is made of it
+            with self._cv:
+                self._counts["connections"] += 1
+            return (guard.await_first_bytes(sock, client_address) and not self._stopped
+                    and gate.screen(sock, client_address, self.ae_title))
+
         self._ae = ae
         try:
-            self._server = ae.start_server((self.host, self.port), block=False, ssl_context=tls,
-                                           evt_handlers=handlers)
-            # socketserver listens with a backlog of 5: under a burst of connections (a scanner) the
-            # kernel then drops the C-arm's SYN, and TCP retries it after 1, 3, 7 s
-            self._server.socket.listen(LISTEN_BACKLOG)
+            self._server = start_admitting_server(ae, (self.host, self.port), admit, LISTEN_BACKLOG,
+                                                  ssl_context=tls, evt_handlers=handlers)
         except OSError as exc:
             self.stop(drain=False)
             raise listening_error(self.host, self.port, exc) from None
@@ -328,6 +335,8 @@ class FrameReceiver(PoseWorker):
             while self._ae.active_associations and time.monotonic() < deadline:
                 time.sleep(0.02)
             self._ae.shutdown()
+        if self._server is not None:
+            self._server.shutdown()
         if self._worker is not None:
             self._worker.join()
         with self._cv:
@@ -388,6 +397,10 @@ class FrameReceiver(PoseWorker):
     def _on_rejected(self, record: dict) -> None:
         with self._cv:
             self._stats.add_association_rejection(record)
+
+    def _on_silent(self, peer: str) -> None:
+        with self._cv:
+            self._counts["connections_silent"] += 1
 
     def _on_tls_refused(self, peer: str, exc: Exception) -> None:
         with self._cv:

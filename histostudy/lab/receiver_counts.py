@@ -15,8 +15,8 @@ __all__ = ["COUNT_KEYS", "LATENCY_WINDOW", "ReceiverCounts"]
 #: The counters :meth:`ReceiverCounts.stats` reports (0 until counted).
 COUNT_KEYS = ("objects_received", "objects_accepted", "objects_duplicate", "objects_rejected", "frames_received",
               "frames_unpaired", "pairs_completed", "pairs_processed", "pairs_accepted", "pairs_errors",
-              "pairs_skipped", "pairs_dropped_stale", "pairs_waiting_max", "connections", "associations",
-              "associations_aborted", "associations_rejected", "tls_refused")
+              "pairs_skipped", "pairs_dropped_stale", "pairs_waiting_max", "connections", "connections_silent",
+              "associations", "associations_aborted", "associations_rejected", "tls_refused")
 
 #: How many of the last lines' latencies the percentiles of :meth:`ReceiverCounts.stats` are taken over.
 LATENCY_WINDOW = 10_000
@@ -88,8 +88,9 @@ class ReceiverCounts:
         ``latency_s``: ``p50``, ``p90``, ``p99`` and ``max`` of the latency (s, from a pair's last
         frame received to its line written; ``numpy.percentile``, linear) over the last
         :data:`LATENCY_WINDOW` lines, ``n`` of them, and ``mean`` over every line (None without a
-        line); ``connections``, ``associations``,
-        ``associations_aborted``, ``associations_rejected`` at negotiation (with
+        line); ``connections``, ``connections_silent`` (closed for sending nothing within
+        ``first_bytes_wait_s``), ``associations``,
+        ``associations_aborted``, ``associations_rejected`` on the first bytes or at negotiation (with
         ``last_association_rejections``: peer, AE titles, reason) and ``tls_refused`` (TLS
         handshakes failed: no certificate, or one the CA did not sign); ``stage_seconds``
         summed (``decode`` in the handlers, the pose stages of :meth:`histostudy.pose.Tracker.stats`)
