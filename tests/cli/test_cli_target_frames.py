@@ -183,3 +183,31 @@ def test_the_speed_is_recorded_and_a_refused_pose_record_is_not_planned_with(lab
     assert code == 2 and written is None
     assert summary["error"] == (f"--pose {str(record)!r} is a pose its verdict refused (view A: body RMS 4.1 px > "
                                 "2.5 px): its orientation is not to be planned with; pose again")
+
+
+def test_a_target_that_looks_like_metres_is_refused_unless_its_unit_is_named(lab, calibration_file, tmp_path,
+                                                                              capsys):
+    """A target within 1 mm of the isocentre on every axis (the lab's target typed in metres) is
+    refused, naming the reading in mm; with --target-unit m it plans as the same point in mm, with
+    --target-unit mm it plans as typed, and the isocentre itself (0, 0, 0) is never refused."""
+    in_m = [float(v) / 1000.0 for v in lab.target_mm]
+    metres = f"--target={','.join(map(repr, in_m))}"
+    code, summary, written = _target(capsys, calibration_file, tmp_path / "m.json", metres)
+    assert code == 2 and written is None and summary["bad_input"] is True
+    assert "lies within 1 mm of the isocentre on every axis: it looks like metres" in summary["error"]
+    assert f"({','.join(f'{1000.0 * v:g}' for v in in_m)} mm?)" in summary["error"]
+    x, y, z = lab.target_mm
+    code, _, as_mm = _target(capsys, calibration_file, tmp_path / "mm.json", f"--target={x},{y},{z}")
+    code_m, summary_m, as_m = _target(capsys, calibration_file, tmp_path / "m2.json", metres, "--target-unit", "m")
+    assert code == code_m == 0 and as_mm["target_unit_given"] == "mm" and as_m["target_unit_given"] == "m"
+    np.testing.assert_allclose(as_m["plan"]["target_mm"], lab.target_mm, atol=1e-9)
+    np.testing.assert_allclose(as_m["plan"]["target_mm"], as_mm["plan"]["target_mm"], atol=1e-9)
+    np.testing.assert_allclose(summary_m["target_mm"], lab.target_mm, atol=1e-9)
+    code, _, typed = _target(capsys, calibration_file, tmp_path / "t.json", metres, "--target-unit", "mm")
+    assert code == 0 and typed["target_unit_given"] == "mm"
+    np.testing.assert_allclose(typed["plan"]["target_mm"], in_m, atol=1e-12)
+    code, _, _ = _target(capsys, calibration_file, tmp_path / "o.json", "--target=0,0,0")
+    assert code == 0
+    code, summary, written = _target(capsys, calibration_file, tmp_path / "v.json", "--target-voxel", "36,37,31",
+                                     "--cbct", str(lab.cbct), "--target-unit", "m")
+    assert code == 2 and written is None and summary["error"].startswith("--target-unit m gives the unit of --target")

@@ -18,6 +18,12 @@ __all__ = ["add_target"]
 FRAMES = ("lps", "ras")
 #: The fastest ``--speed-mm-s`` taken: the UR5e's tool speed limit (1 m/s, its user manual).
 MAX_SPEED_MM_S = 1000.0
+#: The units --target may be given in, with their size in mm.
+UNITS_MM = {"mm": 1.0, "m": 1000.0}
+#: A --target whose every coordinate is smaller than this (mm) but not all zero is, unless its unit
+#: is named, refused as likely metres: the C-arm frame's origin is its isocentre, and a point
+#: within a millimetre of it on every axis is far likelier a position in metres typed as mm.
+METRES_LIKELY_BELOW_MM = 1.0
 
 
 def add_target(sub, parents) -> None:
@@ -44,6 +50,10 @@ def add_target(sub, parents) -> None:
                        help="i,j,k: a voxel of --cbct as its file indexes it: nibabel's (i, j, k) of the NIfTI array "
                             "(3D Slicer's IJK), or (column, row, slice) of a DICOM volume, its slices sorted along "
                             "their normal; converted through the CBCT's own geometry")
+    tgt.add_argument("--target-unit", choices=UNITS_MM, default=None,
+                     help="the unit of --target: mm (the default) or m (converted to mm); a --target within "
+                          f"{METRES_LIKELY_BELOW_MM:g} mm of the isocentre on every axis but not at it (0.0025,-0.0103,"
+                          "0.0036) is refused as likely typed in metres unless --target-unit names its unit")
     tgt.add_argument("--target-frame", choices=FRAMES, default=None,
                      help="the axes of --target: lps (the default: DICOM's, the frame of every histostudy file) or "
                           "ras (nibabel's affine, 3D Slicer: x and y negated, converted to LPS before planning)")
@@ -82,6 +92,18 @@ def run_target(args) -> int:
                                          f"(the UR5e's tool speed limit), got {speed!r}"))
     if args.execute and args.robot is None:
         return fail("target", ValueError("--execute moves a robot: name it with --robot HOST"))
+    if args.target_unit is not None and args.target is None:
+        return fail("target", ValueError(f"--target-unit {args.target_unit} gives the unit of --target x,y,z; "
+                                         "--target-voxel is a voxel index, without a unit"))
+    if args.target is not None and args.target_unit is None:
+        largest = max(abs(float(v)) for v in args.target)
+        if 0.0 < largest < METRES_LIKELY_BELOW_MM:
+            typed = ",".join(f"{float(v):g}" for v in args.target)
+            as_mm = ",".join(f"{1000.0 * float(v):g}" for v in args.target)
+            return fail("target", ValueError(
+                f"--target={typed} lies within {METRES_LIKELY_BELOW_MM:g} mm of the isocentre on every axis: it looks "
+                f"like metres ({as_mm} mm?). Give it in mm, or name its unit: --target-unit m, or --target-unit mm "
+                "if it is in mm"))
     if args.target_frame is not None and args.target is None:
         return fail("target", ValueError(f"--target-frame {args.target_frame} gives the axes of --target x,y,z; "
                                          "--target-voxel is a voxel of --cbct, in the CBCT's own geometry"))
@@ -110,7 +132,8 @@ def run_target(args) -> int:
         if robot is not None:
             robot.close()
     planned = plan.to_dict()
-    given = {"target_frame_given": given_as, "target_given": args.target_voxel if given_as == "voxel" else args.target}
+    given = {"target_frame_given": given_as, "target_given": args.target_voxel if given_as == "voxel" else args.target,
+             "target_unit_given": None if given_as == "voxel" else args.target_unit or "mm"}
     atomic_write_json(args.output, to_jsonable({"dry_run": not args.execute, "robot": args.robot,
                                                 "speed_mm_s": speed,
                                                 **world_frame_keys(angle="rad"), **given, "plan": planned,
@@ -131,7 +154,8 @@ def _target_lps(args, volume):
 
     if args.target is not None:
         frame = args.target_frame or "lps"
-        return (lps_from_ras(args.target)[0] if frame == "ras" else args.target), frame
+        given = [UNITS_MM[args.target_unit or "mm"] * float(v) for v in args.target]
+        return (lps_from_ras(given)[0] if frame == "ras" else given), frame
     if volume is None:
         raise ValueError("--target-voxel needs --cbct: a voxel index means nothing without its volume")
     target = volume.file_voxel_to_world([args.target_voxel])[0]
