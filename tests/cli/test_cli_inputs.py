@@ -5,6 +5,7 @@ the test if called); plausible inputs get through to the pose work, and a calibr
 records runs to its end with the flange poses in either form."""
 
 import dataclasses
+import datetime as dt
 import json
 import re
 import shutil
@@ -57,7 +58,8 @@ def lab(tmp_path_factory):
         station = folder / f"station_{k}"
         station.mkdir()
         for view in views:
-            write_xa(station / f"{view.name}.dcm", view, np.full(SHAPE, 2000, np.uint16), uid_seed=f"station {k}")
+            write_xa(station / f"{view.name}.dcm", view, np.full(SHAPE, 2000, np.uint16), uid_seed=f"station {k}",
+                     study_uid_seed="one procedure", acquisition_time=dt.datetime(2020, 1, 1, 0, k))
         T = truth.T_carm_transducer(F)
         record = folder / f"pose_{k}.json"
         record.write_text(json.dumps({"T_carm_transducer": T.tolist(), "focal_point_mm": T[:3, 3].tolist(),
@@ -315,11 +317,17 @@ def test_frames_that_are_not_one_acquisition_of_the_planes_are_refused_naming_wh
     same_instance.save_as(tmp_path / "B.dcm")
     code, err = _run(["pose", str(a), str(tmp_path / "B.dcm"), *out], capsys)
     assert code == 2 and f"are one X-ray object (SOPInstanceUID {same_instance.SOPInstanceUID})" in err
-    other_station = Path(lab.stations[1]) / "B.dcm"
-    code, err = _run(["pose", str(a), str(other_station), *out], capsys)
+    other_study = pydicom.dcmread(b)
+    other_study.StudyInstanceUID = "1.2.826.0.1.3680043.8.498.9"
+    other_study.save_as(tmp_path / "B.dcm")
+    code, err = _run(["pose", str(a), str(tmp_path / "B.dcm"), *out], capsys)
     study_a = pydicom.dcmread(a, stop_before_pixels=True).StudyInstanceUID
-    assert code == 2 and f"'{a}' (study {study_a}) and '{other_station}'" in err
+    assert code == 2 and f"'{a}' (study {study_a}) and '{tmp_path / 'B.dcm'}' (study {other_study.StudyInstanceUID})" \
+        in err
     assert "are of different studies: not one acquisition of the planes" in err
+    other_station = Path(lab.stations[1]) / "B.dcm"  # the same procedure's study, a minute later
+    code, err = _run(["pose", str(a), str(other_station), *out], capsys)
+    assert code == 2 and "were taken 60 s apart, more than --max-pair-gap-s 10" in err
     later = pydicom.dcmread(b)
     later.AcquisitionDateTime = "20200101000100.000000"  # a minute after A
     later.save_as(tmp_path / "B.dcm")

@@ -5,6 +5,7 @@ controller through ur_rtde; every result measured against the dataset's syntheti
 import json
 
 import numpy as np
+import pydicom
 import pytest
 
 from histostudy.cli import main
@@ -28,6 +29,9 @@ def test_calibrate_on_the_stations_recovers_the_true_chain_at_the_target(calibra
     D = truth["T_carm_base"] @ np.linalg.inv(np.asarray(cal["T_carm_base"]))
     error = np.linalg.norm(D[:3, :3] @ lab.target_mm + D[:3, 3] - lab.target_mm)
     assert error < 2.0, f"T_carm_base off by {error:.2f} mm at the target"
+    # the study its stations were acquired in (the dataset's one procedure), for `target --pose`
+    study = pydicom.dcmread(lab.calibration_frames[0][0], stop_before_pixels=True).StudyInstanceUID
+    assert cal["study_instance_uids"] == [study]
 
 
 @pytest.mark.slow
@@ -96,5 +100,6 @@ def test_pose_with_the_transducer_from_its_cad_meshes(lab, truth, tmp_path, caps
     error = np.linalg.norm(np.asarray(record["T_carm_transducer"])[:3, 3]
                            - truth["station_T_carm_transducer"][1][:3, 3])
     assert error < 2.0
+    assert record["study_instance_uid"] == pydicom.dcmread(a, stop_before_pixels=True).StudyInstanceUID
     assert main(["pose", str(a), str(b), "--transducer", str(tmp_path / "none"), "--output", str(tmp_path / "x")]) == 2
     assert "no such folder of meshes" in capsys.readouterr().err

@@ -211,3 +211,33 @@ def test_a_target_that_looks_like_metres_is_refused_unless_its_unit_is_named(lab
     code, summary, written = _target(capsys, calibration_file, tmp_path / "v.json", "--target-voxel", "36,37,31",
                                      "--cbct", str(lab.cbct), "--target-unit", "m")
     assert code == 2 and written is None and summary["error"].startswith("--target-unit m gives the unit of --target")
+
+
+def test_a_pose_of_another_study_than_the_calibrations_is_refused(lab, truth, calibration_file, tmp_path, capsys):
+    """A pose record acquired in another study than the calibration's stations (a calibration of
+    another session, or another dataset) is refused naming both studies; one of the calibration's
+    study plans, and a calibration or a pose that names no study is not judged by it."""
+    x, y, z = lab.target_mm
+    calibration = json.loads(calibration_file.read_text())
+    calibration["study_instance_uids"] = ["1.2.826.0.1.3680043.8.498.1"]
+    with_study = tmp_path / "calibration.json"
+    with_study.write_text(json.dumps(calibration))
+    pose = {"T_carm_transducer": np.asarray(truth["cine_T_carm_transducer"][0]).tolist(), "accepted": True,
+            "verdict": {"reasons": []}}
+    outcomes = {}
+    for name, study in (("other", "1.2.826.0.1.3680043.8.498.2"), ("same", "1.2.826.0.1.3680043.8.498.1"),
+                        ("none", None)):
+        record = tmp_path / f"{name}.json"
+        record.write_text(json.dumps({**pose, "study_instance_uid": study}))
+        code = main(["target", "--calibration", str(with_study), f"--target={x},{y},{z}", "--pose", str(record),
+                     "--output", str(tmp_path / f"{name}-plan.json")])
+        outcomes[name] = (code, json.loads(capsys.readouterr().out.strip().splitlines()[-1]))
+    code, summary = outcomes["other"]
+    assert code == 2 and not (tmp_path / "other-plan.json").exists()
+    assert summary["error"].startswith(f"--pose {str(tmp_path / 'other.json')!r} was acquired in study "
+                                       "1.2.826.0.1.3680043.8.498.2, --calibration")
+    assert "in 1.2.826.0.1.3680043.8.498.1: a calibration holds only while" in summary["error"]
+    assert outcomes["same"][0] == outcomes["none"][0] == 0
+    code, _, _ = _target(capsys, calibration_file, tmp_path / "p.json", f"--target={x},{y},{z}", "--pose",
+                         str(tmp_path / "other.json"))  # the calibration names no study
+    assert code == 0

@@ -48,17 +48,16 @@ def add_calibrate(sub, parents) -> None:
     cal.set_defaults(run=run_calibrate)
 
 
-def _station_input(station: Path, args) -> list[Path] | dict:
+def _station_input(station: Path, args) -> tuple[list[Path] | dict, str | None]:
     """A station's frame files (its folder's, each checked as the estimate will read it), or its
-    pose record (read and checked)."""
+    pose record (read and checked); and the study they were acquired in (StudyInstanceUID, or None)."""
     from histostudy.lab import load_pose_record
 
     if station.is_dir():
         frames = sorted(p for p in station.iterdir() if p.is_file() and p.suffix.lower() in FRAME_SUFFIXES)
         if not frames:
             raise ValueError(f"station folder {str(station)!r} holds no frame files ({', '.join(FRAME_SUFFIXES)})")
-        check_frames(frames, args, label=f"station {str(station)!r}: frame file")
-        return frames
+        return frames, check_frames(frames, args, label=f"station {str(station)!r}: frame file")
     if not station.exists():
         raise FileNotFoundError(f"station {str(station)!r}: no such folder (of the station's frames) or pose record")
     if station.suffix.lower() in FRAME_SUFFIXES:
@@ -67,7 +66,7 @@ def _station_input(station: Path, args) -> list[Path] | dict:
     record = load_pose_record(station)
     if "focal_point_mm" not in record:  # what each station's line on stderr reports
         raise ValueError(f"pose record {str(station)!r} lacks 'focal_point_mm', which `histostudy pose` writes")
-    return record
+    return record, record.get("study_instance_uid")
 
 
 def _flange_poses(args) -> list:
@@ -117,7 +116,7 @@ def _nominal_mount(path):
 
 def _checked_inputs(args) -> tuple[list, list, object]:
     """Every input of a calibration read and checked before the first pose estimate: the stations
-    (their frame files or pose records), the flange poses (one per station, in plausible units), at
+    (their frame files or pose records, each with its study), the flange poses (one per station, in plausible units), at
     least 3 stations, the residual bounds, the nominal mount and the transducer's meshes."""
     import math
 
@@ -161,7 +160,7 @@ def run_calibrate(args) -> int:
         inputs, flanges, nominal = _checked_inputs(args)
         records = []
         with Steps(len(args.stations), enabled=args.progress, label="calibrate: stations") as steps:
-            for station, given in zip(args.stations, inputs):
+            for station, (given, _) in zip(args.stations, inputs):
                 steps.step(station)
                 record = (given if isinstance(given, dict) else
                           pose_record(estimate_from_files(given, args), given, model=model_from_args(args)))
@@ -182,7 +181,9 @@ def run_calibrate(args) -> int:
         return fail("calibrate", exc)
     used = [args.stations[i] for i in accepted_stations(records)]
     atomic_write_json(args.output, to_jsonable({**calibration.to_dict(), "frame": WORLD_FRAME,
-                                                "stations": list(args.stations), "used_stations": used}))
+                                                "stations": list(args.stations), "used_stations": used,
+                                                # what `histostudy target --pose` matches a pose's study with
+                                                "study_instance_uids": sorted({s for _, s in inputs if s})}))
     log.info(f"calibrated on {calibration.n_poses} stations: focal residual max "
              f"{calibration.max_focal_residual_mm:.3f} mm, rotation residual max "
              f"{calibration.max_rotation_residual_deg:.3f} deg; written to {args.output}")

@@ -91,7 +91,7 @@ def estimate_from_files(frames, args):
 _DICOM_SUFFIXES = (".dcm", ".dicom", "")
 
 
-def check_frames(frames, args, *, label: str = "FRAMES") -> None:
+def check_frames(frames, args, *, label: str = "FRAMES") -> str | None:
     """Every frame file read as far as its pixel data, before any pose work, by the rules the
     estimate reads it by (:func:`histostudy.pose.frames_from_files`): it exists and has a frame
     format; it has a view (``--views``'s, by order or by name = the file's stem, or a DICOM file's
@@ -99,8 +99,9 @@ def check_frames(frames, args, *, label: str = "FRAMES") -> None:
     (:func:`~histostudy.imaging.io.check_xray_object`); ``--frame-index`` picks a frame each file
     holds; each image has its view's size unless ``--resample``; and the files are one acquisition
     of the planes (none twice, one study, ``--max-pair-gap-s``). ``label`` starts the messages
-    about one file (the argument that named it). Raises ValueError (XRayObjectRejected among them)
-    or OSError naming the flag, the argument or the file."""
+    about one file (the argument that named it). Returns the files' StudyInstanceUID (None when
+    none carries one). Raises ValueError (XRayObjectRejected among them) or OSError naming the
+    flag, the argument or the file."""
     paths = [Path(p) for p in frames]
     for path in paths:
         if path.is_dir():
@@ -126,13 +127,14 @@ def check_frames(frames, args, *, label: str = "FRAMES") -> None:
         if view is not None and shape != tuple(view.shape) and not args.resample:
             raise ValueError(f"{where} holds a {shape[0]} x {shape[1]} image, its view {view.name!r} in --views "
                              f"expects {view.shape[0]} x {view.shape[1]}: give --resample to resize it onto the view")
-    _check_one_acquisition(paths, args, label)  # after each file's own checks: those name what is wrong in it
+    return _check_one_acquisition(paths, args, label)  # after each file's own checks: those name what is wrong
 
 
-def _check_one_acquisition(paths: list, args, label: str) -> None:
+def _check_one_acquisition(paths: list, args, label: str) -> str | None:
     """Refuses frame files that are not one acquisition of the planes: a file given twice (the same
     path or the same bytes), one DICOM instance twice, DICOM files of different studies
-    (StudyInstanceUID), or taken further apart than ``--max-pair-gap-s``."""
+    (StudyInstanceUID), or taken further apart than ``--max-pair-gap-s``. Returns their study's
+    UID, or None."""
     import hashlib
     import math
 
@@ -160,6 +162,7 @@ def _check_one_acquisition(paths: list, args, label: str) -> None:
     if len(set(named.values())) > 1:
         listed = " and ".join(f"{str(p)!r} (study {s})" for p, s in named.items())
         raise ValueError(f"{label} {listed} are of different studies: not one acquisition of the planes")
+    study = next(iter(named.values()), None)
     times = {}
     for path, ds in headers.items():
         try:
@@ -175,11 +178,12 @@ def _check_one_acquisition(paths: list, args, label: str) -> None:
         try:
             gap_s = (last - first).total_seconds()
         except TypeError:  # one time with a UTC offset, one without: not comparable
-            return
+            return study
         if gap_s > gap_limit:
             listed = " and ".join(f"{str(p)!r} ({t.isoformat()})" for p, t in times.items())
             raise ValueError(f"{label} {listed} were taken {gap_s:g} s apart, more than --max-pair-gap-s "
                              f"{gap_limit:g}: not one acquisition of the planes (a biplane pair is taken at once)")
+    return study
 
 
 def _dicom_header(path: Path, label: str):

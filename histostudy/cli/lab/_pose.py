@@ -32,7 +32,7 @@ def run_pose(args) -> int:
 
     t0 = time.monotonic()
     try:
-        check_frames(args.frames, args)  # every input read and checked before the models load
+        study = check_frames(args.frames, args)  # every input read and checked before the models load
         check_transducer(args)
         with Steps(1, enabled=args.progress, label="pose") as steps:
             steps.step("reading the frames, segmenting, refining")
@@ -40,6 +40,7 @@ def run_pose(args) -> int:
     except (ValueError, TypeError, OSError) as exc:
         return fail("pose", exc)
     record = pose_record(result, args.frames, model=model_from_args(args))
+    record["study_instance_uid"] = study  # what `histostudy target --pose` matches its calibration's with
     atomic_write_json(args.output, record)
     focal = ", ".join(f"{x:.2f}" for x in record["focal_point_mm"])
     verdict = "accepted" if record["accepted"] else "REFUSED: " + "; ".join(record["verdict"]["reasons"])

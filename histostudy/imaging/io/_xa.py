@@ -58,7 +58,7 @@ def _uid(uid_seed: str, what: str) -> str:
 def xa_dataset(view: View, intensities, *, bits_stored: int = 12, uid_seed: str = "histostudy",
                instance_number: int = 1, series_number: int = 1,
                acquisition_time: _dt.datetime | None = None, frame_time_ms: float | None = None,
-               patient_id: str = "PHANTOM"):
+               patient_id: str = "PHANTOM", study_uid_seed: str | None = None):
     """One XA object (pydicom ``FileDataset``-ready ``Dataset`` with its file meta) holding
     ``intensities`` — ``(rows, cols)`` or a cine ``(n, rows, cols)`` of detector counts in
     ``0 .. 2**bits_stored - 1`` — with ``view``'s geometry tags.
@@ -67,7 +67,8 @@ def xa_dataset(view: View, intensities, *, bits_stored: int = 12, uid_seed: str 
     :meth:`View.from_dicom`); the object's ``SeriesDescription`` is the view's name (the plane).
     ``acquisition_time``: when the first frame was taken (default 2020-01-01 00:00); a cine gets
     ``FrameTime`` ``frame_time_ms`` (default 66.7 ms, 15 frames/s). ``uid_seed`` and ``view.name``
-    make the study, series and instance UIDs, so two planes of one run share a study.
+    make the study, series and instance UIDs, so two planes of one run share a study;
+    ``study_uid_seed``, when given, makes the study's instead (the acquisitions of one procedure).
     """
     from pydicom.dataset import Dataset, FileMetaDataset
     from pydicom.uid import ExplicitVRLittleEndian
@@ -98,7 +99,7 @@ def xa_dataset(view: View, intensities, *, bits_stored: int = 12, uid_seed: str 
     ds.SOPClassUID = XA_SOP_CLASS_UID
     ds.SOPInstanceUID = _uid(uid_seed, f"instance/{plane}/{series_number}/{instance_number}")
     ds.file_meta.MediaStorageSOPClassUID, ds.file_meta.MediaStorageSOPInstanceUID = ds.SOPClassUID, ds.SOPInstanceUID
-    ds.StudyInstanceUID = _uid(uid_seed, "study")
+    ds.StudyInstanceUID = _uid(uid_seed if study_uid_seed is None else study_uid_seed, "study")
     ds.SeriesInstanceUID = _uid(uid_seed, f"series/{plane}/{series_number}")
     ds.Modality, ds.PatientID, ds.PatientName = "XA", patient_id, patient_id
     ds.SeriesDescription, ds.SeriesNumber, ds.InstanceNumber = plane, int(series_number), int(instance_number)
@@ -130,8 +131,8 @@ def write_xa(path: str | os.PathLike, view: View, intensities, **options) -> Pat
         intensities: ``(rows, cols)`` or a cine ``(n, rows, cols)`` of detector counts (pixels), e.g.
             :func:`detector_counts`'s.
         **options: ``bits_stored``, ``uid_seed``, ``instance_number``, ``series_number``,
-            ``acquisition_time``, ``frame_time_ms`` (ms), ``patient_id`` (see ``xa_dataset`` in
-            this module).
+            ``acquisition_time``, ``frame_time_ms`` (ms), ``patient_id``, ``study_uid_seed`` (see
+            ``xa_dataset`` in this module).
 
     Returns:
         The path written.

@@ -201,7 +201,7 @@ def write_lab_dataset(folder: str | os.PathLike, *, seed: int = 20231125, n_cine
         for view, image in zip(views, render_pair(T_true)):
             paths.append(write_xa(out / "calibration" / f"station_{k}" / f"{view.name}.dcm", view,
                                   detector_counts(image), uid_seed=f"lab-{seed}-station-{k}",
-                                  acquisition_time=when + _dt.timedelta(minutes=k)))
+                                  study_uid_seed=f"lab-{seed}", acquisition_time=when + _dt.timedelta(minutes=k)))
         stations.append(tuple(paths))
     flange_file = atomic_write_json(out / "calibration" / "flange_poses.json", to_jsonable({
         "T_base_flange": flanges, "ur_pose": [pose_from_transform(F) for F in flanges],
@@ -216,7 +216,8 @@ def write_lab_dataset(folder: str | os.PathLike, *, seed: int = 20231125, n_cine
     cine_start = when + _dt.timedelta(minutes=len(flanges) + 1)
     cine = tuple(write_xa(out / "cine" / f"{view.name}.dcm", view,
                           detector_counts(np.stack([pair[i] for pair in per_view])),
-                          uid_seed=f"lab-{seed}-cine", frame_time_ms=frame_time_ms, acquisition_time=cine_start)
+                          uid_seed=f"lab-{seed}-cine", study_uid_seed=f"lab-{seed}", frame_time_ms=frame_time_ms,
+                          acquisition_time=cine_start)
                  for i, view in enumerate(views))
 
     # The pre-treatment CBCT of the phantom, and a target inside it with a 12.5 mm zone around it.
