@@ -21,12 +21,12 @@ from .workflow import (
     plan_targeting,
     plan_targeting_either_reading,
 )
-from .xray_objects import REJECTION_STATUSES
+from .xray_objects import REJECTION_STATUSES, VIEW_MATCH_TOLERANCE_MM
 
 __all__ = [
     # the live receiver and its senders
     "FrameReceiver", "ReceiverConfig", "listen", "AllowList", "Modality", "load_modalities", "parse_allow",
-    "TLSConfig", "REJECTION_STATUSES", "send_frames", "stream_frames", "SentObject",
+    "TLSConfig", "REJECTION_STATUSES", "VIEW_MATCH_TOLERANCE_MM", "send_frames", "stream_frames", "SentObject",
     # the workflow on the lab's files
     "load_pose_record", "load_flange_poses", "check_flange_pose_units", "accepted_stations", "calibrate_from_poses",
     "TargetingPlan", "plan_targeting", "plan_targeting_either_reading", "execute_targeting",

@@ -40,6 +40,7 @@ from .xray_objects import (
     STATUS_OUT_OF_RESOURCES,
     STATUS_SOP_CLASS_NOT_SUPPORTED,
     STATUS_SUCCESS,
+    VIEW_MATCH_TOLERANCE_MM,
     XRayObjectRejected,
     read_c_store,
     rejection_response,
@@ -123,7 +124,7 @@ class ReceiverConfig:
     allow: object = None
     tls: object = None
     air_value: float | None = None
-    match_tolerance_mm: float | None = 5.0
+    match_tolerance_mm: float | None = VIEW_MATCH_TOLERANCE_MM
     tolerance_s: float | None = None
     default_interval_s: float = DEFAULT_FRAME_INTERVAL_S
     max_queued_pairs: int | None = 1

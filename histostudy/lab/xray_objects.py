@@ -27,10 +27,15 @@ from histostudy.imaging.io import (
 from .access import RECEIVER_MAX_PDU_BYTES
 from .pairing import frame_times, posix_seconds
 
-__all__ = ["PendingFrame", "REJECTION_STATUSES", "ReceivedFrame", "X_RAY_SOP_CLASSES", "XRayObjectRejected",
-           "decode_xray_object", "read_xray_header"]
+__all__ = ["PendingFrame", "REJECTION_STATUSES", "ReceivedFrame", "VIEW_MATCH_TOLERANCE_MM", "X_RAY_SOP_CLASSES",
+           "XRayObjectRejected", "decode_xray_object", "read_xray_header"]
 
 log = logging.getLogger(__name__)
+
+#: How far (mm at the isocentre) a frame's gantry tags may project from its plane's view before
+#: the frame is refused as of another geometry: the receiver's ``match_tolerance_mm`` and the lab
+#: commands' bound on ``--views`` against the files' tags.
+VIEW_MATCH_TOLERANCE_MM = 5.0
 
 STATUS_SUCCESS = 0x0000
 STATUS_DUPLICATE_INSTANCE = 0x0111
@@ -113,7 +118,7 @@ class PendingFrame:
 
 
 def read_xray_header(ds, views: Sequence[View], *, sop_class_uid: str | None = None,
-                     match_tolerance_mm: float | None = 5.0) -> list[PendingFrame]:
+                     match_tolerance_mm: float | None = VIEW_MATCH_TOLERANCE_MM) -> list[PendingFrame]:
     """The frames of one received DICOM X-ray object, each with its plane's view, checked as far as
     the header goes: the pixels are left for :meth:`PendingFrame.decode` (the receiver converts
     only the pairs it poses).

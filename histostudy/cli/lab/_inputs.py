@@ -17,9 +17,6 @@ __all__ = ["FRAME_SUFFIXES", "MAX_PAIR_GAP_S", "WORLD_FRAME", "check_frames", "c
 FRAME_SUFFIXES = (".dcm", ".dicom", ".npy", ".png", ".tif", ".tiff")
 #: The default bound on the seconds between one pose's DICOM frames (``--max-pair-gap-s``).
 MAX_PAIR_GAP_S = 10.0
-#: How far (mm at the isocentre) a ``--views`` view may project from its DICOM file's gantry tags:
-#: the live receiver's bound (``ReceiverConfig.match_tolerance_mm``).
-MAX_VIEW_DISAGREEMENT_MM = 5.0
 _MESH_SUFFIXES = (".stl", ".ply", ".obj", ".vtp")
 
 
@@ -113,9 +110,11 @@ def check_frames(frames, args, *, label: str = "FRAMES") -> str | None:
                              "DICOM without a suffix)")
     if args.frame_index is not None and args.frame_index < 0:
         raise ValueError(f"--frame-index {args.frame_index}: expected a frame index >= 0")
+    headers: dict = {}  # each DICOM file's data set, read once
     for path, view in zip(paths, _views_of(paths, args, label)):
         if path.suffix.lower() in _DICOM_SUFFIXES:
-            shape, n_frames = _dicom_shape(path, view, args)
+            headers[path] = ds = _dicom_read_checked(path, view, args)
+            shape, n_frames = (int(ds.Rows), int(ds.Columns)), int(getattr(ds, "NumberOfFrames", 1) or 1)
         else:
             shape, n_frames = _image_shape(path, label)
         where = f"{label} {str(path)!r}"
@@ -127,14 +126,14 @@ def check_frames(frames, args, *, label: str = "FRAMES") -> str | None:
         if view is not None and shape != tuple(view.shape) and not args.resample:
             raise ValueError(f"{where} holds a {shape[0]} x {shape[1]} image, its view {view.name!r} in --views "
                              f"expects {view.shape[0]} x {view.shape[1]}: give --resample to resize it onto the view")
-    return _check_one_acquisition(paths, args, label)  # after each file's own checks: those name what is wrong
+    return _check_one_acquisition(paths, headers, args, label)  # after each file's own checks: those name it
 
 
-def _check_one_acquisition(paths: list, args, label: str) -> str | None:
+def _check_one_acquisition(paths: list, headers: dict, args, label: str) -> str | None:
     """Refuses frame files that are not one acquisition of the planes: a file given twice (the same
     path or the same bytes), one DICOM instance twice, DICOM files of different studies
-    (StudyInstanceUID), or taken further apart than ``--max-pair-gap-s``. Returns their study's
-    UID, or None."""
+    (StudyInstanceUID), or taken further apart than ``--max-pair-gap-s``. ``headers``: the DICOM
+    files' data sets. Returns their study's UID, or None."""
     import hashlib
     import math
 
@@ -149,7 +148,6 @@ def _check_one_acquisition(paths: list, args, label: str) -> str | None:
                 raise ValueError(f"{label} {str(path)!r} is {str(seen[key])!r} again ({how}): a pose needs one frame "
                                  "per plane")
             seen[key] = path
-    headers = {p: _dicom_header(p, label) for p in paths if p.suffix.lower() in _DICOM_SUFFIXES}
     instances: dict = {}
     for path, ds in headers.items():
         uid = str(getattr(ds, "SOPInstanceUID", "") or "")
@@ -186,15 +184,6 @@ def _check_one_acquisition(paths: list, args, label: str) -> str | None:
     return study
 
 
-def _dicom_header(path: Path, label: str):
-    from histostudy.imaging.io import read_dicom_file
-
-    try:
-        return read_dicom_file(path, stop_before_pixels=True)
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"{label} {str(path)!r}: {exc}") from None
-
-
 def _views_of(paths: list, args, label: str) -> list:
     """Each frame file's view from ``--views`` (:func:`histostudy.pose.match_views`, as the estimate
     matches them), or None for a DICOM file's own tags."""
@@ -219,9 +208,9 @@ def _views_of(paths: list, args, label: str) -> list:
         raise ValueError(f"--views {args.views!r} {exc}") from None
 
 
-def _dicom_shape(path: Path, view, args) -> tuple[tuple[int, int], int]:
-    """A DICOM frame file's image size and frame count, the file read whole and checked as the
-    estimate checks it; its view from its tags too when ``view`` is None."""
+def _dicom_read_checked(path: Path, view, args):
+    """A DICOM frame file's data set, the file read whole and checked as the estimate checks it;
+    its view from its tags too when ``view`` is None."""
     from histostudy.imaging import View
     from histostudy.imaging.io import XRayObjectRejected, check_xray_object, read_dicom_file
 
@@ -230,7 +219,7 @@ def _dicom_shape(path: Path, view, args) -> tuple[tuple[int, int], int]:
     index = args.frame_index if args.frame_index is not None and args.frame_index < n_frames else None
     if view is None:
         try:
-            View.from_dicom(path, frame_index=index, name=path.stem)
+            View.from_dicom(path, frame_index=index, name=path.stem)  # its messages name the file
         except XRayObjectRejected:
             raise  # not an X-ray image: the same reason as every reader's
         except ValueError as exc:  # a geometry tag missing or out of range: a views file stands in
@@ -240,16 +229,17 @@ def _dicom_shape(path: Path, view, args) -> tuple[tuple[int, int], int]:
     else:
         _check_views_against_tags(path, ds, view, index, args)
     check_xray_object(ds, source=f"path {str(path)!r}")
-    return (int(ds.Rows), int(ds.Columns)), n_frames
+    return ds
 
 
 def _check_views_against_tags(path: Path, ds, view, index: int | None, args) -> None:
     """Refuses a ``--views`` view whose geometry the file's own gantry tags contradict: projecting
-    more than :data:`MAX_VIEW_DISAGREEMENT_MM` apart (at the isocentre), as the live receiver
+    more than :data:`VIEW_MATCH_TOLERANCE_MM` apart (at the isocentre), as the live receiver
     refuses a plane whose tags are that far from its view. A file without readable tags is the
     views file's to describe."""
     from histostudy.imaging import View
     from histostudy.imaging.io import XRayObjectRejected
+    from histostudy.lab import VIEW_MATCH_TOLERANCE_MM
 
     try:
         tags = View.from_dicom(ds, frame_index=index)
@@ -258,9 +248,9 @@ def _check_views_against_tags(path: Path, ds, view, index: int | None, args) -> 
     if tags.shape != tuple(view.shape):
         return  # --resample's case, checked with the image size
     distance = tags.projection_distance_mm(view)
-    if distance > MAX_VIEW_DISAGREEMENT_MM:
+    if distance > VIEW_MATCH_TOLERANCE_MM:
         raise ValueError(f"--views {args.views!r}: view {view.name!r} and the gantry tags of {str(path)!r} project "
-                         f"{distance:.1f} mm apart at the isocentre (> {MAX_VIEW_DISAGREEMENT_MM:g} mm): the views "
+                         f"{distance:.1f} mm apart at the isocentre (> {VIEW_MATCH_TOLERANCE_MM:g} mm): the views "
                          "file was calibrated for another geometry, or the gantry moved since; give the views of "
                          "these frames, or leave --views out to read the tags")
 
