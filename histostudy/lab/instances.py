@@ -13,12 +13,14 @@ from histostudy.core.checks import check_count
 
 from .xray_objects import STATUS_DUPLICATE_INSTANCE, XRayObjectRejected
 
-__all__ = ["NATIVE_TRANSFER_SYNTAXES", "InstanceRegister", "PixelFingerprint", "pixel_fingerprint"]
+__all__ = ["DIGEST_BYTES", "NATIVE_TRANSFER_SYNTAXES", "InstanceRegister", "PixelFingerprint", "pixel_fingerprint"]
 
 #: Uncompressed little-endian transfer syntaxes (implicit, explicit, deflated explicit VR): their
 #: PixelData bytes, as read, are the pixels themselves, so two objects in any of them compare byte
 #: for byte (explicit VR big endian's 16-bit pixels are byte-swapped: compared after decoding).
 NATIVE_TRANSFER_SYNTAXES = ("1.2.840.10008.1.2", "1.2.840.10008.1.2.1", "1.2.840.10008.1.2.1.99")
+#: The size of a pixel digest (blake2b, bytes): 128 bits, no accidental collision in a procedure.
+DIGEST_BYTES = 16
 
 
 @dataclasses.dataclass(frozen=True)
@@ -30,14 +32,14 @@ class PixelFingerprint:
     Attributes:
         shape: ``(frames, rows, columns, samples, bits allocated)``.
         transfer_syntax: the object's transfer syntax UID.
-        encoded: blake2b of the PixelData value as received.
-        decoded: blake2b of the decoded pixels (C order), None where not yet decoded.
+        encoded: blake2b (16 bytes) of the PixelData value as received.
+        decoded: blake2b (16 bytes) of the decoded pixels (C order), None where not yet decoded.
     """
 
     shape: tuple
     transfer_syntax: str
-    encoded: str
-    decoded: str | None
+    encoded: bytes
+    decoded: bytes | None
 
 
 def pixel_fingerprint(dataset, *, decode: bool = False) -> PixelFingerprint:
@@ -61,18 +63,18 @@ def pixel_fingerprint(dataset, *, decode: bool = False) -> PixelFingerprint:
              int(getattr(dataset, "SamplesPerPixel", 1) or 1), int(dataset.BitsAllocated))
     syntax = str(dataset.file_meta.TransferSyntaxUID)
     raw = bytes(dataset.PixelData)
-    encoded = hashlib.blake2b(syntax.encode() + b"\0" + raw, digest_size=20).hexdigest()
+    encoded = hashlib.blake2b(syntax.encode() + b"\0" + raw, digest_size=DIGEST_BYTES).digest()
     decoded = None
     if syntax in NATIVE_TRANSFER_SYNTAXES:
         frames, rows, cols, samples, bits = shape
-        decoded = hashlib.blake2b(raw[:frames * rows * cols * samples * (bits // 8)], digest_size=20).hexdigest()
+        decoded = hashlib.blake2b(raw[:frames * rows * cols * samples * (bits // 8)], digest_size=DIGEST_BYTES).digest()
     elif decode:
         try:
             pixels = dataset.pixel_array
         except Exception as exc:  # noqa: BLE001 - pydicom's decoders raise several kinds
             raise XRayObjectRejected(STATUS_DATASET_MISMATCH, f"the pixels cannot be decoded to compare them with "
                                                               f"an earlier copy: {type(exc).__name__}: {exc}") from None
-        decoded = hashlib.blake2b(pixels.tobytes(order="C"), digest_size=20).hexdigest()
+        decoded = hashlib.blake2b(pixels.tobytes(order="C"), digest_size=DIGEST_BYTES).digest()
     return PixelFingerprint(shape, syntax, encoded, decoded)
 
 
@@ -94,7 +96,26 @@ class InstanceRegister:
 
     def __init__(self, max_instances: int = 200_000):
         self.max_instances = check_count(max_instances, "max_instances")
-        self._taken: OrderedDict[str, PixelFingerprint] = OrderedDict()
+        # each instance as one bytes value (its kind's index, its digests): a procedure's hundreds of
+        # thousands of objects held in about 300 bytes each, UID included, not a kilobyte
+        self._taken: OrderedDict[str, bytes] = OrderedDict()
+        self._kinds: dict[tuple, int] = {}  # (shape, transfer syntax) -> its index in _kind_list
+        self._kind_list: list[tuple] = []
+
+    def _pack(self, fingerprint: PixelFingerprint) -> bytes:
+        kind = (tuple(fingerprint.shape), str(fingerprint.transfer_syntax))
+        index = self._kinds.get(kind)
+        if index is None:
+            index = self._kinds[kind] = len(self._kind_list)
+            self._kind_list.append(kind)
+        return index.to_bytes(4, "little") + fingerprint.encoded + (fingerprint.decoded or b"")
+
+    def _unpack(self, value: bytes | None) -> PixelFingerprint | None:
+        if value is None:
+            return None
+        shape, syntax = self._kind_list[int.from_bytes(value[:4], "little")]
+        encoded, decoded = value[4:4 + DIGEST_BYTES], value[4 + DIGEST_BYTES:] or None
+        return PixelFingerprint(shape, syntax, encoded, decoded)
 
     def __len__(self) -> int:
         return len(self._taken)
@@ -105,7 +126,7 @@ class InstanceRegister:
     def needs_decoding(self, uid: str, fingerprint: PixelFingerprint) -> bool:
         """Whether :meth:`admit` can tell ``uid`` apart only with ``fingerprint``'s decoded pixels
         (an earlier copy came in another transfer syntax): decode outside any lock, then admit."""
-        earlier = self._taken.get(uid)
+        earlier = self._unpack(self._taken.get(str(uid)))
         return (earlier is not None and fingerprint.decoded is None and earlier.decoded is not None
                 and earlier.transfer_syntax != fingerprint.transfer_syntax)
 
@@ -124,9 +145,10 @@ class InstanceRegister:
                 other pixels, or in another transfer syntax whose pixels were not compared; the
                 reason names the UID and what differs.
         """
-        earlier = self._taken.get(uid)
+        uid = str(uid)  # a plain str: pydicom's UID carries more
+        earlier = self._unpack(self._taken.get(uid))
         if earlier is None:
-            self._taken[uid] = fingerprint
+            self._taken[uid] = self._pack(fingerprint)
             while len(self._taken) > self.max_instances:
                 self._taken.popitem(last=False)
             return True
