@@ -525,9 +525,12 @@ def send_good(objects, port: int, timeout_s: float, resent: list) -> list[int]:
 
 def _settled(timeout_s: float) -> bool:
     """Wait until no association of pynetdicom's runs (its threads, ``AcceptorThread@...``, end
-    within the receiver's network timeout of their last read): whether none does."""
+    within the receiver's network timeout of their last read) and no connection is still being
+    admitted (the server's ``process_request_thread`` threads, lab.admitting_server, which may
+    yet start an association): whether none does."""
     deadline = time.monotonic() + timeout_s
-    while any(t.name.startswith("AcceptorThread") for t in threading.enumerate()):
+    while any(t.name.startswith("AcceptorThread") or "process_request_thread" in t.name
+              for t in threading.enumerate()):
         if time.monotonic() > deadline:
             return False
         time.sleep(0.02)
