@@ -325,7 +325,11 @@ class AssociationGate:
         reject.result, reject.source, reject.reason_diagnostic = 1, 1, 3
         try:
             sock.sendall(reject.encode())
-        except OSError:
+            # the request read, so that closing sends FIN, not RST: a reset could reach the
+            # peer before the rejection it is to read
+            while sock.recv(1 << 16, socket.MSG_DONTWAIT):
+                pass
+        except OSError:  # nothing more to read (or the peer went): close
             pass
         close_socket(sock)
         self._report(":".join(str(part) for part in client_address[:2]), calling, called, address, own_ae_title,
