@@ -116,8 +116,10 @@ def test_on_a_cluster_the_finished_tasks_are_kept_and_found(tmp_path, calls):
     stop.write_text("6")
     with pytest.raises(SweepTaskError, match="sweep task 6 "):
         _sweep(tmp_path / "cluster", calls, fn=stops_at, executor="local:2", stop=str(stop))
+    # what finished before the failure was stopped: on 2 busy cores task 6 may fail before any other
+    # task's result came back (0 stored, seen in CI's AVX2 step); never the failed one
     stored = len(list((tmp_path / "cluster").rglob("*.pkl")))
-    assert 1 <= stored <= 7  # what finished before the failure was stopped
+    assert 0 <= stored <= 7
     stop.unlink()
     resumed = _sweep(tmp_path / "cluster", calls, fn=stops_at, executor="local:2", stop=str(stop))
     assert len(list((tmp_path / "cluster").rglob("*.pkl"))) == 8
