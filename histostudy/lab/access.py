@@ -106,6 +106,11 @@ class Modality:
         return self.ae_title + ("" if self.host is None else f"@{self.host}")
 
 
+def peer_text(address) -> str:
+    """A peer's ``(host, port, ...)`` socket address as ``"host:port"`` (for the log and records)."""
+    return ":".join(str(part) for part in address[:2])
+
+
 def _peer(address: str) -> str | None:
     try:
         return _address(address, "address")
@@ -332,7 +337,7 @@ class AssociationGate:
         except OSError:  # nothing more to read (or the peer went): close
             pass
         close_socket(sock)
-        self._report(":".join(str(part) for part in client_address[:2]), calling, called, address, own_ae_title,
+        self._report(peer_text(client_address), calling, called, address, own_ae_title,
                      result=1, source=1, reason=3)
         return False
 
@@ -408,7 +413,7 @@ class ConnectionGuard:
             return False
         if ready:
             return True
-        peer = ":".join(str(part) for part in client_address[:2])
+        peer = peer_text(client_address)
         log.info("closed the connection from %s: it sent nothing within %g s of connecting", peer,
                  self.first_bytes_wait_s)
         close_socket(sock)
@@ -420,7 +425,7 @@ class ConnectionGuard:
         from pynetdicom import evt
 
         transport, assoc = event.assoc.dul.socket, event.assoc
-        peer = ":".join(str(part) for part in event.address[:2])
+        peer = peer_text(event.address)
         try:
             transport.socket.settimeout(self.timeout_s)
         except (AttributeError, OSError):  # closed already: a refused TLS handshake

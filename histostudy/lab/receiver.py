@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import functools
 import logging
 import os
 import threading
@@ -272,9 +273,9 @@ class FrameReceiver(PoseWorker):
         ae = storage_application_entity(self.ae_title, self.network_timeout_s)
         gate, guard = AssociationGate(self.allow, self._on_rejected), ConnectionGuard(
             self.network_timeout_s, self.max_pdu_bytes, self.max_object_bytes, self.max_in_flight_bytes,
-            self.first_bytes_wait_s, on_silent=self._on_silent)
+            self.first_bytes_wait_s, on_silent=self._on_event("connections_silent"))
         gate.configure(ae)
-        tls = None if self.tls is None else ServerTLS(self.tls, self.network_timeout_s, self._on_tls_refused)
+        tls = None if self.tls is None else ServerTLS(self.tls, self.network_timeout_s, self._on_event("tls_refused"))
         # the TLS handshake first of pynetdicom's handlers, on the connection's thread (tls.ServerTLS)
         handlers = [*([] if tls is None else [(evt.EVT_CONN_OPEN, tls.handshake)]),
                     (evt.EVT_CONN_OPEN, _dimse_recv_first), *guard.handlers(), *gate.handlers(),
@@ -283,8 +284,7 @@ class FrameReceiver(PoseWorker):
                     (evt.EVT_ABORTED, self._on_event("associations_aborted"))]
 
         def admit(sock, client_address) -> bool:  # each connection, before an association is made of it
-            with self._cv:
-                self._counts["connections"] += 1
+            self._count("connections")
             return (guard.await_first_bytes(sock, client_address) and not self._stopped
                     and gate.screen(sock, client_address, self.ae_title))
 
@@ -399,19 +399,14 @@ class FrameReceiver(PoseWorker):
         with self._cv:
             self._stats.add_association_rejection(record)
 
-    def _on_silent(self, peer: str) -> None:
+    def _count(self, counter: str, *_what) -> None:
+        """One more ``counter``; a handler's arguments (``_what``: the event, the peer) aside."""
         with self._cv:
-            self._counts["connections_silent"] += 1
-
-    def _on_tls_refused(self, peer: str, exc: Exception) -> None:
-        with self._cv:
-            self._counts["tls_refused"] += 1
+            self._counts[counter] += 1
 
     def _on_event(self, counter: str):
-        def handler(event):
-            with self._cv:
-                self._counts[counter] += 1
-        return handler
+        """A handler (of a pynetdicom event, or a callback of the gate, guard or TLS) counting ``counter``."""
+        return functools.partial(self._count, counter)
 
     def _on_dimse_received(self, event) -> None:
         """Answer at once a C-STORE request whose command names no SOP class (0x0122): pynetdicom

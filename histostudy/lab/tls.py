@@ -12,6 +12,8 @@ import ssl
 from collections.abc import Callable
 from pathlib import Path
 
+from .access import peer_text
+
 __all__ = ["TLSConfig"]
 
 log = logging.getLogger("histostudy.lab.receiver")  # the receiver's log, where its users look
@@ -111,7 +113,7 @@ class ServerTLS:
         """The handshake of a new connection (an ``EVT_CONN_OPEN`` handler, on its thread), bounded
         by the timeout; a failed one closes the connection before any DICOM is read from it."""
         sock = event.assoc.dul.socket.socket
-        peer = ":".join(str(part) for part in event.address[:2])
+        peer = peer_text(event.address)
         try:
             sock.settimeout(self.timeout_s)
             sock.do_handshake()

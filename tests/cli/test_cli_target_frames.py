@@ -229,11 +229,10 @@ def test_a_pose_of_another_study_than_the_calibrations_is_refused(lab, truth, ca
                         ("none", None)):
         record = tmp_path / f"{name}.json"
         record.write_text(json.dumps({**pose, "study_instance_uid": study}))
-        code = main(["target", "--calibration", str(with_study), f"--target={x},{y},{z}", "--pose", str(record),
-                     "--output", str(tmp_path / f"{name}-plan.json")])
-        outcomes[name] = (code, json.loads(capsys.readouterr().out.strip().splitlines()[-1]))
-    code, summary = outcomes["other"]
-    assert code == 2 and not (tmp_path / "other-plan.json").exists()
+        outcomes[name] = _target(capsys, with_study, tmp_path / f"{name}-plan.json", f"--target={x},{y},{z}",
+                                 "--pose", str(record))
+    code, summary, written = outcomes["other"]
+    assert code == 2 and written is None
     assert summary["error"].startswith(f"--pose {str(tmp_path / 'other.json')!r} was acquired in study "
                                        "1.2.826.0.1.3680043.8.498.2, --calibration")
     assert "in 1.2.826.0.1.3680043.8.498.1: a calibration holds only while" in summary["error"]

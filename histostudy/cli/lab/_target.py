@@ -123,8 +123,8 @@ def run_target(args) -> int:
         if args.pose is None:
             plan = plan_targeting(calibration, target, volume=volume, start_joints_rad=start)
         else:
-            plan = _plan_with_pose(args.pose, calibration, target, volume, start,
-                                   (args.calibration, calibration_dict.get("study_instance_uids") or []))
+            plan = _plan_with_pose(args.pose, calibration, target, volume, start, args.calibration,
+                                   calibration_dict.get("study_instance_uids") or [])
         executed = execute_targeting(plan, robot, speed_mm_s=args.speed_mm_s) if args.execute else None
     except (CalibrationError, RobotError) as exc:
         return fail("target", exc, 1)
@@ -168,10 +168,11 @@ def _target_lps(args, volume):
     return target, "voxel"
 
 
-def _plan_with_pose(path, calibration, target, volume, start, calibrated_in):
+def _plan_with_pose(path, calibration, target, volume, start, calibration_path, calibration_studies):
     """The plan keeping the orientation of the pose record at ``path``, in the reading the robot
-    reaches with less travel when its transducer looks the same after a half turn.
-    ``calibrated_in``: (the calibration's path, the studies its stations were acquired in)."""
+    reaches with less travel when its transducer looks the same after a half turn; a record of
+    another study than ``calibration_studies`` (those of the calibration at ``calibration_path``)
+    is refused."""
     from histostudy.lab import load_pose_record, plan_targeting_either_reading
 
     record = load_pose_record(path)
@@ -179,12 +180,12 @@ def _plan_with_pose(path, calibration, target, volume, start, calibrated_in):
         reasons = (record.get("verdict") or {}).get("reasons") or ["no reason recorded"]
         raise ValueError(f"--pose {str(path)!r} is a pose its verdict refused ({'; '.join(map(str, reasons))}): "
                          "its orientation is not to be planned with; pose again")
-    calibration_path, studies = calibrated_in
     study = record.get("study_instance_uid")
-    if study and studies and study not in studies:
+    if study and calibration_studies and study not in calibration_studies:
         raise ValueError(f"--pose {str(path)!r} was acquired in study {study}, --calibration {str(calibration_path)!r} "
-                         f"in {', '.join(map(str, studies))}: a calibration holds only while the robot's base and the "
-                         "C-arm stay where it was made; calibrate in this study, or give a pose of the calibration's")
+                         f"in {', '.join(map(str, calibration_studies))}: a calibration holds only while the robot's "
+                         "base and the C-arm stay where it was made; calibrate in this study, or give a pose of the "
+                         "calibration's")
     half_turn = record.get("half_turn")
     symmetric = half_turn.get("symmetric") if isinstance(half_turn, dict) else None
     if symmetric not in (True, False, None):
