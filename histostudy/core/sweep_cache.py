@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import io
 import os
 import pickle
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -74,6 +76,32 @@ def package_digest(package: str | os.PathLike | None = None) -> str:
     return _digest(str(root), stamp)
 
 
+def _tensor_content(*parts):  # stands in for a tensor in a key's bytes; never called
+    raise RuntimeError("a key's bytes are hashed, never unpickled")
+
+
+def _key_bytes(obj: Any) -> bytes:
+    """``obj`` pickled for a key: as cloudpickle pickles it, but each torch tensor by its dtype,
+    shape and bytes. Torch pickles a tensor's storage under its memory address, so the learned stages
+    would pickle differently in every process and a resumed sweep would find none of its tasks."""
+    import cloudpickle
+
+    torch = sys.modules.get("torch")  # a tensor exists only where torch is imported already
+
+    class _KeyPickler(cloudpickle.CloudPickler):
+        def reducer_override(self, value):
+            if torch is not None and isinstance(value, torch.Tensor) and value.layout == torch.strided:
+                t = value.detach().cpu().contiguous().reshape(-1)
+                if not t.is_quantized:  # a quantized tensor keys as torch pickles it (a miss at worst)
+                    return _tensor_content, (str(t.dtype), tuple(value.shape), value.requires_grad,
+                                             t.view(torch.uint8).numpy().tobytes())
+            return super().reducer_override(value)
+
+    buffer = io.BytesIO()
+    _KeyPickler(buffer, protocol=pickle.HIGHEST_PROTOCOL).dump(obj)
+    return buffer.getvalue()
+
+
 def resolve_sweep_cache(cache: str | os.PathLike | None = None) -> Path | None:
     """The cache folder of a sweep: ``cache`` itself, else :data:`SWEEP_CACHE_ENV` when it is set and
     not empty, else None (nothing kept). The one place that reads the variable."""
@@ -90,8 +118,9 @@ class SweepCache:
     task's argument and seed, the sweep's shared inputs, the package's code (:func:`package_digest`),
     the numerical libraries' versions, the instruction-set restriction in force and ``context``. A
     change in any of these misses the cache and runs the task; what is found was made by the same
-    code on the same inputs. The keys hash pickled bytes, so inputs that pickle differently in
-    another process only miss, never mislead. Entries are pickles written atomically (one file per
+    code on the same inputs. The keys hash pickled bytes, torch tensors by their content (so a
+    network's weights key alike in every process); inputs that still pickle differently in another
+    process only miss, never mislead. Entries are pickles written atomically (one file per
     task); a file that cannot be read is a miss.
 
     Args:
@@ -103,8 +132,6 @@ class SweepCache:
     """
 
     def __init__(self, folder: str | os.PathLike, task_fn: Callable, shared: dict, context: tuple = ()):
-        import cloudpickle
-
         from .machine import isa_restriction
         from .provenance import package_versions
 
@@ -114,15 +141,13 @@ class SweepCache:
         for part in (name, package_digest(), repr(sorted(package_versions(_KEY_LIBRARIES).items())),
                      repr(sorted(isa_restriction().items())), repr(context)):
             base.update(part.encode() + b"\0")
-        base.update(hashlib.sha256(cloudpickle.dumps(shared, protocol=pickle.HIGHEST_PROTOCOL)).digest())
+        base.update(hashlib.sha256(_key_bytes(shared)).digest())
         self._base = base.digest()
         self.hits = 0
 
     def key(self, call: tuple) -> str:
         """The key of one task's call (its argument, and its seed when the sweep has one)."""
-        import cloudpickle
-
-        return hashlib.sha256(self._base + cloudpickle.dumps(call, protocol=pickle.HIGHEST_PROTOCOL)).hexdigest()
+        return hashlib.sha256(self._base + _key_bytes(call)).hexdigest()
 
     def _path(self, key: str) -> Path:
         return self.folder / key[:2] / f"{key}.pkl"

@@ -4,6 +4,8 @@ change of task, seed, shared inputs or executor misses."""
 
 import logging
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -125,3 +127,35 @@ def test_on_a_cluster_the_finished_tasks_are_kept_and_found(tmp_path, calls):
     assert len(list((tmp_path / "cluster").rglob("*.pkl"))) == 8
     for a, b in zip(sequential, resumed):
         assert a.tobytes() == b.tobytes()
+
+
+KEY_OF_A_NETWORK = """
+import torch
+from histostudy.core.sweep_cache import SweepCache
+torch.manual_seed(0)
+net = torch.nn.Sequential(torch.nn.Conv2d(1, 2, 3), torch.nn.BatchNorm2d(2))
+scalar = torch.tensor(2.5, dtype=torch.bfloat16)
+print(SweepCache("unused", len, {"net": net, "scalar": scalar}).key((torch.arange(3), 7)))
+"""
+
+
+def test_a_network_in_the_shared_inputs_keys_alike_in_every_process():
+    # torch pickles a tensor's storage under its address: before tensors were keyed by content, a
+    # resumed study section whose sweep shares the learned stages found none of its tasks
+    keys = {subprocess.run([sys.executable, "-c", KEY_OF_A_NETWORK], capture_output=True, text=True,
+                           check=True).stdout for _ in range(2)}
+    assert len(keys) == 1 and len(keys.pop().strip()) == 64
+
+
+def test_a_tensor_keys_by_its_content():
+    import torch
+
+    from histostudy.core.sweep_cache import SweepCache
+
+    def key(**shared):
+        return SweepCache("unused", len, shared).key((0,))
+
+    base = torch.arange(6.0).reshape(2, 3)
+    assert key(t=base) == key(t=base.clone()) == key(t=base.t().contiguous().t())  # layout is not content
+    assert len({key(t=base), key(t=base + 1), key(t=base.reshape(3, 2)), key(t=base.double()),
+                key(t=base.clone().requires_grad_(True))}) == 5
