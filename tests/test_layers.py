@@ -178,13 +178,13 @@ def test_each_package_exports_a_short_hand_written_list(package):
 
 #: Rank of each unit (module or sub-package) of ``histostudy.study``: a unit imports only units of a
 #: lower rank. The section interface and statistics first; what notebooks 02 and 03 share; the
-#: sections of the learned stages; pose (04), then targeting (05) on it; the error budget (07) and the
-#: lab's data (06) on both.
+#: sections of the learned stages; pose (04) and the learned stages' training campaigns on them, then
+#: targeting (05) on pose; the error budget (07) and the lab's data (06) on both.
 STUDY_LAYERS = {
     "section": 0, "stats": 0,
     "held_out": 1, "projections": 1,
     "segmentation": 2, "orientation": 2,
-    "pose": 3,
+    "pose": 3, "campaign": 3,
     "targeting": 4,
     "budget": 5, "your_data": 5,
 }

@@ -1,13 +1,15 @@
 """The command line, `histostudy`: the study's subcommands (``study``: reproduce, train, report, publish,
-profiles) and the lab's (``lab``: pose, calibrate, target, listen, send, lab-dataset), with what they
-share with the terminal (``console``: results on stdout, talk on stderr). Exit status: 0 done, 1 done
-but refused, 2 bad input, 130/143 interrupted (README.md, "Command line")."""
+profiles; ``campaign``: the learned stages' training campaigns) and the lab's (``lab``: pose, calibrate,
+target, listen, send, lab-dataset), with what they share with the terminal (``console``: results on
+stdout, talk on stderr). Exit status: 0 done, 1 done but refused, 2 bad input, 130/143 interrupted
+(README.md, "Command line")."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
+from . import campaign as _campaign
 from . import lab as _lab
 from . import study as _study
 from .console import common_parent, configure_logging
@@ -31,6 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
                                                  "reproduced (the study) and run on a lab's own data")
     sub = parser.add_subparsers(dest="command", required=True)
     _study.add_parsers(sub, [common])
+    _campaign.add_parsers(sub, [common])
     _lab.add_parsers(sub, [common])
     return parser
 

@@ -1,0 +1,106 @@
+"""``histostudy campaign``: a learned stage's training campaign (docs/campaigns.md): ``run`` trains
+it some minutes more, from where it stands on this machine or from its committed weights, and
+measures it on held-out frames; ``ledger`` prints what every step ran and measured."""
+
+from __future__ import annotations
+
+import argparse
+import secrets
+import sys
+
+from .console import add_command, positive_int
+
+__all__ = ["add_parsers"]
+
+
+def _minutes(value: str) -> float:
+    try:
+        minutes = float(value)
+    except ValueError:
+        minutes = float("nan")
+    if not minutes > 0 or minutes == float("inf"):
+        raise argparse.ArgumentTypeError(f"minutes must be a finite number > 0, got {value!r}")
+    return minutes
+
+
+def add_parsers(sub, parents) -> None:
+    """Add ``histostudy campaign run|ledger``.
+
+    Args:
+        sub: the subparsers of the ``histostudy`` parser.
+        parents: parent parsers every subcommand takes.
+    """
+    campaign = add_command(
+        sub, "campaign", parents, help="train a learned stage over many runs and machines, keeping a ledger",
+        description="A training campaign (data/campaigns/<name>/campaign.toml) goes on run after run: each run "
+                    "resumes the campaign's checkpoint in this machine's cache, or restarts from its committed "
+                    "float16 weights, trains the minutes given, measures the network on held-out frames of a "
+                    "seed drawn afterwards and adds a line to data/campaigns/<name>/ledger.json.",
+        example="histostudy campaign run unet-w8-bank --minutes 60 --render-workers 2\n"
+                "histostudy campaign ledger unet-w8-bank")
+    actions = campaign.add_subparsers(dest="action", required=True, metavar="{run,ledger}")
+    run = actions.add_parser("run", parents=parents, help="train the campaign some minutes more and measure it")
+    run.add_argument("name", help="the campaign (a folder of data/campaigns)")
+    run.add_argument("--minutes", type=_minutes, required=True, help="training minutes of this run (wall)")
+    run.add_argument("--eval-seed", type=int, default=None,
+                     help="seed of the held-out frames (default: drawn from the operating system after training; "
+                          "the ledger records it)")
+    run.add_argument("--eval-frames", type=positive_int, default=None,
+                     help="held-out frames (default: the campaign's [evaluation] frames)")
+    run.add_argument("--render-workers", type=positive_int, default=1,
+                     help="processes that render missing frames before training and evaluating (default 1)")
+    run.add_argument("--keep", action="store_true",
+                     help="also write the network as the campaign's float16 restart weights (to commit), from which "
+                          "a machine without this one's cache goes on")
+    run.add_argument("--campaigns-dir", default=None, help="folder of the campaigns (default: data/campaigns)")
+    run.add_argument("--cache", default=None, help="frame cache and run folder (default: $HISTOSTUDY_CACHE or "
+                                                   "~/.cache/histostudy)")
+    run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    run.set_defaults(run=_run)
+    ledger = actions.add_parser("ledger", parents=parents, help="print the campaign's ledger as a Markdown table")
+    ledger.add_argument("name", help="the campaign (a folder of data/campaigns)")
+    ledger.add_argument("--campaigns-dir", default=None, help="folder of the campaigns (default: data/campaigns)")
+    ledger.set_defaults(run=_ledger)
+
+
+def _run(args) -> int:
+    from histostudy.study.campaign import load_campaign, run_campaign_step
+
+    try:
+        spec = load_campaign(args.name, args.campaigns_dir)
+        if args.eval_seed is not None and args.eval_seed < 0:
+            raise ValueError(f"--eval-seed must be an integer >= 0, got {args.eval_seed}")
+    except ValueError as exc:
+        print(f"histostudy campaign run: {exc}", file=sys.stderr)
+        return 2
+    # a seed nobody chose, drawn after the training: the held-out frames cannot have steered it
+    eval_seed = secrets.randbelow(2**31) if args.eval_seed is None else args.eval_seed
+    try:
+        entry = run_campaign_step(spec, args.minutes, eval_seed=eval_seed, cache_dir=args.cache,
+                                  eval_frames=args.eval_frames, render_workers=args.render_workers, keep=args.keep,
+                                  progress=not args.no_progress and not args.quiet)
+    except BlockingIOError as exc:
+        print(f"histostudy campaign run: {exc}", file=sys.stderr)
+        return 2
+    print(f"{spec.name}: run {entry['run']} ({entry['start']}): {entry['wall_minutes']:.1f} min, "
+          f"{entry['cpu_hours']:.2f} CPU-hours, steps {entry['steps_before']} -> {entry['steps_after']}; "
+          f"stopped: {entry['stopped']}")
+    print(f"ledger: {spec.ledger_path}")
+    return 0
+
+
+def _ledger(args) -> int:
+    from histostudy.study.campaign import ledger_table, load_campaign, read_ledger
+
+    try:
+        spec = load_campaign(args.name, args.campaigns_dir)
+        runs = read_ledger(spec.ledger_path)
+    except ValueError as exc:
+        print(f"histostudy campaign ledger: {exc}", file=sys.stderr)
+        return 2
+    print(f"# {spec.name}: {spec.description}\n")
+    if not runs:
+        print("no run yet")
+        return 0
+    print(ledger_table(runs).to_markdown(index=False, floatfmt=".2f"))
+    return 0
