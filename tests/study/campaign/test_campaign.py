@@ -128,3 +128,18 @@ def test_a_second_step_on_the_same_machine_is_refused_while_one_runs(tmp_path):
         with pytest.raises(BlockingIOError, match="another step is running"):
             run_campaign_step(spec, 1.0, eval_seed=1, cache_dir=tmp_path / "cache")
     assert json.loads(json.dumps(read_ledger(spec.ledger_path))) == []
+
+
+def test_the_committed_campaigns_load_and_pair_their_widths():
+    from histostudy.study.campaign import CAMPAIGNS_DIR
+
+    specs = [load_campaign(p.parent.name) for p in sorted(CAMPAIGNS_DIR.glob("*/campaign.toml"))]
+    assert {s.name for s in specs} >= {"unet-w8", "unet-w16", "vgg19-w125", "vgg19-w25"}
+    for spec in specs:
+        assert spec.description and spec.training.render.splat_device == "cpu"  # the bank: compiled frames
+        if spec.training.init_weights:
+            assert Path(spec.training.init_weights).is_file(), spec.name
+    # two widths of each network on one bank of frames (issue 55: accuracy against CPU-hours per width)
+    by_name = {s.name: s.training for s in specs}
+    for narrow, wide in (("unet-w8", "unet-w16"), ("vgg19-w125", "vgg19-w25")):
+        assert by_name[narrow].render == by_name[wide].render and by_name[narrow].n_train == by_name[wide].n_train
