@@ -4,6 +4,9 @@
 #   make lint        ruff over the package, tests, benchmarks and scripts (pyproject.toml, [tool.ruff])
 #   make test-avx2   the same suite with the libraries held to AVX2, as on a CPU without AVX-512,
 #                    AMX or native bfloat16 (docs/testing.md, "Every CPU")
+#   make dist-check  sdist and wheel built, the wheel installed in a fresh venv away from the checkout,
+#                    its networks, the README's lab block and notebook 01 run there (scripts/dist_check.py)
+#   make lab         JupyterLab on notebooks/ (as root, as in a container, with --allow-root)
 #
 # Torch is installed first as a CPU build, so that the package's own `torch` requirement is already
 # satisfied and pip does not pull gigabytes of CUDA packages. Choose another build with, e.g.
@@ -29,7 +32,7 @@ STAMP := $(VENV)/.histostudy-installed
 # ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2 NUMBA_CPU_NAME=haswell, and numpy's AVX-512 loops off)
 AVX2_ENV = $(shell $(BIN)/python -c "from histostudy.core import avx2_env_words; print(avx2_env_words())")
 
-.PHONY: all env reproduce lint test test-avx2 lab bench clean-reports
+.PHONY: all env reproduce lint test test-avx2 lab dist-check bench clean-reports
 
 all: test
 
@@ -57,8 +60,13 @@ test: $(STAMP)
 test-avx2: $(STAMP)
 	$(AVX2_ENV) $(PYTEST) $(PYTEST_ARGS)
 
+# JupyterLab refuses to start as root unless told --allow-root: added, and said, when root runs it
 lab: $(STAMP)
-	$(BIN)/jupyter lab --notebook-dir=notebooks
+	@if [ "$$(id -u)" = 0 ]; then echo "make lab: running as root (a container?): adding --allow-root, which JupyterLab requires then"; fi
+	$(BIN)/jupyter lab --notebook-dir=notebooks $(if $(filter 0,$(shell id -u)),--allow-root)
+
+dist-check: $(STAMP)
+	TORCH_SPEC="$(TORCH_SPEC)" TORCH_PIP_ARGS="$(TORCH_PIP_ARGS)" $(BIN)/python scripts/dist_check.py
 
 bench: $(STAMP)
 	for b in benchmarks/bench_*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

@@ -49,7 +49,8 @@ def add_parsers(sub, parents) -> None:
     rep.add_argument("--only", nargs="+", metavar="NAME",
                      help="run only these notebooks (stem, number such as 01, or name part)")
     rep.add_argument("--output", default="reports", help="output folder (default: reports)")
-    rep.add_argument("--notebooks", default=None, help="notebook folder (default: the repository's notebooks/)")
+    rep.add_argument("--notebooks", default=None,
+                     help="notebook folder (default: a checkout's notebooks/, else the ones packaged with histostudy)")
     rep.add_argument("--no-progress", action="store_true", help="no per-cell progress bar")
     rep.add_argument("--workers", type=_positive_int, default=1, metavar="N",
                      help="notebooks run at once, each in its own kernel (default: 1; the numbers do not depend on it)")
@@ -174,7 +175,10 @@ def _reproduce(args) -> int:
               file=sys.stderr)
         return 128 + signal.SIGINT
     except ValueError as exc:
-        print(f"histostudy reproduce: {exc}", file=sys.stderr)
+        message = str(exc)
+        if args.notebooks is not None:
+            message = message.replace("notebooks_dir", "--notebooks", 1)
+        print(f"histostudy reproduce: {message}", file=sys.stderr)
         return 2
     print(f"report: {run.report_md}\n        {run.report_html}")
     return 0

@@ -2,8 +2,9 @@
 (``checks``), atomic file writes (``io``), the seeding policy (``seeding``), provenance and the CPU
 it ran on (``provenance``, ``machine``), Monte-Carlo sweeps in this process or on dask
 (``sweeps``, their finished tasks kept by ``sweep_cache``), results computed once within a scope
-(``memo``), the time of a run by stage (``stage_profile``) and the world frame's name
-(``world_frame``). See docs/architecture.md, "Seeding and determinism".
+(``memo``), the time of a run by stage (``stage_profile``), the world frame's name
+(``world_frame``) and where the shipped networks and notebooks are (``shipped``). See
+docs/architecture.md, "Seeding and determinism".
 """
 
 from .checks import check_count, check_items, check_positive, check_unit_fraction, is_finite_real, is_real
@@ -12,6 +13,7 @@ from .machine import BENCHMARK_ISAS, avx2_env_words, avx2_restriction, machine_s
 from .memo import GeneratorMemo, MemoScope, value_digest
 from .provenance import git_commit, provenance
 from .seeding import as_generator
+from .shipped import shipped_dir
 from .stage_profile import STAGES, merge_stage_totals, stage, stage_delta, stage_totals
 from .sweep_cache import SWEEP_CACHE_ENV, files_digest, package_digest
 from .sweeps import SweepExecutor, SweepTaskError, resolve_executor, run_sweep
@@ -22,7 +24,7 @@ __all__ = [
     "check_count", "check_items", "check_positive", "check_unit_fraction", "is_finite_real", "is_real",
     # files, seeds, provenance
     "atomic_path", "atomic_write_json", "atomic_write_text", "to_jsonable", "as_generator", "git_commit",
-    "provenance",
+    "provenance", "shipped_dir",
     # the CPU
     "BENCHMARK_ISAS", "avx2_env_words", "avx2_restriction", "machine_summary", "run_restricted_to",
     # sweeps

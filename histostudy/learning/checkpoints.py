@@ -14,8 +14,7 @@ import torch
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 
-from histostudy.core import atomic_path, atomic_write_json, git_commit, to_jsonable
-from histostudy.core.provenance import REPO_ROOT
+from histostudy.core import atomic_path, atomic_write_json, git_commit, shipped_dir, to_jsonable
 
 from .nets import build_network
 
@@ -25,8 +24,9 @@ __all__ = ["MODELS_DIR", "load_checkpoint", "load_network", "load_shipped", "man
 FORMAT = "histostudy.checkpoint"
 VERSION = 1
 
-#: Where the shipped weights live (``data/models`` of the repository).
-MODELS_DIR = REPO_ROOT / "data" / "models"
+#: Where the shipped weights live: ``data/models`` of a checkout, ``histostudy/_data/models`` of a wheel
+#: (:func:`histostudy.core.shipped_dir`).
+MODELS_DIR = shipped_dir("models")
 
 
 def sha256_file(path) -> str:

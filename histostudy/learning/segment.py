@@ -166,8 +166,11 @@ class OracleSegmenter:
     @stage("segment")
     def segment(self, frame: Frame, rng: np.random.Generator | None = None) -> np.ndarray:
         if frame.labels is None:
+            from .checkpoints import MODELS_DIR
+
             raise ValueError(f"OracleSegmenter needs a frame with reference labels; the frame of view "
-                             f"{frame.view.name!r} has none (real frames need a learned segmenter)")
+                             f"{frame.view.name!r} has none (real frames need a learned segmenter: the shipped "
+                             f"U-Net, unet_standard.safetensors, is looked for in {MODELS_DIR})")
         labels = frame.labels.copy()
         if self.degradation is None:
             return labels

@@ -8,7 +8,14 @@ from __future__ import annotations
 import functools
 import warnings
 
-from histostudy.learning import OracleOrientation, OracleSegmenter, OrientationSource, Segmenter, default_segmenter
+from histostudy.learning import (
+    MODELS_DIR,
+    OracleOrientation,
+    OracleSegmenter,
+    OrientationSource,
+    Segmenter,
+    default_segmenter,
+)
 
 from .conic_orientation import default_orientation
 
@@ -44,14 +51,16 @@ def learned_stage_shortfalls(segmenter, orientation) -> list[str]:
     """
     reasons = []
     if segmenter is None:
-        reasons.append("no usable shipped U-Net")
+        reasons.append(f"no usable shipped U-Net (unet_standard.safetensors and its manifest, looked for in "
+                       f"{MODELS_DIR})")
     else:
         accuracy = _validation(segmenter).get("pixel_accuracy", float("nan"))
         if not accuracy >= LEARNED_STAGE_REQUIREMENTS["unet_min_pixel_accuracy"]:
             reasons.append(f"the shipped U-Net's validation pixel accuracy {accuracy:.3f} is below "
                            f"{LEARNED_STAGE_REQUIREMENTS['unet_min_pixel_accuracy']}")
     if orientation is None:
-        reasons.append("no usable shipped VGG19")
+        reasons.append(f"no usable shipped VGG19 (vgg19_standard.safetensors and its manifest, looked for in "
+                       f"{MODELS_DIR})")
     else:
         v = _validation(orientation)
         worst = max(v.get("azimuth_mae_deg", float("nan")), v.get("elevation_mae_deg", float("nan")))

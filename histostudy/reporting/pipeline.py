@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from histostudy.core import SWEEP_CACHE_ENV, atomic_path, provenance
+from histostudy.core import SWEEP_CACHE_ENV, atomic_path, provenance, shipped_dir
 from histostudy.core.provenance import REPO_ROOT
 
 from .interrupts import StudyInterrupted, remove_temporaries, signals_interrupt, stop_kernels
@@ -26,7 +26,9 @@ from .section_keys import SectionKey, changed_parts, estimate_seconds, kept_sect
 __all__ = ["NotebookFailed", "discover_notebooks", "run_study", "section_stages", "select_notebooks"]
 
 NOTEBOOK_PATTERN = re.compile(r"^\d\d_[A-Za-z0-9_]+\.ipynb$")
-DEFAULT_NOTEBOOK_DIR = REPO_ROOT / "notebooks"
+#: The study's notebooks: ``notebooks/`` of a checkout, the packaged copy of a wheel
+#: (:func:`histostudy.core.shipped_dir`).
+DEFAULT_NOTEBOOK_DIR = shipped_dir("notebooks")
 _KERNEL_NAME = "histostudy-running-python"
 #: The folder of a run's output that keeps its sweeps' finished tasks (:mod:`histostudy.core.sweep_cache`).
 SWEEP_CACHE_FOLDER = ".sweep-cache"
@@ -57,7 +59,8 @@ def discover_notebooks(notebooks_dir: str | os.PathLike = DEFAULT_NOTEBOOK_DIR) 
     """The study notebooks ``NN_name.ipynb`` of a folder, in order.
 
     Args:
-        notebooks_dir: the folder (default: the repository's ``notebooks/``).
+        notebooks_dir: the folder (default :data:`DEFAULT_NOTEBOOK_DIR`: a checkout's ``notebooks/``,
+            else the copy packaged in the wheel).
 
     Returns:
         Their paths, sorted by name.
@@ -67,7 +70,8 @@ def discover_notebooks(notebooks_dir: str | os.PathLike = DEFAULT_NOTEBOOK_DIR) 
     """
     folder = Path(notebooks_dir)
     if not folder.is_dir():
-        raise ValueError(f"notebooks_dir {str(folder)!r} is not a folder (expected the repository's notebooks/)")
+        raise ValueError(f"notebooks_dir {str(folder)!r} is not a folder (expected a folder of the study's "
+                         f"NN_name.ipynb notebooks, such as a checkout's notebooks/)")
     found = sorted(p for p in folder.iterdir() if NOTEBOOK_PATTERN.match(p.name))
     if not found:
         raise ValueError(f"notebooks_dir {str(folder)!r} holds no notebook named NN_name.ipynb")
@@ -128,8 +132,8 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
         output_dir: the run's folder (created); ``run.json``, ``REPORT.md``, ``report.html`` and one
             folder per section go there.
         only: the notebooks to run, each by full stem, number (``"04"``) or name part; None runs all.
-        notebooks_dir: the folder of the ``NN_name.ipynb`` notebooks (default: the repository's
-            ``notebooks/``).
+        notebooks_dir: the folder of the ``NN_name.ipynb`` notebooks (default :data:`DEFAULT_NOTEBOOK_DIR`:
+            a checkout's ``notebooks/``, else the copy packaged in the wheel; the log names it).
         progress: show papermill's progress bar per notebook.
         log: where the run's lines go (default: stderr).
         workers: how many notebooks run at once, each in its own kernel (1: one after the other).
@@ -155,7 +159,8 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be a positive integer (notebooks run at once), got {workers!r}")
     prof = profile if isinstance(profile, Profile) else load_profile(profile)
-    found = discover_notebooks(notebooks_dir or DEFAULT_NOTEBOOK_DIR)
+    notebooks_dir = Path(notebooks_dir or DEFAULT_NOTEBOOK_DIR)
+    found = discover_notebooks(notebooks_dir)
     # Against every notebook of the folder, not the --only subset: a table for a notebook left out
     # of this run is still a valid table, and a misspelt one is wrong whatever runs.
     validate_profile(prof, found)
@@ -163,10 +168,12 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
     out = Path(output_dir).resolve()
     (out / "notebooks").mkdir(parents=True, exist_ok=True)
     log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
+    log(f"notebooks: {notebooks_dir.resolve()}")
     record = {
         "profile": prof.name,
         "profile_source": prof.source,
         "seed": prof.seed,
+        "notebooks_dir": str(notebooks_dir.resolve()),
         "provenance": provenance(),
         "notebooks": [{"name": p.stem, "status": "pending"} for p in notebooks],
         "failure": None,

@@ -60,6 +60,7 @@ def _relative_run(run: dict) -> dict:
         if isinstance(entry.get("parameters"), dict) and "output_dir" in entry["parameters"]:
             entry["parameters"]["output_dir"] = entry["name"]
     out.get("provenance", {}).get("machine", {}).pop("executable", None)
+    out.pop("notebooks_dir", None)  # a path of the machine that ran it
     if out.get("failure"):
         out["failure"]["executed_notebook"] = None
     return out

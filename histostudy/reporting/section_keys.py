@@ -12,8 +12,8 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from histostudy.core import atomic_write_json, files_digest, package_digest
-from histostudy.core.provenance import REPO_ROOT, git_commit, package_versions
+from histostudy.core import atomic_write_json, files_digest, package_digest, shipped_dir
+from histostudy.core.provenance import git_commit, package_versions
 
 __all__ = ["KEY_FILE", "SectionKey", "changed_parts", "code_digest", "estimate_seconds", "kept_section", "record_key",
            "remove_key", "section_key", "stored_key", "weights_digest"]
@@ -44,7 +44,7 @@ def code_digest(package: str | os.PathLike | None = None) -> str:
 
 def weights_digest(models_dir: str | os.PathLike | None = None) -> str:
     """SHA-256 of the shipped networks' files (``data/models``); of nothing where there are none."""
-    folder = Path(models_dir) if models_dir is not None else REPO_ROOT / "data" / "models"
+    folder = Path(models_dir) if models_dir is not None else shipped_dir("models")
     files = [p for p in folder.rglob("*") if p.is_file()] if folder.is_dir() else []
     return files_digest(files, folder)
 
