@@ -94,8 +94,8 @@ def run_campaign_step(spec: CampaignSpec, minutes: float, *, eval_seed: int, cac
 
     Raises:
         ValueError: ``minutes``, ``eval_seed``, ``eval_frames`` or ``render_workers`` out of range;
-            ``minutes`` ended before the campaign's first epoch; a run folder that holds another
-            campaign's run.
+            ``minutes`` ended before the campaign's first epoch; a run folder whose run was started
+            from another definition of the campaign.
         BlockingIOError: another step of this campaign is running on this machine.
     """
     check_positive(minutes, "minutes")
@@ -128,8 +128,15 @@ def _step(spec, minutes, eval_seed, cache_dir, run_dir, eval_frames, render_work
                 rendered += frames.prerender(n, workers=render_workers)
             elif cfg.cache:
                 rendered += sum(not frames.cached(i) for i in range(n))  # the loop renders these itself
-    result = train(cfg, run_dir, seed=spec.seed, profile=f"campaign {spec.name}", resume=True, progress=progress,
-                   log=log, cache_dir=cache_dir)
+    try:
+        result = train(cfg, run_dir, seed=spec.seed, profile=f"campaign {spec.name}", resume=True,
+                       progress=progress, log=log, cache_dir=cache_dir)
+    except ValueError as exc:
+        if "another configuration or seed" not in str(exc):
+            raise
+        raise ValueError(f"campaign {spec.name!r}: its definition ({spec.folder / 'campaign.toml'}) changed since "
+                         f"the run in {run_dir} started; a changed campaign is a new one (copy it under a new "
+                         f"name), or delete {run_dir} to restart this one from its committed weights") from None
     if not result.best.is_file():
         raise ValueError(f"minutes {minutes:g} ended before the campaign's first epoch did (nothing to measure "
                          f"or record); give the step more minutes")

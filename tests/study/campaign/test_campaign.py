@@ -143,3 +143,16 @@ def test_the_committed_campaigns_load_and_pair_their_widths():
     by_name = {s.name: s.training for s in specs}
     for narrow, wide in (("unet-w8", "unet-w16"), ("vgg19-w125", "vgg19-w25")):
         assert by_name[narrow].render == by_name[wide].render and by_name[narrow].n_train == by_name[wide].n_train
+
+
+def test_a_run_started_from_another_definition_is_not_resumed(tmp_path):
+    spec = load_campaign("tiny", _campaign(tmp_path / "campaigns"))
+    run_dir = campaign_run_dir(spec, tmp_path / "cache")
+    run_dir.mkdir(parents=True)
+    # what a run of the definition before an edit left: its configuration had 9 training frames
+    (run_dir / "state.json").write_text(json.dumps({"config": {"task": "segmentation", "n_train": 9}, "seed": 7,
+                                                    "profile": "campaign tiny", "state": {"elapsed_s": 0.0,
+                                                                                          "steps": 0}}))
+    with pytest.raises(ValueError, match="its definition .* changed since the run in .* started"):
+        run_campaign_step(spec, 1.0, eval_seed=1, cache_dir=tmp_path / "cache", log=lambda m: None)
+    assert not spec.ledger_path.exists()
