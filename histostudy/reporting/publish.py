@@ -13,6 +13,7 @@ from pathlib import Path
 from histostudy.core import atomic_write_json, atomic_write_text
 
 from .headline import headline_markdown
+from .pages import MAX_TABLE_ROWS, SECTION_PAGE, anchors_of, relink
 from .pipeline import discover_notebooks
 from .profiles import Profile, load_profile
 from .report import RESULTS_FILE, RUN_FILE, build_report, load_section
@@ -75,13 +76,23 @@ def _copy_section(source: Path, target: Path) -> None:
             shutil.copyfile(path, dest)  # a new file: mode 0o666 less the umask, as open() makes it
 
 
+def _drop_long_table_markdown(folder: Path) -> None:
+    """Remove the Markdown copy of each table longer than :data:`~.pages.MAX_TABLE_ROWS` rows: its
+    page shows it cut, report.html whole, and its CSV keeps it (``histostudy report`` renders it
+    from there), so that no published Markdown file is a table of hundreds of lines."""
+    for table in folder.glob("*/tables/*.md"):
+        if table.with_suffix(".csv").is_file() and table.read_text(encoding="utf-8").count("\n") > MAX_TABLE_ROWS + 2:
+            table.unlink()
+
+
 def publish_run(run_dir: str | os.PathLike, destination: str | os.PathLike, *, allow_partial: bool = False,
                 notebooks_dir: str | os.PathLike | None = None, max_html_bytes: int = 10 * 1024 * 1024) -> Path:
     """Publish the finished run of ``run_dir`` into ``destination``, replaced whole, never half-written.
 
     Copies what a reader needs: ``run.json`` (its paths made relative), each section's
     ``results.json``, ``section_key.json``, tables and figures (up to 4 MiB a file), and rebuilds
-    ``REPORT.md`` and ``report.html`` there. Executed notebooks and caches stay behind.
+    ``REPORT.md``, the sections' pages and ``report.html`` there; a table longer than a page shows
+    keeps its CSV only. Executed notebooks and caches stay behind.
 
     Args:
         run_dir: a ``histostudy reproduce`` output folder.
@@ -120,6 +131,7 @@ def publish_run(run_dir: str | os.PathLike, destination: str | os.PathLike, *, a
                                      key=lambda entry: entry["name"])
         atomic_write_json(staging / RUN_FILE, record)
         build_report(staging, record)
+        _drop_long_table_markdown(staging)
         html = staging / "report.html"
         html_bytes = html.stat().st_size
         if html_bytes > max_html_bytes:
@@ -183,7 +195,7 @@ def readme_headline(published_dir: str | os.PathLike, link_prefix: str) -> str:
     Args:
         published_dir: a folder :func:`publish_run` wrote.
         link_prefix: the path of the published ``REPORT.md`` as seen from the README; the table's
-            ``#anchor`` links are made to point into it.
+            links are made to point into it, or into the section pages beside it.
 
     Returns:
         The table's Markdown, ending with a newline.
@@ -195,8 +207,14 @@ def readme_headline(published_dir: str | os.PathLike, link_prefix: str) -> str:
     run = _load_run(folder)
     sections = {n["name"]: load_section(folder / n["name"]) for n in run.get("notebooks", [])
                 if (folder / n["name"] / RESULTS_FILE).is_file()}
-    lines = headline_markdown(results_coverage(sections, run))
-    return re.sub(r"\]\(#", f"]({link_prefix}#", "\n".join(lines).rstrip()) + "\n"
+    text = "\n".join(headline_markdown(results_coverage(sections, run))).rstrip()
+    # links to a section's anchors go to its page, as in the published REPORT.md
+    page_of_anchor = {anchor: f"{page.parent.name}/{SECTION_PAGE}" for page in sorted(folder.glob(f"*/{SECTION_PAGE}"))
+                      for anchor in anchors_of(page.read_text(encoding="utf-8"))}
+    text = relink(text, "REPORT.md", page_of_anchor)
+    base = link_prefix.rsplit("/", 1)[0] + "/" if "/" in link_prefix else ""
+    text = re.sub(r"\]\((?![a-z]+:|/|#)", f"]({base}", text)  # the pages, seen from the README
+    return re.sub(r"\]\(#", f"]({link_prefix}#", text) + "\n"
 
 
 def replace_readme_headline(readme: str | os.PathLike, published_dir: str | os.PathLike, link_prefix: str) -> Path:

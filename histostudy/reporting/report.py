@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from histostudy.core import (
     atomic_path,
@@ -26,6 +27,7 @@ from histostudy.core import (
 from .agreement import FAR_OFF, NOT_JUDGED, judge
 from .headline import SOFTWARE_ANCHOR, contents_markdown, headline_markdown, profile_banner, run_facts
 from .markdown import dataframe_markdown, md_code, md_escape, md_table
+from .pages import SECTION_PAGE, anchors_of, relink, shorten_table
 from .paper import PAPER, paper_value
 from .profiles import load_profile
 from .report_html import render_html
@@ -335,12 +337,15 @@ RUN_ANCHOR = "this-run"
 
 
 def build_report(output_dir, run: dict | None = None) -> tuple[Path, Path]:
-    """Assemble ``REPORT.md`` and the self-contained ``report.html`` in ``output_dir``.
+    """Assemble ``REPORT.md``, the sections' pages and the self-contained ``report.html`` in ``output_dir``.
 
-    The report opens with the profile's banner, the paper's key results beside their reproduction
-    and the contents; then each section in the run's order (one whose notebook did not finish is
-    named with its status), every paper result with its reproduced twin and the software versions.
-    ``REPORT.md`` links its figures relatively; ``report.html`` embeds them.
+    ``REPORT.md`` is the index: the profile's banner, the paper's key results beside their
+    reproduction, the contents, this run's facts, every paper result with its reproduced twin and the
+    software versions. Each finished section has its page, ``<section>/README.md``
+    (:mod:`~.pages`), tables longer than :data:`~.pages.MAX_TABLE_ROWS` rows cut to their first rows
+    there; a section whose notebook did not finish is named in the index with its status.
+    ``report.html`` holds all of it on one page, every table whole and the figures embedded; the
+    Markdown links its figures relatively.
 
     Args:
         output_dir: the run's folder, holding one folder per section.
@@ -358,46 +363,68 @@ def build_report(output_dir, run: dict | None = None) -> tuple[Path, Path]:
     if run is None:
         with open(out / RUN_FILE, encoding="utf-8") as fh:
             run = json.load(fh)
-    md = _report_markdown(out, run)
-    md_path = atomic_write_text(out / "REPORT.md", md)
-    page = render_html(md, out, title=f"histostudy report ({run.get('profile', '')})")
+    page = render_html(_report_markdown(out, run, paged=False), out,
+                       title=f"histostudy report ({run.get('profile', '')})")
     html_path = atomic_write_text(out / "report.html", page)
+    index, pages = _report_pages(out, run)
+    for name, text in pages.items():
+        atomic_write_text(out / name / SECTION_PAGE, text)
+    md_path = atomic_write_text(out / "REPORT.md", index)
     return md_path, html_path
 
 
-def _report_markdown(out: Path, run: dict) -> str:
-    sections, body, contents = {}, [], []
+def _report_markdown(out: Path, run: dict, *, paged: bool) -> str | tuple[str, dict[str, str]]:
+    """The whole report as one Markdown text (``paged=False``: report.html's), or ``(index, pages)``:
+    REPORT.md's text and each finished section's page text, links pointed at the pages."""
+    sections, blocks, contents = {}, {}, []
     for nb in run.get("notebooks", []):
         name = nb["name"]
         section_dir = out / name
         # a section that did not finish in this run may hold an earlier run's results: not shown
         if nb.get("status", "ok") != "ok" or not (section_dir / RESULTS_FILE).is_file():
             title = name
-            body += [f'<a id="{section_anchor(name)}"></a>', "", f"## {md_escape(name)}", "",
-                     f"*No results: status {md_escape(nb.get('status', 'not run'))}.*", ""]
+            blocks[name] = (False, [f'<a id="{section_anchor(name)}"></a>', "", f"## {md_escape(name)}", "",
+                                    f"*No results: status {md_escape(nb.get('status', 'not run'))}.*", ""])
         else:
             sections[name] = load_section(section_dir)
             title = sections[name].get("title", name)
-            body += _section_markdown(name, sections[name], nb, section_dir)
+            blocks[name] = (True, _section_markdown(name, sections[name], nb, section_dir, paged=paged))
         contents.append((title, section_anchor(name)))
     coverage = results_coverage(sections, run)
     versions = run.get("provenance", {}).get("versions", {})
-    lines = [f"# {md_escape(REPORT_TITLE)}", ""]
-    lines += profile_banner(run, _profile_description(run))
-    lines += _failure_banner(run.get("failure"))
-    lines += headline_markdown(coverage)
-    lines += contents_markdown([("This run", RUN_ANCHOR), *contents, (TWINS_HEADING, TWINS_ANCHOR),
-                                *([("Software", SOFTWARE_ANCHOR)] if versions else [])])
-    lines += [f'<a id="{RUN_ANCHOR}"></a>', "", "## This run", "",
-              "Wagner et al., *An X-ray C-arm Guided Automatic Targeting System for Histotripsy*, IEEE TBME "
-              "70(2):592-602, 2023, reproduced on synthetic data: each section sets its numbers beside the "
-              "paper's and names what stands in for the lab.", "", *run_facts(run)]
-    lines += body
-    lines += twins_markdown(coverage)
+    head = [f"# {md_escape(REPORT_TITLE)}", ""]
+    head += profile_banner(run, _profile_description(run))
+    head += _failure_banner(run.get("failure"))
+    head += headline_markdown(coverage)
+    head += contents_markdown([("This run", RUN_ANCHOR), *contents, (TWINS_HEADING, TWINS_ANCHOR),
+                               *([("Software", SOFTWARE_ANCHOR)] if versions else [])])
+    this_run = [f'<a id="{RUN_ANCHOR}"></a>', "", "## This run", "",
+                "Wagner et al., *An X-ray C-arm Guided Automatic Targeting System for Histotripsy*, IEEE TBME "
+                "70(2):592-602, 2023, reproduced on synthetic data: each section sets its numbers beside the "
+                "paper's and names what stands in for the lab.", "", *run_facts(run)]
+    tail = twins_markdown(coverage)
     if versions:
-        lines += [f'<a id="{SOFTWARE_ANCHOR}"></a>', "", "## Software", "",
-                  md_table(["package", "version"], versions.items()), ""]
-    return "\n".join(lines)
+        tail += [f'<a id="{SOFTWARE_ANCHOR}"></a>', "", "## Software", "",
+                 md_table(["package", "version"], versions.items()), ""]
+    if not paged:
+        return "\n".join(head + this_run + [line for _, block in blocks.values() for line in block] + tail)
+    # the index keeps each section's old anchors on its contents line, so that links made before
+    # the report had pages still land beside the link to the page
+    aliases = [f'<a id="{section_anchor(n)}"></a><a id="{stand_ins_anchor(n)}"></a>' for n, (has, _) in blocks.items()
+               if has]
+    index_lines = head + ["<!-- sections' earlier anchors -->", " ".join(aliases), ""] if aliases else list(head)
+    index_lines += this_run + [line for has, block in blocks.values() if not has for line in block] + tail
+    pages = {name: "\n".join(["[← the report](../REPORT.md)", "", *block]) for name, (has, block) in blocks.items()
+             if has}
+    page_of_anchor = {anchor: "REPORT.md" for anchor in anchors_of("\n".join(index_lines))}
+    for name, text in pages.items():
+        page_of_anchor.update({anchor: f"{name}/{SECTION_PAGE}" for anchor in anchors_of(text)})
+    index = relink("\n".join(index_lines), "REPORT.md", page_of_anchor)
+    return index, {name: relink(text, f"{name}/{SECTION_PAGE}", page_of_anchor) + "\n" for name, text in pages.items()}
+
+
+def _report_pages(out: Path, run: dict) -> tuple[str, dict[str, str]]:
+    return _report_markdown(out, run, paged=True)
 
 
 def _profile_description(run: dict) -> str:
@@ -422,7 +449,9 @@ def _failure_banner(failure: dict | None) -> list[str]:
     return ["<!-- run failure -->", "", "> [!CAUTION]", f"> {text}", ""]
 
 
-def _section_markdown(name: str, res: dict, nb: dict, section_dir: Path) -> list[str]:
+def _section_markdown(name: str, res: dict, nb: dict, section_dir: Path, *, paged: bool) -> list[str]:
+    """A section's Markdown: on its own page (``paged``: figures linked from the section's folder,
+    long tables cut) or in the whole report (figures linked from the run's folder, tables whole)."""
     lines = [f'<a id="{section_anchor(name)}"></a>', "", f"## {md_escape(res.get('title', name))}", ""]
     lines += [_section_facts(name, res, nb), ""]
     for para in res.get("text", []):
@@ -433,10 +462,17 @@ def _section_markdown(name: str, res: dict, nb: dict, section_dir: Path) -> list
                  c.get("note", "")] for c in comps]
         lines += [md_table(["Quantity", "This study", "Paper", "Difference", "Source", "Note"], rows), ""]
     for t in res.get("tables", []):
-        lines += [f"**{md_escape(t['caption'] or t['name'])}**", "",
-                  _read_text(section_dir / t["path"]) or f"(table {md_code(t['path'])} missing)", ""]
+        text = _read_text(section_dir / t["path"])
+        csv = section_dir / Path(t["path"]).with_suffix(".csv")
+        if text is None and csv.is_file():  # a published long table keeps its CSV only
+            text = dataframe_markdown(pd.read_csv(csv))
+        if text is not None and paged:
+            text = shorten_table(text, str(Path(t["path"]).with_suffix(".csv").as_posix()))
+        missing = f"(table {md_code(t['path'])} missing)"
+        lines += [f"**{md_escape(t['caption'] or t['name'])}**", "", text or missing, ""]
+    folder = "" if paged else f"{name}/"
     for f in res.get("figures", []):
-        lines += [f"![{md_escape(f['caption'] or f['name'])}]({name}/{f['path']})", ""]
+        lines += [f"![{md_escape(f['caption'] or f['name'])}]({folder}{f['path']})", ""]
         if f["caption"]:
             lines += [f"*{md_escape(f['caption'])}*", ""]
     stand_ins = res.get("stand_ins", [])

@@ -5,6 +5,7 @@ import json
 
 import nbformat
 import pytest
+from report_text import report_text
 
 from histostudy.cli import main
 from histostudy.reporting import NotebookFailed, run_study
@@ -78,7 +79,7 @@ def test_run_writes_sections_executed_notebooks_and_report(toy_notebooks, toy_pr
         res = json.loads((out / name / "results.json").read_text())
         assert res["profile"] == "toy" and res["seed"] == run.record["seed"] == 3
         assert (out / "notebooks" / f"{name}.ipynb").is_file()
-    md = run.report_md.read_text()
+    md = report_text(out)
     assert "## Toy 01_first" in md and "## Toy 02_second" in md and "| Splats | 16 | 16 |" in md
     assert "| Splats | 32 | 16 |" in md  # 02_second's own table wins over [common]
     assert run.report_html.is_file()
@@ -273,7 +274,7 @@ def test_a_rerun_keeps_finished_sections_and_redoes_what_changed(toy_notebooks, 
     assert again.record["notebooks"][0]["seconds"] == json.loads((out / "01_first" / KEY_FILE).read_text())["seconds"]
     kept_stages = json.loads((out / "01_first" / "results.json").read_text())["stages"]
     assert again.record["notebooks"][0]["stages"] == kept_stages and "other" in again.record["notebooks"][0]
-    assert "kept from an earlier run" in again.report_md.read_text()
+    assert "kept from an earlier run" in report_text(out)
 
     # a parameter of 02 changes: 02 runs, 01 is kept; the log says why and how long the last run took
     toy_profile.write_text(toy_profile.read_text().replace("factor = 2", "factor = 5"))

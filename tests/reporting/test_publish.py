@@ -4,6 +4,7 @@ repository's own published runs checked against today's profiles."""
 
 import json
 import os
+import re
 
 import pytest
 
@@ -98,6 +99,8 @@ def test_the_readme_headline_links_into_the_published_report(folder, tmp_path):
     publish_run(folder.root, tmp_path / "pub", allow_partial=True)
     block = readme_headline(tmp_path / "pub", "docs/results/smoke/REPORT.md")
     assert "](docs/results/smoke/REPORT.md#" in block and "](#" not in block
+    # a section's result links to its page beside the published REPORT.md
+    assert re.search(r"\]\(docs/results/smoke/\d\d_\w+/README\.md#\d\d_\w+\)", block)
     assert "| Paper result |" in block
     readme = tmp_path / "README.md"
     readme.write_text(f"# x\n\n{README_HEADLINE_BEGIN}\nold\n{README_HEADLINE_END}\n\nrest\n")
@@ -135,3 +138,39 @@ def test_the_readme_shows_the_published_headline(published):
     assert block in (REPO_ROOT / "README.md").read_text(), (
         f"README.md's headline differs from {published.relative_to(REPO_ROOT)}: "
         "histostudy publish ... --readme README.md")
+
+
+def test_a_published_long_table_keeps_its_csv_and_its_page_shows_it_cut(folder, tmp_path):
+    import pandas as pd
+
+    from histostudy.reporting import build_report
+    from histostudy.reporting.pages import MAX_TABLE_ROWS
+
+    long = pd.DataFrame({"frame": range(3 * MAX_TABLE_ROWS), "error_mm": 0.25})
+    folder.section("02_segmentation", compare=[folder.paper_comparison("seg.global_accuracy")],
+                   tables=[("per_frame", long, "Every frame"), ("short", long.head(5), "Five frames")])
+    prof = load_profile("smoke")
+    run = folder.run("smoke", parameters={"02_segmentation": prof.parameters_for("02_segmentation")})
+    (folder.root / "run.json").write_text(json.dumps(run))
+    publish_run(folder.root, tmp_path / "pub", allow_partial=True)
+    tables = tmp_path / "pub" / "02_segmentation" / "tables"
+    assert sorted(p.name for p in tables.iterdir()) == ["per_frame.csv", "short.csv", "short.md"]
+    page = (tmp_path / "pub" / "02_segmentation" / "README.md").read_text()
+    assert f"more rows of {3 * MAX_TABLE_ROWS}: the whole table is [per_frame.csv](tables/per_frame.csv)" in page
+    assert all(len(p.read_text().splitlines()) <= 400 for p in (tmp_path / "pub").rglob("*.md"))
+    # rebuilt from the published folder, the long table comes from its CSV: cut on the page, whole in the html
+    build_report(tmp_path / "pub")
+    assert (tmp_path / "pub" / "02_segmentation" / "README.md").read_text().count("\n| ") == page.count("\n| ")
+    assert f'text-align: right;">{3 * MAX_TABLE_ROWS - 1}</td>' in (tmp_path / "pub" / "report.html").read_text()
+
+
+@pytest.mark.parametrize("published", sorted(p for p in PUBLISHED.glob("*") if (p / "run.json").is_file()),
+                         ids=lambda p: p.name)
+def test_a_published_report_reads_in_pages(published):
+    index = (published / "REPORT.md").read_text(encoding="utf-8")
+    assert len(index.splitlines()) <= 300, "REPORT.md is an index: headline, contents, this run, twins"
+    long = {p.relative_to(published).as_posix(): n for p in published.rglob("*.md")
+            if (n := len(p.read_text(encoding="utf-8").splitlines())) > 400}
+    assert not long, f"published Markdown files over 400 lines: {long}"
+    run = json.loads((published / "run.json").read_text())
+    assert all((published / n["name"] / "README.md").is_file() for n in run["notebooks"] if n["status"] == "ok")

@@ -7,6 +7,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 import pytest
+from report_text import report_text
 
 from histostudy.core import stage
 from histostudy.reporting import SectionWriter, build_report
@@ -85,12 +86,13 @@ def test_report_is_assembled_from_results_files(tmp_path):
                          {"name": "02_missing", "status": "pending"}],
            "failure": None}
     md_path, html_path = build_report(tmp_path, run)
-    md = md_path.read_text()
-    assert "## Demo section" in md and "| Cap radius | 138.70 mm | 138.7 mm |" in md
-    assert "![A line](01_demo/figures/line.png)" in md
-    assert "porcine projections → procedural abdomen" in md
-    assert "| class   |   n |" in md or "| class" in md
-    assert "02_missing" in md and "No results" in md
+    index, page = md_path.read_text(), (tmp_path / "01_demo" / "README.md").read_text()
+    assert "## Demo section" in page and "| Cap radius | 138.70 mm | 138.7 mm |" in page
+    assert "![A line](figures/line.png)" in page  # the page sits in the section's folder
+    assert "porcine projections → procedural abdomen" in page
+    assert "| class" in page and page.startswith("[← the report](../REPORT.md)")
+    assert "## Demo section" not in index and "- [Demo section](01_demo/README.md#01_demo)" in index
+    assert "02_missing" in index and "No results" in index and not (tmp_path / "02_missing").exists()
     html = html_path.read_text()
     assert '<table class="cards">' in html and "data:image/png;base64," in html
     assert "01_demo/figures/line.png" not in html  # embedded, not linked
@@ -102,7 +104,8 @@ def test_each_section_names_the_renderer_that_splatted_its_frames(tmp_path):
         SectionWriter(tmp_path / name, name, name, profile="smoke", seed=3, parameters=parameters).save()
     run = {"profile": "smoke", "seed": 3, "notebooks": [{"name": n, "status": "ok", "output_dir": str(tmp_path / n)}
                                                         for n in ("01_cpu", "02_numpy", "03_none")]}
-    md = build_report(tmp_path, run)[0].read_text()
+    build_report(tmp_path, run)
+    md = report_text(tmp_path)
     first_lines = {n: next(line for line in md.splitlines() if line.startswith(f"*Notebook `{n}`"))
                    for n in ("01_cpu", "02_numpy", "03_none")}
     assert "frames splatted by the compiled kernel (CPU)" in first_lines["01_cpu"]
@@ -141,8 +144,9 @@ def test_report_lists_every_paper_result_and_where_it_is_reproduced(tmp_path):
     assert md.count("The paper's results and their reproduced twins") == 2  # its heading, and the link in the headline
     assert md.count("## The paper's results and their reproduced twins") == 1
     assert f"**2 of {len(expected)}** have a twin in this run" in md
+    page = "04_pose/README.md#04_pose"
     assert ("| centre MAE, overall (Table II) | 1.4 ± 0.5 mm | 0.60 mm | -0.80 mm | **differs** (1.6 SD below); see "
-            "[04](#04_pose) | [04_pose](#04_pose) | `table2.center_mae.overall` |") in md
+            f"[04]({page}) | [04_pose]({page}) | `table2.center_mae.overall` |") in md
     assert ("| targeting error, Euclidean (§III, abstract 1.4 ± 0.5) | 1.64 ± 0.34 mm | — | — | "
             "not in this run: notebook 05 was not run |  | `targeting.euclidean` |") in md
 
@@ -154,14 +158,19 @@ def test_first_screen_comes_first_and_every_section_is_in_the_contents(tmp_path)
                          {"name": "06_your_data", "status": "pending"}]}
     md = build_report(tmp_path, run)[0].read_text()
     order = ["> [!WARNING]", "| Paper result | Paper | This run | Difference | Status |", "## Contents",
-             "## This run", "## Demo section", "## 06_your_data", "## The paper's results", "## Software"]
+             "## This run", "## 06_your_data", "## The paper's results", "## Software"]
     assert all(marker in md for marker in order), [marker for marker in order if marker not in md]
     positions = [md.index(marker) for marker in order]
     assert positions == sorted(positions)
-    assert "- [Demo section](#01_demo)" in md and "- [06_your_data](#06_your_data)" in md
-    assert '<a id="01_demo-stand-ins"></a>' in md
+    assert "- [Demo section](01_demo/README.md#01_demo)" in md and "- [06_your_data](#06_your_data)" in md
+    # links made before the report had pages land on the index, beside the link to the page
+    assert '<a id="01_demo"></a><a id="01_demo-stand-ins"></a>' in md
+    page = (tmp_path / "01_demo" / "README.md").read_text()
+    assert '<a id="01_demo-stand-ins"></a>' in page and "## Demo section" in page
     # a large gap carries its flag in the section's own table too
-    assert "| Centre error | 0.41 ± 0.20 mm | 1.38 ± 0.54 mm | -0.97 mm, differs (1.8 SD below) |" in md
+    assert "| Centre error | 0.41 ± 0.20 mm | 1.38 ± 0.54 mm | -0.97 mm, differs (1.8 SD below) |" in page
+    # the whole report, every section on one page, is report.html's
+    assert "Demo section" in (tmp_path / "report.html").read_text()
 
 
 def test_tables_with_pipes_in_their_names_stay_tables(tmp_path):
@@ -174,3 +183,21 @@ def test_tables_with_pipes_in_their_names_stay_tables(tmp_path):
            "notebooks": [{"name": "04_pose", "status": "ok", "seconds": 1.0, "output_dir": str(tmp_path / "04_pose")}]}
     html = build_report(tmp_path, run)[1].read_text()
     assert ">centre |depth|</th>" in html and "<strong>Centre |error|</strong>" in html
+
+
+def test_a_long_table_is_cut_on_its_page_and_whole_in_the_csv_and_report_html(tmp_path):
+    from histostudy.reporting.pages import MAX_TABLE_ROWS
+
+    w = SectionWriter(tmp_path / "03_long", "03_long", "Long", profile="smoke", seed=3)
+    w.table("frames", pd.DataFrame({"frame": range(MAX_TABLE_ROWS + 5), "error": 0.5}), "Every frame")
+    w.table("short", pd.DataFrame({"frame": range(MAX_TABLE_ROWS)}), "Forty frames")
+    w.save()
+    run = {"profile": "smoke", "seed": 3, "provenance": {}, "failure": None,
+           "notebooks": [{"name": "03_long", "status": "ok", "seconds": 1.0, "output_dir": str(tmp_path / "03_long")}]}
+    _, html = build_report(tmp_path, run)
+    page = (tmp_path / "03_long" / "README.md").read_text()
+    assert f"*25 more rows of {MAX_TABLE_ROWS + 5}: the whole table is [frames.csv](tables/frames.csv)" in page
+    assert "| 19 |" in page and "| 20 |" not in page.split("Forty frames")[0]  # the first 20 rows of 45
+    assert page.split("Forty frames")[1].count("\n|") == MAX_TABLE_ROWS + 2  # 40 rows: whole
+    assert f'text-align: right;">{MAX_TABLE_ROWS + 4}</td>' in html.read_text()  # the last row, in report.html
+    assert len(pd.read_csv(tmp_path / "03_long" / "tables" / "frames.csv")) == MAX_TABLE_ROWS + 5

@@ -101,8 +101,8 @@ def test_report_page_is_self_contained_and_well_formed(folder):
     assert 'class="alert alert-warning"' in page and 'class="alert alert-caution"' in page
     assert "centre |depth|" in page and "a &lt; b &amp; c" in page and "ValueError: a | b &lt; c" in page
     assert "[!WARNING]" not in page
-    # REPORT.md keeps the figure as a relative link for GitHub
-    assert "![A red figure](01_demo/figures/shot.png)" in md_path.read_text(encoding="utf-8")
+    # the section's page keeps the figure as a relative link for GitHub
+    assert "![A red figure](figures/shot.png)" in (folder.root / "01_demo" / "README.md").read_text(encoding="utf-8")
 
 
 def test_css_keeps_the_page_within_a_phone(folder):
