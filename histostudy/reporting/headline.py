@@ -74,8 +74,10 @@ def headline_markdown(coverage: list[dict]) -> list[str]:
         rows.append([result, value.format(), c["ours_text"] if c else "—", a.difference_text() if a else "—",
                      status_markdown(row)])
     legend = ("A number **agrees** when it is within the paper's SD of the paper's value, **differs** beyond it, "
-              "and is ⚠ **far off** beyond three SDs; *why* links to what stands in for the lab in that "
-              f"section. Every other number of the paper is in {md_link(TWINS_HEADING.lower(), TWINS_ANCHOR)}.")
+              "and is ⚠ **far off** beyond three SDs; it is **better than the paper** where it differs in the "
+              "direction this study is expected to, for the reason given (a pose or targeting error without "
+              "the lab's error sources). *why* links to what stands in for the lab in that section. Every "
+              f"other number of the paper is in {md_link(TWINS_HEADING.lower(), TWINS_ANCHOR)}.")
     return [md_table(["Paper result", "Paper", "This run", "Difference", "Status"], rows), "", legend, ""]
 
 

@@ -25,6 +25,7 @@ from histostudy.core import (
 )
 
 from .agreement import FAR_OFF, NOT_JUDGED, judge
+from .expected import BETTER, expected_reason
 from .headline import SOFTWARE_ANCHOR, contents_markdown, headline_markdown, profile_banner, run_facts
 from .markdown import dataframe_markdown, md_code, md_escape, md_table
 from .pages import SECTION_PAGE, anchors_of, relink, shorten_table
@@ -516,6 +517,9 @@ def _versus_paper(comparison: dict) -> str:
         return "—"
     flag = "⚠ " if agreement.status == FAR_OFF else ""
     prefix = "" if agreement.difference is None else f"{agreement.difference_text()}, "
+    key = comparison.get("paper_key") or comparison.get("key") or ""
+    if expected_reason(key, comparison.get("ours"), value.mean, agreement) is not None:
+        return f"{prefix}{BETTER}{agreement.summary()[len(agreement.status):]}"
     return f"{prefix}{flag}{agreement.summary()}"
 
 

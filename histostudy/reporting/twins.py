@@ -5,6 +5,7 @@ reproduces it, the value, the difference and the status, or why this run has non
 from __future__ import annotations
 
 from .agreement import AGREES, FAR_OFF, NOT_JUDGED, judge
+from .expected import BETTER, BUDGET_SECTION, expected_reason
 from .markdown import Markdown, md_code, md_escape, md_link, md_table
 from .paper import PAPER
 
@@ -44,7 +45,8 @@ def results_coverage(sections: dict[str, dict], run: dict | None = None) -> list
     None); ``via`` (the Table II key it was found through, or ""); ``agreement``
     (:class:`~histostudy.reporting.agreement.Agreement`, or None); ``stand_ins`` (the twin's
     section's, see ``SectionWriter.stand_in``); ``reason`` (Markdown: why there is no twin, "" when
-    there is one).
+    there is one); ``budget_in_run`` (whether the error budget's section, which adds the lab's error
+    sources back, is in the run).
     """
     rows = []
     for key in RESULT_KEYS:
@@ -60,6 +62,7 @@ def results_coverage(sections: dict[str, dict], run: dict | None = None) -> list
             "agreement": judge(comparison, value, twin=PAPER.get(value.twin)) if comparison else None,
             "stand_ins": sections[section].get("stand_ins", []) if section else [],
             "reason": "" if comparison else _reason(key, sections, run),
+            "budget_in_run": BUDGET_SECTION in sections,
         })
     return rows
 
@@ -100,18 +103,23 @@ def _reason(key: str, sections: dict[str, dict], run: dict | None) -> Markdown:
 def status_markdown(row: dict) -> Markdown:
     """A coverage row's status for a table cell: the agreement in bold (far off flagged with ⚠),
     and, where the number differs or was not judged, a link to its section's stand-ins (why);
-    the reason where there is no twin."""
+    "better than the paper" with its reason where the difference is one this study expects
+    (:func:`~.expected.expected_reason`); the reason where there is no twin."""
     agreement = row["agreement"]
     if agreement is None:
         return Markdown(row["reason"])
     summary, status = agreement.summary(), agreement.status
+    name = row["section"]
+    expected = expected_reason(row["key"], row["comparison"]["ours"], PAPER[row["key"]].mean, agreement)
+    if expected is not None:  # summary() starts with the status
+        budget = f"; {md_link('the error budget adds them', BUDGET_SECTION)}" if row.get("budget_in_run") else ""
+        return Markdown(f"**{BETTER}**{md_escape(summary[len(status):])}: {md_escape(expected)}{budget}")
     if status == NOT_JUDGED:
         text = md_escape(summary)
-    else:  # summary() starts with the status
+    else:
         text = Markdown(f"{'⚠ ' if status == FAR_OFF else ''}**{status}**{md_escape(summary[len(status):])}")
     if status == AGREES:
         return text
-    name = row["section"]
     number = name[:2] if name[:2].isdigit() else name
     if status != NOT_JUDGED and row["stand_ins"]:
         return Markdown(f"{text}; why: {md_link(f'{number} stand-ins', stand_ins_anchor(name))}")
