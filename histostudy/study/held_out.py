@@ -9,6 +9,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+import pandas as pd
+
 from histostudy.core import check_count, check_positive
 from histostudy.imaging import BACKGROUNDS
 from histostudy.learning import HybridFrames, RenderConfig, default_cache_dir, shipped_model
@@ -24,7 +26,8 @@ from .section import (
     timer_or_untimed,
 )
 
-__all__ = ["RECORDED_PARAMETERS", "HeldOutConfig", "held_out_frames", "resolve_weights", "weights_part",
+__all__ = ["RECORDED_PARAMETERS", "HeldOutConfig", "held_out_frames", "network_description", "resolve_weights",
+           "weights_part",
            "weights_summary", "prepare_held_out", "HeldOutSetup"]
 
 #: The notebook parameters the reports of notebooks 02 and 03 record, in the order they record them.
@@ -158,24 +161,77 @@ def held_out_frames(seed: int, n_images: int, *, render_spacing_mm: float, photo
     return frames
 
 
+def network_description(config: dict, *, named: bool = True) -> str:
+    """A network's configuration in words, for a report (``"VGG19 at width 1/8, batch norms, (cos, sin)
+    regressor"``, ``"U-Net, 8...128 channels over 4 levels"``); other keys as ``key value``.
+
+    Args:
+        config: the checkpoint's ``config`` (:func:`histostudy.learning.build_network`'s).
+        named: start with the architecture's name (``"VGG19 at width 1/8"``); False: the rest only
+            (``"width 1/8, batch norms, ..."``), for a caller that names the network itself.
+
+    Returns:
+        The description.
+    """
+    config = dict(config)
+    arch = config.pop("arch", "network")
+    config.pop("in_channels", None)
+    config.pop("n_classes", None)
+    name, words = str(arch), []
+    if arch == "unet":
+        name = "U-Net"
+        base, depth = config.pop("base_width", None), config.pop("depth", None)
+        if base is not None and depth is not None:
+            words.append(f"{base}...{base * 2 ** depth} channels over {depth} levels")
+        if config.pop("input_stride", 1) != 1:
+            words.append("strided stem")
+    elif arch == "vgg19":
+        name = "VGG19"
+        width = config.pop("width", 1.0)
+        if width != 1:
+            words.append(f"width 1/{round(1 / width)}")
+        if config.pop("batch_norm", False):
+            words.append("batch norms")
+        head, encoding = config.pop("head", ""), config.pop("angle_encoding", "")
+        if head:
+            words.append(f"{'(cos, sin) ' if encoding == 'cos_sin' else ''}{head}")
+    words += [f"{key} {value}" for key, value in sorted(config.items())]
+    if not named:
+        return ", ".join(words)
+    if words and words[0].startswith("width "):  # "VGG19 at width 1/8, ..."
+        name, words = f"{name} at {words[0]}", words[1:]
+    return ", ".join([name, *words])
+
+
 def weights_part(weights_path: Path, manifest: dict) -> SectionPart:
-    """Which checkpoint the section evaluates.
+    """Which checkpoint the section evaluates: a short provenance table and the full record.
 
     Args:
         weights_path: the checkpoint.
         manifest: its manifest (the network's ``manifest``).
 
     Returns:
-        A part with value ``weights``: file, manifest, sha256, configuration, profile, training
-        steps and validation.
+        A part with table ``network`` (the network in words, its file, SHA-256 prefix, profile,
+        training steps, minutes and device) and value ``weights``: file, manifest, sha256,
+        configuration, profile, training steps and validation.
 
     Raises:
         KeyError: the manifest lacks ``sha256`` or ``config``.
     """
-    return SectionPart(values={"weights": {
-        "file": str(weights_path), "manifest": str(weights_path.with_suffix(".json")), "sha256": manifest["sha256"],
-        "config": manifest["config"], "profile": manifest.get("profile"),
-        "training_steps": manifest.get("training_steps"), "validation": manifest.get("validation")}})
+    minutes = manifest.get("training_minutes")
+    rows = [("network", network_description(manifest["config"])), ("weights", weights_path.name),
+            ("SHA-256", manifest["sha256"][:12]), ("profile", manifest.get("profile") or "—"),
+            ("training steps", manifest.get("training_steps") or "—"),
+            ("training minutes", f"{minutes:.0f}" if isinstance(minutes, (int, float)) else "—"),
+            ("trained on", manifest.get("device") or "—")]
+    table = pd.DataFrame(rows, columns=["", "checkpoint"]).astype(str)
+    return SectionPart(
+        tables={"network": (table, "The network evaluated: its checkpoint and how it was trained (the manifest "
+                                   "beside it holds the full record)")},
+        values={"weights": {
+            "file": str(weights_path), "manifest": str(weights_path.with_suffix(".json")),
+            "sha256": manifest["sha256"], "config": manifest["config"], "profile": manifest.get("profile"),
+            "training_steps": manifest.get("training_steps"), "validation": manifest.get("validation")}})
 
 
 def weights_summary(network: str, weights_path: Path, manifest: dict, input_scale: float) -> str:
@@ -190,7 +246,9 @@ def weights_summary(network: str, weights_path: Path, manifest: dict, input_scal
     Returns:
         The line.
     """
-    return (f"{network} {manifest['config']} from {weights_path.name}: {manifest.get('training_steps')} steps "
+    described = network_description(manifest["config"], named=False)
+    named = f"{network} ({described})" if described else network
+    return (f"{named} from {weights_path.name}: {manifest.get('training_steps')} steps "
             f"(profile {manifest.get('profile')}), input scale {input_scale}")
 
 

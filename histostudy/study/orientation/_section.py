@@ -28,7 +28,7 @@ from histostudy.learning import (
 )
 from histostudy.pose import ConicOrientation
 
-from ..held_out import HeldOutConfig, HeldOutSetup, prepare_held_out, resolve_weights
+from ..held_out import HeldOutConfig, HeldOutSetup, network_description, prepare_held_out, resolve_weights
 from ..section import SectionPart, Timer, check_bool, timer_or_untimed
 from ..stats import angle_statistics
 
@@ -498,7 +498,7 @@ def stand_ins_part(vgg19, weights_path: Path, n_images: int) -> SectionPart:
         ("manually annotated porcine and phantom fluoroscopy frames",
          f"{n_images} held-out synthetic hybrid frames with the true pose as the reference"),
         ("VGG19 trained on GPU for 400,000 iterations",
-         f"the shipped CPU-trained VGG19 {manifest['config']}: {training_summary(manifest)} "
+         f"the shipped CPU-trained {network_description(manifest['config'])}: {training_summary(manifest)} "
          f"(manifest {weights_path.with_suffix('.json').name})")),
         texts=("Azimuth errors are wrapped to (−180°, 180°] and the azimuth statistics use each prediction on the "
                "branch nearest its reference. Near elevation 0 (transducer axis along the beam) the azimuth is "

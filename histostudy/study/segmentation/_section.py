@@ -18,7 +18,7 @@ import pandas as pd
 from histostudy.learning import HybridFrames, UNetRunner, training_summary
 from histostudy.transducer import Feature
 
-from ..held_out import HeldOutConfig, HeldOutSetup, prepare_held_out, resolve_weights
+from ..held_out import HeldOutConfig, HeldOutSetup, network_description, prepare_held_out, resolve_weights
 from ..section import SectionPart, Timer, timer_or_untimed
 from ..stats import anova_oneway, segmentation_metrics, tukey_hsd
 
@@ -395,7 +395,7 @@ def stand_ins_part(segmenter, weights_path: Path, per_image: pd.DataFrame,
          f"{len(per_image)} held-out synthetic hybrid frames (procedural background, physical transducer "
          "at a random §II-B.2 pose, Poisson noise) with the digital model's labels in the true pose"),
         ("U-Net trained on GPU (512x512 crops, 64-1024 channels)",
-         f"the shipped CPU-trained U-Net {manifest['config']} at input scale {segmenter.scale}: "
+         f"the shipped CPU-trained {network_description(manifest['config'])} at input scale {segmenter.scale}: "
          f"{training_summary(manifest)} (manifest {weights_path.with_suffix('.json').name})")),
         texts=(f"Segmentation takes a median {per_image['seconds'].median():.2f} s per full "
                f"{detector_shape[1]}x{detector_shape[0]} frame on this machine "

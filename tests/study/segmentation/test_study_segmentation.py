@@ -112,10 +112,17 @@ def test_resolve_weights_names_the_training_command(tmp_path):
 
 def test_weights_part_and_its_summary_line(tmp_path):
     writer = _writer(tmp_path)
-    manifest = {"sha256": "ab" * 32, "config": {"arch": "unet"}, "profile": "standard", "training_steps": 1200}
+    manifest = {"sha256": "ab" * 32, "config": {"arch": "unet", "in_channels": 1, "n_classes": 6, "base_width": 8,
+                                                 "depth": 4}, "profile": "standard", "training_steps": 1200,
+                "training_minutes": 70.8, "device": "cpu"}
     study.record(writer, study.weights_part(tmp_path / "unet.safetensors", manifest))
     line = study.weights_summary("U-Net", tmp_path / "unet.safetensors", manifest, 0.25)
-    assert line == "U-Net {'arch': 'unet'} from unet.safetensors: 1200 steps (profile standard), input scale 0.25"
+    assert line == ("U-Net (8...128 channels over 4 levels) from unet.safetensors: 1200 steps (profile standard), "
+                    "input scale 0.25")
+    table = pd.read_csv(tmp_path / "tables" / "network.csv", keep_default_na=False)
+    assert dict(zip(table.iloc[:, 0], table["checkpoint"])) == {
+        "network": "U-Net, 8...128 channels over 4 levels", "weights": "unet.safetensors", "SHA-256": "ab" * 6,
+        "profile": "standard", "training steps": "1200", "training minutes": "71", "trained on": "cpu"}
     record = writer.values["weights"]
     assert record["manifest"] == str(tmp_path / "unet.json") and record["sha256"] == "ab" * 32
     assert record["validation"] is None
@@ -236,3 +243,16 @@ def test_prepare_loads_the_shipped_unet_and_the_frames():
     assert isinstance(setup.params, study.SegmentationConfig) and setup.seed == 7
     assert setup.weights_path.name == "unet_standard.safetensors" and setup.frames.split == "eval"
     assert setup.segmenter.manifest["sha256"]
+
+
+def test_a_network_reads_in_words():
+    from histostudy.study.held_out import network_description
+
+    vgg = {"arch": "vgg19", "in_channels": 1, "n_classes": 36, "width": 0.125, "batch_norm": True,
+           "angle_encoding": "cos_sin", "head": "regressor"}
+    assert network_description(vgg) == "VGG19 at width 1/8, batch norms, (cos, sin) regressor"
+    assert network_description(vgg, named=False) == "width 1/8, batch norms, (cos, sin) regressor"
+    assert network_description({"arch": "vgg19", "head": "classifier"}) == "VGG19, classifier"
+    assert network_description({"arch": "unet", "base_width": 4, "depth": 2, "input_stride": 2}) == \
+        "U-Net, 4...16 channels over 2 levels, strided stem"
+    assert network_description({"arch": "resnet", "depth": 18}) == "resnet, depth 18"
