@@ -7,6 +7,7 @@
 #   make dist-check  sdist and wheel built, the wheel installed in a fresh venv away from the checkout,
 #                    its networks, the README's lab block and notebook 01 run there (scripts/dist_check.py)
 #   make lab         JupyterLab on notebooks/ (as root, as in a container, with --allow-root)
+#   make docs        the documentation site in docs/_build/html, warnings as errors (docs/site.md)
 #
 # Torch is installed first as a CPU build, so that the package's own `torch` requirement is already
 # satisfied and pip does not pull gigabytes of CUDA packages. Choose another build with, e.g.
@@ -32,7 +33,7 @@ STAMP := $(VENV)/.histostudy-installed
 # ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2 NUMBA_CPU_NAME=haswell, and numpy's AVX-512 loops off)
 AVX2_ENV = $(shell $(BIN)/python -c "from histostudy.core import avx2_env_words; print(avx2_env_words())")
 
-.PHONY: all env reproduce lint test test-avx2 lab dist-check bench clean-reports
+.PHONY: all env reproduce lint test test-avx2 lab docs dist-check bench clean-reports
 
 all: test
 
@@ -64,6 +65,17 @@ test-avx2: $(STAMP)
 lab: $(STAMP)
 	@if [ "$$(id -u)" = 0 ]; then echo "make lab: running as root (a container?): adding --allow-root, which JupyterLab requires then"; fi
 	$(BIN)/jupyter lab --notebook-dir=notebooks $(if $(filter 0,$(shell id -u)),--allow-root)
+
+DOCS_STAMP := $(VENV)/.histostudy-docs-installed
+
+$(DOCS_STAMP): $(STAMP) pyproject.toml
+	$(BIN)/python -m pip install --quiet -e ".[dev,docs]"
+	touch $@
+
+docs: $(DOCS_STAMP)
+	rm -rf docs/_build docs/api
+	$(BIN)/python -m sphinx -b html -W --keep-going -q docs docs/_build/html
+	@echo "docs: docs/_build/html/index.html"
 
 dist-check: $(STAMP)
 	TORCH_SPEC="$(TORCH_SPEC)" TORCH_PIP_ARGS="$(TORCH_PIP_ARGS)" $(BIN)/python scripts/dist_check.py

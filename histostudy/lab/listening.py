@@ -64,7 +64,8 @@ def listen(views: Sequence[View], config: ReceiverConfig | None = None, *, max_p
             send, ``max_queued_pairs`` ...); None: its defaults.
         max_pairs: stop once this many pairs have their line; None: no limit.
         timeout_s: stop after this many seconds (s); None: no limit.
-        model, seed, on_pose, **tracker_options: as :class:`.receiver.FrameReceiver`'s.
+        model, seed, on_pose: as :class:`.receiver.FrameReceiver`'s.
+        **tracker_options: as :class:`.receiver.FrameReceiver`'s.
         on_start: called once listening, with the bound port (useful with port 0).
         on_summary: called after each pose line, after ``on_pose``, with its :func:`pose_summary`
             (the pairs dropped so far: the stats' ``pairs_skipped``).

@@ -188,7 +188,7 @@ class HybridFrames:
         return self.cache_dir / f"{self.split}-{self.seed}-{int(index):06d}.npz"
 
     def prerender(self, n: int, workers: int = 1) -> int:
-        """Render frames ``0 .. n-1`` that the cache lacks, in ``workers`` processes; returns how many.
+        """Render the frames ``0`` to ``n - 1`` that the cache lacks, in ``workers`` processes; returns how many.
 
         The frames are the ones :meth:`frame` renders (each from its own seed), so a training
         run that finds them cached computes exactly what it would have computed rendering them

@@ -44,8 +44,8 @@ def estimate_pose_from_labels(labels_per_view: Sequence, views: Sequence[View] |
         rng: an int seed or a Generator for the point subsets, the orientation's draws and the
             silhouette seed; None: the fixed seed :data:`~.options.DEFAULT_SEED`
             (:func:`~.options.pose_generator`).
-        options, **option_overrides: :class:`~.options.PoseConfig` and keyword overrides of its
-            fields, as for :func:`~histostudy.pose.estimate_pose`.
+        options: a :class:`~.options.PoseConfig`, as for :func:`~histostudy.pose.estimate_pose`.
+        **option_overrides: keyword overrides of its fields, as for :func:`~histostudy.pose.estimate_pose`.
         initial_pose: a 4x4 pose to start the refinement from (warm start): no orientation, no
             initialisation, no retries.
 

@@ -76,6 +76,31 @@ def _copy_section(source: Path, target: Path) -> None:
             shutil.copyfile(path, dest)  # a new file: mode 0o666 less the umask, as open() makes it
 
 
+def _publish_notebook(source: Path, target: Path, name: str, output_dir: str | None) -> None:
+    """The executed notebook ``source`` written to ``target`` with the machine's paths taken out: the
+    run's folder (the parent of the section's ``output_dir``) dropped from every text, papermill's
+    input and output paths named by the notebook alone."""
+    notebook = json.loads(source.read_text(encoding="utf-8"))
+    root = str(Path(output_dir).parent) + os.sep if output_dir else None
+
+    def clean(value):
+        if isinstance(value, str):
+            return value.replace(root, "") if root else value
+        if isinstance(value, list):
+            return [clean(v) for v in value]
+        if isinstance(value, dict):
+            return {k: clean(v) for k, v in value.items()}
+        return value
+
+    notebook = clean(notebook)
+    papermill = notebook.get("metadata", {}).get("papermill", {})
+    for key in ("input_path", "output_path"):
+        if key in papermill:
+            papermill[key] = f"notebooks/{name}.ipynb"
+    target.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(target, json.dumps(notebook, indent=1, ensure_ascii=False) + "\n")
+
+
 def _drop_long_table_markdown(folder: Path) -> None:
     """Remove the Markdown copy of each table longer than :data:`~.pages.MAX_TABLE_ROWS` rows: its
     page shows it cut, report.html whole, and its CSV keeps it (``histostudy report`` renders it
@@ -92,7 +117,8 @@ def publish_run(run_dir: str | os.PathLike, destination: str | os.PathLike, *, a
     Copies what a reader needs: ``run.json`` (its paths made relative), each section's
     ``results.json``, ``section_key.json``, tables and figures (up to 4 MiB a file), and rebuilds
     ``REPORT.md``, the sections' pages and ``report.html`` there; a table longer than a page shows
-    keeps its CSV only. Executed notebooks and caches stay behind.
+    keeps its CSV only. The executed notebooks go to ``notebooks/``, the machine's paths taken out
+    of them (the documentation site shows them); caches stay behind.
 
     Args:
         run_dir: a ``histostudy reproduce`` output folder.
@@ -126,6 +152,11 @@ def publish_run(run_dir: str | os.PathLike, destination: str | os.PathLike, *, a
     try:
         for entry in run["notebooks"]:
             _copy_section(source / entry["name"], staging / entry["name"])
+        for entry in run["notebooks"]:
+            executed = source / "notebooks" / f"{entry['name']}.ipynb"
+            if executed.is_file():  # the docs site shows it, outputs and all (docs/conf.py)
+                _publish_notebook(executed, staging / "notebooks" / executed.name, entry["name"],
+                                  (entry.get("parameters") or {}).get("output_dir") or entry.get("output_dir"))
         record = _relative_run(run)
         record["notebooks"] = sorted(record["notebooks"] + [{"name": name, "status": "not run"} for name in missing],
                                      key=lambda entry: entry["name"])

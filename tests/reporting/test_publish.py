@@ -26,8 +26,12 @@ def _finished_run(folder, names=("01_transducer_and_projections", "02_segmentati
         folder.section(name, compare=[folder.paper_comparison("seg.global_accuracy")], image=True)
         (folder.root / name / "frames.npz").write_bytes(b"\0" * 64)
     (folder.root / "notebooks").mkdir(exist_ok=True)
-    for name in names:
-        (folder.root / "notebooks" / f"{name}.ipynb").write_text("{}")
+    for name in names:  # papermill's record names the machine's paths
+        executed = {"cells": [{"cell_type": "code", "source": f'output_dir = "{folder.root / name}"\n',
+                               "outputs": [{"output_type": "stream", "text": f"{folder.root / name}/results.json"}]}],
+                    "metadata": {"papermill": {"input_path": "/home/me/histostudy/notebooks/x.ipynb",
+                                               "output_path": str(folder.root / "notebooks" / ".x.tmp.ipynb")}}}
+        (folder.root / "notebooks" / f"{name}.ipynb").write_text(json.dumps(executed))
     run = folder.run(profile, parameters={n: prof.parameters_for(n) | {"output_dir": str(folder.root / n)}
                                           for n in names})
     run["seed"] = prof.seed
@@ -37,14 +41,22 @@ def _finished_run(folder, names=("01_transducer_and_projections", "02_segmentati
     return run
 
 
-def test_publish_copies_results_tables_and_figures_not_notebooks_or_caches(folder, tmp_path):
+def test_publish_copies_results_tables_figures_and_executed_notebooks_not_caches(folder, tmp_path):
     _finished_run(folder)
     report = publish_run(folder.root, tmp_path / "pub", allow_partial=True)
     pub = tmp_path / "pub"
     assert report == pub / "REPORT.md" and (pub / "report.html").is_file()
     assert (pub / "02_segmentation" / "results.json").is_file()
     assert list((pub / "02_segmentation").rglob("*.png")), "figures are published"
-    assert not list(pub.rglob("*.ipynb")) and not list(pub.rglob("*.npz"))
+    assert not list(pub.rglob("*.npz"))
+    # the executed notebooks, for the documentation site, without the machine's paths
+    assert sorted(p.name for p in (pub / "notebooks").iterdir()) == [
+        "01_transducer_and_projections.ipynb", "02_segmentation.ipynb"]
+    text = (pub / "notebooks" / "02_segmentation.ipynb").read_text()
+    assert str(folder.root) not in text and "/home/me" not in text
+    executed = json.loads(text)
+    assert executed["cells"][0]["source"] == 'output_dir = "02_segmentation"\n'
+    assert executed["metadata"]["papermill"]["input_path"] == "notebooks/02_segmentation.ipynb"
     run = json.loads((pub / "run.json").read_text())
     assert all(not os.path.isabs(n.get("output_dir", "")) for n in run["notebooks"])
     assert "executable" not in run["provenance"]["machine"]

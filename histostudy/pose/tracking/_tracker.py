@@ -45,10 +45,12 @@ class Tracker:
             (:data:`~histostudy.pose.options.DEFAULT_SEED`,
             :func:`~histostudy.pose.options.pose_generator`): the same frames in the same order
             give the same poses, with or without a seed.
-        options, **option_overrides: :class:`~histostudy.pose.options.PoseConfig` and keyword overrides of its
-            fields, as for :func:`~histostudy.pose.estimate.estimate_pose`. Unlike there, ``raise_on_failure``
+        options: a :class:`~histostudy.pose.options.PoseConfig`, as for
+            :func:`~histostudy.pose.estimate.estimate_pose`. Unlike there, ``raise_on_failure``
             defaults to False when no ``options`` are given: a tracker reports a failed verdict in
             the result (``result.verdict.ok``) rather than stopping the stream.
+        **option_overrides: keyword overrides of its fields, as for
+            :func:`~histostudy.pose.estimate.estimate_pose`.
         fast: True (default) or a :class:`~._options.TrackingConfig`: warm updates run on the
             regions where the last pose projects
             (:class:`~._warm.RegionEstimator`: Levenberg-Marquardt whatever ``mode``, which
@@ -77,7 +79,9 @@ class Tracker:
             and every estimate from scratch ``estimate_pose`` itself (the study's path: what
             notebook 06 and ``study.your_data`` run).
 
-    Attributes (read them, do not set them):
+    The counters below are the tracker's record: read them, do not set them.
+
+    Attributes:
         n_updates: calls of :meth:`update` that ran (bad input raises before counting).
         n_warm: updates whose warm start was accepted (at the first attempt or, with ``fast``, the
             second).
