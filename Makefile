@@ -7,6 +7,7 @@
 #   make dist-check  sdist and wheel built, the wheel installed in a fresh venv away from the checkout,
 #                    its networks, the README's lab block and notebook 01 run there (scripts/dist_check.py)
 #   make lab         JupyterLab on notebooks/ (as root, as in a container, with --allow-root)
+#   make typecheck   mypy over the package ([tool.mypy] in pyproject.toml says which packages are clean)
 #   make docs        the documentation site in docs/_build/html, warnings as errors (docs/site.md)
 #
 # Torch is installed first as a CPU build, so that the package's own `torch` requirement is already
@@ -33,7 +34,7 @@ STAMP := $(VENV)/.histostudy-installed
 # ONEDNN_MAX_CPU_ISA=AVX2 ATEN_CPU_CAPABILITY=avx2 NUMBA_CPU_NAME=haswell, and numpy's AVX-512 loops off)
 AVX2_ENV = $(shell $(BIN)/python -c "from histostudy.core import avx2_env_words; print(avx2_env_words())")
 
-.PHONY: all env reproduce lint test test-avx2 lab docs dist-check bench clean-reports
+.PHONY: all env reproduce lint typecheck test test-avx2 lab docs dist-check bench clean-reports
 
 all: test
 
@@ -54,6 +55,9 @@ PYTEST := $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist worksteal
 
 lint: $(STAMP)
 	$(BIN)/ruff check histostudy tests benchmarks scripts
+
+typecheck: $(STAMP)
+	$(BIN)/python -m mypy
 
 test: $(STAMP)
 	$(PYTEST) $(PYTEST_ARGS)

@@ -185,7 +185,8 @@ class Steps:
 
     def _tick(self) -> None:
         while not self._stop.wait(0.5):
-            self._bar.refresh()
+            if self._bar is not None:
+                self._bar.refresh()
 
     def close(self) -> None:
         """Remove the bar (idempotent: also at the end of the ``with`` block)."""

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import numbers
+from typing import Literal, overload
 
 __all__ = ["check_ae_title", "check_count", "check_host", "check_items", "check_port", "check_positive",
            "check_unit_fraction", "is_finite_real", "is_real"]
@@ -37,6 +38,12 @@ def is_finite_real(value) -> bool:
     return is_real(value) and math.isfinite(float(value))
 
 
+@overload
+def check_positive(value, name: str, *, allow_zero: bool = ..., unit: str = ..., optional: Literal[False] = ...,
+                   what: str | None = ...) -> float: ...
+@overload
+def check_positive(value, name: str, *, allow_zero: bool = ..., unit: str = ..., optional: bool,
+                   what: str | None = ...) -> float | None: ...
 def check_positive(value, name: str, *, allow_zero: bool = False, unit: str = "", optional: bool = False,
                    what: str | None = None) -> float | None:
     """``value`` as a float, if it is a finite real number > 0 (>= 0 with ``allow_zero``).
@@ -66,6 +73,10 @@ def check_positive(value, name: str, *, allow_zero: bool = False, unit: str = ""
     return float(value)
 
 
+@overload
+def check_count(value, name: str, *, minimum: int = ..., optional: Literal[False] = ...) -> int: ...
+@overload
+def check_count(value, name: str, *, minimum: int = ..., optional: bool) -> int | None: ...
 def check_count(value, name: str, *, minimum: int = 1, optional: bool = False) -> int | None:
     """``value`` as an int, if it is an integer (Python or numpy, not bool) >= ``minimum``.
 
@@ -172,7 +183,7 @@ def check_port(value, name: str = "port", *, allow_zero: bool = True) -> int:
         ValueError: ``value`` is not such an integer.
     """
     low = 0 if allow_zero else 1
-    if not isinstance(value, numbers.Integral) or isinstance(value, bool) or not low <= value <= 65535:
+    if not isinstance(value, numbers.Integral) or isinstance(value, bool) or not low <= int(value) <= 65535:
         raise ValueError(f"{name} must be an integer in {low}..65535" + (" (0: any free port)" if allow_zero else "")
                          + f", got {value!r}")
     return int(value)

@@ -76,7 +76,7 @@ def avx2_restriction() -> dict[str, str]:
     try:
         from numpy._core._multiarray_umath import __cpu_dispatch__
     except ImportError:  # numpy 1.x
-        from numpy.core._multiarray_umath import __cpu_dispatch__
+        from numpy.core._multiarray_umath import __cpu_dispatch__  # type: ignore[no-redef]
     beyond_avx2 = [name for name in __cpu_dispatch__ if "512" in name or name == "X86_V4"]
     return AVX2_RESTRICTION | ({"NPY_DISABLE_CPU_FEATURES": " ".join(beyond_avx2)} if beyond_avx2 else {})
 

@@ -198,7 +198,7 @@ def run_sweep(task_fn: Callable[..., Any], tasks: Sequence, *, seed: int | np.ra
         raise ValueError(f"chunk_size must be an integer >= 1 or None, got {chunk_size!r}")
     shared = {} if shared is None else dict(shared)
     ex = resolve_executor(executor)
-    calls = [(arg,) if seeds is None else (arg, s) for arg, s in zip(tasks, seeds or [None] * len(tasks))]
+    calls: list[tuple] = [(arg,) for arg in tasks] if seeds is None else [(arg, s) for arg, s in zip(tasks, seeds)]
     folder = resolve_sweep_cache(cache)
     if folder is None or not calls:
         return _run(task_fn, calls, shared, ex, chunk_size, progress, lambda i, value: None)

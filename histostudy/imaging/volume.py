@@ -102,7 +102,7 @@ class Volume:
     """
 
     data: np.ndarray
-    spacing_mm: np.ndarray | None
+    spacing_mm: np.ndarray  # None is refused, naming what a CBCT needs
     origin_mm: np.ndarray = field(default_factory=lambda: np.zeros(3))
     T_world_file_voxel: np.ndarray | None = None
 

@@ -75,7 +75,7 @@ def mesh_model_fields(meshes, *, spacing_mm=0.47, mu_per_mm=None, units="mm", T_
                          f"transducer spans centimetres to decimetres (>= {MIN_SPAN_MM:g} mm): are they in "
                          f"metres? pass units='m' (or 'cm', 'in')")
 
-    parts = {f: [] for f in FEATURE_CLASSES}
+    parts: dict[Feature, list] = {f: [] for f in FEATURE_CLASSES}
     for label, points, triangles, classes in surfaces:
         points = points @ T[:3, :3].T + T[:3, 3]
         for feature, part_points, part_triangles in _closed_components(label, points, triangles, classes):
@@ -127,7 +127,8 @@ def _read_sources(meshes, mm_per_unit: float) -> list:
     if isinstance(meshes, Mapping):
         if not meshes:
             raise ValueError("meshes is an empty mapping; expected {feature class: mesh file or pyvista.PolyData}")
-        out, seen = [], {}
+        out: list = []
+        seen: dict = {}
         for key, source in meshes.items():
             feature = feature_of(key, f"meshes key {key!r}")
             if feature in seen:

@@ -147,7 +147,8 @@ def _column_piece(spec: TransducerSpec, curves: list, c: np.ndarray, d: np.ndarr
     ``curves[-1]``; per segment, a cap slab (``"shell"``) or a wall (``"outer_wall"``,
     ``"inner_wall"``) of that wall's height above the cap sphere."""
     rhos = [_ray_to_curve(curves[0], c, d)] + [_ray_to_curve(curve, c, d) for _, curve in curves[1:]]
-    s_list, kinds = [], []
+    s_list: list = []
+    kinds: list[str] = []
     for k, (kind, _) in enumerate(curves[1:]):
         n = max(1, math.ceil((rhos[k + 1] - rhos[k]).max() / max_edge_mm))
         u = np.linspace(0.0, 1.0, n + 1)
@@ -234,7 +235,7 @@ def _cylinder(base: np.ndarray, radius: float, length: float):
     r = radius * math.sqrt(2 * math.pi / (n * math.sin(2 * math.pi / n)))
     t = 2 * math.pi * np.arange(n) / n
     ring = np.column_stack([r * np.cos(t), r * np.sin(t), np.zeros(n)])
-    points = np.vstack([ring, ring + [0, 0, length], [[0, 0, 0], [0, 0, length]]]) + base
+    points = np.vstack([ring, ring + [0, 0, length], np.array([[0.0, 0.0, 0.0], [0.0, 0.0, length]])]) + base
     i, j = np.arange(n), (np.arange(n) + 1) % n
     bottom, top = np.full(n, 2 * n), np.full(n, 2 * n + 1)
     triangles = np.vstack([np.column_stack([i, j, j + n]), np.column_stack([i, j + n, i + n]),

@@ -210,6 +210,8 @@ def execute_treatment(
 def _settle(journal: TreatmentJournal, on_uncertain, plan: TreatmentPlan) -> int | None:
     """Apply the policy to the journal's uncertain point; returns its index if it is to be re-fired."""
     index = journal.uncertain
+    if index is None:
+        return None
     policy = on_uncertain(index) if callable(on_uncertain) else on_uncertain
     if policy not in UNCERTAIN_POLICIES:
         raise ValueError(f"on_uncertain({index}) must return one of {UNCERTAIN_POLICIES}, got {policy!r}")

@@ -114,7 +114,8 @@ def check_frames(frames, args, *, label: str = "FRAMES") -> str | None:
     for path, view in zip(paths, _views_of(paths, args, label)):
         if path.suffix.lower() in _DICOM_SUFFIXES:
             headers[path] = ds = _dicom_read_checked(path, view, args)
-            shape, n_frames = (int(ds.Rows), int(ds.Columns)), int(getattr(ds, "NumberOfFrames", 1) or 1)
+            shape: tuple[int, ...] = (int(ds.Rows), int(ds.Columns))
+            n_frames = int(getattr(ds, "NumberOfFrames", 1) or 1)
         else:
             shape, n_frames = _image_shape(path, label)
         where = f"{label} {str(path)!r}"

@@ -125,7 +125,7 @@ def run_target(args) -> int:
         else:
             plan = _plan_with_pose(args.pose, calibration, target, volume, start, args.calibration,
                                    calibration_dict.get("study_instance_uids") or [])
-        executed = execute_targeting(plan, robot, speed_mm_s=args.speed_mm_s) if args.execute else None
+        executed = execute_targeting(plan, robot, speed_mm_s=args.speed_mm_s) if args.execute and robot else None
     except (CalibrationError, RobotError) as exc:
         return fail("target", exc, 1)
     except (ValueError, TypeError, KeyError, FileNotFoundError, OSError) as exc:
