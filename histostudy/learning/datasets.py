@@ -185,6 +185,8 @@ class HybridFrames:
         return self.cache_dir is not None and self._cache_path(index).is_file()
 
     def _cache_path(self, index: int) -> Path:
+        if self.cache_dir is None:
+            raise ValueError("these frames have no cache_dir: there is no cache path")
         return self.cache_dir / f"{self.split}-{self.seed}-{int(index):06d}.npz"
 
     def prerender(self, n: int, workers: int = 1) -> int:
@@ -336,6 +338,7 @@ class HybridImageDataset(Dataset):
             return self._kept[frame_index]
         frame = self.frames.frame(frame_index)
         image = prepare_image(frame.image, self.scale)
+        target: tuple[float, float] | np.ndarray
         if self.task != "segmentation":
             target = true_angles(frame)
         elif self.target_labels is not None:

@@ -8,12 +8,15 @@ from __future__ import annotations
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
 from histostudy.core import stage
 from histostudy.imaging import Frame, View
+
+if TYPE_CHECKING:
+    import torch
 
 __all__ = [
     "N_ORIENTATION_CLASSES",
@@ -131,12 +134,12 @@ def select_direction(candidates: Sequence[np.ndarray]) -> tuple[np.ndarray, tupl
         raise ValueError("candidates must hold the direction candidates of at least one view")
     if len(cands) == 1:
         return cands[0][0] / np.linalg.norm(cands[0][0]), (0,), 0.0
-    best = None
+    best: tuple[float, tuple[int, ...], list] = (float("inf"), (), [])
     for choice in itertools.product((0, 1), repeat=len(cands)):
         dirs = [c[i] / np.linalg.norm(c[i]) for c, i in zip(cands, choice)]
         angles = [np.arccos(np.clip(a @ b, -1, 1)) for a, b in itertools.combinations(dirs, 2)]
         score = float(np.mean(angles))
-        if best is None or score < best[0]:
+        if score < best[0]:
             best = (score, choice, dirs)
     score, choice, dirs = best
     mean = np.sum(dirs, axis=0)
@@ -281,7 +284,7 @@ class LearnedOrientation:
             :meth:`estimate_many` of frames of different shapes in one batch.
     """
 
-    network: object = field(repr=False)
+    network: torch.nn.Module = field(repr=False)
     scale: float = 0.25
     manifest: dict | None = field(default=None, repr=False)
 
@@ -291,8 +294,9 @@ class LearnedOrientation:
         from .checkpoints import load_network
 
         net, manifest = load_network(path)
-        if net.config.get("arch") != "vgg19" or net.config.get("head") != "regressor":
-            raise ValueError(f"checkpoint {str(path)!r} holds {net.config}, expected a VGG19 regressor")
+        config = manifest["config"]  # the network's, as load_network built it
+        if config.get("arch") != "vgg19" or config.get("head") != "regressor":
+            raise ValueError(f"checkpoint {str(path)!r} holds {config}, expected a VGG19 regressor")
         return cls(network=net, scale=float(manifest.get("input_scale", 0.25)), manifest=manifest)
 
     def estimate(self, frame: Frame, rng: np.random.Generator | None = None) -> tuple[float, float]:

@@ -197,6 +197,7 @@ class UNetRunner:
         self._recent: collections.OrderedDict = collections.OrderedDict()
         self._recent_lock = threading.Lock()
         self._head_weights = self._int8 = self._int8_calibration = None
+        self._head: torch.nn.Module | None
         if precision == "reference":
             self._dtype, self._net, self._head = torch.float32, network, getattr(network, "head", None)
             return
@@ -246,8 +247,9 @@ class UNetRunner:
         from ..checkpoints import load_network
 
         net, manifest = load_network(path)
-        if net.config.get("arch") != "unet" or net.config.get("n_classes") != len(Feature):
-            raise ValueError(f"checkpoint {str(path)!r} holds {net.config}, expected a U-Net with "
+        config = manifest["config"]  # the network's, as load_network built it
+        if config.get("arch") != "unet" or config.get("n_classes") != len(Feature):
+            raise ValueError(f"checkpoint {str(path)!r} holds {config}, expected a U-Net with "
                              f"{len(Feature)} classes")
         return cls(net, precision, test_time_flips, scale=float(manifest.get("input_scale", 0.5)), manifest=manifest)
 
@@ -356,10 +358,10 @@ class UNetRunner:
         import torch
         from torch.nn import functional as F
 
-        x = self._input(frame)
+        pixels = self._input(frame)
         self.network.eval()
         with torch.no_grad():
-            x = torch.from_numpy(x)[None, None]
+            x = torch.from_numpy(pixels)[None, None]
             logits = self.network(x)
             if self.test_time_flips:
                 for dims in ((-1,), (-2,), (-2, -1)):
@@ -416,7 +418,7 @@ class UNetRunner:
 
         features, (rows, cols) = self._features(frame, box)
         with torch.no_grad():
-            logits = self._head(features.float())
+            logits = self._head_module()(features.float())
         return logits[0, :, :rows, :cols]
 
     def _labels(self, frame: Frame, box) -> np.ndarray:
@@ -436,7 +438,13 @@ class UNetRunner:
     def _forward(self, x):
         """The network's layers and the float32 head on a padded network input ``x`` (of the runner's
         dtype and memory format): float32 logits."""
-        return self._head(self._network_features(x).float())
+        return self._head_module()(self._network_features(x).float())
+
+    def _head_module(self):
+        """The network's 1x1 head (float32); ``ValueError`` for a network that has none."""
+        if self._head is None:
+            raise ValueError(f"network {type(self.network).__name__} has no 'head': a U-Net's labels come from it")
+        return self._head
 
     def _check_box(self, box, shape) -> tuple[int, int, int, int]:
         try:

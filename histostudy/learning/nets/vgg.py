@@ -53,7 +53,7 @@ class VGG19(nn.Module):
             raise ValueError(f"batch_norm must be True or False, got {batch_norm!r}")
         if not (0.0 <= float(dropout) < 1.0):
             raise ValueError(f"dropout must be in [0, 1), got {dropout!r}")
-        self.config = {"arch": "vgg19", "width": float(width), "n_classes": n_classes,
+        self.config: dict = {"arch": "vgg19", "width": float(width), "n_classes": n_classes,
                        "in_channels": in_channels, "head": head, "dropout": float(dropout)}
         if batch_norm:
             # recorded only when set, so that manifests written before the option still match
@@ -133,7 +133,7 @@ class VGG19(nn.Module):
         """
         if self.regressor is not None:
             raise ValueError("the network already has the regressor head")
-        n = self.config["n_classes"]
+        n = int(self.config["n_classes"])
         outputs = self._regressor_outputs
         self.regressor = nn.Linear(n, outputs)
         with torch.no_grad():

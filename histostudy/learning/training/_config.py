@@ -298,10 +298,19 @@ def stage_objective(cfg: TrainingConfig, stage: str) -> str:
     return "segment" if cfg.task == "segmentation" else "regress"
 
 
+def fine_tune_of(cfg: TrainingConfig) -> FineTuneConfig:
+    """The fine-tune stage's configuration; ``ValueError`` where ``cfg`` has none (a ``finetune``
+    stage then does not exist)."""
+    if cfg.fine_tune is None:
+        raise ValueError(f"the {cfg.task} run has no fine_tune table, so no 'finetune' stage")
+    return cfg.fine_tune
+
+
 def stage_frames(cfg: TrainingConfig, stage: str) -> tuple[RenderConfig, int, int]:
     """The rendering and the numbers of training and validation frames of ``stage``."""
     if stage == "finetune":
-        return cfg.fine_tune.render, cfg.fine_tune.n_train, cfg.fine_tune.n_val
+        fine_tune = fine_tune_of(cfg)
+        return fine_tune.render, fine_tune.n_train, fine_tune.n_val
     return cfg.render, cfg.n_train, cfg.n_val
 
 

@@ -20,7 +20,15 @@ from ..checkpoints import load_checkpoint, save_checkpoint
 from ..datasets import TASKS, HybridFrames, HybridImageDataset, default_cache_dir
 from ..nets import build_network
 from ..orientation import N_ORIENTATION_CLASSES, hemisphere_angles
-from ._config import TrainingConfig, TrainingResult, resolve_device, stage_frames, stage_names, stage_objective
+from ._config import (
+    TrainingConfig,
+    TrainingResult,
+    fine_tune_of,
+    resolve_device,
+    stage_frames,
+    stage_names,
+    stage_objective,
+)
 from ._losses import stage_loss, validation_metrics
 from ._optim import _load_optim, _model_state, _model_tensors, _optim_tensors, _optimizer, _set_learning_rate
 from ._teacher import load_teacher, teacher_labeller
@@ -194,7 +202,7 @@ def _stop_reason(cfg: TrainingConfig, state: dict, stage: str, elapsed_s: float)
     validation loss, its epoch cap, or its budget in minutes spent (the run's since its start, the
     fine-tune's since the fine-tune started; ``elapsed_s`` in seconds)."""
     if stage == "finetune":
-        cap, budget = cfg.fine_tune.max_epochs, cfg.fine_tune.max_minutes
+        cap, budget = fine_tune_of(cfg).max_epochs, fine_tune_of(cfg).max_minutes
         spent_s = elapsed_s - state.get("stage_start_s", 0.0)
     else:
         cap = cfg.classification_epochs if stage == "classify" else cfg.max_epochs
@@ -278,7 +286,7 @@ class _Run:
         if stage == "classify":
             net.cpu().to_regressor(hemisphere_angles(net.config["n_classes"]))
         net.to(self.device).train()
-        lr = cfg.fine_tune.learning_rate if following == "finetune" else cfg.learning_rate
+        lr = fine_tune_of(cfg).learning_rate if following == "finetune" else cfg.learning_rate
         self.opt = _optimizer(cfg, net)
         _set_learning_rate(self.opt, lr)
         state.update(stage=following, epoch=0, best_loss=None, bad_epochs=0, learning_rate=lr,

@@ -23,8 +23,11 @@ def angle_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return (torch.sin(target[:, 1]) ** 2 * d_az ** 2 + (pred[:, 1] - target[:, 1]) ** 2).mean()
 
 
-def dice_loss(logits: torch.Tensor, labels: torch.Tensor, classes=tuple(int(k) for k in FEATURE_CLASSES),
-              eps: float = 1.0) -> torch.Tensor:
+#: The feature classes' label values (the Dice loss's default classes).
+_FEATURE_LABELS = tuple(int(k) for k in FEATURE_CLASSES)
+
+
+def dice_loss(logits: torch.Tensor, labels: torch.Tensor, classes=_FEATURE_LABELS, eps: float = 1.0) -> torch.Tensor:
     """``1 - mean_k Dice_k`` of the softmax of ``logits`` (B, C, H, W) against integer ``labels``
     (B, H, W), over ``classes``, each class's pixels pooled over the batch; ``eps`` keeps a class
     absent from the batch finite (its Dice then rewards predicting none of it)."""

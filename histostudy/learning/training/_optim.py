@@ -38,7 +38,7 @@ def _optim_tensors(opt: torch.optim.Optimizer) -> dict:
 def _load_optim(opt: torch.optim.Optimizer, tensors: dict) -> None:
     """Load into ``opt`` the per-parameter state held by checkpoint ``tensors`` (``optim.`` entries)."""
     sd = opt.state_dict()
-    state = {}
+    state: dict = {}
     for key, value in tensors.items():
         if key.startswith("optim."):
             _, i, name = key.split(".", 2)
