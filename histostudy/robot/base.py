@@ -143,14 +143,14 @@ class Workspace:
         """Why the pose is outside the workspace, or None when it is inside. Both in the base frame, mm."""
         p_tcp = np.asarray(T_base_tcp, dtype=np.float64)[:3, 3]
         p_flange = np.asarray(T_base_flange, dtype=np.float64)[:3, 3]
-        if self.lower_mm is not None:
+        if self.lower_mm is not None and self.upper_mm is not None:  # given together (checked above)
             lo, hi = np.asarray(self.lower_mm), np.asarray(self.upper_mm)
             if np.any(p_tcp < lo) or np.any(p_tcp > hi):
                 return (
                     f"TCP position {np.round(p_tcp, 3).tolist()} mm lies outside the workspace box "
                     f"lower_mm={list(self.lower_mm)}, upper_mm={list(self.upper_mm)}"
                 )
-        if self.center_mm is not None:
+        if self.center_mm is not None and self.radius_mm is not None:  # given together (checked above)
             dist = float(np.linalg.norm(p_tcp - np.asarray(self.center_mm)))
             if dist > self.radius_mm:
                 return (

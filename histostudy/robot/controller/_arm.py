@@ -92,7 +92,6 @@ class ControllerArm:
         """The arm's output fields: time, joints, TCP pose and speed, modes (SI units, axis-angle)."""
         with self.lock:
             q = self.current_q()
-            moving = self.motion is not None
             T_flange_tcp = self.sim.tcp_offset()
             pstop = self.sim.state().protective_stop
             T_tcp = forward_kinematics(q, self.sim.dh) @ T_flange_tcp
@@ -100,8 +99,8 @@ class ControllerArm:
             speed = [0.0] * 6
             target_tcp = tcp
             target_q = q
-            if moving:
-                m = self.motion
+            m = self.motion
+            if m is not None:
                 t = m.elapsed_sim_s()
                 dt = 1e-3
                 q2 = m.plan.joints_at(t + dt)

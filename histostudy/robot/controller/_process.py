@@ -146,13 +146,13 @@ class ControllerProcess:
         if not ipaddress.ip_address(host).is_loopback:
             raise ValueError(f"host must be a loopback address (127.0.0.0/8), got {host!r}")
         self.host = host
-        args = [str(a) for a in args]
-        if "--host" in args:  # the host given twice (--detach passes its command line on): the one checked above
-            i = args.index("--host")
-            del args[i:i + 2]
+        argv = [str(a) for a in args]
+        if "--host" in argv:  # the host given twice (--detach passes its command line on): the one checked above
+            i = argv.index("--host")
+            del argv[i:i + 2]
         tie = ["--parent-pid", str(os.getpid())] if tied_to_parent else []
         cmd = [sys.executable, "-m", "histostudy.robot.controller", "--host", host,
-               "--max-lifetime-s", str(max_lifetime_s), *tie, *args]
+               "--max-lifetime-s", str(max_lifetime_s), *tie, *argv]
         # A file, not a pipe, for the log: a full pipe would block the controller.
         self.log = tempfile.TemporaryFile(mode="w+t")
         self.proc = subprocess.Popen(cmd, stdout=self.log, stderr=subprocess.STDOUT, text=True,

@@ -154,11 +154,18 @@ class RTDERecipe:
                 flat.extend(v if not np.isscalar(v) else [v] * (6 if "6" in typ else 3))
             else:
                 flat.append(v)
-        return self.struct.pack(*flat)
+        return self._checked_struct().pack(*flat)
 
     def unpack(self, payload: bytes) -> dict:
-        vals = self.struct.unpack(payload)
+        vals = self._checked_struct().unpack(payload)
         return dict(zip(self.names, vals[1:]))
+
+    def _checked_struct(self) -> struct.Struct:
+        """The recipe's binary layout; ``ValueError`` for a recipe that names a variable the
+        controller does not know (it has none)."""
+        if self.struct is None:
+            raise ValueError(f"recipe {self.id} names variables the controller does not know: it has no layout")
+        return self.struct
 
 
 def rtde_packet(ptype: str, payload: bytes = b"") -> bytes:

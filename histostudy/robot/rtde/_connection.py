@@ -7,6 +7,7 @@ from __future__ import annotations
 import socket
 import threading
 import time
+from typing import Any
 
 from ..base import RobotConnectionError, RobotError, RobotTimeout
 
@@ -54,8 +55,9 @@ class RTDEConnection:
         self.connect_timeout_s = float(connect_timeout_s)
         self.settle_timeout_s = float(settle_timeout_s)
         self.frequency_hz = float(frequency_hz)
-        self._control = None
-        self._receive = None
+        # ur_rtde's RTDEControlInterface and RTDEReceiveInterface once connected (ur_rtde has no types)
+        self._control: Any = None
+        self._receive: Any = None
         self._lost_reason: str | None = "not connected yet"
         self._inflight: threading.Thread | None = None
 
