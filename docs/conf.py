@@ -1,9 +1,9 @@
 """Sphinx configuration of the documentation site (``make docs``; docs/site.md says how it is built).
 
 The site is the Markdown pages of docs/ (MyST), the API reference generated from the curated API's
-docstrings (one page per public name, listed from each package's ``__all__``), the seven notebooks
-with the outputs of the published standard run (docs/results/standard/notebooks; not executed here)
-and the published report (report.html, linked from the home page).
+docstrings (one page per public name, listed from each package's ``__all__``), the notebooks with the
+outputs of the published standard run (docs/results/standard/notebooks; not executed here; the page
+listing them is generated too) and the published report (report.html, linked from the home page).
 """
 
 from __future__ import annotations
@@ -100,6 +100,31 @@ def _write_api_pages() -> None:
 
 
 _write_api_pages()
+
+#: Where ``histostudy publish`` puts the published standard run's executed notebooks.
+PUBLISHED_NOTEBOOKS = DOCS / "results" / "standard" / "notebooks"
+
+
+def _write_notebooks_page() -> None:
+    """docs/notebooks.md: the published standard run's executed notebooks, as that run left them; a
+    run published before ``histostudy publish`` kept them has none, and the page says so."""
+    executed = sorted(PUBLISHED_NOTEBOOKS.glob("[0-9][0-9]_*.ipynb"))
+    lines = ["# The study", "",
+             "The study's notebooks as the published standard run (profile `standard`: the paper's study sizes; "
+             "`docs/results/standard`) executed them. Each sets its numbers beside the paper's, and the "
+             "[report](results/standard/report.html) gathers them. Re-run them with "
+             "`histostudy reproduce --profile standard`, or open them in JupyterLab (`make lab`).", ""]
+    if executed:
+        lines += ["```{toctree}", ":maxdepth: 1", ""]
+        lines += [p.relative_to(DOCS).with_suffix("").as_posix() for p in executed] + ["```"]
+    else:
+        lines += ["The published run was published before `histostudy publish` kept the executed notebooks, so "
+                  "they are not shown here yet: the next published run brings them. Until then the "
+                  "[report](results/standard/report.html) holds every number, table and figure of the run."]
+    (DOCS / "notebooks.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+_write_notebooks_page()
 
 
 def _check_reference(app, exception) -> None:
