@@ -63,7 +63,7 @@ class Agreement:
         if self.status == NOT_JUDGED:
             return f"not judged: {self.basis}"
         n = self.n_sd
-        if n is None:
+        if n is None or self.difference is None:
             return f"{self.status} ({self.basis})"
         side = "" if self.status == AGREES else (" above" if self.difference > 0 else " below")
         return f"{self.status} ({n:.1f} SD{side})" if n < 10 else f"{self.status} ({n:.0f} SD{side})"
@@ -84,7 +84,7 @@ def judge(comparison: dict, paper: PaperValue, *, twin: PaperValue | None = None
     unit_ours, unit_paper = _unit(comparison.get("unit", "")), _unit(paper.unit)
     if unit_ours and unit_paper and unit_ours != unit_paper:
         return Agreement(NOT_JUDGED, basis=f"units differ ({unit_ours} here, {unit_paper} in the paper)")
-    difference = float(ours) - float(theirs)
+    difference = float(ours) - float(theirs)  # type: ignore[arg-type]  # both finite reals, checked above
     unit, decimals = unit_paper or unit_ours, _decimals(comparison.get("ours_text", ""))
     sd_based = True
     if paper.sd:
@@ -108,8 +108,9 @@ def _judge_text(ours, theirs: str) -> Agreement:
     """The paper's value is text: an interval ``"[a, b]"`` (against a reproduced interval) or a
     bound ``"< x"`` (against a reproduced number, or a number written as text)."""
     paper_interval, paper_bound = _INTERVAL.match(theirs), _BOUND.match(theirs)
-    if paper_interval and isinstance(ours, str) and _INTERVAL.match(ours):
-        lo1, hi1 = sorted(_float(x) for x in _INTERVAL.match(ours).groups())
+    ours_interval = _INTERVAL.match(ours) if isinstance(ours, str) else None
+    if paper_interval and ours_interval:
+        lo1, hi1 = sorted(_float(x) for x in ours_interval.groups())
         lo2, hi2 = sorted(_float(x) for x in paper_interval.groups())
         if max(lo1, lo2) <= min(hi1, hi2):
             return Agreement(AGREES, basis="the intervals overlap")

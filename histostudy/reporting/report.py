@@ -364,8 +364,7 @@ def build_report(output_dir, run: dict | None = None) -> tuple[Path, Path]:
     if run is None:
         with open(out / RUN_FILE, encoding="utf-8") as fh:
             run = json.load(fh)
-    page = render_html(_report_markdown(out, run, paged=False), out,
-                       title=f"histostudy report ({run.get('profile', '')})")
+    page = render_html(_whole_report(out, run), out, title=f"histostudy report ({run.get('profile', '')})")
     html_path = atomic_write_text(out / "report.html", page)
     index, pages = _report_pages(out, run)
     for name, text in pages.items():
@@ -374,9 +373,10 @@ def build_report(output_dir, run: dict | None = None) -> tuple[Path, Path]:
     return md_path, html_path
 
 
-def _report_markdown(out: Path, run: dict, *, paged: bool) -> str | tuple[str, dict[str, str]]:
-    """The whole report as one Markdown text (``paged=False``: report.html's), or ``(index, pages)``:
-    REPORT.md's text and each finished section's page text, links pointed at the pages."""
+def _report_parts(out: Path, run: dict, *, paged: bool) -> tuple[list[str], list[str], dict, list[str]]:
+    """``(head, this_run, blocks, tail)``: the report's lines before the sections (title, banners,
+    headline, contents), "This run", each section's ``(has_page, lines)`` (its page's form when
+    ``paged``) and the lines after them (twins, software)."""
     sections, blocks, contents = {}, {}, []
     for nb in run.get("notebooks", []):
         name = nb["name"]
@@ -407,8 +407,19 @@ def _report_markdown(out: Path, run: dict, *, paged: bool) -> str | tuple[str, d
     if versions:
         tail += [f'<a id="{SOFTWARE_ANCHOR}"></a>', "", "## Software", "",
                  md_table(["package", "version"], versions.items()), ""]
-    if not paged:
-        return "\n".join(head + this_run + [line for _, block in blocks.values() for line in block] + tail)
+    return head, this_run, blocks, tail
+
+
+def _whole_report(out: Path, run: dict) -> str:
+    """The whole report as one Markdown text, every section in it with its tables whole (report.html's)."""
+    head, this_run, blocks, tail = _report_parts(out, run, paged=False)
+    return "\n".join(head + this_run + [line for _, block in blocks.values() for line in block] + tail)
+
+
+def _report_pages(out: Path, run: dict) -> tuple[str, dict[str, str]]:
+    """``(index, pages)``: REPORT.md's text and each finished section's page text, links pointed at
+    the pages."""
+    head, this_run, blocks, tail = _report_parts(out, run, paged=True)
     # the index keeps each section's old anchors on its contents line, so that links made before
     # the report had pages still land beside the link to the page
     aliases = [f'<a id="{section_anchor(n)}"></a><a id="{stand_ins_anchor(n)}"></a>' for n, (has, _) in blocks.items()
@@ -422,10 +433,6 @@ def _report_markdown(out: Path, run: dict, *, paged: bool) -> str | tuple[str, d
         page_of_anchor.update({anchor: f"{name}/{SECTION_PAGE}" for anchor in anchors_of(text)})
     index = relink("\n".join(index_lines), "REPORT.md", page_of_anchor)
     return index, {name: relink(text, f"{name}/{SECTION_PAGE}", page_of_anchor) + "\n" for name, text in pages.items()}
-
-
-def _report_pages(out: Path, run: dict) -> tuple[str, dict[str, str]]:
-    return _report_markdown(out, run, paged=True)
 
 
 def _profile_description(run: dict) -> str:
@@ -501,7 +508,7 @@ def _section_facts(name: str, res: dict, nb: dict) -> str:
     cpu_model = (prov.get("machine") or {}).get("cpu_model")
     if cpu_model:
         text += f" on {md_escape(cpu_model)}, {md_escape(prov['machine'].get('cpus'))} cores"
-    renderer = SPLAT_RENDERERS.get((res.get("parameters") or {}).get("splat_device"))
+    renderer = SPLAT_RENDERERS.get(str((res.get("parameters") or {}).get("splat_device")))
     if renderer:
         text += f"; frames splatted by {renderer}"
     return text + ("; kept from an earlier run (same content key)" if nb.get("kept") else "") + ".*"

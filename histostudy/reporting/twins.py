@@ -84,7 +84,7 @@ def _reason(key: str, sections: dict[str, dict], run: dict | None) -> Markdown:
     if needs:
         needed_key, why = needs
         section, needed = _primary(_comparisons(sections, needed_key), needed_key)
-        if needed is not None:
+        if section is not None and needed is not None:
             return Markdown(f"not computed in {md_link(section, section_anchor(section))}: {md_escape(why)}; "
                             f"this run's {md_escape(PAPER[needed_key].label)}: {md_escape(needed['ours_text'])}")
     number = _NOTEBOOK_OF_GROUP.get(key.split(".")[0])
