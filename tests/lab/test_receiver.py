@@ -352,14 +352,21 @@ def test_a_cine_sent_gets_a_pose_per_pair_as_a_direct_tracker(cine, views, model
         assert line["frame_times"] == [expected_time, expected_time]
         assert np.asarray(line["T_carm_transducer"]).shape == (4, 4)
     assert_same_poses(lines, direct)
-    assert [line["tracking"] for line in lines][1:] == ["warm"] * (N_FRAMES - 1)
+    # held to the truth, not to one network's way of getting there: every pose within 1 mm of the
+    # cine's (the shipped stages: 0.33-0.37 mm), the first from scratch, the others warm or
+    # re-acquired as the network's verdicts go (docs/campaigns.md, "Why a better U-Net was refused")
+    for line, T in zip(lines, cine["poses"]):
+        true_focal = T[:3, :3] @ model.focal_point_mm + T[:3, 3]
+        assert np.linalg.norm(np.asarray(line["focal_point_mm"]) - true_focal) < 1.0, line["pair_index"]
+    kinds = [line["tracking"] for line in lines]
+    assert kinds[0] == "from_scratch" and set(kinds[1:]) <= {"warm", "reacquired"} and "warm" in kinds
     assert (stats["objects_received"], stats["frames_received"], stats["pairs_processed"], stats["objects_rejected"],
             stats["frames_unpaired"]) == (2, 2 * N_FRAMES, N_FRAMES, 0, 0)
     assert stats["frames_per_s"] > 0 and stats["pose_frames_per_s"] >= stats["frames_per_s"]
     assert set(stats["seconds_per_pair"]) >= {"decode", "segmentation", "refinement", "total", "pose", "latency"}
     assert stats["tracker"]["n_updates"] == N_FRAMES
     # warmed up at the start (Tracker.warm_up), and its two updates not counted among the pairs'
-    assert stats["warm_up_s"] > 0 and stats["tracker"]["n_from_scratch"] == 1
+    assert stats["warm_up_s"] > 0 and stats["tracker"]["n_from_scratch"] == 1 + kinds.count("reacquired")
 
 
 @pytest.mark.slow
