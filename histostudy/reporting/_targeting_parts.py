@@ -5,6 +5,7 @@ render. C-arm (CBCT, world) frame, LPS, mm; pyvista is imported inside the drawi
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -107,6 +108,8 @@ def _transducer_points(model, T_ct: np.ndarray | None, rng: np.random.Generator 
     :data:`FEATURE_CLASSES` order, empty classes left out); empty without a pose."""
     transducer_pts = {}
     if T_ct is not None:
+        if rng is None:  # _check_pairs refuses a model without one first
+            raise ValueError("rng (numpy.random.Generator) is required to subsample the transducer model's points")
         R, t = T_ct[:3, :3], T_ct[:3, 3]
         for k in FEATURE_CLASSES:
             pts = np.asarray(model.points[k])
@@ -128,7 +131,7 @@ class _TargetingScene:
     views: list
     frames: np.ndarray | None
     T_ct: np.ndarray | None
-    model: object
+    model: Any  # a TransducerModel (its points, spec and focal point)
     transducer_pts: dict
     colours: dict
     T_cp: np.ndarray | None
@@ -190,6 +193,8 @@ def _draw_transducer(plotter, scene: _TargetingScene, point_size: float, label) 
     to the cap's apex and, with the robot, the mount from the flange to the apex (C-arm mm)."""
     import pyvista as pv
 
+    if scene.T_ct is None:
+        return
     R, t = scene.T_ct[:3, :3], scene.T_ct[:3, 3]
     for k, pts in scene.transducer_pts.items():
         plotter.add_points(pts, color=scene.colours[k], point_size=point_size, render_points_as_spheres=False,
@@ -214,12 +219,12 @@ def _draw_scene(plotter, scene: _TargetingScene, point_size: float, legend: bool
         _draw_robot(plotter, scene.frames, label)
     if scene.T_ct is not None:
         _draw_transducer(plotter, scene, point_size, label)
-    if scene.T_cp is not None:
+    if scene.T_cp is not None and scene.half_phantom is not None:  # set together (_half_phantom)
         h = scene.half_phantom
         box = pv.Box(bounds=(-h, h, -h, h, -h, h)).transform(scene.T_cp, inplace=False)
         plotter.add_mesh(box, color=(0.85, 0.7, 0.45), opacity=0.35, label=label("phantom"))
         plotter.add_mesh(box.extract_feature_edges(), color=(0.55, 0.4, 0.2), line_width=2)
-    if scene.zone_centre is not None:
+    if scene.zone_centre is not None and scene.zone_radius_mm is not None:  # given together (checked)
         plotter.add_mesh(pv.Sphere(radius=float(scene.zone_radius_mm), center=scene.zone_centre),
                          color=(0.0, 0.75, 0.8), opacity=0.5, label=label("treated zone"))
     if scene.target is not None:
@@ -259,11 +264,12 @@ def _render(scene: _TargetingScene, *, width: int, height: int, direction: np.nd
     near = _close_up_points(scene)
     panels = 2 if close_up and near else 1
     plotter = pv.Plotter(off_screen=True, window_size=[width, height], shape=(1, panels), border=False)
-    plotter.set_background("white")
+    plotter.set_background("white")  # type: ignore[arg-type]  # pyvista's decorated method types
     plotter.subplot(0, 0)
     _draw_scene(plotter, scene, point_size, legend=True)
-    plotter.add_legend(bcolor="white", face="circle", size=(0.3 if panels == 2 else 0.24, 0.26), loc="lower right")
-    plotter.add_axes(xlabel="x (L)", ylabel="y (P)", zlabel="z (S)")
+    plotter.add_legend(bcolor="white", face="circle", size=(0.3 if panels == 2 else 0.24, 0.26),  # type: ignore[call-arg]
+                       loc="lower right")
+    plotter.add_axes(xlabel="x (L)", ylabel="y (P)", zlabel="z (S)")  # type: ignore[call-arg]  # pyvista's types
     _aim(plotter, direction)
     if zoom != 1.0:
         plotter.camera.zoom(float(zoom))

@@ -155,7 +155,8 @@ def stage_table(run: dict) -> tuple[list[str], list[list[str]], str] | None:
             return "n/a"
         return " / ".join("n/a" if v is None else f"{v / scale:.{digits}f}" for v in times)
 
-    rows, sums = [], [(0.0, 0.0)] * (len(used) + 2)
+    rows: list = []
+    sums: list[tuple] = [(0.0, 0.0)] * (len(used) + 2)
     for n in timed:
         stages, other = n.get("stages"), n.get("other") or {}
         times = [_stage_times(stages, s) for s in used]

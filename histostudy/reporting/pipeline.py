@@ -93,7 +93,7 @@ def select_notebooks(notebooks: Sequence[Path], only: Sequence[str] | None) -> l
     """
     if not only:
         return list(notebooks)
-    chosen = []
+    chosen: list[Path] = []
     for name in only:
         matches = [p for p in notebooks if name in (p.stem, p.stem[:2], p.stem[3:])]
         if not matches:
@@ -169,7 +169,7 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
     (out / "notebooks").mkdir(parents=True, exist_ok=True)
     log = log or (lambda msg: print(msg, file=sys.stderr, flush=True))
     log(f"notebooks: {notebooks_dir.resolve()}")
-    record = {
+    record: dict = {
         "profile": prof.name,
         "profile_source": prof.source,
         "seed": prof.seed,
@@ -237,6 +237,8 @@ class _NotebookTask:
         """Execute the notebook, or keep its finished section when its content key is unchanged;
         its :class:`NotebookFailed` is returned, not raised."""
         params, name, key, kept = self.params, self.nb_path.stem, self.key, self.kept
+        if key is None:
+            raise RuntimeError(f"notebook {name}: run() before prepare() computed its content key")
         self.entry.update(output_dir=str(self.section_dir), parameters=params, key=key.key)
         if kept is not None:
             self.entry.update(status="ok", kept=True, seconds=kept["seconds"], cpu_seconds=kept.get("cpu_seconds"),
@@ -314,7 +316,7 @@ def _estimate(tasks: list[_NotebookTask], out: Path, profile_name: str) -> None:
     """Set each task's estimate from the last finished run with its parameters (this output folder,
     then the published run of the profile), and the time left from it on."""
     places = [out, REPO_ROOT / "docs" / "results" / profile_name]
-    left = 0.0
+    left: float | None = 0.0
     for task in reversed(tasks):
         task.prepare()
         task.estimate = estimate_seconds(task.nb_path.stem, task.params, places)
@@ -341,8 +343,9 @@ def _run_tasks(tasks: list[_NotebookTask], kernel_name: str, workers: int, recor
     first failure (a :class:`NotebookFailed`, or the interruption), None when every notebook ran."""
     from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 
-    waiting, running = list(tasks), {}
-    failure = None
+    waiting: list[_NotebookTask] = list(tasks)
+    running: dict = {}  # future -> its _NotebookTask
+    failure: BaseException | None = None
     pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="notebook")
     try:
         while waiting or running:

@@ -46,6 +46,12 @@ FEATURE_NAMES = {
 }
 
 
+
+def _rgb(colour) -> tuple[float, float, float]:
+    """An 8-bit ``(r, g, b)`` as matplotlib's 0-1 floats."""
+    r, g, b = (float(c) / 255.0 for c in colour)
+    return r, g, b
+
 def label_rgb(labels: np.ndarray) -> np.ndarray:
     """Colour a label map with the paper's Fig. 5 colours (:data:`FEATURE_COLOURS`).
 
@@ -107,7 +113,7 @@ def plot_frames_with_labels(frames: Sequence, predictions: Sequence[np.ndarray] 
         for ax in axes[i]:
             ax.set_xticks([])
             ax.set_yticks([])
-    handles = [Patch(color=np.array(FEATURE_COLOURS[k]) / 255, label=FEATURE_NAMES[k]) for k in FEATURE_CLASSES]
+    handles = [Patch(color=_rgb(FEATURE_COLOURS[k]), label=FEATURE_NAMES[k]) for k in FEATURE_CLASSES]
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), frameon=False)
     fig.tight_layout(rect=(0, 0.05, 1, 1))
     return fig
@@ -154,14 +160,14 @@ def plot_pose_overlay(frames: Sequence, model, T_carm_transducer, *, rng: np.ran
             if len(pts) > max_points_per_class:
                 pts = pts[rng.choice(len(pts), max_points_per_class, replace=False)]
             px = frame.view.project(pts @ T[:3, :3].T + T[:3, 3])
-            axes[i, 1].scatter(px[:, 0], px[:, 1], s=0.3, color=np.array(FEATURE_COLOURS[k]) / 255, alpha=0.6,
+            axes[i, 1].scatter(px[:, 0], px[:, 1], s=0.3, color=_rgb(FEATURE_COLOURS[k]), alpha=0.6,
                                linewidths=0)
         focal = frame.view.project(T[:3, :3] @ np.asarray(model.focal_point_mm, float) + T[:3, 3])[0]
         axes[i, 1].plot(*focal, "r+", markersize=12, markeredgewidth=2)
         rows, cols = frame.shape
         axes[i, 1].set_xlim(-0.5, cols - 0.5)
         axes[i, 1].set_ylim(rows - 0.5, -0.5)
-    handles = [Line2D([], [], marker="o", linestyle="", color=np.array(FEATURE_COLOURS[k]) / 255,
+    handles = [Line2D([], [], marker="o", linestyle="", color=_rgb(FEATURE_COLOURS[k]),
                       label=FEATURE_NAMES[k]) for k in FEATURE_CLASSES]
     handles.append(Line2D([], [], marker="+", linestyle="", color="r", label="focal point"))
     fig.legend(handles=handles, loc="lower center", ncol=len(handles), frameon=False)
@@ -196,7 +202,7 @@ def model_scene(model, *, rng: np.random.Generator, max_points_per_class: int = 
     import pyvista as pv
 
     plotter = pv.Plotter(off_screen=True, window_size=list(window_size))
-    plotter.set_background("white")
+    plotter.set_background("white")  # type: ignore[arg-type]  # pyvista's decorated method types
     for k in FEATURE_CLASSES:
         pts = model.points[k]
         if len(pts) == 0:
@@ -209,11 +215,11 @@ def model_scene(model, *, rng: np.random.Generator, max_points_per_class: int = 
     plotter.add_mesh(pv.Sphere(radius=3.0, center=focal), color="red", label="focal point")
     apex = np.array([0.0, 0.0, model.spec.radius_mm])
     plotter.add_mesh(pv.Line(focal, apex), color="red", line_width=2)
-    plotter.add_legend(bcolor="white", face="circle", size=(0.22, 0.22))
+    plotter.add_legend(bcolor="white", face="circle", size=(0.22, 0.22))  # type: ignore[call-arg]  # pyvista's types
     plotter.camera_position = "xz"
     plotter.camera.elevation = camera_elevation_deg
     plotter.camera.azimuth = camera_azimuth_deg
-    plotter.reset_camera()
+    plotter.reset_camera()  # type: ignore[call-arg]  # pyvista's decorated method types
     plotter.camera.zoom(1.3)
     image = plotter.screenshot(return_img=True)
     plotter.close()
