@@ -57,7 +57,7 @@ def test_the_version_lives_in_one_place():
     """``histostudy.__version__`` is the version; pyproject.toml reads it, CITATION.cff repeats it."""
     project = tomllib.loads((REPO / "pyproject.toml").read_text())
     assert "version" not in project["project"] and "version" in project["project"]["dynamic"]
-    assert project["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "histostudy.__version__"}
+    assert project["tool"]["hatch"]["version"] == {"path": "histostudy/__init__.py"}  # hatchling reads it there
     cited = re.search(r"^version: (\S+)$", (REPO / "CITATION.cff").read_text(), re.M).group(1)
     assert cited == histostudy.__version__
     assert re.fullmatch(r"\d+\.\d+\.\d+", histostudy.__version__)

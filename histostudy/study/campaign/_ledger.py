@@ -16,7 +16,13 @@ FORMAT = "histostudy.campaign-ledger"
 
 
 def read_ledger(path) -> list[dict]:
-    """The entries of the ledger at ``path`` (an empty list where there is none yet).
+    """The entries of a campaign's ledger.
+
+    Args:
+        path: the ledger file (``data/campaigns/<name>/ledger.json``).
+
+    Returns:
+        Its runs, oldest first; an empty list where there is no ledger yet.
 
     Raises:
         ValueError: the file is not a campaign ledger (the message names it).
@@ -36,6 +42,11 @@ def read_ledger(path) -> list[dict]:
 def append_entry(path, campaign: str, entry: dict) -> dict:
     """Add ``entry`` to the ledger at ``path`` as its next run (numbered from 1), atomically.
 
+    Args:
+        path: the ledger file (created with its first run).
+        campaign: the campaign's name.
+        entry: the run's record (JSON-able after :func:`~histostudy.core.to_jsonable`).
+
     Returns:
         The entry as written, with its ``run`` number.
     """
@@ -46,10 +57,17 @@ def append_entry(path, campaign: str, entry: dict) -> dict:
 
 
 def ledger_table(runs: list[dict]) -> pd.DataFrame:
-    """One row per step: when, where (CPU or GPU), how it started, wall minutes, CPU-hours (this step's
-    training and the campaign's to date), training steps to date, and the held-out figures (a U-Net's
-    screws precision / recall / IoU and pixel accuracy, percent; a VGG19's azimuth and elevation MAE
-    and median direction error, deg)."""
+    """The ledger as a table.
+
+    Args:
+        runs: the ledger's runs (:func:`read_ledger`).
+
+    Returns:
+        One row per step: when, where (CPU or GPU), how it started, wall minutes, CPU-hours (this
+        step's training and the campaign's to date), training steps to date, and the held-out
+        figures (a U-Net's screws precision / recall / IoU and pixel accuracy, percent; a VGG19's
+        azimuth and elevation MAE and median direction error, deg) with their seed and frames.
+    """
     rows, total = [], 0.0
     for run in runs:
         total += float(run.get("cpu_hours", 0.0))

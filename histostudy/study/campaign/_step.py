@@ -34,7 +34,15 @@ __all__ = ["campaign_run_dir", "run_campaign_step"]
 
 
 def campaign_run_dir(spec: CampaignSpec, cache_dir=None) -> Path:
-    """Where this machine keeps the campaign's training run: ``<cache>/campaigns/<name>/run``."""
+    """Where this machine keeps the campaign's training run.
+
+    Args:
+        spec: the campaign.
+        cache_dir: the machine's cache folder (default: :func:`~histostudy.learning.default_cache_dir`).
+
+    Returns:
+        ``<cache>/campaigns/<name>/run`` (not created here).
+    """
     return (default_cache_dir() if cache_dir is None else Path(cache_dir)) / "campaigns" / spec.name / "run"
 
 

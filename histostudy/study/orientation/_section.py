@@ -163,7 +163,15 @@ def evaluate_orientation(source, frames: Iterable, rng: np.random.Generator | No
 
 
 def angle_table(results: pd.DataFrame) -> pd.DataFrame:
-    """The §III statistics per angle: MAE, SD, Pearson r (percent) and p, intercept, slope, R², n."""
+    """The §III statistics per angle.
+
+    Args:
+        results: :func:`evaluate_orientation`'s rows.
+
+    Returns:
+        One row per angle (azimuth, wrapped; elevation): MAE and SD (deg), Pearson r (percent) and p,
+        intercept (deg), slope, R² and n.
+    """
     rows = []
     for angle, wrap in (("azimuth", True), ("elevation", False)):
         s = angle_statistics(np.radians(results[f"{angle}_pred_deg"]), np.radians(results[f"{angle}_ref_deg"]),
