@@ -63,8 +63,8 @@ def add_parsers(sub, parents) -> None:
         sub, "publish", parents,
         help="publish a finished reproduce folder into the repository (docs/results/<profile>)",
         description="Copy a finished `histostudy reproduce` run's report, run record, sections' results, tables and "
-                    "figures (not the executed notebooks) into a folder of the repository, replaced whole, and "
-                    "put its headline table into the README between its markers.",
+                    "figures, and its executed notebooks (the machine's paths taken out), into a folder of the "
+                    "repository, replaced whole, and put its headline table into the README between its markers.",
         example="histostudy publish reports-standard --to docs/results/standard --readme README.md")
     pub.add_argument("run_dir", metavar="RUN_DIR", help="the folder histostudy reproduce wrote")
     pub.add_argument("--to", required=True, metavar="DIR", help="where to publish (replaced whole)")

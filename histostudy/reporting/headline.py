@@ -76,7 +76,8 @@ def headline_markdown(coverage: list[dict]) -> list[str]:
     legend = ("A number **agrees** when it is within the paper's SD of the paper's value, **differs** beyond it, "
               "and is ⚠ **far off** beyond three SDs; it is **better than the paper** where it differs in the "
               "direction this study is expected to, for the reason given (a pose or targeting error without "
-              "the lab's error sources). *why* links to what stands in for the lab in that section. Every "
+              "the lab's error sources). *why* links to the section's sentence on a known cause of the "
+              "difference, and to what stands in for the lab there. Every "
               f"other number of the paper is in {md_link(TWINS_HEADING.lower(), TWINS_ANCHOR)}.")
     return [md_table(["Paper result", "Paper", "This run", "Difference", "Status"], rows), "", legend, ""]
 

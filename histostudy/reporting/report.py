@@ -25,14 +25,22 @@ from histostudy.core import (
 )
 
 from .agreement import FAR_OFF, NOT_JUDGED, judge
-from .expected import BETTER, expected_reason
+from .expected import BETTER, as_sentence, known_cause, section_causes
 from .headline import SOFTWARE_ANCHOR, contents_markdown, headline_markdown, profile_banner, run_facts
 from .markdown import dataframe_markdown, md_code, md_escape, md_table
 from .pages import SECTION_PAGE, anchors_of, relink, shorten_table
 from .paper import PAPER, paper_value
 from .profiles import load_profile
 from .report_html import render_html
-from .twins import TWINS_ANCHOR, TWINS_HEADING, results_coverage, section_anchor, stand_ins_anchor, twins_markdown
+from .twins import (
+    TWINS_ANCHOR,
+    TWINS_HEADING,
+    results_coverage,
+    section_anchor,
+    stand_ins_anchor,
+    twins_markdown,
+    why_anchor,
+)
 
 __all__ = ["RESULTS_FILE", "SectionWriter", "build_report", "format_measure", "load_section"]
 
@@ -483,6 +491,12 @@ def _section_markdown(name: str, res: dict, nb: dict, section_dir: Path, *, page
         lines += [f"![{md_escape(f['caption'] or f['name'])}]({folder}{f['path']})", ""]
         if f["caption"]:
             lines += [f"*{md_escape(f['caption'])}*", ""]
+    causes = section_causes(comps)
+    if causes:
+        lines += ["Why its numbers differ from the paper's:", ""]
+        lines += [f'- <a id="{why_anchor(name, cause.slug)}"></a>**{md_escape(cause.title)}** '
+                  f'({md_escape(", ".join(labels))}): {as_sentence(cause.reason)}' for cause, labels in causes]
+        lines.append("")
     stand_ins = res.get("stand_ins", [])
     if stand_ins:
         lines += [f'<a id="{stand_ins_anchor(name)}"></a>', "", "What stands in for the lab:", ""]
@@ -525,7 +539,8 @@ def _versus_paper(comparison: dict) -> str:
     flag = "⚠ " if agreement.status == FAR_OFF else ""
     prefix = "" if agreement.difference is None else f"{agreement.difference_text()}, "
     key = comparison.get("paper_key") or comparison.get("key") or ""
-    if expected_reason(key, comparison.get("ours"), value.mean, agreement) is not None:
+    cause = known_cause(key, comparison.get("ours"), value.mean, agreement, row_key=comparison.get("key"))
+    if cause is not None and cause.better:
         return f"{prefix}{BETTER}{agreement.summary()[len(agreement.status):]}"
     return f"{prefix}{flag}{agreement.summary()}"
 

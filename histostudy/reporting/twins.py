@@ -5,12 +5,12 @@ reproduces it, the value, the difference and the status, or why this run has non
 from __future__ import annotations
 
 from .agreement import AGREES, FAR_OFF, NOT_JUDGED, judge
-from .expected import BETTER, BUDGET_SECTION, expected_reason
+from .expected import BETTER, BUDGET_SECTION, known_cause
 from .markdown import Markdown, md_code, md_escape, md_link, md_table
 from .paper import PAPER
 
 __all__ = ["RESULT_KEYS", "TWINS_HEADING", "TWINS_ANCHOR", "results_coverage", "section_anchor", "stand_ins_anchor",
-           "status_markdown", "twins_markdown"]
+           "status_markdown", "twins_markdown", "why_anchor"]
 
 TWINS_HEADING = "The paper's results and their reproduced twins"
 TWINS_ANCHOR = "twins"
@@ -31,6 +31,12 @@ def section_anchor(name: str) -> str:
 def stand_ins_anchor(name: str) -> str:
     """The anchor of section ``name``'s list of what stands in for the lab."""
     return f"{name}-stand-ins"
+
+
+def why_anchor(name: str, slug: str) -> str:
+    """The anchor of the sentence in section ``name`` that explains a difference (a
+    :class:`~.expected.KnownCause`'s ``slug``)."""
+    return f"{name}-why-{slug}"
 
 
 def results_coverage(sections: dict[str, dict], run: dict | None = None) -> list[dict]:
@@ -101,19 +107,21 @@ def _reason(key: str, sections: dict[str, dict], run: dict | None) -> Markdown:
 
 
 def status_markdown(row: dict) -> Markdown:
-    """A coverage row's status for a table cell: the agreement in bold (far off flagged with ⚠),
-    and, where the number differs or was not judged, a link to its section's stand-ins (why);
-    "better than the paper" with its reason where the difference is one this study expects
-    (:func:`~.expected.expected_reason`); the reason where there is no twin."""
+    """A coverage row's status for a table cell: the agreement in bold (far off flagged with ⚠);
+    where the number differs for a known cause (:func:`~.expected.known_cause`), "better than the
+    paper" with its reason, or a link to the section's sentence on the cause and then to its
+    stand-ins (why); where it differs otherwise or was not judged, a link to the stand-ins; the
+    reason where there is no twin."""
     agreement = row["agreement"]
     if agreement is None:
         return Markdown(row["reason"])
     summary, status = agreement.summary(), agreement.status
     name = row["section"]
-    expected = expected_reason(row["key"], row["comparison"]["ours"], PAPER[row["key"]].mean, agreement)
-    if expected is not None:  # summary() starts with the status
+    cause = known_cause(row["key"], row["comparison"]["ours"], PAPER[row["key"]].mean, agreement,
+                        row_key=row["comparison"].get("key"))
+    if cause is not None and cause.better:  # summary() starts with the status
         budget = f"; {md_link('the error budget adds them', BUDGET_SECTION)}" if row.get("budget_in_run") else ""
-        return Markdown(f"**{BETTER}**{md_escape(summary[len(status):])}: {md_escape(expected)}{budget}")
+        return Markdown(f"**{BETTER}**{md_escape(summary[len(status):])}: {md_escape(cause.reason)}{budget}")
     if status == NOT_JUDGED:
         text = md_escape(summary)
     else:
@@ -121,8 +129,12 @@ def status_markdown(row: dict) -> Markdown:
     if status == AGREES:
         return text
     number = name[:2] if name[:2].isdigit() else name
-    if status != NOT_JUDGED and row["stand_ins"]:
-        return Markdown(f"{text}; why: {md_link(f'{number} stand-ins', stand_ins_anchor(name))}")
+    stand_ins = md_link(f"{number} stand-ins", stand_ins_anchor(name)) if row["stand_ins"] else None
+    if cause is not None:
+        return Markdown(f"{text}; why: {md_link(cause.title, why_anchor(name, cause.slug))}"
+                        + (f", {stand_ins}" if stand_ins else ""))
+    if status != NOT_JUDGED and stand_ins:
+        return Markdown(f"{text}; why: {stand_ins}")
     return Markdown(f"{text}; see {md_link(number, section_anchor(name))}")
 
 

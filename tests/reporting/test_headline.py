@@ -44,7 +44,8 @@ def test_headline_sets_each_key_result_beside_the_paper_with_difference_and_stat
     rows = {key: line for key, line in zip(HEADLINE_KEYS, table[2:])}
     assert rows["angles.azimuth.mae"] == (
         "| [Azimuth MAE (§III)](#03_angles) | 1.06 ± 0.71 deg | 24.63 ± 31.29 deg | +23.57 deg | "
-        "⚠ **far off** (33 SD above); why: [03 stand-ins](#03_angles-stand-ins) |")
+        "⚠ **far off** (33 SD above); why: [a small VGG19 trained on a CPU](#03_angles-why-network), "
+        "[03 stand-ins](#03_angles-stand-ins) |")
     assert rows["angles.elevation.mae"].endswith("| +0.74 deg | **agrees** (0.3 SD) |")
     assert rows["targeting.euclidean"].endswith("| — | — | not in this run: notebook 05 was not run |")
     for key in HEADLINE_KEYS:
