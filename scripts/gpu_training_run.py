@@ -126,7 +126,7 @@ def main(argv=None) -> int:
         export_name,
         full_precision_copy,
         half_precision_copy,
-        run_frame_sets,
+        prerender_run,
         train,
     )
     from histostudy.reporting import load_profile
@@ -167,10 +167,7 @@ def main(argv=None) -> int:
     # 1. render every table's frames first: the training budgets are then known
     for name, cfg in configs.items():
         t0 = time.monotonic()
-        rendered = sum(HybridFrames(split, profile.seed, config=render, cache_dir=cache)
-                       .prerender(n, workers=args.render_workers)
-                       for render, n_train, n_val in run_frame_sets(cfg)
-                       for split, n in (("val", n_val), ("train", n_train)))
+        rendered = prerender_run(cfg, profile.seed, cache_dir=cache, workers=args.render_workers)
         seconds = time.monotonic() - t0
         record["tables"][name] = {"frames_rendered": rendered, "render_seconds": round(seconds, 1),
                                   "frames_per_second": round(rendered / seconds, 2) if rendered else None}

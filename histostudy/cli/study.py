@@ -230,13 +230,10 @@ def _train(args) -> int:
     if (args.render_workers > 1 or args.render_only) and cfg.cache:
         import time
 
-        from histostudy.learning import HybridFrames, run_frame_sets
+        from histostudy.learning import prerender_run
 
         t0 = time.monotonic()
-        rendered = sum(HybridFrames(split, profile.seed, config=render, cache_dir=default_cache_dir())
-                       .prerender(n, workers=args.render_workers)
-                       for render, n_train, n_val in run_frame_sets(cfg)
-                       for split, n in (("val", n_val), ("train", n_train)))
+        rendered = prerender_run(cfg, profile.seed, cache_dir=default_cache_dir(), workers=args.render_workers)
         print(f"rendered {rendered} uncached frames in {(time.monotonic() - t0) / 60:.1f} min "
               f"with {args.render_workers} processes")
         if args.render_only:

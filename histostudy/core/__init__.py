@@ -14,7 +14,7 @@ from .memo import GeneratorMemo, MemoScope, value_digest
 from .provenance import git_commit, provenance
 from .seeding import as_generator
 from .shipped import shipped_dir
-from .stage_profile import STAGES, merge_stage_totals, stage, stage_delta, stage_totals
+from .stage_profile import STAGES, cpu_seconds, merge_stage_totals, stage, stage_delta, stage_totals
 from .sweep_cache import SWEEP_CACHE_ENV, files_digest, package_digest
 from .sweeps import SweepExecutor, SweepTaskError, resolve_executor, run_sweep
 from .world_frame import WORLD_FRAME, world_frame_keys
@@ -33,7 +33,7 @@ __all__ = [
     # results computed once within a scope
     "GeneratorMemo", "MemoScope", "value_digest",
     # the time of a run by stage
-    "STAGES", "stage", "stage_totals", "stage_delta", "merge_stage_totals",
+    "STAGES", "stage", "stage_totals", "stage_delta", "merge_stage_totals", "cpu_seconds",
     # frames
     "WORLD_FRAME", "world_frame_keys",
 ]

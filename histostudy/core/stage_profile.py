@@ -7,11 +7,12 @@ from __future__ import annotations
 
 import contextlib
 import os
+import resource
 import threading
 import time
 from collections.abc import Mapping
 
-__all__ = ["STAGES", "merge_stage_totals", "stage", "stage_delta", "stage_totals"]
+__all__ = ["STAGES", "cpu_seconds", "merge_stage_totals", "stage", "stage_delta", "stage_totals"]
 
 #: The stages a run's time is charged to, in the order the report lists them.
 STAGES = ("render", "segment", "orient", "pose", "calibrate", "statistics", "report")
@@ -20,6 +21,27 @@ STAGES = ("render", "segment", "orient", "pose", "calibrate", "statistics", "rep
 #: ``time.process_time``). Module attributes, so that a test can replace them with a clock it steps.
 wall_clock = time.perf_counter
 cpu_clock = time.process_time
+
+
+
+def cpu_seconds(*, own: bool = True, children: bool = True) -> float:
+    """User + system CPU seconds of this process and of its children that have finished and been
+    waited for (rendering workers, notebook kernels), as a run's CPU-hours count them.
+
+    Args:
+        own: count this process (all its threads).
+        children: count its reaped children.
+
+    Returns:
+        The seconds since each process started; a difference of two readings is a block's.
+    """
+    total = 0.0
+    for who, wanted in ((resource.RUSAGE_SELF, own), (resource.RUSAGE_CHILDREN, children)):
+        if wanted:
+            usage = resource.getrusage(who)
+            total += usage.ru_utime + usage.ru_stime
+    return total
+
 
 _FIELDS = ("wall_s", "cpu_s", "calls")
 _LOCK = threading.Lock()

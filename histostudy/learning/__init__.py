@@ -37,6 +37,7 @@ from .training import (
     export_name,
     full_precision_copy,
     half_precision_copy,
+    prerender_run,
     run_frame_sets,
     train,
 )
@@ -50,6 +51,6 @@ __all__ = [
     "select_direction", "angles_from_direction", "beam_direction_of_pose", "orientation_angle_error", "wrap_angle",
     # training data, training and checkpoints
     "HybridFrames", "RenderConfig", "default_cache_dir", "build_network", "TrainingConfig", "TRAINING_TABLES",
-    "train", "export", "export_name", "run_frame_sets", "full_precision_copy", "half_precision_copy",
+    "train", "export", "export_name", "run_frame_sets", "prerender_run", "full_precision_copy", "half_precision_copy",
     "MODELS_DIR", "shipped_model", "training_summary",
 ]

@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import resource
 import sys
 import tempfile
 import time
@@ -15,7 +14,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from histostudy.core import SWEEP_CACHE_ENV, atomic_path, provenance, shipped_dir
+from histostudy.core import SWEEP_CACHE_ENV, atomic_path, cpu_seconds, provenance, shipped_dir
 from histostudy.core.provenance import REPO_ROOT
 
 from .interrupts import StudyInterrupted, remove_temporaries, signals_interrupt, stop_kernels
@@ -252,7 +251,7 @@ class _NotebookTask:
         self.entry.update(status="running", kept=False)
         self.log(f"[{self.index}/{self.count}] {name} (profile {self.profile.name}; runs: {why or 'no finished run'})"
                  + _estimate_text(self.estimate, self.left_s))
-        t0, cpu0 = time.perf_counter(), _children_cpu_seconds()
+        t0, cpu0 = time.perf_counter(), cpu_seconds(own=False)
         failure = None
         try:
             _execute(self.nb_path, self.executed_path, params, kernel_name, self.progress)
@@ -260,7 +259,7 @@ class _NotebookTask:
             failure = exc
         finally:
             self.entry["seconds"] = time.perf_counter() - t0
-            self.entry["cpu_seconds"] = _children_cpu_seconds() - cpu0 if self.alone else None
+            self.entry["cpu_seconds"] = cpu_seconds(own=False) - cpu0 if self.alone else None
         self.entry["status"] = "ok" if failure is None else "failed"
         if failure is None:
             self.entry.update(section_stages(self.section_dir, self.entry["seconds"], self.entry["cpu_seconds"]))
@@ -304,12 +303,6 @@ def section_stages(section_dir, seconds: float, cpu_seconds: float | None) -> di
     cpu = sum(float(s.get("cpu_s", 0.0)) for s in stages.values())
     return {"stages": stages, "other": {"wall_s": max(0.0, float(seconds) - wall),
                                         "cpu_s": None if cpu_seconds is None else max(0.0, float(cpu_seconds) - cpu)}}
-
-
-def _children_cpu_seconds() -> float:
-    """User + system CPU seconds of this process's finished children (the kernels and their workers)."""
-    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return usage.ru_utime + usage.ru_stime
 
 
 def _estimate(tasks: list[_NotebookTask], out: Path, profile_name: str) -> None:

@@ -2,6 +2,7 @@
 inside itself, a bad name, threads, decorators, snapshots, their difference and merged totals."""
 
 import threading
+import time
 
 import pytest
 
@@ -151,3 +152,21 @@ def test_a_snapshot_is_a_copy(stage_clock):
     snapshot["report"]["calls"] += 100
     snapshot.pop("report")
     assert stage_totals()["report"]["calls"] == calls
+
+
+def test_cpu_seconds_counts_this_process_and_its_finished_children():
+    import subprocess
+    import sys
+
+    from histostudy.core import cpu_seconds
+
+    own0, children0 = cpu_seconds(children=False), cpu_seconds(own=False)
+    t_end = time.process_time() + 0.2
+    while time.process_time() < t_end:  # 0.2 CPU-s of this process
+        pass
+    assert cpu_seconds(children=False) - own0 >= 0.19
+    assert cpu_seconds(own=False) == children0  # no child finished meanwhile
+    busy = "import time\nt = time.process_time() + 0.3\nwhile time.process_time() < t: pass"
+    subprocess.run([sys.executable, "-c", busy], check=True)
+    assert cpu_seconds(own=False) - children0 >= 0.3
+    assert cpu_seconds(own=False, children=False) == 0.0

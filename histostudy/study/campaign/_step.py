@@ -8,21 +8,20 @@ import dataclasses
 import fcntl
 import json
 import os
-import resource
 import time
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 
-from histostudy.core import check_count, check_positive, git_commit
+from histostudy.core import check_count, check_positive, cpu_seconds, git_commit
 from histostudy.core.machine import cpu_model, isa_flags
 from histostudy.learning import (
-    HybridFrames,
+    TrainingConfig,
     default_cache_dir,
     export,
     full_precision_copy,
     half_precision_copy,
-    run_frame_sets,
+    prerender_run,
     train,
 )
 
@@ -46,13 +45,7 @@ def campaign_run_dir(spec: CampaignSpec, cache_dir=None) -> Path:
     return (default_cache_dir() if cache_dir is None else Path(cache_dir)) / "campaigns" / spec.name / "run"
 
 
-def _cpu_seconds() -> float:
-    """CPU seconds of this process and its reaped children (the rendering processes), user and system."""
-    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
-    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
-
-
-def _starting_point(spec: CampaignSpec, run_dir: Path, log) -> tuple[str, object, float, int]:
+def _starting_point(spec: CampaignSpec, run_dir: Path, log) -> tuple[str, TrainingConfig, float, int]:
     """``(start, config, elapsed_s, steps)``: how this step starts (``"resumed"``, ``"restart from
     committed weights"`` or ``"fresh"``), the training configuration it resumes or starts, and the
     seconds and steps the run had trained before."""
@@ -127,15 +120,9 @@ def _step(spec, minutes, eval_seed, cache_dir, run_dir, eval_frames, render_work
     started = datetime.now(UTC)
     start, cfg, elapsed_s, steps_before = _starting_point(spec, run_dir, log)
     cfg = dataclasses.replace(cfg, max_minutes=elapsed_s / 60.0 + minutes)
-    t0, cpu0 = time.monotonic(), _cpu_seconds()
-    rendered = 0
-    for render, n_train, n_val in run_frame_sets(cfg):
-        for split, n in (("val", n_val), ("train", n_train)):
-            frames = HybridFrames(split, spec.seed, config=render, cache_dir=cache_dir if cfg.cache else None)
-            if cfg.cache and render_workers > 1:
-                rendered += frames.prerender(n, workers=render_workers)
-            elif cfg.cache:
-                rendered += sum(not frames.cached(i) for i in range(n))  # the loop renders these itself
+    t0, cpu0 = time.monotonic(), cpu_seconds()
+    # a run without the cache renders each epoch's frames anew in its own loop: none to count here
+    rendered = prerender_run(cfg, spec.seed, cache_dir=cache_dir, workers=render_workers) if cfg.cache else 0
     try:
         result = train(cfg, run_dir, seed=spec.seed, profile=f"campaign {spec.name}", resume=True,
                        progress=progress, log=log, cache_dir=cache_dir)
@@ -151,10 +138,10 @@ def _step(spec, minutes, eval_seed, cache_dir, run_dir, eval_frames, render_work
     manifest_file = export(result, cfg, "candidate", seed=spec.seed, profile=f"campaign {spec.name}",
                            models_dir=run_dir.parent)
     candidate, manifest = manifest_file.with_suffix(".safetensors"), json.loads(manifest_file.read_text())
-    t_train, cpu_train = time.monotonic() - t0, _cpu_seconds() - cpu0
+    t_train, cpu_train = time.monotonic() - t0, cpu_seconds() - cpu0
     held_out = evaluate_held_out(spec.task, candidate, seed=eval_seed, n_frames=eval_frames, cache_dir=cache_dir,
                                  render=spec.eval_render, workers=render_workers)
-    cpu_eval = _cpu_seconds() - cpu0 - cpu_train
+    cpu_eval = cpu_seconds() - cpu0 - cpu_train
     entry = {
         "started_utc": started.isoformat(timespec="seconds"),
         "finished_utc": datetime.now(UTC).isoformat(timespec="seconds"),

@@ -389,3 +389,18 @@ def test_cli_prerenders_the_fine_tune_frames_too(tmp_path, capsys, monkeypatch):
     assert "rendered 6 uncached frames" in capsys.readouterr().out  # 1 + 2 frames of each rendering
     manifest = json.loads((tmp_path / "models" / "vgg19_tiny.json").read_text())
     assert manifest["validation"]["stage"] == "finetune" and manifest["training_steps"] == 2
+
+
+def test_prerender_run_renders_each_stage_s_missing_frames_once(tmp_path):
+    from histostudy.learning import prerender_run
+
+    render = {"render_spacing_mm": 0.47, "label_spacing_mm": 0.47, "detector": [240, 320]}
+    cfg = TrainingConfig.from_table("orientation", {
+        "network": {"arch": "vgg19", "width": 1 / 32}, "scale": 0.25, "n_train": 2, "n_val": 1, "batch_size": 2,
+        "render": render, "fine_tune": {"n_train": 2, "n_val": 1, "learning_rate": 5e-4,
+                                        "render": {**render, "splat_sigma_mm": 0.25}}})
+    assert prerender_run(cfg, 11, cache_dir=tmp_path) == 6  # 2 + 1 frames of each of the two renderings
+    assert prerender_run(cfg, 11, cache_dir=tmp_path, workers=2) == 0  # all cached now
+    assert prerender_run(cfg, 12, cache_dir=tmp_path) == 6  # another seed: other frames
+    with pytest.raises(ValueError, match="workers must be an integer >= 1, got 0"):
+        prerender_run(cfg, 11, cache_dir=tmp_path, workers=0)
