@@ -150,7 +150,8 @@ class AllowList:
         hosts = [m.host for m in self.modalities if m.ae_title == ae_title.strip()]
         if not hosts:
             return f"the calling AE title {ae_title!r} is none of {self.ae_titles}"
-        return f"{ae_title!r} may call only from {sorted(set(hosts))}, not from {address}"
+        # a modality of that title without a host (None) would have allowed the peer: only addresses are left
+        return f"{ae_title!r} may call only from {sorted({h for h in hosts if h is not None})}, not from {address}"
 
     def __add__(self, other: AllowList) -> AllowList:
         return AllowList(self.modalities + other.modalities)
@@ -430,7 +431,8 @@ class ConnectionGuard:
             transport.socket.settimeout(self.timeout_s)
         except (AttributeError, OSError):  # closed already: a refused TLS handshake
             return
-        read, limit, held, refused = transport.recv, self.max_pdu_bytes, [0], []
+        refused: list[str] = []
+        read, limit, held = transport.recv, self.max_pdu_bytes, [0]
 
         def close(why: str) -> None:
             log.warning("closed the connection from %s: %s", peer, why)

@@ -83,13 +83,15 @@ def listen(views: Sequence[View], config: ReceiverConfig | None = None, *, max_p
         raise TypeError(f"on_summary must be callable (text -> None) or None, got {type(on_summary).__name__}")
     config = ReceiverConfig() if config is None else config
     check_listening_address(config.host, config.port)
-    receiver = None
+    receiver: FrameReceiver | None = None
 
     def posed(record: dict) -> None:
         try:
             if on_pose is not None:
                 on_pose(record)
         finally:  # the summary line even when the caller's on_pose fails (the receiver logs that)
+            # given as on_pose only with on_summary, and called by the receiver's worker once it started
+            assert on_summary is not None and receiver is not None
             on_summary(pose_summary(record, receiver.stats()["pairs_skipped"]))
 
     receiver = FrameReceiver(views, config, model=model, seed=seed,

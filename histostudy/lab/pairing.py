@@ -136,9 +136,9 @@ class BiplanePairer:
     def _drop_stale(self) -> list[PlaneFrame]:
         """Pending frames no future frame can complete: some other plane's frames have moved past
         them by the tolerance, and none of its pending frames matches them."""
-        dropped = []
+        dropped: list[PlaneFrame] = []
         for plane, pending in self._pending.items():
-            keep = []
+            keep: list[PlaneFrame] = []
             for f in pending:
                 stale = any(self._latest.get(q, -math.inf) - f.time_s >= self.tolerance(f)
                             and not any(abs(g.time_s - f.time_s) < self.tolerance(f, g) for g in self._pending[q])
@@ -240,10 +240,12 @@ def _cine_offsets_ms(ds, n: int) -> list[float]:
     """Each frame's offset (ms) from the first: FrameTimeVector where FrameIncrementPointer names it,
     else index x FrameTime."""
     pointer = getattr(ds, "FrameIncrementPointer", None)
-    try:
-        pointers = [] if pointer is None else [int(p) for p in pointer]
-    except TypeError:  # a single tag (an int), not a list of them
-        pointers = [int(pointer)]
+    pointers: list[int] = []
+    if pointer is not None:
+        try:
+            pointers = [int(p) for p in pointer]
+        except TypeError:  # a single tag (an int), not a list of them
+            pointers = [int(pointer)]
     vector = getattr(ds, "FrameTimeVector", None)
     if vector is not None and (0x00181065 in pointers or getattr(ds, "FrameTime", None) is None):
         try:
@@ -260,11 +262,14 @@ def _cine_offsets_ms(ds, n: int) -> list[float]:
             offsets.append(total - increments[0])
         return offsets
     frame_time = getattr(ds, "FrameTime", None)
+    needs_frame_time = (f"a cine of {n} frames needs FrameTime (0018,1063) in ms (or FrameTimeVector "
+                        f"(0018,1065)) to time its frames, got {frame_time!r}")
+    if frame_time is None:
+        raise ValueError(needs_frame_time)
     try:
         ms = float(frame_time)
     except (TypeError, ValueError):
-        raise ValueError(f"a cine of {n} frames needs FrameTime (0018,1063) in ms (or FrameTimeVector "
-                         f"(0018,1065)) to time its frames, got {frame_time!r}") from None
+        raise ValueError(needs_frame_time) from None
     if not (math.isfinite(ms) and ms > 0):
         raise ValueError(f"FrameTime (0018,1063) must be a finite interval > 0 ms, got {frame_time!r}")
     return [i * ms for i in range(n)]

@@ -15,25 +15,30 @@ from histostudy.core import to_jsonable
 from histostudy.pose import PoseResult, pose_record
 from histostudy.transducer import TransducerModel
 
-from .xray_objects import ReceivedFrame
+from .xray_objects import PendingFrame, ReceivedFrame
 
 __all__ = ["PoseLineFile", "pose_line"]
 
 log = logging.getLogger(__name__)
 
 
-def pose_line(index: int, frames: Sequence[ReceivedFrame], queued_at: float, taken_at: float, *,
+def pose_line(index: int, frames: Sequence[ReceivedFrame | PendingFrame], queued_at: float, taken_at: float, *,
               result: PoseResult | None, error: BaseException | None, tracking: str | None, t_free: float,
               t_written: float, model: TransducerModel | None = None) -> dict:
     """The JSON-ready line of pair ``index`` (module docstring): ``result``'s pose, or the ``error``
-    its pose work raised (``result`` then None). ``tracking``: the tracker's ``last_kind`` for the
-    result. Times are ``time.perf_counter`` seconds: ``queued_at`` / ``taken_at`` (the pair queued /
-    taken by the tracker), ``t_free`` (the worker's previous line written), ``t_written`` (now)."""
+    its pose work raised (``result`` then None; ``frames`` may then be the pair's
+    :class:`~.xray_objects.PendingFrame` objects, where their pixels raised); a ValueError where both
+    are None. ``tracking``: the tracker's ``last_kind`` for the result. Times are
+    ``time.perf_counter`` seconds: ``queued_at`` / ``taken_at`` (the pair queued / taken by the
+    tracker), ``t_free`` (the worker's previous line written), ``t_written`` (now)."""
     ids = [f"{f.instance_uid}[{f.frame_index}]" for f in frames]
     record = {"pair_index": index, "planes": [f.view.name for f in frames],
               "instance_uids": [f.instance_uid for f in frames], "frame_indices": [f.frame_index for f in frames],
               "frame_times": [f.acquired.isoformat() for f in frames]}
     if error is None:
+        if result is None:
+            raise ValueError(f"pair {index}: result=None and error=None: expected its PoseResult, or the error "
+                             "its pose work raised")
         record.update({**pose_record(result, ids, model=model), "tracking": tracking})
     else:
         record.update({"frames": ids, "accepted": False, "error": f"{type(error).__name__}: {error}",
@@ -57,7 +62,7 @@ class PoseLineFile:
         path: the file; created (honouring the umask) where it does not exist.
     """
 
-    def __init__(self, path):
+    def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
         self._fd: int | None = None
 

@@ -11,10 +11,12 @@ import dataclasses
 import functools
 import logging
 import os
+import ssl
 import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from histostudy.core.checks import check_ae_title, check_count, check_host, check_port, check_positive
 from histostudy.imaging import View
@@ -47,6 +49,11 @@ from .xray_objects import (
     rejection_response,
     storage_application_entity,
 )
+
+if TYPE_CHECKING:
+    from pynetdicom import AE
+
+    from .admitting_server import AdmittingServer
 
 __all__ = ["FrameReceiver", "ReceiverConfig"]
 
@@ -131,7 +138,7 @@ class ReceiverConfig:
     max_queued_pairs: int | None = 1
     pipeline: bool = False
     warm_up: bool = True
-    fast: object = True
+    fast: bool | TrackingConfig = True
 
     def __post_init__(self):
         if not isinstance(self.output_path, (str, os.PathLike)) or not str(self.output_path):
@@ -216,7 +223,11 @@ class FrameReceiver(PoseWorker):
         if on_pose is not None and not callable(on_pose):
             raise TypeError(f"on_pose must be callable (record -> None) or None, got {type(on_pose).__name__}")
         self.config = config
-        self.allow, self.tls = config.allow, config.tls
+        allow, tls = config.allow, config.tls
+        # ReceiverConfig's checks keep them as the AllowList and the server's SSLContext they stand for
+        assert allow is None or isinstance(allow, AllowList)
+        assert tls is None or isinstance(tls, ssl.SSLContext)
+        self.allow, self.tls = allow, tls
         self.views = tuple(views)
         self.model = TransducerModel.build(spacing_mm=0.47) if model is None else model
         if tracker_options.get("options") is None:
@@ -235,11 +246,14 @@ class FrameReceiver(PoseWorker):
         self.pipeline, self.warm_up = config.pipeline, config.warm_up
 
         self._cv = threading.Condition()  # guards the pairer, the queue and the counters
-        self._queue: collections.deque = collections.deque()
-        self._ae = self._server = self._worker = self._out = None
+        self._queue = collections.deque()
+        self._ae: AE | None = None
+        self._server: AdmittingServer | None = None
+        self._worker: threading.Thread | None = None
+        self._out = None
         self._first_index = 0  # the first pair's index: one past the last line of the file continued
         self._closing = self._stopped = False
-        self._max_pairs: int | None = None
+        self._max_pairs = None
         self._t_free = time.perf_counter()  # when the worker last wrote a line (its pose time starts after)
         self._stats = ReceiverCounts(self.tracker.stats())
         self._counts = self._stats.counts

@@ -42,14 +42,16 @@ class ReceiverCounts:
     """
 
     def __init__(self, tracker_stats: dict):
-        self.counts: collections.Counter = collections.Counter()
-        self.rejections: collections.Counter = collections.Counter()
-        self.last_rejections: collections.deque = collections.deque(maxlen=20)
-        self.last_association_rejections: collections.deque = collections.deque(maxlen=20)
+        self.counts: collections.Counter[str] = collections.Counter()
+        self.rejections: collections.Counter[str] = collections.Counter()
+        self.last_rejections: collections.deque[dict] = collections.deque(maxlen=20)
+        self.last_association_rejections: collections.deque[dict] = collections.deque(maxlen=20)
         self.decode_s = self.pose_s = self.latency_s = 0.0
-        self.latencies_s: collections.deque = collections.deque(maxlen=LATENCY_WINDOW)
-        self.t_first_frame = self.t_last_line = self.t_started = None
-        self.warm_up_s = None
+        self.latencies_s: collections.deque[float] = collections.deque(maxlen=LATENCY_WINDOW)
+        self.t_first_frame: float | None = None
+        self.t_last_line: float | None = None
+        self.t_started: float | None = None
+        self.warm_up_s: float | None = None
         self.tracker = tracker_stats
 
     def add_rejection(self, status: int, uid: str, sop_class: str, reason: str) -> None:
@@ -106,7 +108,7 @@ class ReceiverCounts:
         stage = {"decode": self.decode_s, **self.tracker["stage_seconds"]}
         span = None if self.t_first_frame is None or self.t_last_line is None else \
             self.t_last_line - self.t_first_frame
-        out = {key: self.counts.get(key, 0) for key in COUNT_KEYS}
+        out: dict[str, object] = {key: self.counts.get(key, 0) for key in COUNT_KEYS}
         out.update({
             "pairs_waiting": pairs_waiting,
             "rejections": dict(self.rejections),

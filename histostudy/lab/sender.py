@@ -189,7 +189,7 @@ def _store(paths, host: str, port: int, *, ae_title: str, calling_ae_title: str,
     for (sop_class, _), syntaxes in contexts.items():
         ae.add_requested_context(sop_class, syntaxes)
     where = f"{ae_title}@{host}:{port}" + (" over TLS" if context is not None else "")
-    connected = []  # the TCP connection opened: a failed association is then the peer's answer
+    connected: list[object] = []  # the TCP connection opened: a failed association is then the peer's answer
     assoc = ae.associate(host, port, ae_title=ae_title, evt_handlers=[(evt.EVT_CONN_OPEN, connected.append)],
                          tls_args=None if context is None else (context, host))
     if not assoc.is_established:
@@ -227,9 +227,9 @@ def _refusal(assoc, connected: bool, tls: bool) -> str:
     if assoc.is_rejected:
         answer = assoc.acceptor.primitive
         reason = getattr(answer, "diagnostic", None)
+        # keyed by object: the answer may carry no diagnostic (None), which names no known reason
+        known: dict[object, str] = {3: ": calling AE title not recognised", 7: ": called AE title not recognised"}
         return (f"rejected the association (A-ASSOCIATE-RJ result {getattr(answer, 'result', '?')}, source "
-                f"{getattr(answer, 'result_source', '?')}, reason {reason}"
-                + {3: ": calling AE title not recognised", 7: ": called AE title not recognised"}.get(reason, "")
-                + ")")
+                f"{getattr(answer, 'result_source', '?')}, reason {reason}" + known.get(reason, "") + ")")
     return ("aborted the association request" +
             (" (over TLS: did it refuse this sender's certificate?)" if tls else ""))

@@ -11,6 +11,7 @@ import logging
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,6 +27,9 @@ from histostudy.imaging.io import (
 
 from .access import RECEIVER_MAX_PDU_BYTES
 from .pairing import frame_times, posix_seconds
+
+if TYPE_CHECKING:
+    from pydicom.dataset import Dataset
 
 __all__ = ["PendingFrame", "REJECTION_STATUSES", "ReceivedFrame", "VIEW_MATCH_TOLERANCE_MM", "X_RAY_SOP_CLASSES",
            "XRayObjectRejected", "decode_xray_object", "read_xray_header"]
@@ -83,7 +87,7 @@ class PendingFrame:
     ``time.perf_counter()`` when read. :meth:`decode` gives the :class:`ReceivedFrame`."""
 
     view: View
-    dataset: object = field(repr=False)
+    dataset: Dataset = field(repr=False)
     instance_uid: str
     frame_index: int
     acquired: _dt.datetime
@@ -226,10 +230,11 @@ def storage_application_entity(ae_title: str, network_timeout_s: float):
     syntaxes the readers decode (:data:`histostudy.imaging.io.RECEIVABLE_TRANSFER_SYNTAXES`: native,
     JPEG Lossless, JPEG-LS, JPEG 2000, RLE), so that a C-arm may send its frames compressed."""
     from pynetdicom import AE, AllStoragePresentationContexts
-    from pynetdicom.sop_class import Verification
+    from pynetdicom.sop_class import Verification  # type: ignore[attr-defined]  # made at import, by globals()
 
     ae = AE(ae_title=ae_title)
     for context in AllStoragePresentationContexts:
+        assert context.abstract_syntax is not None
         ae.add_supported_context(context.abstract_syntax, list(RECEIVABLE_TRANSFER_SYNTAXES))
     ae.add_supported_context(Verification)
     # an idle association, and a connection that sends no A-ASSOCIATE-RQ (its thread waits for one)
