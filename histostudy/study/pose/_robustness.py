@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -81,15 +82,17 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
         if executor is not None:
             raise ValueError(f"give workers or executor, not both (workers={workers!r}, executor={executor!r})")
         executor = SweepExecutor("local", n_workers=int(workers)) if workers > 1 else "sequential"
-    one = {"segmenter": segmenter, "orientation": orientation, "inits": inits}
+    # a set's entries are of mixed types (stages and a sequence of names), as the caller's stage_sets
+    one: dict[str, Any] = {"segmenter": segmenter, "orientation": orientation, "inits": inits}
     sets = [(None, one)] if stage_sets is None else [(name, {**one, **given}) for name, given in stage_sets.items()]
     if not sets or any(set(given) - set(one) for _, given in sets):
         raise ValueError(f"stage_sets must map names to dicts of segmenter, orientation and inits, got {stage_sets!r}")
-    sets = [(name, config.segmenter() if given["segmenter"] is None else given["segmenter"],
-             OracleOrientation() if given["orientation"] is None else given["orientation"], tuple(given["inits"]))
-            for name, given in sets]
+    resolved: list[tuple[str | None, Segmenter, OrientationSource, tuple[str, ...]]] = [
+        (name, config.segmenter() if given["segmenter"] is None else given["segmenter"],
+         OracleOrientation() if given["orientation"] is None else given["orientation"], tuple(given["inits"]))
+        for name, given in sets]
     shared = dict(pose_model=pose_model, render_model=render_model, physical=physical, views=list(views),
-                  config=config, stage_sets=sets, mode=mode, success_mm=success_mm,
+                  config=config, stage_sets=resolved, mode=mode, success_mm=success_mm,
                   half_turn=half_turn_symmetric(pose_model))
     per_pose = run_sweep(_sweep_pose, range(n_poses), seed=seed, executor=executor, shared=shared)
     return pd.DataFrame([row for rows in per_pose for row in rows])

@@ -228,19 +228,18 @@ def prepare(params: PoseSectionConfig | Mapping, seed: int, *, timer: Timer | No
     Raises:
         ValueError: a parameter missing from ``params``, or refused by :class:`PoseStudyConfig`.
     """
-    if not isinstance(params, PoseSectionConfig):
-        params = PoseSectionConfig.from_parameters(params)
+    section_config = params if isinstance(params, PoseSectionConfig) else PoseSectionConfig.from_parameters(params)
     seeds = pose_seeds(seed)
     spec = TransducerSpec()
     with (timer or (lambda name: contextlib.nullcontext()))("build models"):
-        pose_model = TransducerModel.build(spec, spacing_mm=params.pose_spacing_mm)
-        render_model = TransducerModel.build(spec, spacing_mm=params.render_spacing_mm)
-        physical = TransducerModel.build_physical(spec, spacing_mm=params.render_spacing_mm,
+        pose_model = TransducerModel.build(spec, spacing_mm=section_config.pose_spacing_mm)
+        render_model = TransducerModel.build(spec, spacing_mm=section_config.render_spacing_mm)
+        physical = TransducerModel.build_physical(spec, spacing_mm=section_config.render_spacing_mm,
                                                   rng=np.random.default_rng(seeds.physical))
     views = default_biplane()
-    config = params.study_config()
-    stages = study_stages(config, params.learned_stages) if stages is None else stages
-    return PoseSetup(params, config, pose_model, render_model, physical, views, stages, seeds)
+    config = section_config.study_config()
+    stages = study_stages(config, section_config.learned_stages) if stages is None else stages
+    return PoseSetup(section_config, config, pose_model, render_model, physical, views, stages, seeds)
 
 
 @dataclass(frozen=True, eq=False)
@@ -519,7 +518,7 @@ def robustness_part(setup: PoseSetup, *, timer: Timer | None = None) -> PoseTabl
     p, stages = setup.params, setup.stages
     sweep = dict(**setup.models(), seed=_sweep_seed(setup.seeds.robustness), config=setup.config)
     # every set on each pose's frames, rendered once (the rows those of a sweep per set)
-    sets = {"oracle": {}}
+    sets: dict[str, dict[str, object]] = {"oracle": {}}
     if stages.learned:
         sets["learned"] = dict(inits=("robust",), segmenter=stages.segmenter, orientation=stages.orientation)
         vgg19 = getattr(stages.orientation, "fallback", None)
@@ -606,8 +605,8 @@ def learned_stages_part(setup: PoseSetup, run: PoseRun, *, timer: Timer | None =
     part = SectionPart(
         tables={"learned_vs_oracle": (both, "Focal error with the learned stages and with the oracles, same frames"),
                 "noise": (focal_error_per_dose(noise), "Focal error vs photons per pixel (learned stages, fast mode)")},
-        values={"learned_manifests": {"unet": (unet.manifest or {}).get("weights_file"),
-                                      "vgg19": (vgg.manifest or {}).get("weights_file")}},
+        values={"learned_manifests": {"unet": (getattr(unet, "manifest", None) or {}).get("weights_file"),
+                                      "vgg19": (getattr(vgg, "manifest", None) or {}).get("weights_file")}},
         comparisons=(dict(key="pose.learned_minus_oracle_mm", label="Mean focal error, learned minus oracle stages",
                           ours=float(learned["err_euclidean"].mean() - oracle["err_euclidean"].mean()), unit="mm",
                           paper_key="", note="target ≤ 0.1 mm"),))

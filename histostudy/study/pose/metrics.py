@@ -229,7 +229,8 @@ def tracking_summary(records: pd.DataFrame) -> dict:
         return {}
     scratch = records[(records["mode"] == "fast") & (records["position"] != "centre")
                       & (records["maps"] == track["maps"].iloc[0])]
-    out = {"n": int(len(track)), "failed": int((~track["ok"].astype(bool)).sum())}
+    out: dict[str, int | float | tuple[float, float]] = {"n": int(len(track)),
+                                                         "failed": int((~track["ok"].astype(bool)).sum())}
     for name, df in (("track", track), ("scratch", scratch)):
         mean, sd = mean_sd(df["err_euclidean"])
         out[f"{name}_error_mm"] = (mean, sd)

@@ -52,4 +52,9 @@ class SegmentationCache:
             return self.segmenter.segment(frame, rng)
         key = value_digest((frame.image, frame.labels))
         return self._memo.call(key, lambda: np.asarray(self.segmenter.segment(frame, rng)),
-                               rng=rng if self.uses_rng else None, copy_result=np.copy)
+                               rng=rng if self.uses_rng else None, copy_result=_copy_labels)
+
+
+def _copy_labels(labels: object) -> np.ndarray:
+    assert isinstance(labels, np.ndarray)  # the memo copies only what segment() computed, an np.asarray
+    return np.copy(labels)

@@ -173,11 +173,11 @@ def prepare(params: TransducerProjectionsConfig | Mapping, seed: int, *,
     Raises:
         ValueError: a bad or missing parameter.
     """
-    if not isinstance(params, TransducerProjectionsConfig):
-        params = TransducerProjectionsConfig.from_parameters(params)
+    config = (params if isinstance(params, TransducerProjectionsConfig)
+              else TransducerProjectionsConfig.from_parameters(params))
     rngs = stage_generators(seed)
-    models = build_models(params.pose_spacing_mm, params.render_spacing_mm, rng=rngs.physical, timer=timer)
-    return TransducerProjectionsSetup(params, seed, rngs, models)
+    models = build_models(config.pose_spacing_mm, config.render_spacing_mm, rng=rngs.physical, timer=timer)
+    return TransducerProjectionsSetup(config, seed, rngs, models)
 
 
 def point_count_table(models: Mapping[str, TransducerModel]) -> pd.DataFrame:
@@ -196,12 +196,12 @@ def model_geometry(model: TransducerModel) -> dict:
     whose distance from the focal point is the cap radius to within half a grid step.
     """
     spec = model.spec
-    surface = []
+    surface_parts: list[np.ndarray] = []
     for k in (Feature.TRANSDUCER, Feature.OUTER_BOUNDARY, Feature.INNER_BOUNDARY, Feature.GAPS):
         pts = model.points[k]
         r = np.linalg.norm(pts, axis=1)
-        surface.append(pts[np.abs(r - spec.radius_mm) <= 0.5 * model.spacing_mm + 1e-9])
-    surface = np.vstack(surface)
+        surface_parts.append(pts[np.abs(r - spec.radius_mm) <= 0.5 * model.spacing_mm + 1e-9])
+    surface = np.vstack(surface_parts)
     centre, radius = fit_sphere(model.points[Feature.TRANSDUCER])
     radial_xy = np.hypot(surface[:, 0], surface[:, 1])
     return {
@@ -392,7 +392,8 @@ def render_timing(model: TransducerModel, T_carm_transducer, view, *, background
     if repeats < 1:
         raise ValueError(f"repeats must be >= 1, got {repeats!r}")
     rng = as_generator(rng)
-    stages = {"background projection": [], "transducer splatting": [], "frame, background precomputed": []}
+    stages: dict[str, list[float]] = {"background projection": [], "transducer splatting": [],
+                                      "frame, background precomputed": []}
     image_model = physical if physical is not None else model
     splat_kwargs = {k: v for k, v in render_kwargs.items() if k in ("n_splats", "splat_sigma_mm", "device")}
     for _ in range(repeats):

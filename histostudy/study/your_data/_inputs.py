@@ -76,6 +76,7 @@ def lab_inputs(data_dir: str | os.PathLike | None, *, output_dir: str | os.PathL
     if missing:
         raise FileNotFoundError(f"data_dir {str(folder)!r} lacks {missing} "
                                 f"(see histostudy.study.your_data.lab_dataset)")
+    assert cbct is not None
     if target_mm is None:
         if "suggested_target_mm" not in manifest:
             raise ValueError("target_mm must be given (x, y, z in the CBCT's world frame, mm): the data has no "

@@ -82,13 +82,12 @@ def prepare(params: YourDataConfig | Mapping, seed: int, output_dir: str | os.Pa
             suggests none).
         FileNotFoundError: ``data_dir`` is not a folder or lacks the stations, the cine or the CBCT.
     """
-    if not isinstance(params, YourDataConfig):
-        params = YourDataConfig.from_parameters(params)
+    config = params if isinstance(params, YourDataConfig) else YourDataConfig.from_parameters(params)
     with _timer(timer)("inputs"):
-        inputs = lab_inputs(params.data_dir, output_dir=output_dir, seed=seed, target_mm=params.target_mm,
-                            n_cine_frames=params.n_cine_frames, render=params.render())
-        model = transducer_model(inputs, params.pose_spacing_mm)
-    return YourDataSetup(params, inputs, model, seed, Path(output_dir))
+        inputs = lab_inputs(config.data_dir, output_dir=output_dir, seed=seed, target_mm=config.target_mm,
+                            n_cine_frames=config.n_cine_frames, render=config.render())
+        model = transducer_model(inputs, config.pose_spacing_mm)
+    return YourDataSetup(config, inputs, model, seed, Path(output_dir))
 
 
 def inputs_part(setup: YourDataSetup) -> SectionPart:
@@ -371,17 +370,21 @@ def drive_robot(calibration: HandEyeCalibration, inputs: LabInputs, volume: Volu
     if robot is not None and not isinstance(robot, (str, Robot)):
         raise TypeError(f"robot must be None, a UR controller's host or a histostudy.robot.Robot, got "
                         f"{type(robot).__name__}")
-    opened = isinstance(robot, str)
-    if opened:
+    connected: Robot | None
+    opened: Robot | None = None  # the robot this call connected to, and so closes
+    if isinstance(robot, str):
         from histostudy.robot import RTDERobot
 
-        robot = RTDERobot(robot)
+        opened = connected = RTDERobot(robot)
+    else:
+        connected = robot
     try:
-        plan = target_plan(calibration, inputs, volume, None if robot is None else robot.joints())
-        executed = None if robot is None or dry_run else execute_targeting(plan, robot, speed_mm_s=speed_mm_s)
+        plan = target_plan(calibration, inputs, volume, None if connected is None else connected.joints())
+        executed = (None if connected is None or dry_run
+                    else execute_targeting(plan, connected, speed_mm_s=speed_mm_s))
     finally:
-        if opened:
-            robot.close()
+        if opened is not None:
+            opened.close()
     return plan, executed
 
 

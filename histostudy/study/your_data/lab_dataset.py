@@ -9,6 +9,7 @@ import datetime as _dt
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 
@@ -41,6 +42,12 @@ __all__ = ["LabDataset", "LabScene", "write_lab_dataset"]
 DATASET_FORMAT = "histostudy.lab_dataset/1"
 
 
+class _FrameSettings(Protocol):
+    """The frames' dose and splatting, as :meth:`~histostudy.imaging.FrameRenderConfig.frame_kwargs` gives them."""
+
+    def frame_kwargs(self) -> dict: ...
+
+
 @dataclass(frozen=True, eq=False)
 class LabScene:
     """What the lab-like frames are rendered from: the physical transducer (quadrants moved, §IV)
@@ -62,10 +69,10 @@ class LabScene:
     views: tuple
     physical: TransducerModel
     backgrounds: tuple
-    settings: object
+    settings: _FrameSettings
 
     @classmethod
-    def draw(cls, settings, views, *, rng_scene: np.random.Generator, rng_physical: np.random.Generator,
+    def draw(cls, settings: _FrameSettings, views, *, rng_scene: np.random.Generator, rng_physical: np.random.Generator,
              render_spacing_mm: float = 0.25) -> LabScene:
         """The scene of ``settings`` (its ``frame_kwargs``) on ``views``: the phantom scene drawn from
         ``rng_scene``, the physical transducer's deviations from ``rng_physical``, sampled at
@@ -176,13 +183,13 @@ def write_lab_dataset(folder: str | os.PathLike, *, seed: int = 20231125, n_cine
             raise ValueError(f"{name} must be finite and {'> 0' if name == 'frame_time_ms' else '>= 0'}, "
                              f"got {value!r}")
     config = TargetingStudyConfig(n_experiments=1, background="phantom") if config is None else config
-    views = tuple(default_biplane() if views is None else views)
+    biplane = tuple(default_biplane() if views is None else views)
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
 
     s_truth, s_pose, s_scene, s_render, s_physical, s_cine, s_target, s_cbct = np.random.SeedSequence(seed).spawn(8)
     truth = draw_ground_truth(np.random.default_rng(s_truth), config)
-    scene = LabScene.draw(config, views, rng_scene=np.random.default_rng(s_scene),
+    scene = LabScene.draw(config, biplane, rng_scene=np.random.default_rng(s_scene),
                           rng_physical=np.random.default_rng(s_physical), render_spacing_mm=render_spacing_mm)
     render_model, physical = TransducerModel.build(spacing_mm=render_spacing_mm), scene.physical
     rng_render = np.random.default_rng(s_render)
@@ -198,7 +205,7 @@ def write_lab_dataset(folder: str | os.PathLike, *, seed: int = 20231125, n_cine
         T_true = truth.T_carm_transducer(F)
         true_station_poses.append(T_true)
         paths = []
-        for view, image in zip(views, render_pair(T_true)):
+        for view, image in zip(biplane, render_pair(T_true)):
             paths.append(write_xa(out / "calibration" / f"station_{k}" / f"{view.name}.dcm", view,
                                   detector_counts(image), uid_seed=f"lab-{seed}-station-{k}",
                                   study_uid_seed=f"lab-{seed}", acquisition_time=when + _dt.timedelta(minutes=k)))
@@ -218,7 +225,7 @@ def write_lab_dataset(folder: str | os.PathLike, *, seed: int = 20231125, n_cine
                           detector_counts(np.stack([pair[i] for pair in per_view])),
                           uid_seed=f"lab-{seed}-cine", study_uid_seed=f"lab-{seed}", frame_time_ms=frame_time_ms,
                           acquisition_time=cine_start)
-                 for i, view in enumerate(views))
+                 for i, view in enumerate(biplane))
 
     # The pre-treatment CBCT of the phantom, and a target inside it with a 12.5 mm zone around it.
     phantom, _ = phantom_for(truth, config)
@@ -230,7 +237,7 @@ def write_lab_dataset(folder: str | os.PathLike, *, seed: int = 20231125, n_cine
                           margin_mm=12.5)
 
     meshes = tuple(export_meshes(render_model.spec, out / "transducer").values())
-    views_path = save_views(out / "views.json", views)
+    views_path = save_views(out / "views.json", biplane)
     truth_path = atomic_write_json(out / "truth.json", to_jsonable({
         "note": "the synthetic truth, which a lab never has: for measuring errors only",
         "T_carm_base": truth.T_carm_base, "T_flange_transducer": truth.T_flange_transducer,

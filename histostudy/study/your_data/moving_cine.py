@@ -198,13 +198,13 @@ def write_moving_cine(folder: str | os.PathLike, *, seed: int, duration_s: float
     if n < 1:
         raise ValueError(f"duration_s * fps must give at least one frame, got duration_s={duration_s!r}, fps={fps!r}")
     config = TargetingStudyConfig(n_experiments=1, background="phantom") if config is None else config
-    views = tuple(default_biplane() if views is None else views)
+    biplane = tuple(default_biplane() if views is None else views)
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
 
     s_truth, s_scene, s_physical, s_render = np.random.SeedSequence(seed).spawn(4)
     truth = draw_ground_truth(np.random.default_rng(s_truth), config)
-    scene = LabScene.draw(config, views, rng_scene=np.random.default_rng(s_scene),
+    scene = LabScene.draw(config, biplane, rng_scene=np.random.default_rng(s_scene),
                           rng_physical=np.random.default_rng(s_physical), render_spacing_mm=render_spacing_mm)
     rng_render = np.random.default_rng(s_render)
     T_centre = truth.T_carm_transducer(forward_kinematics(start_joints(truth)))
@@ -223,11 +223,11 @@ def write_moving_cine(folder: str | os.PathLike, *, seed: int, duration_s: float
         frames.append(tuple(
             write_xa(out / "frames" / view.name / f"{k:05d}.dcm", view, detector_counts(image),
                      uid_seed=f"moving-cine-{seed}", instance_number=k + 1, acquisition_time=acquired)
-            for view, image in zip(views, pair)))
+            for view, image in zip(biplane, pair)))
         if progress is not None:
             progress(k + 1, n)
 
-    views_path = save_views(out / "views.json", views)
+    views_path = save_views(out / "views.json", biplane)
     truth_path = atomic_write_json(out / "truth.json", to_jsonable({
         "note": "the synthetic truth, which the receiver never reads: for measuring errors only",
         "time_s": times, "T_carm_transducer": poses, "T_base_flange": flanges, "focal_point_mm": focal,
@@ -239,7 +239,7 @@ def write_moving_cine(folder: str | os.PathLike, *, seed: int, duration_s: float
         "format": CINE_FORMAT, "seed": int(seed), "fps": fps, "n_frames": n, "duration_s": float(duration_s),
         "radius_mm": float(radius_mm), "max_speed_mm_s": float(max_speed_mm_s), "dwell_s": float(dwell_s),
         "render_spacing_mm": float(render_spacing_mm), "acquired": T0.isoformat(), "views": "views.json",
-        "planes": [v.name for v in views],
+        "planes": [v.name for v in biplane],
         "frames": [[str(p.relative_to(out)) for p in pair] for pair in frames], "truth": "truth.json",
         "what": "single-frame DICOM XA objects of the physical transducer carried by the robot between the "
                 "margin points of the study, one per plane and frame, timed by AcquisitionDateTime"}))
