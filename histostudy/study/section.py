@@ -10,7 +10,7 @@ import contextlib
 import dataclasses
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar, Self, TypeVar
 
 import numpy as np
 
@@ -21,6 +21,8 @@ __all__ = ["STUDY_SPLAT_DEVICES", "RenderedSectionConfig", "SectionConfig", "Sec
 #: ``"numpy"``, the reference; ``"cpu"``, the compiled kernel; ``"cuda"``, torch; ``"auto"``, CUDA
 #: where torch sees one, else compiled.
 STUDY_SPLAT_DEVICES = ("numpy", "cpu", "cuda", "auto")
+
+_Config = TypeVar("_Config")
 
 #: ``timer(name)`` -> a context manager timing the block under ``name`` (``SectionWriter.timer``).
 Timer = Callable[[str], contextlib.AbstractContextManager]
@@ -109,7 +111,7 @@ def check_text(value, name: str, what: str) -> str:
     return value
 
 
-def config_from_parameters(cls, parameters: Mapping, notebook: str):
+def config_from_parameters(cls: type[_Config], parameters: Mapping, notebook: str) -> _Config:
     """A ``cls`` of the entries of ``parameters`` that name its fields (other entries are ignored).
 
     Args:
@@ -121,8 +123,11 @@ def config_from_parameters(cls, parameters: Mapping, notebook: str):
         ``cls(**fields)``.
 
     Raises:
+        TypeError: ``cls`` is not a dataclass.
         ValueError: ``parameters`` lacks a field (each missing one named), or ``cls`` refuses a value.
     """
+    if not dataclasses.is_dataclass(cls):
+        raise TypeError(f"cls={cls!r}: expected a dataclass")
     names = [f.name for f in dataclasses.fields(cls)]
     missing = [name for name in names if name not in parameters]
     if missing:
@@ -143,9 +148,11 @@ class SectionConfig:
 
     NOTEBOOK: ClassVar[str] = ""
     RECORDED: ClassVar[tuple] = ()
+    # Declared, not set: every subclass is a dataclass (above), which this lets the type checker see.
+    __dataclass_fields__: ClassVar[dict[str, dataclasses.Field[Any]]]
 
     @classmethod
-    def from_parameters(cls, parameters: Mapping):
+    def from_parameters(cls, parameters: Mapping) -> Self:
         """The config of the entries of ``parameters`` that name its fields.
 
         Args:

@@ -6,6 +6,8 @@ docs/error-budget.md, "Many labs").
 
 from __future__ import annotations
 
+from typing import TypedDict
+
 import numpy as np
 import pandas as pd
 from scipy import stats as sps
@@ -27,9 +29,19 @@ NATIVE_READING = {"pose": "prediction minus zone", "targeting": "zone minus pred
 READINGS = {"prediction_minus_zone": {"pose": 1.0, "targeting": -1.0},
             "zone_minus_prediction": {"pose": -1.0, "targeting": 1.0}}
 
+
+class _PaperFigures(TypedDict):
+    n: int
+    bias: tuple[float, float, float]
+    mae: tuple[float, float, float]
+    mae_sd: tuple[float, float, float]
+    sd: tuple[float, float, float] | None
+    euclidean: tuple[float, float]
+
+
 #: The paper's figures per study (§III text and Table II; mm): experiments, bias, MAE ± SD per
 #: direction (depth, TB, LR), Euclidean mean ± SD; Table II's SD of the signed error per direction.
-PAPER_FIGURES = {
+PAPER_FIGURES: dict[str, _PaperFigures] = {
     "pose": {"n": 10, "bias": (0.01, 0.30, -0.77), "mae": (0.69, 0.52, 0.81), "mae_sd": (0.58, 0.40, 0.56),
              "sd": (0.9, 0.6, 0.6), "euclidean": (1.38, 0.54)},
     "targeting": {"n": 6, "bias": (-0.31, 0.11, -1.01), "mae": (0.83, 0.46, 1.05), "mae_sd": (0.65, 0.29, 0.58),

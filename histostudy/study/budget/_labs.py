@@ -195,7 +195,7 @@ def lab_magnitudes(labs: Sequence[LabDraw], indices: Sequence[int] | None = None
     rows = []
     for k, lab in zip(indices, labs):
         on = set(lab.model.enabled)
-        row = {"lab": int(k)}
+        row: dict[str, float] = {"lab": int(k)}
         if "manufacturing" in on:
             row["manufacturing"] = float(np.linalg.norm(lab.physical.focal_point_mm))
         if "bubble_offset" in on:

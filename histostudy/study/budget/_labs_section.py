@@ -25,7 +25,7 @@ from ._distribution import (
     source_movers,
 )
 from ._labs import draw_labs, lab_magnitudes, labs_records, run_labs
-from ._run import BudgetSetup
+from ._run import BudgetSetup, section_params, section_seeds
 from ._sources import LabDraw
 
 __all__ = ["LabsSection", "labs_figure", "labs_section", "labs_text", "movers_table", "prepare_labs"]
@@ -40,10 +40,13 @@ def prepare_labs(setup: BudgetSetup) -> list[LabDraw]:
 
     Returns:
         The labs; lab 0 is ``setup.lab``'s draw.
+
+    Raises:
+        ValueError: ``setup`` has no ``params`` or ``seeds`` (not made by notebook 07's ``prepare``).
     """
-    lab = setup.lab
-    return draw_labs(lab.model, setup.seeds.lab, setup.params.n_labs, physical=lab.study_physical,
-                     views=lab.study_views, physical_seed=setup.seeds.physical)
+    lab, seeds = setup.lab, section_seeds(setup)
+    return draw_labs(lab.model, seeds.lab, section_params(setup).n_labs, physical=lab.study_physical,
+                     views=lab.study_views, physical_seed=seeds.physical)
 
 
 def movers_table(movers: pd.DataFrame) -> pd.DataFrame:
@@ -140,12 +143,15 @@ def labs_section(setup: BudgetSetup, labs: list[LabDraw], budget_records: pd.Dat
     Returns:
         The :class:`LabsSection`; its part: tables ``labs_vs_paper``, ``bias_scatter``, ``signs``,
         ``movers`` (mm, mm², fractions), figure ``labs``, the labs' counts and a paragraph.
+
+    Raises:
+        ValueError: ``setup`` has no ``params`` or ``seeds`` (not made by notebook 07's ``prepare``).
     """
     more = None
     with timer_or_untimed(timer)("labs"):
         if len(labs) > 1:
-            more = run_labs(setup, labs[1:], seed=setup.seeds.study, indices=range(1, len(labs)),
-                            executor=setup.params.scheduler or None)
+            more = run_labs(setup, labs[1:], seed=section_seeds(setup).study, indices=range(1, len(labs)),
+                            executor=section_params(setup).scheduler or None)
     records = labs_records(budget_records, more)
     stats = lab_statistics(records)
     table = labs_vs_paper(stats, "both")

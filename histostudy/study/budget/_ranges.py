@@ -15,7 +15,7 @@ from ..section import SectionPart, Timer, timer_or_untimed
 from ._distribution import lab_statistics
 from ._labs import run_labs
 from ._references import SOURCE_REFERENCES, model_at
-from ._run import BudgetSetup
+from ._run import BudgetSetup, section_params, section_seeds
 from ._sources import LAB_SOURCES, LabDraw, draw_lab
 
 __all__ = ["FRAME_SOURCES", "RANGE_ENDS", "RangesSection", "range_bands", "range_labs", "ranges_section",
@@ -46,7 +46,7 @@ def range_labs(setup: BudgetSetup, sources: Sequence[str]) -> list[tuple[str, st
         for end in RANGE_ENDS:
             value = float(getattr(ref, end))
             lab = draw_lab(model_at(name, value, base=base.model), base.seed, physical=base.study_physical,
-                           views=base.study_views, physical_seed=setup.seeds.physical)
+                           views=base.study_views, physical_seed=section_seeds(setup).physical)
             if name not in FRAME_SOURCES:
                 if not (np.array_equal(lab.physical.focal_point_mm, base.physical.focal_point_mm)
                         and all(np.array_equal(a.P, b.P) for a, b in zip(lab.frame_views, base.frame_views))):
@@ -72,7 +72,8 @@ def run_ranges(setup: BudgetSetup, sources: Sequence[str], *, executor=None) -> 
         :func:`range_labs`' order).
 
     Raises:
-        ValueError: a source not swept or not on in lab 0 (:func:`range_labs`).
+        ValueError: a source not swept or not on in lab 0 (:func:`range_labs`), or ``setup`` without
+            ``seeds``.
     """
     labs = range_labs(setup, sources)
     if not labs:
@@ -82,7 +83,7 @@ def run_ranges(setup: BudgetSetup, sources: Sequence[str], *, executor=None) -> 
     frames = []
     for group in (shared, own):
         if group:
-            frames.append(run_labs(setup, [labs[i][3] for i in group], seed=setup.seeds.study,
+            frames.append(run_labs(setup, [labs[i][3] for i in group], seed=section_seeds(setup).study,
                                    indices=[i + 1 for i in group], executor=executor))
     out = pd.concat(frames, ignore_index=True).sort_values(["lab", "study", "experiment"], kind="stable")
     meta = {i + 1: (name, end, value) for i, (name, end, value, _) in enumerate(labs)}
@@ -145,9 +146,13 @@ def ranges_section(setup: BudgetSetup, budget_records: pd.DataFrame, *, timer: T
     Returns:
         The :class:`RangesSection`: the bands (:func:`range_bands`, mm) and the part (table ``ranges``
         and a paragraph naming the widest).
+
+    Raises:
+        ValueError: ``setup`` has no ``params`` or ``seeds`` (not made by notebook 07's ``prepare``).
     """
+    params = section_params(setup)
     with timer_or_untimed(timer)("ranges"):
-        records = run_ranges(setup, setup.params.range_sources, executor=setup.params.scheduler or None)
+        records = run_ranges(setup, params.range_sources, executor=params.scheduler or None)
     bands = range_bands(records, budget_records)
     if bands.empty:
         text = "No source was run over its range (`range_sources` is empty)."
@@ -164,5 +169,5 @@ def ranges_section(setup: BudgetSetup, budget_records: pd.DataFrame, *, timer: T
         tables={"ranges": (bands, "The sources without a fitting measurement, each at both ends of its plausible "
                            "range on lab 0 (the others at their defaults): the Euclidean mean error (mm) at the low "
                            "end, at the default and at the high end, and the band's width", {"digits": 2})},
-        values={"ranges_sources": list(setup.params.range_sources)}, texts=(text,))
+        values={"ranges_sources": list(params.range_sources)}, texts=(text,))
     return RangesSection(records, bands, part)

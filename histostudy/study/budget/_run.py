@@ -10,12 +10,14 @@ import dataclasses
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from histostudy.calibration import CalibrationError
 from histostudy.core import SweepExecutor, run_sweep
+from histostudy.learning import OrientationSource, Segmenter
 from histostudy.transducer import TransducerModel
 
 from ..pose.experiments import PoseStudyConfig, run_pose_study
@@ -27,6 +29,9 @@ from ..targeting.robots import sim_robot
 from ..targeting.setup import TargetingError, TargetingStudyConfig
 from ._shared import shared_work
 from ._sources import ExperimentDraw, LabDraw, LabErrorModel
+
+if TYPE_CHECKING:  # _section imports this module
+    from ._section import BudgetSectionConfig, BudgetSeeds
 
 __all__ = ["BudgetSetup", "ESTIMATE_SOURCES", "budget_configurations", "measured_reference", "measured_zone",
            "run_error_budget"]
@@ -80,10 +85,10 @@ class BudgetSetup:
     targeting_config: TargetingStudyConfig
     pose_model: TransducerModel
     render_model: TransducerModel
-    segmenter: object = None
-    orientation: object = None
-    params: object = None
-    seeds: object = None
+    segmenter: Segmenter | None = None
+    orientation: OrientationSource | None = None
+    params: BudgetSectionConfig | None = None
+    seeds: BudgetSeeds | None = None
 
     def __post_init__(self):
         if not isinstance(self.lab, LabDraw):
@@ -92,6 +97,29 @@ class BudgetSetup:
             if np.any(np.asarray(getattr(self, name).bubble_offset_mm, float) != 0):
                 raise ValueError(f"{name}.bubble_offset_mm must be zeros: the lab model's bubble_offset replaces it, "
                                  f"got {getattr(self, name).bubble_offset_mm!r}")
+
+
+def section_params(setup: BudgetSetup) -> BudgetSectionConfig:
+    """``setup.params``, which notebook 07's parts read.
+
+    Raises:
+        ValueError: ``setup`` has none (a set-up made without notebook 07's ``prepare``).
+    """
+    if setup.params is None:
+        raise ValueError("setup.params is None: expected notebook 07's checked parameters (a BudgetSetup made by "
+                         "prepare)")
+    return setup.params
+
+
+def section_seeds(setup: BudgetSetup) -> BudgetSeeds:
+    """``setup.seeds``, which notebook 07's parts draw from.
+
+    Raises:
+        ValueError: ``setup`` has none (a set-up made without notebook 07's ``prepare``).
+    """
+    if setup.seeds is None:
+        raise ValueError("setup.seeds is None: expected notebook 07's seeds (a BudgetSetup made by prepare)")
+    return setup.seeds
 
 
 def measured_reference(reference: pd.DataFrame, draw: ExperimentDraw) -> pd.DataFrame:

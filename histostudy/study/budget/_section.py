@@ -31,7 +31,7 @@ from ..section import (
 )
 from ..targeting.setup import TargetingStudyConfig
 from ._references import SOURCE_REFERENCES
-from ._run import BudgetSetup, run_error_budget
+from ._run import BudgetSetup, run_error_budget, section_params, section_seeds
 from ._sources import LAB_SOURCES, LabErrorModel, draw_lab
 from ._summary import budget_comparisons, configuration_table, dominant_sources, source_shares, waterfall_figure
 
@@ -260,9 +260,13 @@ def budget_section(setup: BudgetSetup, *, timer: Timer | None = None) -> BudgetR
     Returns:
         The :class:`BudgetRun`: the records and each study's table per configuration (mm); its part:
         tables ``pose_configurations`` and ``targeting_configurations``.
+
+    Raises:
+        ValueError: ``setup`` has no ``params`` or ``seeds`` (not made by :func:`prepare`).
     """
     with timer_or_untimed(timer)("budget"):
-        records = run_error_budget(setup, seed=setup.seeds.study, executor=setup.params.scheduler or None)
+        records = run_error_budget(setup, seed=section_seeds(setup).study,
+                                   executor=section_params(setup).scheduler or None)
     pose_table, targeting_table = configuration_table(records, "pose"), configuration_table(records, "targeting")
     return BudgetRun(records, pose_table, targeting_table, SectionPart(tables={
         "pose_configurations": (pose_table, "Table II's centre error per configuration (mm): mean, SD and RMS of the "
@@ -316,8 +320,11 @@ def closing_part(setup: BudgetSetup, records: pd.DataFrame, labs: pd.DataFrame |
 
     Returns:
         The part: the comparisons with the paper, the stand-ins and one paragraph.
+
+    Raises:
+        ValueError: ``setup`` has no ``params`` (not made by :func:`prepare`).
     """
-    p = setup.params
+    p = section_params(setup)
     n_labs = 1 if labs is None else int(labs["lab"].nunique())
     return SectionPart(comparisons=tuple(budget_comparisons(records, labs)), stand_ins=tuple(stand_ins()),
                        texts=(closing_text(setup, p.pose_experiments, p.targeting_experiments, n_labs),))

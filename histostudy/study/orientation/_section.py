@@ -213,7 +213,8 @@ def _source_candidates(source, frame, rng) -> tuple[np.ndarray, bool]:
     if own is not None:
         pair, fell_back = own(frame, rng)
         return np.asarray(pair, dtype=np.float64), bool(fell_back)
-    return direction_candidates(*source.estimate(frame, rng), frame.view), False
+    azimuth_rad, elevation_rad = source.estimate(frame, rng)
+    return direction_candidates(azimuth_rad, elevation_rad, frame.view), False
 
 
 def candidate_errors(sources: dict, frames: Iterable, rng) -> pd.DataFrame:

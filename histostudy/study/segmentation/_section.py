@@ -135,7 +135,7 @@ def table1(per_class: pd.DataFrame) -> pd.DataFrame:
     out = []
     for cls in CLASS_KEYS:
         sub = per_class[per_class["class"] == cls]
-        row = {"class": cls}
+        row: dict[str, object] = {"class": cls}
         for metric in METRICS:
             values = sub[metric].dropna()
             row[f"{metric}_mean"] = float(values.mean()) if len(values) else np.nan
@@ -152,7 +152,8 @@ def summary(per_image: pd.DataFrame) -> pd.DataFrame:
                          "sd": [per_image[c].std(ddof=1) for c in cols]})
 
 
-def precision_tests(per_class: pd.DataFrame, alpha: float = 0.05) -> tuple[dict, pd.DataFrame, list[str]]:
+def precision_tests(per_class: pd.DataFrame,
+                    alpha: float = 0.05) -> tuple[dict | None, pd.DataFrame | None, list[str]]:
     """One-way ANOVA and Tukey HSD of the per-image precision over the classes.
 
     Images where a class's precision is undefined (the class was never predicted) are left out of
@@ -161,7 +162,8 @@ def precision_tests(per_class: pd.DataFrame, alpha: float = 0.05) -> tuple[dict,
     df_between, df_within, p``; ``anova`` and ``tukey`` are None when fewer than two classes are
     left (a network that predicts a single class).
     """
-    groups, dropped = {}, []
+    groups: dict[str, np.ndarray] = {}
+    dropped: list[str] = []
     for cls in CLASS_KEYS:
         values = per_class.loc[per_class["class"] == cls, "precision"].dropna().to_numpy()
         if len(values) >= 2:
@@ -350,7 +352,7 @@ def precision_tests_section(per_class: pd.DataFrame) -> PrecisionTests:
     """
     anova, tukey, dropped = precision_tests(per_class)
     label = "ANOVA F of precision over classes"
-    if anova is None:
+    if anova is None or tukey is None:
         paragraph = (f"No ANOVA: fewer than two classes have a defined precision in two or more images "
                      f"(left out: {', '.join(dropped)}).")
         return PrecisionTests(paragraph, None, SectionPart(

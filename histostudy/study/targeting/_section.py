@@ -9,6 +9,7 @@ import contextlib
 import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -188,8 +189,10 @@ def study_config_from_parameters(parameters: Mapping) -> TargetingStudyConfig:
     """The study's configuration from the notebook's parameters: every entry named as a
     :class:`TargetingStudyConfig` field, lists made tuples (the rest keep the config's defaults)."""
     fields = {f.name for f in dataclasses.fields(TargetingStudyConfig)}
-    return TargetingStudyConfig(**{name: tuple(value) if isinstance(value, list) else value
-                                   for name, value in parameters.items() if name in fields})
+    # TargetingStudyConfig checks each value; they are as the notebook gave them until then
+    values: dict[str, Any] = {name: tuple(value) if isinstance(value, list) else value
+                              for name, value in parameters.items() if name in fields}
+    return TargetingStudyConfig(**values)
 
 
 @dataclass(frozen=True)
@@ -207,6 +210,15 @@ class TargetingSetup:
     stages: StudyStages
     seeds: NotebookSeeds
     params: TargetingSectionConfig | None = None
+
+
+def _section_params(setup: TargetingSetup) -> TargetingSectionConfig:
+    """``setup.params``, which the notebook's parts read; ValueError where a set-up has none (made by
+    :func:`prepare_study`, not :func:`prepare`)."""
+    if setup.params is None:
+        raise ValueError("setup.params is None: expected notebook 05's checked parameters (a TargetingSetup made by "
+                         "prepare)")
+    return setup.params
 
 
 def prepare(params: TargetingSectionConfig | Mapping, seed: int, *, timer: Timer | None = None) -> TargetingSetup:
@@ -320,9 +332,10 @@ def experiments_section(setup: TargetingSetup, *, timer: Timer | None = None) ->
     Raises:
         TargetingError: a calibration pose's estimate failed its verdict.
         CalibrationError: a calibration beyond its residual bound.
+        ValueError: ``setup`` has no ``params`` (not made by :func:`prepare`).
     """
     with timer_or_untimed(timer)("targeting study"):
-        records, volumes = run_prepared_study(setup, setup.params.robot)
+        records, volumes = run_prepared_study(setup, _section_params(setup).robot)
     return TargetingRun(records, volumes, SectionPart(tables={"targeting_errors": (error_table(records),
                                                                                    ERROR_TABLE_CAPTION)}))
 
@@ -379,8 +392,11 @@ def sensitivity_section(setup: TargetingSetup, *, timer: Timer | None = None) ->
     Returns:
         The :class:`SensitivitySection`; its part: table ``calibration_sensitivity`` (deg, mm) and
         its rows as value ``calibration_sensitivity_medians``.
+
+    Raises:
+        ValueError: ``setup`` has no ``params`` (not made by :func:`prepare`).
     """
-    p = setup.params
+    p = _section_params(setup)
     with timer_or_untimed(timer)("calibration sensitivity"):
         table = calibration_sensitivity_table(p.sensitivity_poses, p.sensitivity_noise, p.sensitivity_trials,
                                               setup.seeds.sensitivity)
@@ -398,7 +414,10 @@ def closing_part(setup: TargetingSetup, records: pd.DataFrame) -> SectionPart:
 
     Returns:
         The part: its stand-ins and one paragraph.
+
+    Raises:
+        ValueError: ``setup`` has no ``params`` (not made by :func:`prepare`).
     """
-    p = setup.params
+    p = _section_params(setup)
     return SectionPart(stand_ins=tuple(stand_ins(p.robot, setup.stages.learned, p.bubble_offset_mm)),
                        texts=(closing_text(len(first_robot_rows(records)), setup, p.bubble_offset_mm),))

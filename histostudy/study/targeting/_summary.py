@@ -112,12 +112,13 @@ def targeting_comparisons(records: pd.DataFrame) -> list[dict]:
     targeting figures over the first robot's experiments, the bias-corrected figures (when the
     study ran the correction) and the two robots' agreement (when both ran)."""
     main = first_robot_rows(records)
-    out = [dict(key="targeting.calibration_error_at_target",
-                label="Calibration error at the target (true focal point of the commanded pose)",
-                ours=mean_sd(main["cal_error_at_target_mm"]), unit="mm", paper_key="",
-                note="the simulation's ground truth; the lab cannot measure it"),
-           dict(key="targeting.calibration_rotation", label="Calibration X (transducer on flange) rotation error",
-                ours=mean_sd(main["cal_X_rotation_deg"]), unit="°", paper_key="")]
+    out: list[dict] = [
+        dict(key="targeting.calibration_error_at_target",
+             label="Calibration error at the target (true focal point of the commanded pose)",
+             ours=mean_sd(main["cal_error_at_target_mm"]), unit="mm", paper_key="",
+             note="the simulation's ground truth; the lab cannot measure it"),
+        dict(key="targeting.calibration_rotation", label="Calibration X (transducer on flange) rotation error",
+             ours=mean_sd(main["cal_X_rotation_deg"]), unit="°", paper_key="")]
     values = targeting_values(main)
     out.append(dict(key="targeting.euclidean", label="Targeting error, Euclidean", ours=values["targeting.euclidean"],
                     unit="mm"))
