@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 from collections.abc import Sequence
 
 import numpy as np
@@ -90,10 +91,11 @@ def frames_alike(labs: Sequence[LabDraw], study: str = "pose") -> bool:
                for lab in labs[1:])
 
 
-def _labs_task(task: tuple, *, setup: BudgetSetup, labs: Sequence[LabDraw], share: bool) -> pd.DataFrame:
+def _labs_task(task: tuple, *, setup: BudgetSetup, labs: Sequence[LabDraw], share: bool,
+               centre_only: bool = False) -> pd.DataFrame:
     """The "lab" configuration of each lab of the task's chunk, on one experiment of one study."""
     study, seed, experiment, indices = task
-    run = _pose_task if study == "pose" else _targeting_task
+    run = functools.partial(_pose_task, centre_only=centre_only) if study == "pose" else _targeting_task
     config = setup.pose_config if study == "pose" else setup.targeting_config
     frames = []
     scope = shared_work(setup, config) if share else contextlib.nullcontext((setup, None))
@@ -113,7 +115,7 @@ def _labs_task(task: tuple, *, setup: BudgetSetup, labs: Sequence[LabDraw], shar
 def run_labs(setup: BudgetSetup, labs: Sequence[LabDraw], *, seed: int, indices: Sequence[int] | None = None,
              executor: SweepExecutor | str | None = None, labs_per_task: int | None = None,
              studies: Sequence[str] = ("pose", "targeting"), share: bool = True,
-             progress: bool = False) -> pd.DataFrame:
+             centre_only: bool = False, progress: bool = False) -> pd.DataFrame:
     """Run every lab with all its sources on, on ``setup``'s pose and targeting experiments: the "lab"
     configuration of :func:`~histostudy.study.budget.run_error_budget` for each lab, number for number.
 
@@ -130,6 +132,9 @@ def run_labs(setup: BudgetSetup, labs: Sequence[LabDraw], *, seed: int, indices:
             (:func:`frames_alike`), else one.
         studies: ``"pose"`` and/or ``"targeting"``.
         share: share renders, segmentations and estimates between the labs of a chunk.
+        centre_only: run only each pose experiment's centre acquisition (``run_pose_study``'s
+            ``centre_only``): its rows' centre errors are the full run's, the margins' and radii's
+            columns are left out; targeting experiments run whole.
         progress: a progress bar per task.
 
     Returns:
@@ -138,8 +143,8 @@ def run_labs(setup: BudgetSetup, labs: Sequence[LabDraw], *, seed: int, indices:
 
     Raises:
         TypeError: ``setup`` is not a BudgetSetup.
-        ValueError: no labs, ``indices`` not naming each lab once, an unknown study, or a bad
-            ``labs_per_task``.
+        ValueError: no labs, ``indices`` not naming each lab once, an unknown study, a bad
+            ``labs_per_task``, or ``centre_only`` not a bool.
     """
     if not isinstance(setup, BudgetSetup):
         raise TypeError(f"setup must be a BudgetSetup, got {type(setup).__name__}")
@@ -156,14 +161,16 @@ def run_labs(setup: BudgetSetup, labs: Sequence[LabDraw], *, seed: int, indices:
                                                                                                         np.integer))
                                       or labs_per_task < 1):
         raise ValueError(f"labs_per_task must be an integer >= 1 or None, got {labs_per_task!r}")
+    if not isinstance(centre_only, bool):
+        raise ValueError(f"centre_only must be True or False, got {centre_only!r}")
     tasks = []
     for study in studies:
         size = labs_per_task or (len(labs) if share and frames_alike(labs, study) else 1)
         chunks = [tuple(range(i, min(i + size, len(labs)))) for i in range(0, len(labs), size)]
         tasks += [(study, int(seed), e, chunk) for e in range(getattr(setup, f"{study}_config").n_experiments)
                   for chunk in chunks]
-    frames = run_sweep(_labs_task, tasks, executor=executor, shared={"setup": setup, "labs": labs, "share": share},
-                       chunk_size=1, progress=progress)
+    frames = run_sweep(_labs_task, tasks, executor=executor, chunk_size=1, progress=progress,
+                       shared={"setup": setup, "labs": labs, "share": share, "centre_only": centre_only})
     out = pd.concat(frames, ignore_index=True)
     out["lab"] = [indices[k] for k in out["lab"]]
     out = out.sort_values(["study", "lab", "experiment"], kind="stable").reset_index(drop=True)

@@ -60,7 +60,9 @@ def range_labs(setup: BudgetSetup, sources: Sequence[str]) -> list[tuple[str, st
 def run_ranges(setup: BudgetSetup, sources: Sequence[str], *, executor=None) -> pd.DataFrame:
     """Run every lab of :func:`range_labs` (lab 0 with one source at each end of its range) on the
     set-up's experiments and the study seed (:func:`~histostudy.study.budget._labs.run_labs`); the labs
-    that keep lab 0's frames run together, sharing renders and segmentations.
+    that keep lab 0's frames run together, sharing renders and segmentations. A pose experiment runs
+    its centre only: the bands (:func:`range_bands`) read the centre's Euclidean error alone, and
+    the centre's numbers are those of the whole experiment.
 
     Args:
         setup: the budget's set-up (from notebook 07's ``prepare``: its lab, seeds and params).
@@ -84,7 +86,7 @@ def run_ranges(setup: BudgetSetup, sources: Sequence[str], *, executor=None) -> 
     for group in (shared, own):
         if group:
             frames.append(run_labs(setup, [labs[i][3] for i in group], seed=section_seeds(setup).study,
-                                   indices=[i + 1 for i in group], executor=executor))
+                                   indices=[i + 1 for i in group], executor=executor, centre_only=True))
     out = pd.concat(frames, ignore_index=True).sort_values(["lab", "study", "experiment"], kind="stable")
     meta = {i + 1: (name, end, value) for i, (name, end, value, _) in enumerate(labs)}
     for position, column in enumerate(("source", "end", "value")):

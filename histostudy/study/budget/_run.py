@@ -158,8 +158,9 @@ def measured_zone(row: dict, draw: ExperimentDraw) -> dict:
 
 
 def _pose_task(setup: BudgetSetup, seed: int, experiment: int,
-               configurations: list[tuple[str, LabErrorModel]]) -> pd.DataFrame:
-    """Table II's per-experiment metrics under every configuration, for one pose experiment."""
+               configurations: list[tuple[str, LabErrorModel]], *, centre_only: bool = False) -> pd.DataFrame:
+    """Table II's per-experiment metrics under every configuration, for one pose experiment (its
+    centre's only with ``centre_only``: ``run_pose_study``'s)."""
     lab, base = setup.lab, setup.pose_config
     records, references, rows = {}, {}, []
     for label, model in configurations:
@@ -175,7 +176,8 @@ def _pose_task(setup: BudgetSetup, seed: int, experiment: int,
                                           physical=sub.physical, views=sub.frame_views,
                                           estimator_views=sub.estimator_views, seed=seed,
                                           segmenter=setup.segmenter, orientation=setup.orientation,
-                                          experiments=[experiment], acquisition_views=sub.acquisition_views)
+                                          experiments=[experiment], acquisition_views=sub.acquisition_views,
+                                          centre_only=centre_only)
         ref_key = _key(model, ("manufacturing", "bubble_offset", "robot", "replacement"))
         if ref_key not in references:
             references[ref_key] = cbct_reference(config, physical=sub.physical, seed=seed, experiments=[experiment])

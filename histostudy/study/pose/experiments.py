@@ -234,7 +234,8 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
                    physical: TransducerModel, views: Sequence[View], seed: int,
                    segmenter: Segmenter | None = None, orientation: OrientationSource | None = None,
                    progress: Callable[[str], None] | None = None, estimator_views: Sequence[View] | None = None,
-                   experiments: Sequence[int] | None = None, acquisition_views=None) -> pd.DataFrame:
+                   experiments: Sequence[int] | None = None, acquisition_views=None,
+                   centre_only: bool = False) -> pd.DataFrame:
     """Run the experiments of Table II (§II-D): render each position and estimate the pose.
 
     Args:
@@ -252,6 +253,9 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
             keeps its numbers); None: all.
         acquisition_views: ``(experiment, acquisition, views) -> views`` told at each acquisition
             (0 the centre, then the margins; a lab's per-acquisition C-arm reproducibility); None: as given.
+        centre_only: acquire only each experiment's centre, the first acquisition: its rows are those
+            of the whole run (no draw of the margins comes before them); the margins are neither
+            rendered nor estimated (for a figure of the centre alone, as notebook 07's ranges).
 
     Returns:
         One row per (experiment, position, mode, maps), plus ``"track"`` rows with ``config.track``:
@@ -261,8 +265,10 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
         stage), ``ok`` and ``failure`` (a failed estimate keeps NaN predictions).
 
     Raises:
-        ValueError: ``estimator_views`` of another length than ``views``.
+        ValueError: ``estimator_views`` of another length than ``views``, or ``centre_only`` not a bool.
     """
+    if not isinstance(centre_only, bool):
+        raise ValueError(f"centre_only must be True or False, got {centre_only!r}")
     rows = []
     estimator_views = list(views) if estimator_views is None else list(estimator_views)
     if len(estimator_views) != len(views):
@@ -285,6 +291,8 @@ def run_pose_study(config: PoseStudyConfig, *, pose_model: TransducerModel, rend
         axes = transducer_axes(exp.T_centre)
         centre_estimate = None
         for acquisition, (position, T_true) in enumerate(exp.T_true.items()):
+            if centre_only and acquisition > 0:
+                break
             told = estimator_views if acquisition_views is None else acquisition_views(e, acquisition, estimator_views)
             frames = [render_frame(render_model, T_true, v, rng=rng_render, physical=physical, background=scene,
                                    **config.frame_kwargs()).with_view(given)

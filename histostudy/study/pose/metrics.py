@@ -66,6 +66,8 @@ def experiment_metrics(records: pd.DataFrame, reference: pd.DataFrame | None = N
     point to the reference surface); predicted radius per direction (half the distance between
     opposite margin predictions) and its absolute error against the reference radius; precision
     (the centroid of the six margin predictions against the centre prediction; needs no reference).
+    An experiment run without its margins (``run_pose_study(centre_only=True)``) has the centre's
+    columns only.
 
     Args:
         records: :func:`~histostudy.study.pose.experiments.run_pose_study`'s rows.
@@ -111,20 +113,29 @@ def experiment_metrics(records: pd.DataFrame, reference: pd.DataFrame | None = N
             surface_centre = ref[["sphere_x", "sphere_y", "sphere_z"]].to_numpy(float)
             surface_radius = float(ref["sphere_radius_mm"])
             ref_radius = {d: float(ref[f"ref_radius_{d}"]) for d in DIRECTIONS}
-        for name in MARGINS:
-            row[f"margin_err_{name}"] = abs(float(np.linalg.norm(pred[name] - surface_centre)) - surface_radius)
-        for d in DIRECTIONS:
-            plus, minus = [n for n, (dd, s) in MARGINS.items() if dd == d and s > 0][0], \
-                [n for n, (dd, s) in MARGINS.items() if dd == d and s < 0][0]
-            row[f"radius_{d}"] = 0.5 * float(np.linalg.norm(pred[plus] - pred[minus]))
-            row[f"radius_err_{d}"] = abs(row[f"radius_{d}"] - ref_radius[d])
-            row[f"margin_err_{d}"] = 0.5 * (row[f"margin_err_{plus}"] + row[f"margin_err_{minus}"])
-        margins = np.array([pred[n] for n in MARGINS])
-        row["margin_err_overall"] = float(np.mean([row[f"margin_err_{n}"] for n in MARGINS]))
-        row["radius_err_overall"] = float(np.mean([row[f"radius_err_{d}"] for d in DIRECTIONS]))
-        row["precision"] = float(np.linalg.norm(margins.mean(axis=0) - pred["centre"]))
+        if all(name in pred for name in MARGINS):
+            row.update(_margin_metrics(pred, surface_centre, surface_radius, ref_radius))
         out.append(row)
     return pd.DataFrame(out)
+
+
+def _margin_metrics(pred: dict, surface_centre: np.ndarray, surface_radius: float, ref_radius: dict) -> dict:
+    """An experiment's margin errors, radii and precision from its predicted points (``pred``: position ->
+    C-arm mm) against the reference sphere and radii (:func:`experiment_metrics`)."""
+    row = {}
+    for name in MARGINS:
+        row[f"margin_err_{name}"] = abs(float(np.linalg.norm(pred[name] - surface_centre)) - surface_radius)
+    for d in DIRECTIONS:
+        plus, minus = [n for n, (dd, s) in MARGINS.items() if dd == d and s > 0][0], \
+            [n for n, (dd, s) in MARGINS.items() if dd == d and s < 0][0]
+        row[f"radius_{d}"] = 0.5 * float(np.linalg.norm(pred[plus] - pred[minus]))
+        row[f"radius_err_{d}"] = abs(row[f"radius_{d}"] - ref_radius[d])
+        row[f"margin_err_{d}"] = 0.5 * (row[f"margin_err_{plus}"] + row[f"margin_err_{minus}"])
+    margins = np.array([pred[n] for n in MARGINS])
+    row["margin_err_overall"] = float(np.mean([row[f"margin_err_{n}"] for n in MARGINS]))
+    row["radius_err_overall"] = float(np.mean([row[f"radius_err_{d}"] for d in DIRECTIONS]))
+    row["precision"] = float(np.linalg.norm(margins.mean(axis=0) - pred["centre"]))
+    return row
 
 
 def table2(metrics: pd.DataFrame, mode: str, maps: str = "occlusion_aware") -> tuple[pd.DataFrame, dict]:

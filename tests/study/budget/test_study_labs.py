@@ -134,3 +134,18 @@ def test_the_labs_records_depend_neither_on_chunks_nor_workers(tiny):
     lab1 = expected[expected["lab"] == 1].reset_index(drop=True)
     pd.testing.assert_frame_equal(indexed.drop(columns="lab"), lab1.drop(columns="lab"), check_exact=True,
                                   check_dtype=False)
+
+
+@pytest.mark.slow
+def test_a_centre_only_run_is_the_full_run_s_centre(tiny):
+    setup, labs, shared = tiny
+    centres = run_labs(setup, labs, seed=5, studies=("pose",), centre_only=True)
+    full = shared[shared["study"] == "pose"].reset_index(drop=True)
+    # the centre's columns are the whole run's, to the bit; the margins' are not made
+    centre_columns = [c for c in centres.columns if c not in ("n_failed", "failure")]
+    assert {"centre_err_euclidean", "centre_err_depth"} <= set(centre_columns)
+    assert not {"margin_err_overall", "radius_err_overall", "precision"} & set(centres.columns)
+    pd.testing.assert_frame_equal(centres[centre_columns], full[centre_columns], check_exact=True, check_dtype=False)
+    assert centres.attrs["frames"][0] < shared.attrs["frames"][0]  # fewer frames rendered
+    with pytest.raises(ValueError, match="centre_only must be True or False, got 1"):
+        run_labs(setup, labs, seed=5, centre_only=1)

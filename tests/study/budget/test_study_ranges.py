@@ -62,7 +62,8 @@ def test_run_ranges_shares_what_it_can_and_labels_each_run(monkeypatch):
     setup = _setup("gantry_sag", "bubble_offset")
     calls = []
 
-    def fake_run_labs(budget_setup, labs, *, seed, indices, executor):
+    def fake_run_labs(budget_setup, labs, *, seed, indices, executor, centre_only):
+        assert centre_only  # the bands read the centres' errors only
         calls.append((list(indices), labs, executor))
         rows = [{"lab": k, "study": s, "experiment": 0, "configuration": "lab"} for k in indices
                 for s in ("pose", "targeting")]
@@ -127,7 +128,7 @@ def test_a_range_run_is_the_lab_run_alone():
     setup = _setup("bubble_offset", "projection")
     out = B.run_ranges(setup, ["bubble_offset"])
     high = range_labs(setup, ["bubble_offset"])[1][3]
-    alone = run_labs(setup, [high], seed=setup.seeds.study, indices=[2], share=False)
+    alone = run_labs(setup, [high], seed=setup.seeds.study, indices=[2], share=False, centre_only=True)
     got = out[out["lab"] == 2].drop(columns=["source", "end", "value"]).reset_index(drop=True)
     pd.testing.assert_frame_equal(got[alone.columns], alone, check_exact=True, check_dtype=False)
     # the bubble cloud lies further off at the high end: the targeting error grows
