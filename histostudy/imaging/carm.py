@@ -191,6 +191,7 @@ class View:
         view = cls.from_gantry(g["primary_deg"], g["secondary_deg"], source_isocenter_mm=g["source_isocenter_mm"],
                                source_detector_mm=g["source_detector_mm"], shape=g["shape"], pixel_mm=col_mm,
                                name=name)
+        assert view.gantry is not None
         gantry = dict(view.gantry, pixel_spacing_mm=[row_mm, col_mm])
         # rows: focal length SID / row spacing instead of / column spacing, about the principal point
         ratio, cv = col_mm / row_mm, view.gantry["principal_point"][1]

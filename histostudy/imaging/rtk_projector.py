@@ -103,9 +103,9 @@ def voxelise_model(model: TransducerModel, T_carm_transducer, voxel_mm: float = 
     # Sum per touched voxel in float64, then one cast: a bincount over the grid needs 8 B a voxel.
     touched, inverse = np.unique(np.concatenate(flats), return_inverse=True)
     sums = np.bincount(inverse, weights=np.concatenate(values))
-    mu = np.zeros(nz * ny * nx, dtype=np.float32)
-    mu[touched] = sums / voxel ** 3
-    mu = mu.reshape(nz, ny, nx)
+    flat_mu = np.zeros(nz * ny * nx, dtype=np.float32)
+    flat_mu[touched] = sums / voxel ** 3
+    mu = flat_mu.reshape(nz, ny, nx)
     if smooth:
         other = np.empty_like(mu)
         for axis in range(3):
@@ -180,7 +180,7 @@ def forward_project(volume, views, *, n_threads: int | None = None) -> list[np.n
     for i, view in enumerate(views):
         K = view.decomposition[0]
         groups.setdefault((view.shape, view.pixel_mm, round(K[0, 0] / K[1, 1], 9)), []).append(i)
-    out: list[np.ndarray | None] = [None] * len(views)
+    by_view: dict[int, np.ndarray] = {}
     for (shape, _, _), members in groups.items():
         group = [views[i] for i in members]
         # du = pixel_mm and dv = du K[0, 0] / K[1, 1] (see _detector) are common to the group.
@@ -198,8 +198,8 @@ def forward_project(volume, views, *, n_threads: int | None = None) -> list[np.n
         joseph.Update()
         images = itk.array_from_image(joseph.GetOutput())
         for k, i in enumerate(members):
-            out[i] = np.ascontiguousarray(images[k], dtype=np.float32)
-    return out
+            by_view[i] = np.ascontiguousarray(images[k], dtype=np.float32)
+    return [by_view[i] for i in range(len(views))]
 
 
 @stage("render")

@@ -16,6 +16,7 @@ from histostudy.imaging import Frame, View
 from histostudy.learning import (
     OracleSegmenter,
     OrientationSource,
+    Segmenter,
     angles_from_direction,
     default_segmenter,
     default_vgg19,
@@ -85,7 +86,7 @@ class ConicOrientation:
             ``min_pixels`` / ``ransac_iterations`` not an integer >= 6.
     """
 
-    segmenter: object | None = field(default=None, repr=False)
+    segmenter: Segmenter | None = field(default=None, repr=False)
     fallback: OrientationSource | None = field(default=None, repr=False)
     spec: TransducerSpec = field(default_factory=TransducerSpec)
     min_pixels: int = 150
@@ -216,7 +217,11 @@ class ConicOrientation:
         elif not isinstance(maps, DistanceMaps) or maps.view is not view:
             raise ValueError("maps must be the DistanceMaps of these labels in this view")
         cases = [(circle, sign) for circle in circles for sign in (1.0, -1.0)]
-        fit_case = lambda case: self._fit_circle_pose(*case, maps, tolerance)  # noqa: E731
+
+        def fit_case(case: tuple[CirclePose, float]):
+            circle, sign = case
+            return self._fit_circle_pose(circle, sign, maps, tolerance)
+
         fits = list(map(fit_case, cases) if executor is None else executor.map(fit_case, cases))
         directions, scores = [], []
         for i in range(len(circles)):
@@ -248,7 +253,8 @@ class ConicOrientation:
         if self.fallback is None:
             raise ValueError(f"view {frame.view.name!r}: no usable inner-boundary ellipse and no fallback "
                              f"orientation source")
-        return direction_candidates(*self.fallback.estimate(frame, rng), frame.view), True
+        azimuth_rad, elevation_rad = self.fallback.estimate(frame, rng)
+        return direction_candidates(azimuth_rad, elevation_rad, frame.view), True
 
     def estimate(self, frame: Frame, rng: np.random.Generator | None = None) -> tuple[float, float]:
         """``(azimuth_rad, elevation_rad)`` of the frame's view (the protocol of

@@ -62,4 +62,5 @@ class SourceDirections:
         if from_labels is not None:
             return unit_direction_pair(from_labels(frame, labels, rng, maps=maps),
                                        f"{type(self.orientation).__name__}.direction_candidates_from_labels")
-        return direction_candidates(*self.orientation.estimate(frame, rng), frame.view)
+        azimuth_rad, elevation_rad = self.orientation.estimate(frame, rng)
+        return direction_candidates(azimuth_rad, elevation_rad, frame.view)

@@ -86,6 +86,7 @@ def estimate_pose_from_labels(labels_per_view: Sequence, views: Sequence[View] |
         T_init = np.asarray(initial_pose, dtype=np.float64)
         timings["orientation"] = timings["initialisation"] = 0.0
     else:
+        assert orientation is not None
         t0 = time.perf_counter()
         candidates = [check_direction_pair(orientation(a, lab, m, rng), "the orientation stage")
                       for a, (lab, m) in enumerate(zip(labels, maps))]

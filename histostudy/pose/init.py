@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -210,7 +211,8 @@ class _Search:
 
     def __init__(self, views: list, view_costs: list, joint_cost: CostFn):
         self.views, self.view_costs, self.joint_cost = views, view_costs, joint_cost
-        self.n_eval, self.stages = 0, {}
+        self.n_eval = 0
+        self.stages: dict[str, Any] = {}
 
     def grids(self, R, point, spec: GridSpec, label: str) -> np.ndarray:
         """Each view's grid search in turn, the next centred on the last's optimum."""

@@ -95,4 +95,5 @@ def default_stages() -> tuple[Segmenter, OrientationSource]:
         warnings.warn("estimate_pose: " + "; ".join(reasons) + " — using the oracle stages, which need "
                       "synthetic frames", stacklevel=3)
         return OracleSegmenter(), OracleOrientation()
+    assert segmenter is not None and orientation is not None
     return segmenter, orientation

@@ -9,6 +9,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import scipy.optimize
@@ -197,10 +198,10 @@ def refine_levenberg_marquardt(cost: PoseCost, T_init, *, max_iter: int = 50, ft
         ValueError: ``T_init`` is not rigid, or a count or tolerance is not positive.
     """
     T = check_rigid(T_init, "T_init")
-    for name, c in (("cost", cost), ("coarse", coarse)):
-        if c is not None and not isinstance(c, PoseCost):
+    for name, given in (("cost", cost), ("coarse", coarse)):
+        if given is not None and not isinstance(given, PoseCost):
             raise TypeError(f"{name} must be a histostudy.pose.cost.PoseCost (it needs normal_equations), "
-                            f"got {type(c).__name__}")
+                            f"got {type(given).__name__}")
     if cost is None:
         raise TypeError("cost must be a PoseCost, got None")
     max_iter = check_count(max_iter, "max_iter")
@@ -211,7 +212,8 @@ def refine_levenberg_marquardt(cost: PoseCost, T_init, *, max_iter: int = 50, ft
     damping = check_positive(damping, "damping")
 
     start = time.perf_counter()
-    info, iterations, evaluations = {}, 0, 0
+    info: dict[str, Any] = {}
+    iterations, evaluations = 0, 0
     if coarse is not None:
         T, c, it, ev, ok, msg, mu = _lm(coarse, T, max_iter=coarse_max_iter, ftol=ftol, xtol_rad=xtol_rad,
                                          xtol_mm=xtol_mm, damping=damping)

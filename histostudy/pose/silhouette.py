@@ -103,7 +103,8 @@ def silhouette_seed(R: np.ndarray, views: Sequence[View], masks: Sequence[np.nda
     if len(views) < 2 or len(masks) != len(views):
         raise ValueError(f"silhouette_seed needs two or more views and one mask per view, got {len(views)} views "
                          f"and {len(masks)} masks")
-    targets, grids = [], []
+    targets: list[np.ndarray] = []
+    grids: list[tuple[int, ...]] = []
     closing = np.ones((3, 3), np.uint8)
     pts = np.asarray(points_mm, dtype=np.float64) @ R.T
 

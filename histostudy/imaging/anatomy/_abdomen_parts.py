@@ -76,9 +76,9 @@ class _Body:
         """The body's outline shrunk by ``inset`` mm: an elliptic cylinder cut by the flat back
         (body frame, no attenuation set)."""
         A, B, half_len, back_y = self.A, self.B, self.half_len, self.back_y
-        cyl = EllipticCylinder([0, 0, 0], [A - inset, B - inset], half_len - inset)
-        cut = Box([0.0, (back_y - inset - B - 10.0) / 2.0, 0.0],
-                  [A + 10.0, (back_y - inset + B + 10.0) / 2.0, half_len + 10.0])
+        cyl = EllipticCylinder(np.array([0, 0, 0]), np.array([A - inset, B - inset]), half_len - inset)
+        cut = Box(np.array([0.0, (back_y - inset - B - 10.0) / 2.0, 0.0]),
+                  np.array([A + 10.0, (back_y - inset + B + 10.0) / 2.0, half_len + 10.0]))
         return Intersection((cyl, cut))
 
 
@@ -191,7 +191,7 @@ def _stomach_gas(draw: _Draw, p: AbdomenSpec, stomach: Ellipsoid,
         # Supine: gas rises to the anterior (-y) side. A ball with |c' - c| + r <= the smallest
         # semi-axis lies inside the stomach.
         c_gas = stomach.center_mm + np.array([0.0, -(s_min - r_gas) * u(0.5, 0.95), 0.0])
-        gas = Ellipsoid(c_gas, [r_gas, r_gas * u(0.5, 0.9), r_gas], mu_per_mm=-(mu_soft + stomach.mu_per_mm),
+        gas = Ellipsoid(c_gas, np.array([r_gas, r_gas * u(0.5, 0.9), r_gas]), mu_per_mm=-(mu_soft + stomach.mu_per_mm),
                         name="stomach gas")
         return gas, (c_gas, r_gas)
     return None
@@ -204,16 +204,19 @@ def _vertebra(spine_x: float, spine_y: float, zc: float, a_vb: float, b_vb: floa
     transverse processes (``mu_post`` [1/mm]) behind it."""
     y_canal = spine_y + b_vb + 9.0            # centre of the spinal canal
     out: list[Primitive] = [
-        EllipticCylinder([spine_x, spine_y, zc], [a_vb, b_vb], vb_h / 2.0, mu_per_mm=mu_vb, name="vertebral body"),
-        Box([spine_x, y_canal + 12.0, zc], [12.0, 3.5, vb_h * 0.38], mu_per_mm=mu_post, name="lamina"),
-        Box([spine_x, y_canal + 28.0, zc - 4.0], [3.0, 14.0, vb_h * 0.25], _rot_x_rad(-0.35),
+        EllipticCylinder(np.array([spine_x, spine_y, zc]), np.array([a_vb, b_vb]), vb_h / 2.0, mu_per_mm=mu_vb,
+                         name="vertebral body"),
+        Box(np.array([spine_x, y_canal + 12.0, zc]), np.array([12.0, 3.5, vb_h * 0.38]), mu_per_mm=mu_post,
+            name="lamina"),
+        Box(np.array([spine_x, y_canal + 28.0, zc - 4.0]), np.array([3.0, 14.0, vb_h * 0.25]), _rot_x_rad(-0.35),
             mu_per_mm=mu_post, name="spinous process"),
     ]
     for side in (-1.0, 1.0):
         out += [
-            Ellipsoid([spine_x + side * 11.0, y_canal, zc], [4.0, 8.5, 6.5], mu_per_mm=mu_post, name="pedicle"),
-            Ellipsoid([spine_x + side * 30.0, y_canal + 4.0, zc], [14.0, 4.0, 5.0], _rot_z_rad(side * 0.25),
-                      mu_per_mm=mu_post, name="transverse process"),
+            Ellipsoid(np.array([spine_x + side * 11.0, y_canal, zc]), np.array([4.0, 8.5, 6.5]), mu_per_mm=mu_post,
+                      name="pedicle"),
+            Ellipsoid(np.array([spine_x + side * 30.0, y_canal + 4.0, zc]), np.array([14.0, 4.0, 5.0]),
+                      _rot_z_rad(side * 0.25), mu_per_mm=mu_post, name="transverse process"),
         ]
     return out
 
@@ -254,7 +257,8 @@ def _rib(neck: np.ndarray, side: float, start_x: float, span: float, z0: float, 
         length = float(np.linalg.norm(seg))
         R = _frame_from_axis(seg, [0.0, 0.0, 1.0])
         # Cross-section: thickness along the radial direction (local x), height ~ z (local y).
-        out.append(EllipticCylinder((a + b) / 2.0, [rib_t / 2.0, rib_h / 2.0], length / 2.0 + 0.3, R, mu_rib, "rib"))
+        out.append(EllipticCylinder((a + b) / 2.0, np.array([rib_t / 2.0, rib_h / 2.0]), length / 2.0 + 0.3, R, mu_rib,
+                                    "rib"))
     return out
 
 

@@ -17,7 +17,7 @@ __all__ = [
 ]
 
 
-def _range(name: str, value, integer: bool = False) -> tuple:
+def _range(name: str, value, integer: bool = False) -> tuple[float, float]:
     """``value`` as a ``(low, high)`` range of finite floats; a bare number ``v`` is ``(v, v)``."""
     if is_real(value):
         value = (value, value)
@@ -35,9 +35,10 @@ def _range(name: str, value, integer: bool = False) -> tuple:
 def _normalise_params(params) -> None:
     """Validate a params dataclass in place: every field a range, a tuple of ranges (one per
     component, as in its default) or, for ``*_probability`` fields, a probability."""
-    int_fields = getattr(params, "_INT_FIELDS", frozenset())
+    int_fields: frozenset[str] = getattr(params, "_INT_FIELDS", frozenset())
     for f in dataclasses.fields(params):
         value = getattr(params, f.name)
+        norm: float | tuple[float, float] | tuple[tuple[float, float], ...]
         if f.name.endswith("_probability"):
             if not (is_real(value) and 0.0 <= float(value) <= 1.0):
                 raise ValueError(f"{f.name} must be a probability in [0, 1], got {value!r}")
@@ -71,15 +72,16 @@ class _Draw:
     def __init__(self, rng: np.random.Generator, params):
         if not isinstance(rng, np.random.Generator):
             raise TypeError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
-        self.rng, self.params, self.drawn = rng, params, {}
+        self.rng, self.params = rng, params
+        self.drawn: dict[str, float | int | list[float]] = {}
 
     def __call__(self, name: str):
         """A float from a range field, an array (one value per component) from a tuple of ranges."""
         value = getattr(self.params, name)
         if isinstance(value[0], tuple):
-            out = np.array([self.rng.uniform(lo, hi) for lo, hi in value])
-            self.drawn[name] = out.tolist()
-            return out
+            components = np.array([self.rng.uniform(lo, hi) for lo, hi in value])
+            self.drawn[name] = components.tolist()
+            return components
         out = float(self.rng.uniform(*value))
         self.drawn[name] = out
         return out

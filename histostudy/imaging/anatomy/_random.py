@@ -4,6 +4,8 @@ CBCT, LPS, mm, origin at the isocentre (docs/imaging.md, "The scenes")."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from ._abdomen_parts import (
@@ -37,8 +39,9 @@ def _table(draw: _Draw, table_top_y: float, center_x: float) -> Box:
     """The carbon-fibre patient table (§II-D, Fig. 4A) as a slab whose top lies at world
     ``table_top_y`` (mm, +y down), centred at ``center_x``; thickness, width, mu [1/mm] drawn."""
     thick = draw("table_thickness_mm")
-    return Box([center_x, table_top_y + thick / 2.0, 0.0], [draw("table_width_mm") / 2.0, thick / 2.0, 1000.0],
-               mu_per_mm=draw("table_mu_per_mm"), name="table")
+    return Box(np.array([center_x, table_top_y + thick / 2.0, 0.0]),
+               np.array([draw("table_width_mm") / 2.0, thick / 2.0, 1000.0]), mu_per_mm=draw("table_mu_per_mm"),
+               name="table")
 
 
 def random_abdomen(rng: np.random.Generator, params: AbdomenSpec | None = None, **overrides) -> Anatomy:
@@ -82,7 +85,7 @@ def random_abdomen(rng: np.random.Generator, params: AbdomenSpec | None = None, 
     table_top = body.cy + body.back_y
     prims.append(_table(draw, table_top, body.t[0] + draw("table_shift_x_mm")))
     skin_y = -body.depth
-    meta = {}
+    meta: dict[str, Any] = {}
     if rng.random() < p.bath_probability:
         prims += _water_bath(draw, body_outer, skin_y, meta)
     meta.update(draw.drawn)
@@ -99,13 +102,14 @@ def _water_bath(draw: _Draw, body_outer: Primitive, skin_y: float, meta: dict) -
     bx, bz = draw("bath_shift_mm"), draw("bath_shift_mm")
     mu_w, mu_pl = draw("mu_water_per_mm"), draw("mu_plastic_per_mm")
     y_bottom, y_top = skin_y + sink, skin_y - bh
-    water = Box([bx, (y_bottom + y_top) / 2.0, bz], [bw, (y_bottom - y_top) / 2.0, bl])
+    water = Box(np.array([bx, (y_bottom + y_top) / 2.0, bz]), np.array([bw, (y_bottom - y_top) / 2.0, bl]))
     out: list[Primitive] = [Difference(water, body_outer, mu_per_mm=mu_w, name="water bath")]
     wall_top = y_top - 20.0                     # the walls stand a little above the water
     wall_half_y, wall_cy = (y_bottom - wall_top) / 2.0, (y_bottom + wall_top) / 2.0
     for sgn in (-1.0, 1.0):
-        walls = [Box([bx + sgn * (bw + wall / 2.0), wall_cy, bz], [wall / 2.0, wall_half_y, bl + wall]),
-                 Box([bx, wall_cy, bz + sgn * (bl + wall / 2.0)], [bw, wall_half_y, wall / 2.0])]
+        walls = [Box(np.array([bx + sgn * (bw + wall / 2.0), wall_cy, bz]),
+                     np.array([wall / 2.0, wall_half_y, bl + wall])),
+                 Box(np.array([bx, wall_cy, bz + sgn * (bl + wall / 2.0)]), np.array([bw, wall_half_y, wall / 2.0]))]
         out += [Difference(w, body_outer, mu_per_mm=mu_pl, name="bath wall") for w in walls]
     meta.update(bath_top_y_mm=y_top, bath_bottom_y_mm=y_bottom, bath_center_mm=[bx, (y_bottom + y_top) / 2.0, bz],
                 bath_half_sizes_mm=[bw, (y_bottom - y_top) / 2.0, bl])
@@ -143,16 +147,18 @@ def random_phantom_setup(rng: np.random.Generator, params: PhantomSceneSpec | No
     prims: list[Primitive] = []
     table_top = floor_y + wall
     prims.append(_table(draw, table_top, tx))
-    outer = Box([tx, floor_y - H / 2.0 + wall / 2.0, tzc], [W + wall, (H + wall) / 2.0, L + wall])
-    inner_open = Box([tx, floor_y - H / 2.0 - 25.0, tzc], [W, H / 2.0 + 25.0, L])   # open at the top
+    outer = Box(np.array([tx, floor_y - H / 2.0 + wall / 2.0, tzc]), np.array([W + wall, (H + wall) / 2.0, L + wall]))
+    # open at the top
+    inner_open = Box(np.array([tx, floor_y - H / 2.0 - 25.0, tzc]), np.array([W, H / 2.0 + 25.0, L]))
     prims.append(Difference(outer, inner_open, mu_per_mm=mu_pl, name="tank"))
-    prims.append(Box([tx, (floor_y + water_top) / 2.0, tzc], [W, (floor_y - water_top) / 2.0, L],
+    prims.append(Box(np.array([tx, (floor_y + water_top) / 2.0, tzc]), np.array([W, (floor_y - water_top) / 2.0, L]),
                      mu_per_mm=mu_w, name="water"))
     sw = draw("stand_half_width_mm")
-    prims.append(Box([pc[0], floor_y - stand_h / 2.0, pc[2]], [sw, stand_h / 2.0, sw], R_ph,
+    prims.append(Box(np.array([pc[0], floor_y - stand_h / 2.0, pc[2]]), np.array([sw, stand_h / 2.0, sw]), R_ph,
                      mu_per_mm=mu_pl - mu_w, name="phantom stand"))
     half = edge / 2.0
-    prims.append(Box(pc, [half, half, half], R_ph, mu_per_mm=draw("agarose_delta_mu"), name="agarose phantom"))
+    prims.append(Box(pc, np.array([half, half, half]), R_ph, mu_per_mm=draw("agarose_delta_mu"),
+                     name="agarose phantom"))
     layered = bool(rng.random() < p.layered_probability)
     layer = draw("layer_mm")
     mu_ba = draw("barium_delta_mu")
@@ -165,7 +171,7 @@ def random_phantom_setup(rng: np.random.Generator, params: PhantomSceneSpec | No
             y_hi, y_lo = min(y, half), max(y - layer, -half)
             if y_hi - y_lo > 0.2:
                 c_local = np.array([0.0, (y_hi + y_lo) / 2.0, 0.0])
-                prims.append(Box(pc + R_ph @ c_local, [half, (y_hi - y_lo) / 2.0, half], R_ph,
+                prims.append(Box(pc + R_ph @ c_local, np.array([half, (y_hi - y_lo) / 2.0, half]), R_ph,
                                  mu_per_mm=mu_ba, name="barium layer"))
             y -= 2.0 * layer
     meta = dict(draw.drawn)

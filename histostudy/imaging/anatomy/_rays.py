@@ -40,7 +40,8 @@ class _Rays:
 
     def sub(self, index) -> _Rays:
         """The rays at ``index`` (a tuple of slices) of these, sharing the products."""
-        return _Rays(*(c[index] for c in self.d), parent=self, index=index)
+        dx, dy, dz = (c[index] for c in self.d)
+        return _Rays(dx, dy, dz, parent=self, index=index)
 
     def lin(self, v) -> np.ndarray:
         """``v . d`` for a 3-vector ``v`` (zero coefficients skipped: axis-aligned shapes)."""

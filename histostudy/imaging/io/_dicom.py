@@ -191,7 +191,7 @@ def _load_dicom_series(folder: Path) -> Volume:
             datasets.append((f, ds))
     if not datasets:
         raise ValueError(f"{source}: none of its {len(files)} files is a DICOM image; expected one series of slices")
-    series = {}
+    series: dict[str, list[str]] = {}
     for f, ds in datasets:
         series.setdefault(str(ds.get("SeriesInstanceUID", "")), []).append(f.name)
     if len(series) > 1:

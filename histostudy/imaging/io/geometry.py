@@ -115,17 +115,21 @@ def gantry_from_dicom(ds, frame_index: int | None = None, source: str = "the DIC
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{source}: ImagerPixelSpacing (0018,1164) must be two numbers (row, column) in mm, "
                          f"got {spacing!r}") from exc
+    primary_deg = _number(values["PositionerPrimaryAngle"], "PositionerPrimaryAngle", source)
+    secondary_deg = _number(values["PositionerSecondaryAngle"], "PositionerSecondaryAngle", source)
+    source_isocenter_mm = _number(values["DistanceSourceToPatient"], "DistanceSourceToPatient", source)
+    source_detector_mm = _number(values["DistanceSourceToDetector"], "DistanceSourceToDetector", source)
     out = {
-        "primary_deg": _number(values["PositionerPrimaryAngle"], "PositionerPrimaryAngle", source),
-        "secondary_deg": _number(values["PositionerSecondaryAngle"], "PositionerSecondaryAngle", source),
-        "source_isocenter_mm": _number(values["DistanceSourceToPatient"], "DistanceSourceToPatient", source),
-        "source_detector_mm": _number(values["DistanceSourceToDetector"], "DistanceSourceToDetector", source),
+        "primary_deg": primary_deg,
+        "secondary_deg": secondary_deg,
+        "source_isocenter_mm": source_isocenter_mm,
+        "source_detector_mm": source_detector_mm,
         "shape": (int(values["Rows"]), int(values["Columns"])),
         "pixel_mm": (row_mm, col_mm),
     }
-    if not 0 < out["source_isocenter_mm"] < out["source_detector_mm"]:
-        raise ValueError(f"{source}: DistanceSourceToDetector (0018,1110) {out['source_detector_mm']} mm must exceed "
-                         f"DistanceSourceToPatient (0018,1111) {out['source_isocenter_mm']} mm, both > 0")
+    if not 0 < source_isocenter_mm < source_detector_mm:
+        raise ValueError(f"{source}: DistanceSourceToDetector (0018,1110) {source_detector_mm} mm must exceed "
+                         f"DistanceSourceToPatient (0018,1111) {source_isocenter_mm} mm, both > 0")
     if not (row_mm > 0 and col_mm > 0):
         raise ValueError(f"{source}: ImagerPixelSpacing (0018,1164) must be > 0 mm, got {spacing!r}")
     return out

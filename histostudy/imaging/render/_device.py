@@ -3,11 +3,16 @@ the same projection, a different source of jitter (docs/imaging.md, "Splatting")
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from histostudy.transducer import FEATURE_CLASSES, TransducerModel
 
 from ..carm import View
+
+if TYPE_CHECKING:
+    from ._torch import TorchSplatter
 
 __all__ = ["check_device", "mark_nearest_pixels_compiled", "splat_compiled", "splat_points", "splat_torch"]
 
@@ -101,7 +106,7 @@ def splat_torch(model: TransducerModel, T_carm_transducer: np.ndarray, view: Vie
     return last.line_integrals([T_carm_transducer], [view], [seed])[0].cpu().numpy()
 
 
-_LAST_SPLATTER = None
+_LAST_SPLATTER: TorchSplatter | None = None
 
 
 def mark_nearest_pixels_compiled(points: np.ndarray, T_carm_transducer: np.ndarray,

@@ -180,6 +180,8 @@ def render_labels(model: TransducerModel, T_carm_transducer, view: View, *, devi
     marker = _numpy_marker if check_device(device) is None else mark_nearest_pixels_compiled
     labels = np.zeros((rows, cols), dtype=np.uint8)
     largest_step_px = 0.0
+    grid_step_mm = model.grid_step_mm
+    assert grid_step_mm is not None
     for feature in reversed(LABEL_PRIORITY):
         pts = model.points[feature]
         if len(pts) == 0:
@@ -187,7 +189,7 @@ def render_labels(model: TransducerModel, T_carm_transducer, view: View, *, devi
         mask, smallest_footprint = marker(pts, T, view)
         if not np.isfinite(smallest_footprint):
             continue
-        step_px = model.grid_step_mm[feature] / math.sqrt(smallest_footprint)
+        step_px = grid_step_mm[feature] / math.sqrt(smallest_footprint)
         largest_step_px = max(largest_step_px, step_px)
         labels[_close_holes(mask.reshape(rows, cols), step_px) > 0] = int(feature)
     return _fill_seams(labels, largest_step_px)

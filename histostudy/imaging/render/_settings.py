@@ -4,6 +4,7 @@ once in :class:`FrameRenderConfig` for every configuration that renders frames; 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, overload
 
 from histostudy.core import check_count, check_positive, is_finite_real
 
@@ -67,6 +68,14 @@ class FrameRenderConfig:
 
 
 # The checks of each setting, here once; render_frame and add_poisson_noise call them too.
+
+@overload
+def check_photons_per_pixel(value, *, allow_none: Literal[False]) -> float: ...
+
+
+@overload
+def check_photons_per_pixel(value, *, allow_none: bool) -> float | None: ...
+
 
 def check_photons_per_pixel(value, *, allow_none: bool) -> float | None:
     """``value`` as unattenuated photons per pixel (finite, > 0; None for no noise where allowed)."""

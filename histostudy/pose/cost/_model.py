@@ -238,10 +238,11 @@ class PoseCost:
 
     def select_views(self, indices) -> PoseCost:
         """The cost over a subset of the views (e.g. one view for the per-plane grid search, §II-B.4)."""
-        idx = [indices] if np.isscalar(indices) else list(indices)
-        for i in idx:
+        idx: list[int] = []
+        for i in [indices] if np.isscalar(indices) else list(indices):
             if not (isinstance(i, (int, np.integer)) and 0 <= i < len(self.maps)):
                 raise ValueError(f"indices must be view indices in [0, {len(self.maps)}), got {indices!r}")
+            idx.append(int(i))
         return self._derive(self.points, [self.maps[i] for i in idx], view_indices=idx)
 
     # --- evaluation -------------------------------------------------------------------------
@@ -325,9 +326,12 @@ class PoseCost:
                 sw = np.sqrt(self.weights[a, s])
                 out = reference_distances(T, self._P3[a], self._P[a, :, 3], self.maps[a].maps[f], self.points[f],
                                           self.outside_distance_px, self._cap, jacobian=jacobian)
-                d, J = out if jacobian else (out, None)
+                if jacobian:
+                    d, J = out
+                    Js.append(sw * J)
+                else:
+                    d = out
                 rs.append(sw * d)
-                Js.append(None if J is None else sw * J)
         return np.concatenate(rs), (np.vstack(Js) if jacobian else None)
 
     def residuals_and_jacobian(self, pose) -> tuple[np.ndarray, np.ndarray]:

@@ -8,12 +8,13 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
 from ..result import PoseResult
 from ._input import frames_for_views
+from ._warm import PreparedRegions, RegionPlan
 
 __all__ = []  # Tracker.track is the public entry point
 
@@ -44,7 +45,7 @@ def pipelined_updates(tracker, pairs: Iterable, ready: Callable[[], bool] | None
 
     region = tracker._region
     worker = ThreadPoolExecutor(max_workers=1)
-    pending = None  # the next pair's plan and its views' tasks on the worker
+    pending: tuple[RegionPlan, list[Future[tuple]]] | None = None  # the next pair's plan and its views' tasks
     try:
         nxt = take()
         slot = 0  # the map buffers of the pair being finished; the next pair is prepared in the other
@@ -64,7 +65,7 @@ def pipelined_updates(tracker, pairs: Iterable, ready: Callable[[], bool] | None
                 plan = region.plan(nxt, tracker._last_pose.copy(), _worker_rng(tracker), 1 - slot)
                 pending = (plan, [worker.submit(region.prepare_view, plan, a) for a in range(len(nxt))])
             t_start = time.perf_counter()
-            prepared = None if prepared_tasks is None else _collect(region, *prepared_tasks)
+            prepared: PreparedRegions | None = None if prepared_tasks is None else _collect(region, *prepared_tasks)
             # While the worker segments the next pair, serial kernels here: numba's threads would
             # take its core (docs/tracking.md).
             result = tracker._update(frames, prepared, t_start, slot, parallel=False if pending is not None else None)

@@ -50,7 +50,8 @@ class _ScaledDirections:
             if source is None:
                 raise ValueError(f"view {self.views[a].name!r}: no usable inner-boundary ellipse and no fallback "
                                  f"orientation source")
-        pair = direction_candidates(*source.estimate(full, rng), full.view)
+        azimuth_rad, elevation_rad = source.estimate(full, rng)
+        pair = direction_candidates(azimuth_rad, elevation_rad, full.view)
         return unit_direction_pair(pair, f"{type(source).__name__}.estimate")
 
 

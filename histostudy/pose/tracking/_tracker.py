@@ -22,7 +22,7 @@ from ..result import PoseEstimationError, PoseResult, add_timings, refused
 from ._input import frames_for_views
 from ._options import TrackingConfig
 from ._pipeline import pipelined_updates
-from ._scratch import scratch_estimator
+from ._scratch import ScratchEstimator, scratch_estimator
 from ._warm import RegionEstimator
 from ._warm_up import warm_up
 
@@ -118,6 +118,18 @@ class Tracker:
     #: The counters above, in the order of :meth:`stats`; :meth:`reset` zeroes them.
     COUNTERS = ("n_updates", "n_warm", "n_from_scratch", "n_lost", "n_reacquired", "n_accepted", "n_failed",
                 "n_rescue_attempts", "n_rescued", "n_resume_attempts", "n_resumed")
+    # set by reset() through COUNTERS
+    n_updates: int
+    n_warm: int
+    n_from_scratch: int
+    n_lost: int
+    n_reacquired: int
+    n_accepted: int
+    n_failed: int
+    n_rescue_attempts: int
+    n_rescued: int
+    n_resume_attempts: int
+    n_resumed: int
 
     def __init__(self, model: TransducerModel, views: Sequence[View] | View, *, segmenter=None, orientation=None,
                  rng=None, options: PoseConfig | None = None, fast: bool | TrackingConfig = True,
@@ -145,13 +157,15 @@ class Tracker:
             fast = TrackingConfig()
         elif fast is not False and not isinstance(fast, TrackingConfig):
             raise TypeError(f"fast must be True, False or a histostudy.pose.TrackingConfig, got {fast!r}")
-        self.tracking_options = fast or None
-        self._region = None if self.tracking_options is None else RegionEstimator(
-            model, self.views, segmenter, self._estimate_options, self.tracking_options, self.rng)
+        self.tracking_options = fast if isinstance(fast, TrackingConfig) else None
+        self._region: RegionEstimator | None = None
         # From scratch at the label scale (TrackingConfig.scratch_label_scale); None: full frames.
-        self._scratch = None if self._region is None else scratch_estimator(
-            model, self.views, self._region.full_frame_segmenter, orientation, self._estimate_options,
-            self.tracking_options, self.rng)
+        self._scratch: ScratchEstimator | None = None
+        if self.tracking_options is not None:
+            self._region = RegionEstimator(model, self.views, segmenter, self._estimate_options,
+                                           self.tracking_options, self.rng)
+            self._scratch = scratch_estimator(model, self.views, self._region.full_frame_segmenter, orientation,
+                                              self._estimate_options, self.tracking_options, self.rng)
         self.reset()
 
     # --- state ----------------------------------------------------------------------------------
@@ -166,7 +180,7 @@ class Tracker:
         self._refused_pose: np.ndarray | None = None  # the last update's refused pose, for a resumed start
         self.stage_seconds: dict[str, float] = {}
         self.update_seconds = 0.0
-        if getattr(self, "_region", None) is not None:
+        if self._region is not None:
             self._region.last_regions = []
 
     @property
@@ -282,7 +296,8 @@ class Tracker:
         T_start = self._last_pose if was_tracking else self._refused_pose if resume else None
         self._refused_pose = None
         try:
-            result = kind = None
+            result: PoseResult | None = None
+            kind: str | None = None
             if T_start is not None:
                 self.n_resume_attempts += resume
                 try:
@@ -309,6 +324,7 @@ class Tracker:
             raise
         finally:
             self.update_seconds += time.perf_counter() - t_start
+        assert result is not None
         self.last_result, self.last_kind = result, kind
         if result.verdict.ok:
             self.n_accepted += 1
@@ -317,7 +333,7 @@ class Tracker:
             self.n_failed += 1
             self._last_pose = None
             # the fit checks passed when the views' agreement was measured (verdict.py)
-            if self._region is not None and self.tracking_options.resume_refused \
+            if self.tracking_options is not None and self.tracking_options.resume_refused \
                     and result.verdict.view_disagreement_mm:
                 self._refused_pose = np.array(result.T_carm_transducer, dtype=np.float64)
             if self.options.raise_on_failure:

@@ -126,7 +126,8 @@ class RegionEstimator:
     Raises:
         ValueError: the label or rescue scale is not 1/k of the frame, the regions' alignment does
             not hold whole pixels of the rescue grid, a view's shape is not divisible by
-            1/label_scale, or ``TrackingConfig.network`` names no usable weights.
+            1/label_scale, ``TrackingConfig.network`` names no usable weights, or the regions' U-Net
+            has no ``network_stride_px`` (a network without ``pad_multiple``).
     """
 
     def __init__(self, model: TransducerModel, views: Sequence[View], segmenter, options: PoseConfig,
@@ -144,6 +145,10 @@ class RegionEstimator:
             net_scale = self.fast_unet.scale
             s = net_scale if tracking.label_scale is None else float(tracking.label_scale)
             align = self.fast_unet.network_stride_px
+            if align is None:
+                raise ValueError(f"the warm regions' U-Net (a {type(self.fast_unet.network).__name__}) has no "
+                                 f"pad_multiple, so no network_stride_px to align the regions to; expected a "
+                                 f"histostudy.learning UNet, or a tracker with fast=False")
         else:
             s = 1.0 if tracking.label_scale is None else float(tracking.label_scale)
             align = int(round(1.0 / s))
@@ -210,7 +215,8 @@ class RegionEstimator:
                 "verdict": None if opts.verdict_truncation_px is None else opts.verdict_truncation_px * scale,
                 "consistency": (1.0 if opts.refine_truncation_px is None else opts.refine_truncation_px) * scale}
         readers = list(caps.values())
-        caps["reach"] = None if any(c is None for c in readers) else max(readers)
+        capped = [c for c in readers if c is not None]
+        caps["reach"] = max(capped) if len(capped) == len(readers) else None
         return caps
 
     # --- stages ---------------------------------------------------------------------------------
