@@ -7,7 +7,7 @@
 #   make dist-check  sdist and wheel built, the wheel installed in a fresh venv away from the checkout,
 #                    its networks, the README's lab block and notebook 01 run there (scripts/dist_check.py)
 #   make lab         JupyterLab on notebooks/ (as root, as in a container, with --allow-root)
-#   make typecheck   mypy over the package ([tool.mypy] in pyproject.toml says which packages are clean)
+#   make typecheck   mypy over the whole package (settings: [tool.mypy] in pyproject.toml)
 #   make docs        the documentation site in docs/_build/html, warnings as errors (docs/site.md)
 #
 # Torch is installed first as a CPU build, so that the package's own `torch` requirement is already
