@@ -54,6 +54,10 @@ def add_parsers(sub, parents) -> None:
     rep.add_argument("--no-progress", action="store_true", help="no per-cell progress bar")
     rep.add_argument("--workers", type=_positive_int, default=1, metavar="N",
                      help="notebooks run at once, each in its own kernel (default: 1; the numbers do not depend on it)")
+    rep.add_argument("--sweep-workers", type=_positive_int, default=None, metavar="N",
+                     help="processes each notebook's Monte-Carlo sweeps run in, where HISTOSTUDY_SCHEDULER is unset "
+                          "(default: the cores left to each notebook, cores // --workers; 1: in the kernel; the "
+                          "numbers do not depend on it)")
     rep.add_argument("--force", action="store_true",
                      help="run every notebook again, even a section finished with the same content key (notebook, "
                           "parameters, code, weights, libraries), which is otherwise kept")
@@ -163,7 +167,7 @@ def _reproduce(args) -> int:
     try:
         run = run_study(args.profile, args.output, only=args.only, notebooks_dir=args.notebooks,
                         progress=not args.no_progress and not args.quiet and args.workers == 1, workers=args.workers,
-                        force=args.force)
+                        sweep_workers=args.sweep_workers, force=args.force)
     except NotebookFailed as exc:
         print(f"histostudy reproduce: {exc}", file=sys.stderr)
         return 1

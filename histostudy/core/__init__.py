@@ -16,7 +16,7 @@ from .seeding import as_generator
 from .shipped import shipped_dir
 from .stage_profile import STAGES, cpu_seconds, merge_stage_totals, stage, stage_delta, stage_totals
 from .sweep_cache import SWEEP_CACHE_ENV, files_digest, package_digest
-from .sweeps import SweepExecutor, SweepTaskError, resolve_executor, run_sweep
+from .sweeps import SCHEDULER_ENV, SweepExecutor, SweepTaskError, resolve_executor, run_sweep
 from .world_frame import WORLD_FRAME, world_frame_keys
 
 __all__ = [
@@ -28,8 +28,8 @@ __all__ = [
     # the CPU
     "BENCHMARK_ISAS", "avx2_env_words", "avx2_restriction", "machine_summary", "run_restricted_to",
     # sweeps
-    "SweepExecutor", "SweepTaskError", "resolve_executor", "run_sweep", "SWEEP_CACHE_ENV", "files_digest",
-    "package_digest",
+    "SweepExecutor", "SweepTaskError", "resolve_executor", "run_sweep", "SCHEDULER_ENV", "SWEEP_CACHE_ENV",
+    "files_digest", "package_digest",
     # results computed once within a scope
     "GeneratorMemo", "MemoScope", "value_digest",
     # the time of a run by stage

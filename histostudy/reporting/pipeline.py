@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from histostudy.core import SWEEP_CACHE_ENV, atomic_path, cpu_seconds, provenance, shipped_dir
+from histostudy.core import SCHEDULER_ENV, SWEEP_CACHE_ENV, atomic_path, cpu_seconds, provenance, shipped_dir
 from histostudy.core.provenance import REPO_ROOT
 
 from .interrupts import StudyInterrupted, remove_temporaries, signals_interrupt, stop_kernels
@@ -115,7 +115,7 @@ class StudyRun:
 def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLike = "reports", *,
               only: Sequence[str] | None = None, notebooks_dir: str | os.PathLike | None = None,
               progress: bool = True, log: Callable[[str], None] | None = None, workers: int = 1,
-              force: bool = False) -> StudyRun:
+              sweep_workers: int | None = None, force: bool = False) -> StudyRun:
     """Run the study notebooks of ``profile`` into ``output_dir`` and assemble the report.
 
     Each notebook ``NN_name.ipynb`` runs with the profile's parameters plus ``output_dir =
@@ -137,6 +137,10 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
         log: where the run's lines go (default: stderr).
         workers: how many notebooks run at once, each in its own kernel (1: one after the other).
             The numbers do not depend on it: each notebook takes its seed from the profile.
+        sweep_workers: the processes each notebook's Monte-Carlo sweeps run in (a dask local
+            cluster; 1: in the kernel), where ``HISTOSTUDY_SCHEDULER`` is unset (set, it wins);
+            None: the cores left to each notebook, this machine's usable cores // ``workers``. The
+            numbers do not depend on it either (docs/sweeps.md); ``run.json`` records it.
         force: run every notebook again, even one whose finished section is unchanged.
 
     Returns:
@@ -144,7 +148,7 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
         ``REPORT.md`` and ``report.html``) and ``record`` (the contents of ``run.json``).
 
     Raises:
-        ValueError: ``workers`` is not a positive integer; ``profile`` is unknown or its file is
+        ValueError: ``workers`` or ``sweep_workers`` is not a positive integer; ``profile`` is unknown or its file is
             malformed (:func:`~.profiles.load_profile`); ``notebooks_dir`` holds no notebook; the
             profile does not fit its notebooks (:func:`~.profiles.validate_profile`); ``only`` names
             no notebook. All before anything runs or is written.
@@ -157,6 +161,10 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
     """
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be a positive integer (notebooks run at once), got {workers!r}")
+    if sweep_workers is not None and (isinstance(sweep_workers, bool) or not isinstance(sweep_workers, int)
+                                      or sweep_workers < 1):
+        raise ValueError(f"sweep_workers must be None or a positive integer (processes per notebook's sweeps), "
+                         f"got {sweep_workers!r}")
     prof = profile if isinstance(profile, Profile) else load_profile(profile)
     notebooks_dir = Path(notebooks_dir or DEFAULT_NOTEBOOK_DIR)
     found = discover_notebooks(notebooks_dir)
@@ -178,11 +186,14 @@ def run_study(profile: str | os.PathLike | Profile, output_dir: str | os.PathLik
         "failure": None,
     }
     workers = min(workers, len(notebooks))
+    scheduler = _sweep_scheduler(workers, sweep_workers)
+    record["sweeps"] = scheduler
+    log(f"sweeps: {scheduler}" + (f" (${SCHEDULER_ENV})" if os.environ.get(SCHEDULER_ENV, "").strip() else ""))
     tasks = [_NotebookTask(i, len(notebooks), nb_path, entry, prof, out, progress, log, force, workers == 1)
              for i, (nb_path, entry) in enumerate(zip(notebooks, record["notebooks"]), start=1)]
     _estimate(tasks, out, prof.name)
     started = time.perf_counter()
-    with signals_interrupt(), _running_kernel() as kernel_name, _sweep_cache(out):
+    with signals_interrupt(), _running_kernel() as kernel_name, _sweep_environment(out, scheduler):
         failure = _run_tasks(tasks, kernel_name, workers, record)
     record["wall_seconds"] = time.perf_counter() - started
     write_run_record(out, record)
@@ -413,25 +424,40 @@ def _failed_cell(executed_path: Path) -> tuple[int, str] | None:
     return None
 
 
-class _sweep_cache:
+def _sweep_scheduler(workers: int, sweep_workers: int | None) -> str:
+    """Where the kernels' sweeps run: ``$HISTOSTUDY_SCHEDULER`` where set, else ``"local:<n>"`` for
+    ``n`` = ``sweep_workers`` (default: the usable cores // ``workers``) of 2 or more, else
+    ``"sequential"``."""
+    if os.environ.get(SCHEDULER_ENV, "").strip():
+        return os.environ[SCHEDULER_ENV].strip()
+    if sweep_workers is None:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        sweep_workers = max(1, cores // workers)
+    return f"local:{sweep_workers}" if sweep_workers > 1 else "sequential"
+
+
+class _sweep_environment:
     """Context manager: the kernels' sweeps keep their finished tasks in ``<output>/.sweep-cache``
     (:data:`~histostudy.core.SWEEP_CACHE_ENV`), unless the variable names a folder already, so that
-    a section stopped half-way redoes only the tasks that did not finish."""
+    a section stopped half-way redoes only the tasks that did not finish; and run on ``scheduler``
+    (:data:`~histostudy.core.SCHEDULER_ENV`, the environment the kernels inherit)."""
 
-    def __init__(self, out: Path):
-        self._folder = str(out / SWEEP_CACHE_FOLDER)
+    def __init__(self, out: Path, scheduler: str):
+        self._values = {SWEEP_CACHE_ENV: str(out / SWEEP_CACHE_FOLDER), SCHEDULER_ENV: scheduler}
 
     def __enter__(self):
-        self._old = os.environ.get(SWEEP_CACHE_ENV)
-        if not (self._old or "").strip():
-            os.environ[SWEEP_CACHE_ENV] = self._folder
+        self._old = {name: os.environ.get(name) for name in self._values}
+        for name, value in self._values.items():
+            if not (self._old[name] or "").strip():
+                os.environ[name] = value
         return self
 
     def __exit__(self, *exc):
-        if self._old is None:
-            os.environ.pop(SWEEP_CACHE_ENV, None)
-        else:
-            os.environ[SWEEP_CACHE_ENV] = self._old
+        for name, old in self._old.items():
+            if old is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = old
         return False
 
 

@@ -252,6 +252,38 @@ def test_notebooks_run_at_once_give_the_same_sections_in_order_and_a_failure_sto
     assert record["failure"]["notebook"] == "01_first"
 
 
+def test_the_kernels_sweeps_run_on_the_cores_left_unless_the_environment_says_where(tmp_path, toy_profile,
+                                                                                    monkeypatch):
+    import os
+
+    folder = tmp_path / "notebooks"
+    folder.mkdir()
+    _notebook(folder / "01_first.ipynb", [WRITE.format(name="01_first").replace(
+        "w.save()", "import os\nw.value('scheduler', os.environ.get('HISTOSTUDY_SCHEDULER'))\nw.save()")])
+    _notebook(folder / "02_second.ipynb", [WRITE.format(name="02_second")])
+    monkeypatch.delenv("HISTOSTUDY_SCHEDULER", raising=False)
+
+    def seen(out):
+        return json.loads((out / "01_first" / "results.json").read_text())["values"]["scheduler"]
+
+    run = run_study(toy_profile, tmp_path / "three", notebooks_dir=folder, progress=False, log=lambda m: None,
+                    sweep_workers=3)
+    assert seen(tmp_path / "three") == run.record["sweeps"] == "local:3"
+    assert "HISTOSTUDY_SCHEDULER" not in os.environ  # the run's setting left with it
+    one = run_study(toy_profile, tmp_path / "one", notebooks_dir=folder, progress=False, log=lambda m: None,
+                    sweep_workers=1, force=True)
+    assert seen(tmp_path / "one") == one.record["sweeps"] == "sequential"
+    monkeypatch.setenv("HISTOSTUDY_SCHEDULER", "tcp://scheduler.lab:8786")  # a cluster chosen by the user wins
+    logged = []
+    cluster = run_study(toy_profile, tmp_path / "cluster", notebooks_dir=folder, progress=False, log=logged.append,
+                        sweep_workers=3)
+    assert seen(tmp_path / "cluster") == cluster.record["sweeps"] == "tcp://scheduler.lab:8786"
+    assert "sweeps: tcp://scheduler.lab:8786 ($HISTOSTUDY_SCHEDULER)" in logged
+    for bad in (0, 1.5, True):
+        with pytest.raises(ValueError, match=f"sweep_workers must be None or a positive integer .*got {bad!r}"):
+            run_study(toy_profile, tmp_path / "bad", notebooks_dir=folder, sweep_workers=bad)
+
+
 @pytest.mark.parametrize("workers", [0, -1, 1.5, True, "2"])
 def test_workers_must_be_a_positive_integer(toy_notebooks, toy_profile, tmp_path, workers):
     with pytest.raises(ValueError, match=f"workers must be a positive integer .*got {workers!r}"):
