@@ -90,9 +90,10 @@ def contents_markdown(entries: list[tuple[str, str]]) -> list[str]:
 
 
 def run_facts(run: dict) -> list[str]:
-    """Profile, seed, commit, creation time, machine, wall time and the notebooks with their status
-    and wall time (kept: finished by an earlier run with the same content key), as a Markdown list,
-    then the sections' time by stage (:func:`stage_table`) where the run recorded it."""
+    """Profile, seed, commit, creation time, machine, wall time, where the sweeps ran and the
+    notebooks with their status and wall time (kept: finished by an earlier run with the same
+    content key), as a Markdown list, then the sections' time by stage (:func:`stage_table`) where
+    the run recorded it."""
     prov = run.get("provenance", {})
     notebooks = ", ".join(f"{md_code(n['name'])} ({md_escape(n.get('status', 'pending'))}"
                           + (", kept" if n.get("kept") else "")
@@ -118,6 +119,8 @@ def run_facts(run: dict) -> list[str]:
         lines.append(f"- Wall time of the sections: {_hours(total)}"
                      + (f", of which {_hours(kept)} in earlier runs whose sections were kept" if kept else "")
                      + (f"; this run: {_hours(wall)}" if isinstance(wall, (int, float)) else ""))
+    if run.get("sweeps"):
+        lines.append(f"- Sweeps ran on: {md_code(run['sweeps'])} (docs/sweeps.md; the numbers do not depend on it)")
     lines += [f"- Notebooks: {notebooks}", ""]
     table = stage_table(run)
     if table is not None:

@@ -80,6 +80,9 @@ def test_this_run_shows_each_section_s_time_by_stage():
         ["05_targeting", "n/a", "n/a", "n/a", "n/a", "0.5 / 0.5"],
         ["all sections", "n/a", "n/a", "n/a", "n/a", "13.5 / n/a"]]
     lines = run_facts(run)
+    assert not any("Sweeps ran on" in line for line in lines)  # a run that did not record it
+    assert "- Sweeps ran on: `local:2` (docs/sweeps.md; the numbers do not depend on it)" in run_facts(
+        {**run, "sweeps": "local:2"})
     caption = next(i for i, line in enumerate(lines) if line.startswith("Time by stage, wall / CPU in min"))
     table = lines[caption + 2].splitlines()
     assert table[:3] == ["| Section | render | pose | report | other | total |", "|:---|---:|---:|---:|---:|---:|",
