@@ -79,16 +79,27 @@ def draw_labs(model: LabErrorModel, seed, n_labs: int, *, physical: TransducerMo
 
 def frames_alike(labs: Sequence[LabDraw], study: str = "pose") -> bool:
     """Whether every lab makes ``study``'s frames alike, so that the labs can share renders and
-    segmentations: the same transducer object and the same true views (projection matrices), and
-    for ``"targeting"`` the same arm (``robot_accuracy`` off: its kinematic error moves the
-    calibration poses)."""
+    segmentations in one task: the same transducer object and the same true views (projection
+    matrices), and for ``"targeting"`` the same arm (equal kinematic errors, ``robot_accuracy``:
+    they move the calibration poses). The range labs of a source other than the arm's keep lab 0's
+    arm; labs drawn apart each have their own. Sharing is exact either way (frames are shared by
+    content); this says only whether it would find anything."""
     labs = list(labs)
     first = labs[0]
-    if study == "targeting" and any(getattr(lab.model, "robot_accuracy", None) is not None for lab in labs):
-        return False
+    if study == "targeting":
+        arms = [lab.kinematic_error() for lab in labs]
+        if not all(_same_arm(arm, arms[0]) for arm in arms[1:]):
+            return False
     return all(lab.physical is first.physical and len(lab.frame_views) == len(first.frame_views)
                and all(np.array_equal(a.P, b.P) for a, b in zip(lab.frame_views, first.frame_views))
                for lab in labs[1:])
+
+
+def _same_arm(a, b) -> bool:
+    """Whether two labs' kinematic errors (``LabDraw.kinematic_error``, None: the nominal arm) are equal."""
+    if a is None or b is None:
+        return a is None and b is None
+    return all(np.array_equal(getattr(a, f.name), getattr(b, f.name)) for f in dataclasses.fields(a))
 
 
 def _labs_task(task: tuple, *, setup: BudgetSetup, labs: Sequence[LabDraw], share: bool,

@@ -58,6 +58,11 @@ def test_frames_alike_and_magnitudes(models):
     assert frames_alike(alike) and frames_alike(alike, "targeting")
     sag = draw_labs(_model("gantry_sag", "bubble_offset"), 5, 3, physical=physical, views=default_biplane())
     assert not frames_alike(sag)
+    # labs drawn apart have their own arms; lab 0 with another magnitude of a source keeps its arm
+    arms = draw_labs(_model("bubble_offset", "robot_accuracy"), 5, 2, physical=physical, views=default_biplane())
+    assert frames_alike(arms) and not frames_alike(arms, "targeting")
+    again = draw_lab(_model("robot_accuracy"), arms[0].seed, physical=physical, views=default_biplane())
+    assert frames_alike([arms[0], dataclasses.replace(again, physical=arms[0].physical)], "targeting")
     sizes = lab_magnitudes(sag).set_index("lab")
     assert list(sizes.columns) == ["bubble_offset", "gantry_sag"]
     for k, lab in enumerate(sag):
