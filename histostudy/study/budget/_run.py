@@ -10,7 +10,6 @@ import dataclasses
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -27,11 +26,9 @@ from ..pose.reference import cbct_reference
 from ..targeting.experiment import run_targeting_experiment
 from ..targeting.robots import sim_robot
 from ..targeting.setup import TargetingError, TargetingStudyConfig
+from ._config import BudgetSectionConfig, BudgetSeeds
 from ._shared import shared_work
 from ._sources import ExperimentDraw, LabDraw, LabErrorModel
-
-if TYPE_CHECKING:  # _section imports this module
-    from ._section import BudgetSectionConfig, BudgetSeeds
 
 __all__ = ["BudgetSetup", "ESTIMATE_SOURCES", "budget_configurations", "measured_reference", "measured_zone",
            "run_error_budget"]
