@@ -1,6 +1,7 @@
 """The live tracker on a moving cine, pair by pair, with each U-Net given: how each pair was found
-(from scratch, warm, re-acquired), its focal error against the true pose, and what the verdict said
-(docs/campaigns.md, "Why a better U-Net was refused").
+(from scratch, warm, re-acquired), its focal error against the true pose, and what the verdict said:
+its reasons, and per view how far that view alone moves the focal point and the cost it gains by
+it (docs/campaigns.md, "Why a better U-Net was refused").
 
 The cine is that of ``tests/lab/test_receiver.py``: the 0.25 mm model on a phantom background
 (seeds 4 and 5), each pose about 0.9 mm and 0.9 deg from the last, the two views of the default
@@ -94,8 +95,13 @@ def main(argv=None) -> int:
             error = float(np.linalg.norm(result.T_carm_transducer[:3, 3] - poses[i][:3, 3]))
             errors.append(error)
             refused += not result.verdict.ok
-            reasons = "; ".join(result.verdict.reasons) or "accepted"
-            print(f"  pair {i}: {tracker.last_kind:13s} focal error {error:.3f} mm  {reasons}")
+            v = result.verdict
+            reasons = "; ".join(v.reasons) or "accepted"
+            evidence = ", ".join(f"{view}: moves {v.view_disagreement_mm[view]:.2f} mm for "
+                                 f"{v.view_gain_px2[view]:.3f} px² ({100 * v.view_relative_gain[view]:.1f}%)"
+                                 for view in v.view_disagreement_mm)
+            print(f"  pair {i}: {tracker.last_kind:13s} focal error {error:.3f} mm  {reasons}"
+                  + (f"\n          single views: {evidence}" if evidence else ""))
         summary.append({"U-Net": name, "mean focal error (mm)": np.mean(errors), "max (mm)": np.max(errors),
                         "refused": refused, "warm": tracker.n_warm, "from scratch": tracker.n_from_scratch,
                         "lost": tracker.n_lost})

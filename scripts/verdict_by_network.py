@@ -1,6 +1,7 @@
 """The verdict's view-agreement figure over random poses, per U-Net: how far one view's evidence alone
 moves the focal point (``PoseConfig.max_view_disagreement_mm``'s measure) for estimates within 2 mm
-of the truth and for the others (docs/campaigns.md, "Why a better U-Net was refused").
+of the truth and for the others, then every measured estimate's verdict figures: the move, the cost
+the view gains by it, and the fit (docs/campaigns.md, "Why a better U-Net was refused").
 
 ``study.pose.robustness_sweep`` over ``--poses`` random poses of the paper's range (seed ``--seed``,
 the study's reference renderer and 0.125 mm models, initialisation "robust"), every network on the
@@ -68,6 +69,14 @@ def main(argv=None) -> int:
                      "off: error (mm), disagreement (mm)": "; ".join(
                          f"{e:.1f}, {x:.2f}" for e, x in zip(off["error_mm"], off["disagreement_mm"])) or "—"})
     print(pd.DataFrame(rows).to_markdown(index=False))
+    # Per estimate whose views' agreement was measured: each view's move, and what it gains by it.
+    gains = [c for c in table.columns if c.startswith("relative_gain_")]
+    table["relative_gain"] = table[gains].max(axis=1)
+    table["gain_px2"] = table[[c for c in table.columns if c.startswith("gain_px2_")]].max(axis=1)
+    measured = table.dropna(subset=["disagreement_mm"])
+    print("\n" + measured[["stages", "pose", "error_mm", "verdict_ok", "disagreement_mm", "gain_px2", "relative_gain",
+                           *[c for c in table.columns if c.startswith(("rms_", "body_rms_", "unexplained_"))]]]
+          .sort_values(["stages", "error_mm"]).to_markdown(index=False, floatfmt=".3f"))
     return 0
 
 

@@ -21,8 +21,8 @@ from .options import PoseConfig
 from .refine import refine_levenberg_marquardt
 from .truncations import PoseCosts
 
-__all__ = ["PoseJudge", "PoseVerdict", "check_unexplained", "check_view_agreement", "judge_fit",
-           "unexplained_fraction", "view_disagreement_mm"]
+__all__ = ["PoseJudge", "PoseVerdict", "SingleViewEvidence", "check_unexplained", "check_view_agreement",
+           "judge_fit", "single_view_evidence", "unexplained_fraction", "view_disagreement_mm"]
 
 
 def _view_of(view_or_frame) -> View:
@@ -58,6 +58,9 @@ class PoseVerdict:
         view_disagreement_mm: per view, how far that view's evidence alone would move the focal
             point across its own ray (see :func:`estimate_pose`'s ``max_view_disagreement_mm``);
             empty with one view, or when the pose failed the other checks first.
+        view_gain_px2: per view, how much that view's own eq. 3 cost falls from the pose to the
+            view's own optimum (px²); measured with ``view_disagreement_mm``.
+        view_relative_gain: per view, ``view_gain_px2`` over the cost at the view's own optimum.
     """
 
     ok: bool
@@ -68,29 +71,84 @@ class PoseVerdict:
     view_disagreement_mm: dict = field(default_factory=dict)
     class_rms_distance_px: dict = field(default_factory=dict)
     unexplained_fraction: dict = field(default_factory=dict)
+    view_gain_px2: dict = field(default_factory=dict)
+    view_relative_gain: dict = field(default_factory=dict)
 
 
-def view_disagreement_mm(cost: PoseCost, frames: Sequence[Frame | View], T_carm_transducer, focal_point_mm,
-                         *, max_iter: int = 30) -> dict:
-    """Per view, how far that view's evidence alone moves the focal point across its ray (mm).
+@dataclass(frozen=True)
+class SingleViewEvidence:
+    """What one view's evidence alone says about a pose (see :func:`single_view_evidence`).
 
-    From ``T_carm_transducer``, ``cost.select_views(a)`` is minimised by Levenberg-Marquardt
-    (at most ``max_iter`` iterations); the focal point's displacement, less its component along
-    view ``a``'s ray through the focal point (one view does not fix the depth), is the figure.
-    ``focal_point_mm`` is in the transducer frame. :func:`estimate_pose`'s verdict refuses a pose
-    where a view's figure exceeds ``max_view_disagreement_mm``.
+    Attributes:
+        move_mm: how far that view's own optimum moves the focal point across the view's ray (mm).
+        cost_px2: that view's eq. 3 cost at the pose (px²).
+        own_optimum_cost_px2: that view's eq. 3 cost at its own optimum (px²), at most ``cost_px2``.
+    """
+
+    move_mm: float
+    cost_px2: float
+    own_optimum_cost_px2: float
+
+    @property
+    def gain_px2(self) -> float:
+        """How much the view's cost falls from the pose to its own optimum (px², >= 0)."""
+        return max(self.cost_px2 - self.own_optimum_cost_px2, 0.0)
+
+    @property
+    def relative_gain(self) -> float:
+        """:attr:`gain_px2` over the cost at the view's own optimum (inf where that is 0): a move
+        bought with a small relative gain is a flat valley of the view's cost, not a conflict."""
+        if self.own_optimum_cost_px2 > 0:
+            return self.gain_px2 / self.own_optimum_cost_px2
+        return 0.0 if self.gain_px2 == 0 else float("inf")
+
+
+def single_view_evidence(cost: PoseCost, frames: Sequence[Frame | View], T_carm_transducer, focal_point_mm,
+                         *, max_iter: int = 30) -> dict[str, SingleViewEvidence]:
+    """Per view, where that view's evidence alone takes the pose, and what the move buys.
+
+    From ``T_carm_transducer``, ``cost.select_views(a)`` (eq. 3 on view ``a`` only) is minimised by
+    Levenberg-Marquardt (at most ``max_iter`` iterations). The focal point's displacement, less its
+    component along view ``a``'s ray through the focal point (one view does not fix the depth), is
+    the move; the view's cost before and after is its price.
+
+    Args:
+        cost: the estimate's consistency :class:`~histostudy.pose.cost.PoseCost` (one map per view
+            of ``frames``).
+        frames: the views (or frames taken with them), in the cost's view order.
+        T_carm_transducer: the pose judged (4x4).
+        focal_point_mm: the focal point in the transducer frame (mm).
+        max_iter: Levenberg-Marquardt iterations per view.
+
+    Returns:
+        ``{view name (else index): SingleViewEvidence}``.
     """
     T = np.asarray(T_carm_transducer, dtype=np.float64)
     focal_local = np.asarray(focal_point_mm, dtype=np.float64)
     focal = T[:3, :3] @ focal_local + T[:3, 3]
     out = {}
     for a, f in enumerate(frames):
-        relaxed = refine_levenberg_marquardt(cost.select_views(a), T, max_iter=max_iter).T
-        move = relaxed[:3, :3] @ focal_local + relaxed[:3, 3] - focal
+        one_view = cost.select_views(a)
+        relaxed = refine_levenberg_marquardt(one_view, T, max_iter=max_iter)
+        move = relaxed.T[:3, :3] @ focal_local + relaxed.T[:3, 3] - focal
         view = _view_of(f)
         ray = view.ray_directions(view.project(focal[None]))[0]
-        out[_view_label(f, a)] = float(np.linalg.norm(move - (move @ ray) * ray))
+        out[_view_label(f, a)] = SingleViewEvidence(
+            move_mm=float(np.linalg.norm(move - (move @ ray) * ray)), cost_px2=float(one_view(T)),
+            own_optimum_cost_px2=float(relaxed.cost))
     return out
+
+
+def view_disagreement_mm(cost: PoseCost, frames: Sequence[Frame | View], T_carm_transducer, focal_point_mm,
+                         *, max_iter: int = 30) -> dict:
+    """Per view, how far that view's evidence alone moves the focal point across its ray (mm):
+    :func:`single_view_evidence`'s ``move_mm``.
+
+    ``focal_point_mm`` is in the transducer frame. :func:`estimate_pose`'s verdict refuses a pose
+    where a view's figure exceeds ``max_view_disagreement_mm``.
+    """
+    return {name: e.move_mm for name, e in single_view_evidence(cost, frames, T_carm_transducer, focal_point_mm,
+                                                                max_iter=max_iter).items()}
 
 
 #: Up to this tolerance (px) :func:`unexplained_fraction` dilates by a disk; beyond it the disk's
@@ -165,7 +223,10 @@ def check_unexplained(verdict: PoseVerdict, frames, labels, model, T, limit: flo
 
 def check_view_agreement(verdict: PoseVerdict, cost: PoseCost, frames, T, focal_point_mm, limit_mm) -> None:
     """Adds each view's :func:`view_disagreement_mm` to ``verdict``; fails it where one exceeds ``limit_mm``."""
-    verdict.view_disagreement_mm = view_disagreement_mm(cost, frames, T, focal_point_mm)
+    evidence = single_view_evidence(cost, frames, T, focal_point_mm)
+    verdict.view_disagreement_mm = {name: e.move_mm for name, e in evidence.items()}
+    verdict.view_gain_px2 = {name: e.gain_px2 for name, e in evidence.items()}
+    verdict.view_relative_gain = {name: e.relative_gain for name, e in evidence.items()}
     for name, move in verdict.view_disagreement_mm.items():
         if not move <= limit_mm:
             verdict.reasons.append(f"view {name!r} alone moves the focal point {move:.2f} mm across its ray "

@@ -6,7 +6,7 @@ import pytest
 from pose_frames import POSES, frames_of
 
 from histostudy.pose import DistanceMaps, PoseCost
-from histostudy.pose.verdict import unexplained_fraction, view_disagreement_mm
+from histostudy.pose.verdict import single_view_evidence, unexplained_fraction, view_disagreement_mm
 from histostudy.transducer import Feature, TransducerModel
 
 
@@ -73,3 +73,25 @@ def test_view_disagreement_is_zero_at_the_exact_pose_of_exact_labels(models, fra
     along = T.copy()
     along[:3, 3] += 3.0 * a.ray_directions(a.project(T[:3, 3][None]))[0]
     assert view_disagreement_mm(cost.select_views(0), frames[1][:1], along, models[1].focal_point_mm)["A"] < 0.3
+
+
+def test_single_view_evidence_prices_each_view_move(models, frames):
+    T = POSES[1]
+    maps = [DistanceMaps(f.view, f.labels, occlusion_aware=True) for f in frames[1]]
+    cost = PoseCost(models[1].points, maps).capped(1.0)
+    exact = single_view_evidence(cost, frames[1], T, models[1].focal_point_mm)
+    for name, e in exact.items():
+        assert e.gain_px2 <= 0.05 * max(e.cost_px2, 1e-3), (name, e)
+    # Across plane A's ray, 1.5 mm off: view A's own optimum brings the focal point back, and the
+    # move costs view A what it gains over the pose moved.
+    a = frames[1][0].view
+    ray = a.ray_directions(a.project(T[:3, 3][None]))[0]
+    across = np.cross(ray, [0.0, 0.0, 1.0])
+    moved = T.copy()
+    moved[:3, 3] += 1.5 * across / np.linalg.norm(across)
+    evidence = single_view_evidence(cost, frames[1], moved, models[1].focal_point_mm)["A"]
+    assert evidence.cost_px2 == pytest.approx(cost.select_views(0)(moved), rel=1e-12)
+    assert evidence.move_mm > 1.0
+    assert evidence.own_optimum_cost_px2 < 0.5 * evidence.cost_px2
+    assert evidence.relative_gain == pytest.approx(evidence.gain_px2 / evidence.own_optimum_cost_px2)
+    assert view_disagreement_mm(cost, frames[1], moved, models[1].focal_point_mm)["A"] == evidence.move_mm

@@ -70,8 +70,9 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
     Returns:
         One row per (pose, init): ``error_mm``, ``rotation_error_deg`` (up to a half turn where the
         model looks the same after one), ``half_turned``, ``verdict_ok``, ``success``, ``failure``,
-        per view ``rms_<view>``, ``body_rms_<view>``, ``unexplained_<view>``, ``disagreement_mm_<view>``
-        (px, fraction, mm; NaN where not reached), ``seconds``.
+        per view ``rms_<view>``, ``body_rms_<view>``, ``unexplained_<view>``, ``disagreement_mm_<view>``,
+        ``gain_px2_<view>`` and ``relative_gain_<view>`` (px, fraction, mm, px², ratio: the verdict's
+        figures; NaN where not reached), ``seconds``.
 
     Raises:
         ValueError: ``workers`` not an integer >= 1, or given with ``executor``.
@@ -147,6 +148,8 @@ def _estimates(i, frames, T, truth, scene, name, segmenter, orientation, inits, 
                     Feature.TRANSDUCER.name.lower(), np.nan)
                 row[f"unexplained_{view_name}"] = v.unexplained_fraction.get(view_name, np.nan)
                 row[f"disagreement_mm_{view_name}"] = v.view_disagreement_mm.get(view_name, np.nan)
+                row[f"gain_px2_{view_name}"] = v.view_gain_px2.get(view_name, np.nan)
+                row[f"relative_gain_{view_name}"] = v.view_relative_gain.get(view_name, np.nan)
         row["seconds"] = time.perf_counter() - t0
         if name is not None:
             row["stages"] = name

@@ -87,7 +87,8 @@ def test_robustness_sweep_gives_the_same_rows_in_process_or_on_a_local_cluster()
     one = study.robustness_sweep(2, **kwargs)
     two = study.robustness_sweep(2, workers=2, **kwargs)  # a dask LocalCluster of 2 worker processes
     pd.testing.assert_frame_equal(one.drop(columns="seconds"), two.drop(columns="seconds"), check_exact=True)
-    assert {"rms_A", "body_rms_B", "unexplained_A", "disagreement_mm_B"} <= set(one.columns)
+    assert {"rms_A", "body_rms_B", "unexplained_A", "disagreement_mm_B", "gain_px2_A",
+            "relative_gain_B"} <= set(one.columns)
     assert one["verdict_ok"].all() and (one["error_mm"] < 2.0).all()
     with pytest.raises(ValueError, match="workers must be an integer >= 1, got 0"):
         study.robustness_sweep(2, workers=0, **kwargs)
