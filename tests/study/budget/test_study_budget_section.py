@@ -17,7 +17,7 @@ from histostudy.study.budget._section import (
 )
 
 #: The parameters cell of notebooks/07_error_budget.ipynb as stored (its defaults).
-DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, splat_device="numpy", pose_spacing_mm=0.47,
+DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, splat_device="cpu", pose_spacing_mm=0.47,
                 render_spacing_mm=0.25, background="phantom", pose_experiments=1, targeting_experiments=1,
                 learned_stages=True, sources=("manufacturing", "bubble_offset", "projection", "gantry_sag",
                                               "registration", "annotation", "robot", "phantom_motion"),

@@ -231,7 +231,7 @@ def test_stand_ins_part_names_the_manifest(tmp_path):
 # --- the notebook's parameters and set-up -----------------------------------------------------------
 
 #: The parameters cell of notebooks/03_orientation.ipynb as stored (its defaults).
-DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, splat_device="numpy",
+DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, splat_device="cpu",
                 render_spacing_mm=0.125, background="mixed", n_eval_images=3, weights="", cache_frames=True,
                 render_workers=1,
                 geometric_initialiser=True)

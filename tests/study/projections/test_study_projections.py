@@ -185,7 +185,7 @@ def test_label_content_timing_and_stand_ins_parts(tmp_path, models, pair):
 # --- the notebook's parameters and set-up -----------------------------------------------------------
 
 #: The parameters cell of notebooks/01_transducer_and_projections.ipynb as stored (its defaults).
-DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, splat_device="numpy", pose_spacing_mm=0.47,
+DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, splat_device="cpu", pose_spacing_mm=0.47,
                 render_spacing_mm=0.125, background="abdomen", timing_repeats=1, render_3d=True)
 
 
@@ -195,7 +195,7 @@ def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones(n
     assert {k: getattr(params, k) for k in DEFAULTS} == DEFAULTS
     assert set(cell) - set(DEFAULTS) == {"profile", "seed", "output_dir"}
     assert list(params.recorded()) == list(_section.RECORDED_PARAMETERS) == [k for k in DEFAULTS if k != "render_3d"]
-    assert params.render() == {"photons_per_pixel": 50000.0, "n_splats": 16, "splat_sigma_mm": 0.5, "device": None}
+    assert params.render() == {"photons_per_pixel": 50000.0, "n_splats": 16, "splat_sigma_mm": 0.5, "device": "cpu"}
     with pytest.raises(AttributeError):
         params.n_splats = 2  # frozen
 

@@ -213,7 +213,7 @@ def test_stand_ins_part_reports_the_detector_and_time(tmp_path):
 # --- the notebook's parameters and set-up -----------------------------------------------------------
 
 #: The parameters cell of notebooks/02_segmentation.ipynb as stored (its defaults).
-DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, splat_device="numpy",
+DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, splat_device="cpu",
                 render_spacing_mm=0.125, background="mixed", n_eval_images=3, weights="", cache_frames=True,
                 render_workers=1)
 
@@ -235,7 +235,7 @@ def test_missing_parameters_are_named_and_the_frames_are_the_held_out_ones():
     frames = params.frames(7)
     assert frames.split == "eval" and frames.seed == 7 and frames.cache_dir is None
     assert frames.config == held_out.held_out_frames(7, 4, render_spacing_mm=0.125, photons_per_pixel=5e4, n_splats=16,
-                                                  splat_sigma_mm=0.5, background="mixed").config
+                                                  splat_sigma_mm=0.5, background="mixed", splat_device="cpu").config
 
 
 def test_prepare_loads_the_shipped_unet_and_the_frames():

@@ -16,7 +16,7 @@ from histostudy.study.targeting._section import (
 )
 
 #: The parameters cell of notebooks/05_targeting.ipynb as stored (its defaults).
-DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, splat_device="numpy", pose_spacing_mm=0.47,
+DEFAULTS = dict(photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, splat_device="cpu", pose_spacing_mm=0.47,
                 render_spacing_mm=0.47, background="phantom", n_experiments=1, zone_diameters_mm=(20.0, 25.0),
                 n_calibration_poses=4, pose_mode="fast", degradation="table1", learned_stages=True,
                 phantom_voxel_mm=0.5, cbct_voxel_mm=1.0, treatment_spacing_mm=(2.0, 2.0, 3.0),

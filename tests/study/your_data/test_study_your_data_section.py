@@ -22,7 +22,7 @@ from histostudy.study.your_data import _section as section_module
 DEFAULTS = dict(data_dir=None, target_mm=None, n_cine_frames=4, max_tracked_frames=4, stream_cine=True,
                 moving_cine_s=2.0, moving_cine_fps=7.5, moving_cine_speed_mm_s=10.0, max_queued_pairs=2,
                 photons_per_pixel=50000.0, n_splats=16, splat_sigma_mm=0.5, pose_spacing_mm=0.47, robot_host=None,
-                splat_device="numpy",
+                splat_device="cpu",
                 dry_run=True, speed_mm_s=50.0)
 
 
@@ -43,7 +43,7 @@ def test_the_parameters_are_the_notebooks_and_the_report_records_the_same_ones()
     assert list(params.recorded()) == list(study.YourDataConfig.RECORDED)
     assert params.recorded() == {k: DEFAULTS[k] for k in study.YourDataConfig.RECORDED}
     assert params.render() == {"photons_per_pixel": 50000.0, "n_splats": 16, "splat_sigma_mm": 0.5,
-                               "splat_device": "numpy"}
+                               "splat_device": "cpu"}
     with pytest.raises(AttributeError):
         params.dry_run = False  # frozen
     given = study.YourDataConfig(**{**DEFAULTS, "target_mm": [1, 2, 3], "moving_cine_s": 0})
