@@ -97,7 +97,8 @@ def run_facts(run: dict) -> list[str]:
     prov = run.get("provenance", {})
     notebooks = ", ".join(f"{md_code(n['name'])} ({md_escape(n.get('status', 'pending'))}"
                           + (", kept" if n.get("kept") else "")
-                          + (f", {n['seconds']:.0f} s)" if isinstance(n.get("seconds"), (int, float)) else ")")
+                          + (f", {n['seconds']:.0f} s" if isinstance(n.get("seconds"), (int, float)) else "")
+                          + _attempts_text(n) + ")"
                           for n in run.get("notebooks", []))
     lines = [f"- Profile: {md_code(run.get('profile'))} (seed {md_escape(run.get('seed'))})",
              f"- Commit: {md_code(prov.get('git_commit', 'unknown'))}",
@@ -113,11 +114,13 @@ def run_facts(run: dict) -> list[str]:
                         if restriction else ""))
     timed = [n for n in run.get("notebooks", []) if isinstance(n.get("seconds"), (int, float))]
     if timed:
-        total = sum(n["seconds"] for n in timed)
-        kept = sum(n["seconds"] for n in timed if n.get("kept"))
+        stopped = sum(_attempts_seconds(n) for n in timed)
+        total = sum(n["seconds"] for n in timed) + stopped
+        kept = sum(n["seconds"] + _attempts_seconds(n) for n in timed if n.get("kept"))
         wall = run.get("wall_seconds")
         lines.append(f"- Wall time of the sections: {_hours(total)}"
                      + (f", of which {_hours(kept)} in earlier runs whose sections were kept" if kept else "")
+                     + (f"; {_hours(stopped)} of the total in stopped attempts of resumed sections" if stopped else "")
                      + (f"; this run: {_hours(wall)}" if isinstance(wall, (int, float)) else ""))
     if run.get("sweeps"):
         lines.append(f"- Sweeps ran on: {md_code(run['sweeps'])} (docs/sweeps.md; the numbers do not depend on it)")
@@ -129,6 +132,21 @@ def run_facts(run: dict) -> list[str]:
                   "sweep's workers included; other: the section's time outside every stage):", "",
                   md_table(header, rows, ["l"] + ["r"] * (len(header) - 1)), ""]
     return lines
+
+
+def _attempts_seconds(notebook: dict) -> float:
+    """The wall time (s) of a section's stopped attempts before the run that finished it."""
+    attempts = notebook.get("earlier_attempts") or {}
+    seconds = attempts.get("seconds")
+    return float(seconds) if isinstance(seconds, (int, float)) else 0.0
+
+
+def _attempts_text(notebook: dict) -> str:
+    attempts = notebook.get("earlier_attempts") or {}
+    if not attempts.get("count"):
+        return ""
+    return (f", after {attempts['count']} stopped attempt{'s' if attempts['count'] != 1 else ''} of "
+            f"{_attempts_seconds(notebook):.0f} s")
 
 
 def stage_table(run: dict) -> tuple[list[str], list[list[str]], str] | None:

@@ -20,7 +20,17 @@ from histostudy.core.provenance import REPO_ROOT
 from .interrupts import StudyInterrupted, remove_temporaries, signals_interrupt, stop_kernels
 from .profiles import Profile, load_profile, validate_profile
 from .report import build_report, load_section, write_run_record
-from .section_keys import SectionKey, changed_parts, estimate_seconds, kept_section, record_key, remove_key, section_key
+from .section_keys import (
+    SectionKey,
+    changed_parts,
+    earlier_attempts,
+    estimate_seconds,
+    kept_section,
+    record_attempt,
+    record_key,
+    remove_key,
+    section_key,
+)
 
 __all__ = ["NotebookFailed", "discover_notebooks", "run_study", "section_stages", "select_notebooks"]
 
@@ -225,6 +235,8 @@ class _NotebookTask:
     key: SectionKey | None = None
     #: the stored record of the finished section this run keeps, or None: it runs (:meth:`prepare`)
     kept: dict | None = None
+    #: ``time.perf_counter()`` when its notebook started, None before
+    started: float | None = None
 
     @property
     def section_dir(self) -> Path:
@@ -253,16 +265,24 @@ class _NotebookTask:
         if kept is not None:
             self.entry.update(status="ok", kept=True, seconds=kept["seconds"], cpu_seconds=kept.get("cpu_seconds"),
                               finished_utc=kept.get("finished_utc"))
+            if kept.get("earlier_attempts"):
+                self.entry["earlier_attempts"] = kept["earlier_attempts"]
             self.entry.update(section_stages(self.section_dir, kept["seconds"], kept.get("cpu_seconds")))
             self.log(f"[{self.index}/{self.count}] {name}: unchanged since {kept.get('finished_utc')} "
                      f"(key {key.key[:12]}), kept ({kept['seconds']:.0f} s then)")
             return None
         why = "--force" if self.force else ", ".join(changed_parts(self.section_dir, key))
         remove_key(self.section_dir)
+        attempts = earlier_attempts(self.section_dir, key)
         self.entry.update(status="running", kept=False)
+        if attempts is not None:
+            self.entry["earlier_attempts"] = attempts
         self.log(f"[{self.index}/{self.count}] {name} (profile {self.profile.name}; runs: {why or 'no finished run'})"
-                 + _estimate_text(self.estimate, self.left_s))
+                 + _estimate_text(self.estimate, self.left_s)
+                 + (f"; resumes after {attempts['count']} stopped attempt(s) of {_duration(attempts['seconds'])}"
+                    if attempts else ""))
         t0, cpu0 = time.perf_counter(), cpu_seconds(own=False)
+        self.started = t0
         failure = None
         try:
             _execute(self.nb_path, self.executed_path, params, kernel_name, self.progress)
@@ -276,14 +296,26 @@ class _NotebookTask:
             self.entry.update(section_stages(self.section_dir, self.entry["seconds"], self.entry["cpu_seconds"]))
             record_key(self.section_dir, key, notebook=name, profile=self.profile.name, parameters=params,
                        seconds=self.entry["seconds"], cpu_seconds=self.entry["cpu_seconds"],
-                       machine=provenance()["machine"])
+                       machine=provenance()["machine"], attempts=attempts)
             self.log(f"      {name} done in {self.entry['seconds']:.1f} s")
+        else:
+            self._record_attempt("failed")
         return failure
+
+    def _record_attempt(self, status: str) -> None:
+        """Keep this stopped attempt's time, which the section's finished run adds up (docs/report.md)."""
+        if self.key is None or self.kept or self.started is None:
+            return
+        # an interrupted kernel's thread may not have returned yet to set its time
+        seconds = self.entry.get("seconds", time.perf_counter() - self.started)
+        record_attempt(self.section_dir, self.key, status=status, seconds=seconds,
+                       cpu_seconds=self.entry.get("cpu_seconds"))
 
     def interrupted(self, signal_name: str) -> None:
         """Mark the section interrupted and remove what its killed kernel left half-written."""
         remove_temporaries(self.section_dir, self.out / "notebooks")
         self.entry.update(status="interrupted")
+        self._record_attempt("interrupted")
         self.log(f"      interrupted by {signal_name}: kernel stopped, section {self.nb_path.stem} marked interrupted")
 
 

@@ -15,11 +15,16 @@ from pathlib import Path
 from histostudy.core import atomic_write_json, files_digest, package_digest, shipped_dir
 from histostudy.core.provenance import git_commit, package_versions
 
-__all__ = ["KEY_FILE", "SectionKey", "changed_parts", "code_digest", "estimate_seconds", "kept_section", "record_key",
-           "remove_key", "section_key", "stored_key", "weights_digest"]
+__all__ = ["ATTEMPTS_FILE", "KEY_FILE", "SectionKey", "changed_parts", "code_digest", "earlier_attempts",
+           "estimate_seconds", "kept_section", "record_attempt", "record_key", "remove_key", "section_key",
+           "stored_key", "weights_digest"]
 
 #: The file in a section folder that holds its content key and the run that made it.
 KEY_FILE = "section_key.json"
+
+#: The file in a section folder that holds the section's stopped attempts under its current key
+#: (interrupted or failed); folded into :data:`KEY_FILE` when the section finishes.
+ATTEMPTS_FILE = "section_attempts.json"
 
 #: The libraries whose version enters the key: they compute the numbers.
 _KEY_LIBRARIES = ("python", "numpy", "scipy", "torch", "opencv-python-headless", "pandas", "numba")
@@ -110,16 +115,61 @@ def remove_key(section_dir: str | os.PathLike) -> None:
 
 
 def record_key(section_dir: str | os.PathLike, key: SectionKey, *, notebook: str, profile: str, parameters: dict,
-               seconds: float, cpu_seconds: float | None, machine: dict) -> Path:
+               seconds: float, cpu_seconds: float | None, machine: dict, attempts: dict | None = None) -> Path:
     """Write the finished section's key with what made it: the notebook, profile and parameters, its
-    wall time and CPU time (s; None where other notebooks ran beside it), the machine and commit."""
-    return atomic_write_json(Path(section_dir) / KEY_FILE, {
+    wall time and CPU time (s; None where other notebooks ran beside it), the machine and commit, and
+    ``attempts`` (:func:`earlier_attempts`: the stopped attempts before it, whose
+    :data:`ATTEMPTS_FILE` it then removes; None: none)."""
+    path = atomic_write_json(Path(section_dir) / KEY_FILE, {
         "key": key.key, "parts": key.parts, "notebook": notebook, "profile": profile,
         "parameters": {k: v for k, v in parameters.items() if k not in _PLACE_PARAMETERS},
         "seconds": float(seconds), "cpu_seconds": None if cpu_seconds is None else float(cpu_seconds),
+        "earlier_attempts": attempts,
         "finished_utc": datetime.now(UTC).isoformat(timespec="seconds"),
         "git_commit": git_commit(), "machine": machine,
     })
+    (Path(section_dir) / ATTEMPTS_FILE).unlink(missing_ok=True)
+    return path
+
+
+def record_attempt(section_dir: str | os.PathLike, key: SectionKey, *, status: str, seconds: float | None,
+                   cpu_seconds: float | None) -> Path:
+    """Add a stopped attempt of the section (``status`` "interrupted" or "failed", its wall and CPU
+    time in s, None where not known) to its :data:`ATTEMPTS_FILE`. Attempts under another key are
+    dropped: they computed something else, and their sweep tasks are not this key's."""
+    path = Path(section_dir) / ATTEMPTS_FILE
+    stored = _stored_attempts(path)
+    attempts = stored["attempts"] if stored is not None and stored["key"] == key.key else []
+    attempts.append({"status": status, "seconds": None if seconds is None else float(seconds),
+                     "cpu_seconds": None if cpu_seconds is None else float(cpu_seconds),
+                     "ended_utc": datetime.now(UTC).isoformat(timespec="seconds")})
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return atomic_write_json(path, {"key": key.key, "attempts": attempts})
+
+
+def earlier_attempts(section_dir: str | os.PathLike, key: SectionKey) -> dict | None:
+    """The section's stopped attempts under ``key`` (:func:`record_attempt`): ``{"count", "seconds",
+    "cpu_seconds"}``, the times summed (CPU None where an attempt's is not known), or None where there
+    were none. A resumed section's own time counts only its last attempt; these are the rest."""
+    stored = _stored_attempts(Path(section_dir) / ATTEMPTS_FILE)
+    if stored is None or stored["key"] != key.key or not stored["attempts"]:
+        return None
+    attempts = stored["attempts"]
+    cpu = [a.get("cpu_seconds") for a in attempts]
+    return {"count": len(attempts), "seconds": float(sum(a.get("seconds") or 0.0 for a in attempts)),
+            "cpu_seconds": None if any(c is None for c in cpu) else float(sum(cpu))}
+
+
+def _stored_attempts(path: Path) -> dict | None:
+    try:
+        with open(path, encoding="utf-8") as fh:
+            stored = json.load(fh)
+    except (OSError, ValueError):
+        return None
+    if not isinstance(stored, dict) or not isinstance(stored.get("key"), str) \
+            or not isinstance(stored.get("attempts"), list):
+        return None
+    return stored
 
 
 def estimate_seconds(notebook: str, parameters: dict, places) -> tuple[float, str] | None:

@@ -96,3 +96,15 @@ def test_this_run_shows_each_section_s_time_by_stage():
     # no section recorded stages (a run of an earlier version): no table
     assert stage_table({"notebooks": [{"name": "01_model", "seconds": 5.0}]}) is None
     assert not any("Time by stage" in line for line in run_facts({"notebooks": [{"name": "01", "seconds": 5.0}]}))
+
+
+def test_this_run_adds_a_resumed_section_s_stopped_attempts_to_the_time():
+    run = {"profile": "standard", "seed": 1, "wall_seconds": 700.0, "notebooks": [
+        {"name": "06_lab", "status": "ok", "kept": True, "seconds": 300.0},
+        {"name": "07_budget", "status": "ok", "seconds": 600.0,
+         "earlier_attempts": {"count": 2, "seconds": 3000.0, "cpu_seconds": None}}]}
+    lines = run_facts(run)
+    assert ("- Wall time of the sections: 65.0 min, of which 5.0 min in earlier runs whose sections were kept; "
+            "50.0 min of the total in stopped attempts of resumed sections; this run: 11.7 min") in lines
+    assert ("- Notebooks: `06_lab` (ok, kept, 300 s), `07_budget` (ok, 600 s, after 2 stopped attempts of 3000 s)"
+            in lines)

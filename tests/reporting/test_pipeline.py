@@ -210,6 +210,9 @@ def test_a_signal_stops_the_kernel_leaves_no_temporary_file_and_marks_the_sectio
     assert [n["status"] for n in run["notebooks"]] == ["ok", "interrupted"]
     # the interrupted section carries no content key: the next run does it again, keeping 01
     assert (out / "01_first" / "section_key.json").is_file() and not (out / "02_second" / "section_key.json").exists()
+    # the stopped attempt's time is kept, for the run that finishes the section to add up
+    attempts = json.loads((out / "02_second" / "section_attempts.json").read_text())["attempts"]
+    assert [a["status"] for a in attempts] == ["interrupted"] and attempts[0]["seconds"] >= 1.0
     report = (out / "REPORT.md").read_text()
     assert f"interrupted by {signal_name}" in report and "stale" not in report
 
@@ -344,3 +347,37 @@ def test_a_run_stopped_by_a_failure_resumes_without_redoing_the_finished_section
     assert (out / "01_first" / "results.json").stat().st_mtime_ns == stamp
     # the estimate of 02 comes from nowhere (it never finished); the finished 01 is not counted as time left
     assert any("02_second" in line and "no earlier run with these parameters" in line for line in logged), logged
+    # the failed attempt ran another notebook (another key): it is not this section's time
+    assert "earlier_attempts" not in resumed.record["notebooks"][1]
+    assert not (out / "02_second" / "section_attempts.json").exists()
+
+
+@pytest.mark.slow
+def test_a_resumed_section_adds_up_its_stopped_attempts(toy_notebooks, toy_profile, tmp_path):
+    from histostudy.reporting.section_keys import ATTEMPTS_FILE, KEY_FILE
+
+    # the same notebook (the same key) fails until the machine has what it needs, as a stopped run resumes
+    ready = tmp_path / "ready"
+    _notebook(toy_notebooks / "02_second.ipynb", [
+        f"import time\nfrom pathlib import Path\ntime.sleep(1.0)\nassert Path({str(ready)!r}).exists(), 'not yet'",
+        WRITE.format(name="02_second")])
+    out = tmp_path / "reports"
+    for _ in range(2):
+        with pytest.raises(NotebookFailed):
+            run_study(toy_profile, out, notebooks_dir=toy_notebooks, progress=False, log=lambda m: None)
+    attempts = json.loads((out / "02_second" / ATTEMPTS_FILE).read_text())["attempts"]
+    assert [a["status"] for a in attempts] == ["failed", "failed"] and all(a["seconds"] >= 1.0 for a in attempts)
+    ready.touch()
+    logged = []
+    finished = run_study(toy_profile, out, notebooks_dir=toy_notebooks, progress=False, log=logged.append)
+    entry = finished.record["notebooks"][1]
+    stopped = sum(a["seconds"] for a in attempts)
+    assert entry["earlier_attempts"] == {"count": 2, "seconds": pytest.approx(stopped),
+                                         "cpu_seconds": pytest.approx(sum(a["cpu_seconds"] for a in attempts))}
+    assert any("resumes after 2 stopped attempt(s)" in line for line in logged), logged
+    assert json.loads((out / "02_second" / KEY_FILE).read_text())["earlier_attempts"] == entry["earlier_attempts"]
+    assert not (out / "02_second" / ATTEMPTS_FILE).exists()
+    # kept by the next run, the section still counts them; the report adds them to the sections' time
+    kept = run_study(toy_profile, out, notebooks_dir=toy_notebooks, progress=False, log=lambda m: None)
+    assert kept.record["notebooks"][1]["kept"] and kept.record["notebooks"][1]["earlier_attempts"]["count"] == 2
+    assert f"after 2 stopped attempts of {stopped:.0f} s" in kept.report_md.read_text()
