@@ -109,7 +109,16 @@ class PoseConfig:
             the other's sits between two single-view optima and fails. Chosen on 30 random poses
             (seed 4242, shipped U-Net): estimates within 2 mm moved at most 1.25 mm, four of the
             five wrong ones 1.9-3.1 mm; validated on fresh seeds in docs/learned-stages.md. None
-            skips the check.
+            skips the move's check.
+        min_view_gain_px2: beyond the paper; with ``max_view_disagreement_mm``, a view's move beyond
+            that bound fails the pose only where the view's own optimum also lowers its eq. 3 cost
+            (capped as above) by at least this many px² (:attr:`PoseVerdict.view_gain_px2`): a long
+            move bought with almost no gain is a flat valley of one view's cost, not a conflict
+            (docs/campaigns.md, "What a view's move buys"). None: the move alone decides.
+        max_view_gain_px2: beyond the paper; with two or more views, a pose fails where a view's own
+            optimum lowers its eq. 3 cost by more than this many px², however short the move. None
+            skips the check. Both gain bounds are per network (its labels set the cost's scale):
+            calibrate them on held-out frames before use.
         raise_on_failure: raise :class:`PoseEstimationError` on a failed verdict (else return it).
         retry_hypotheses: when the refinement from the best initial hypothesis fails the verdict,
             refine the initialisation's other hypotheses too (``init="robust"`` keeps three) and
@@ -163,6 +172,8 @@ class PoseConfig:
     refine_truncation_px: float | None = 1.0
     verdict_truncation_px: float | None = 10.0
     max_view_disagreement_mm: float | None = 1.5
+    min_view_gain_px2: float | None = None
+    max_view_gain_px2: float | None = None
     max_body_rms_px: float | None = 1.0
     max_unexplained_fraction: float | None = 0.1
     largest_component: bool = True
@@ -208,10 +219,13 @@ class PoseConfig:
         if not (is_real(spread) and 0 < spread <= 180):
             raise ValueError(f"direction_spread_limit_deg must be a number in (0, 180], got {spread!r}")
         for name in ("refine_truncation_px", "verdict_truncation_px", "max_view_disagreement_mm", "max_body_rms_px",
-                     "max_unexplained_fraction"):
+                     "max_unexplained_fraction", "min_view_gain_px2", "max_view_gain_px2"):
             value = getattr(self, name)
             if value is not None and not (is_real(value) and np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be None or a finite number > 0, got {value!r}")
+        if self.min_view_gain_px2 is not None and self.max_view_disagreement_mm is None:
+            raise ValueError(f"min_view_gain_px2={self.min_view_gain_px2!r} qualifies max_view_disagreement_mm's "
+                             "check, which is off (None): set max_view_disagreement_mm too, or leave it None")
 
     @classmethod
     def field_names(cls) -> tuple[str, ...]:

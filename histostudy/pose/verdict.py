@@ -221,16 +221,25 @@ def check_unexplained(verdict: PoseVerdict, frames, labels, model, T, limit: flo
     verdict.ok = not verdict.reasons
 
 
-def check_view_agreement(verdict: PoseVerdict, cost: PoseCost, frames, T, focal_point_mm, limit_mm) -> None:
-    """Adds each view's :func:`view_disagreement_mm` to ``verdict``; fails it where one exceeds ``limit_mm``."""
+def check_view_agreement(verdict: PoseVerdict, cost: PoseCost, frames, T, focal_point_mm, limit_mm: float | None, *,
+                         min_gain_px2: float | None = None, max_gain_px2: float | None = None) -> None:
+    """Adds each view's :func:`single_view_evidence` to ``verdict`` (``view_disagreement_mm``,
+    ``view_gain_px2``, ``view_relative_gain``) and fails it where a view's move exceeds
+    ``limit_mm`` (None: no bound) while its gain is at least ``min_gain_px2`` (None: any gain), or
+    where its gain exceeds ``max_gain_px2`` (None: no bound); see :class:`~.options.PoseConfig`."""
     evidence = single_view_evidence(cost, frames, T, focal_point_mm)
     verdict.view_disagreement_mm = {name: e.move_mm for name, e in evidence.items()}
     verdict.view_gain_px2 = {name: e.gain_px2 for name, e in evidence.items()}
     verdict.view_relative_gain = {name: e.relative_gain for name, e in evidence.items()}
-    for name, move in verdict.view_disagreement_mm.items():
-        if not move <= limit_mm:
-            verdict.reasons.append(f"view {name!r} alone moves the focal point {move:.2f} mm across its ray "
-                                   f"(> {limit_mm} mm): the views disagree on the pose")
+    for name, e in evidence.items():
+        if limit_mm is not None and not e.move_mm <= limit_mm and (min_gain_px2 is None
+                                                                   or not e.gain_px2 < min_gain_px2):
+            bought = "" if min_gain_px2 is None else f", gaining {e.gain_px2:.3f} px² (>= {min_gain_px2} px²)"
+            verdict.reasons.append(f"view {name!r} alone moves the focal point {e.move_mm:.2f} mm across its ray "
+                                   f"(> {limit_mm} mm){bought}: the views disagree on the pose")
+        if max_gain_px2 is not None and not e.gain_px2 <= max_gain_px2:
+            verdict.reasons.append(f"view {name!r} alone lowers its cost by {e.gain_px2:.3f} px² (> {max_gain_px2} "
+                                   f"px²), moving the focal point {e.move_mm:.2f} mm: the views disagree on the pose")
     verdict.ok = not verdict.reasons
 
 
@@ -299,7 +308,8 @@ class PoseJudge:
                  unexplained_points_mm: np.ndarray | None = None):
         self.costs, self.views, self.labels, self.model, self.options = costs, list(views), list(labels), model, options
         self.label_scale = label_scale
-        self.check_agreement = len(self.views) > 1 and options.max_view_disagreement_mm is not None
+        self.check_agreement = len(self.views) > 1 and (options.max_view_disagreement_mm is not None
+                                                         or options.max_view_gain_px2 is not None)
         if unexplained_points_mm is None and options.max_unexplained_fraction is not None:
             # Stacked once here: every verdict projects all of the model's points.
             unexplained_points_mm = np.vstack([p for p in model.points.values() if len(p)])
@@ -316,5 +326,6 @@ class PoseJudge:
                               tolerance, points_mm=self.unexplained_points_mm)
         if verdict.ok and self.check_agreement:
             check_view_agreement(verdict, self.costs.consistency, self.views, T, self.model.focal_point_mm,
-                                 opts.max_view_disagreement_mm)
+                                 opts.max_view_disagreement_mm, min_gain_px2=opts.min_view_gain_px2,
+                                 max_gain_px2=opts.max_view_gain_px2)
         return verdict

@@ -201,6 +201,14 @@ def test_views_that_disagree_by_millimetres_are_refused_although_each_fits_well(
     agree = estimate_pose(frames[0], models[0], **kwargs)
     moves = agree.verdict.view_disagreement_mm
     assert agree.verdict.ok and max(moves.values()) < 0.5, moves
+    # The contradiction also shows in what each view's own optimum gains: 10x the agreeing views' most.
+    agreeing_gain = max(agree.verdict.view_gain_px2.values())
+    assert max(checked.verdict.view_gain_px2.values()) > 10 * agreeing_gain, (checked.verdict, agree.verdict)
+    by_gain = estimate_pose(contradicting, models[0], max_view_disagreement_mm=None,
+                            max_view_gain_px2=10 * agreeing_gain, **kwargs)
+    assert not by_gain.verdict.ok and any("lowers its cost by" in r for r in by_gain.verdict.reasons)
+    assert estimate_pose(frames[0], models[0], max_view_disagreement_mm=None, max_view_gain_px2=10 * agreeing_gain,
+                         **kwargs).verdict.ok
 
 
 def test_the_fast_refinement_runs_to_the_minimum_of_its_capped_cost(models, frames):

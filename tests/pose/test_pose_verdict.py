@@ -95,3 +95,41 @@ def test_single_view_evidence_prices_each_view_move(models, frames):
     assert evidence.own_optimum_cost_px2 < 0.5 * evidence.cost_px2
     assert evidence.relative_gain == pytest.approx(evidence.gain_px2 / evidence.own_optimum_cost_px2)
     assert view_disagreement_mm(cost, frames[1], moved, models[1].focal_point_mm)["A"] == evidence.move_mm
+
+
+def test_view_agreement_weighs_a_move_by_what_it_gains(models, frames):
+    from histostudy.pose.verdict import PoseVerdict, check_view_agreement
+
+    T = POSES[1]
+    maps = [DistanceMaps(f.view, f.labels, occlusion_aware=True) for f in frames[1]]
+    cost = PoseCost(models[1].points, maps).capped(1.0)
+    a = frames[1][0].view
+    across = np.cross(a.ray_directions(a.project(T[:3, 3][None]))[0], [0.0, 0.0, 1.0])
+    moved = T.copy()
+    moved[:3, 3] += 1.5 * across / np.linalg.norm(across)
+    gain = single_view_evidence(cost, frames[1][:1], moved, models[1].focal_point_mm)["A"].gain_px2
+    assert gain > 0
+
+    def judged(limit_mm, **bounds):
+        verdict = PoseVerdict(ok=True, reasons=[], rms_distance_px={}, inside_fraction={}, focal_offset_mm=0.0)
+        check_view_agreement(verdict, cost, frames[1], moved, models[1].focal_point_mm, limit_mm, **bounds)
+        assert verdict.view_gain_px2["A"] == gain
+        return verdict
+
+    assert not judged(0.5).ok
+    assert judged(0.5, min_gain_px2=2 * gain).ok  # a move bought with too little gain is no conflict
+    refused = judged(0.5, min_gain_px2=gain / 2)
+    assert not refused.ok and "gaining" in refused.reasons[0]
+    refused = judged(None, max_gain_px2=gain / 2)  # however short the move, the gain alone refuses
+    assert not refused.ok and "lowers its cost by" in refused.reasons[0]
+    assert judged(None, max_gain_px2=2 * gain).ok and judged(None).ok
+
+
+def test_pose_config_refuses_a_gain_bound_without_its_check():
+    from histostudy.pose import PoseConfig
+
+    with pytest.raises(ValueError, match="min_view_gain_px2=0.01 qualifies max_view_disagreement_mm"):
+        PoseConfig(min_view_gain_px2=0.01, max_view_disagreement_mm=None)
+    with pytest.raises(ValueError, match="max_view_gain_px2 must be None or a finite number > 0, got -1"):
+        PoseConfig(max_view_gain_px2=-1)
+    assert PoseConfig(max_view_gain_px2=0.1, max_view_disagreement_mm=None).max_view_gain_px2 == 0.1
