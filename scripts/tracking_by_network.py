@@ -43,6 +43,38 @@ def moving_poses(n: int):
     return poses
 
 
+def cine_frames(n_pairs: int):
+    """``(poses, pairs)``: :func:`moving_poses`' ``n_pairs`` poses and their frame pairs (images of the
+    default bi-plane C-arm's two views), through DICOM XA as the receiver gets them
+    (tests/lab/test_receiver.py's cine)."""
+    import numpy as np
+
+    from histostudy.imaging import (
+        default_biplane,
+        detector_counts,
+        load_frame,
+        random_background,
+        render_frame,
+        write_xa,
+    )
+    from histostudy.transducer import TransducerModel
+
+    views = default_biplane()
+    poses = moving_poses(n_pairs)
+    folder = Path(tempfile.mkdtemp(prefix="tracking-by-network-"))
+    render_model = TransducerModel.build(spacing_mm=0.25)
+    scene = random_background(np.random.default_rng(4), "phantom")
+    rng = np.random.default_rng(5)
+    paths = {}
+    for view in views:
+        counts = np.stack([detector_counts(render_frame(render_model, T, view, rng=rng, background=scene).image)
+                           for T in poses])
+        paths[view.name] = write_xa(folder / f"{view.name}.dcm", view, counts, frame_time_ms=66.7, uid_seed="cine")
+    pairs = [[load_frame(paths[v.name], v, line_integrals=False, frame_index=i).image for v in views]
+             for i in range(n_pairs)]
+    return poses, pairs
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pairs", type=int, default=10, help="frame pairs of the cine (default 10)")
@@ -53,32 +85,14 @@ def main(argv=None) -> int:
     import numpy as np
 
     from histostudy.core import machine_summary
-    from histostudy.imaging import (
-        default_biplane,
-        detector_counts,
-        load_frame,
-        random_background,
-        render_frame,
-        write_xa,
-    )
+    from histostudy.imaging import default_biplane
     from histostudy.learning import UNetRunner, default_segmenter, default_vgg19
     from histostudy.pose import ConicOrientation, Tracker, TrackingConfig
     from histostudy.transducer import TransducerModel
 
     print(machine_summary())
     views = default_biplane()
-    poses = moving_poses(args.pairs)
-    folder = Path(tempfile.mkdtemp(prefix="tracking-by-network-"))
-    render_model = TransducerModel.build(spacing_mm=0.25)
-    scene = random_background(np.random.default_rng(4), "phantom")
-    rng = np.random.default_rng(5)
-    paths = {}
-    for view in views:
-        counts = np.stack([detector_counts(render_frame(render_model, T, view, rng=rng, background=scene).image)
-                           for T in poses])
-        paths[view.name] = write_xa(folder / f"{view.name}.dcm", view, counts, frame_time_ms=66.7, uid_seed="cine")
-    frames = [[load_frame(paths[v.name], v, line_integrals=False, frame_index=i).image for v in views]
-              for i in range(args.pairs)]
+    poses, frames = cine_frames(args.pairs)
 
     model = TransducerModel.build(spacing_mm=0.47)
     networks = {"shipped": default_segmenter()}

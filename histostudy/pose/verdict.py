@@ -21,8 +21,8 @@ from .options import PoseConfig
 from .refine import refine_levenberg_marquardt
 from .truncations import PoseCosts
 
-__all__ = ["PoseJudge", "PoseVerdict", "SingleViewEvidence", "check_unexplained", "check_view_agreement",
-           "judge_fit", "single_view_evidence", "unexplained_fraction", "view_disagreement_mm"]
+__all__ = ["PoseJudge", "PoseVerdict", "SingleViewEvidence", "agreement_reasons", "check_unexplained",
+           "check_view_agreement", "judge_fit", "single_view_evidence", "unexplained_fraction", "view_disagreement_mm"]
 
 
 def _view_of(view_or_frame) -> View:
@@ -221,25 +221,46 @@ def check_unexplained(verdict: PoseVerdict, frames, labels, model, T, limit: flo
     verdict.ok = not verdict.reasons
 
 
-def check_view_agreement(verdict: PoseVerdict, cost: PoseCost, frames, T, focal_point_mm, limit_mm: float | None, *,
-                         min_gain_px2: float | None = None, max_gain_px2: float | None = None) -> None:
-    """Adds each view's :func:`single_view_evidence` to ``verdict`` (``view_disagreement_mm``,
-    ``view_gain_px2``, ``view_relative_gain``) and fails it where a view's move exceeds
-    ``limit_mm`` (None: no bound) while its gain is at least ``min_gain_px2`` (None: any gain), or
-    where its gain exceeds ``max_gain_px2`` (None: no bound); see :class:`~.options.PoseConfig`."""
-    evidence = single_view_evidence(cost, frames, T, focal_point_mm)
-    verdict.view_disagreement_mm = {name: e.move_mm for name, e in evidence.items()}
-    verdict.view_gain_px2 = {name: e.gain_px2 for name, e in evidence.items()}
-    verdict.view_relative_gain = {name: e.relative_gain for name, e in evidence.items()}
+def agreement_reasons(evidence: dict[str, SingleViewEvidence], limit_mm: float | None, *,
+                      min_gain_px2: float | None = None, max_gain_px2: float | None = None) -> list[str]:
+    """Why the views' :func:`single_view_evidence` refuses a pose (empty: it does not).
+
+    A view fails the pose where its move exceeds ``limit_mm`` (None: no bound) while its gain is at
+    least ``min_gain_px2`` (None: any gain), or where its gain exceeds ``max_gain_px2`` (None: no
+    bound); see :class:`~.options.PoseConfig`'s ``max_view_disagreement_mm``, ``min_view_gain_px2``
+    and ``max_view_gain_px2``.
+
+    Args:
+        evidence: per view name, what that view alone says (:class:`SingleViewEvidence`).
+        limit_mm: the largest move across a view's ray (mm).
+        min_gain_px2: the least gain (px²) that makes a long move count.
+        max_gain_px2: the largest gain (px²) a view may find, whatever its move.
+
+    Returns:
+        One sentence per failed bound and view.
+    """
+    reasons = []
     for name, e in evidence.items():
         if limit_mm is not None and not e.move_mm <= limit_mm and (min_gain_px2 is None
                                                                    or not e.gain_px2 < min_gain_px2):
             bought = "" if min_gain_px2 is None else f", gaining {e.gain_px2:.3f} px² (>= {min_gain_px2} px²)"
-            verdict.reasons.append(f"view {name!r} alone moves the focal point {e.move_mm:.2f} mm across its ray "
-                                   f"(> {limit_mm} mm){bought}: the views disagree on the pose")
+            reasons.append(f"view {name!r} alone moves the focal point {e.move_mm:.2f} mm across its ray "
+                           f"(> {limit_mm} mm){bought}: the views disagree on the pose")
         if max_gain_px2 is not None and not e.gain_px2 <= max_gain_px2:
-            verdict.reasons.append(f"view {name!r} alone lowers its cost by {e.gain_px2:.3f} px² (> {max_gain_px2} "
-                                   f"px²), moving the focal point {e.move_mm:.2f} mm: the views disagree on the pose")
+            reasons.append(f"view {name!r} alone lowers its cost by {e.gain_px2:.3f} px² (> {max_gain_px2} "
+                           f"px²), moving the focal point {e.move_mm:.2f} mm: the views disagree on the pose")
+    return reasons
+
+
+def check_view_agreement(verdict: PoseVerdict, cost: PoseCost, frames, T, focal_point_mm, limit_mm: float | None, *,
+                         min_gain_px2: float | None = None, max_gain_px2: float | None = None) -> None:
+    """Adds each view's :func:`single_view_evidence` to ``verdict`` (``view_disagreement_mm``,
+    ``view_gain_px2``, ``view_relative_gain``) and fails it for :func:`agreement_reasons`."""
+    evidence = single_view_evidence(cost, frames, T, focal_point_mm)
+    verdict.view_disagreement_mm = {name: e.move_mm for name, e in evidence.items()}
+    verdict.view_gain_px2 = {name: e.gain_px2 for name, e in evidence.items()}
+    verdict.view_relative_gain = {name: e.relative_gain for name, e in evidence.items()}
+    verdict.reasons += agreement_reasons(evidence, limit_mm, min_gain_px2=min_gain_px2, max_gain_px2=max_gain_px2)
     verdict.ok = not verdict.reasons
 
 

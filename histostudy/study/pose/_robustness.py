@@ -15,7 +15,7 @@ import pandas as pd
 from histostudy.core import SweepExecutor, run_sweep
 from histostudy.imaging import View, random_background, render_frame
 from histostudy.learning import OracleOrientation, OrientationSource, Segmenter
-from histostudy.pose import PoseEstimationError, estimate_pose
+from histostudy.pose import PoseConfig, PoseEstimationError, estimate_pose
 from histostudy.transducer import Feature, TransducerModel, half_turn_symmetric
 
 from .experiments import PoseStudyConfig
@@ -35,7 +35,8 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
                      inits: Sequence[str] = ("robust", "paper"), mode: str = "fast",
                      success_mm: float = 2.0, segmenter: Segmenter | None = None,
                      orientation: OrientationSource | None = None, workers: int | None = None,
-                     executor: SweepExecutor | str | None = None, stage_sets: dict | None = None) -> pd.DataFrame:
+                     executor: SweepExecutor | str | None = None, stage_sets: dict | None = None,
+                     pose_options: PoseConfig | None = None) -> pd.DataFrame:
     """Initialisation success over random poses in the paper's training ranges (§II-B.2, §II-B.4).
 
     Each pose shows the focal point and the transducer's centre in every view (the transducer seen,
@@ -66,6 +67,9 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
             segmenter that draws nothing (``uses_rng = False``) segments a frame once for every set.
             The rows gain the column ``stages``. None: the one set of ``segmenter``, ``orientation``
             and ``inits``, without the column.
+        pose_options: the estimates' :class:`~histostudy.pose.PoseConfig` (its ``mode``, ``init`` and
+            ``raise_on_failure`` set by the sweep); None: the defaults. E.g. a verdict's bounds set
+            out of reach, so that every estimate's figures are measured and none refused by them.
 
     Returns:
         One row per (pose, init): ``error_mm``, ``rotation_error_deg`` (up to a half turn where the
@@ -92,15 +96,17 @@ def robustness_sweep(n_poses: int, *, pose_model: TransducerModel, render_model:
         (name, config.segmenter() if given["segmenter"] is None else given["segmenter"],
          OracleOrientation() if given["orientation"] is None else given["orientation"], tuple(given["inits"]))
         for name, given in sets]
+    if pose_options is not None and not isinstance(pose_options, PoseConfig):
+        raise TypeError(f"pose_options must be a histostudy.pose.PoseConfig or None, got {type(pose_options).__name__}")
     shared = dict(pose_model=pose_model, render_model=render_model, physical=physical, views=list(views),
                   config=config, stage_sets=resolved, mode=mode, success_mm=success_mm,
-                  half_turn=half_turn_symmetric(pose_model))
+                  half_turn=half_turn_symmetric(pose_model), pose_options=pose_options)
     per_pose = run_sweep(_sweep_pose, range(n_poses), seed=seed, executor=executor, shared=shared)
     return pd.DataFrame([row for rows in per_pose for row in rows])
 
 
 def _sweep_pose(i: int, seq: np.random.SeedSequence, *, pose_model, render_model, physical, views, config,
-                stage_sets, mode, success_mm, half_turn) -> list[dict]:
+                stage_sets, mode, success_mm, half_turn, pose_options=None) -> list[dict]:
     seq_pose, seq_scene, seq_render, seq_est = seq.spawn(4)
     rng_pose, rng_scene, rng_render = (np.random.default_rng(s) for s in (seq_pose, seq_scene, seq_render))
     T = random_pose_in_views(rng_pose, views, visible_points_mm=sweep_visible_points(pose_model))
@@ -116,12 +122,13 @@ def _sweep_pose(i: int, seq: np.random.SeedSequence, *, pose_model, render_model
         segmenter = segmented[id(segmenter)]
         rng_est = np.random.default_rng(seq_est)  # each set draws as a sweep of its own
         rows += _estimates(i, frames, T, truth, scene, name, segmenter, orientation, inits, rng_est,
-                           pose_model=pose_model, views=views, mode=mode, success_mm=success_mm, half_turn=half_turn)
+                           pose_model=pose_model, views=views, mode=mode, success_mm=success_mm, half_turn=half_turn,
+                           pose_options=pose_options)
     return rows
 
 
 def _estimates(i, frames, T, truth, scene, name, segmenter, orientation, inits, rng_est, *, pose_model, views, mode,
-               success_mm, half_turn) -> list[dict]:
+               success_mm, half_turn, pose_options=None) -> list[dict]:
     """The rows of one pose's estimates with one set of stages, an initialisation each."""
     rows = []
     for init in inits:
@@ -129,8 +136,8 @@ def _estimates(i, frames, T, truth, scene, name, segmenter, orientation, inits, 
         t0 = time.perf_counter()
         try:
             res = estimate_pose(frames, pose_model, segmenter=segmenter, orientation=orientation,
-                                rng=np.random.default_rng(rng_est.integers(2**63)), mode=mode, init=init,
-                                raise_on_failure=False)
+                                rng=np.random.default_rng(rng_est.integers(2**63)), options=pose_options, mode=mode,
+                                init=init, raise_on_failure=False)
         except PoseEstimationError as exc:  # nothing segmented in a view: no pose at all
             row.update(error_mm=np.nan, verdict_ok=False, success=False, failure=str(exc)[:120])
         else:
