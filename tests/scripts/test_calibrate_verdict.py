@@ -1,20 +1,12 @@
 """scripts/calibrate_verdict.py judges a rule as the verdict does, and offers today's rule among its
 candidates."""
 
-import importlib.util
-from pathlib import Path
-
 import pytest
-
-SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "calibrate_verdict.py"
 
 
 @pytest.fixture(scope="module")
-def script():
-    spec = importlib.util.spec_from_file_location("calibrate_verdict", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def script(load_script):
+    return load_script("calibrate_verdict")
 
 
 def test_a_rule_refuses_as_the_verdict_does(script):

@@ -2,7 +2,6 @@
 (T_carm_transducer = T_carm_base @ T_base_flange @ T_flange_transducer, the sources of its views,
 the box of its CBCT), and the figure the docs embed is there and small."""
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -13,15 +12,11 @@ from histostudy.geometry import make_transform, matrix_from_rotvec
 from histostudy.imaging import Volume, default_biplane, save_views, save_volume_nifti
 
 REPO = Path(__file__).resolve().parents[2]
-SCRIPT = REPO / "scripts" / "figure_frames.py"
 
 
 @pytest.fixture(scope="module")
-def figure_frames():
-    spec = importlib.util.spec_from_file_location("figure_frames", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def figure_frames(load_script):
+    return load_script("figure_frames")
 
 
 @pytest.fixture
