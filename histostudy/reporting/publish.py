@@ -11,12 +11,14 @@ import shutil
 from pathlib import Path
 
 from histostudy.core import atomic_write_json, atomic_write_text
+from histostudy.core.provenance import REPO_ROOT
 
 from .headline import headline_markdown
 from .pages import MAX_TABLE_ROWS, SECTION_PAGE, anchors_of, relink
 from .pipeline import discover_notebooks
 from .profiles import Profile, load_profile
 from .report import RESULTS_FILE, RUN_FILE, build_report, load_section
+from .section_keys import KEY_FILE
 from .twins import results_coverage
 
 __all__ = ["PUBLISHED_SUFFIXES", "README_HEADLINE_BEGIN", "README_HEADLINE_END", "publish_run", "readme_headline",
@@ -24,6 +26,8 @@ __all__ = ["PUBLISHED_SUFFIXES", "README_HEADLINE_BEGIN", "README_HEADLINE_END",
 
 #: The files of a section folder that are published (results, tables, figures).
 PUBLISHED_SUFFIXES = (".json", ".md", ".csv", ".png", ".svg")
+#: The published files that are text, which may name the machine's paths.
+PUBLISHED_TEXT_SUFFIXES = (".json", ".md", ".csv", ".svg")
 #: The markers of the README's block that holds the published headline.
 README_HEADLINE_BEGIN, README_HEADLINE_END = "<!-- published-headline:begin -->", "<!-- published-headline:end -->"
 _MAX_FILE_BYTES = 4 * 1024 * 1024
@@ -62,9 +66,20 @@ def _relative_run(run: dict) -> dict:
             entry["parameters"]["output_dir"] = entry["name"]
     out.get("provenance", {}).get("machine", {}).pop("executable", None)
     out.pop("notebooks_dir", None)  # a path of the machine that ran it
+    if isinstance(out.get("profile_source"), str) and os.path.isabs(out["profile_source"]):
+        out["profile_source"] = _package_relative(out["profile_source"])
     if out.get("failure"):
         out["failure"]["executed_notebook"] = None
     return out
+
+
+def _package_relative(path: str) -> str:
+    """A shipped file's path from the package's folder on (``histostudy/reporting/profiles/x.toml``),
+    else its name: the machine's checkout left out."""
+    parts = Path(path).parts
+    if "histostudy" not in parts:
+        return Path(path).name
+    return "/".join(parts[len(parts) - 1 - parts[::-1].index("histostudy"):])
 
 
 def _copy_section(source: Path, target: Path) -> None:
@@ -73,32 +88,61 @@ def _copy_section(source: Path, target: Path) -> None:
         if path.is_file() and path.suffix in PUBLISHED_SUFFIXES and path.stat().st_size <= _MAX_FILE_BYTES:
             dest = target / path.relative_to(source)
             dest.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(path, dest)  # a new file: mode 0o666 less the umask, as open() makes it
+            if path.name == KEY_FILE and path.parent == source:
+                record = json.loads(path.read_text(encoding="utf-8"))
+                (record.get("machine") or {}).pop("executable", None)  # a path of the machine that ran it
+                atomic_write_json(dest, record)
+            else:
+                shutil.copyfile(path, dest)  # a new file: mode 0o666 less the umask, as open() makes it
 
 
-def _publish_notebook(source: Path, target: Path, name: str, output_dir: str | None) -> None:
-    """The executed notebook ``source`` written to ``target`` with the machine's paths taken out: the
-    run's folder (the parent of the section's ``output_dir``) dropped from every text, papermill's
-    input and output paths named by the notebook alone."""
+def _publish_notebook(source: Path, target: Path, name: str) -> None:
+    """The executed notebook ``source`` written to ``target``, papermill's input and output paths
+    named by the notebook alone (:func:`_strip_machine_paths` takes the other paths out)."""
     notebook = json.loads(source.read_text(encoding="utf-8"))
-    root = str(Path(output_dir).parent) + os.sep if output_dir else None
-
-    def clean(value):
-        if isinstance(value, str):
-            return value.replace(root, "") if root else value
-        if isinstance(value, list):
-            return [clean(v) for v in value]
-        if isinstance(value, dict):
-            return {k: clean(v) for k, v in value.items()}
-        return value
-
-    notebook = clean(notebook)
     papermill = notebook.get("metadata", {}).get("papermill", {})
     for key in ("input_path", "output_path"):
         if key in papermill:
             papermill[key] = f"notebooks/{name}.ipynb"
     target.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(target, json.dumps(notebook, indent=1, ensure_ascii=False) + "\n")
+
+
+def _machine_roots(run: dict, source: Path) -> list[str]:
+    """The folders of the machine that made the run, as its files name them, longest first: the
+    run's folder (the parent of each section's ``output_dir``, and of the ``output_dir`` each
+    executed notebook ran with: a section kept from a run in another folder), and the checkout it
+    ran from (above its shipped profile, and this package's)."""
+    folders = set()
+    for entry in run.get("notebooks", []):
+        for output_dir in (entry.get("output_dir"), (entry.get("parameters") or {}).get("output_dir")):
+            if isinstance(output_dir, str) and os.path.isabs(output_dir):
+                folders.add(str(Path(output_dir).parent))
+        executed = source / "notebooks" / f"{entry['name']}.ipynb"
+        if executed.is_file():
+            papermill = json.loads(executed.read_text(encoding="utf-8")).get("metadata", {}).get("papermill", {})
+            ran_with = (papermill.get("parameters") or {}).get("output_dir")
+            if isinstance(ran_with, str) and os.path.isabs(ran_with):
+                folders.add(str(Path(ran_with).parent))
+    profile_source = run.get("profile_source")
+    if isinstance(profile_source, str) and Path(profile_source).parts[-4:-1] == ("histostudy", "reporting", "profiles"):
+        folders.add(str(Path(profile_source).parents[3]))
+    folders.add(str(REPO_ROOT))
+    return sorted((f.rstrip(os.sep) + os.sep for f in folders if f not in ("", os.sep)), key=len, reverse=True)
+
+
+def _strip_machine_paths(folder: Path, roots: list[str]) -> None:
+    """Take ``roots`` out of every published text file of ``folder``: a section's paths become
+    relative to the run (``02_segmentation/results.json``), a shipped file's to the checkout
+    (``data/models/unet_standard.safetensors``)."""
+    for path in folder.rglob("*"):
+        if path.is_file() and path.suffix in (*PUBLISHED_TEXT_SUFFIXES, ".ipynb", ".html"):
+            text = path.read_text(encoding="utf-8")
+            cleaned = text
+            for root in roots:
+                cleaned = cleaned.replace(root, "")
+            if cleaned != text:
+                atomic_write_text(path, cleaned)
 
 
 def _drop_long_table_markdown(folder: Path) -> None:
@@ -155,14 +199,14 @@ def publish_run(run_dir: str | os.PathLike, destination: str | os.PathLike, *, a
         for entry in run["notebooks"]:
             executed = source / "notebooks" / f"{entry['name']}.ipynb"
             if executed.is_file():  # the docs site shows it, outputs and all (docs/conf.py)
-                _publish_notebook(executed, staging / "notebooks" / executed.name, entry["name"],
-                                  (entry.get("parameters") or {}).get("output_dir") or entry.get("output_dir"))
+                _publish_notebook(executed, staging / "notebooks" / executed.name, entry["name"])
         record = _relative_run(run)
         record["notebooks"] = sorted(record["notebooks"] + [{"name": name, "status": "not run"} for name in missing],
                                      key=lambda entry: entry["name"])
         atomic_write_json(staging / RUN_FILE, record)
         build_report(staging, record)
         _drop_long_table_markdown(staging)
+        _strip_machine_paths(staging, _machine_roots(run, source))
         html = staging / "report.html"
         html_bytes = html.stat().st_size
         if html_bytes > max_html_bytes:

@@ -5,6 +5,7 @@ repository's own published runs checked against today's profiles."""
 import json
 import os
 import re
+from pathlib import Path
 
 import pytest
 
@@ -26,17 +27,26 @@ def _finished_run(folder, names=("01_transducer_and_projections", "02_segmentati
         folder.section(name, compare=[folder.paper_comparison("seg.global_accuracy")], image=True)
         (folder.root / name / "frames.npz").write_bytes(b"\0" * 64)
     (folder.root / "notebooks").mkdir(exist_ok=True)
-    for name in names:  # papermill's record names the machine's paths
-        executed = {"cells": [{"cell_type": "code", "source": f'output_dir = "{folder.root / name}"\n',
-                               "outputs": [{"output_type": "stream", "text": f"{folder.root / name}/results.json"}]}],
+    for i, name in enumerate(names):  # papermill's record names the machine's paths
+        # the second section is kept from a run in another folder, whose paths its notebook holds
+        ran_in = folder.root if i == 0 else Path("/elsewhere/reports")
+        executed = {"cells": [{"cell_type": "code", "source": f'output_dir = "{ran_in / name}"\n',
+                               "outputs": [{"output_type": "stream", "text": f"{ran_in / name}/results.json"}]}],
                     "metadata": {"papermill": {"input_path": "/home/me/histostudy/notebooks/x.ipynb",
-                                               "output_path": str(folder.root / "notebooks" / ".x.tmp.ipynb")}}}
+                                               "output_path": str(ran_in / "notebooks" / ".x.tmp.ipynb"),
+                                               "parameters": {"output_dir": str(ran_in / name)}}}}
         (folder.root / "notebooks" / f"{name}.ipynb").write_text(json.dumps(executed))
+        (folder.root / name / "section_key.json").write_text(json.dumps(
+            {"key": "0" * 64, "machine": {"cpu_model": "Test CPU", "executable": "/home/me/.venv/bin/python"}}))
     run = folder.run(profile, parameters={n: prof.parameters_for(n) | {"output_dir": str(folder.root / n)}
                                           for n in names})
     run["seed"] = prof.seed
     run["provenance"]["machine"] = {"cpu_model": "Test CPU", "cpus": 2, "executable": "/home/me/.venv/bin/python",
                                     "isa_flags": {"avx2": True}, "isa_restriction": {}}
+    run["profile_source"] = f"/home/me/histostudy/histostudy/reporting/profiles/{profile}.toml"
+    results = folder.root / names[0] / "results.json"  # a shipped file, named by the checkout's path
+    results.write_text(json.dumps({**json.loads(results.read_text()),
+                                   "weights": "/home/me/histostudy/data/models/unet_standard.safetensors"}))
     (folder.root / "run.json").write_text(json.dumps(run))
     return run
 
@@ -53,13 +63,20 @@ def test_publish_copies_results_tables_figures_and_executed_notebooks_not_caches
     assert sorted(p.name for p in (pub / "notebooks").iterdir()) == [
         "01_transducer_and_projections.ipynb", "02_segmentation.ipynb"]
     text = (pub / "notebooks" / "02_segmentation.ipynb").read_text()
-    assert str(folder.root) not in text and "/home/me" not in text
+    assert str(folder.root) not in text and "/home/me" not in text and "/elsewhere" not in text
     executed = json.loads(text)
     assert executed["cells"][0]["source"] == 'output_dir = "02_segmentation"\n'
     assert executed["metadata"]["papermill"]["input_path"] == "notebooks/02_segmentation.ipynb"
     run = json.loads((pub / "run.json").read_text())
     assert all(not os.path.isabs(n.get("output_dir", "")) for n in run["notebooks"])
     assert "executable" not in run["provenance"]["machine"]
+    assert run["profile_source"] == "histostudy/reporting/profiles/smoke.toml"
+    results = json.loads((pub / "01_transducer_and_projections" / "results.json").read_text())
+    assert results["weights"] == "data/models/unet_standard.safetensors"
+    for path in pub.rglob("*"):  # no published file names a path of the machine that made the run
+        if path.suffix in (".json", ".md", ".csv", ".ipynb"):
+            text = path.read_text()
+            assert "/home/me" not in text and "/elsewhere" not in text and str(folder.root) not in text, path
     # the notebooks that did not run are named, in order, as not run
     names = [n["name"] for n in run["notebooks"]]
     assert names == sorted(names) and len(names) == len(discover_notebooks(DEFAULT_NOTEBOOK_DIR))
