@@ -80,8 +80,14 @@ def section_key(notebook: str | os.PathLike, parameters: dict, *, package: str |
 
 def stored_key(section_dir: str | os.PathLike) -> dict | None:
     """The record of ``section_dir/section_key.json``, or None where there is none or it is unreadable."""
+    return _keyed_record(Path(section_dir) / KEY_FILE)
+
+
+def _keyed_record(path: Path) -> dict | None:
+    """The JSON object of ``path`` that names its content key (a string ``"key"``), or None where
+    there is none or it is unreadable."""
     try:
-        with open(Path(section_dir) / KEY_FILE, encoding="utf-8") as fh:
+        with open(path, encoding="utf-8") as fh:
             record = json.load(fh)
     except (OSError, ValueError):
         return None
@@ -161,15 +167,8 @@ def earlier_attempts(section_dir: str | os.PathLike, key: SectionKey) -> dict | 
 
 
 def _stored_attempts(path: Path) -> dict | None:
-    try:
-        with open(path, encoding="utf-8") as fh:
-            stored = json.load(fh)
-    except (OSError, ValueError):
-        return None
-    if not isinstance(stored, dict) or not isinstance(stored.get("key"), str) \
-            or not isinstance(stored.get("attempts"), list):
-        return None
-    return stored
+    stored = _keyed_record(path)
+    return stored if stored is not None and isinstance(stored.get("attempts"), list) else None
 
 
 def estimate_seconds(notebook: str, parameters: dict, places) -> tuple[float, str] | None:
