@@ -85,6 +85,15 @@ def _run(args) -> int:
     print(f"{spec.name}: run {entry['run']} ({entry['start']}): {entry['wall_minutes']:.1f} min, "
           f"{entry['cpu_hours']:.2f} CPU-hours, steps {entry['steps_before']} -> {entry['steps_after']}; "
           f"stopped: {entry['stopped']}")
+    if "paired" in entry:
+        print(f"held out ({entry['held_out']['frames']} frames, seed {entry['held_out']['seed']}) against "
+              f"{entry['baseline']['weights']}, frame by frame (candidate - baseline):")
+        for figure, paired in entry["paired"].items():
+            # None: undefined (no frame where both are defined; fewer than 2 differences for the test)
+            median, p = paired["median_difference"], paired["p_value"]
+            print(f"  {figure}: median difference {'undefined' if median is None else f'{median:+.2f}'}, better "
+                  f"on {paired['wins']} of {paired['n']} frames, worse on {paired['losses']}; Wilcoxon p = "
+                  f"{'undefined' if p is None else f'{p:.3g}'}")
     print(f"ledger: {spec.ledger_path}")
     return 0
 

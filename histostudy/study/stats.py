@@ -1,6 +1,7 @@
 """Evaluation metrics and statistics of the learned stages (§II-E.1-2, §III): segmentation metrics per
-image and class, one-way ANOVA and Tukey's HSD, and the angle statistics (MAE, Pearson, Moore-Penrose
-fit). A ratio whose denominator is 0 is NaN, left out of means (docs/study-sections.md, "02").
+image and class, one-way ANOVA and Tukey's HSD, the angle statistics (MAE, Pearson, Moore-Penrose
+fit), and the paired comparison of two networks on the same frames. A ratio whose denominator is 0
+is NaN, left out of means (docs/study-sections.md, "02").
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ __all__ = [
     "confusion_counts",
     "linear_fit",
     "mean_absolute_error",
+    "paired_comparison",
     "pearson",
     "segmentation_metrics",
     "tukey_hsd",
@@ -243,3 +245,49 @@ def angle_statistics(pred_rad, ref_rad, *, wrap: bool = False) -> dict:
     intercept, slope, r2 = linear_fit(r_deg, p_deg)
     return {"mae_deg": mae, "sd_deg": sd, "pearson_r": rho, "pearson_p": pval, "intercept_deg": intercept,
             "slope": slope, "r2": r2, "n": int(p.size)}
+
+
+@stage("statistics")
+def paired_comparison(candidate, baseline, *, higher_is_better: bool = True) -> dict:
+    """Two networks measured on the same frames: the per-frame differences and the Wilcoxon
+    signed-rank test of their median being 0 (two-sided; zero differences left out, as Wilcoxon's
+    original test).
+
+    A campaign's network is judged against the shipped one this way (docs/campaigns.md): the frames
+    are the same, so a per-frame difference removes the frames' own difficulty, which dominates the
+    spread of either network's figures over 40 frames.
+
+    Args:
+        candidate: the candidate's value per frame (NaN where undefined on that frame).
+        baseline: the baseline's value on the same frames, in the same order.
+        higher_is_better: whether a larger value is better (IoU: yes; an angle error: no); it sets
+            which frames count as wins.
+
+    Returns:
+        ``n`` (frames where both are defined), ``mean_difference`` and ``median_difference``
+        (candidate - baseline, in the values' unit), ``wins``, ``losses`` and ``ties`` (frames where
+        the candidate is better, worse, equal), ``wilcoxon_statistic`` and ``p_value`` (NaN for
+        fewer than 2 non-zero differences; 1.0 where every difference is 0).
+
+    Raises:
+        ValueError: ``candidate`` and ``baseline`` of different lengths, or empty.
+    """
+    c = np.asarray(candidate, dtype=np.float64).ravel()
+    b = np.asarray(baseline, dtype=np.float64).ravel()
+    if c.shape != b.shape or c.size == 0:
+        raise ValueError(f"candidate and baseline must be per-frame values of the same frames, got {c.size} "
+                         f"and {b.size} values")
+    both = np.isfinite(c) & np.isfinite(b)
+    d = c[both] - b[both]
+    better = d if higher_is_better else -d
+    out = {"n": int(d.size), "mean_difference": float(d.mean()) if d.size else math.nan,
+           "median_difference": float(np.median(d)) if d.size else math.nan,
+           "wins": int(np.sum(better > 0)), "losses": int(np.sum(better < 0)), "ties": int(np.sum(d == 0)),
+           "wilcoxon_statistic": math.nan, "p_value": math.nan}
+    nonzero = int(np.count_nonzero(d))
+    if d.size and nonzero == 0:
+        out["p_value"] = 1.0
+    elif nonzero >= 2:
+        res = _sps.wilcoxon(d, zero_method="wilcox", alternative="two-sided")
+        out.update(wilcoxon_statistic=float(res.statistic), p_value=float(res.pvalue))
+    return out

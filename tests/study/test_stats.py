@@ -11,6 +11,7 @@ from histostudy.study.stats import (
     confusion_counts,
     linear_fit,
     mean_absolute_error,
+    paired_comparison,
     pearson,
     segmentation_metrics,
     tukey_hsd,
@@ -120,3 +121,26 @@ def test_mae_wraps_azimuth_and_angle_statistics():
     s = angle_statistics(pred, ref, wrap=True)
     assert s["mae_deg"] == pytest.approx(1.625) and s["n"] == 4
     assert s["slope"] == pytest.approx(1.0, abs=0.02) and s["r2"] > 0.999 and s["pearson_r"] > 0.999
+
+
+def test_paired_comparison_counts_frames_and_gives_the_exact_signed_rank_p():
+    baseline = np.array([40.0, 35.0, 50.0, 20.0, 60.0, 45.0, np.nan, 30.0])
+    candidate = baseline + np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 9.0, 0.0])
+    out = paired_comparison(candidate, baseline)
+    # the NaN frame is left out, the tie counts as neither; 6 non-zero differences, all positive:
+    # the exact two-sided signed-rank p is 2 / 2**6 (only the all-positive and all-negative signs are as extreme)
+    assert (out["n"], out["wins"], out["losses"], out["ties"]) == (7, 6, 0, 1)
+    assert out["median_difference"] == 3.0 and out["mean_difference"] == pytest.approx(3.0)
+    assert out["p_value"] == pytest.approx(2 / 64) and out["wilcoxon_statistic"] == 0.0
+    # an error (lower is better): the same differences are losses
+    worse = paired_comparison(candidate, baseline, higher_is_better=False)
+    assert (worse["wins"], worse["losses"], worse["p_value"]) == (0, 6, out["p_value"])
+
+
+def test_paired_comparison_of_equal_or_too_few_frames_and_bad_input():
+    same = paired_comparison([1.0, 2.0, 3.0], [1.0, 2.0, 3.0])
+    assert (same["ties"], same["p_value"]) == (3, 1.0)
+    one = paired_comparison([2.0, np.nan], [1.0, 1.0])
+    assert one["n"] == 1 and one["wins"] == 1 and np.isnan(one["p_value"])
+    with pytest.raises(ValueError, match="same frames, got 2 and 3"):
+        paired_comparison([1.0, 2.0], [1.0, 2.0, 3.0])

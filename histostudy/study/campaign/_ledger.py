@@ -66,7 +66,10 @@ def ledger_table(runs: list[dict]) -> pd.DataFrame:
         One row per step: when, where (CPU or GPU), how it started, wall minutes, CPU-hours (this
         step's training and the campaign's to date), training steps to date, and the held-out
         figures (a U-Net's screws precision / recall / IoU and pixel accuracy, percent; a VGG19's
-        azimuth and elevation MAE and median direction error, deg) with their seed and frames.
+        azimuth and elevation MAE and median direction error, deg) with their seed and frames; where
+        the step measured its baseline on the same frames, the baseline's figure beside it and the
+        paired comparison (``*_median_diff``: the median per-frame difference, candidate - baseline;
+        ``*_wins``: frames where the candidate is better, of ``n``; ``*_p``: Wilcoxon's two-sided p).
     """
     rows, total = [], 0.0
     for run in runs:
@@ -76,13 +79,25 @@ def ledger_table(runs: list[dict]) -> pd.DataFrame:
                "device": run.get("machine", {}).get("device", ""), "start": run.get("start", ""),
                "wall_min": run.get("wall_minutes"), "cpu_h": run.get("cpu_hours"), "cpu_h_total": total,
                "steps": run.get("steps_after"), "train_frames": run.get("n_train"), "stopped": run.get("stopped", "")}
+        baseline = run.get("baseline", {}).get("held_out", {})
         if "per_class" in held:
             screws = held["per_class"]["screws"]
             row.update(screws_precision=screws["precision"], screws_recall=screws["recall"],
                        screws_iou=screws["iou"], pixel_accuracy=held.get("global_accuracy"))
+            if baseline:
+                row.update(_paired_columns("screws_iou", baseline["per_class"]["screws"]["iou"],
+                                           run["paired"]["screws"]))
         elif held:
             row.update(azimuth_mae_deg=held.get("azimuth_mae_deg"), elevation_mae_deg=held.get("elevation_mae_deg"),
                        direction_median_deg=held.get("direction_median_deg"))
+            if baseline:
+                row.update(_paired_columns("direction_deg", baseline["direction_median_deg"],
+                                           run["paired"]["direction_error_deg"]))
         row.update(held_out_seed=held.get("seed"), held_out_frames=held.get("frames"))
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def _paired_columns(figure: str, baseline_value, paired: dict) -> dict:
+    return {f"baseline_{figure}": baseline_value, f"{figure}_median_diff": paired["median_difference"],
+            f"{figure}_wins": f"{paired['wins']}/{paired['n']}", f"{figure}_p": paired["p_value"]}

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from histostudy.core import check_count
 from histostudy.core.provenance import REPO_ROOT
-from histostudy.learning import TrainingConfig
+from histostudy.learning import MODELS_DIR, TrainingConfig
 
 __all__ = ["CAMPAIGNS_DIR", "CampaignSpec", "load_campaign"]
 
@@ -20,7 +20,9 @@ CAMPAIGNS_DIR = REPO_ROOT / "data" / "campaigns"
 
 _NAME = re.compile(r"[a-z0-9][a-z0-9_.-]*")
 _TOP_KEYS = {"description", "seed", "training", "evaluation"}
-_EVALUATION_KEYS = {"frames", "render"}
+_EVALUATION_KEYS = {"frames", "render", "baseline"}
+#: the network a campaign of each task is compared with by default: the shipped one
+_SHIPPED_BASELINE = {"segmentation": "unet_standard", "orientation": "vgg19_standard"}
 
 
 @dataclass(frozen=True)
@@ -37,6 +39,10 @@ class CampaignSpec:
         eval_frames: held-out frames per evaluation (split ``eval`` of a seed drawn after the step).
         eval_render: keyword arguments of the held-out frames' :class:`~histostudy.learning.RenderConfig`
             (default: the study's: reference renderer, 0.125 mm models, mixed backgrounds).
+        baseline: the network each step's candidate is compared with, frame by frame, on the same
+            held-out frames (``[evaluation] baseline``: a path from the repository root, or ``false``
+            for none; default: the shipped network of the task, ``data/models/unet_standard`` or
+            ``vgg19_standard``); None: no comparison.
     """
 
     name: str
@@ -46,6 +52,7 @@ class CampaignSpec:
     training: TrainingConfig
     eval_frames: int = 40
     eval_render: dict = dataclasses.field(default_factory=dict)
+    baseline: Path | None = None
 
     @property
     def task(self) -> str:
@@ -112,7 +119,17 @@ def load_campaign(name: str, campaigns_dir=None) -> CampaignSpec:
         raise ValueError(f"{path}: [evaluation] has keys {sorted(evaluation)}; known: {sorted(_EVALUATION_KEYS)}")
     eval_frames = evaluation.get("frames", 40)
     check_count(eval_frames, "[evaluation] frames")
+    baseline = evaluation.get("baseline", True)
+    if baseline is True:
+        baseline = MODELS_DIR / f"{_SHIPPED_BASELINE[task]}.safetensors"
+    elif isinstance(baseline, str) and baseline.endswith(".safetensors"):
+        baseline = Path(baseline) if Path(baseline).is_absolute() else REPO_ROOT / baseline
+        if not baseline.is_file():
+            raise ValueError(f"{path}: [evaluation] baseline {str(baseline)!r} does not exist")
+    elif baseline is not False:
+        raise ValueError(f"{path}: [evaluation] baseline must be a .safetensors path from the repository root or "
+                         f"false, got {baseline!r}")
     check_count(table["seed"], "seed", minimum=0)
     return CampaignSpec(name=name, folder=root / name, description=str(table.get("description", "")),
                         seed=int(table["seed"]), training=config, eval_frames=int(eval_frames),
-                        eval_render=dict(evaluation.get("render", {})))
+                        eval_render=dict(evaluation.get("render", {})), baseline=baseline or None)

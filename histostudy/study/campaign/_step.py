@@ -1,6 +1,7 @@
 """One step of a campaign: train on from where the campaign stands on this machine (its checkpoint in
 the cache, else its committed restart weights, else from the start) for a number of minutes, measure
-the network on held-out frames of a seed drawn after the training, and add the step to the ledger."""
+the network on held-out frames of a seed drawn after the training, beside the baseline network on the
+same frames, and add the step to the ledger."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from pathlib import Path
 
 from histostudy.core import check_count, check_positive, cpu_seconds, git_commit
 from histostudy.core.machine import cpu_model, isa_flags
+from histostudy.core.provenance import REPO_ROOT
 from histostudy.learning import (
     TrainingConfig,
     default_cache_dir,
@@ -22,10 +24,11 @@ from histostudy.learning import (
     full_precision_copy,
     half_precision_copy,
     prerender_run,
+    shipped_model,
     train,
 )
 
-from ._held_out import evaluate_held_out
+from ._held_out import compare_held_out, evaluate_held_out
 from ._ledger import append_entry
 from ._spec import CampaignSpec
 
@@ -74,7 +77,10 @@ def run_campaign_step(spec: CampaignSpec, minutes: float, *, eval_seed: int, cac
     where the cache has none, from the campaign's committed float16 restart weights (a new run warm-
     started from them: optimiser state and schedule start again); else from the start. Frames are
     the cache's, rendered once per content (``render_workers`` processes render the missing ones
-    first). The ledger counts the CPU time of this process and its rendering processes.
+    first). The ledger counts the CPU time of this process and its rendering processes. The
+    campaign's baseline (the shipped network, unless its ``[evaluation] baseline`` says otherwise) is
+    measured on the same held-out frames, and the two compared frame by frame
+    (:func:`compare_held_out`): the entry's ``baseline`` and ``paired``.
 
     Args:
         spec: the campaign (:func:`~histostudy.study.campaign.load_campaign`).
@@ -141,6 +147,14 @@ def _step(spec, minutes, eval_seed, cache_dir, run_dir, eval_frames, render_work
     t_train, cpu_train = time.monotonic() - t0, cpu_seconds() - cpu0
     held_out = evaluate_held_out(spec.task, candidate, seed=eval_seed, n_frames=eval_frames, cache_dir=cache_dir,
                                  render=spec.eval_render, workers=render_workers)
+    baseline = _usable_baseline(spec, log)
+    compared = {}
+    if baseline is not None:
+        baseline_held = evaluate_held_out(spec.task, baseline, seed=eval_seed, n_frames=eval_frames,
+                                          cache_dir=cache_dir, render=spec.eval_render, workers=render_workers)
+        compared = {"baseline": {"weights": _shown(baseline), "sha256": _sha256_of(baseline),
+                                 "held_out": baseline_held},
+                    "paired": compare_held_out(spec.task, held_out, baseline_held)}
     cpu_eval = cpu_seconds() - cpu0 - cpu_train
     entry = {
         "started_utc": started.isoformat(timespec="seconds"),
@@ -153,10 +167,35 @@ def _step(spec, minutes, eval_seed, cache_dir, run_dir, eval_frames, render_work
         "eval_cpu_hours": cpu_eval / 3600.0, "frames_rendered": rendered, "n_train": cfg.n_train, "n_val": cfg.n_val,
         "steps_before": steps_before, "steps_after": result.steps, "epochs_total": len(result.history),
         "stopped": result.stopped, "validation": result.validation, "held_out": held_out,
-        "weights_sha256": manifest["sha256"],
+        "weights_sha256": manifest["sha256"], **compared,
     }
     if keep:
         restart = half_precision_copy(candidate, spec.folder / "restart")
         entry["kept_as_restart"] = json.loads(restart.read_text())["sha256"]
         log(f"{spec.name}: restart weights written to {restart.with_suffix('.safetensors')} (float16; commit them)")
     return append_entry(spec.ledger_path, spec.name, entry)
+
+
+def _usable_baseline(spec: CampaignSpec, log) -> Path | None:
+    """The campaign's baseline weights where they exist and match their manifest's hash, else None
+    (said in the log: the step is then recorded without a comparison)."""
+    if spec.baseline is None:
+        return None
+    weights = shipped_model(spec.baseline.stem, spec.baseline.parent)
+    if weights is None:
+        log(f"{spec.name}: the baseline {spec.baseline} is missing or fails its manifest's hash; "
+            f"this step is recorded without a comparison")
+    return weights
+
+
+def _sha256_of(weights: Path) -> str:
+    return json.loads(weights.with_suffix(".json").read_text(encoding="utf-8"))["sha256"]
+
+
+def _shown(path: Path) -> str:
+    """``path`` from the repository root where it lies inside it (a ledger is committed: no machine's
+    folders in it), else its name."""
+    try:
+        return path.resolve().relative_to(REPO_ROOT.resolve()).as_posix()
+    except ValueError:
+        return path.name

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from histostudy.cli import main
+from histostudy.learning import MODELS_DIR
 from histostudy.learning.checkpoints import load_checkpoint
 from histostudy.study.campaign import (
     campaign_run_dir,
@@ -57,6 +58,16 @@ def test_steps_resume_then_a_machine_without_the_cache_restarts_from_the_committ
     assert first["cpu_hours"] > 0 and first["held_out"]["seed"] == 11 and first["held_out"]["frames"] == 2
     for metrics in first["held_out"]["per_class"].values():
         assert all(v is None or 0.0 <= v <= 100.0 for v in metrics.values())  # None: undefined (NaN)
+    # the shipped U-Net on the same frames, and the two compared frame by frame
+    baseline = first["baseline"]
+    assert baseline["weights"] == "data/models/unet_standard.safetensors"
+    assert baseline["held_out"]["seed"] == 11 and baseline["held_out"]["frames"] == 2
+    assert baseline["sha256"] == json.loads((MODELS_DIR / "unet_standard.json").read_text())["sha256"]
+    assert set(first["paired"]) == set(first["held_out"]["per_class"])
+    for cls, paired in first["paired"].items():
+        both = [(c, b) for c, b in zip(first["held_out"]["per_frame"][cls], baseline["held_out"]["per_frame"][cls],
+                                       strict=True) if c is not None and b is not None]
+        assert paired["n"] == len(both) and paired["wins"] == sum(c > b for c, b in both)
 
     second = run_campaign_step(spec, 0.1, eval_seed=12, cache_dir=cache, keep=True, log=lambda m: None)
     assert second["start"] == "resumed" and second["steps_before"] == first["steps_after"]
@@ -77,6 +88,8 @@ def test_steps_resume_then_a_machine_without_the_cache_restarts_from_the_committ
     table = ledger_table(runs)
     assert np.allclose(table["cpu_h_total"], np.cumsum([r["cpu_hours"] for r in runs]))
     assert list(table["held_out_seed"]) == [11, 12, 13]
+    assert list(table["baseline_screws_iou"]) == [r["baseline"]["held_out"]["per_class"]["screws"]["iou"]
+                                                  for r in runs]
 
 
 def test_the_cli_prints_the_ledger_and_refuses_what_is_wrong(tmp_path, capsys):
@@ -97,11 +110,36 @@ def test_the_cli_prints_the_ledger_and_refuses_what_is_wrong(tmp_path, capsys):
     (lambda t: t.replace("n_val = 2", "n_val = 0"), "\\[training\\]: n_val"),
     (lambda t: t.replace("frames = 2", "frames = 0"), "\\[evaluation\\] frames"),
     (lambda t: t.replace("[evaluation]", "[evaluation]\nworkers = 2"), "\\[evaluation\\] has keys"),
+    (lambda t: t.replace("[evaluation]", "[evaluation]\nbaseline = 3"), "baseline must be a .safetensors path"),
+    (lambda t: t.replace("[evaluation]", '[evaluation]\nbaseline = "data/models/none.safetensors"'),
+     "baseline .*none.safetensors' does not exist"),
 ])
 def test_a_wrong_definition_is_refused_naming_the_file_and_the_key(tmp_path, edit, message):
     campaigns = _campaign(tmp_path / "campaigns", edit(TINY))
     with pytest.raises(ValueError, match=message):
         load_campaign("tiny", campaigns)
+
+
+def test_the_baseline_is_the_shipped_network_unless_the_definition_names_one_or_none(tmp_path):
+    campaigns = tmp_path / "campaigns"
+    assert load_campaign("tiny", _campaign(campaigns)).baseline == MODELS_DIR / "unet_standard.safetensors"
+    _campaign(campaigns, TINY.replace("[evaluation]", "[evaluation]\nbaseline = false"), name="alone")
+    assert load_campaign("alone", campaigns).baseline is None
+    named = '[evaluation]\nbaseline = "data/models/unet_tracking.safetensors"'
+    _campaign(campaigns, TINY.replace("[evaluation]", named), name="other")
+    assert load_campaign("other", campaigns).baseline.name == "unet_tracking.safetensors"
+
+
+def test_held_out_results_of_other_frames_are_not_compared():
+    from histostudy.study.campaign import compare_held_out
+
+    result = {"seed": 1, "frames": 2, "render_key": "k", "per_frame": {"direction_error_deg": [3.0, 4.0]}}
+    with pytest.raises(ValueError, match="other frames: seed 1 and 2"):
+        compare_held_out("orientation", result, {**result, "seed": 2})
+    with pytest.raises(ValueError, match="task must be"):
+        compare_held_out("tracking", result, result)
+    paired = compare_held_out("orientation", result, {**result, "per_frame": {"direction_error_deg": [5.0, 3.0]}})
+    assert (paired["direction_error_deg"]["wins"], paired["direction_error_deg"]["losses"]) == (1, 1)
 
 
 def test_wrong_arguments_are_refused_before_anything_runs(tmp_path):
