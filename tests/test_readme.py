@@ -64,11 +64,14 @@ def test_the_lab_block_runs_as_written_and_its_results_hold(tmp_path):
     assert np.linalg.norm(focal - np.asarray(plan["plan"]["target_mm"])) < 2.0
     lines = [json.loads(line) for line in (lab / "poses.jsonl").read_text().splitlines()]
     assert [line["pair_index"] for line in lines] == [0, 1, 2, 3]
-    accepted = [line for line in lines if line["accepted"]]
-    assert len(accepted) >= 3
-    for line in accepted:
+    # Every pair is posed near the truth, accepted or not. The verdict's view-agreement check (1.5 mm)
+    # refuses right poses of this cine too, how many depending on the CPU's inference (bfloat16 or
+    # float32 labels; on an AVX2-only EPYC 2 of 4 pairs, 0.3 and 0.7 mm off): docs/campaigns.md, "Why
+    # a better U-Net was refused".
+    assert any(line["accepted"] for line in lines)
+    for line in lines:
         true = truth["cine_T_carm_transducer"][line["frame_indices"][0]][:3, 3]
-        assert np.linalg.norm(np.asarray(line["focal_point_mm"]) - true) < 3.0
+        assert np.linalg.norm(np.asarray(line["focal_point_mm"]) - true) < 3.0, line
 
 
 def test_every_subcommand_and_option_of_the_synopsis_exists():

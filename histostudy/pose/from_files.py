@@ -163,6 +163,7 @@ def pose_record(result: PoseResult, frame_paths: Sequence[str | os.PathLike] = (
         "accepted": bool(verdict.ok),
         "verdict": {"reasons": list(verdict.reasons), "rms_distance_px": verdict.rms_distance_px,
                     "view_disagreement_mm": verdict.view_disagreement_mm,
+                    "view_gain_px2": verdict.view_gain_px2,
                     "unexplained_fraction": verdict.unexplained_fraction},
         "timings_s": result.timings_s,
         "half_turn": half_turn_reading(result.T_carm_transducer, model),

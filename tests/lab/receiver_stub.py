@@ -49,7 +49,8 @@ class StubTracker:
                 assert self.release.wait(30)
             self.last_kind = "from_scratch" if self.n == 1 else "warm"
             verdict = SimpleNamespace(ok=True, reasons=[], rms_distance_px=[1.0, 1.0],
-                                      view_disagreement_mm=[0.1, 0.1], unexplained_fraction=[0.0, 0.0])
+                                      view_disagreement_mm=[0.1, 0.1], view_gain_px2=[0.0, 0.0],
+                                      unexplained_fraction=[0.0, 0.0])
             focal = np.array([self.n, *(float(np.mean(image)) for image in images[:2])])
             yield SimpleNamespace(T_carm_transducer=np.eye(4), focal_point_mm=focal, cost=0.0, verdict=verdict,
                                   timings_s={"total": 0.0})

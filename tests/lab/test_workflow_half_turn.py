@@ -61,12 +61,13 @@ def test_the_half_turn_reading_keeps_the_focal_point_and_the_axis(setup):
 
 def test_a_pose_record_states_its_frame_and_both_readings(setup):
     verdict = SimpleNamespace(ok=True, reasons=[], rms_distance_px=[0.5, 0.6], view_disagreement_mm=0.2,
-                              unexplained_fraction=[0.01, 0.02])
+                              view_gain_px2=[0.003, 0.004], unexplained_fraction=[0.01, 0.02])
     result = SimpleNamespace(T_carm_transducer=setup.T, focal_point_mm=setup.T[:3, 3], cost=1.0, verdict=verdict,
                              timings_s={"total": 1.0})
     record = pose_record(result, ["A.dcm", "B.dcm"])  # as every caller calls it: the digital model
     assert record["frame"] == WORLD_FRAME and record["units"] == {"length": "mm"}
     assert record["frames"] == ["A.dcm", "B.dcm"] and record["accepted"] is True
+    assert record["verdict"]["view_gain_px2"] == [0.003, 0.004]  # what each view's own move would gain
     assert record["half_turn"]["symmetric"] is True  # the paper's transducer
     np.testing.assert_allclose(record["half_turn"]["T_carm_transducer_half_turn"], _turned(setup.T))
 
