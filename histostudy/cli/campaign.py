@@ -1,6 +1,7 @@
 """``histostudy campaign``: a learned stage's training campaign (docs/campaigns.md): ``run`` trains
 it some minutes more, from where it stands on this machine or from its committed weights, and
-measures it on held-out frames; ``ledger`` prints what every step ran and measured."""
+measures it on held-out frames; ``ledger`` prints what every step ran and measured; ``compare``
+measures the committed restart weights again beside the baseline, frame by frame."""
 
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ def _minutes(value: str) -> float:
 
 
 def add_parsers(sub, parents) -> None:
-    """Add ``histostudy campaign run|ledger``.
+    """Add ``histostudy campaign run|ledger|compare``.
 
     Args:
         sub: the subparsers of the ``histostudy`` parser.
@@ -37,8 +38,9 @@ def add_parsers(sub, parents) -> None:
                     "float16 weights, trains the minutes given, measures the network on held-out frames of a "
                     "seed drawn afterwards and adds a line to data/campaigns/<name>/ledger.json.",
         example="histostudy campaign run unet-w8-bank --minutes 60 --render-workers 2\n"
-                "histostudy campaign ledger unet-w8-bank")
-    actions = campaign.add_subparsers(dest="action", required=True, metavar="{run,ledger}")
+                "histostudy campaign ledger unet-w8-bank\n"
+                "histostudy campaign compare unet-w8-bank --render-workers 2")
+    actions = campaign.add_subparsers(dest="action", required=True, metavar="{run,ledger,compare}")
     run = actions.add_parser("run", parents=parents, help="train the campaign some minutes more and measure it")
     run.add_argument("name", help="the campaign (a folder of data/campaigns)")
     run.add_argument("--minutes", type=_minutes, required=True, help="training minutes of this run (wall)")
@@ -61,6 +63,21 @@ def add_parsers(sub, parents) -> None:
     ledger.add_argument("name", help="the campaign (a folder of data/campaigns)")
     ledger.add_argument("--campaigns-dir", default=None, help="folder of the campaigns (default: data/campaigns)")
     ledger.set_defaults(run=_ledger)
+    compare = actions.add_parser("compare", parents=parents,
+                                 help="the committed restart weights beside the baseline on the same held-out frames")
+    compare.add_argument("name", help="the campaign (a folder of data/campaigns)")
+    which = compare.add_mutually_exclusive_group()
+    which.add_argument("--run", type=positive_int, default=None, dest="ledger_run",
+                       help="the held-out frames of this ledger run (default: the run that kept the restart weights)")
+    which.add_argument("--eval-seed", type=int, default=None, help="held-out frames of this seed instead")
+    compare.add_argument("--eval-frames", type=positive_int, default=None,
+                         help="frames with --eval-seed (default: the campaign's [evaluation] frames)")
+    compare.add_argument("--render-workers", type=positive_int, default=1,
+                         help="processes that render missing frames (default 1)")
+    compare.add_argument("--campaigns-dir", default=None, help="folder of the campaigns (default: data/campaigns)")
+    compare.add_argument("--cache", default=None,
+                         help="frame cache (default: $HISTOSTUDY_CACHE or ~/.cache/histostudy)")
+    compare.set_defaults(run=_compare)
 
 
 def _run(args) -> int:
@@ -112,4 +129,36 @@ def _ledger(args) -> int:
         print("no run yet")
         return 0
     print(ledger_table(runs).to_markdown(index=False, floatfmt=".2f"))
+    return 0
+
+
+def _compare(args) -> int:
+    import pandas as pd
+
+    from histostudy.study.campaign import compare_restart_weights, load_campaign
+
+    try:
+        spec = load_campaign(args.name, args.campaigns_dir)
+        if args.eval_seed is not None and args.eval_seed < 0:
+            raise ValueError(f"--eval-seed must be an integer >= 0, got {args.eval_seed}")
+        out = compare_restart_weights(spec, run=args.ledger_run, eval_seed=args.eval_seed, eval_frames=args.eval_frames,
+                                      cache_dir=args.cache, workers=args.render_workers)
+    except ValueError as exc:
+        print(f"histostudy campaign compare: {exc}", file=sys.stderr)
+        return 2
+    where = f"run {out['run']}'s" if out["run"] is not None else "the"
+    print(f"# {spec.name}: restart weights {out['restart_sha256'][:12]} against {out['baseline_weights']}, on "
+          f"{where} {out['frames']} held-out frames (seed {out['seed']})\n")
+    rows = []
+    for figure, paired in out["paired"].items():
+        row = {"figure": figure}
+        if "per_class" in out["candidate"]:
+            for who in ("candidate", "baseline"):
+                m = out[who]["per_class"][figure]
+                row[f"{who} P / R / IoU (%)"] = f"{m['precision']:.1f} / {m['recall']:.1f} / {m['iou']:.1f}"
+        what = "IoU, points" if "per_class" in out["candidate"] else "deg"
+        row.update({f"median difference ({what})": f"{paired['median_difference']:+.2f}", "better / worse / n":
+                    f"{paired['wins']} / {paired['losses']} / {paired['n']}", "Wilcoxon p": f"{paired['p_value']:.2g}"})
+        rows.append(row)
+    print(pd.DataFrame(rows).to_markdown(index=False, disable_numparse=True))
     return 0

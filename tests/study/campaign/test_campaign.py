@@ -13,6 +13,7 @@ from histostudy.learning import MODELS_DIR
 from histostudy.learning.checkpoints import load_checkpoint
 from histostudy.study.campaign import (
     campaign_run_dir,
+    compare_restart_weights,
     ledger_table,
     load_campaign,
     read_ledger,
@@ -40,6 +41,11 @@ render = { render_spacing_mm = 0.47, label_spacing_mm = 0.47, n_splats = 2, spla
 frames = 2
 render = { render_spacing_mm = 0.47, label_spacing_mm = 0.47, n_splats = 2, splat_device = "cpu" }
 """
+
+
+def _floats(values) -> np.ndarray:
+    """A ledger's per-frame figures (None where undefined) as floats (NaN)."""
+    return np.array([np.nan if v is None else v for v in values], dtype=np.float64)
 
 
 def _campaign(root: Path, text: str = TINY, name: str = "tiny") -> Path:
@@ -75,6 +81,19 @@ def test_steps_resume_then_a_machine_without_the_cache_restarts_from_the_committ
     restart, manifest = load_checkpoint(spec.restart_weights)
     assert {str(t.dtype) for t in restart.values() if t.is_floating_point()} == {"torch.float16"}
     assert manifest["sha256"] == second["kept_as_restart"]
+
+    # the kept weights measured again beside the baseline, on the frames of the run that kept them
+    again = compare_restart_weights(spec, cache_dir=cache)
+    assert (again["run"], again["seed"], again["frames"]) == (2, 12, 2)
+    for cls in again["paired"]:
+        np.testing.assert_array_equal(_floats(again["baseline"]["per_frame"][cls]),
+                                      _floats(second["baseline"]["held_out"]["per_frame"][cls]))
+    with pytest.raises(ValueError, match="run or eval_seed, not both"):
+        compare_restart_weights(spec, run=1, eval_seed=3, cache_dir=cache)
+    with pytest.raises(ValueError, match="ledger's runs 1..2, got 9"):
+        compare_restart_weights(spec, run=9, cache_dir=cache)
+    assert main(["campaign", "compare", "tiny", "--run", "1", "--campaigns-dir", str(campaigns), "--cache",
+                 str(cache), "-q"]) == 0
 
     # another machine: no run in its cache, the committed weights in the repository
     other = tmp_path / "other-cache"
